@@ -1,0 +1,28 @@
+# The two commands of the README (`make demo`, `make test`) create or refresh .venv themselves.
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.kogei-installed
+PYTEST_WORKERS ?= 2
+
+.PHONY: venv test demo bench screenshots clean
+
+$(STAMP): pyproject.toml scripts/ensure-system-deps.sh
+	bash scripts/ensure-system-deps.sh
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest -n $(PYTEST_WORKERS) -q
+
+demo: $(STAMP)
+	$(VENV)/bin/kogei demo --out out/demo
+
+bench: $(STAMP)
+	$(PY) -m bench.run --out docs/BENCHMARKS.md
+
+clean:
+	rm -rf out .pytest_cache .hypothesis
