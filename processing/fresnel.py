@@ -26,8 +26,9 @@ def fresnel_conductor(cos_theta: ArrayLike, eta: ArrayLike) -> NDArray[np.float6
     cos_theta
         Cosine of the incidence angle, in [0, 1] (values outside are clipped).
     eta
-        Complex relative refractive index n + i k (k >= 0), broadcast against
-        ``cos_theta``; a real value gives the dielectric result.
+        Complex relative refractive index n + i k (n >= 0, k >= 0, eta != 0),
+        broadcast against ``cos_theta``; a real value gives the dielectric
+        result.  Bad values raise ValueError.
 
     Returns
     -------
@@ -41,15 +42,35 @@ def fresnel_conductor(cos_theta: ArrayLike, eta: ArrayLike) -> NDArray[np.float6
     >>> float(fresnel_conductor(0.0, 0.27 + 2.78j))     # grazing: a perfect mirror
     1.0
     """
-    cos_i = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
+    cos_i = _checked_cos(cos_theta)
     eta = np.asarray(eta, dtype=np.complex128)
-    sin2 = 1.0 - cos_i * cos_i
-    # cos of the (complex) refraction angle; principal root has Re >= 0 for k >= 0.
-    cos_t = np.sqrt(eta * eta - sin2 + 0j) / eta
-    r_s = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
-    r_p = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
-    f = 0.5 * (np.abs(r_s) ** 2 + np.abs(r_p) ** 2)
+    if not np.all(np.isfinite(eta)):
+        raise ValueError("eta contains NaN or infinite values")
+    if np.any(eta.imag < 0) or np.any(eta.real < 0) or np.any(eta == 0):
+        raise ValueError(
+            "eta must be n + i k with n >= 0, k >= 0 and eta != 0 (the refractiveindex.info "
+            "convention for absorbing media); take the complex conjugate of an index given as n - i k"
+        )
+    eta2 = eta * eta
+    # eta * cos(theta_t) = sqrt(eta^2 - sin^2), written as (eta^2 - 1) + cos^2 so
+    # that it stays accurate near grazing; the principal root has Re >= 0 and
+    # Im >= 0 for k >= 0.
+    root = np.sqrt((eta2 - 1.0) + cos_i * cos_i)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r_s = (cos_i - root) / (cos_i + root)
+        r_p = (eta2 * cos_i - root) / (eta2 * cos_i + root)
+        f = 0.5 * (np.abs(r_s) ** 2 + np.abs(r_p) ** 2)
+    # At grazing incidence both ratios have modulus 1 (the limit for every
+    # eta != 1; eta = 1 is the only 0/0 case).
+    f = np.where(cos_i <= 0.0, 1.0, f)
     return np.clip(f, 0.0, 1.0)
+
+
+def _checked_cos(cos_theta: ArrayLike) -> NDArray[np.float64]:
+    c = np.asarray(cos_theta, dtype=np.float64)
+    if not np.all(np.isfinite(c)):
+        raise ValueError("cos_theta contains NaN or infinite values")
+    return np.clip(c, 0.0, 1.0)
 
 
 def fresnel_dielectric(cos_theta: ArrayLike, n: ArrayLike) -> NDArray[np.float64]:
@@ -58,6 +79,18 @@ def fresnel_dielectric(cos_theta: ArrayLike, n: ArrayLike) -> NDArray[np.float64
     Uses the textbook real formula; for ``n < 1`` total internal reflection
     gives 1.  It equals :func:`fresnel_conductor` with ``k = 0``.
 
+    Parameters
+    ----------
+    cos_theta
+        Cosine of the incidence angle, in [0, 1] (values outside are clipped).
+    n
+        Real relative index (> 0), broadcast against ``cos_theta``.
+
+    Returns
+    -------
+    ndarray
+        Reflectance in [0, 1], shape ``broadcast(cos_theta, n)``.
+
     Examples
     --------
     >>> round(float(fresnel_dielectric(1.0, 1.5)), 4)
@@ -65,15 +98,19 @@ def fresnel_dielectric(cos_theta: ArrayLike, n: ArrayLike) -> NDArray[np.float64
     >>> float(fresnel_dielectric(0.0, 1.5))
     1.0
     """
-    cos_i = np.clip(np.asarray(cos_theta, dtype=np.float64), 0.0, 1.0)
+    cos_i = _checked_cos(cos_theta)
     n = np.asarray(n, dtype=np.float64)
-    sin2_t = (1.0 - cos_i * cos_i) / (n * n)
-    tir = sin2_t >= 1.0
-    cos_t = np.sqrt(np.clip(1.0 - sin2_t, 0.0, 1.0))
+    if not np.all(np.isfinite(n)) or np.any(n <= 0):
+        raise ValueError("the dielectric index n must be finite and > 0")
+    # (n cos(theta_t))^2 = n^2 - sin^2 = (n^2 - 1) + cos^2, accurate near grazing
+    # and for n close to 1; it is <= 0 under total internal reflection (n < 1).
+    arg = (n * n - 1.0) + cos_i * cos_i
+    tir = arg <= 0.0
+    n_cos_t = np.sqrt(np.clip(arg, 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
-        r_s = (cos_i - n * cos_t) / (cos_i + n * cos_t)
-        r_p = (n * cos_i - cos_t) / (n * cos_i + cos_t)
+        r_s = (cos_i - n_cos_t) / (cos_i + n_cos_t)
+        r_p = (n * n * cos_i - n_cos_t) / (n * n * cos_i + n_cos_t)
         f = 0.5 * (r_s * r_s + r_p * r_p)
-    # cos_i = 0 and n*cos_t = 0 together only at tir; both limits are 1.
+    # cos_i = 0 and n cos_t = 0 together only at n = 1 (grazing): the limit is 1.
     f = np.where(tir | ~np.isfinite(f), 1.0, f)
     return np.clip(f, 0.0, 1.0)

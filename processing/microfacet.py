@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import erf
+from scipy.special import erfc
 
 __all__ = [
     "beckmann_d",
@@ -26,6 +26,16 @@ __all__ = [
 ]
 
 _TINY = 1e-12
+
+
+def _checked_roughness(roughness: float | ArrayLike) -> NDArray[np.float64]:
+    sigma = np.asarray(roughness, dtype=np.float64)
+    if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
+        raise ValueError(
+            f"roughness (Beckmann RMS slope) must be finite and > 0, got {roughness!r}; "
+            "use a mirror lobe with a small roughness such as 1e-3 for a near-perfect mirror"
+        )
+    return sigma
 
 
 def beckmann_d(cos_h: ArrayLike, roughness: float | ArrayLike) -> NDArray[np.float64]:
@@ -50,7 +60,7 @@ def beckmann_d(cos_h: ArrayLike, roughness: float | ArrayLike) -> NDArray[np.flo
     1.2732
     """
     c = np.asarray(cos_h, dtype=np.float64)
-    s2 = np.asarray(roughness, dtype=np.float64) ** 2
+    s2 = _checked_roughness(roughness) ** 2
     c2 = np.clip(c * c, _TINY, 1.0)
     tan2 = (1.0 - c2) / c2
     with np.errstate(over="ignore", under="ignore"):
@@ -71,12 +81,13 @@ def smith_g1_beckmann(cos_v: ArrayLike, roughness: float | ArrayLike) -> NDArray
     0.0
     """
     c = np.clip(np.asarray(cos_v, dtype=np.float64), 0.0, 1.0)
-    sigma = np.asarray(roughness, dtype=np.float64)
+    sigma = _checked_roughness(roughness)
     sin = np.sqrt(np.clip(1.0 - c * c, 0.0, 1.0))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
         a = c / (sigma * sin)
-        # Lambda(a) = (erf(a) - 1)/2 + exp(-a^2)/(2 a sqrt(pi))
-        lam = 0.5 * (np.exp(-a * a) / (a * np.sqrt(np.pi)) - (1.0 - erf(a)))
+        # Lambda(a) = (erf(a) - 1)/2 + exp(-a^2)/(2 a sqrt(pi)); erfc keeps the
+        # difference accurate for large a.
+        lam = 0.5 * (np.exp(-a * a) / (a * np.sqrt(np.pi)) - erfc(a))
         g1 = 1.0 / (1.0 + lam)
     g1 = np.where(sin <= 0.0, 1.0, g1)          # normal incidence: a = inf
     g1 = np.where(c <= 0.0, 0.0, g1)            # grazing: fully masked
@@ -147,6 +158,7 @@ def microfacet_lobe(
         )
     valid = (ci > 0.0) & (co > 0.0)
     denom = 4.0 * np.where(valid, ci * co, 1.0)
-    with np.errstate(over="ignore", invalid="ignore"):
+    # cos_i * cos_o below ~1e-308 underflows; such degenerate configurations give 0.
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         val = d * g / denom
     return np.where(valid, np.nan_to_num(val, nan=0.0, posinf=0.0), 0.0)

@@ -1,0 +1,138 @@
+"""Renderer benchmarks (issue #2): speed ratio to bare ray casting, and the
+accuracy/time of each preset and spectral sampling against the reference render.
+
+Run through ``bench/run.py``; each case runs in its own process
+(``python -m bench.render_bench --case NAME``) and prints one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+
+import numpy as np
+
+from bench.common import peak_rss_mb
+
+SPEED_SIZE = (1024, 1024)
+ACCURACY_SIZE = (320, 240)
+
+
+def _hawk_job(size, preset, triangles, material=None, sky="none"):
+    from app.scene_build import build_job
+    from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, SkySpec
+
+    obj = ObjectSpec(procedural="hawk", procedural_args={"triangles": triangles})
+    if material:
+        obj.region_materials = {r: material for r in ("head", "beak", "cere", "eye", "pupil")}
+    spec = SceneSpec(
+        objects=[obj],
+        lights=[LightSpec("directional", (0.6, -0.9, 1.4), "D65", 1.0)],
+        sky=SkySpec(kind=sky, zenith=0.35, horizon=0.8, spectrum="D65"),
+        camera=CameraSpec(eye=(175.0, -150.0, 95.0), target=(2.0, 0.0, 38.0), fov_deg=30.0),
+        size=size,
+        preset=preset,
+    )
+    return build_job(spec, default_hawk_triangles=triangles)
+
+
+def case_speed(preset: str = "standard", repeats: int = 3) -> dict:
+    """1024x1024, ~1M triangles, one directional light with shadows, metal (gold, no mirror lobe,
+    no sky: exactly primary + shadow rays, so the baseline casts the same rays)."""
+    from processing.procedural_hawk import HAWK_PRESET_TRIANGLES, hawk_head
+    from render.renderer import cast_rays_baseline, render
+
+    tri = HAWK_PRESET_TRIANGLES["reference"]
+    regions = hawk_head(2000).region_names
+    from app.scene_build import build_job
+    from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, SkySpec
+
+    spec = SceneSpec(
+        objects=[ObjectSpec(procedural="hawk", procedural_args={"triangles": tri},
+                            region_materials={r: "gold:mirror=0" for r in regions})],
+        lights=[LightSpec("directional", (0.6, -0.9, 1.4), "D65", 1.0)],
+        sky=SkySpec(kind="none"),
+        camera=CameraSpec(eye=(175.0, -150.0, 95.0), target=(2.0, 0.0, 38.0), fov_deg=30.0),
+        size=SPEED_SIZE,
+        preset=preset,
+    )
+    job = build_job(spec, default_hawk_triangles=tri)
+    n_tri = sum(o.mesh.n_triangles for o in job.scene.objects)
+    render(job.scene, job.camera, job.settings)          # warm-up: BVH build, tables, imports
+    render_times, base_times = [], []
+    for _ in range(repeats):                              # interleaved: both see the same machine load
+        t0 = time.perf_counter()
+        render(job.scene, job.camera, job.settings)
+        render_times.append(time.perf_counter() - t0)
+        base_times.append(cast_rays_baseline(job.scene, job.camera, job.settings))
+    r, b = statistics.median(render_times), statistics.median(base_times)
+    return {"preset": preset, "triangles": n_tri, "size": list(SPEED_SIZE),
+            "samples_per_pixel": job.settings.samples_per_pixel,
+            "render_s": r, "cast_s": b, "ratio": r / b,
+            "ratios": [rt / bt for rt, bt in zip(render_times, base_times)],
+            "peak_rss_mb": peak_rss_mb()}
+
+
+def _accuracy_variants():
+    from render.presets import get_preset
+
+    ref = get_preset("reference")
+    variants = {
+        "draft preset": get_preset("draft"),
+        "standard preset": get_preset("standard"),
+        "reference preset, other seed (noise floor)": ref.replace(seed=ref.seed + 1),
+    }
+    for step, bands in ((10.0, 31), (20.0, 16), (300.0 / 7.0, 8)):
+        variants[f"reference, {bands} bands per pixel"] = ref.replace(spectral_step=step)
+    for step, bands in ((5.0, 61), (20.0, 16)):
+        variants[f"reference, per-material tables, {bands} bands"] = ref.replace(spectral_step=step, use_tables=True)
+    return ref, variants
+
+
+def case_accuracy() -> dict:
+    from processing.display import delta_e00, white_xyz
+    from processing.spectra import REFERENCE_GRID, light_spectrum
+    from processing.procedural_hawk import HAWK_PRESET_TRIANGLES
+    from render.renderer import render
+
+    tri = HAWK_PRESET_TRIANGLES["draft"]
+    job = _hawk_job(ACCURACY_SIZE, "reference", tri, sky="gradient")
+    ref_settings, variants = _accuracy_variants()
+    t0 = time.perf_counter()
+    ref = render(job.scene, job.camera, ref_settings)
+    ref_time = time.perf_counter() - t0
+    white = white_xyz(light_spectrum("D65", REFERENCE_GRID), REFERENCE_GRID)
+    mask = ref.mask > 0
+    rows = [{"variant": "reference preset", "settings": _describe(ref_settings), "seconds": ref_time,
+             "de_mean": 0.0, "de_p95": 0.0}]
+    for name, settings in variants.items():
+        t0 = time.perf_counter()
+        res = render(job.scene, job.camera, settings)
+        secs = time.perf_counter() - t0
+        de = np.asarray(delta_e00(res.xyz[mask], ref.xyz[mask], white))
+        rows.append({"variant": name, "settings": _describe(settings), "seconds": secs,
+                     "de_mean": float(de.mean()), "de_p95": float(np.percentile(de, 95))})
+    return {"size": list(ACCURACY_SIZE), "triangles": tri, "rows": rows, "peak_rss_mb": peak_rss_mb()}
+
+
+def _describe(s) -> str:
+    bands = int(round(300.0 / s.spectral_step)) + 1
+    return (f"{bands} bands, {'tables' if s.use_tables else 'per-pixel spectra'}, "
+            f"{s.samples_per_pixel} spp, {s.mirror_bounces} bounce(s), {s.mirror_rays} mirror ray(s)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--case", required=True, choices=["speed-standard", "speed-draft", "accuracy"])
+    args = ap.parse_args()
+    if args.case == "accuracy":
+        result = case_accuracy()
+    else:
+        result = case_speed(args.case.split("-", 1)[1])
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,790 @@
+"""Shading of ray hits: direct light with shadows, sky light, one mirror bounce.
+
+The colour signal of Matsuda et al., eq. (2) and (5), summed over the lights
+and lobes of a material::
+
+    L(lambda) = sum_lights sum_lobes w * geometry(i, o) * S(cos_d, lambda)
+                * E(lambda) * V * cos_i                                 (direct)
+              + sum_non-mirror-lobes albedo(cos_o, lambda) * Lsky_mean(n)  (sky)
+              + sum_mirror-lobes w * S(cos_d, lambda) * L(mirrored ray)     (mirror)
+
+with V the shadow-ray visibility and the inverse-square falloff of point
+lights.  Two interchangeable colour backends evaluate the spectral part:
+
+* :class:`SpectralBackend` (reference): :func:`processing.material.material_brdf`
+  over the grid's wavelengths for every sample; colours are spectra
+  ``(n, L)``, converted to XYZ at the end;
+* :class:`TableBackend` (standard, draft): colours are XYZ, stored
+  channel-major ``(3, n)``, read from the angular tables of
+  :mod:`render.tables`, which hold the same spectral integral precomputed per
+  (lobe, light).  Microfacet terms are evaluated only where the half vector
+  lies inside the lobe (elsewhere D is below ``exp(-D_CUTOFF)`` of its peak).
+
+The geometry (positions, interpolated normals, visibility, mirrored rays) is
+computed once per sample and shared by all lobes and both backends.  Vectors
+are stored as ``(3, m)`` float32 arrays (one contiguous row per coordinate),
+which keeps dot products and gathers cheap.
+
+Approximations (stated, and measured in the tests):
+
+* **Sky light on non-mirror lobes.**  Each lobe's directional albedo
+  ``A(cos_o, lambda)`` times the cosine-weighted mean sky radiance over the
+  hemisphere of the shading normal, ignoring occlusion of the sky by the
+  scene (no ambient occlusion) and the lobe's angular shape within the
+  gradient.  Exact for a uniform sky on an unoccluded surface.
+* **Mirror lobes** reflect the environment along the mirrored view ray
+  (the ideal direction, or, with ``mirror_rays > 0``, directions sampled from
+  the lobe's Beckmann distribution with weight ``G cos_d / (cos_o cos_h)``,
+  the unbiased estimator for D cos_h sampling).  With one bounce the ray is
+  traced: an object it hits is shaded with its direct light and sky light
+  (its own mirror lobes see the unoccluded sky); a miss sees the sky.  With
+  no bounce the mirrored direction sees the unoccluded sky.  In the table
+  path the product of the mirror's spectral factor and the reflected
+  object's spectrum is formed per wavelength for those rays.
+* **Lights** are points and directions (no area lights), so they are not
+  seen in mirrors except through the mirror lobe's own (narrow) D term.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import erfc
+
+from processing.material import Lobe, Material, material_brdf
+from processing.spectra import SpectralGrid
+from render.scene import Sky
+from render.tables import AngleTable, spectral_factor_table, table_index
+
+__all__ = [
+    "Hits",
+    "LobeGroup",
+    "MaterialPlan",
+    "LightPlan",
+    "plan_material",
+    "dot3",
+    "microfacet_geometry",
+    "smith_g1",
+    "sample_beckmann_normals",
+    "orthonormal_basis",
+    "SpectralBackend",
+    "TableBackend",
+    "ShadingContext",
+    "light_samples",
+    "shade",
+    "ALBEDO_TABLE_SIZE",
+    "D_CUTOFF",
+]
+
+_F32 = np.float32
+_SQRT_PI = math.sqrt(math.pi)
+
+#: Microfacet terms whose Beckmann exponent tan^2(theta_h) / sigma^2 exceeds
+#: this (D below exp(-30) = 1e-13 of its peak) are skipped in the table path.
+D_CUTOFF = 30.0
+
+#: Smith masking is 1 to float32 precision (1 - G1 < 1e-8) for
+#: a = cot(theta) / sigma above this; only smaller a are evaluated.
+_G1_ONE_ABOVE = 4.0
+
+#: Nodes over cos_o of the directional-albedo tables of sky light (the albedo is
+#: smooth in cos_o; the interpolation error is measured in the tests).
+ALBEDO_TABLE_SIZE = 65
+
+
+# --------------------------------------------------------------------------- vector helpers
+def dot3(a: NDArray[np.float32], b: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Dot products of ``(3, m)`` vector arrays (either may be one ``(3,)`` vector).
+
+    Examples
+    --------
+    >>> dot3(np.array([[1.0, 0.0], [0.0, 2.0], [0.0, 0.0]]), np.array([1.0, 1.0, 0.0])).tolist()
+    [1.0, 2.0]
+    """
+    if a.ndim == 1 and b.ndim == 1:
+        return np.asarray(a @ b)
+    if a.ndim == 1:
+        return a.astype(b.dtype, copy=False) @ b
+    if b.ndim == 1:
+        return b.astype(a.dtype, copy=False) @ a
+    out = a[0] * b[0]
+    out += a[1] * b[1]
+    out += a[2] * b[2]
+    return out
+
+
+def _normalise(v: NDArray[np.float32]) -> NDArray[np.float32]:
+    v *= _F32(1.0) / np.sqrt(dot3(v, v))
+    return v
+
+
+def _take(a: NDArray, idx: NDArray[np.intp] | None) -> NDArray:
+    """Columns ``idx`` of a ``(3, m)`` array or entries of an ``(m,)`` array (all when None)."""
+    if idx is None:
+        return a
+    return np.take(a, idx, axis=a.ndim - 1)
+
+
+# --------------------------------------------------------------------------- geometry per hit
+@dataclass(eq=False)
+class Hits:
+    """Surface geometry of ray hits, float32; vectors are ``(3, m)``.
+
+    Attributes
+    ----------
+    position
+        ``(3, m)`` hit points.
+    shading_normal
+        ``(3, m)`` unit normals interpolated from the vertex normals with the
+        barycentric weights, on the viewer's side.
+    geometric_normal
+        ``(3, m)`` unit face normals, on the viewer's side.
+    view
+        ``(3, m)`` unit directions from the hit toward the ray origin.
+    cos_o
+        ``(m,)`` shading normal . view, > 0.
+    material
+        ``(m,)`` global material number.
+    """
+
+    position: NDArray[np.float32]
+    shading_normal: NDArray[np.float32]
+    geometric_normal: NDArray[np.float32]
+    view: NDArray[np.float32]
+    cos_o: NDArray[np.float32]
+    material: NDArray[np.int32]
+
+    def __len__(self) -> int:
+        return int(self.cos_o.shape[0])
+
+    def take(self, idx: NDArray[np.intp]) -> "Hits":
+        """The subset of hits ``idx``."""
+        return Hits(
+            _take(self.position, idx), _take(self.shading_normal, idx), _take(self.geometric_normal, idx),
+            _take(self.view, idx), _take(self.cos_o, idx), _take(self.material, idx),
+        )
+
+
+# --------------------------------------------------------------------------- microfacet terms
+def smith_g1(cos_v: NDArray[np.float32], roughness: float) -> NDArray[np.float32]:
+    """Smith masking of the Beckmann distribution, float32.
+
+    The same function as :func:`processing.microfacet.smith_g1_beckmann`
+    (Walter et al. 2007, eq. (27)), written with ``erfc`` so the large-``a``
+    end needs no cancellation: ``Lambda = (exp(-a^2)/(a sqrt(pi)) - erfc(a)) / 2``
+    with ``a = cot(theta) / sigma``; it is evaluated only where
+    ``a < 4`` (elsewhere 1 - G1 < 1e-8).
+
+    Examples
+    --------
+    >>> smith_g1(np.array([1.0, 0.0], dtype=np.float32), 0.3).tolist()
+    [1.0, 0.0]
+    """
+    c = np.clip(np.asarray(cos_v, dtype=_F32), _F32(0.0), _F32(1.0))
+    s = np.sqrt(np.maximum(_F32(1.0) - c * c, _F32(0.0)))
+    # a < A  <=>  c < A sigma s
+    rows = np.flatnonzero(c < _F32(_G1_ONE_ABOVE * roughness) * s)
+    g = np.ones_like(c)
+    if rows.size:
+        cr = c[rows]
+        with np.errstate(divide="ignore", over="ignore", under="ignore", invalid="ignore"):
+            a = cr / (_F32(roughness) * s[rows])
+            lam = _F32(0.5) * (np.exp(-a * a) / (a * _F32(_SQRT_PI)) - erfc(a).astype(_F32))
+            gr = _F32(1.0) / (_F32(1.0) + lam)
+        g[rows] = np.where(cr > 0, np.nan_to_num(gr, nan=0.0, posinf=0.0), _F32(0.0))
+    return g
+
+
+def microfacet_geometry(
+    cos_i: NDArray[np.float32],
+    cos_o: NDArray[np.float32],
+    cos_h: NDArray[np.float32],
+    cos_d: NDArray[np.float32],
+    roughness: float,
+    shadowing: str = "smith",
+) -> NDArray[np.float32]:
+    """``D G / (4 cos_i cos_o)`` of a Beckmann lobe in 1/sr, float32.
+
+    The float32 counterpart of :func:`processing.microfacet.microfacet_lobe`
+    used by the table path.  Zero where either cosine is <= 0.
+
+    Examples
+    --------
+    >>> one = np.ones(1, dtype=np.float32)
+    >>> round(float(microfacet_geometry(one, one, one, one, 0.5)[0] * 4), 4)   # D(1) = 1/(pi s^2)
+    1.2732
+    """
+    s2 = _F32(roughness * roughness)
+    c2 = np.maximum(cos_h * cos_h, _F32(1e-12))
+    with np.errstate(over="ignore", under="ignore"):
+        d = np.exp((_F32(1.0) - _F32(1.0) / c2) / s2) / (_F32(math.pi) * s2 * c2 * c2)
+    d = np.where(cos_h > 0, d, _F32(0.0))
+    if shadowing == "smith":
+        g = smith_g1(cos_i, roughness) * smith_g1(cos_o, roughness)
+    elif shadowing in ("torrance-sparrow", "v-cavity"):
+        cd = np.maximum(cos_d, _F32(1e-12))
+        ch = np.clip(cos_h, _F32(0.0), _F32(1.0))
+        lo = np.minimum(np.clip(cos_o, _F32(0), _F32(1)), np.clip(cos_i, _F32(0), _F32(1)))
+        g = np.minimum(_F32(1.0), _F32(2.0) * ch * lo / cd)
+    elif shadowing == "none":
+        g = _F32(1.0)
+    else:
+        raise ValueError(f"shadowing={shadowing!r} is not known; use 'smith', 'torrance-sparrow' or 'none'")
+    valid = (cos_i > 0) & (cos_o > 0)
+    denom = _F32(4.0) * np.where(valid, cos_i * cos_o, _F32(1.0))
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = d * g / denom
+    return np.where(valid, np.nan_to_num(out, nan=0.0, posinf=0.0), _F32(0.0)).astype(_F32, copy=False)
+
+
+def _mirror_g(lobe: Lobe, ci: NDArray[np.float32], co: NDArray[np.float32], ch: NDArray[np.float32],
+              cd: NDArray[np.float32]) -> NDArray[np.float32]:
+    if lobe.shadowing == "smith":
+        return smith_g1(ci, lobe.roughness) * smith_g1(co, lobe.roughness)
+    if lobe.shadowing in ("torrance-sparrow", "v-cavity"):
+        lo = np.minimum(co, np.maximum(ci, _F32(0.0)))
+        return np.minimum(_F32(1.0), _F32(2.0) * ch * lo / np.maximum(cd, _F32(1e-12)))
+    return np.ones_like(ci)
+
+
+def orthonormal_basis(n: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Two unit tangents completing unit normals ``n`` (3, m) to right-handed frames.
+
+    Branchless construction of Duff et al., "Building an orthonormal basis,
+    revisited", JCGT 6(1), 2017.
+
+    Examples
+    --------
+    >>> t, b = orthonormal_basis(np.array([[0], [0], [1]], dtype=np.float32))
+    >>> t.ravel().tolist(), b.ravel().tolist()
+    ([1.0, 0.0, -0.0], [0.0, 1.0, -0.0])
+    """
+    x, y, z = n[0], n[1], n[2]
+    sign = np.where(z >= 0, _F32(1.0), _F32(-1.0))
+    a = _F32(-1.0) / (sign + z)
+    b = x * y * a
+    t = np.stack([_F32(1.0) + sign * x * x * a, sign * b, -sign * x])
+    u = np.stack([b, sign + y * y * a, -y])
+    return t, u
+
+
+def sample_beckmann_normals(
+    normals: NDArray[np.float32], roughness: float, rng: np.random.Generator
+) -> NDArray[np.float32]:
+    """Microfacet normals ``(3, m)`` drawn with density ``D(h) cos(theta_h)`` around ``normals``.
+
+    Beckmann: ``tan^2 theta_h = -sigma^2 ln(1 - u1)``, ``phi = 2 pi u2``
+    (Walter et al. 2007, eq. (28)).
+
+    Examples
+    --------
+    >>> n = np.repeat(np.array([[0.0], [0.0], [1.0]], dtype=np.float32), 4, axis=1)
+    >>> h = sample_beckmann_normals(n, 0.01, np.random.default_rng(1))
+    >>> bool(np.all(h[2] > 0.999))
+    True
+    """
+    m = normals.shape[1]
+    u = rng.random((2, m), dtype=_F32)
+    tan2 = _F32(-roughness * roughness) * np.log1p(-u[0])
+    cos_t = _F32(1.0) / np.sqrt(_F32(1.0) + tan2)
+    sin_t = np.sqrt(np.maximum(_F32(1.0) - cos_t * cos_t, _F32(0.0)))
+    phi = _F32(2.0 * math.pi) * u[1]
+    t, b = orthonormal_basis(normals)
+    h = t * (sin_t * np.cos(phi))
+    h += b * (sin_t * np.sin(phi))
+    h += normals * cos_t
+    return _normalise(h)
+
+
+# --------------------------------------------------------------------------- plans
+@dataclass(frozen=True)
+class LobeGroup:
+    """Lobes sharing one geometric factor (kind, roughness, shadowing); their spectral factors add."""
+
+    kind: str
+    roughness: float
+    shadowing: str
+    members: tuple[tuple[float, Any], ...]      # (weight, SpectralFactor)
+
+
+@dataclass(frozen=True)
+class MaterialPlan:
+    """What a material needs: lobe groups for the lights, mirror lobes, sky-lit lobes."""
+
+    material: Material
+    groups: tuple[LobeGroup, ...]
+    mirrors: tuple[Lobe, ...]
+    sky_lobes: tuple[Lobe, ...]
+
+
+def plan_material(material: Material) -> MaterialPlan:
+    """Group a material's lobes (zero weights dropped).
+
+    Mirror lobes (``mirror=True`` microfacet lobes) take part in the direct
+    light through their D term and reflect the environment; the other lobes
+    get sky light through their albedo.  A Lambert lobe flagged ``mirror``
+    is treated as a plain Lambert lobe.
+    """
+    groups: dict[tuple[str, float, str], list[tuple[float, Any]]] = {}
+    mirrors: list[Lobe] = []
+    sky: list[Lobe] = []
+    for lobe in material.lobes:
+        if lobe.weight <= 0.0:
+            continue
+        if lobe.kind == "lambert":
+            key = ("lambert", 0.0, "")
+        else:
+            key = ("microfacet", float(lobe.roughness), lobe.shadowing)
+        groups.setdefault(key, []).append((float(lobe.weight), lobe.spectral))
+        if lobe.mirror and lobe.kind == "microfacet":
+            mirrors.append(lobe)
+        else:
+            sky.append(lobe)
+    return MaterialPlan(
+        material,
+        tuple(LobeGroup(k[0], k[1], k[2], tuple(v)) for k, v in groups.items()),
+        tuple(mirrors),
+        tuple(sky),
+    )
+
+
+@dataclass(frozen=True)
+class LightPlan:
+    """A light prepared for shading.
+
+    ``spectrum`` is ``E(lambda)`` on the grid times the light's intensity
+    relative to the key light's normalising irradiance.
+    """
+
+    kind: str
+    vector: NDArray[np.float64]
+    spectrum: NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- backends
+def _albedo_spectra(lobe: Lobe, cos_o: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
+    """Directional albedo ``(N, L)`` of one lobe including its weight.
+
+    A Lambert lobe's albedo is its weight times its reflectance at every
+    cos_o; other lobes use :func:`processing.albedo.directional_albedo`.
+    """
+    from processing.albedo import directional_albedo
+
+    if lobe.kind == "lambert" and not getattr(lobe.spectral, "angle_dependent", True):
+        s = np.asarray(lobe.spectral.reflectance(np.array([1.0]), grid.wavelengths), dtype=np.float64)
+        return np.repeat(lobe.weight * s.reshape(1, grid.size), cos_o.size, axis=0)
+    return np.asarray(directional_albedo(lobe, cos_o, grid.wavelengths), dtype=np.float64).reshape(
+        cos_o.size, grid.size
+    )
+
+
+class SpectralBackend:
+    """Per-sample spectral evaluation; colours are spectral radiance ``(n, L)`` (float64).
+
+    Every method returning a colour takes the per-sample scalar factor
+    (irradiance scale, sky scale, lobe weight) and applies it.
+    """
+
+    def __init__(
+        self,
+        grid: SpectralGrid,
+        k: float,
+        lights: tuple[LightPlan, ...],
+        sky: Sky,
+        sky_radiance: NDArray[np.float64],
+        plans: tuple[MaterialPlan, ...],
+        albedo_size: int = ALBEDO_TABLE_SIZE,
+    ) -> None:
+        self.grid = grid
+        self.wavelengths = grid.wavelengths
+        self.k = k
+        self.lights = lights
+        self.sky_radiance = sky_radiance
+        self.plans = plans
+        self.channels = grid.size
+        self.albedo: list[AngleTable | None] = []
+        nodes = np.linspace(0.0, 1.0, albedo_size)
+        for plan in plans:
+            if sky.is_black or not plan.sky_lobes:
+                self.albedo.append(None)
+                continue
+            total = np.zeros((albedo_size, grid.size))
+            for lobe in plan.sky_lobes:
+                total += _albedo_spectra(lobe, nodes, grid)
+            self.albedo.append(AngleTable(total * sky_radiance))
+
+    def zeros(self, n: int) -> NDArray[np.float64]:
+        return np.zeros((n, self.channels))
+
+    @staticmethod
+    def add(out: NDArray[np.float64], idx: NDArray[np.intp] | None, term: NDArray[np.float64]) -> None:
+        if idx is None:
+            out += term
+        else:
+            out[idx] += term
+
+    def direct(self, mat: int, light: int, ci, co, ch, cd, scale) -> NDArray[np.float64]:
+        f = material_brdf(self.plans[mat].material, ci, co, ch, cd, self.wavelengths)
+        f *= (np.asarray(ci, np.float64) * scale)[:, None]
+        f *= self.lights[light].spectrum
+        return f
+
+    def has_sky_diffuse(self, mat: int) -> bool:
+        return self.albedo[mat] is not None
+
+    def sky_diffuse(self, mat: int, cos_o, factor) -> NDArray[np.float64]:
+        out = self.albedo[mat].lookup(cos_o).astype(np.float64)
+        out *= np.asarray(factor, np.float64)[:, None]
+        return out
+
+    def mirror_factor(self, mat: int, j: int, cos_d) -> NDArray[np.float64]:
+        lobe = self.plans[mat].mirrors[j]
+        return np.asarray(lobe.spectral.reflectance(np.asarray(cos_d, np.float64), self.wavelengths),
+                          dtype=np.float64)
+
+    def mirror_sky(self, mat: int, j: int, cos_d, factor) -> NDArray[np.float64]:
+        out = self.mirror_factor(mat, j, cos_d) * self.sky_radiance
+        out *= np.asarray(factor, np.float64)[:, None]
+        return out
+
+    def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float64]:
+        return spectra
+
+    def background(self, factor) -> NDArray[np.float64]:
+        return np.asarray(factor, np.float64)[:, None] * self.sky_radiance
+
+    def to_xyz(self, colour: NDArray[np.float64]) -> NDArray[np.float32]:
+        """XYZ ``(n, 3)``."""
+        from processing.display import spectra_to_xyz
+
+        return (self.k * spectra_to_xyz(colour, self.grid)).astype(_F32)
+
+
+class TableBackend:
+    """Colours are XYZ, channel-major ``(3, n)`` float32, from per-(material, light) angular tables."""
+
+    def __init__(
+        self,
+        grid: SpectralGrid,
+        k: float,
+        lights: tuple[LightPlan, ...],
+        sky: Sky,
+        sky_radiance: NDArray[np.float64],
+        plans: tuple[MaterialPlan, ...],
+        size: int,
+        spectral: SpectralBackend,
+    ) -> None:
+        from processing.display import spectra_to_xyz
+
+        self.grid = grid
+        self.k = k
+        self.size = size
+        self.plans = plans
+        self.channels = 3
+        self.spectral = spectral
+        # light_tables[mat][light][group]: sum over the group's lobes of weight * table
+        self.light_tables: list[list[list[AngleTable]]] = []
+        for plan in plans:
+            per_light = []
+            for light in lights:
+                per_group = []
+                for group in plan.groups:
+                    table = None
+                    for weight, factor in group.members:
+                        t = spectral_factor_table(factor, light.spectrum, grid, k * weight, size)
+                        table = t if table is None else table + t
+                    per_group.append(table)
+                per_light.append(per_group)
+            self.light_tables.append(per_light)
+        self.sky_tables: list[AngleTable | None] = []
+        self.mirror_tables: list[list[AngleTable]] = []
+        for mat, plan in enumerate(plans):
+            alb = spectral.albedo[mat]
+            self.sky_tables.append(None if alb is None else AngleTable(k * spectra_to_xyz(alb.values, grid)))
+            self.mirror_tables.append(
+                [spectral_factor_table(lobe.spectral, sky_radiance, grid, k, size) for lobe in plan.mirrors]
+            )
+        self.background_xyz = (k * spectra_to_xyz(sky_radiance, grid)).astype(_F32)
+
+    def zeros(self, n: int) -> NDArray[np.float32]:
+        return np.zeros((3, n), dtype=_F32)
+
+    @staticmethod
+    def add(out: NDArray[np.float32], idx: NDArray[np.intp] | None, term: NDArray[np.float32]) -> None:
+        if idx is None:
+            out += term
+        else:
+            for c in range(out.shape[0]):
+                row = out[c]
+                row[idx] += term[c]
+
+    def direct(self, mat: int, light: int, ci, co, ch, cd, scale) -> NDArray[np.float32]:
+        plan = self.plans[mat]
+        tables = self.light_tables[mat][light]
+        n = len(ci)
+        out = self.zeros(n)
+        index = None
+        for group, table in zip(plan.groups, tables):
+            if group.kind == "lambert":
+                if index is None:
+                    index = table_index(cd, self.size)
+                out += table.lookup_channels(index=index) * (scale * (ci * _F32(1.0 / math.pi)))
+                continue
+            # Only samples whose half vector lies within the lobe: elsewhere D is
+            # below exp(-D_CUTOFF) of its peak and the term is skipped.
+            c2 = np.maximum(ch * ch, _F32(1e-12))
+            within = (c2 - _F32(1.0)) > _F32(-D_CUTOFF * group.roughness ** 2) * c2
+            within &= ch > 0
+            active = np.flatnonzero(within)
+            if active.size == 0:
+                continue
+            if active.size == n:
+                a_ci, a_co, a_ch, a_cd, a_scale, active = ci, co, ch, cd, scale, None
+            else:
+                a_ci, a_co, a_ch, a_cd, a_scale = (np.take(x, active) for x in (ci, co, ch, cd, scale))
+            s = microfacet_geometry(a_ci, a_co, a_ch, a_cd, group.roughness, group.shadowing)
+            s *= a_ci
+            s *= a_scale
+            term = table.lookup_channels(a_cd)
+            term *= s
+            self.add(out, active, term)
+        return out
+
+    def has_sky_diffuse(self, mat: int) -> bool:
+        return self.sky_tables[mat] is not None
+
+    def sky_diffuse(self, mat: int, cos_o, factor) -> NDArray[np.float32]:
+        term = self.sky_tables[mat].lookup_channels(cos_o)
+        return term * np.asarray(factor, _F32)
+
+    def mirror_factor(self, mat: int, j: int, cos_d) -> NDArray[np.float64]:
+        return self.spectral.mirror_factor(mat, j, cos_d)
+
+    def mirror_sky(self, mat: int, j: int, cos_d, factor) -> NDArray[np.float32]:
+        term = self.mirror_tables[mat][j].lookup_channels(cos_d)
+        return term * np.asarray(factor, _F32)
+
+    def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float32]:
+        return np.ascontiguousarray(self.spectral.to_xyz(spectra).T)
+
+    def background(self, factor) -> NDArray[np.float32]:
+        return self.background_xyz[:, None] * np.asarray(factor, _F32)
+
+    def to_xyz(self, colour: NDArray[np.float32]) -> NDArray[np.float32]:
+        """XYZ ``(n, 3)`` (a transposed view)."""
+        return colour.T
+
+
+# --------------------------------------------------------------------------- context
+@dataclass
+class ShadingContext:
+    """Everything shading needs besides the hits: lights, sky, materials, ray tracer.
+
+    ``cast(rays)`` returns Open3D's ``cast_rays`` answer as NumPy arrays;
+    ``occluded(rays, tfar)`` returns ``test_occlusions``; ``make_hits(rays,
+    answer, rows)`` turns the hit rows of an answer into :class:`Hits`.
+    Rays are float32 ``(n, 6)`` rows (origin, direction).
+    """
+
+    lights: tuple[LightPlan, ...]
+    sky: Sky
+    plans: tuple[MaterialPlan, ...]
+    offset: float
+    shadows: bool
+    mirror_bounces: int
+    mirror_rays: int
+    cast: Callable[[NDArray[np.float32]], dict[str, NDArray]]
+    occluded: Callable[[NDArray[np.float32], float], NDArray[np.bool_]]
+    make_hits: Callable[[NDArray[np.float32], dict[str, NDArray], NDArray[np.intp]], Hits]
+    stats: dict[str, float] = field(default_factory=dict)
+
+    def count(self, key: str, value: float) -> None:
+        self.stats[key] = self.stats.get(key, 0) + value
+
+
+def _rays(origins: NDArray[np.float32], directions: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``(n, 6)`` ray rows from ``(3, n)`` origins and ``(3, n)`` (or one ``(3,)``) directions."""
+    n = origins.shape[1]
+    rays = np.empty((n, 6), dtype=_F32)
+    rays[:, :3] = origins.T
+    rays[:, 3:] = directions.T if directions.ndim == 2 else directions
+    return rays
+
+
+def _offset_origins(position: NDArray[np.float32], normal: NDArray[np.float32], directions: NDArray[np.float32],
+                    offset: float) -> NDArray[np.float32]:
+    """Ray origins pushed off the surface along the geometric ``normal``, to the side ``directions`` leave."""
+    side = np.where(dot3(normal, directions) >= 0, _F32(offset), _F32(-offset))
+    return position + normal * side
+
+
+def light_samples(
+    ctx: ShadingContext, hits: Hits, index: int
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
+    """Direction to light ``index``, cos_i and the irradiance scale per hit.
+
+    Returns ``(l, cos_i, scale)``: ``l`` is ``(3,)`` for a directional light
+    and ``(3, m)`` for a point light; ``scale`` includes the inverse-square
+    falloff and the shadow-ray visibility (0 when unlit or shadowed).  Shadow
+    rays start on the light's side of the face, offset along the geometric
+    normal; a point light's ray stops just short of it.
+    """
+    light = ctx.lights[index]
+    m = len(hits)
+    if light.kind == "directional":
+        l = light.vector.astype(_F32)
+        cos_i = dot3(l, hits.shading_normal)
+        scale = np.ones(m, dtype=_F32)
+    else:
+        to_light = light.vector.astype(_F32)[:, None] - hits.position
+        dist2 = np.maximum(dot3(to_light, to_light), _F32(1e-30))
+        inv = _F32(1.0) / np.sqrt(dist2)
+        l = to_light * inv
+        cos_i = dot3(hits.shading_normal, l)
+        scale = inv * inv
+    lit = cos_i > 0
+    if ctx.shadows:
+        rows = np.flatnonzero(lit)
+        if rows.size:
+            ldir = l if l.ndim == 1 else _take(l, rows)
+            origins = _offset_origins(_take(hits.position, rows), _take(hits.geometric_normal, rows), ldir,
+                                      ctx.offset)
+            if light.kind == "directional":
+                blocked = ctx.occluded(_rays(origins, ldir), math.inf)
+            else:
+                blocked = ctx.occluded(_rays(origins, light.vector.astype(_F32)[:, None] - origins), 1.0 - 1e-4)
+            ctx.count("shadow_rays", rows.size)
+            lit[rows[blocked]] = False
+    scale = np.where(lit, scale, _F32(0.0))
+    return l, cos_i, scale
+
+
+def _reflect(view: NDArray[np.float32], normal: NDArray[np.float32], cos: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Mirror ``view`` about ``normal``: ``2 (v . n) n - v``."""
+    r = normal * (_F32(2.0) * cos)
+    r -= view
+    return r
+
+
+def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBackend, depth: int,
+          rng: np.random.Generator) -> NDArray:
+    """Outgoing radiance toward ``hits.view`` in the backend's colour layout.
+
+    Parameters
+    ----------
+    ctx
+        Lights, sky, materials and the ray tracer.
+    hits
+        The surface samples.
+    backend
+        :class:`SpectralBackend` (returns ``(m, L)`` spectra) or
+        :class:`TableBackend` (returns ``(3, m)`` XYZ).
+    depth
+        Mirror bounces left (0: mirror lobes see the unoccluded sky).
+    rng
+        Generator for the rough-mirror jitter.
+    """
+    m = len(hits)
+    out = backend.zeros(m)
+    if m == 0:
+        return out
+    per_light = [light_samples(ctx, hits, i) for i in range(len(ctx.lights))]
+    materials = np.unique(hits.material) if len(ctx.plans) > 1 else np.zeros(1, dtype=np.int32)
+    for mat in materials:
+        mat = int(mat)
+        plan = ctx.plans[mat]
+        in_mat = (hits.material == mat) if materials.size > 1 else None
+        # ---- direct light
+        for li, (l, cos_i, scale) in enumerate(per_light):
+            on = scale > 0
+            if in_mat is not None:
+                on &= in_mat
+            idx = np.flatnonzero(on)
+            if idx.size == 0:
+                continue
+            if idx.size == m:
+                idx = None
+            v = _take(hits.view, idx)
+            ns = _take(hits.shading_normal, idx)
+            ld = l if l.ndim == 1 else _take(l, idx)
+            h = v + (ld[:, None] if ld.ndim == 1 else ld)
+            _normalise(h)
+            ch = dot3(ns, h)
+            cd = np.clip(dot3(v, h), _F32(0.0), _F32(1.0))
+            term = backend.direct(mat, li, _take(cos_i, idx), _take(hits.cos_o, idx), ch, cd, _take(scale, idx))
+            backend.add(out, idx, term)
+        sel = None if in_mat is None else np.flatnonzero(in_mat)
+        # ---- sky light through the albedo of non-mirror lobes
+        if not ctx.sky.is_black and backend.has_sky_diffuse(mat):
+            mean = ctx.sky.hemisphere_mean(_take(hits.shading_normal, sel).T).astype(_F32)
+            backend.add(out, sel, backend.sky_diffuse(mat, _take(hits.cos_o, sel), mean))
+        # ---- mirror lobes
+        for j, lobe in enumerate(plan.mirrors):
+            _mirror(ctx, hits if sel is None else hits.take(sel), sel, out, backend, mat, j, lobe, depth, rng)
+    return out
+
+
+def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: NDArray, backend, mat: int,
+            j: int, lobe: Lobe, depth: int, rng: np.random.Generator) -> None:
+    """Add mirror lobe ``j`` of material ``mat`` for the hits ``sub`` (rows ``sel`` of ``out``)."""
+    co = sub.cos_o
+    weight = _F32(lobe.weight)
+    if depth <= 0:
+        if ctx.sky.is_black:
+            return
+        r = _reflect(sub.view, sub.shading_normal, co)
+        factor = ctx.sky.radiance_scale(r.T).astype(_F32) * weight
+        backend.add(out, sel, backend.mirror_sky(mat, j, co, factor))
+        return
+    n_rays = ctx.mirror_rays if ctx.mirror_rays > 0 else 1
+    for _ in range(n_rays):
+        if ctx.mirror_rays > 0:
+            h = sample_beckmann_normals(sub.shading_normal, lobe.roughness, rng)
+            cd = dot3(sub.view, h)
+            r = _reflect(sub.view, h, cd)
+            ci = dot3(sub.shading_normal, r)
+            ch = dot3(sub.shading_normal, h)
+            ok = (ci > 0) & (cd > 0)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                w = _mirror_g(lobe, ci, co, ch, cd) * cd / (co * ch)
+            w = np.where(ok, w, _F32(0.0)) * (weight / _F32(n_rays))
+            rows = np.flatnonzero(w > 0)
+        else:
+            cd = co
+            r = _reflect(sub.view, sub.shading_normal, co)
+            w = np.full(len(sub), weight, dtype=_F32)
+            rows = np.arange(len(sub))
+        if rows.size == 0:
+            continue
+        all_rows = rows.size == len(sub)
+        key = None if all_rows else rows
+        r_rows = _take(r, key)
+        origins = _offset_origins(_take(sub.position, key), _take(sub.geometric_normal, key), r_rows, ctx.offset)
+        rays = _rays(origins, r_rows)
+        answer = ctx.cast(rays)
+        ctx.count("mirror_rays", rows.size)
+        hit = np.isfinite(answer["t_hit"])
+        target = rows if sel is None else sel[rows]
+        cd_rows = _take(cd, key)
+        w_rows = _take(w, key)
+        if not ctx.sky.is_black:
+            miss = np.flatnonzero(~hit)
+            if miss.size:
+                factor = ctx.sky.radiance_scale(np.take(r_rows, miss, axis=1).T).astype(_F32)
+                factor *= np.take(w_rows, miss)
+                idx = None if (sel is None and miss.size == len(sub)) else target[miss]
+                backend.add(out, idx, backend.mirror_sky(mat, j, np.take(cd_rows, miss), factor))
+        hit_rows = np.flatnonzero(hit)
+        if hit_rows.size:
+            second = ctx.make_hits(rays, answer, hit_rows)
+            ctx.count("secondary_hits", hit_rows.size)
+            spectral = backend.spectral if isinstance(backend, TableBackend) else backend
+            radiance = shade(ctx, second, spectral, depth - 1, rng)
+            product = backend.mirror_factor(mat, j, np.take(cd_rows, hit_rows))
+            product *= radiance
+            product *= np.take(w_rows, hit_rows).astype(np.float64)[:, None]
+            backend.add(out, target[hit_rows], backend.from_spectral(product))
