@@ -160,11 +160,14 @@ class Camera:
         return np.where((z > 0)[..., None], out, np.nan)
 
     # ------------------------------------------------------------------ rays
-    def sample_offsets(self, n_pixels: int, samples: int, rng: np.random.Generator | None) -> NDArray[np.float32]:
+    def sample_offsets(
+        self, n_pixels: int, samples: int, rng: np.random.Generator | None, jitter: bool = True
+    ) -> NDArray[np.float32]:
         """Sub-pixel sample positions in [0, 1)^2, shape ``(n_pixels, samples, 2)``.
 
-        One sample: the pixel centre.  More: one jittered sample per stratum
-        of a ``k x ceil(s/k)`` grid, ``k = ceil(sqrt(s))``.
+        One sample: the pixel centre.  More: one sample per stratum of a
+        ``k x ceil(s/k)`` grid, ``k = ceil(sqrt(s))``, at a random position in
+        the stratum (``jitter=True``) or at its centre (an ordered grid).
 
         Examples
         --------
@@ -178,15 +181,19 @@ class Camera:
         samples = int(samples)
         if samples == 1:
             return np.full((n_pixels, 1, 2), 0.5, dtype=np.float32)
-        if rng is None:
-            raise RenderInputError("several samples per pixel need a random generator (rng)")
         k = math.ceil(math.sqrt(samples))
         rows = math.ceil(samples / k)
         j = np.arange(samples)
         cell = np.stack([j % k, j // k], axis=-1).astype(np.float32)      # (s, 2)
         size = np.array([k, rows], dtype=np.float32)
-        jitter = rng.random((n_pixels, samples, 2), dtype=np.float32)
-        return (cell + jitter) / size
+        if not jitter:
+            return np.ascontiguousarray(np.broadcast_to((cell + 0.5) / size, (n_pixels, samples, 2)))
+        if rng is None:
+            raise RenderInputError("jittered samples need a random generator (rng)")
+        offsets = rng.random((n_pixels, samples, 2), dtype=np.float32)
+        offsets += cell
+        offsets /= size
+        return offsets
 
     def rays(
         self,
@@ -196,8 +203,11 @@ class Camera:
         y1: int,
         samples: int = 1,
         rng: np.random.Generator | None = None,
+        jitter: bool = True,
     ) -> NDArray[np.float32]:
         """Primary rays of the pixel block ``[x0, x1) x [y0, y1)``.
+
+        ``samples``, ``rng`` and ``jitter`` as in :meth:`sample_offsets`.
 
         Returns
         -------
@@ -211,7 +221,7 @@ class Camera:
                 f"pixel block x[{x0}, {x1}) y[{y0}, {y1}) is outside the {self.width}x{self.height} image"
             )
         ny, nx = y1 - y0, x1 - x0
-        offsets = self.sample_offsets(ny * nx, samples, rng)
+        offsets = self.sample_offsets(ny * nx, samples, rng, jitter)
         tan_half = math.tan(math.radians(self.fov_deg) / 2.0)
         sx = np.float32(2.0 * tan_half * self.aspect / self.width)
         sy = np.float32(2.0 * tan_half / self.height)

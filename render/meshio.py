@@ -354,7 +354,8 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
     path
         A ``.ply``, ``.obj``, ``.stl``, ``.off``, ``.gltf`` or ``.glb`` file.
         Triangle material ids of OBJ / glTF files (more than one distinct
-        id) become a per-triangle material index.
+        id) become a per-triangle material index, renumbered 0..k-1 in the
+        order of the file's material list.
 
     Returns
     -------
@@ -412,8 +413,8 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
     mat = None
     if raw.has_triangle_material_ids():
         ids = np.asarray(raw.triangle_material_ids, dtype=np.int64)
-        if ids.size == triangles.shape[0] and ids.min() >= 0 and np.unique(ids).size > 1:
-            mat = ids
+        if ids.size == triangles.shape[0] and np.unique(ids).size > 1:
+            mat = np.unique(ids, return_inverse=True)[1].reshape(-1)
     return make_mesh(
         vertices,
         triangles,

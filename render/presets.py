@@ -7,14 +7,24 @@ angular tables and the shadow rays:
 
 ``reference``
     5 nm (61 bands) spectral evaluation of every lobe at every sample (no
-    tables), 16 stratified samples per pixel, one mirror bounce with rough
-    mirrors jittered by their roughness (2 rays per sample).
+    tables), 16 samples per pixel on an ordered 4 x 4 grid, one mirror
+    bounce with rough mirrors jittered by their roughness (2 rays per
+    sample).
 ``standard``
     the same 5 nm spectral integral, but through per-(material, light)
     angular tables (exact spectral result at RGB cost, table error measured
-    in ``tests/test_render_tables.py``), 4 samples per pixel, one bounce,
-    one jittered mirror ray per sample.  Its mean CIEDE2000 difference from
-    ``reference`` is at most 0.1 on the test scenes.
+    in ``tests/test_render_tables.py``), 4 samples per pixel on an ordered
+    2 x 2 grid, one bounce, one jittered mirror ray per sample.
+
+    Measured mean CIEDE2000 from ``reference`` (64 x 48 images, gradient
+    sky, one light; ``tests/test_render_renderer.py``): 0.03 for a metal
+    surface filling the frame, 0.06 for a gold sphere against the sky (within
+    the 0.1 target); on scenes with several objects reflecting each other the
+    anti-aliasing of sharp reflected edges and sub-pixel highlights dominates
+    (0.2-0.3, the same order as the difference between the reference and a
+    16-sample jittered reference, 0.13-0.19); the tables themselves add less
+    than 0.001.  An ordered grid gives exact pixel averages of linearly
+    varying shading, where jittered samples add noise (0.12 for the sphere).
 ``draft``
     20 nm tables, one sample per pixel (pixel centres), no mirror bounce
     (mirror lobes see the sky without occlusion), shadows kept.
@@ -61,8 +71,12 @@ class RenderSettings:
     spectral_step
         Wavelength step in nm of the 400-700 nm grid (must divide 300).
     samples_per_pixel
-        Anti-aliasing samples per pixel (1 = pixel centre, more = stratified
-        jitter).
+        Anti-aliasing samples per pixel (1 = pixel centre; more: one per
+        stratum of a square grid over the pixel).
+    jitter
+        True: each sample at a random position in its stratum (stratified
+        jitter: noise instead of aliasing); False: at the stratum centre (an
+        ordered grid: exact pixel averages of linear shading, deterministic).
     mirror_bounces
         0: mirror lobes reflect the sky without occlusion; 1: a mirrored ray
         is traced and sees the other objects (lit directly) or the sky.
@@ -87,6 +101,7 @@ class RenderSettings:
     name: str = "custom"
     spectral_step: float = 5.0
     samples_per_pixel: int = 4
+    jitter: bool = False
     mirror_bounces: int = 1
     mirror_rays: int = 1
     use_tables: bool = True
@@ -112,7 +127,7 @@ class RenderSettings:
         object.__setattr__(self, "table_size", _whole(self.table_size, "table_size", 2, 1 << 20))
         object.__setattr__(self, "tile_size", _whole(self.tile_size, "tile_size", 1, 1 << 14))
         object.__setattr__(self, "seed", _whole(self.seed, "seed", 0))
-        for flag in ("use_tables", "shadows"):
+        for flag in ("use_tables", "shadows", "jitter"):
             if not isinstance(getattr(self, flag), bool):
                 raise RenderInputError(f"render setting {flag} must be True or False, got {getattr(self, flag)!r}")
 
@@ -133,15 +148,15 @@ class RenderSettings:
 
 PRESETS: dict[str, RenderSettings] = {
     "draft": RenderSettings(
-        name="draft", spectral_step=20.0, samples_per_pixel=1, mirror_bounces=0, mirror_rays=0,
+        name="draft", spectral_step=20.0, samples_per_pixel=1, jitter=False, mirror_bounces=0, mirror_rays=0,
         use_tables=True, table_size=128, shadows=True, tile_size=256,
     ),
     "standard": RenderSettings(
-        name="standard", spectral_step=5.0, samples_per_pixel=4, mirror_bounces=1, mirror_rays=1,
+        name="standard", spectral_step=5.0, samples_per_pixel=4, jitter=False, mirror_bounces=1, mirror_rays=1,
         use_tables=True, table_size=256, shadows=True, tile_size=128,
     ),
     "reference": RenderSettings(
-        name="reference", spectral_step=5.0, samples_per_pixel=16, mirror_bounces=1, mirror_rays=2,
+        name="reference", spectral_step=5.0, samples_per_pixel=16, jitter=False, mirror_bounces=1, mirror_rays=2,
         use_tables=False, table_size=256, shadows=True, tile_size=32,
     ),
 }

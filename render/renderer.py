@@ -373,7 +373,7 @@ def render(
         if cancel is not None and cancel():
             raise RenderCancelled(f"render cancelled after {number} of {len(tiles)} tiles")
         rng = np.random.default_rng([settings.seed, number])
-        rays = camera.rays(x0, x1, y0, y1, spp, rng)
+        rays = camera.rays(x0, x1, y0, y1, spp, rng, settings.jitter)
         answer = _cast_primary(prep, rays)
         hit = np.isfinite(answer["t_hit"])
         rows = np.flatnonzero(hit)
@@ -437,7 +437,7 @@ def cast_rays_baseline(scene: Scene, camera: Camera, settings: RenderSettings | 
     spp = settings.samples_per_pixel
     for number, (x0, x1, y0, y1) in enumerate(_tiles(camera, settings.tile_size)):
         rng = np.random.default_rng([settings.seed, number])
-        rays = camera.rays(x0, x1, y0, y1, spp, rng)
+        rays = camera.rays(x0, x1, y0, y1, spp, rng, settings.jitter)
         answer = _cast_primary(prep, rays)
         rows = np.flatnonzero(np.isfinite(answer["t_hit"]))
         if rows.size and settings.shadows:

@@ -38,7 +38,11 @@ def pbrt_conductor(cos_i: float, n: float, k: float) -> float:
 @given(cos=st.floats(0.01, 1.0), n=N, k=K)
 def test_conductor_matches_independent_real_formula(cos: float, n: float, k: float) -> None:
     expected = pbrt_conductor(cos, n, k)
-    assert float(fresnel_conductor(cos, n + 1j * k)) == pytest.approx(expected, abs=1e-9)
+    # the real form loses ~1e-8 to cancellation in a^2 = (|t0| + t0) / 2 when
+    # n < sin(theta) and k is tiny (absorbing total internal reflection)
+    assert float(fresnel_conductor(cos, n + 1j * k)) == pytest.approx(expected, abs=5e-8)
+    if k > 1e-3 or n > 1.0:
+        assert float(fresnel_conductor(cos, n + 1j * k)) == pytest.approx(expected, abs=1e-11)
 
 
 @SETTINGS
