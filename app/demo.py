@@ -31,8 +31,8 @@ def hawk_spec(size: tuple[int, int], preset: str, triangles: int) -> SceneSpec:
     return SceneSpec(
         objects=[ObjectSpec(procedural="hawk", procedural_args={"triangles": triangles})],
         lights=[LightSpec("directional", (0.6, -0.9, 1.4), "D65", 1.0)],
-        sky=SkySpec(kind="gradient", zenith=0.35, horizon=0.8, spectrum="D65"),
-        camera=CameraSpec(eye=(118.0, -100.0, 68.0), target=(0.0, 0.0, 33.0), up=(0, 0, 1), fov_deg=32.0),
+        sky=SkySpec(kind="gradient", zenith=0.12, horizon=0.45, spectrum="D65"),
+        camera=CameraSpec(eye=(118.0, -100.0, 70.0), target=(0.0, 0.0, 35.0), up=(0, 0, 1), fov_deg=35.0),
         illuminant="D65",
         size=size,
         preset=preset,

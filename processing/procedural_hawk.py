@@ -133,15 +133,15 @@ _BEAK_Z = 37.0
 _BEAK_S0 = -12.0  # buried start of the beak inside the face
 _UPPER_LEN = 21.0
 _LOWER_LEN = 10.0
-_CERE_LEN = 7.0  # the cere covers the upper mandible up to this s
+_CERE_LEN = 8.5  # the cere covers the upper mandible up to this s
 _TIP_R = 0.45
 _KAPPA0 = 0.03  # curvature of the spine: _KAPPA0 + _KAPPA1 (s / _UPPER_LEN) ** _KAPPA_POW
 _KAPPA1 = 0.196
 _KAPPA_POW = 2.0
 
-_NOSTRIL_S = 5.5
-_NOSTRIL_D = 4.5
-_NOSTRIL_R = 1.3
+_NOSTRIL_S = 7.0
+_NOSTRIL_D = 4.0
+_NOSTRIL_R = 1.1
 _NOSTRIL_DEPTH = 0.7
 _GAPE_FRONT = np.array([17.0, 35.6])  # (x, z) of the gape line at the beak ...
 _GAPE_BACK = np.array([6.5, 36.8])  # ... and at the corner of the mouth, under the eye
@@ -189,6 +189,12 @@ class HawkMesh:
         ``(T,)`` uint8 index into ``region_names`` per triangle.
     region_names
         Names of the regions (``REGION_NAMES``).
+
+    Examples
+    --------
+    >>> mesh = hawk_head(2_000)
+    >>> mesh.vertices.shape[1], mesh.triangles.dtype.name, mesh.region_names[:2]
+    (3, 'int32', ('head', 'beak'))
     """
 
     vertices: NDArray[np.float64]
@@ -455,9 +461,9 @@ def _lattice_directions(lattice: NDArray, n: int) -> NDArray:
 def _cube_sphere(n: int) -> tuple[NDArray, NDArray, NDArray]:
     """Closed cube-sphere triangulation with ``12 n^2`` triangles.
 
-    Returns unit directions ``(V, 3)``, outward triangles ``(T, 3)`` and the
-    face-grid address ``(V, 3)`` = (face, i, j) of every vertex (one of its
-    faces for vertices on cube edges).
+    Returns unit directions ``(V, 3)`` (turned by ``_PARAM_ROTATION``), outward
+    triangles ``(T, 3)`` and the face-grid address ``(V, 3)`` = (face, i, j) of
+    every vertex (one of its faces for vertices on cube edges).
     """
     lattice = _face_lattice(n)
     keys = (lattice[..., 0] * (n + 1) + lattice[..., 1]) * (n + 1) + lattice[..., 2]
@@ -499,15 +505,12 @@ def _face_coordinates(dirs: NDArray, n: int) -> tuple[NDArray, NDArray, NDArray]
 
 
 def _bilinear(grid: NDArray, face: NDArray, gi: NDArray, gj: NDArray) -> NDArray:
-    """Bilinear interpolation of per-face grids ``(6, n+1, n+1, ...)``."""
+    """Bilinear interpolation of per-face grids ``(6, n+1, n+1)``."""
     n = grid.shape[1] - 1
     i0 = np.clip(np.floor(gi).astype(np.int64), 0, n - 1)
     j0 = np.clip(np.floor(gj).astype(np.int64), 0, n - 1)
     fi = gi - i0
     fj = gj - j0
-    if grid.ndim == 4:
-        fi = fi[:, None]
-        fj = fj[:, None]
     return ((1.0 - fi) * (1.0 - fj) * grid[face, i0, j0] + fi * (1.0 - fj) * grid[face, i0 + 1, j0]
             + (1.0 - fi) * fj * grid[face, i0, j0 + 1] + fi * fj * grid[face, i0 + 1, j0 + 1])
 
@@ -579,8 +582,9 @@ def _parametrisation() -> tuple[NDArray, NDArray]:
 
     Returns the surface radius on the face grids of a ``_TABLE_N`` cube sphere,
     ``(6, n+1, n+1)``, and unit directions ``(6, m+1, m+1, 3)`` on the face
-    grids of a ``_PARAM_N`` cube sphere, relaxed so that their surface points
-    are evenly spaced (uniform Laplacian smoothing on the surface).
+    grids of a ``_PARAM_N`` cube sphere, relaxed (``_relax``, coarse to fine
+    over ``_RELAX_LEVELS``) so that their surface triangles have nearly equal
+    areas.
     """
     seed_dirs = _lattice_directions(_face_lattice(_SEED_N).reshape(-1, 3), _SEED_N)
     seed = _radius(seed_dirs).reshape(6, _SEED_N + 1, _SEED_N + 1)

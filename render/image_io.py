@@ -106,6 +106,14 @@ def write_xyz_tiff(path: str | os.PathLike[str], xyz: ArrayLike) -> Path:
     -------
     Path
         The written file.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> xyz = np.random.default_rng(0).random((4, 5, 3)).astype(np.float32)
+    >>> path = write_xyz_tiff(pathlib.Path(tempfile.mkdtemp()) / "x.tiff", xyz)
+    >>> bool(np.array_equal(read_xyz_tiff(path), xyz))
+    True
     """
     import tifffile
 

@@ -367,6 +367,19 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
         The file does not exist, is not readable, has an unsupported suffix,
         is empty or not a valid mesh of its format, or fails the checks of
         :func:`make_mesh`.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "tri.obj"
+    >>> _ = path.write_text(chr(10).join(["v 0 0 0", "v 1 0 0", "v 0 1 0", "f 1 2 3", ""]))
+    >>> m = load_mesh(path)
+    >>> m.n_triangles, m.vertex_normals[0].tolist(), m.normals_computed
+    (1, [0.0, 0.0, 1.0], True)
+    >>> load_mesh(path.with_suffix(".ply"))  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    render.errors.MeshError: mesh file '...tri.ply' does not exist
     """
     import open3d as o3d
 

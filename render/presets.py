@@ -7,24 +7,26 @@ angular tables and the shadow rays:
 
 ``reference``
     5 nm (61 bands) spectral evaluation of every lobe at every sample (no
-    tables), 16 samples per pixel on an ordered 4 x 4 grid, one mirror
+    tables), 16 samples per pixel on a rotated ordered 4 x 4 grid, one mirror
     bounce with rough mirrors jittered by their roughness (2 rays per
     sample).
 ``standard``
     the same 5 nm spectral integral, but through per-(material, light)
     angular tables (exact spectral result at RGB cost, table error measured
-    in ``tests/test_render_tables.py``), 4 samples per pixel on an ordered
-    2 x 2 grid, one bounce, one jittered mirror ray per sample.
+    in ``tests/test_render_tables.py``), 4 samples per pixel on the rotated
+    grid, one bounce, one jittered mirror ray per sample.
 
     Measured mean CIEDE2000 from ``reference`` (64 x 48 images, gradient
     sky, one light; ``tests/test_render_renderer.py``): 0.03 for a metal
     surface filling the frame, 0.06 for a gold sphere against the sky (within
-    the 0.1 target); on scenes with several objects reflecting each other the
-    anti-aliasing of sharp reflected edges and sub-pixel highlights dominates
-    (0.2-0.3, the same order as the difference between the reference and a
-    16-sample jittered reference, 0.13-0.19); the tables themselves add less
-    than 0.001.  An ordered grid gives exact pixel averages of linearly
-    varying shading, where jittered samples add noise (0.12 for the sphere).
+    the 0.1 target).  On scenes with several objects reflecting each other,
+    or with sub-pixel relief (the feathers of the procedural hawk at
+    320 x 240: 0.22), the anti-aliasing of sharp reflected edges and
+    sub-pixel highlights dominates, the same order as the difference between
+    the reference and a jittered 16-sample reference (0.14-0.19); 9 samples
+    give 0.13 on the hawk, 16 give 0.03.  The tables themselves add less than
+    0.001.  The ordered grid averages linearly varying shading exactly,
+    where jittered samples add noise (0.12 instead of 0.06 for the sphere).
 ``draft``
     20 nm tables, one sample per pixel (pixel centres), no mirror bounce
     (mirror lobes see the sky without occlusion), shadows kept.
@@ -93,7 +95,8 @@ class RenderSettings:
         Cast shadow rays toward the lights.
     tile_size
         Side of the square pixel tiles processed at once (memory / progress
-        granularity).
+        granularity); reduced by the renderer so that a tile holds at most
+        65536 samples (16384 with per-sample spectra).
     seed
         Seed of the sample jitter (renders are reproducible).
     """

@@ -1,5 +1,10 @@
 """What the renderer draws: objects with materials, lights and a sky.
 
+The terms of the colour signal of Matsuda et al., eq. (2) and (5): the
+light's spectral power E(lambda) and its incidence (directional and point
+lights), the environment reflected by the mirror term (the sky), and the
+objects' reflection models (materials of :mod:`processing.materials`).
+
 * :class:`SceneObject`: a :class:`~render.meshio.Mesh` with a list of
   :class:`~processing.material.Material` and an optional material index per
   triangle or per vertex (a vertex-indexed material covers the part of each
@@ -10,11 +15,11 @@
   ``intensity * E(lambda) / r^2`` at distance r, the inverse-square law).
   ``E`` is the relative spectrum, 1 at 560 nm.
 * :class:`Sky`: the environment seen by mirror lobes and lighting the other
-  lobes.  Radiance along a direction d is ``s(d) * S(lambda) / pi`` times
-  the key light's intensity, where ``S`` is the sky's relative spectrum and
-  the scale ``s`` is ``zenith`` everywhere (``"uniform"``) or
-  ``horizon + (zenith - horizon) * max(0, d . up)`` (``"gradient"``; below the
-  horizon it stays at ``horizon``).  The unit is chosen so that a white
+  lobes.  Radiance along a direction d is ``s(d) * S(lambda) / pi`` in units
+  of the key (first) light's irradiance, where ``S`` is the sky's relative
+  spectrum and the scale ``s`` is ``zenith`` everywhere (``"uniform"``) or
+  ``horizon + (zenith - horizon) * max(0, d . up)`` (``"gradient"``; below
+  the horizon it stays at ``horizon``).  The unit is chosen so that a white
   Lambertian surface under a uniform sky of scale s with the key light's
   spectrum has the luminance s of the renderer's normalisation (a white
   Lambertian facing the key light has luminance 1).
@@ -389,6 +394,14 @@ class Scene:
     ------
     RenderInputError
         No objects, no lights, or wrong types.
+
+    Examples
+    --------
+    >>> from render.meshio import make_mesh
+    >>> tri = make_mesh([[0, 0, 0], [2, 0, 0], [0, 1, 3]], [[0, 1, 2]])
+    >>> scene = Scene([SceneObject(tri, ["silver"])], [Light("directional", (0, 0, 1))])
+    >>> [b.tolist() for b in scene.bounds()], scene.sky.kind
+    ([[0.0, 0.0, 0.0], [2.0, 1.0, 3.0]], 'none')
     """
 
     objects: Sequence[SceneObject]
@@ -453,6 +466,18 @@ def check_point_lights(scene: Scene, raycaster: Any = None, n_rays: int = 64) ->
     ------
     RenderInputError
         Naming the light, its position and the enclosing object.
+
+    Examples
+    --------
+    >>> from render.meshio import make_mesh
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    >>> tetra = make_mesh(v, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> obj = SceneObject(tetra, ["gold"], name="tetra")
+    >>> check_point_lights(Scene([obj], [Light("point", (2, 2, 2))]))          # outside: no error
+    >>> check_point_lights(Scene([obj], [Light("point", (0.1, 0.1, 0.1))]))  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    render.errors.RenderInputError: point light 0 at [0.1, 0.1, 0.1] is inside object 'tetra' ...
     """
     points = [(i, light) for i, light in enumerate(scene.lights) if light.kind == "point"]
     if not points:

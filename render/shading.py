@@ -77,10 +77,12 @@ __all__ = [
     "light_samples",
     "shade",
     "ALBEDO_TABLE_SIZE",
+    "ALBEDO_GRAZING_COS",
     "D_CUTOFF",
 ]
 
 _F32 = np.float32
+Vec = NDArray[np.float32]
 _SQRT_PI = math.sqrt(math.pi)
 
 #: Microfacet terms whose Beckmann exponent tan^2(theta_h) / sigma^2 exceeds
@@ -92,8 +94,11 @@ D_CUTOFF = 30.0
 _G1_ONE_ABOVE = 4.0
 
 #: Nodes over cos_o of the directional-albedo tables of sky light (the albedo is
-#: smooth in cos_o; the interpolation error is measured in the tests).
+#: smooth in cos_o; the interpolation error is measured in the tests).  The
+#: albedo vanishes at exactly cos_o = 0 by definition but tends to a finite
+#: limit, so the first node is evaluated at ``ALBEDO_GRAZING_COS``.
 ALBEDO_TABLE_SIZE = 65
+ALBEDO_GRAZING_COS = 1e-4
 
 
 # --------------------------------------------------------------------------- vector helpers
@@ -260,8 +265,8 @@ def orthonormal_basis(n: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDAr
     Examples
     --------
     >>> t, b = orthonormal_basis(np.array([[0], [0], [1]], dtype=np.float32))
-    >>> t.ravel().tolist(), b.ravel().tolist()
-    ([1.0, 0.0, -0.0], [0.0, 1.0, -0.0])
+    >>> (t.ravel() + 0.0).tolist(), (b.ravel() + 0.0).tolist()
+    ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     """
     x, y, z = n[0], n[1], n[2]
     sign = np.where(z >= 0, _F32(1.0), _F32(-1.0))
@@ -386,7 +391,11 @@ class SpectralBackend:
     """Per-sample spectral evaluation; colours are spectral radiance ``(n, L)`` (float64).
 
     Every method returning a colour takes the per-sample scalar factor
-    (irradiance scale, sky scale, lobe weight) and applies it.
+    (irradiance scale, sky scale, lobe weight) and applies it.  Direct light
+    and mirror reflections are evaluated at every wavelength for every
+    sample; sky light on non-mirror lobes reads the directional albedo
+    spectra from a table over cos_o (``ALBEDO_TABLE_SIZE`` nodes, the same
+    quadrature as the table path).
     """
 
     def __init__(
@@ -408,6 +417,7 @@ class SpectralBackend:
         self.channels = grid.size
         self.albedo: list[AngleTable | None] = []
         nodes = np.linspace(0.0, 1.0, albedo_size)
+        nodes[0] = ALBEDO_GRAZING_COS
         for plan in plans:
             if sky.is_black or not plan.sky_lobes:
                 self.albedo.append(None)
@@ -418,43 +428,56 @@ class SpectralBackend:
             self.albedo.append(AngleTable(total * sky_radiance))
 
     def zeros(self, n: int) -> NDArray[np.float64]:
+        """A black colour array for ``n`` samples, ``(n, L)``."""
         return np.zeros((n, self.channels))
 
     @staticmethod
     def add(out: NDArray[np.float64], idx: NDArray[np.intp] | None, term: NDArray[np.float64]) -> None:
+        """``out[idx] += term`` (all rows when ``idx`` is None)."""
         if idx is None:
             out += term
         else:
             out[idx] += term
 
-    def direct(self, mat: int, light: int, ci, co, ch, cd, scale) -> NDArray[np.float64]:
+    def direct(self, mat: int, light: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, scale: Vec) -> NDArray[np.float64]:
+        """Radiance from light ``light``: ``material_brdf * E * cos_i * scale``, ``(n, L)``.
+
+        ``ci, co, ch, cd`` are cos_i, cos_o, cos_h, cos_d; ``scale`` the
+        irradiance scale (falloff and visibility).
+        """
         f = material_brdf(self.plans[mat].material, ci, co, ch, cd, self.wavelengths)
         f *= (np.asarray(ci, np.float64) * scale)[:, None]
         f *= self.lights[light].spectrum
         return f
 
     def has_sky_diffuse(self, mat: int) -> bool:
+        """True when material ``mat`` has non-mirror lobes and the sky is not black."""
         return self.albedo[mat] is not None
 
-    def sky_diffuse(self, mat: int, cos_o, factor) -> NDArray[np.float64]:
+    def sky_diffuse(self, mat: int, cos_o: Vec, factor: Vec) -> NDArray[np.float64]:
+        """Sky light of the non-mirror lobes: albedo(cos_o) * sky spectrum * ``factor``."""
         out = self.albedo[mat].lookup(cos_o).astype(np.float64)
         out *= np.asarray(factor, np.float64)[:, None]
         return out
 
-    def mirror_factor(self, mat: int, j: int, cos_d) -> NDArray[np.float64]:
+    def mirror_factor(self, mat: int, j: int, cos_d: Vec) -> NDArray[np.float64]:
+        """Spectral factor ``S(cos_d, lambda)`` of mirror lobe ``j``, ``(n, L)``."""
         lobe = self.plans[mat].mirrors[j]
         return np.asarray(lobe.spectral.reflectance(np.asarray(cos_d, np.float64), self.wavelengths),
                           dtype=np.float64)
 
-    def mirror_sky(self, mat: int, j: int, cos_d, factor) -> NDArray[np.float64]:
+    def mirror_sky(self, mat: int, j: int, cos_d: Vec, factor: Vec) -> NDArray[np.float64]:
+        """Sky seen in mirror lobe ``j``: ``S(cos_d) * sky spectrum * factor``."""
         out = self.mirror_factor(mat, j, cos_d) * self.sky_radiance
         out *= np.asarray(factor, np.float64)[:, None]
         return out
 
     def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Spectra ``(n, L)`` as colours of this backend (the same)."""
         return spectra
 
-    def background(self, factor) -> NDArray[np.float64]:
+    def background(self, factor: Vec) -> NDArray[np.float64]:
+        """Sky radiance of scale ``factor`` (per sample)."""
         return np.asarray(factor, np.float64)[:, None] * self.sky_radiance
 
     def to_xyz(self, colour: NDArray[np.float64]) -> NDArray[np.float32]:
@@ -511,10 +534,12 @@ class TableBackend:
         self.background_xyz = (k * spectra_to_xyz(sky_radiance, grid)).astype(_F32)
 
     def zeros(self, n: int) -> NDArray[np.float32]:
+        """A black colour array for ``n`` samples, ``(3, n)``."""
         return np.zeros((3, n), dtype=_F32)
 
     @staticmethod
     def add(out: NDArray[np.float32], idx: NDArray[np.intp] | None, term: NDArray[np.float32]) -> None:
+        """``out[:, idx] += term`` (all columns when ``idx`` is None), one channel at a time."""
         if idx is None:
             out += term
         else:
@@ -522,7 +547,8 @@ class TableBackend:
                 row = out[c]
                 row[idx] += term[c]
 
-    def direct(self, mat: int, light: int, ci, co, ch, cd, scale) -> NDArray[np.float32]:
+    def direct(self, mat: int, light: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, scale: Vec) -> NDArray[np.float32]:
+        """XYZ from light ``light``: sum over lobe groups of geometry * cos_i * scale * T(cos_d)."""
         plan = self.plans[mat]
         tables = self.light_tables[mat][light]
         n = len(ci)
@@ -555,23 +581,29 @@ class TableBackend:
         return out
 
     def has_sky_diffuse(self, mat: int) -> bool:
+        """True when material ``mat`` has non-mirror lobes and the sky is not black."""
         return self.sky_tables[mat] is not None
 
-    def sky_diffuse(self, mat: int, cos_o, factor) -> NDArray[np.float32]:
+    def sky_diffuse(self, mat: int, cos_o: Vec, factor: Vec) -> NDArray[np.float32]:
+        """Sky light of the non-mirror lobes from the albedo table, times ``factor``."""
         term = self.sky_tables[mat].lookup_channels(cos_o)
         return term * np.asarray(factor, _F32)
 
-    def mirror_factor(self, mat: int, j: int, cos_d) -> NDArray[np.float64]:
+    def mirror_factor(self, mat: int, j: int, cos_d: Vec) -> NDArray[np.float64]:
+        """Spectral factor of mirror lobe ``j`` (per wavelength, for products with reflected spectra)."""
         return self.spectral.mirror_factor(mat, j, cos_d)
 
-    def mirror_sky(self, mat: int, j: int, cos_d, factor) -> NDArray[np.float32]:
+    def mirror_sky(self, mat: int, j: int, cos_d: Vec, factor: Vec) -> NDArray[np.float32]:
+        """Sky seen in mirror lobe ``j`` from its sky table, times ``factor``."""
         term = self.mirror_tables[mat][j].lookup_channels(cos_d)
         return term * np.asarray(factor, _F32)
 
     def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float32]:
+        """XYZ ``(3, n)`` of radiance spectra ``(n, L)``."""
         return np.ascontiguousarray(self.spectral.to_xyz(spectra).T)
 
-    def background(self, factor) -> NDArray[np.float32]:
+    def background(self, factor: Vec) -> NDArray[np.float32]:
+        """XYZ of the sky radiance of scale ``factor``."""
         return self.background_xyz[:, None] * np.asarray(factor, _F32)
 
     def to_xyz(self, colour: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -728,8 +760,9 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
     return out
 
 
-def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: NDArray, backend, mat: int,
-            j: int, lobe: Lobe, depth: int, rng: np.random.Generator) -> None:
+def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: NDArray,
+            backend: SpectralBackend | TableBackend, mat: int, j: int, lobe: Lobe, depth: int,
+            rng: np.random.Generator) -> None:
     """Add mirror lobe ``j`` of material ``mat`` for the hits ``sub`` (rows ``sel`` of ``out``)."""
     co = sub.cos_o
     weight = _F32(lobe.weight)

@@ -15,6 +15,12 @@ not depend on wavelength it factors out of the sum exactly; the only error is
 the linear interpolation of T between the ``N`` nodes, spaced uniformly in
 ``c = cos`` over [0, 1], bounded by ``h^2 / 8 max|T''|`` with ``h = 1/(N-1)``
 (measured by :func:`table_error`).  An angle-independent factor needs one row.
+With 256 nodes the error is below 1e-4 of the white for the Fresnel factors
+of metals and lacquers; it grows where the factor is not smooth in cos: a
+very large extinction (k ~ 200: F falls within cos < 0.01 of grazing,
+error ~5e-3 at 256 nodes, ~1e-3 at 512), an index close to 1 (a step at
+grazing) and the critical angle of n < 1 without absorption (not a surface
+seen from air).
 
 The same construction tabulates a lobe's directional albedo against the sky
 spectrum over cos(theta_o) (sky light for non-mirror lobes).
@@ -22,8 +28,8 @@ spectrum over cos(theta_o) (sky light for non-mirror lobes).
 Examples
 --------
 >>> t = AngleTable.from_function(lambda c: np.stack([c, c * c, 1 - c], axis=-1), 64)
->>> np.round(t.lookup(np.array([0.5])), 4).tolist()
-[[0.5, 0.2501, 0.5]]
+>>> [round(float(v), 5) for v in t.lookup(np.array([0.5]))[0]]   # c^2 off by h^2 / 4 midway
+[0.5, 0.25006, 0.5]
 """
 
 from __future__ import annotations
@@ -189,6 +195,22 @@ def spectral_factor_table(
     -------
     AngleTable
         ``(N, 3)`` or ``(1, 3)``.
+
+    Examples
+    --------
+    A white factor: k XYZ(E / pi) has Y = 1, so the table holds Y = pi.
+
+    >>> from processing.display import xyz_scale
+    >>> from processing.spectra import light_spectrum
+    >>> class White:
+    ...     angle_dependent = False
+    ...     def reflectance(self, cos_d, wl):
+    ...         return np.ones(np.shape(cos_d) + (len(wl),))
+    >>> grid = SpectralGrid(400, 700, 10)
+    >>> e = light_spectrum("A", grid)
+    >>> t = spectral_factor_table(White(), e, grid, xyz_scale(e, grid), 256)
+    >>> t.values.shape, round(float(t.values[0, 1] / np.pi), 9)
+    ((1, 3), 1.0)
     """
     e = np.asarray(light, dtype=np.float64)
     wl = grid.wavelengths
@@ -210,6 +232,13 @@ def albedo_table(
     """Tabulate ``scale * XYZ(albedo(cos_o, lambda) * sky(lambda))`` over cos_o.
 
     ``albedo(nodes) -> (N, L)`` is a directional albedo on ``grid``.
+
+    Examples
+    --------
+    >>> grid = SpectralGrid(400, 700, 100)
+    >>> t = albedo_table(lambda c: np.outer(c, np.ones(4)), np.ones(4), grid, 1.0, 3)
+    >>> t.values[:, 1].round(6).tolist() == (np.array([0.0, 0.5, 1.0]) * t.values[-1, 1]).round(6).tolist()
+    True
     """
     nodes = np.linspace(0.0, 1.0, size)
     a = np.asarray(albedo(nodes), dtype=np.float64).reshape(size, -1)

@@ -65,19 +65,20 @@ def assert_closed_oriented_manifold(mesh: HawkMesh) -> None:
     nv = len(mesh.vertices)
     assert tris.min() >= 0 and tris.max() < nv
     # no triangle repeats a vertex
-    assert np.all((tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2]) & (tris[:, 2] != tris[:, 0]))
+    assert np.all(tris[:, [0, 1, 2]] != tris[:, [1, 2, 0]])
     d = directed_edges(tris)
-    keys = d[:, 0] * nv + d[:, 1]
-    # consistent orientation: each directed edge once, and its reverse exists
-    assert np.unique(keys).size == keys.size
-    assert np.isin(d[:, 1] * nv + d[:, 0], keys).all()
-    # edge-manifold: every undirected edge shared by exactly two triangles
-    und = np.sort(d, axis=1)
-    _, counts = np.unique(und[:, 0] * nv + und[:, 1], return_counts=True)
-    assert np.all(counts == 2)
+    keys = np.sort(d[:, 0] * nv + d[:, 1])
+    # consistent orientation: each directed edge occurs once ...
+    assert np.all(np.diff(keys) > 0)
+    # ... and so does its reverse: every edge is shared by exactly two
+    # triangles that traverse it in opposite directions (closed, edge-manifold)
+    reverse = d[:, 1] * nv + d[:, 0]
+    pos = np.minimum(np.searchsorted(keys, reverse), len(keys) - 1)
+    assert np.array_equal(keys[pos], reverse)
+    n_edges = len(d) // 2
     # every vertex used; a closed genus-0 surface has V - E + F = 2
-    assert np.unique(tris).size == nv
-    assert nv - counts.size + len(tris) == 2
+    assert np.all(np.bincount(tris.ravel(), minlength=nv) > 0)
+    assert nv - n_edges + len(tris) == 2
 
 
 # ---------------------------------------------------------------------------
@@ -103,29 +104,35 @@ def test_open3d_agrees_watertight_and_not_self_intersecting(small):
     assert mesh.is_watertight()
 
 
-def test_signed_volume_is_positive_and_matches_open3d(draft):
+def test_signed_volume_is_positive_and_matches_ray_casting(draft):
     v = draft.vertices[draft.triangles]
     volume = np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0
     assert volume > 0.0  # outward normals
-    assert volume == pytest.approx(draft.to_open3d().get_volume(), rel=1e-9)
+    # independent estimate: count grid points inside (Open3D ray-parity occupancy)
+    lo, hi = draft.vertices.min(axis=0), draft.vertices.max(axis=0)
+    step = 0.5
+    axes = [np.arange(a + step / 2, b, step) for a, b in zip(lo, hi)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(draft.vertices.astype(np.float32), draft.triangles.astype(np.uint32))
+    inside = scene.compute_occupancy(o3d.core.Tensor(grid.astype(np.float32))).numpy()
+    assert volume == pytest.approx(inside.sum() * step**3, rel=0.01)
     # a head of this size: between a 30 mm and a 60 mm cube
     assert 30.0**3 < volume < 60.0**3
 
 
 def test_face_normals_point_out_of_the_solid(small):
-    """Just outside every sampled triangle is outside the solid, just inside is inside."""
-    rng = np.random.default_rng(3)
-    idx = rng.choice(small.n_triangles, 3000, replace=False)
-    fn = face_normals(small)[idx]
+    """Just outside every triangle is outside the solid, just inside is inside."""
+    fn = face_normals(small)
     fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-    centroids = small.vertices[small.triangles[idx]].mean(axis=1)
+    centroids = small.vertices[small.triangles].mean(axis=1)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(small.vertices.astype(np.float32), small.triangles.astype(np.uint32))
     eps = 0.02  # mm; well below the thinnest feature (beak tip radius about 0.5 mm)
     outside = scene.compute_occupancy(o3d.core.Tensor((centroids + eps * fn).astype(np.float32)))
     inside = scene.compute_occupancy(o3d.core.Tensor((centroids - eps * fn).astype(np.float32)))
-    assert outside.numpy().mean() > 0.995
-    assert inside.numpy().mean() > 0.995
+    assert np.all(outside.numpy() == 0.0)
+    assert np.all(inside.numpy() == 1.0)
 
 
 def test_no_degenerate_or_sliver_triangles(draft):
@@ -279,7 +286,8 @@ def test_cere_lies_between_face_and_beak(draft):
     key = d[:, 0] * nv + d[:, 1]
     order = np.argsort(key)
     twin = order[np.searchsorted(key[order], d[:, 1] * nv + d[:, 0])]
-    pairs = {(int(a), int(b)) for a, b in zip(draft.region[tri_of_edge], draft.region[tri_of_edge[twin]])}
+    across = np.stack([draft.region[tri_of_edge], draft.region[tri_of_edge[twin]]], axis=1)
+    pairs = {(int(a), int(b)) for a, b in np.unique(across, axis=0)}
     assert (cere_i, beak_i) in pairs and (cere_i, head_i) in pairs
     cere = region_centroid(draft, ("cere",), 1.0)
     assert cere[0] < draft.vertices[:, 0].max() - 8.0
@@ -335,13 +343,19 @@ def test_same_seed_same_mesh_and_seed_only_moves_feathers():
     moved = np.linalg.norm(a.vertices - c.vertices, axis=1)
     assert moved.max() > 0.01  # the feathers differ ...
     assert moved.max() < 0.6  # ... by a relief of a few tenths of a millimetre
+    # no feathers on beak and eyes: there the meshes differ only by the common
+    # shift that re-centres them on the turntable axis
     bare = np.isin(a.region, [REGION_NAMES.index(n) for n in ("beak", "eye", "pupil")])
-    assert moved[np.unique(a.triangles[bare])].max() < 1e-9  # no feathers on beak and eyes
+    delta = (a.vertices - c.vertices)[np.unique(a.triangles[bare])]
+    assert np.abs(delta - delta[0]).max() < 1e-9
+    assert np.abs(delta[0]).max() < 0.05
 
 
-def test_feather_relief_roughens_the_head_at_fine_resolution(draft):
-    """Dihedral angles between neighbouring triangles: the feathered head is
-    rough at the draft resolution, the smooth gold beak is not."""
+def test_feather_relief_roughens_the_crown(draft):
+    """Dihedral angles between neighbouring triangles.  The crown is much less
+    curved than the eyeball (radius ~15 mm against ~7 mm), so a smooth crown
+    would bend less from triangle to triangle than the eye; the feather steps
+    make it bend far more."""
     d = directed_edges(draft.triangles)
     nv = len(draft.vertices)
     key = d[:, 0] * nv + d[:, 1]
@@ -351,9 +365,10 @@ def test_feather_relief_roughens_the_head_at_fine_resolution(draft):
     fn = face_normals(draft)
     fn /= np.linalg.norm(fn, axis=1, keepdims=True)
     bend = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", fn[t], fn[t[twin]]), -1, 1)))
-    head = (draft.region[t] == 0) & (draft.region[t[twin]] == 0)
-    beak = (draft.region[t] == 1) & (draft.region[t[twin]] == 1)
-    assert np.percentile(bend[head], 95) > 2.0 * np.percentile(bend[beak], 95)
+    z = draft.vertices[draft.triangles].mean(axis=1)[t, 2]
+    crown = (draft.region[t] == 0) & (z > draft.vertices[:, 2].max() - 10.0)
+    eye = draft.region[t] == REGION_NAMES.index("eye")
+    assert np.percentile(bend[crown], 95) > 3.0 * np.percentile(bend[eye], 95)
 
 
 def test_to_open3d(draft):

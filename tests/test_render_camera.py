@@ -80,10 +80,22 @@ def test_stratified_samples_fill_each_stratum_once(samples):
     np.testing.assert_allclose(off.mean(axis=0), centre, atol=0.05)
 
 
-def test_ordered_grid_is_the_strata_centres_and_one_sample_is_the_pixel_centre():
+@pytest.mark.parametrize("samples", [4, 9, 16])
+def test_ordered_grid_is_a_rotated_grid_centred_on_the_pixel(samples):
+    c = cam()
+    off = c.sample_offsets(3, samples, None, jitter=False)
+    assert np.array_equal(off[0], off[2])                         # the same pattern in every pixel
+    k = int(math.isqrt(samples))
+    cells = np.floor(off[0, :, 0] * k) + k * np.floor(off[0, :, 1] * k)
+    assert np.all(cells == np.arange(samples))                   # one sample per stratum
+    assert len(set(off[0, :, 0])) == samples and len(set(off[0, :, 1])) == samples   # N-rooks
+    np.testing.assert_allclose(off[0].mean(axis=0), [0.5, 0.5], atol=1e-7)
+
+
+def test_four_samples_use_the_rotated_grid_pattern_and_one_sample_is_the_pixel_centre():
     c = cam()
     np.testing.assert_array_equal(c.sample_offsets(3, 4, None, jitter=False)[1],
-                                  [[0.25, 0.25], [0.75, 0.25], [0.25, 0.75], [0.75, 0.75]])
+                                  [[0.375, 0.125], [0.875, 0.375], [0.125, 0.625], [0.625, 0.875]])
     np.testing.assert_array_equal(c.sample_offsets(2, 1, None), [[[0.5, 0.5]], [[0.5, 0.5]]])
     with pytest.raises(RenderInputError, match="random generator"):
         c.sample_offsets(2, 4, None, jitter=True)

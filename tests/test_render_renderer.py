@@ -241,15 +241,16 @@ def test_sphere_casts_its_shadow_where_geometry_predicts(tables):
     np.testing.assert_allclose(res.xyz[lit][:, 1], rho * light[2], rtol=1e-5)
 
 
-@pytest.mark.parametrize("elevation_deg", [5.0, 0.5])
-def test_no_shadow_acne_on_a_flat_plane_at_grazing_light_far_from_the_origin(elevation_deg):
+@pytest.mark.parametrize("elevation_deg, camera_distance", [(5.0, 9.5), (0.5, 9.5), (5.0, 3000.0)])
+def test_no_shadow_acne_on_a_flat_plane_at_grazing_light_far_from_the_origin(elevation_deg, camera_distance):
     e = math.radians(elevation_deg)
     light = np.array([math.cos(e), 0.3 * math.cos(e), math.sin(e)])
     light /= np.linalg.norm(light)
     offset = np.array([300.0, -200.0, 50.0])
     scene = Scene([obj(square(10.0, offset, divisions=20), lambert(1.0))], [Light("directional", light, "D65")],
                   Sky("none"))
-    cam = Camera(tuple(offset + [0, -3, 9]), tuple(offset), (0, 0, 1), 35, 64, 48)
+    eye = offset + np.array([0.0, -3.0, 9.0]) * camera_distance / math.hypot(3.0, 9.0)
+    cam = Camera(tuple(eye), tuple(offset), (0, 0, 1), 35 * 9.5 / camera_distance, 64, 48)
     res = render(scene, cam, settings(samples_per_pixel=4))
     covered = res.mask == 1.0
     assert covered.sum() > 0.9 * covered.size
