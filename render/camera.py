@@ -5,9 +5,12 @@ field of view.  Pixel (column x, row y) covers the square [x, x+1) x [y, y+1)
 of the image plane, row 0 at the top.  With one sample per pixel the ray
 goes through the pixel centre; with ``s > 1`` samples the pixel is divided
 into ``k = ceil(sqrt(s))`` columns and ``ceil(s / k)`` rows of strata and one
-jittered sample is drawn in each of the first ``s`` strata (stratified
-sampling, Cook 1986), which anti-aliases edges with less noise than
-independent random samples.
+sample is placed in each of the first ``s`` strata: either jittered at
+random within it (stratified sampling, Cook 1986, "Stochastic sampling in
+computer graphics", ACM TOG 5(1)), which trades aliasing for noise, or on a
+rotated ordered grid (for four samples the rotated-grid supersampling
+pattern, Akenine-Moeller et al., "Real-Time Rendering", 4th ed., section
+5.4.2), deterministic, with no two samples sharing a pixel row or column.
 
 Examples
 --------

@@ -464,7 +464,10 @@ def cast_rays_baseline(scene: Scene, camera: Camera, settings: RenderSettings | 
     ``cast_rays``, plus the shadow rays of those hits toward every light
     (``test_occlusions``, built exactly as the renderer builds them; only for
     samples facing the light, and only when ``settings.shadows``).  Only the
-    Open3D calls are timed; building the ray arrays is not.  ``render time /
+    Open3D calls are timed; building the ray arrays is not.  Like the
+    renderer, it casts into a freshly built ``RaycastingScene``, so the time
+    includes Open3D's acceleration-structure build, done lazily by the first
+    cast (about 0.5 s for a million triangles on two cores).  ``render time /
     baseline`` is the overhead of shading, mirror rays and bookkeeping.
 
     Returns
