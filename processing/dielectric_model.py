@@ -17,13 +17,12 @@ rises steeply at its band edge near 600 nm).
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.fresnel import fresnel_dielectric
-from processing.material import Lobe, Material
+from processing.material import Lobe, Material, checked_parameter
 from processing.metal_model import check_shadowing
 from processing.spectra import resample
 
@@ -223,18 +222,6 @@ def urushi_red_reflectance() -> PigmentReflectance:
     return PigmentReflectance(_PIGMENT_WL, values)
 
 
-def _weight(name: str, value: float, *, open_zero: bool = False, upper: float = 1.0) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    ok = math.isfinite(v) and ((0.0 < v) if open_zero else (0.0 <= v)) and v <= upper
-    if not ok:
-        rng = f"({0:g}, {upper:g}]" if open_zero else f"[0, {upper:g}]"
-        raise ValueError(f"{name} must be in {rng}, got {value!r}")
-    return v
-
-
 def dielectric_material(
     name: str,
     reflectance: PigmentReflectance,
@@ -290,15 +277,15 @@ def dielectric_material(
         fresnel = n
         n_value: float | str = n.constant_index if n.constant_index is not None else "dispersive"
     else:
-        n_value = _weight("n", n, open_zero=True, upper=3.0)
+        n_value = checked_parameter("n", n, open_zero=True, upper=3.0)
         if n_value < 1.0:
             raise ValueError(f"n must be in [1, 3] for a lacquer or glaze, got {n!r}")
         fresnel = DielectricFresnel(n_value)
-    diffuse = _weight("diffuse", diffuse)
-    gloss = _weight("gloss", gloss)
-    mirror = _weight("mirror", mirror)
-    roughness = _weight("roughness", roughness, open_zero=True)
-    mirror_roughness = _weight("mirror_roughness", mirror_roughness, open_zero=True)
+    diffuse = checked_parameter("diffuse", diffuse)
+    gloss = checked_parameter("gloss", gloss)
+    mirror = checked_parameter("mirror", mirror)
+    roughness = checked_parameter("roughness", roughness, open_zero=True)
+    mirror_roughness = checked_parameter("mirror_roughness", mirror_roughness, open_zero=True)
     check_shadowing(shadowing)
     total = diffuse + gloss + mirror
     if total > 1.0 + 1e-12:

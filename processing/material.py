@@ -22,6 +22,7 @@ E(lambda) * cos_i`` (Matsuda et al., eq. (2)).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
 
@@ -30,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.microfacet import microfacet_lobe
 
-__all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf"]
+__all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter"]
 
 LobeKind = Literal["lambert", "microfacet"]
 
@@ -104,6 +105,29 @@ class Material:
     family: str = ""
     description: str = ""
     parameters: dict = field(default_factory=dict)
+
+
+def checked_parameter(name: str, value: float, *, open_zero: bool = False, upper: float = 1.0) -> float:
+    """``value`` as a float in [0, upper] (or (0, upper] with ``open_zero``), else a ValueError naming it.
+
+    Examples
+    --------
+    >>> checked_parameter("gloss", "0.5")
+    0.5
+    >>> checked_parameter("roughness", 0, open_zero=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: roughness must be in (0, 1], got 0
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    ok = math.isfinite(v) and ((0.0 < v) if open_zero else (0.0 <= v)) and v <= upper
+    if not ok:
+        rng = f"(0, {upper:g}]" if open_zero else f"[0, {upper:g}]"
+        raise ValueError(f"{name} must be in {rng}, got {value!r}")
+    return v
 
 
 def lobe_geometry(

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.fresnel import fresnel_conductor
-from processing.material import Lobe, Material
+from processing.material import Lobe, Material, checked_parameter
 from processing.optical_constants import canonical_metal, complex_index
 
 __all__ = [
@@ -150,18 +150,6 @@ class ConductorFresnel:
         return np.clip(out, 0.0, 1.0)
 
 
-def _unit_interval(name: str, value: float, *, open_zero: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    ok = math.isfinite(v) and (0.0 < v <= 1.0 if open_zero else 0.0 <= v <= 1.0)
-    if not ok:
-        rng = "(0, 1]" if open_zero else "[0, 1]"
-        raise ValueError(f"{name} must be in {rng}, got {value!r}")
-    return v
-
-
 def check_shadowing(shadowing: str) -> str:
     """Validate the shadowing model name (``"smith"`` or ``"torrance-sparrow"``).
 
@@ -225,10 +213,10 @@ def metal_material(
     >>> [lobe.mirror for lobe in m.lobes], m.parameters["Au"]
     ([False, True], 1.0)
     """
-    gloss = _unit_interval("gloss", gloss)
-    mirror = _unit_interval("mirror", mirror)
-    roughness = _unit_interval("roughness", roughness, open_zero=True)
-    mirror_roughness = _unit_interval("mirror_roughness", mirror_roughness, open_zero=True)
+    gloss = checked_parameter("gloss", gloss)
+    mirror = checked_parameter("mirror", mirror)
+    roughness = checked_parameter("roughness", roughness, open_zero=True)
+    mirror_roughness = checked_parameter("mirror_roughness", mirror_roughness, open_zero=True)
     check_shadowing(shadowing)
     if gloss + mirror > 1.0 + 1e-12:
         raise ValueError(

@@ -1,0 +1,35 @@
+"""`kogei demo` end to end at a small size, checked against physics rather than against itself."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from PIL import Image
+
+from app.cli import main
+
+
+def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, capsys):
+    out = tmp_path / "demo"
+    code = main(["demo", "--out", str(out), "--hawk-triangles", "6000", "--size", "240x180", "--preset", "draft"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    for name in ("hawk.png", "hawk.tiff", "spheres-D65.png", "spheres-A.png", "spheres-A-unadapted.png"):
+        assert (out / name).stat().st_size > 1000, name
+    hawk = np.asarray(Image.open(out / "hawk.png"))
+    assert hawk.shape == (180, 240, 3)
+    assert hawk.std() > 5        # an object, not a blank frame
+
+    summary = json.loads((out / "demo.json").read_text())
+    shift = summary["shift_D65_to_A"]
+    # After adaptation to each light's white, a spectrally flat reflector looks the same under both
+    # lights; a reflectance that rises steeply in the red (copper, bronze, shakudo) does not.
+    neutral = max(shift["silver"], shift["aluminium"])
+    for coloured in ("copper", "bronze", "shakudo"):
+        assert shift[coloured] > 2 * neutral, (coloured, shift[coloured], neutral)
+    assert neutral < 0.6
+
+    # Unadapted, tungsten light makes the whole frame warm: red well above blue on average.
+    warm = np.asarray(Image.open(out / "spheres-A-unadapted.png")).astype(float).reshape(-1, 3).mean(0)
+    assert warm[0] > warm[2] + 40
