@@ -60,18 +60,28 @@ def case_speed(preset: str = "standard", repeats: int = 3) -> dict:
     )
     job = build_job(spec, default_hawk_triangles=tri)
     n_tri = sum(o.mesh.n_triangles for o in job.scene.objects)
-    render(job.scene, job.camera, job.settings)          # warm-up: BVH build, tables, imports
-    render_times, base_times = [], []
+    render(job.scene, job.camera, job.settings)          # warm-up: tables, imports, page cache
+    render_times, render_builds, bases, refined = [], [], [], 0.0
     for _ in range(repeats):                              # interleaved: both see the same machine load
         t0 = time.perf_counter()
-        render(job.scene, job.camera, job.settings)
+        res = render(job.scene, job.camera, job.settings)
         render_times.append(time.perf_counter() - t0)
-        base_times.append(cast_rays_baseline(job.scene, job.camera, job.settings))
-    r, b = statistics.median(render_times), statistics.median(base_times)
+        render_builds.append(res.timings["bvh_build"])
+        refined = res.stats["refined_fraction"]
+        # the same primary (base + refinement) and shadow rays, in a freshly built scene
+        bases.append(cast_rays_baseline(job.scene, job.camera, job.settings, refined=res.refined))
+    with_build = [rt / b.with_build for rt, b in zip(render_times, bases)]
+    no_build = [(rt - rb) / b.cast for rt, rb, b in zip(render_times, render_builds, bases)]
+    r = statistics.median(render_times)
     return {"preset": preset, "triangles": n_tri, "size": list(SPEED_SIZE),
             "samples_per_pixel": job.settings.samples_per_pixel,
-            "render_s": r, "cast_s": b, "ratio": r / b,
-            "ratios": [rt / bt for rt, bt in zip(render_times, base_times)],
+            "adaptive_samples": job.settings.adaptive_samples, "refined_fraction": refined,
+            "primary_rays": bases[-1].primary_rays, "shadow_rays": bases[-1].shadow_rays,
+            "render_s": r, "cast_s": statistics.median(b.with_build for b in bases),
+            "build_s": statistics.median(b.build for b in bases),
+            "cast_no_build_s": statistics.median(b.cast for b in bases),
+            "ratio": statistics.median(with_build), "ratios": with_build,
+            "ratio_no_build": statistics.median(no_build), "ratios_no_build": no_build,
             "peak_rss_mb": peak_rss_mb()}
 
 
@@ -82,13 +92,18 @@ def _accuracy_variants():
     variants = {
         "draft preset": get_preset("draft"),
         "standard preset": get_preset("standard"),
-        "reference preset, other seed (noise floor)": ref.replace(seed=ref.seed + 1),
+        "reference preset, jittered samples, other seed (noise floor)": ref.replace(jitter=True, seed=ref.seed + 1),
     }
+    # spectral handling alone: 16 uniform samples (no adaptive decisions that could differ), compared
+    # with the same samples at 61 bands per pixel
+    fixed = ref.replace(adaptive_samples=0)
+    spectral = {}
     for step, bands in ((10.0, 31), (20.0, 16), (300.0 / 7.0, 8)):
-        variants[f"reference, {bands} bands per pixel"] = ref.replace(spectral_step=step)
+        spectral[f"reference samples, {bands} bands per pixel"] = fixed.replace(spectral_step=step)
     for step, bands in ((5.0, 61), (20.0, 16)):
-        variants[f"reference, per-material tables, {bands} bands"] = ref.replace(spectral_step=step, use_tables=True)
-    return ref, variants
+        spectral[f"reference samples, per-material tables, {bands} bands"] = fixed.replace(spectral_step=step,
+                                                                                           use_tables=True)
+    return ref, variants, fixed, spectral
 
 
 def case_accuracy() -> dict:
@@ -99,28 +114,39 @@ def case_accuracy() -> dict:
 
     tri = HAWK_PRESET_TRIANGLES["draft"]
     job = _hawk_job(ACCURACY_SIZE, "reference", tri, sky="gradient")
-    ref_settings, variants = _accuracy_variants()
+    ref_settings, variants, fixed_settings, spectral = _accuracy_variants()
+    white = white_xyz(light_spectrum("D65", REFERENCE_GRID), REFERENCE_GRID)
+
+    def compare(base, base_time, base_settings, base_name, todo):
+        mask = base.mask > 0
+        rows = [{"variant": base_name, "settings": _describe(base_settings), "seconds": base_time,
+                 "de_mean": 0.0, "de_p95": 0.0, "refined_fraction": base.stats["refined_fraction"]}]
+        for name, settings in todo.items():
+            t0 = time.perf_counter()
+            res = render(job.scene, job.camera, settings)
+            secs = time.perf_counter() - t0
+            de = np.asarray(delta_e00(res.xyz[mask], base.xyz[mask], white))
+            rows.append({"variant": name, "settings": _describe(settings), "seconds": secs,
+                         "de_mean": float(de.mean()), "de_p95": float(np.percentile(de, 95)),
+                         "refined_fraction": res.stats["refined_fraction"]})
+        return rows
+
     t0 = time.perf_counter()
     ref = render(job.scene, job.camera, ref_settings)
-    ref_time = time.perf_counter() - t0
-    white = white_xyz(light_spectrum("D65", REFERENCE_GRID), REFERENCE_GRID)
-    mask = ref.mask > 0
-    rows = [{"variant": "reference preset", "settings": _describe(ref_settings), "seconds": ref_time,
-             "de_mean": 0.0, "de_p95": 0.0}]
-    for name, settings in variants.items():
-        t0 = time.perf_counter()
-        res = render(job.scene, job.camera, settings)
-        secs = time.perf_counter() - t0
-        de = np.asarray(delta_e00(res.xyz[mask], ref.xyz[mask], white))
-        rows.append({"variant": name, "settings": _describe(settings), "seconds": secs,
-                     "de_mean": float(de.mean()), "de_p95": float(np.percentile(de, 95))})
+    rows = compare(ref, time.perf_counter() - t0, ref_settings, "reference preset", variants)
+    t0 = time.perf_counter()
+    fixed = render(job.scene, job.camera, fixed_settings)
+    rows += compare(fixed, time.perf_counter() - t0, fixed_settings, "reference samples (16 spp, no refinement)",
+                    spectral)
     return {"size": list(ACCURACY_SIZE), "triangles": tri, "rows": rows, "peak_rss_mb": peak_rss_mb()}
 
 
 def _describe(s) -> str:
     bands = int(round(300.0 / s.spectral_step)) + 1
     return (f"{bands} bands, {'tables' if s.use_tables else 'per-pixel spectra'}, "
-            f"{s.samples_per_pixel} spp, {s.mirror_bounces} bounce(s), {s.mirror_rays} mirror ray(s)")
+            f"{s.samples_per_pixel} spp" + (f" (adaptive {s.adaptive_samples} above {s.adaptive_threshold:g} L*)"
+                                              if s.adaptive_samples else "")
+            + f", {s.mirror_bounces} bounce(s), {s.mirror_rays} mirror ray(s)")
 
 
 def main() -> None:

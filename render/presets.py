@@ -7,29 +7,30 @@ angular tables and the shadow rays:
 
 ``reference``
     5 nm (61 bands) spectral evaluation of every lobe at every sample (no
-    tables), 16 samples per pixel on a rotated ordered 4 x 4 grid, one mirror
-    bounce with rough mirrors jittered by their roughness (2 rays per
-    sample).
+    tables), 16 samples per pixel on a rotated ordered 4 x 4 grid, and
+    adaptive anti-aliasing: pixels whose samples disagree by more than
+    0.25 L* (or see different surfaces) are rendered again with 256 samples
+    (16 x 16); one mirror bounce with rough mirrors jittered by their
+    roughness (2 rays per sample).  Its noise floor on the procedural hawk
+    (320 x 240, against the same preset with jittered samples and another
+    seed) is about 0.02 mean CIEDE2000.
 ``standard``
     the same 5 nm spectral integral, but through per-(material, light)
     angular tables (exact spectral result at RGB cost, table error measured
-    in ``tests/test_render_tables.py``), 4 samples per pixel on the rotated
-    grid, one bounce, one jittered mirror ray per sample.
+    in ``tests/test_render_tables.py``: below 0.001 delta E00), 4 samples
+    per pixel on the rotated grid, refined to 64 samples (8 x 8) where they
+    disagree by more than 0.5 L* or see different surfaces; one bounce, one
+    jittered mirror ray per sample.
 
-    Measured mean CIEDE2000 from ``reference`` (64 x 48 images, gradient
-    sky, one light; ``tests/test_render_renderer.py``): 0.03 for a metal
-    surface filling the frame, 0.06 for a gold sphere against the sky (within
-    the 0.1 target).  On scenes with several objects reflecting each other,
-    or with sub-pixel relief (the feathers of the procedural hawk at
-    320 x 240: 0.22), the anti-aliasing of sharp reflected edges and
-    sub-pixel highlights dominates, the same order as the difference between
-    the reference and a jittered 16-sample reference (0.14-0.19); 9 samples
-    give 0.13 on the hawk, 16 give 0.03.  The tables themselves add less than
-    0.001.  The ordered grid averages linearly varying shading exactly,
-    where jittered samples add noise (0.12 instead of 0.06 for the sphere).
+    Measured on the procedural hawk (320 x 240, sun and gradient sky,
+    ``bench/render_bench.py``; docs/rendering.md): about 0.07 mean
+    CIEDE2000 from ``reference`` (0.22 without the refinement), with about
+    5 % of the pixels refined.  The error left is anti-aliasing of sub-pixel
+    highlights that none of the four base samples sees.
 ``draft``
-    20 nm tables, one sample per pixel (pixel centres), no mirror bounce
-    (mirror lobes see the sky without occlusion), shadows kept.
+    20 nm tables, one sample per pixel (pixel centres), no refinement, no
+    mirror bounce (mirror lobes see the sky without occlusion), shadows
+    kept.
 
 Examples
 --------
@@ -99,6 +100,17 @@ class RenderSettings:
         65536 samples (16384 with per-sample spectra).
     seed
         Seed of the sample jitter (renders are reproducible).
+    adaptive_samples
+        Adaptive anti-aliasing: pixels whose ``samples_per_pixel`` base
+        samples disagree are rendered again with this many samples (which
+        replace the base samples in the pixel's value); 0 turns it off.
+        Must exceed ``samples_per_pixel``, which must be at least 2.
+    adaptive_threshold
+        When the base samples of a pixel disagree: they hit different
+        objects or materials, some hit and some miss, or their colours
+        spread by more than this many CIELAB lightness units (the largest
+        range over the samples of ``116 f(X/Xw)``, ``116 f(Y/Yw)``,
+        ``116 f(Z/Zw)``, with ``f`` the CIELAB cube-root function).
     """
 
     name: str = "custom"
@@ -112,6 +124,8 @@ class RenderSettings:
     shadows: bool = True
     tile_size: int = 64
     seed: int = 0
+    adaptive_samples: int = 0
+    adaptive_threshold: float = 2.0
 
     def __post_init__(self) -> None:
         try:
@@ -130,6 +144,28 @@ class RenderSettings:
         object.__setattr__(self, "table_size", _whole(self.table_size, "table_size", 2, 1 << 20))
         object.__setattr__(self, "tile_size", _whole(self.tile_size, "tile_size", 1, 1 << 14))
         object.__setattr__(self, "seed", _whole(self.seed, "seed", 0))
+        object.__setattr__(self, "adaptive_samples", _whole(self.adaptive_samples, "adaptive_samples", 0, 4096))
+        if self.adaptive_samples:
+            if self.samples_per_pixel < 2:
+                raise RenderInputError(
+                    "render setting adaptive_samples needs samples_per_pixel >= 2 (base samples to compare), "
+                    f"got samples_per_pixel={self.samples_per_pixel}; raise it or set adaptive_samples=0"
+                )
+            if self.adaptive_samples <= self.samples_per_pixel:
+                raise RenderInputError(
+                    f"render setting adaptive_samples ({self.adaptive_samples}) must exceed samples_per_pixel "
+                    f"({self.samples_per_pixel}), or be 0 to turn adaptive anti-aliasing off"
+                )
+        try:
+            threshold = float(self.adaptive_threshold)
+        except (TypeError, ValueError):
+            threshold = math.nan
+        if isinstance(self.adaptive_threshold, bool) or not (threshold >= 0.0):
+            raise RenderInputError(
+                f"render setting adaptive_threshold must be a number >= 0 (CIELAB lightness units), "
+                f"got {self.adaptive_threshold!r}"
+            )
+        object.__setattr__(self, "adaptive_threshold", threshold)
         for flag in ("use_tables", "shadows", "jitter"):
             if not isinstance(getattr(self, flag), bool):
                 raise RenderInputError(f"render setting {flag} must be True or False, got {getattr(self, flag)!r}")
@@ -139,8 +175,8 @@ class RenderSettings:
 
         Examples
         --------
-        >>> PRESETS["standard"].replace(samples_per_pixel=1).samples_per_pixel
-        1
+        >>> PRESETS["standard"].replace(samples_per_pixel=9).samples_per_pixel
+        9
         """
         try:
             return dataclasses.replace(self, **changes)
@@ -156,11 +192,11 @@ PRESETS: dict[str, RenderSettings] = {
     ),
     "standard": RenderSettings(
         name="standard", spectral_step=5.0, samples_per_pixel=4, jitter=False, mirror_bounces=1, mirror_rays=1,
-        use_tables=True, table_size=256, shadows=True, tile_size=128,
+        use_tables=True, table_size=256, shadows=True, tile_size=128, adaptive_samples=64, adaptive_threshold=0.5,
     ),
     "reference": RenderSettings(
         name="reference", spectral_step=5.0, samples_per_pixel=16, jitter=False, mirror_bounces=1, mirror_rays=2,
-        use_tables=False, table_size=256, shadows=True, tile_size=32,
+        use_tables=False, table_size=256, shadows=True, tile_size=32, adaptive_samples=256, adaptive_threshold=0.25,
     ),
 }
 

@@ -13,7 +13,11 @@ Pipeline per tile of pixels (DESIGN.md sections 4-5):
 3. shading (:mod:`render.shading`): shadow rays toward each light, sky light,
    mirrored rays with one bounce, evaluated per wavelength (reference) or
    through angular XYZ tables (standard, draft);
-4. the samples of each pixel are averaged; XYZ are normalised so that a white
+4. adaptive anti-aliasing (``settings.adaptive_samples``): the pixels whose
+   base samples disagree (:func:`pixels_to_refine`: different surfaces, hit
+   and miss, or a colour spread above ``adaptive_threshold`` L* units) are
+   rendered again, all at once per tile, with ``adaptive_samples`` samples;
+5. the samples of each pixel are averaged; XYZ are normalised so that a white
    Lambertian surface facing the first light has Y = 1 (for a point light,
    at the distance from the light to the centre of the scene's bounds), and
    converted to 8-bit sRGB with chromatic adaptation from the first light's
@@ -28,7 +32,11 @@ exist at a time (at most ``MAX_TILE_SAMPLES`` samples, float32 in the table
 path), besides the image buffers, the per-triangle vertex normals (36 bytes
 per triangle) and the ray tracer's acceleration structure.  Measured peak
 resident memory for 1024 x 1024 pixels of a 1M-triangle mesh at the
-``standard`` preset: about 0.55 GB.
+``standard`` preset: about 0.6 GB (docs/rendering.md).
+
+Open3D builds its acceleration structure (BVH) on the first query; the
+renderer triggers it with a one-ray cast and reports it as
+``timings["bvh_build"]``, apart from the per-ray casting.
 """
 
 from __future__ import annotations
@@ -58,7 +66,15 @@ from render.shading import (
     shade,
 )
 
-__all__ = ["RenderResult", "render", "cast_rays_baseline", "RenderCancelled", "MAX_TILE_SAMPLES"]
+__all__ = [
+    "RenderResult",
+    "render",
+    "pixels_to_refine",
+    "BaselineTiming",
+    "cast_rays_baseline",
+    "RenderCancelled",
+    "MAX_TILE_SAMPLES",
+]
 
 _F32 = np.float32
 
@@ -79,14 +95,22 @@ class RenderResult:
     white
         XYZ of the scene white (the first light), for colour differences.
     timings
-        Seconds per stage: ``setup``, ``primary_rays``, ``shadow_rays``,
-        ``mirror_rays``, ``shading``, ``display``, ``total``.
+        Seconds per stage: ``setup``, ``bvh_build`` (Open3D's acceleration
+        structure, built by a one-ray cast before the first tile),
+        ``primary_rays``, ``shadow_rays``, ``mirror_rays`` (casting only),
+        ``shading`` (everything else in the tile loop: ray generation,
+        shading, anti-aliasing decisions), ``display``, ``total``.
     stats
-        Counts: rays of each kind, hits, triangles, tiles.
+        Counts: rays of each kind, hits, triangles, tiles, refined pixels
+        (``refined_pixels``, ``refined_fraction``).
     settings
         The settings used.
     sky_visible
         False when the sky is ``"none"`` (background transparent).
+    refined
+        bool ``(H, W)``: the pixels adaptive anti-aliasing rendered again
+        with ``settings.adaptive_samples`` samples (all False when it is
+        off); :func:`cast_rays_baseline` takes it to cast the same rays.
     """
 
     xyz: NDArray[np.float32]
@@ -97,6 +121,7 @@ class RenderResult:
     stats: dict[str, float] = field(default_factory=dict)
     settings: RenderSettings | None = None
     sky_visible: bool = False
+    refined: NDArray[np.bool_] | None = None
 
     def rgba8(self) -> NDArray[np.uint8]:
         """``(H, W, 4)`` sRGB with alpha: coverage when the sky is off, opaque otherwise."""
@@ -120,6 +145,7 @@ class _Prepared:
     backend: SpectralBackend | TableBackend | None
     timings: dict[str, float]
     n_triangles: int
+    n_materials: int
 
 
 def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -> RenderSettings:
@@ -296,10 +322,18 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
         make_hits=make_hits,
     )
     timings["setup"] = time.perf_counter() - t0
+    # Open3D builds its acceleration structure lazily on the first query: trigger it with one ray
+    # so that its cost is reported apart from the per-ray casting.
+    t = time.perf_counter()
+    probe = np.zeros((1, 6), dtype=np.float32)
+    probe[0, :3] = np.asarray(camera.eye, dtype=np.float32)
+    probe[0, 3:] = camera.basis()[2].astype(np.float32)
+    raycaster.cast_rays(o3d.core.Tensor.from_numpy(probe))
+    timings["bvh_build"] = time.perf_counter() - t
     check_point_lights(scene, raycaster)
     return _Prepared(
         raycaster, grid, k, white, tri_offset, tri_normals, corner_material, ctx, backend, timings,
-        int(offsets[-1]),
+        int(offsets[-1]), len(materials),
     )
 
 
@@ -340,6 +374,134 @@ def _pixel_mean(samples: NDArray[np.float32], spp: int) -> NDArray[np.float32]:
     return total.T
 
 
+def _pixel_fraction(flags: NDArray[np.bool_], spp: int) -> NDArray[np.float32]:
+    """Fraction of True among consecutive groups of ``spp`` flags (one pixel each)."""
+    grouped = flags.reshape(-1, spp).view(np.uint8)
+    total = grouped[:, 0].astype(_F32)
+    for s in range(1, spp):
+        total += grouped[:, s]
+    total *= _F32(1.0 / spp)
+    return total
+
+
+_LAB_EPSILON = (6.0 / 29.0) ** 3
+
+
+def _lab_f(t: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The CIELAB function ``f(t)``: ``t^(1/3)`` above ``(6/29)^3``, linear below (CIE 015:2018, eq. 8.7)."""
+    return np.where(t > _F32(_LAB_EPSILON), np.cbrt(t),
+                    t * _F32(1.0 / (3.0 * (6.0 / 29.0) ** 2)) + _F32(4.0 / 29.0))
+
+
+def pixels_to_refine(
+    sample_xyz: NDArray[np.float32],
+    key: NDArray[np.integer],
+    samples: int,
+    white: NDArray[np.floating],
+    threshold: float,
+) -> NDArray[np.bool_]:
+    """Which pixels' base samples disagree (adaptive anti-aliasing, Mitchell 1987).
+
+    Mitchell, "Generating antialiased images at low sampling densities",
+    SIGGRAPH 1987: sample sparsely, then sample more where the samples of a
+    pixel differ.  A pixel is refined when its samples see different
+    surfaces (``key``: object and material number, -1 for a miss, so hit vs
+    miss counts) or their colours spread by more than ``threshold`` CIELAB
+    lightness units: ``116 (max - min)`` of ``f(X/Xw)``, ``f(Y/Yw)`` or
+    ``f(Z/Zw)`` over the pixel's samples.  Pixels whose samples all miss
+    (sky only, smooth) are never refined.
+
+    Parameters
+    ----------
+    sample_xyz
+        float32 ``(n, 3)`` XYZ of the samples, ``samples`` consecutive rows
+        per pixel.
+    key
+        ``(n,)`` surface number of each sample, -1 for a miss.
+    samples
+        Samples per pixel (>= 2).
+    white
+        XYZ of the scene white (Y = 1).
+    threshold
+        Lightness units; ``inf`` refines on surface changes only.
+
+    Returns
+    -------
+    ndarray
+        bool ``(n / samples,)``.
+
+    Examples
+    --------
+    Two pixels of two samples: a uniform one and one with a step of
+    about 4 L* units (Y 0.50 vs 0.45):
+
+    >>> xyz = np.array([[.5, .5, .5], [.5, .5, .5], [.5, .5, .5], [.45, .45, .45]], np.float32)
+    >>> pixels_to_refine(xyz, np.zeros(4, int), 2, np.ones(3), 2.0).tolist()
+    [False, True]
+    >>> pixels_to_refine(xyz, np.array([0, 0, 0, 0]), 2, np.ones(3), 5.0).tolist()
+    [False, False]
+    >>> pixels_to_refine(xyz, np.array([0, 1, -1, -1]), 2, np.ones(3), 5.0).tolist()
+    [True, False]
+    """
+    keys = np.asarray(key).reshape(-1, samples)
+    first = keys[:, 0]
+    refine = keys[:, 1] != first
+    for s in range(2, samples):                 # column by column: cheaper than a reduction over 2-16 samples
+        refine |= keys[:, s] != first
+    candidates = np.flatnonzero(~refine & (first >= 0))
+    if candidates.size and math.isfinite(threshold):
+        grouped = np.asarray(sample_xyz, dtype=_F32).T.reshape(3, -1, samples)
+        sub = np.take(grouped, candidates, axis=1)                         # (3, c, samples)
+        sub *= (1.0 / np.asarray(white, dtype=np.float64)).astype(_F32)[:, None, None]
+        f = _lab_f(sub)
+        high = f[:, :, 0].copy()
+        low = f[:, :, 0].copy()
+        for s in range(1, samples):
+            np.maximum(high, f[:, :, s], out=high)
+            np.minimum(low, f[:, :, s], out=low)
+        high -= low
+        spread = np.maximum(np.maximum(high[0], high[1]), high[2])
+        refine[candidates[spread > _F32(threshold / 116.0)]] = True
+    return refine
+
+
+def _refine_chunks(count: int, samples: int, use_tables: bool) -> list[slice]:
+    """Slices of the refined pixels of a tile processed at once (at most ``MAX_TILE_SAMPLES`` samples)."""
+    step = max(1, MAX_TILE_SAMPLES[use_tables] // samples)
+    return [slice(i, min(i + step, count)) for i in range(0, count, step)]
+
+
+def _shade_samples(
+    prep: _Prepared, rays: NDArray[np.float32], rng: np.random.Generator, settings: RenderSettings
+) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.int64]]:
+    """Cast and shade primary ``rays``: sample XYZ ``(n, 3)``, hit flags and surface keys (-1: miss)."""
+    ctx, backend = prep.ctx, prep.backend
+    answer = _cast_primary(prep, rays)
+    hit = np.isfinite(answer["t_hit"])
+    rows = np.flatnonzero(hit)
+    colour = backend.zeros(rays.shape[0])
+    key = np.full(rays.shape[0], -1, dtype=np.int32) if settings.adaptive_samples else np.empty(0, np.int32)
+    if not ctx.sky.is_black:
+        miss = np.flatnonzero(~hit)
+        if miss.size:
+            scale = ctx.sky.radiance_scale(np.take(rays, miss, axis=0)[:, 3:])
+            backend.add(colour, miss, backend.background(scale))
+    if rows.size:
+        hits = ctx.make_hits(rays, answer, rows)
+        if settings.adaptive_samples:
+            surface = hits.material.astype(np.int32)
+            if len(prep.tri_offset) > 1:
+                surface += prep.n_materials * np.take(answer["geometry_ids"], rows).astype(np.int32)
+            key[rows] = surface
+        backend.add(colour, rows, shade(ctx, hits, backend, settings.mirror_bounces, rng))
+    return backend.to_xyz(colour), hit, key
+
+
+def _tile_rngs(settings: RenderSettings, number: int) -> tuple[np.random.Generator, ...]:
+    """Independent generators of tile ``number``: base sample jitter, refinement jitter, shading."""
+    return tuple(np.random.default_rng([settings.seed, number, stream]) for stream in range(3))
+
+
 # --------------------------------------------------------------------------- render
 def render(
     scene: Scene,
@@ -350,6 +512,12 @@ def render(
     cancel: Callable[[], bool] | None = None,
 ) -> RenderResult:
     """Render ``scene`` seen by ``camera``.
+
+    Each tile is rendered with ``settings.samples_per_pixel`` samples per
+    pixel; with adaptive anti-aliasing (``settings.adaptive_samples > 0``)
+    the pixels whose samples disagree (:func:`pixels_to_refine`) are then
+    rendered again with ``adaptive_samples`` samples, which give their
+    value.
 
     Parameters
     ----------
@@ -398,35 +566,40 @@ def render(
     settings = _check_args(scene, camera, settings)
     t_start = time.perf_counter()
     prep = _prepare(scene, camera, settings)
-    ctx, backend = prep.ctx, prep.backend
+    ctx = prep.ctx
     width, height, spp = camera.width, camera.height, settings.samples_per_pixel
+    extra = settings.adaptive_samples
     xyz = np.zeros((height, width, 3), dtype=_F32)
     mask = np.zeros((height, width), dtype=_F32)
+    refined = np.zeros((height, width), dtype=bool)
     tiles = _tiles(camera, settings)
     hits_total = 0
+    primary_total = 0
     t_loop = time.perf_counter()
     for number, (x0, x1, y0, y1) in enumerate(tiles):
         if cancel is not None and cancel():
             raise RenderCancelled(f"render cancelled after {number} of {len(tiles)} tiles")
-        rng = np.random.default_rng([settings.seed, number])
-        rays = camera.rays(x0, x1, y0, y1, spp, rng, settings.jitter)
-        answer = _cast_primary(prep, rays)
-        hit = np.isfinite(answer["t_hit"])
-        rows = np.flatnonzero(hit)
-        colour = backend.zeros(rays.shape[0])
-        if not ctx.sky.is_black:
-            miss = np.flatnonzero(~hit)
-            if miss.size:
-                scale = ctx.sky.radiance_scale(np.take(rays, miss, axis=0)[:, 3:])
-                backend.add(colour, miss, backend.background(scale))
-        if rows.size:
-            hits = ctx.make_hits(rays, answer, rows)
-            backend.add(colour, rows, shade(ctx, hits, backend, settings.mirror_bounces, rng))
-        hits_total += rows.size
-        sample_xyz = backend.to_xyz(colour)
+        rng_base, rng_refine, rng_shade = _tile_rngs(settings, number)
+        rays = camera.rays(x0, x1, y0, y1, spp, rng_base, settings.jitter)
+        sample_xyz, hit, key = _shade_samples(prep, rays, rng_shade, settings)
+        primary_total += rays.shape[0]
+        hits_total += int(np.count_nonzero(hit))
         ny, nx = y1 - y0, x1 - x0
-        xyz[y0:y1, x0:x1] = _pixel_mean(sample_xyz, spp).reshape(ny, nx, 3)
-        mask[y0:y1, x0:x1] = (np.count_nonzero(hit.reshape(ny, nx, spp), axis=2) / spp).astype(_F32)
+        pixel = _pixel_mean(sample_xyz, spp)
+        cover = _pixel_fraction(hit, spp)
+        if extra:
+            todo = np.flatnonzero(pixels_to_refine(sample_xyz, key, spp, prep.white, settings.adaptive_threshold))
+            for part in _refine_chunks(todo.size, extra, settings.use_tables):
+                idx = todo[part]
+                more = camera.pixel_rays(x0 + idx % nx, y0 + idx // nx, extra, rng_refine, settings.jitter)
+                more_xyz, more_hit, _ = _shade_samples(prep, more, rng_shade, settings)
+                primary_total += more.shape[0]
+                hits_total += int(np.count_nonzero(more_hit))
+                pixel[idx] = _pixel_mean(more_xyz, extra)
+                cover[idx] = _pixel_fraction(more_hit, extra)
+            refined[y0 + todo // nx, x0 + todo % nx] = True
+        xyz[y0:y1, x0:x1] = pixel.reshape(ny, nx, 3)
+        mask[y0:y1, x0:x1] = cover.reshape(ny, nx)
         if progress is not None:
             progress((number + 1) / len(tiles))
     t_display = time.perf_counter()
@@ -443,37 +616,87 @@ def render(
     t_end = time.perf_counter()
     timings["display"] = t_end - t_display
     timings["total"] = t_end - t_start
+    n_refined = int(np.count_nonzero(refined))
     stats = {
-        "primary_rays": width * height * spp,
+        "primary_rays": primary_total,
         "hits": hits_total,
         "shadow_rays": ctx.stats.get("shadow_rays", 0),
         "mirror_rays": ctx.stats.get("mirror_rays", 0),
         "secondary_hits": ctx.stats.get("secondary_hits", 0),
+        "refined_pixels": n_refined,
+        "refined_fraction": n_refined / (width * height),
         "triangles": prep.n_triangles,
         "objects": len(scene.objects),
         "tiles": len(tiles),
         "wavelengths": prep.grid.size,
     }
-    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not ctx.sky.is_black)
+    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not ctx.sky.is_black, refined)
 
 
-def cast_rays_baseline(scene: Scene, camera: Camera, settings: RenderSettings | None = None) -> float:
-    """Seconds Open3D spends on the bare ray casts of a render, without shading.
+@dataclass(frozen=True)
+class BaselineTiming:
+    """Seconds Open3D spends on the bare ray casts of a render (see :func:`cast_rays_baseline`).
 
-    The same tiles and primary rays as :func:`render` (same seed), cast with
-    ``cast_rays``, plus the shadow rays of those hits toward every light
-    (``test_occlusions``, built exactly as the renderer builds them; only for
-    samples facing the light, and only when ``settings.shadows``).  Only the
+    Attributes
+    ----------
+    build
+        The acceleration-structure build (the first, one-ray cast).
+    primary, shadow
+        ``cast_rays`` of the primary rays, ``test_occlusions`` of the shadow
+        rays, with the structure built.
+    primary_rays, shadow_rays
+        How many rays of each kind were cast.
+    """
+
+    build: float
+    primary: float
+    shadow: float
+    primary_rays: int
+    shadow_rays: int
+
+    @property
+    def cast(self) -> float:
+        """Casting time without the build: ``primary + shadow``."""
+        return self.primary + self.shadow
+
+    @property
+    def with_build(self) -> float:
+        """Casting time including the build, as a render from scratch pays it."""
+        return self.build + self.cast
+
+
+def cast_rays_baseline(
+    scene: Scene,
+    camera: Camera,
+    settings: RenderSettings | None = None,
+    *,
+    refined: NDArray[np.bool_] | None = None,
+) -> BaselineTiming:
+    """Time the bare Open3D ray casts of a render, without shading.
+
+    The same tiles and primary rays as :func:`render` (same seed and sample
+    streams), cast with ``cast_rays``, plus the shadow rays of those hits
+    toward every light (``test_occlusions``, built exactly as the renderer
+    builds them; only for samples facing the light, and only when
+    ``settings.shadows``).  With adaptive anti-aliasing the decisions need
+    the shading, so they are taken from the render being compared:
+    ``refined`` (its :attr:`RenderResult.refined`) names the pixels whose
+    refinement rays are cast too.  Mirror rays are not cast.  Only the
     Open3D calls are timed; building the ray arrays is not.  Like the
-    renderer, it casts into a freshly built ``RaycastingScene``, so the time
-    includes Open3D's acceleration-structure build, done lazily by the first
-    cast (about 0.5 s for a million triangles on two cores).  ``render time /
-    baseline`` is the overhead of shading, mirror rays and bookkeeping.
+    renderer, it casts into a freshly built ``RaycastingScene`` and times the
+    acceleration-structure build (the first, one-ray cast) separately.
+
+    Parameters
+    ----------
+    scene, camera, settings
+        As for :func:`render` (None: the ``standard`` preset).
+    refined
+        bool ``(H, W)`` pixels refined by the render (required when
+        ``settings.adaptive_samples > 0``).
 
     Returns
     -------
-    float
-        Seconds.
+    BaselineTiming
 
     Examples
     --------
@@ -481,20 +704,52 @@ def cast_rays_baseline(scene: Scene, camera: Camera, settings: RenderSettings | 
     >>> from render.scene import Light, SceneObject, Sky
     >>> square = make_mesh([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], [[0, 1, 2], [0, 2, 3]])
     >>> scene = Scene([SceneObject(square, ["gold"])], [Light("directional", (0, 0, 1))], Sky("none"))
-    >>> cast_rays_baseline(scene, Camera((0, 0, 4), (0, 0, 0), (0, 1, 0), 20, 8, 8)) > 0
-    True
+    >>> camera = Camera((0, 0, 4), (0, 0, 0), (0, 1, 0), 20, 8, 8)
+    >>> result = render(scene, camera)
+    >>> base = cast_rays_baseline(scene, camera, refined=result.refined)
+    >>> base.cast > 0, base.primary_rays == result.stats["primary_rays"]
+    (True, True)
     """
     settings = _check_args(scene, camera, settings)
+    extra = settings.adaptive_samples
+    if extra:
+        if refined is None:
+            raise RenderInputError(
+                "cast_rays_baseline: with adaptive anti-aliasing (adaptive_samples > 0) pass refined=, the "
+                "RenderResult.refined of the render to compare with, so the same rays are cast"
+            )
+        refined = np.asarray(refined)
+        if refined.shape != (camera.height, camera.width) or refined.dtype != np.bool_:
+            raise RenderInputError(
+                f"cast_rays_baseline: refined must be a bool array of shape ({camera.height}, {camera.width}) "
+                f"(RenderResult.refined), got {refined.dtype} {refined.shape}"
+            )
     prep = _prepare(scene, camera, settings, backends=False)
     ctx = prep.ctx
     spp = settings.samples_per_pixel
-    for number, (x0, x1, y0, y1) in enumerate(_tiles(camera, settings)):
-        rng = np.random.default_rng([settings.seed, number])
-        rays = camera.rays(x0, x1, y0, y1, spp, rng, settings.jitter)
+    count = 0
+
+    def cast(rays: NDArray[np.float32]) -> None:
         answer = _cast_primary(prep, rays)
         rows = np.flatnonzero(np.isfinite(answer["t_hit"]))
         if rows.size and settings.shadows:
             hits = ctx.make_hits(rays, answer, rows)
             for i in range(len(ctx.lights)):
                 light_samples(ctx, hits, i)
-    return prep.timings["primary_rays"] + prep.timings["shadow_rays"]
+
+    for number, (x0, x1, y0, y1) in enumerate(_tiles(camera, settings)):
+        rng_base, rng_refine, _ = _tile_rngs(settings, number)
+        rays = camera.rays(x0, x1, y0, y1, spp, rng_base, settings.jitter)
+        cast(rays)
+        count += rays.shape[0]
+        if extra:
+            todo = np.flatnonzero(refined[y0:y1, x0:x1].reshape(-1))
+            nx = x1 - x0
+            for part in _refine_chunks(todo.size, extra, settings.use_tables):
+                idx = todo[part]
+                more = camera.pixel_rays(x0 + idx % nx, y0 + idx // nx, extra, rng_refine, settings.jitter)
+                cast(more)
+                count += more.shape[0]
+    t = prep.timings
+    return BaselineTiming(t["bvh_build"], t["primary_rays"], t["shadow_rays"], count,
+                          int(ctx.stats.get("shadow_rays", 0)))

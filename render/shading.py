@@ -725,7 +725,10 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
     if m == 0:
         return out
     per_light = [light_samples(ctx, hits, i) for i in range(len(ctx.lights))]
-    materials = np.unique(hits.material) if len(ctx.plans) > 1 else np.zeros(1, dtype=np.int32)
+    if len(ctx.plans) > 1:
+        materials = np.flatnonzero(np.bincount(hits.material, minlength=len(ctx.plans)))
+    else:
+        materials = np.zeros(1, dtype=np.int32)
     for mat in materials:
         mat = int(mat)
         plan = ctx.plans[mat]

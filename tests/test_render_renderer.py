@@ -468,9 +468,12 @@ def test_standard_preset_is_within_0_1_mean_delta_e_of_reference():
     assert 0.2 < float((ref.mask > 0).mean()) < 0.6
     de = delta_e00(std.xyz, ref.xyz, ref.white)
     assert float(de.mean()) <= 0.1
-    # the spectral tables are not where the difference comes from: same samples, tables vs spectra
-    tab = render(scene, cam, PRESETS["reference"].replace(use_tables=True))
-    assert float(delta_e00(tab.xyz, ref.xyz, ref.white).mean()) < 0.002
+    # the spectral tables are not where the difference comes from: same samples (adaptive refinement
+    # off, whose decisions could flip on rounding), tables vs spectra
+    fixed = PRESETS["reference"].replace(adaptive_samples=0)
+    spe = render(scene, cam, fixed)
+    tab = render(scene, cam, fixed.replace(use_tables=True))
+    assert float(delta_e00(tab.xyz, spe.xyz, spe.white).mean()) < 0.002
 
 
 # --------------------------------------------------------------------------- bookkeeping
@@ -490,7 +493,8 @@ def test_result_fields_progress_cancel_and_baseline():
     calls = iter([False, False, True])
     with pytest.raises(RenderCancelled):
         render(scene, cam, settings(tile_size=16), cancel=lambda: next(calls))
-    assert cast_rays_baseline(scene, cam, settings()) > 0.0
+    base = cast_rays_baseline(scene, cam, settings())
+    assert base.cast > 0.0 and base.build > 0.0 and base.primary_rays == res.stats["primary_rays"]
 
 
 def test_render_is_reproducible_and_the_seed_matters_only_for_jitter():
