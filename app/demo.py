@@ -56,9 +56,10 @@ def spheres_spec(names: list[str], illuminant: str, size: tuple[int, int], prese
         for name, c in zip(names, centres)
     ]
     rows = math.ceil(len(names) / SPHERE_COLUMNS)
-    half_h = rows * SPHERE_SPACING / 2 + 0.6
+    half_h = rows * SPHERE_SPACING / 2 + 0.6          # room for the labels and the title
+    half_w = SPHERE_COLUMNS * SPHERE_SPACING / 2 + 0.3
     dist = 60.0
-    fov = 2 * math.degrees(math.atan(half_h / dist))
+    fov = 2 * math.degrees(math.atan(max(half_h, half_w * size[1] / size[0]) / dist))
     return SceneSpec(
         objects=objects,
         lights=[LightSpec("directional", (-0.5, -1.0, 0.8), illuminant, 1.0)],
