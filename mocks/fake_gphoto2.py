@@ -1,0 +1,315 @@
+"""A fake ``gphoto2`` program that photographs the simulated world and downloads a DNG.
+
+It answers the command line the camera driver uses
+(:class:`drivers.camera_gphoto2.Gphoto2Camera`)::
+
+    gphoto2 [--port PORT] --capture-image-and-download [--filename PATTERN]
+
+like gphoto2 2.5 does: it prints ``New file is in location ... on the
+camera`` / ``Saving file as NAME`` / ``Deleting file ... on the camera`` and
+writes the frame into the current folder, expanding the pattern codes
+``%f`` (the camera's file name, ``DSC_0001``...), ``%C`` (extension,
+``dng``), ``%n`` (running number from 1), ``%%`` and the ``strftime`` date
+codes ``%Y %m %d %H %M %S``.  ``--auto-detect`` and ``--version`` answer too.
+
+The frame is rendered from :class:`mocks.world.World` through the simulated
+camera (:mod:`mocks.camera_sim`).  State lives in a JSON configuration file
+(:func:`write_config`) named by the ``KOGEI_FAKE_GPHOTO2_CONFIG``
+environment variable or built into the shim by :func:`install`::
+
+    {"world": {...World.to_dict()...},
+     "chart_first": true,        # capture number 1 shows the colour chart
+     "exposure_s": 0.01, "seed": 0,
+     "faults": {"no_camera": false, "busy": 0, "slow_s": 0.0,
+                "exit_code": 0, "no_output": false, "saturate": false}}
+
+``busy`` counts down: that many captures fail with ``Could not claim the USB
+device`` before the camera frees up.  A capture counter is kept in
+``<config>.state``.  Error messages are gphoto2's own wording, printed to
+standard error with exit status 1 (or ``exit_code``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+__all__ = [
+    "CONFIG_ENV",
+    "DEFAULT_FAULTS",
+    "expand_pattern",
+    "install",
+    "main",
+    "read_config",
+    "update_config",
+    "write_config",
+]
+
+#: Environment variable naming the configuration file (overrides the shim's built-in path).
+CONFIG_ENV = "KOGEI_FAKE_GPHOTO2_CONFIG"
+
+#: Fault switches and their "off" values.
+DEFAULT_FAULTS: dict[str, Any] = {
+    "no_camera": False,
+    "busy": 0,
+    "slow_s": 0.0,
+    "exit_code": 0,
+    "no_output": False,
+    "saturate": False,
+}
+
+_SATURATION_BOOST = 30.0
+_CODES = re.compile(r"%(.)")
+
+
+def expand_pattern(pattern: str, *, basename: str, extension: str, number: int, when: float) -> str:
+    """gphoto2's ``--filename`` pattern expanded for one file.
+
+    Examples
+    --------
+    >>> expand_pattern("%f.%C", basename="DSC_0001", extension="dng", number=1, when=0)
+    'DSC_0001.dng'
+    >>> expand_pattern("shot-%n-100%%.%C", basename="X", extension="dng", number=7, when=0)
+    'shot-7-100%.dng'
+    """
+    stamp = time.localtime(when)
+
+    def one(m: re.Match[str]) -> str:
+        c = m.group(1)
+        if c == "f":
+            return basename
+        if c == "C":
+            return extension
+        if c == "n":
+            return str(number)
+        if c == "%":
+            return "%"
+        if c in "YmdHMS":
+            return time.strftime("%" + c, stamp)
+        raise ValueError(f"unknown filename pattern code %{c}")
+
+    return _CODES.sub(one, pattern)
+
+
+def write_config(path: str | os.PathLike[str], world: dict[str, Any], *, faults: dict[str, Any] | None = None,
+                 chart_first: bool = True, exposure_s: float = 0.01, seed: int = 0) -> Path:
+    """Write a fake-gphoto2 configuration atomically (and reset its capture counter).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = write_config(pathlib.Path(tempfile.mkdtemp()) / "cam.json", {"mesh": "hawk:2000"})
+    >>> read_config(p)["faults"]["busy"]
+    0
+    """
+    unknown = set(faults or {}) - set(DEFAULT_FAULTS)
+    if unknown:
+        raise ValueError(f"unknown fake gphoto2 fault(s) {', '.join(sorted(unknown))}; "
+                         f"known: {', '.join(DEFAULT_FAULTS)}")
+    config = {"world": world, "chart_first": bool(chart_first), "exposure_s": float(exposure_s),
+              "seed": int(seed), "faults": {**DEFAULT_FAULTS, **(faults or {})}}
+    target = Path(path)
+    _atomic_json(target, config)
+    state = _state_path(target)
+    if state.exists():
+        state.unlink()
+    return target
+
+
+def read_config(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The configuration in ``path`` with missing fault switches filled in."""
+    with open(path, encoding="utf-8") as fh:
+        config = json.load(fh)
+    config["faults"] = {**DEFAULT_FAULTS, **config.get("faults", {})}
+    return config
+
+
+def update_config(path: str | os.PathLike[str], *, faults: dict[str, Any] | None = None,
+                  **world_changes: Any) -> None:
+    """Change fault switches and world settings (e.g. ``table_angle_deg``) in place, atomically."""
+    config = read_config(path)
+    if faults:
+        unknown = set(faults) - set(DEFAULT_FAULTS)
+        if unknown:
+            raise ValueError(f"unknown fake gphoto2 fault(s) {', '.join(sorted(unknown))}")
+        config["faults"].update(faults)
+    config["world"].update(world_changes)
+    _atomic_json(Path(path), config)
+
+
+def install(directory: str | os.PathLike[str], config: str | os.PathLike[str]) -> Path:
+    """Install the fake as an executable ``<directory>/gphoto2`` bound to ``config``.
+
+    The shim runs this module with the current interpreter (``#!`` line of
+    ``sys.executable``) and the project on ``sys.path``.  Put ``directory``
+    first on ``PATH`` or give its path to the camera driver.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> shim = install(d, d / "cam.json")
+    >>> shim.name, os.access(shim, os.X_OK)
+    ('gphoto2', True)
+    """
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    root = Path(__file__).resolve().parent.parent
+    text = (
+        f"#!{sys.executable}\n"
+        "# Fake gphoto2 of the kogei simulator (mocks/fake_gphoto2.py).\n"
+        "import sys\n"
+        f"sys.path.insert(0, {str(root)!r})\n"
+        "from mocks.fake_gphoto2 import main\n"
+        f"sys.exit(main(sys.argv[1:], default_config={str(Path(config).resolve())!r}))\n"
+    )
+    shim = folder / "gphoto2"
+    tmp = folder / ".gphoto2.tmp"
+    tmp.write_text(text, encoding="utf-8")
+    tmp.chmod(0o755)
+    os.replace(tmp, shim)
+    return shim
+
+
+def _atomic_json(path: Path, data: dict[str, Any]) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        json.dump(data, fh, indent=1)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _state_path(config: Path) -> Path:
+    return config.with_name(config.name + ".state")
+
+
+def _world(data: dict[str, Any], config_path: Path) -> Any:
+    """The configured world; the mesh is cached in ``<config>.mesh.npz`` so captures after the first
+    do not rebuild it."""
+    import numpy as np
+
+    from mocks.world import World
+
+    cache = config_path.with_name(config_path.name + ".mesh.npz")
+    source = str(data.get("mesh", "hawk:4000"))
+    if cache.exists():
+        with np.load(cache, allow_pickle=False) as z:
+            if str(z["source"]) == source:
+                settings = {k: v for k, v in data.items() if k not in ("mesh", "materials")}
+                world = World(z["vertices"], z["triangles"], z["region"], tuple(str(n) for n in z["names"]),
+                              {**{str(n): str(m) for n, m in zip(z["names"], z["materials"])},
+                               **data.get("materials", {})},
+                              mesh_source=source, **_world_settings(settings))
+                return world
+    world = World.from_dict(data)
+    tmp = cache.with_name(f".{cache.name}.{os.getpid()}.npz")
+    np.savez(tmp, source=source, vertices=world.vertices, triangles=world.triangles, region=world.region,
+             names=np.array(world.region_names), materials=np.array([world.materials[n] for n in world.region_names]))
+    os.replace(tmp, cache)
+    return world
+
+
+def _world_settings(settings: dict[str, Any]) -> dict[str, Any]:
+    from mocks.world import world_settings
+
+    return world_settings(settings)
+
+
+def _error(message: str, code: int = 1) -> int:
+    sys.stderr.write(f"\n*** Error{message} ***\n\n")
+    sys.stderr.flush()
+    return code
+
+
+def main(argv: Sequence[str] | None = None, default_config: str | None = None) -> int:
+    """Run the fake with command-line ``argv``; returns the exit status."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    pattern = "%f.%C"
+    capture = detect = False
+    i = 0
+    while i < len(args):
+        a = args[i]
+        if a == "--capture-image-and-download":
+            capture = True
+        elif a in ("--filename", "--port"):
+            if i + 1 >= len(args):
+                sys.stderr.write(f"{a}: missing argument\n")
+                return 1
+            if a == "--filename":
+                pattern = args[i + 1]
+            i += 1
+        elif a.startswith("--filename="):
+            pattern = a.split("=", 1)[1]
+        elif a == "--version":
+            print("gphoto2 2.5.28 (kogei simulator)")
+            return 0
+        elif a == "--auto-detect":
+            detect = True
+        else:
+            sys.stderr.write(f"gphoto2: unknown option {a!r} (this simulator knows --capture-image-and-download, "
+                             "--filename, --port, --auto-detect, --version)\n")
+            return 1
+        i += 1
+    config_path = os.environ.get(CONFIG_ENV) or default_config
+    if not config_path or not Path(config_path).is_file():
+        sys.stderr.write(f"fake gphoto2: configuration {config_path!r} not found; set {CONFIG_ENV}\n")
+        return 2
+    config = read_config(config_path)
+    faults = config["faults"]
+    if detect:
+        print("Model                          Port\n----------------------------------------------------------")
+        if not faults["no_camera"]:
+            print("Nikon DSC D5100 (PTP mode)     usb:001,004")
+        return 0
+    if not capture:
+        sys.stderr.write("gphoto2: nothing to do; use --capture-image-and-download\n")
+        return 1
+    if faults["no_camera"]:
+        return _error(": No camera found.")
+    if int(faults["busy"]) > 0:
+        update_config(config_path, faults={"busy": int(faults["busy"]) - 1})
+        sys.stderr.write("\n*** Error (-53: 'Could not claim the USB device') ***\n\n")
+        return 1
+    if float(faults["slow_s"]) > 0:
+        time.sleep(float(faults["slow_s"]))
+    if int(faults["exit_code"]) != 0:
+        return _error(" (-1: 'Unspecified error')", int(faults["exit_code"]))
+
+    state_path = _state_path(Path(config_path))
+    count = int(json.loads(state_path.read_text())["count"]) if state_path.exists() else 0
+    number = count + 1
+    try:
+        name = expand_pattern(pattern, basename=f"DSC_{number:04d}", extension="dng", number=number,
+                              when=time.time())
+    except ValueError as exc:
+        sys.stderr.write(f"gphoto2: {exc}\n")
+        return 1
+    if "/" in name:
+        os.makedirs(os.path.dirname(name) or ".", exist_ok=True)
+    _atomic_json(state_path, {"count": number})
+    print(f"New file is in location /capt{count:04d}.nef on the camera")
+    if not faults["no_output"]:
+        from mocks.camera_sim import simulate_raw, write_raw
+        from mocks.world import World
+
+        world = _world(config["world"], Path(config_path))
+        kind = "chart" if config.get("chart_first", True) and number == 1 else "object"
+        frame = world.frame(kind)
+        raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=float(config["exposure_s"]),
+                           seed=int(config["seed"]) + number,
+                           exposure_boost=_SATURATION_BOOST if faults["saturate"] else 1.0)
+        write_raw(name, raw)
+        print(f"Saving file as {name}")
+    print(f"Deleting file /capt{count:04d}.nef on the camera")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,115 @@
+"""A pseudo-terminal pair standing in for a USB serial cable.
+
+DESIGN.md section 3 ("Devices"): the emulators sit on the master side of a
+pty pair, and the driver opens the slave side (``/dev/pts/N``) through
+pyserial exactly as it opens a real port.  Unplugging closes both ends (the
+driver's reads and writes fail as with a pulled cable); plugging in again
+creates a *new* pair whose number may differ.  So that a driver can find the
+device again, the link keeps a stable symlink (``link_path``, e.g.
+``<tmpdir>/turntable``) pointing at the current ``/dev/pts/N``, removed
+while unplugged -- the same role ``/dev/serial/by-id/...`` plays for real
+USB adapters.
+
+Examples
+--------
+>>> import os, tempfile
+>>> link = PtyLink(os.path.join(tempfile.mkdtemp(), "dev"))
+>>> os.path.realpath(link.path) == link.device_path
+True
+>>> link.unplug(); os.path.exists(link.path)
+False
+>>> link.plug(); os.path.exists(link.path)
+True
+>>> link.close()
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import tty
+from pathlib import Path
+
+__all__ = ["PtyLink"]
+
+
+class PtyLink:
+    """A pty pair plus an optional stable symlink to its slave device.
+
+    Parameters
+    ----------
+    link_path
+        Where to keep a symlink to the slave device; ``None`` for none (then
+        :attr:`path` is the ``/dev/pts/N`` path itself).
+
+    Attributes
+    ----------
+    master_fd
+        The emulator's end (``-1`` while unplugged).
+    device_path
+        The current slave device path (``None`` while unplugged).
+    """
+
+    def __init__(self, link_path: str | os.PathLike[str] | None = None) -> None:
+        self.link_path = Path(link_path) if link_path is not None else None
+        self.master_fd = -1
+        self._slave_fd = -1
+        self.device_path: str | None = None
+        self._lock = threading.Lock()
+        self.plug()
+
+    @property
+    def path(self) -> str:
+        """The path a driver should open (the symlink if there is one)."""
+        if self.link_path is not None:
+            return str(self.link_path)
+        if self.device_path is None:
+            raise RuntimeError("PtyLink is unplugged and has no link_path: call plug() first")
+        return self.device_path
+
+    @property
+    def plugged(self) -> bool:
+        """True while the pty pair exists."""
+        return self.master_fd >= 0
+
+    def plug(self) -> None:
+        """Create a new pty pair (raw mode) and point the symlink at it."""
+        with self._lock:
+            if self.master_fd >= 0:
+                return
+            master, slave = os.openpty()
+            tty.setraw(slave)  # no echo, no CR/LF translation, 8-bit clean
+            os.set_blocking(master, False)
+            self.master_fd, self._slave_fd = master, slave
+            self.device_path = os.ttyname(slave)
+            if self.link_path is not None:
+                self.link_path.parent.mkdir(parents=True, exist_ok=True)
+                tmp = self.link_path.with_name(self.link_path.name + ".new")
+                if tmp.is_symlink() or tmp.exists():
+                    tmp.unlink()
+                os.symlink(self.device_path, tmp)
+                os.replace(tmp, self.link_path)
+
+    def unplug(self) -> None:
+        """Close both ends and remove the symlink (the device is gone)."""
+        with self._lock:
+            if self.link_path is not None and self.link_path.is_symlink():
+                self.link_path.unlink()
+            for fd in (self.master_fd, self._slave_fd):
+                if fd >= 0:
+                    try:
+                        os.close(fd)
+                    except OSError:
+                        pass
+            self.master_fd = self._slave_fd = -1
+            self.device_path = None
+
+    def close(self) -> None:
+        """Unplug for good."""
+        self.unplug()
+
+    def __enter__(self) -> PtyLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,424 @@
+"""The simulated world the mock devices share: an object on a turntable, a colour chart, a light.
+
+:class:`World` holds the object mesh (the procedural hawk head of
+:mod:`processing.procedural_hawk` or a mesh file), its pose on the table
+(object -> table, 4 x 4, millimetres), a material per mesh region, the
+ColorChecker (colour-science's ``SDS_COLOURCHECKERS``, Ohta's measured
+spectra by default), one directional light with a named spectrum, the camera
+view, and the table angle.  :meth:`World.frame` returns the spectral radiance
+image a camera at the station sees:
+
+* ``kind="chart"``: the 24 patches (4 rows x 6 columns) filling the view,
+  lit at normal incidence: ``L = R(lambda) E(lambda) / pi`` (Lambertian).
+* ``kind="object"``: the object turned by the table angle about the table's
+  z axis, ray cast with Open3D (pinhole camera); per hit pixel
+  ``L = f_r(lambda) E(lambda) cos_i`` with ``f_r`` the project's spectral BRDF
+  (:func:`processing.material.material_brdf`, Matsuda et al. eq. (2) for
+  metals and alloys, eq. (5) for lacquer), a shadow ray toward the light,
+  and a dark grey backdrop.  Direct light only: mirror lobes reflect the
+  light but not the surroundings (there is no environment in the booth),
+  and there are no inter-reflections.
+
+The light is scaled so that a white diffuser facing it has luminance Y = 1
+(:func:`processing.display.xyz_scale`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from processing.spectra import SpectralGrid, light_spectrum, resample
+
+__all__ = [
+    "Frame",
+    "World",
+    "WorldError",
+    "chart_reflectances",
+    "rotation_z",
+    "BACKDROP_REFLECTANCE",
+    "world_settings",
+]
+
+#: Reflectance of the booth's grey backdrop and of gaps between chart patches.
+BACKDROP_REFLECTANCE = 0.05
+
+
+class WorldError(ValueError):
+    """A parameter of the simulated world is not valid; the message names it."""
+
+
+def rotation_z(angle_deg: float) -> NDArray[np.float64]:
+    """4 x 4 rotation about +z by ``angle_deg`` (counter-clockwise seen from above).
+
+    Examples
+    --------
+    >>> np.round(rotation_z(90) @ [1, 0, 0, 1], 12).tolist()
+    [0.0, 1.0, 0.0, 1.0]
+    """
+    a = math.radians(float(angle_deg))
+    c, s = math.cos(a), math.sin(a)
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    return m
+
+
+def chart_reflectances(grid: SpectralGrid, chart: str = "ColorChecker N Ohta") -> NDArray[np.float64]:
+    """Reflectances ``(24, L)`` of the chart's patches in reading order (dark skin ... black).
+
+    Examples
+    --------
+    >>> r = chart_reflectances(SpectralGrid(400, 700, 10))
+    >>> r.shape, bool(r[18].mean() > r[23].mean())     # white above black
+    ((24, 31), True)
+    """
+    import colour
+
+    try:
+        sds = colour.SDS_COLOURCHECKERS[chart]
+    except KeyError:
+        raise WorldError(
+            f"unknown chart {chart!r}; choose one of {', '.join(sorted(colour.SDS_COLOURCHECKERS.keys()))}"
+        ) from None
+    return np.stack([resample(sd.wavelengths, sd.values, grid) for sd in sds.values()])
+
+
+@dataclass
+class Frame:
+    """What the camera sees: spectral radiance plus labels for checks.
+
+    Attributes
+    ----------
+    radiance
+        float64 ``(H, W, L)`` spectral radiance (light units with a white
+        diffuser at Y = 1).
+    grid
+        Wavelength grid of the last axis.
+    light
+        ``(L,)`` spectral irradiance of the light (the same units).
+    labels
+        int16 ``(H, W)``: chart patch index 0-23 or object region index;
+        -1 backdrop.
+    kind
+        ``"chart"`` or ``"object"``.
+    table_angle_deg
+        Table angle of the frame.
+    """
+
+    radiance: NDArray[np.float64]
+    grid: SpectralGrid
+    light: NDArray[np.float64]
+    labels: NDArray[np.int16]
+    kind: str
+    table_angle_deg: float
+
+
+@dataclass
+class World:
+    """The simulated scan station.
+
+    Attributes
+    ----------
+    vertices, triangles
+        Object mesh in millimetres (object frame, +z up).
+    region
+        ``(T,)`` region index per triangle.
+    region_names
+        Region names.
+    materials
+        Material spec (``processing.materials.get_material``) per region name.
+    pose
+        4 x 4 object -> table transform (mm); the table turns about its z axis.
+    light
+        Light spectrum name or CCT (``processing.spectra.light_spectrum``).
+    light_direction
+        Unit vector toward the light in the table's frame at angle 0 (fixed
+        in the room; the table turns under it).
+    chart
+        Name of the ColorChecker in ``colour.SDS_COLOURCHECKERS``.
+    chart_present
+        False simulates the "missing chart" fault: the chart frame shows
+        only the backdrop.
+    width, height
+        Image size in pixels (even).
+    camera_distance_mm, camera_elevation_deg, fov_deg
+        Camera on the room's -y side at this distance and elevation, looking
+        at the object's centre, with this horizontal field of view.
+    spectral_step
+        Wavelength step (nm) of the simulation grid over 400-700 nm.
+    table_angle_deg
+        Current table angle (degrees).
+    mesh_source
+        Where the mesh came from (``"hawk:<triangles>"`` or a path).
+    """
+
+    vertices: NDArray[np.float64]
+    triangles: NDArray[np.int64]
+    region: NDArray[np.int64]
+    region_names: tuple[str, ...]
+    materials: dict[str, str]
+    pose: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
+    light: str = "D65"
+    light_direction: tuple[float, float, float] = (-0.4, -0.6, 0.7)
+    chart: str = "ColorChecker N Ohta"
+    chart_present: bool = True
+    width: int = 96
+    height: int = 64
+    camera_distance_mm: float = 260.0
+    camera_elevation_deg: float = 15.0
+    fov_deg: float = 25.0
+    spectral_step: float = 10.0
+    table_angle_deg: float = 0.0
+    mesh_source: str = ""
+
+    def __post_init__(self) -> None:
+        self.vertices = np.asarray(self.vertices, dtype=np.float64)
+        self.triangles = np.asarray(self.triangles, dtype=np.int64)
+        self.region = np.asarray(self.region, dtype=np.int64)
+        self.pose = np.asarray(self.pose, dtype=np.float64)
+        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3 or not np.all(np.isfinite(self.vertices)):
+            raise WorldError(f"vertices must be finite (V, 3) millimetres, got shape {self.vertices.shape}")
+        if self.triangles.ndim != 2 or self.triangles.shape[1] != 3 or self.triangles.size == 0 \
+                or self.triangles.min() < 0 or self.triangles.max() >= len(self.vertices):
+            raise WorldError("triangles must be (T, 3) indices into vertices, T >= 1")
+        if self.region.shape != (len(self.triangles),) or self.region.min() < 0 \
+                or self.region.max() >= len(self.region_names):
+            raise WorldError("region must hold one index into region_names per triangle")
+        missing = [r for r in self.region_names if r not in self.materials]
+        if missing:
+            raise WorldError(f"materials has no entry for region(s) {', '.join(missing)}; give a material spec each")
+        if self.pose.shape != (4, 4) or not np.all(np.isfinite(self.pose)) \
+                or not np.allclose(self.pose[3], [0, 0, 0, 1]):
+            raise WorldError("pose must be a finite 4 x 4 rigid transform with last row (0, 0, 0, 1)")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 22 or v % 2:
+                raise WorldError(f"{name} must be an even number of pixels >= 22 (a raw decoder's minimum), got {v!r}")
+        d = np.asarray(self.light_direction, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+            raise WorldError(f"light_direction must be a non-zero 3-vector, got {self.light_direction!r}")
+        if not 0 < self.fov_deg < 170:
+            raise WorldError(f"fov_deg must be in (0, 170) degrees, got {self.fov_deg!r}")
+        if not self.camera_distance_mm > 0:
+            raise WorldError(f"camera_distance_mm must be > 0, got {self.camera_distance_mm!r}")
+        self.grid  # validates spectral_step
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def hawk(cls, triangles: int = 4_000, materials: dict[str, str] | None = None, **kwargs: Any) -> "World":
+        """The procedural hawk head with its default materials (nami-shibuichi, gold, urushi, copper).
+
+        Examples
+        --------
+        >>> w = World.hawk(2_000)
+        >>> w.region_names[:2], w.materials["beak"]
+        (('head', 'beak'), 'gold')
+        """
+        from processing.procedural_hawk import DEFAULT_MATERIALS, hawk_head
+
+        mesh = hawk_head(triangles)
+        mats = dict(DEFAULT_MATERIALS)
+        mats.update(materials or {})
+        return cls(mesh.vertices, mesh.triangles, mesh.region.astype(np.int64), tuple(mesh.region_names), mats,
+                   mesh_source=f"hawk:{triangles}", **kwargs)
+
+    @classmethod
+    def from_mesh_file(cls, path: str | os.PathLike[str], material: str = "nami-shibuichi",
+                       **kwargs: Any) -> "World":
+        """Any mesh file :func:`render.meshio.load_mesh` reads, as one region of ``material``."""
+        from render.meshio import load_mesh
+
+        mesh = load_mesh(path)
+        return cls(mesh.vertices, mesh.triangles, np.zeros(len(mesh.triangles), np.int64), ("object",),
+                   {"object": material}, mesh_source=os.fspath(path), **kwargs)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "World":
+        """Rebuild a world from :meth:`to_dict` (the fake gphoto2's configuration)."""
+        data = dict(data)
+        source = str(data.pop("mesh", "hawk:4000"))
+        if source.startswith("hawk:"):
+            try:
+                n = int(source.split(":", 1)[1])
+            except ValueError:
+                raise WorldError(f"mesh {source!r}: use 'hawk:<triangles>' or a mesh file path") from None
+            world = cls.hawk(n, materials=data.pop("materials", None), **world_settings(data))
+        else:
+            material = data.pop("materials", {}).get("object", "nami-shibuichi")
+            world = cls.from_mesh_file(source, material, **world_settings(data))
+        return world
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-serialisable description (mesh by source, not by vertices)."""
+        if not self.mesh_source:
+            raise WorldError("this world's mesh has no source (hawk:<n> or a file); it cannot be serialised")
+        return {
+            "mesh": self.mesh_source,
+            "materials": dict(self.materials),
+            "pose": self.pose.tolist(),
+            "light": self.light,
+            "light_direction": list(self.light_direction),
+            "chart": self.chart,
+            "chart_present": self.chart_present,
+            "width": self.width,
+            "height": self.height,
+            "camera_distance_mm": self.camera_distance_mm,
+            "camera_elevation_deg": self.camera_elevation_deg,
+            "fov_deg": self.fov_deg,
+            "spectral_step": self.spectral_step,
+            "table_angle_deg": self.table_angle_deg,
+        }
+
+    # ------------------------------------------------------------------ rendering
+    @property
+    def grid(self) -> SpectralGrid:
+        """The simulation's wavelength grid, 400-700 nm at ``spectral_step``."""
+        try:
+            return SpectralGrid(400.0, 700.0, float(self.spectral_step))
+        except ValueError as exc:
+            raise WorldError(f"spectral_step: {exc}") from None
+
+    def light_spectrum(self) -> NDArray[np.float64]:
+        """The light's spectral irradiance, scaled so a white diffuser facing it has Y = 1."""
+        from processing.display import xyz_scale
+
+        e = light_spectrum(self.light, self.grid)
+        return e * xyz_scale(e, self.grid)
+
+    def frame(self, kind: str = "object", table_angle_deg: float | None = None) -> Frame:
+        """The spectral radiance image of a ``"chart"`` or ``"object"`` frame.
+
+        Parameters
+        ----------
+        kind
+            ``"chart"`` (the colour chart, first frame of a lighting setup)
+            or ``"object"``.
+        table_angle_deg
+            Table angle; None uses :attr:`table_angle_deg`.
+
+        Examples
+        --------
+        >>> w = World.hawk(2_000)
+        >>> f = w.frame("chart")
+        >>> f.radiance.shape, int(f.labels.max())
+        ((64, 96, 31), 23)
+        """
+        angle = self.table_angle_deg if table_angle_deg is None else float(table_angle_deg)
+        if not math.isfinite(angle):
+            raise WorldError(f"table_angle_deg must be finite, got {table_angle_deg!r}")
+        if kind == "chart":
+            return self._chart_frame(angle)
+        if kind == "object":
+            return self._object_frame(angle)
+        raise WorldError(f"frame kind must be 'chart' or 'object', got {kind!r}")
+
+    def _chart_frame(self, angle: float) -> Frame:
+        grid, e = self.grid, self.light_spectrum()
+        h, w = self.height, self.width
+        labels = np.full((h, w), -1, dtype=np.int16)
+        if self.chart_present:
+            rows = np.floor(np.arange(h) / h * 4).astype(int)
+            cols = np.floor(np.arange(w) / w * 6).astype(int)
+            ry = (np.arange(h) / h * 4) % 1.0
+            rx = (np.arange(w) / w * 6) % 1.0
+            inside = ((ry > 0.12) & (ry < 0.88))[:, None] & ((rx > 0.12) & (rx < 0.88))[None, :]
+            patch = rows[:, None] * 6 + cols[None, :]
+            labels[inside] = patch[inside]
+        table = np.vstack([chart_reflectances(grid, self.chart), np.full((1, grid.size), BACKDROP_REFLECTANCE)])
+        radiance = table[labels] * (e / math.pi)          # label -1 picks the backdrop row
+        return Frame(radiance, grid, e, labels, "chart", angle)
+
+    def _view(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Camera position and unit ray directions ``(H, W, 3)`` (pinhole, looking at the object's centre)."""
+        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        target = (self.pose @ np.append(0.5 * (lo + hi), 1.0))[:3]
+        el = math.radians(self.camera_elevation_deg)
+        eye = target + self.camera_distance_mm * np.array([0.0, -math.cos(el), math.sin(el)])
+        fwd = (target - eye) / np.linalg.norm(target - eye)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        half = math.tan(math.radians(self.fov_deg) / 2)
+        xs = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * half
+        ys = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * half * self.height / self.width
+        d = fwd + xs[None, :, None] * right + ys[:, None, None] * up
+        return eye, d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def _object_frame(self, angle: float) -> Frame:
+        import open3d as o3d
+
+        from processing.material import material_brdf
+        from processing.materials import get_material
+
+        grid, e = self.grid, self.light_spectrum()
+        m = rotation_z(angle) @ self.pose
+        verts = self.vertices @ m[:3, :3].T + m[:3, 3]
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor(verts.astype(np.float32)),
+                            o3d.core.Tensor(self.triangles.astype(np.uint32)))
+        eye, dirs = self._view()
+        h, w = self.height, self.width
+        rays = np.concatenate([np.broadcast_to(eye, dirs.shape), dirs], axis=-1).reshape(-1, 6).astype(np.float32)
+        ans = scene.cast_rays(o3d.core.Tensor(rays))
+        t = ans["t_hit"].numpy().astype(np.float64)
+        hit = np.isfinite(t)
+        prim = ans["primitive_ids"].numpy()
+        normal = ans["primitive_normals"].numpy().astype(np.float64)
+        d = dirs.reshape(-1, 3)
+        radiance = np.empty((h * w, grid.size))
+        radiance[:] = BACKDROP_REFLECTANCE * e / math.pi
+        labels = np.full(h * w, -1, dtype=np.int16)
+        idx = np.flatnonzero(hit)
+        if idx.size:
+            n = normal[idx]
+            view = -d[idx]
+            n *= np.where(np.einsum("ij,ij->i", n, view) < 0, -1.0, 1.0)[:, None]
+            light = np.asarray(self.light_direction, dtype=np.float64)
+            light = light / np.linalg.norm(light)
+            pos = eye + d[idx] * t[idx, None]
+            size = float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
+            origin = pos + n * (1e-4 * size)
+            shadow = np.concatenate([origin, np.broadcast_to(light, origin.shape)], axis=1).astype(np.float32)
+            lit = ~scene.test_occlusions(o3d.core.Tensor(shadow)).numpy()
+            ci = np.clip(n @ light, 0.0, 1.0) * lit
+            co = np.clip(np.einsum("ij,ij->i", n, view), 1e-6, 1.0)
+            half = light + view
+            half /= np.linalg.norm(half, axis=1, keepdims=True)
+            ch = np.clip(np.einsum("ij,ij->i", n, half), 0.0, 1.0)
+            cd = np.clip(half @ light, 0.0, 1.0)
+            reg = self.region[prim[idx]]
+            labels[idx] = reg
+            for r, name in enumerate(self.region_names):
+                sel = np.flatnonzero(reg == r)
+                if sel.size == 0:
+                    continue
+                mat = get_material(self.materials[name])
+                f = material_brdf(mat, ci[sel], co[sel], ch[sel], cd[sel], grid.wavelengths)
+                radiance[idx[sel]] = f * (ci[sel] * 1.0)[:, None] * e
+        return Frame(radiance.reshape(h, w, grid.size), grid, e, labels.reshape(h, w), "object", angle)
+
+
+def world_settings(data: dict[str, Any]) -> dict[str, Any]:
+    """Checked keyword arguments of :class:`World` (besides the mesh) from a :meth:`World.to_dict` mapping.
+
+    Examples
+    --------
+    >>> world_settings({"light": "A", "light_direction": [0, 0, 1]})["light_direction"]
+    (0.0, 0.0, 1.0)
+    """
+    allowed = {"pose", "light", "light_direction", "chart", "chart_present", "width", "height",
+               "camera_distance_mm", "camera_elevation_deg", "fov_deg", "spectral_step", "table_angle_deg"}
+    unknown = set(data) - allowed
+    if unknown:
+        raise WorldError(f"unknown world setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(allowed))}")
+    out = dict(data)
+    if "light_direction" in out:
+        out["light_direction"] = tuple(float(v) for v in out["light_direction"])
+    if "pose" in out:
+        out["pose"] = np.asarray(out["pose"], dtype=np.float64)
+    return out
