@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 from bench.common import ROOT, machine_description, run_case_subprocess
@@ -58,6 +61,25 @@ def render_section() -> list[str]:
     return lines
 
 
+def devices_section() -> list[str]:
+    """Host-side cost of one turntable step against the instant emulator (issue #3)."""
+    proc = subprocess.run([sys.executable, "-m", "bench.device_bench", "--steps", "400"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600, check=True)
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    return [
+        "## Devices (issue #3)",
+        "",
+        "Host-side overhead of one `Turntable.step` (motor and laser re-asserted, absolute move: four",
+        "command round trips over a real pseudo-terminal, wire log on) against the Horus firmware emulator",
+        "with instant motion, so only the host's own cost is timed.  Target: <= 5 ms per step.",
+        "",
+        "| steps | median (ms/step) | p95 (ms/step) |",
+        "|---:|---:|---:|",
+        f"| {r['steps']} | **{r['overhead_ms_per_step']:.2f}** | {r['p95_ms']:.2f} |",
+        "",
+    ]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "docs" / "BENCHMARKS.md"))
@@ -72,6 +94,7 @@ def main() -> None:
         "",
     ]
     lines += render_section()
+    lines += devices_section()
     Path(args.out).write_text("\n".join(lines) + "\n", encoding="utf-8")
     print(f"wrote {args.out} ({dt.datetime.now():%Y-%m-%d %H:%M})")
 
