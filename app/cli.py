@@ -61,6 +61,12 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--size", default=None, metavar="WxH")
 
 
+def _add_devices(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("devices", help="list serial ports with USB VID:PID and serial number")
+    p.add_argument("--all", action="store_true", help="also list ports without a USB id (on-board UARTs)")
+    p.add_argument("--json", action="store_true", help="print the ports as JSON")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="kogei",
@@ -70,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_render(sub)
     _add_materials(sub)
     _add_demo(sub)
+    _add_devices(sub)
     return parser
 
 
@@ -87,6 +94,10 @@ def _run(args: argparse.Namespace) -> int:
         from app.demo import run_demo
 
         return run_demo(args)
+    if args.command == "devices":
+        from app.devices_command import run_devices
+
+        return run_devices(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 
