@@ -60,6 +60,9 @@ class Faults:
     corrupt_frames, drop_frames
         For binary-frame emulators: number of next frames sent with a bad
         CRC / not sent.
+    garbage_frames
+        For binary-frame emulators: number of next frames preceded by
+        ``garbage`` bytes (the reader must resynchronise on the magic).
     """
 
     garbage_replies: int = 0
@@ -73,6 +76,7 @@ class Faults:
     mute: bool = False
     corrupt_frames: int = 0
     drop_frames: int = 0
+    garbage_frames: int = 0
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def take(self, name: str) -> bool:
