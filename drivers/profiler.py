@@ -516,7 +516,7 @@ class LaserProfiler:
                 self._dirty = False
             self.transport.write(line.encode("ascii") + b"\r\n")
             try:
-                return self._await(line, cmd)
+                return self._await(line, cmd, skip_frames)
             except _ResetSeen as seen:
                 self._dirty = True
                 if cmd == "RST":
@@ -531,7 +531,7 @@ class LaserProfiler:
                 self._dirty = False
                 self._restore()
 
-    def _await(self, line: str, cmd: str) -> list[str]:
+    def _await(self, line: str, cmd: str, skip_frames: bool = False) -> list[str]:
         timeout = self.latency_s + self.margin_s
         end = time.monotonic() + timeout
         while True:

@@ -297,7 +297,6 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
     print(f"New file is in location /capt{count:04d}.nef on the camera")
     if not faults["no_output"]:
         from mocks.camera_sim import simulate_raw, write_raw
-        from mocks.world import World
 
         world = _world(config["world"], Path(config_path))
         kind = "chart" if config.get("chart_first", True) and number == 1 else "object"

@@ -43,7 +43,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from mocks.faults import Faults
-from mocks.pty_link import PtyLink
+from mocks.pty_link import PtyDevice
 
 __all__ = ["BANNER", "HorusFirmware", "trapezoid_time", "trapezoid_distance"]
 
@@ -120,7 +120,7 @@ class _Move:
     duration_sim: float
 
 
-class HorusFirmware:
+class HorusFirmware(PtyDevice):
     """The Horus firmware, served from a thread on a pty pair.
 
     Parameters
@@ -149,6 +149,8 @@ class HorusFirmware:
         Banner printed after reset (change it to emulate other firmware).
     """
 
+    _thread_name = "horus-firmware"
+
     def __init__(
         self,
         link_path: str | os.PathLike[str] | None = None,
@@ -172,12 +174,7 @@ class HorusFirmware:
             raise ValueError(f"time_scale must be >= 0 (0 = instant motion), got {time_scale!r}")
         if not isinstance(lasers, int) or lasers < 1:
             raise ValueError(f"lasers must be a positive integer, got {lasers!r}")
-        self._tmpdir = None
-        if link_path is None:
-            import tempfile
-            self._tmpdir = tempfile.TemporaryDirectory(prefix="horus-")
-            link_path = os.path.join(self._tmpdir.name, "turntable")
-        self.link = PtyLink(link_path)
+        self._open_link(link_path, "horus-", "turntable")
         self.steps_per_unit = float(steps_per_unit)
         self.steps_per_degree = float(steps_per_degree)
         self.accel = float(accel_units_s2)
@@ -191,8 +188,6 @@ class HorusFirmware:
         self.resets = 0
         self.status_queries = 0
         self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._phys_deg = 0.0
         self._replug_at: float | None = None
         self._watchdog_now = False
@@ -243,30 +238,6 @@ class HorusFirmware:
             return self._state()
 
     # ---------------------------------------------------------------- control
-    def start(self) -> HorusFirmware:
-        """Start serving (idempotent)."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="horus-firmware", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop serving and remove the pty."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5.0)
-            self._thread = None
-        self.link.close()
-        if self._tmpdir is not None:
-            self._tmpdir.cleanup()
-            self._tmpdir = None
-
-    def __enter__(self) -> HorusFirmware:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
     def unplug(self, replug_after_s: float | None = None) -> None:
         """Pull the cable: the pty disappears and the board loses power."""
         with self._lock:

@@ -38,7 +38,6 @@ import math
 import os
 import select
 import struct
-import tempfile
 import threading
 import time
 import zlib
@@ -49,7 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mocks.faults import Faults
-from mocks.pty_link import PtyLink
+from mocks.pty_link import PtyDevice
 
 __all__ = [
     "MODEL",
@@ -290,7 +289,7 @@ class _Reset(Exception):
     pass
 
 
-class ProfilerFirmware:
+class ProfilerFirmware(PtyDevice):
     """The profile sensor's firmware, served from a thread on a pty pair.
 
     Parameters
@@ -316,6 +315,8 @@ class ProfilerFirmware:
         Number of frames generated (excluding re-sends).
     """
 
+    _thread_name = "profiler-firmware"
+
     def __init__(
         self,
         link_path: str | os.PathLike[str] | None = None,
@@ -331,11 +332,7 @@ class ProfilerFirmware:
             raise ValueError("source must be a callable returning (x_um, z_um, valid)")
         if not isinstance(buffer_frames, int) or buffer_frames < 1:
             raise ValueError(f"buffer_frames must be a positive integer, got {buffer_frames!r}")
-        self._tmpdir: tempfile.TemporaryDirectory[str] | None = None
-        if link_path is None:
-            self._tmpdir = tempfile.TemporaryDirectory(prefix="profiler-")
-            link_path = os.path.join(self._tmpdir.name, "profiler")
-        self.link = PtyLink(link_path)
+        self._open_link(link_path, "profiler-", "profiler")
         self.source: Source = source if source is not None else synthetic_source()
         self.faults = faults if faults is not None else Faults()
         self.buffer_frames = buffer_frames
@@ -344,8 +341,6 @@ class ProfilerFirmware:
         self.resets = 0
         self.frames_sent = 0
         self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self._replug_at: float | None = None
         self._t0 = time.monotonic()
         self._power_on()
@@ -380,30 +375,6 @@ class ProfilerFirmware:
             self._seq = seq % 2**32
 
     # ---------------------------------------------------------------- control
-    def start(self) -> ProfilerFirmware:
-        """Start serving (idempotent)."""
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="profiler-firmware", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop serving and remove the pty."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(5.0)
-            self._thread = None
-        self.link.close()
-        if self._tmpdir is not None:
-            self._tmpdir.cleanup()
-            self._tmpdir = None
-
-    def __enter__(self) -> ProfilerFirmware:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
     def unplug(self, replug_after_s: float | None = None) -> None:
         """Pull the cable: the pty disappears and the sensor loses power."""
         with self._lock:

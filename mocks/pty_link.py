@@ -26,11 +26,12 @@ True
 from __future__ import annotations
 
 import os
+import tempfile
 import threading
 import tty
 from pathlib import Path
 
-__all__ = ["PtyLink"]
+__all__ = ["PtyLink", "PtyDevice"]
 
 
 class PtyLink:
@@ -113,3 +114,49 @@ class PtyLink:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class PtyDevice:
+    """Life cycle shared by the firmware emulators.
+
+    A subclass calls :meth:`_open_link` in its constructor and implements
+    ``_run()`` (the serving loop, which returns once ``self._stop`` is set);
+    ``start``/``stop`` and the context manager run it on one daemon thread.
+    Without a ``link_path`` the stable symlink lives in a temporary folder
+    removed by ``stop``.
+    """
+
+    _thread_name = "pty-device"
+
+    def _open_link(self, link_path: str | os.PathLike[str] | None, prefix: str, name: str) -> None:
+        self._tmpdir: tempfile.TemporaryDirectory[str] | None = None
+        if link_path is None:
+            self._tmpdir = tempfile.TemporaryDirectory(prefix=prefix)
+            link_path = os.path.join(self._tmpdir.name, name)
+        self.link = PtyLink(link_path)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self):
+        """Start serving (idempotent)."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name=self._thread_name, daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and remove the pty."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
+        self.link.close()
+        if self._tmpdir is not None:
+            self._tmpdir.cleanup()
+            self._tmpdir = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -124,3 +124,39 @@ def test_parse_reply(raw, expected):
 def test_parse_reply_noise():
     assert parse_reply(b"\x01\x02garbage")[0] == "noise"
     assert parse_reply(b"ok")[0] == "noise"
+
+
+class _ScriptedTransport:
+    """A transport whose received lines are a script: the driver needs nothing else to run a command."""
+
+    url = "script://profiler"
+    baudrate = 115200
+    is_open = True
+
+    def __init__(self, lines):
+        self.lines = list(lines)
+        self.sent = []
+
+    def write(self, data):
+        self.sent.append(data)
+
+    def read_line(self, deadline_s):
+        from drivers.errors import TransportTimeout
+
+        if not self.lines:
+            raise TransportTimeout("no more scripted lines")
+        return self.lines.pop(0)
+
+    def reset_input(self):
+        pass
+
+
+def test_printable_noise_before_a_reply_is_ignored(caplog):
+    from drivers.profiler import LaserProfiler
+
+    t = _ScriptedTransport([b"hello from a confused sensor", b"OK,GET,EXP,500"])
+    lp = LaserProfiler(t)
+    with caplog.at_level("INFO", logger="kogei.drivers.profiler"):
+        assert lp.get("EXP") == "500"
+    assert t.sent == [b"GET,EXP\r\n"]
+    assert any("ignored line" in r.getMessage() for r in caplog.records)
