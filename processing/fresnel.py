@@ -57,13 +57,25 @@ def fresnel_conductor(cos_theta: ArrayLike, eta: ArrayLike) -> NDArray[np.float6
     # Im >= 0 for k >= 0.
     root = np.sqrt((eta2 - 1.0) + cos_i * cos_i)
     with np.errstate(divide="ignore", invalid="ignore"):
-        r_s = (cos_i - root) / (cos_i + root)
-        r_p = (eta2 * cos_i - root) / (eta2 * cos_i + root)
+        r_s = _difference_ratio(cos_i, root)
+        r_p = _difference_ratio(eta2 * cos_i, root)
         f = 0.5 * (np.abs(r_s) ** 2 + np.abs(r_p) ** 2)
     # At grazing incidence both ratios have modulus 1 (the limit for every
     # eta != 1; eta = 1 is the only 0/0 case).
     f = np.where(cos_i <= 0.0, 1.0, f)
     return np.clip(f, 0.0, 1.0)
+
+
+def _difference_ratio(a: NDArray, b: NDArray) -> NDArray[np.complex128]:
+    """(a - b) / (a + b), with both scaled by max(|a|, |b|) first: numpy's complex
+    division overflows when a and b are denormal (cos_theta ~ 1e-320 with eta ~ 1).
+    The ratio is 0/0 (NaN) only where a = b = 0."""
+    scale = np.maximum(np.abs(a), np.abs(b))
+    scale = np.where(scale > 0.0, scale, 1.0)
+    # part by part: dividing a complex by a (denormal) real goes through its reciprocal
+    a = (np.real(a) / scale) + 1j * (np.imag(a) / scale)
+    b = (np.real(b) / scale) + 1j * (np.imag(b) / scale)
+    return (a - b) / (a + b)
 
 
 def _checked_cos(cos_theta: ArrayLike) -> NDArray[np.float64]:

@@ -145,3 +145,11 @@ def test_matched_index_has_no_reflection_except_the_grazing_limit() -> None:
     f = fresnel_conductor(np.array([0.0, 1e-12, 0.5, 1.0]), 1.0 + 0j)
     assert f[0] == 1.0
     assert np.all(f[1:] == pytest.approx(0.0, abs=1e-12))
+
+
+def test_denormal_cosine_near_unit_index_stays_finite_and_matches_dielectric() -> None:
+    # cos^2 underflows to 0, so both formulas see sin(theta) = 1: total reflection, F = 1.
+    for n in (1.0, 1.0 + 1e-12, 1.5):
+        d = float(fresnel_dielectric(5e-324, n))
+        c = float(fresnel_conductor(5e-324, complex(n, 0.0)))
+        assert np.isfinite(c) and c == pytest.approx(d, abs=1e-12)
