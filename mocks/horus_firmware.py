@@ -36,7 +36,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import select
 import threading
 import time
 from collections import deque
@@ -238,19 +237,9 @@ class HorusFirmware(PtyDevice):
             return self._state()
 
     # ---------------------------------------------------------------- control
-    def unplug(self, replug_after_s: float | None = None) -> None:
-        """Pull the cable: the pty disappears and the board loses power."""
-        with self._lock:
-            self._freeze(time.monotonic())
-            self.link.unplug()
-            self._replug_at = None if replug_after_s is None else time.monotonic() + replug_after_s
-
-    def replug(self) -> None:
-        """Plug back in: a new pty (the symlink follows it), firmware powered on."""
-        with self._lock:
-            self._replug_at = None
-            self._power_on()
-            self.link.plug()
+    def _before_unplug(self, now: float) -> None:
+        # the board loses power: a move in progress stops where the table is
+        self._freeze(now)
 
     def fire_laser_watchdog(self) -> None:
         """Make the watchdog turn every laser off now (as after 255 s)."""
@@ -330,40 +319,6 @@ class HorusFirmware(PtyDevice):
 
     def _status(self, now: float) -> bytes:
         return f"<{self._state()}|MPos:{self._units_now(now):.3f}|FS:{self._feed:g},0>\r\n".encode()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            with self._lock:
-                now = time.monotonic()
-                if not self.link.plugged:
-                    if self._replug_at is None and self.faults.replug_after_s is not None:
-                        self._replug_at = now + self.faults.replug_after_s
-                    if self._replug_at is not None and now >= self._replug_at:
-                        self.replug()
-                    fd = -1
-                else:
-                    self._tick(now)
-                    fd = self.link.master_fd
-                    wait = self._next_wait(now)
-            if fd < 0:
-                self._stop.wait(0.01)
-                continue
-            try:
-                r, _, _ = select.select([fd], [fd] if self._out else [], [], wait)
-            except (OSError, ValueError):
-                continue
-            with self._lock:
-                if fd != self.link.master_fd:
-                    continue
-                if r:
-                    try:
-                        data = os.read(fd, 4096)
-                    except (BlockingIOError, InterruptedError):
-                        data = b""
-                    except OSError:
-                        data = b""  # no reader attached (EIO): nothing to do
-                    self._receive(data, time.monotonic())
-                self._flush()
 
     def _next_wait(self, now: float) -> float:
         wait = 0.05

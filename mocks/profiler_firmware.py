@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import math
 import os
-import select
 import struct
 import threading
 import time
@@ -375,19 +374,6 @@ class ProfilerFirmware(PtyDevice):
             self._seq = seq % 2**32
 
     # ---------------------------------------------------------------- control
-    def unplug(self, replug_after_s: float | None = None) -> None:
-        """Pull the cable: the pty disappears and the sensor loses power."""
-        with self._lock:
-            self.link.unplug()
-            self._replug_at = None if replug_after_s is None else time.monotonic() + replug_after_s
-
-    def replug(self) -> None:
-        """Plug back in: a new pty (the symlink follows it), sensor powered on."""
-        with self._lock:
-            self._replug_at = None
-            self._power_on()
-            self.link.plug()
-
     def reset(self) -> None:
         """Spontaneous reset: state lost, banner sent."""
         with self._lock:
@@ -455,39 +441,11 @@ class ProfilerFirmware(PtyDevice):
             frame = bytes(self.faults.garbage) + frame
         return frame
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            with self._lock:
-                now = time.monotonic()
-                if not self.link.plugged:
-                    if self._replug_at is None and self.faults.replug_after_s is not None:
-                        self._replug_at = now + self.faults.replug_after_s
-                    if self._replug_at is not None and now >= self._replug_at:
-                        self.replug()
-                    fd = -1
-                else:
-                    self._tick(now)
-                    fd = self.link.master_fd
-                    wait = 0.02
-                    if self._pending:
-                        wait = min(wait, max(0.0, self._pending[0][0] - now))
-            if fd < 0:
-                self._stop.wait(0.01)
-                continue
-            try:
-                r, _, _ = select.select([fd], [fd] if self._out else [], [], wait)
-            except (OSError, ValueError):
-                continue
-            with self._lock:
-                if fd != self.link.master_fd:
-                    continue
-                if r:
-                    try:
-                        data = os.read(fd, 4096)
-                    except OSError:
-                        data = b""
-                    self._receive(data)
-                self._flush()
+    def _next_wait(self, now: float) -> float:
+        wait = 0.02
+        if self._pending:
+            wait = min(wait, self._pending[0][0] - now)
+        return wait
 
     def _tick(self, now: float) -> None:
         while self._pending and self._pending[0][0] <= now:
@@ -509,7 +467,7 @@ class ProfilerFirmware(PtyDevice):
             except OSError:
                 self._out.clear()
 
-    def _receive(self, data: bytes) -> None:
+    def _receive(self, data: bytes, now: float) -> None:
         if self.faults.mute:
             return
         for b in data:

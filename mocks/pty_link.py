@@ -26,8 +26,10 @@ True
 from __future__ import annotations
 
 import os
+import select
 import tempfile
 import threading
+import time
 import tty
 from pathlib import Path
 
@@ -119,11 +121,15 @@ class PtyLink:
 class PtyDevice:
     """Life cycle shared by the firmware emulators.
 
-    A subclass calls :meth:`_open_link` in its constructor and implements
-    ``_run()`` (the serving loop, which returns once ``self._stop`` is set);
-    ``start``/``stop`` and the context manager run it on one daemon thread.
-    Without a ``link_path`` the stable symlink lives in a temporary folder
-    removed by ``stop``.
+    A subclass calls :meth:`_open_link` in its constructor, sets ``_lock``
+    (an RLock), ``faults`` (with ``replug_after_s``), ``_replug_at`` and the
+    output buffer ``_out``, and implements the hooks of the serving loop:
+    ``_tick(now)`` (timed work), ``_next_wait(now)`` (seconds until the next
+    timed event), ``_receive(data, now)`` (bytes from the host), ``_flush()``
+    (write what ``_out`` holds) and ``_power_on()``; ``_before_unplug(now)`` is
+    optional.  ``start``/``stop`` and the context manager run the loop on one
+    daemon thread.  Without a ``link_path`` the stable symlink lives in a
+    temporary folder removed by ``stop``.
     """
 
     _thread_name = "pty-device"
@@ -136,6 +142,56 @@ class PtyDevice:
         self.link = PtyLink(link_path)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+
+    def _before_unplug(self, now: float) -> None:
+        """Called with the lock held just before the pty disappears."""
+
+    def unplug(self, replug_after_s: float | None = None) -> None:
+        """Pull the cable: the pty disappears and the device loses power."""
+        with self._lock:
+            self._before_unplug(time.monotonic())
+            self.link.unplug()
+            self._replug_at = None if replug_after_s is None else time.monotonic() + replug_after_s
+
+    def replug(self) -> None:
+        """Plug back in: a new pty (the symlink follows it), the device powered on."""
+        with self._lock:
+            self._replug_at = None
+            self._power_on()
+            self.link.plug()
+
+    def _run(self) -> None:
+        """Serve the pty until ``stop``: replug when due, run timed work, read and answer."""
+        while not self._stop.is_set():
+            with self._lock:
+                now = time.monotonic()
+                if not self.link.plugged:
+                    if self._replug_at is None and self.faults.replug_after_s is not None:
+                        self._replug_at = now + self.faults.replug_after_s
+                    if self._replug_at is not None and now >= self._replug_at:
+                        self.replug()
+                    fd = -1
+                else:
+                    self._tick(now)
+                    fd = self.link.master_fd
+                    wait = max(0.0, self._next_wait(now))
+            if fd < 0:
+                self._stop.wait(0.01)
+                continue
+            try:
+                r, _, _ = select.select([fd], [fd] if self._out else [], [], wait)
+            except (OSError, ValueError):
+                continue                       # the pty went away under us (unplug)
+            with self._lock:
+                if fd != self.link.master_fd:
+                    continue
+                if r:
+                    try:
+                        data = os.read(fd, 4096)
+                    except OSError:
+                        data = b""             # no reader attached (EIO) or nothing after all
+                    self._receive(data, time.monotonic())
+                self._flush()
 
     def start(self):
         """Start serving (idempotent)."""
