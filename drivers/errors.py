@@ -31,6 +31,7 @@ from __future__ import annotations
 
 __all__ = [
     "DriverError",
+    "ResetSeen",
     "TransportError",
     "TransportTimeout",
     "TransportClosed",
@@ -129,3 +130,13 @@ class HandshakeError(DeviceError):
 
     def __init__(self, command: str, text: str) -> None:
         super().__init__(command, text, text)
+
+
+class ResetSeen(Exception):
+    """Internal signal of a driver: the device's power-on banner arrived while a
+    command was pending (it reset); the driver restores its state or raises
+    :class:`DeviceResetError`.  Never reaches a caller."""
+
+    def __init__(self, banner: str) -> None:
+        super().__init__(banner)
+        self.banner = banner

@@ -45,6 +45,7 @@ from drivers.errors import (
     DeviceResetError,
     DeviceTimeout,
     HandshakeError,
+    ResetSeen,
     TransportTimeout,
 )
 from drivers.transport import SerialTransport
@@ -202,11 +203,6 @@ def parse_reply(raw: bytes) -> tuple[str, str, list[str]]:
             fields = m.group(3).split(",")[1:] if m.group(3) else []
             return m.group(1), m.group(2), fields
     return "noise", "", [text]
-
-
-class _ResetSeen(Exception):
-    def __init__(self, banner: str) -> None:
-        self.banner = banner
 
 
 class LaserProfiler:
@@ -517,7 +513,7 @@ class LaserProfiler:
             self.transport.write(line.encode("ascii") + b"\r\n")
             try:
                 return self._await(line, cmd, skip_frames)
-            except _ResetSeen as seen:
+            except ResetSeen as seen:
                 self._dirty = True
                 if cmd == "RST":
                     raise DeviceResetError(line, seen.banner) from None
@@ -543,7 +539,7 @@ class LaserProfiler:
                                           "powered and on this port?)") from None
             kind, rcmd, fields = parse_reply(raw)
             if kind == "banner" and cmd != "RST":
-                raise _ResetSeen(f"PROFILER {rcmd} {fields[0]}")
+                raise ResetSeen(f"PROFILER {rcmd} {fields[0]}")
             if kind in ("OK", "ER") and rcmd == cmd:
                 if kind == "OK":
                     return fields

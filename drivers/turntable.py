@@ -53,6 +53,7 @@ from drivers.errors import (
     DeviceTimeout,
     DriverError,
     HandshakeError,
+    ResetSeen,
     TransportClosed,
     TransportTimeout,
 )
@@ -214,11 +215,6 @@ def format_number(x: float) -> str:
     """
     s = f"{x:.6f}".rstrip("0").rstrip(".")
     return "0" if s in ("-0", "") else s
-
-
-class _ResetSeen(Exception):
-    def __init__(self, banner: str) -> None:
-        self.banner = banner
 
 
 class Turntable:
@@ -573,7 +569,7 @@ class Turntable:
             self.transport.write(line.encode("ascii") + b"\n")
             try:
                 outcome = self._await(line, timeout_s, target_units)
-            except _ResetSeen as seen:
+            except ResetSeen as seen:
                 if not (self.recover_resets and resend) or attempts >= self.max_resends:
                     raise DeviceResetError(line, seen.banner) from None
                 attempts += 1
@@ -634,7 +630,7 @@ class Turntable:
                 status_end = None
                 continue
             if r.kind == "banner":
-                raise _ResetSeen(r.text)
+                raise ResetSeen(r.text)
             if r.kind == "status" and status_end is not None:
                 status_end = None
                 checks += 1

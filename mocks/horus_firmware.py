@@ -194,11 +194,6 @@ class HorusFirmware(PtyDevice):
 
     # ----------------------------------------------------------- public state
     @property
-    def path(self) -> str:
-        """Stable path for the driver to open (a symlink to ``/dev/pts/N``)."""
-        return self.link.path
-
-    @property
     def angle_deg(self) -> float:
         """Physical table angle (degrees since the emulator started; thread-safe)."""
         with self._lock:

@@ -346,11 +346,6 @@ class ProfilerFirmware(PtyDevice):
 
     # ----------------------------------------------------------- public state
     @property
-    def path(self) -> str:
-        """Stable path for the driver to open (a symlink to ``/dev/pts/N``)."""
-        return self.link.path
-
-    @property
     def laser_on(self) -> bool:
         """True after ``LAS,1``."""
         with self._lock:

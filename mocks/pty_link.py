@@ -143,6 +143,11 @@ class PtyDevice:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
+    @property
+    def path(self) -> str:
+        """Stable path for the driver to open (a symlink to ``/dev/pts/N``)."""
+        return self.link.path
+
     def _before_unplug(self, now: float) -> None:
         """Called with the lock held just before the pty disappears."""
 

@@ -11,16 +11,8 @@ import pytest
 import serial
 
 from mocks.faults import Faults
+from mocks.waiting import wait_until
 from mocks.horus_firmware import BANNER, HorusFirmware, trapezoid_distance, trapezoid_time
-
-
-def wait_until(pred, timeout=5.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
 
 
 class Port:

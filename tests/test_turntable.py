@@ -18,19 +18,11 @@ from drivers.errors import (
 from drivers.transport import SerialTransport
 from drivers.turntable import HORUS_BANNER, Turntable, move_time_s
 from mocks.faults import Faults
+from mocks.waiting import wait_until
 from mocks.horus_firmware import HorusFirmware
 from mocks.pty_link import PtyLink
 
 STEP = 360.0 / 3200.0  # one motor step in degrees
-
-
-def wait_until(pred, timeout=5.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
 
 
 @pytest.fixture
