@@ -21,12 +21,14 @@ ACCURACY_SIZE = (320, 240)
 
 
 def _hawk_job(size, preset, triangles, material=None, sky="none"):
+    """The benchmark hawk: one sun; ``material`` replaces every region's default material."""
     from app.scene_build import build_job
     from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, SkySpec
+    from processing.procedural_hawk import DEFAULT_MATERIALS
 
     obj = ObjectSpec(procedural="hawk", procedural_args={"triangles": triangles})
     if material:
-        obj.region_materials = {r: material for r in ("head", "beak", "cere", "eye", "pupil")}
+        obj.region_materials = {r: material for r in DEFAULT_MATERIALS}
     spec = SceneSpec(
         objects=[obj],
         lights=[LightSpec("directional", (0.6, -0.9, 1.4), "D65", 1.0)],
@@ -41,24 +43,11 @@ def _hawk_job(size, preset, triangles, material=None, sky="none"):
 def case_speed(preset: str = "standard", repeats: int = 3) -> dict:
     """1024x1024, ~1M triangles, one directional light with shadows, metal (gold, no mirror lobe,
     no sky: exactly primary + shadow rays, so the baseline casts the same rays)."""
-    from processing.procedural_hawk import HAWK_PRESET_TRIANGLES, hawk_head
+    from processing.procedural_hawk import HAWK_PRESET_TRIANGLES
     from render.renderer import cast_rays_baseline, render
 
     tri = HAWK_PRESET_TRIANGLES["reference"]
-    regions = hawk_head(2000).region_names
-    from app.scene_build import build_job
-    from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, SkySpec
-
-    spec = SceneSpec(
-        objects=[ObjectSpec(procedural="hawk", procedural_args={"triangles": tri},
-                            region_materials={r: "gold:mirror=0" for r in regions})],
-        lights=[LightSpec("directional", (0.6, -0.9, 1.4), "D65", 1.0)],
-        sky=SkySpec(kind="none"),
-        camera=CameraSpec(eye=(175.0, -150.0, 95.0), target=(2.0, 0.0, 38.0), fov_deg=30.0),
-        size=SPEED_SIZE,
-        preset=preset,
-    )
-    job = build_job(spec, default_hawk_triangles=tri)
+    job = _hawk_job(SPEED_SIZE, preset, tri, material="gold:mirror=0", sky="none")
     n_tri = sum(o.mesh.n_triangles for o in job.scene.objects)
     render(job.scene, job.camera, job.settings)          # warm-up: tables, imports, page cache
     render_times, render_builds, bases, refined = [], [], [], 0.0
