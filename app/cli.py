@@ -59,6 +59,11 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hawk-triangles", type=int, default=None,
                    help="triangle count of the hawk mesh (default: about 1M)")
     p.add_argument("--size", default=None, metavar="WxH")
+    p.add_argument("--capture-steps", type=int, default=120, metavar="N",
+                   help="profiles per revolution of the simulated capture session (0: no capture)")
+    p.add_argument("--capture-passes", type=int, default=3, metavar="P", help="placements of the simulated capture")
+    p.add_argument("--capture-camera", default="gphoto2", choices=["gphoto2", "hotfolder", "none"],
+                   help="camera of the simulated capture")
 
 
 def _add_devices(sub: argparse._SubParsersAction) -> None:
@@ -77,6 +82,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_materials(sub)
     _add_demo(sub)
     _add_devices(sub)
+    from app.capture_command import add_capture_parser
+
+    add_capture_parser(sub)
+    from app.mock_command import add_mock_parser
+
+    add_mock_parser(sub)
     return parser
 
 
@@ -98,6 +109,14 @@ def _run(args: argparse.Namespace) -> int:
         from app.devices_command import run_devices
 
         return run_devices(args)
+    if args.command == "capture":
+        from app.capture_command import run_capture_command
+
+        return run_capture_command(args)
+    if args.command == "mock":
+        from app.mock_command import run_mock
+
+        return run_mock(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 

@@ -1,5 +1,9 @@
-"""``kogei demo``: the showcase render of the product.
+"""``kogei demo``: the product end to end on simulated devices.
 
+* a capture session of the procedural hawk's head from the simulated station
+  (turntable and laser profiler emulators on pseudo-terminals, a fake
+  gphoto2), several placements, profiles and RAW frames with the chart first
+  (:mod:`app.demo_capture`);
 * the procedural hawk's head with the materials of the paper's object
   (Matsuda et al., section 5: nami-shibuichi head, gold and urushi beak,
   copper eyes) under daylight: a sun plus a gradient sky;
@@ -115,6 +119,19 @@ def run_demo(args: argparse.Namespace) -> int:
     triangles = args.hawk_triangles or HAWK_PRESET_TRIANGLES["reference"]
     size = parse_size(args.size) if args.size else (1024, 768)
     summary: dict = {"preset": args.preset, "renders": []}
+
+    if args.capture_steps:
+        from app.demo_capture import simulated_capture
+
+        if args.capture_steps < 1 or args.capture_passes < 1:
+            from app.errors import UsageError
+
+            raise UsageError("--capture-steps and --capture-passes must be >= 1 (or --capture-steps 0: no capture)")
+        cap = simulated_capture(out / "capture", steps=args.capture_steps, passes=args.capture_passes,
+                                camera=args.capture_camera)
+        summary["capture"] = cap
+        print(f"capture: {cap['captures_taken']} captures in {cap['seconds']:.1f} s -> {cap['session']}",
+              file=sys.stderr)
 
     job, result, secs = _render(hawk_spec(size, args.preset, triangles), triangles)
     write_png(out / "hawk.png", result.srgb8)

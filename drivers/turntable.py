@@ -338,6 +338,28 @@ class Turntable:
         return self._fw_units * self._deg_per_unit() + self._offset_deg
 
     @property
+    def firmware_offset_deg(self) -> float:
+        """Logical angle of the firmware's position 0 (changes when the board resets mid-scan).
+
+        A firmware position ``X`` (from a ``?`` status) is at logical angle
+        ``X * firmware_steps_per_unit / steps_per_degree + firmware_offset_deg``.
+        """
+        return self._offset_deg
+
+    def assume_position(self, deg: float) -> None:
+        """Declare that the table is now at logical angle ``deg`` (e.g. after :meth:`connect`).
+
+        Use when the angle is known from elsewhere -- a session's record of
+        the last confirmed move -- since :meth:`connect` resets the firmware's
+        position counter to 0 wherever the table stands.
+        """
+        if not (isinstance(deg, (int, float)) and math.isfinite(deg)):
+            raise ValueError(f"deg must be a finite angle in degrees, got {deg!r}")
+        self._fw_units = 0.0
+        self._offset_deg = float(deg)
+        self.position_uncertain_deg = 0.0
+
+    @property
     def lasers_wanted(self) -> tuple[bool, ...]:
         """The laser states this driver asserts (not a reading of the board)."""
         return tuple(self._lasers_wanted)

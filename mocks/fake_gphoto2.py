@@ -19,9 +19,21 @@ environment variable or built into the shim by :func:`install`::
 
     {"world": {...World.to_dict()...},
      "chart_first": true,        # capture number 1 shows the colour chart
+     "chart_next": true,         # the next frame written shows the chart
+     "placement": 0,             # the object's placement (for the noise seed)
      "exposure_s": 0.01, "seed": 0,
      "faults": {"no_camera": false, "busy": 0, "slow_s": 0.0,
                 "exit_code": 0, "no_output": false, "saturate": false}}
+
+``chart_next`` says that the next frame written shows the colour chart; a
+written chart frame clears it (a failed capture does not), and the simulated
+station (:mod:`mocks.station`) sets it again when the object is re-placed.
+:func:`write_config` sets it to ``chart_first``, so capture number 1 shows the
+chart.  The sensor noise of a frame is seeded by (``seed``, ``placement``,
+frame kind, table angle) (:func:`mocks.noise_seed.frame_seed`), so a frame
+re-taken after a fault is identical.  Every read-modify-write of the file
+holds ``<config>.lock`` (:func:`config_lock`) because the station and this
+program change it from different processes.
 
 ``busy`` counts down: that many captures fail with ``Could not claim the USB
 device`` before the camera frees up.  A capture counter is kept in
@@ -31,18 +43,24 @@ standard error with exit status 1 (or ``exit_code``).
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import re
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Sequence
 
 __all__ = [
     "CONFIG_ENV",
     "DEFAULT_FAULTS",
+    "cache_mesh",
+    "chart_taken",
+    "config_lock",
     "expand_pattern",
     "install",
     "main",
@@ -98,7 +116,7 @@ def expand_pattern(pattern: str, *, basename: str, extension: str, number: int, 
 
 
 def write_config(path: str | os.PathLike[str], world: dict[str, Any], *, faults: dict[str, Any] | None = None,
-                 chart_first: bool = True, exposure_s: float = 0.01, seed: int = 0) -> Path:
+                 chart_first: bool = True, exposure_s: float = 0.01, seed: int = 0, placement: int = 0) -> Path:
     """Write a fake-gphoto2 configuration atomically (and reset its capture counter).
 
     Examples
@@ -112,10 +130,12 @@ def write_config(path: str | os.PathLike[str], world: dict[str, Any], *, faults:
     if unknown:
         raise ValueError(f"unknown fake gphoto2 fault(s) {', '.join(sorted(unknown))}; "
                          f"known: {', '.join(DEFAULT_FAULTS)}")
-    config = {"world": world, "chart_first": bool(chart_first), "exposure_s": float(exposure_s),
+    config = {"world": world, "chart_first": bool(chart_first), "chart_next": bool(chart_first),
+              "placement": int(placement), "exposure_s": float(exposure_s),
               "seed": int(seed), "faults": {**DEFAULT_FAULTS, **(faults or {})}}
     target = Path(path)
-    _atomic_json(target, config)
+    with config_lock(target):
+        _atomic_json(target, config)
     state = _state_path(target)
     if state.exists():
         state.unlink()
@@ -130,17 +150,65 @@ def read_config(path: str | os.PathLike[str]) -> dict[str, Any]:
     return config
 
 
+@contextlib.contextmanager
+def config_lock(path: str | os.PathLike[str]) -> Iterator[None]:
+    """Hold the configuration's lock file ``<config>.lock`` (``flock``, across processes).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> with config_lock(pathlib.Path(tempfile.mkdtemp()) / "cam.json"):
+    ...     pass
+    """
+    lock = Path(path).with_name(Path(path).name + ".lock")
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
 def update_config(path: str | os.PathLike[str], *, faults: dict[str, Any] | None = None,
+                  placement: int | None = None, chart_next: bool | None = None,
                   **world_changes: Any) -> None:
-    """Change fault switches and world settings (e.g. ``table_angle_deg``) in place, atomically."""
-    config = read_config(path)
+    """Change fault switches, the placement, the chart flag and world settings (e.g. ``table_angle_deg``).
+
+    The change is a read-modify-write under :func:`config_lock`, written
+    atomically (temporary file + rename).
+    """
     if faults:
         unknown = set(faults) - set(DEFAULT_FAULTS)
         if unknown:
-            raise ValueError(f"unknown fake gphoto2 fault(s) {', '.join(sorted(unknown))}")
-        config["faults"].update(faults)
-    config["world"].update(world_changes)
-    _atomic_json(Path(path), config)
+            raise ValueError(f"unknown fake gphoto2 fault(s) {', '.join(sorted(unknown))}; "
+                             f"known: {', '.join(DEFAULT_FAULTS)}")
+    with config_lock(path):
+        config = read_config(path)
+        if faults:
+            config["faults"].update(faults)
+        if placement is not None:
+            config["placement"] = int(placement)
+        if chart_next is not None:
+            config["chart_next"] = bool(chart_next)
+        config["world"].update(world_changes)
+        _atomic_json(Path(path), config)
+
+
+def _chart_next(config: dict[str, Any], number: int) -> bool:
+    """Whether capture ``number`` shows the chart (configurations without ``chart_next``: capture 1)."""
+    if "chart_next" in config:
+        return bool(config["chart_next"])
+    return bool(config.get("chart_first", True)) and number == 1
+
+
+def chart_taken(path: str | os.PathLike[str], placement: int) -> None:
+    """Clear ``chart_next`` after a chart frame of ``placement`` was written, unless the object was re-placed
+    meanwhile (then the next frame must show the chart again)."""
+    with config_lock(path):
+        config = read_config(path)
+        if int(config.get("placement", 0)) == placement and config.get("chart_next"):
+            config["chart_next"] = False
+            _atomic_json(Path(path), config)
 
 
 def install(directory: str | os.PathLike[str], config: str | os.PathLike[str]) -> Path:
@@ -190,6 +258,25 @@ def _state_path(config: Path) -> Path:
     return config.with_name(config.name + ".state")
 
 
+def cache_mesh(config_path: str | os.PathLike[str], world: Any, source: str | None = None) -> Path:
+    """Store ``world``'s mesh as the configuration's mesh cache ``<config>.mesh.npz``.
+
+    Captures then load the mesh from the cache instead of rebuilding it (the
+    procedural hawk takes seconds); a world without a mesh source (built from
+    arrays) can be photographed only this way, under a ``source`` label that
+    matches the configuration's ``world.mesh``.
+    """
+    import numpy as np
+
+    cache = Path(config_path).with_name(Path(config_path).name + ".mesh.npz")
+    label = str(source if source is not None else world.mesh_source)
+    tmp = cache.with_name(f".{cache.name}.{os.getpid()}.npz")
+    np.savez(tmp, source=label, vertices=world.vertices, triangles=world.triangles, region=world.region,
+             names=np.array(world.region_names), materials=np.array([world.materials[n] for n in world.region_names]))
+    os.replace(tmp, cache)
+    return cache
+
+
 def _world(data: dict[str, Any], config_path: Path) -> Any:
     """The configured world; the mesh is cached in ``<config>.mesh.npz`` so captures after the first
     do not rebuild it."""
@@ -209,10 +296,7 @@ def _world(data: dict[str, Any], config_path: Path) -> Any:
                               mesh_source=source, **_world_settings(settings))
                 return world
     world = World.from_dict(data)
-    tmp = cache.with_name(f".{cache.name}.{os.getpid()}.npz")
-    np.savez(tmp, source=source, vertices=world.vertices, triangles=world.triangles, region=world.region,
-             names=np.array(world.region_names), materials=np.array([world.materials[n] for n in world.region_names]))
-    os.replace(tmp, cache)
+    cache_mesh(config_path, world, source)
     return world
 
 
@@ -297,14 +381,19 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
     print(f"New file is in location /capt{count:04d}.nef on the camera")
     if not faults["no_output"]:
         from mocks.camera_sim import simulate_raw, write_raw
+        from mocks.noise_seed import frame_seed
 
         world = _world(config["world"], Path(config_path))
-        kind = "chart" if config.get("chart_first", True) and number == 1 else "object"
+        chart = _chart_next(config, number)
+        kind = "chart" if chart else "object"
+        placement = int(config.get("placement", 0))
         frame = world.frame(kind)
         raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=float(config["exposure_s"]),
-                           seed=int(config["seed"]) + number,
+                           seed=frame_seed(int(config["seed"]), placement, kind, world.table_angle_deg),
                            exposure_boost=_SATURATION_BOOST if faults["saturate"] else 1.0)
         write_raw(name, raw)
+        if chart:
+            chart_taken(config_path, placement)
         print(f"Saving file as {name}")
     print(f"Deleting file /capt{count:04d}.nef on the camera")
     return 0

@@ -57,6 +57,13 @@ class Faults:
     mute
         While True the device ignores everything it receives (a hung
         firmware: no replies, no status, no reset).
+    laser_watchdog_after_moves
+        For the turntable: counts down by one per finished move; when it
+        reaches 0 the laser watchdog fires as the next command line arrives
+        (every laser off, ``[MSG:Laser <n> off: watchdog]``, before that
+        command runs), as if the lasers had been left on too long while the
+        host was busy.  A host that re-asserts the lasers at every step
+        recovers at once; one that switched them on once does not.
     corrupt_frames, drop_frames
         For binary-frame emulators: number of next frames sent with a bad
         CRC / not sent.
@@ -74,6 +81,7 @@ class Faults:
     replug_after_s: float | None = None
     alarm_on_move: str | None = None
     mute: bool = False
+    laser_watchdog_after_moves: int = 0
     corrupt_frames: int = 0
     drop_frames: int = 0
     garbage_frames: int = 0

@@ -17,6 +17,11 @@ table turns ``steps_per_degree`` motor steps per degree, so with equal values
 seconds per simulated second (0: instant).  With the motor released (M18)
 the firmware still counts steps but the table does not turn.
 
+An optional ``on_move_done(angle_deg)`` callback runs in the firmware thread
+when a move has finished, *before* its ``ok`` is sent, with the physical table
+angle: whoever else simulates the station (the camera's view) is up to date by
+the time the host sees the ``ok``.
+
 Faults come from a shared :class:`mocks.faults.Faults`; see its attributes.
 
 Examples
@@ -33,12 +38,14 @@ Horus 0.2 ['$' for help]
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from mocks.faults import Faults
@@ -47,6 +54,7 @@ from mocks.pty_link import PtyDevice
 __all__ = ["BANNER", "HorusFirmware", "trapezoid_time", "trapezoid_distance"]
 
 BANNER = "Horus 0.2 ['$' for help]"
+_log = logging.getLogger(__name__)
 _WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 
 
@@ -146,6 +154,12 @@ class HorusFirmware(PtyDevice):
         Shared fault switches (a fresh all-off :class:`Faults` if omitted).
     banner
         Banner printed after reset (change it to emulate other firmware).
+    on_move_done
+        Called as ``on_move_done(angle_deg)`` with the physical table angle
+        when a move finishes, before its ``ok`` is sent (in the firmware
+        thread, with the firmware's lock held: keep it short and do not call
+        back into the firmware's host side).  An exception it raises is
+        logged and the ``ok`` is sent anyway.
     """
 
     _thread_name = "horus-firmware"
@@ -163,6 +177,7 @@ class HorusFirmware(PtyDevice):
         lasers: int = 2,
         faults: Faults | None = None,
         banner: str = BANNER,
+        on_move_done: Callable[[float], None] | None = None,
     ) -> None:
         for name, v in (("steps_per_unit", steps_per_unit), ("steps_per_degree", steps_per_degree),
                         ("accel_units_s2", accel_units_s2), ("feed_units_s", feed_units_s),
@@ -173,6 +188,8 @@ class HorusFirmware(PtyDevice):
             raise ValueError(f"time_scale must be >= 0 (0 = instant motion), got {time_scale!r}")
         if not isinstance(lasers, int) or lasers < 1:
             raise ValueError(f"lasers must be a positive integer, got {lasers!r}")
+        if on_move_done is not None and not callable(on_move_done):
+            raise ValueError("on_move_done must be a callable taking the table angle in degrees, or None")
         self._open_link(link_path, "horus-", "turntable")
         self.steps_per_unit = float(steps_per_unit)
         self.steps_per_degree = float(steps_per_degree)
@@ -183,6 +200,7 @@ class HorusFirmware(PtyDevice):
         self.n_lasers = lasers
         self.faults = faults if faults is not None else Faults()
         self.banner = banner
+        self.on_move_done = on_move_done
         self.received: list[str] = []  # every command line, for tests
         self.resets = 0
         self.status_queries = 0
@@ -190,6 +208,7 @@ class HorusFirmware(PtyDevice):
         self._phys_deg = 0.0
         self._replug_at: float | None = None
         self._watchdog_now = False
+        self._watchdog_on_command = False
         self._power_on()
 
     # ----------------------------------------------------------- public state
@@ -338,13 +357,26 @@ class HorusFirmware(PtyDevice):
             except OSError:
                 self._out.clear()
 
-    def _tick(self, now: float) -> None:
-        # laser watchdog
+    def _watchdog(self, now: float, fire: bool) -> None:
+        """Turn off every laser on for longer than the watchdog time (every laser if ``fire``)."""
         limit = self.laser_watchdog_s * self.time_scale if self.time_scale > 0 else math.inf
         for i, since in enumerate(self._laser_on_since):
-            if since is not None and (self._watchdog_now or now - since >= limit):
+            if since is not None and (fire or now - since >= limit):
                 self._laser_on_since[i] = None
                 self._send(f"[MSG:Laser {i + 1} off: watchdog]\r\n".encode())
+
+    def _move_finished(self, angle_deg: float) -> None:
+        """Callback and watchdog-fault bookkeeping of a finished move (before its ``ok``)."""
+        if self.on_move_done is not None:
+            try:
+                self.on_move_done(angle_deg)
+            except Exception:  # the firmware must keep answering whatever the simulator does
+                _log.exception("on_move_done(%r) failed", angle_deg)
+        if self.faults.take("laser_watchdog_after_moves") and self.faults.laser_watchdog_after_moves == 0:
+            self._watchdog_on_command = True
+
+    def _tick(self, now: float) -> None:
+        self._watchdog(now, self._watchdog_now)
         self._watchdog_now = False
         progressed = True
         while progressed and self.link.plugged:
@@ -356,6 +388,7 @@ class HorusFirmware(PtyDevice):
                 if m.turns_table:
                     self._phys_deg = m.start_phys_deg + (m.target_units - m.start_units) * (
                         self.steps_per_unit / self.steps_per_degree)
+                self._move_finished(self._phys_deg)
                 self._reply("ok", now)
                 progressed = True
             while self._pending and self._pending[0][0] <= now:
@@ -386,6 +419,9 @@ class HorusFirmware(PtyDevice):
 
     def _execute(self, line: str, now: float) -> None:
         self.received.append(line)
+        if self._watchdog_on_command:  # the laser_watchdog_after_moves fault comes due
+            self._watchdog_on_command = False
+            self._watchdog(now, True)
         if self.faults.take("unplug_on_command"):
             self._freeze(now)
             self.link.unplug()

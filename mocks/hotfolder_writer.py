@@ -79,7 +79,8 @@ class HotFolderWriter:
     exposure_s
         Exposure time of the simulated camera.
     seed
-        Noise seed of the first frame (then +1 per frame).
+        Noise seed of the first frame (then +1 per frame), unless a frame is
+        given its own ``seed``.
     """
 
     folder: Path
@@ -89,14 +90,15 @@ class HotFolderWriter:
     count: int = 0
 
     def frame_bytes(self, kind: str = "object", table_angle_deg: float | None = None,
-                    *, saturate: bool = False) -> bytes:
-        """The DNG bytes of one simulated capture."""
+                    *, saturate: bool = False, seed: int | None = None) -> bytes:
+        """The DNG bytes of one simulated capture (noise seed ``seed``, default ``self.seed + self.count``)."""
         from mocks.camera_sim import simulate_raw
         from mocks.dng_writer import dng_bytes
 
         frame = self.world.frame(kind, table_angle_deg)  # type: ignore[attr-defined]
         raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=self.exposure_s,
-                           seed=self.seed + self.count, exposure_boost=30.0 if saturate else 1.0)
+                           seed=self.seed + self.count if seed is None else int(seed),
+                           exposure_boost=30.0 if saturate else 1.0)
         return dng_bytes(raw.bayer, black_level=raw.black_level, white_level=raw.white_level,
                          cfa_pattern=raw.cfa_pattern, color_matrix=raw.color_matrix,
                          as_shot_neutral=raw.as_shot_neutral, exposure_time=raw.exposure_time, iso=raw.iso,
@@ -108,12 +110,13 @@ class HotFolderWriter:
 
     def capture(self, kind: str = "object", table_angle_deg: float | None = None, *, chunks: int = 4,
                 interval_s: float = 0.05, partial: bool = False, saturate: bool = False,
-                background: bool = False) -> Path | threading.Thread:
+                background: bool = False, seed: int | None = None) -> Path | threading.Thread:
         """Render and write one frame; with ``background`` return the started writer thread.
 
-        ``partial`` leaves a truncated file (the fault); ``saturate`` over-exposes.
+        ``partial`` leaves a truncated file (the fault); ``saturate`` over-exposes;
+        ``seed`` is the frame's noise seed (see :meth:`frame_bytes`).
         """
-        data = self.frame_bytes(kind, table_angle_deg, saturate=saturate)
+        data = self.frame_bytes(kind, table_angle_deg, saturate=saturate, seed=seed)
         path = self.next_path()
         self.count += 1
         if not background:

@@ -14,7 +14,9 @@ spherical cap, closed form) or :class:`RaycastSource` (an Open3D ray cast of
 a mesh on the turntable at the table's current angle, with range noise, a
 field-of-view and range limit, camera occlusion, and dropouts where the
 surface turns away from the sensor, a stand-in for a metal's specular lobe
-sending the laser light elsewhere).
+sending the laser light elsewhere).  The sensor's pose in the room is a 4 x 4
+``sensor_to_room`` transform (:func:`default_sensor_to_room` by default; the
+convention is in :class:`RaycastSource` and ``docs/protocols.md``).
 
 Faults come from a shared :class:`mocks.faults.Faults` (garbage before
 replies or frames, corrupted or dropped frames, slow replies, unplug on a
@@ -59,6 +61,8 @@ __all__ = [
     "pack_frame",
     "synthetic_source",
     "RaycastSource",
+    "default_sensor_to_room",
+    "check_sensor_pose",
     "ProfilerFirmware",
 ]
 
@@ -161,16 +165,71 @@ def synthetic_source(
     return source
 
 
+def default_sensor_to_room(standoff_mm: float = 200.0, height_mm: float = 0.0) -> NDArray[np.float64]:
+    """The sensor pose of :class:`RaycastSource`'s default geometry (sensor -> room, 4 x 4, mm).
+
+    Columns of the rotation: ``X_s = (0, 0, 1)`` (along the laser line, up),
+    ``Y_s = (0, 1, 0)`` (toward the triangulation camera), ``Z_s = (-1, 0, 0)``
+    (the range direction, toward the table axis); translation: the emitter
+    at ``(standoff_mm, 0, height_mm)``.
+
+    Examples
+    --------
+    >>> default_sensor_to_room(250.0, 40.0)[:3].tolist()
+    [[0.0, 0.0, -1.0, 250.0], [0.0, 1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 40.0]]
+    """
+    m = np.eye(4)
+    m[:3, 0] = (0.0, 0.0, 1.0)
+    m[:3, 1] = (0.0, 1.0, 0.0)
+    m[:3, 2] = (-1.0, 0.0, 0.0)
+    m[:3, 3] = (float(standoff_mm), 0.0, float(height_mm))
+    return m
+
+
+def check_sensor_pose(sensor_to_room: ArrayLike, name: str = "sensor_to_room") -> NDArray[np.float64]:
+    """``sensor_to_room`` as a float 4 x 4 rigid transform; a ``ValueError`` naming ``name`` otherwise.
+
+    Examples
+    --------
+    >>> check_sensor_pose(np.eye(4)).shape
+    (4, 4)
+    >>> check_sensor_pose(np.diag([1.0, 1.0, -1.0, 1.0]))
+    Traceback (most recent call last):
+    ...
+    ValueError: sensor_to_room must be a rigid transform: its 3 x 3 part must be a rotation (orthonormal, determinant +1)
+    """
+    m = np.asarray(sensor_to_room, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise ValueError(f"{name} must be a finite 4 x 4 matrix (mm), got shape {m.shape}")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"{name} must have the last row (0, 0, 0, 1), got {m[3].tolist()}")
+    r = m[:3, :3]
+    if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) <= 0:
+        raise ValueError(f"{name} must be a rigid transform: its 3 x 3 part must be a rotation "
+                         "(orthonormal, determinant +1)")
+    return m
+
+
 class RaycastSource:
     """Line profiles of a triangle mesh on the turntable, by Open3D ray casting.
 
-    World frame: the table axis is ``+Z`` through the origin, the mesh turns
-    with the table (``angle_deg()``, counter-clockwise seen from above).
-    The laser emitter sits at ``(standoff_mm, 0, height_mm)`` and fans
-    ``n_points`` rays over ``fov_deg`` in the vertical ``XZ`` plane, aimed at
-    ``-X``; the camera sits ``baseline_mm`` beside it along ``+Y``.  Sensor
-    frame: ``z`` is the range along the optical axis (``-X``), ``x`` the
-    height offset along ``+Z``.
+    Room frame: the table axis is ``+Z`` through the origin (table top at
+    ``z = 0`` when the scene has one); the mesh turns with the table
+    (``angle_deg()``, counter-clockwise seen from above), so a point
+    ``p`` of the mesh is at ``Rz(angle) p`` in the room.  Sensor frame:
+    ``sensor_to_room`` (4 x 4) has columns ``X_s`` (along the laser line),
+    ``Y_s`` (toward the triangulation camera) and ``Z_s`` (the range
+    direction, away from the sensor) and translation ``origin_s`` (the
+    emitter); a profile point ``(x_mm, z_mm)`` is at
+    ``origin_s + x_mm X_s + z_mm Z_s`` in the room.  The laser fans
+    ``n_points`` rays over ``fov_deg`` in the ``X_s``-``Z_s`` plane, ray
+    ``theta`` along ``sin(theta) X_s + cos(theta) Z_s``, so a hit at
+    distance ``t`` has ``x = t sin(theta)``, ``z = t cos(theta)``; the camera
+    sits ``baseline_mm`` from the emitter along ``Y_s``.  The default pose
+    (:func:`default_sensor_to_room`) is ``X_s = (0, 0, 1)``,
+    ``Y_s = (0, 1, 0)``, ``Z_s = (-1, 0, 0)``, emitter
+    ``(standoff_mm, 0, height_mm)``: a vertical laser plane through the table
+    axis, aimed at ``-X``.
 
     A point is invalid when the ray misses, its range is outside
     ``range_mm``, the camera's view of it is blocked (occlusion), or the
@@ -181,15 +240,24 @@ class RaycastSource:
     Parameters
     ----------
     vertices
-        (V, 3) mesh vertices in mm, object frame (table frame at angle 0).
+        (V, 3) mesh vertices in mm, table frame at angle 0.
     triangles
         (T, 3) vertex indices.
     angle_deg
         Callable returning the current table angle (e.g.
         ``HorusFirmware.angle_deg`` via ``lambda: fw.angle_deg``).
-    n_points, fov_deg, standoff_mm, height_mm, baseline_mm, range_mm,
-    max_incidence_deg, noise_um, seed
+    n_points, fov_deg, baseline_mm, range_mm, max_incidence_deg, noise_um
         Sensor model, see above.
+    standoff_mm, height_mm
+        Emitter position of the default pose (default 200 mm and 0 mm); not
+        allowed together with ``sensor_to_room``.
+    seed
+        Noise seed: an integer (one generator, advancing with every profile)
+        or a callable ``seed(angle_deg) -> int`` giving each profile its own
+        generator (the same angle, the same noise).
+    sensor_to_room
+        4 x 4 rigid sensor pose in the room (mm); default
+        :func:`default_sensor_to_room`.
 
     Examples
     --------
@@ -208,13 +276,14 @@ class RaycastSource:
         *,
         n_points: int = 640,
         fov_deg: float = 30.0,
-        standoff_mm: float = 200.0,
-        height_mm: float = 0.0,
+        standoff_mm: float | None = None,
+        height_mm: float | None = None,
         baseline_mm: float = 60.0,
         range_mm: tuple[float, float] = (100.0, 300.0),
         max_incidence_deg: float = 70.0,
         noise_um: float = 0.0,
-        seed: int = 0,
+        seed: int | Callable[[float], int] = 0,
+        sensor_to_room: ArrayLike | None = None,
     ) -> None:
         import open3d as o3d
 
@@ -234,22 +303,53 @@ class RaycastSource:
             raise ValueError(f"range_mm must be (near, far) with 0 < near < far, got {range_mm!r}")
         if not 0 < max_incidence_deg <= 90:
             raise ValueError(f"max_incidence_deg must be in (0, 90], got {max_incidence_deg!r}")
+        if not (math.isfinite(noise_um) and noise_um >= 0):
+            raise ValueError(f"noise_um must be a finite standard deviation >= 0 (micrometres), got {noise_um!r}")
+        if not (math.isfinite(baseline_mm) and baseline_mm >= 0):
+            raise ValueError(f"baseline_mm must be a finite distance >= 0 (mm), got {baseline_mm!r}")
+        if not (callable(seed) or isinstance(seed, (int, np.integer))):
+            raise ValueError(f"seed must be an integer or a callable seed(angle_deg) -> int, got {seed!r}")
+        if sensor_to_room is None:
+            pose = default_sensor_to_room(200.0 if standoff_mm is None else standoff_mm,
+                                          0.0 if height_mm is None else height_mm)
+            check_sensor_pose(pose, "standoff_mm/height_mm")
+        else:
+            if standoff_mm is not None or height_mm is not None:
+                raise ValueError("give either sensor_to_room or standoff_mm/height_mm, not both "
+                                 "(the pose's translation is the emitter)")
+            pose = check_sensor_pose(sensor_to_room)
         self._o3d = o3d
         self._scene = o3d.t.geometry.RaycastingScene()
         self._scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
         self.angle_deg = angle_deg
         self.n_points = n_points
-        self.emitter = np.array([standoff_mm, 0.0, height_mm])
-        self.camera = self.emitter + np.array([0.0, baseline_mm, 0.0])
+        self.sensor_to_room = pose
+        self.emitter = pose[:3, 3].copy()
+        self.camera = self.emitter + baseline_mm * pose[:3, 1]
         self.range_mm = (float(range_mm[0]), float(range_mm[1]))
         self.cos_max = math.cos(math.radians(max_incidence_deg))
         self.noise_um = float(noise_um)
-        self._rng = np.random.default_rng(seed)
+        self._seed = seed
+        self._rng = None if callable(seed) else np.random.default_rng(int(seed))
         theta = np.radians(np.linspace(-fov_deg / 2, fov_deg / 2, n_points))
-        self._dirs = np.stack([-np.cos(theta), np.zeros_like(theta), np.sin(theta)], axis=1)
+        self._sin, self._cos = np.sin(theta), np.cos(theta)
+        self._dirs = self._sin[:, None] * pose[:3, 0] + self._cos[:, None] * pose[:3, 2]
 
     def __call__(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-        a = math.radians(float(self.angle_deg()))
+        return self.profile_at(float(self.angle_deg()))
+
+    def profile_at(self, angle_deg: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """The profile with the table at ``angle_deg``: ``(x_um, z_um, valid)``, NaN where invalid.
+
+        Examples
+        --------
+        >>> v = np.array([[0, -50, -50], [0, 50, -50], [0, 0, 80]], float)
+        >>> src = RaycastSource(v, np.array([[0, 1, 2]]), lambda: 0.0, n_points=3, fov_deg=10.0,
+        ...                     noise_um=50.0, seed=lambda a: 7)
+        >>> bool(np.array_equal(src.profile_at(0.0)[1], src.profile_at(0.0)[1]))
+        True
+        """
+        a = math.radians(angle_deg)
         c, s = math.cos(a), math.sin(a)
         to_obj = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # rotation by -angle
         o = to_obj @ self.emitter
@@ -273,13 +373,17 @@ class RaycastSource:
         shadow = np.concatenate([start, dirc], axis=1).astype(np.float32)
         t_occ = self._scene.cast_rays(self._o3d.core.Tensor(shadow))["t_hit"].numpy()
         ok &= ~(t_occ < dist - 2e-3)
-        # sensor frame: range along -X (world), x along +Z
-        rng_mm = t_safe * self._dirs[:, 0] * -1.0
-        x_mm = t_safe * self._dirs[:, 2]
+        # sensor frame: z the range along Z_s, x along the laser line X_s
+        rng_mm = t_safe * self._cos
+        x_mm = t_safe * self._sin
         ok &= (rng_mm >= self.range_mm[0]) & (rng_mm <= self.range_mm[1])
         z_um = rng_mm * 1000.0
         if self.noise_um > 0:
-            z_um = z_um + self._rng.normal(0.0, self.noise_um, z_um.shape)
+            if self._rng is None:
+                gen = np.random.default_rng(int(self._seed(angle_deg)))  # type: ignore[operator]
+            else:
+                gen = self._rng
+            z_um = z_um + gen.normal(0.0, self.noise_um, z_um.shape)
         x_um = x_mm * 1000.0
         return np.where(ok, x_um, np.nan), np.where(ok, z_um, np.nan), ok
 

@@ -1,0 +1,777 @@
+"""The capture session: turntable, laser profiler and camera driven into a session, resumably.
+
+Issue #3, DESIGN.md sections 2-3, ``docs/session-format.md``.  A
+:class:`CapturePlan` expands into a fixed, ordered list of actions per pass,
+each with a stable id (``p01/chart``, ``p01/profile/0042``,
+``p01/frame/03``).  :func:`run_capture` performs the actions that the
+session does not already hold (recorded *and* with an intact file), so an
+interrupted capture continues with no missing and no duplicated step, however
+it stopped (a device fault, Ctrl-C, ``kill -9``, a power cut).
+
+Per pass of a ``scan`` plan: the object is placed (a hook: a prompt at the
+station, a command in an unattended run), the table is zeroed, the chart
+frame is shot (lasers off), then one full revolution of ``steps`` profiles
+with the lasers re-asserted on every step; RAW frames are shot (lasers off)
+at the camera angles, each snapped to the nearest step.  A ``swatch`` plan
+(a flat fabric sample, Yasuda et al. section 4) shoots only RAW frames, at
+every step angle.  At the end of a pass its profiles are gathered into one
+``profiles.npz`` (``angles_deg``, ``x_mm``, ``z_mm``; NaN = no return).
+
+Device faults are recovered where that is safe -- a vanished port is
+reopened (waiting up to ``reconnect_timeout_s`` for the cable), a lost or
+corrupted reply or frame is re-requested by the drivers, a reset device is
+restored, a busy camera is retried, a profile with no return at all is
+re-taken once after re-asserting the lasers (the firmware's laser watchdog)
+-- and otherwise stop the capture with :class:`CaptureInterrupted`, whose
+message names the device and what to do; the session is left consistent
+and resumable in every case, and the lasers are switched off and the motor
+released on any exit.
+
+Resuming knows the table's angle: the session journals the target before
+every move and the confirmed angle after it; on resume the firmware's own
+position counter is read (``?``) before the board is reset, and the angle
+is taken from it when it agrees with the journal.  If the board lost its
+counter while a move was in flight, the remaining steps of that pass carry
+the possible error in ``angle_uncertain_deg`` of the pass record.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import shutil
+import threading
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from app.session import Session, SessionError, utc_now
+from drivers.camera_errors import (
+    CameraBusyError,
+    CameraError,
+    CameraTimeoutError,
+)
+from drivers.errors import (
+    DeviceAlarm,
+    DeviceError,
+    DeviceTimeout,
+    DriverError,
+    TransportClosed,
+    TransportError,
+)
+
+__all__ = [
+    "PLAN_KINDS",
+    "CapturePlan",
+    "Action",
+    "Shooter",
+    "CaptureDevices",
+    "CaptureHooks",
+    "CaptureSettings",
+    "CaptureProgress",
+    "CaptureReport",
+    "CaptureInterrupted",
+    "run_capture",
+    "load_pass_profiles",
+]
+
+PLAN_KINDS = ("scan", "swatch")
+STAGING = ".incoming"
+ORPHANS = "orphans"
+
+
+class CaptureInterrupted(RuntimeError):
+    """The capture stopped before the plan was complete; the session is consistent and resumable.
+
+    Attributes
+    ----------
+    session
+        The session directory.
+    reason
+        ``"device"`` (a fault that could not be recovered), ``"cancelled"``
+        (the user stopped it) or ``"error"`` (anything else).
+    """
+
+    def __init__(self, message: str, *, session: Path, reason: str = "device") -> None:
+        super().__init__(message)
+        self.session = session
+        self.reason = reason
+
+
+# ---------------------------------------------------------------------------- plan
+@dataclass(frozen=True)
+class Action:
+    """One step of a plan.
+
+    ``kind`` is ``"chart"`` (the colour-chart frame), ``"profile"`` or
+    ``"frame"`` (a RAW frame of the object); ``angle_deg`` is the table angle
+    within the pass.
+    """
+
+    id: str
+    kind: str
+    pass_no: int
+    index: int
+    angle_deg: float
+
+    @property
+    def stem(self) -> str:
+        """File stem of the action's file."""
+        if self.kind == "chart":
+            return "chart"
+        if self.kind == "frame":
+            return f"frame_{self.index:02d}"
+        return f"{self.index:04d}"
+
+
+@dataclass(frozen=True)
+class CapturePlan:
+    """What a capture session takes.
+
+    Parameters
+    ----------
+    kind
+        ``"scan"`` (profiles over a revolution plus RAW frames) or
+        ``"swatch"`` (RAW frames at every step angle, no profiles).
+    steps
+        Table positions per revolution (equal angles from 0).
+    passes
+        Placements of the object (re-placed by hand between passes).
+    camera_angles_deg
+        Table angles of the RAW frames of a ``scan`` pass (snapped to the
+        nearest step); ignored for ``swatch``.
+    chart
+        Shoot the colour-chart frame first in every pass.
+    lasers
+        Turntable laser outputs to switch on while profiling (the laser
+        line's power); they are off for every camera frame.
+    camera
+        False for a profiles-only scan (no camera frames, no chart).
+
+    Examples
+    --------
+    >>> plan = CapturePlan("scan", steps=8, passes=2, camera_angles_deg=(0.0, 180.0))
+    >>> [a.id for a in plan.pass_actions(1)][:4]
+    ['p01/chart', 'p01/profile/0000', 'p01/frame/00', 'p01/profile/0001']
+    >>> len(plan.actions())
+    22
+    """
+
+    kind: str = "scan"
+    steps: int = 200
+    passes: int = 3
+    camera_angles_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
+    chart: bool = True
+    lasers: tuple[int, ...] = (1,)
+    camera: bool = True
+
+    def __post_init__(self) -> None:
+        if self.kind not in PLAN_KINDS:
+            raise ValueError(f"plan kind must be one of {', '.join(PLAN_KINDS)}, got {self.kind!r}")
+        if not isinstance(self.steps, int) or isinstance(self.steps, bool) or not 1 <= self.steps <= 100_000:
+            raise ValueError(f"steps must be an integer in 1..100000 (table positions per revolution), got {self.steps!r}")
+        if not isinstance(self.passes, int) or isinstance(self.passes, bool) or not 1 <= self.passes <= 99:
+            raise ValueError(f"passes must be an integer in 1..99, got {self.passes!r}")
+        angles = tuple(float(a) for a in self.camera_angles_deg)
+        if not all(math.isfinite(a) for a in angles):
+            raise ValueError(f"camera angles must be finite degrees, got {self.camera_angles_deg!r}")
+        object.__setattr__(self, "camera_angles_deg", angles)
+        object.__setattr__(self, "lasers", tuple(int(i) for i in self.lasers))
+        if self.kind == "swatch" and not self.camera:
+            raise ValueError("a swatch plan needs the camera (it takes only RAW frames)")
+
+    @property
+    def step_deg(self) -> float:
+        """Angle between steps (degrees)."""
+        return 360.0 / self.steps
+
+    def step_angle(self, i: int) -> float:
+        """Table angle of step ``i`` (degrees)."""
+        return 360.0 * i / self.steps
+
+    def _frame_steps(self) -> list[int]:
+        return [int(round((a % 360.0) / self.step_deg)) % self.steps for a in self.camera_angles_deg]
+
+    def pass_actions(self, pass_no: int) -> list[Action]:
+        """The ordered actions of pass ``pass_no`` (1-based)."""
+        p = f"p{pass_no:02d}"
+        out: list[Action] = []
+        if self.camera and self.chart:
+            out.append(Action(f"{p}/chart", "chart", pass_no, 0, 0.0))
+        if self.kind == "swatch":
+            out += [Action(f"{p}/frame/{i:02d}" if self.steps <= 100 else f"{p}/frame/{i:04d}", "frame",
+                           pass_no, i, self.step_angle(i)) for i in range(self.steps)]
+            return out
+        frames: dict[int, list[int]] = defaultdict(list)
+        if self.camera:
+            for k, s in enumerate(self._frame_steps()):
+                frames[s].append(k)
+        for i in range(self.steps):
+            out.append(Action(f"{p}/profile/{i:04d}", "profile", pass_no, i, self.step_angle(i)))
+            out += [Action(f"{p}/frame/{k:02d}", "frame", pass_no, k, self.step_angle(i)) for k in frames.get(i, ())]
+        return out
+
+    def actions(self) -> list[Action]:
+        """Every action of every pass, in order."""
+        return [a for p in range(1, self.passes + 1) for a in self.pass_actions(p)]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form (stored in the session manifest's ``plan``)."""
+        return {"kind": self.kind, "steps": self.steps, "passes": self.passes,
+                "camera_angles_deg": list(self.camera_angles_deg), "chart": self.chart,
+                "lasers": list(self.lasers), "camera": self.camera}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "CapturePlan":
+        """Inverse of :meth:`to_dict`."""
+        known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera"}
+        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in known})
+
+
+# ---------------------------------------------------------------------------- devices and hooks
+class Shooter(Protocol):
+    """A camera as the capture sees it: shoot one RAW frame into a staging folder."""
+
+    def shoot(self, name: str) -> Path:
+        """Fire and return the new RAW file (named ``<name>.<ext>``) in the staging folder."""
+        ...
+
+
+@dataclass
+class CaptureDevices:
+    """The connected (or connectable) instruments; any may be None if the plan does not need it.
+
+    ``turntable`` is a :class:`drivers.turntable.Turntable`, ``profiler`` a
+    :class:`drivers.profiler.LaserProfiler`; ``camera`` builds a
+    :class:`Shooter` for a staging folder (the session's ``.incoming``).
+    """
+
+    turntable: Any = None
+    profiler: Any = None
+    camera: Callable[[Path], Shooter] | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class CaptureHooks:
+    """What the capture asks of its caller (CLI, GUI, tests).
+
+    Attributes
+    ----------
+    before_pass
+        ``before_pass(pass_no, passes)``: place the object (and the chart)
+        for a new pass; raise :class:`CaptureInterrupted` to stop.
+    after_chart
+        ``after_chart(pass_no)``: the chart frame is taken (remove the chart).
+    progress
+        Called after every action with a :class:`CaptureProgress`.
+    message
+        Called with human-readable notes (recoveries, warnings).
+    cancel
+        Set it to stop at the next action boundary (Ctrl-C, a GUI button).
+    """
+
+    before_pass: Callable[[int, int], None] | None = None
+    after_chart: Callable[[int], None] | None = None
+    progress: Callable[["CaptureProgress"], None] | None = None
+    message: Callable[[str], None] | None = None
+    cancel: threading.Event | None = None
+
+
+@dataclass(frozen=True)
+class CaptureSettings:
+    """Recovery and timing settings.
+
+    Attributes
+    ----------
+    reconnect_timeout_s
+        How long to wait for a vanished port to come back.
+    max_recoveries
+        Recoveries of one action before giving up on it.
+    camera_retries, camera_retry_wait_s
+        Retries of a busy or timed-out camera, and the wait between them.
+    profile_deadline_s
+        Deadline of one profile, re-requests included.
+    """
+
+    reconnect_timeout_s: float = 30.0
+    max_recoveries: int = 5
+    camera_retries: int = 3
+    camera_retry_wait_s: float = 1.0
+    profile_deadline_s: float = 5.0
+
+
+@dataclass(frozen=True)
+class CaptureProgress:
+    """Progress after one action."""
+
+    done: int
+    total: int
+    pass_no: int
+    action: str
+    elapsed_s: float
+    eta_s: float | None
+
+
+@dataclass
+class CaptureReport:
+    """What :func:`run_capture` did."""
+
+    session: Path
+    taken: int = 0
+    skipped: int = 0
+    redone: list[str] = field(default_factory=list)
+    recoveries: list[str] = field(default_factory=list)
+    elapsed_s: float = 0.0
+    status: str = "complete"
+
+
+# ---------------------------------------------------------------------------- the engine
+def run_capture(session: Session, plan: CapturePlan, devices: CaptureDevices,
+                hooks: CaptureHooks | None = None, settings: CaptureSettings | None = None) -> CaptureReport:
+    """Take every action of ``plan`` the session does not hold yet.
+
+    Parameters
+    ----------
+    session
+        An open :class:`app.session.Session` (new or to resume); its
+        manifest's ``plan`` must equal ``plan.to_dict()``.
+    plan
+        The plan.
+    devices
+        The instruments (connected here; closed on every exit).
+    hooks, settings
+        See :class:`CaptureHooks`, :class:`CaptureSettings`.
+
+    Returns
+    -------
+    CaptureReport
+        Counts of taken / skipped actions and the recoveries made.
+
+    Raises
+    ------
+    CaptureInterrupted
+        A fault that could not be recovered, or a cancel; the session is
+        marked ``interrupted`` and can be resumed.
+    """
+    return _Runner(session, plan, devices, hooks or CaptureHooks(), settings or CaptureSettings()).run()
+
+
+class _Runner:
+    def __init__(self, session: Session, plan: CapturePlan, devices: CaptureDevices, hooks: CaptureHooks,
+                 settings: CaptureSettings) -> None:
+        stored = session.manifest.get("plan")
+        if stored != plan.to_dict():
+            raise SessionError(f"session {session.root} was planned as {stored!r}, not {plan.to_dict()!r}; "
+                               "resume it with its own plan (kogei capture --resume reads it from the session)")
+        needs_table = True
+        needs_profiler = plan.kind == "scan"
+        needs_camera = plan.camera
+        missing = [name for name, need, dev in (("turntable", needs_table, devices.turntable),
+                                                ("laser profiler", needs_profiler, devices.profiler),
+                                                ("camera", needs_camera, devices.camera)) if need and dev is None]
+        if missing:
+            raise ValueError(f"this {plan.kind} plan needs the {' and the '.join(missing)}; connect "
+                             f"{'it' if len(missing) == 1 else 'them'} or change the plan")
+        self.session = session
+        self.plan = plan
+        self.dev = devices
+        self.hooks = hooks
+        self.settings = settings
+        self.report = CaptureReport(session.root)
+        self.camera: Shooter | None = None
+        self.t0 = time.monotonic()
+        self.durations: dict[str, list[float]] = defaultdict(list)
+        self.actions = plan.actions()
+        self.done = 0
+
+    # ---------------------------------------------------------------- top level
+    def run(self) -> CaptureReport:
+        s = self.session
+        resumed = bool(s.manifest["captures"]) or s.manifest["status"] in ("interrupted", "capturing")
+        s.set_status("capturing")
+        s.event("resumed" if resumed else "started",
+                f"{self.plan.kind}: {self.plan.passes} pass(es) x {self.plan.steps} steps")
+        try:
+            self._stage()
+            self._connect(resumed)
+            for p in range(1, self.plan.passes + 1):
+                self._run_pass(p)
+            s.set_status("complete")
+            s.event("complete", f"{self.report.taken} taken, {self.report.skipped} already held")
+            self.report.status = "complete"
+        except CaptureInterrupted as exc:
+            self._interrupted(exc.reason, str(exc))
+            raise
+        except KeyboardInterrupt:
+            self._interrupted("cancelled", "interrupted by the user (Ctrl-C)")
+            raise
+        except (DriverError, CameraError, SessionError, OSError) as exc:
+            self._interrupted("device", str(exc))
+            raise CaptureInterrupted(self._resume_hint(str(exc)), session=s.root, reason="device") from exc
+        except BaseException as exc:
+            self._interrupted("error", f"{type(exc).__name__}: {exc}")
+            raise
+        finally:
+            self._close_devices()
+            self.report.elapsed_s = time.monotonic() - self.t0
+            try:
+                s.checkpoint()
+            except SessionError:
+                pass
+        return self.report
+
+    def _resume_hint(self, text: str) -> str:
+        return f"{text}\nThe session {self.session.root} is intact; fix the cause and run: " \
+               f"kogei capture --resume {self.session.root}"
+
+    def _interrupted(self, reason: str, text: str) -> None:
+        self.report.status = "interrupted"
+        try:
+            self.session.set_status("interrupted")
+            self.session.event("interrupted", f"{reason}: {text}")
+        except SessionError:
+            pass
+
+    def _note(self, text: str) -> None:
+        self.report.recoveries.append(text)
+        try:
+            self.session.event("note", text)
+        except SessionError:
+            pass
+        if self.hooks.message:
+            self.hooks.message(text)
+
+    def _check_cancel(self) -> None:
+        if self.hooks.cancel is not None and self.hooks.cancel.is_set():
+            raise CaptureInterrupted(self._resume_hint("capture stopped by the user"), session=self.session.root,
+                                     reason="cancelled")
+
+    # ---------------------------------------------------------------- set-up
+    def _stage(self) -> None:
+        """Empty the staging folder; frames a crash left there are kept in ``orphans/``."""
+        staging = self.session.root / STAGING
+        if staging.is_dir():
+            leftovers = [p for p in staging.rglob("*") if p.is_file()]
+            if leftovers:
+                keep = self.session.root / ORPHANS / time.strftime("%Y%m%dT%H%M%S")
+                keep.mkdir(parents=True, exist_ok=True)
+                for f in leftovers:
+                    shutil.move(str(f), keep / f.name)
+                self._note(f"kept {len(leftovers)} unrecorded file(s) from an interrupted capture in "
+                           f"{keep.relative_to(self.session.root)}")
+            shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir(parents=True, exist_ok=True)
+        if self.dev.camera is not None:
+            self.camera = self.dev.camera(staging)
+
+    def _connect(self, resumed: bool) -> None:
+        info = dict(self.session.manifest.get("devices") or {})
+        tt = self.dev.turntable
+        if tt is not None:
+            state = self.session.manifest["state"]
+            current = self._current_pass()
+            if resumed and current is not None and state.get("pass_no") == current:
+                self._attach_turntable(state)
+            else:
+                self._guard("turntable", tt.connect)
+            info["turntable"] = {**info.get("turntable", {}), "port": tt.transport.url,
+                                 "firmware": tt.firmware_version, "steps_per_degree": tt.steps_per_degree}
+        pr = self.dev.profiler
+        if pr is not None:
+            self._guard("laser profiler", pr.connect)
+            self._guard("laser profiler", lambda: pr.laser(True))
+            info["profiler"] = {**info.get("profiler", {}), "port": pr.port, "model": pr.model,
+                                "serial_number": pr.serial_number, "firmware": pr.firmware_version,
+                                "exposure_us": pr.exposure_us}
+        info.update({k: v for k, v in self.dev.info.items() if k not in ("turntable", "profiler")})
+        self.session.update("devices", info)
+
+    def _guard(self, name: str, fn: Callable[[], Any]) -> Any:
+        try:
+            return fn()
+        except TransportClosed as exc:
+            raise CaptureInterrupted(self._resume_hint(f"{name}: {exc}; is it plugged in and powered?"),
+                                     session=self.session.root) from exc
+        except DriverError as exc:
+            raise CaptureInterrupted(self._resume_hint(f"{name}: {exc}"), session=self.session.root) from exc
+
+    def _current_pass(self) -> int | None:
+        for p in range(1, self.plan.passes + 1):
+            if self.session.pass_record(p).get("status") != "complete":
+                return p if self.session.pass_record(p).get("zeroed") else None
+        return None
+
+    def _attach_turntable(self, state: dict[str, Any]) -> None:
+        """Reconnect mid-pass and learn the table's angle (see the module docstring)."""
+        tt = self.dev.turntable
+        last = float(state.get("table_deg", 0.0))
+        moving = state.get("moving_to")
+        offset = float(state.get("fw_offset_deg", 0.0))
+        read: float | None = None
+        try:
+            if not tt.transport.is_open:
+                tt.transport.open()
+            st = tt.status()
+            reset_seen = any("Horus" in line for line in tt.unsolicited)
+            if st.position is not None and not reset_seen and st.state == "Idle":
+                steps = round(st.position * tt.firmware_steps_per_unit)   # the counter holds whole steps
+                read = steps / tt.steps_per_degree + offset
+        except (DriverError, OSError):
+            read = None
+        self._guard("turntable", tt.connect)
+        half_step = 0.5 / tt.steps_per_degree + 1e-9
+        if read is not None and abs(read - last) <= 1e-6:
+            angle, uncertain = last, 0.0              # the journaled confirmed value itself, exactly
+        elif read is not None and moving is not None and abs(read - float(moving)) <= half_step:
+            angle, uncertain = read, 0.0              # the interrupted move finished (target rounded to a step)
+        elif moving is None:
+            angle, uncertain = last, 0.0
+        else:
+            angle, uncertain = last, abs(float(moving) - last)
+        tt.assume_position(angle)
+        p = state.get("pass_no")
+        self.session.set_state(table_deg=angle, moving_to=None, fw_offset_deg=tt.firmware_offset_deg)
+        if uncertain > 0:
+            prev = float(self.session.pass_record(p).get("angle_uncertain_deg", 0.0))
+            self.session.update_pass(p, angle_uncertain_deg=max(prev, uncertain))
+            self._note(f"turntable: the board lost its position during an interrupted move of pass {p}; the "
+                       f"table is assumed at {angle:g} deg, uncertain by up to {uncertain:g} deg "
+                       "(recorded in the pass; registration absorbs it)")
+        else:
+            self._note(f"turntable: resumed pass {p} at {angle:g} deg "
+                       f"({'read from the firmware' if read is not None else 'last confirmed angle'})")
+
+    def _close_devices(self) -> None:
+        for dev in (self.dev.profiler, self.dev.turntable):
+            if dev is not None:
+                try:
+                    dev.close()
+                except Exception:  # noqa: BLE001 - closing is best effort; the drivers log why
+                    pass
+
+    # ---------------------------------------------------------------- passes
+    def _run_pass(self, p: int) -> None:
+        s = self.session
+        actions = self.plan.pass_actions(p)
+        rec = s.pass_record(p)
+        pending = {a.id for a in actions if not self._held(a)}
+        if not pending and rec.get("status") == "complete" and self._gathered_ok(p):
+            self._skip(actions)
+            return
+        self._check_cancel()
+        if not rec.get("placed"):
+            if self.hooks.before_pass is not None:
+                self.hooks.before_pass(p, self.plan.passes)
+            s.update_pass(p, placed=utc_now(), status="capturing")
+        if not rec.get("zeroed"):
+            self._recover("turntable", self.dev.turntable.zero)
+            s.set_state(pass_no=p, table_deg=0.0, moving_to=None, fw_offset_deg=0.0)
+            s.update_pass(p, zeroed=True)
+        for a in actions:
+            if a.id not in pending:
+                self._skip([a])
+                continue
+            self._check_cancel()
+            t = time.monotonic()
+            if a.kind == "profile":
+                self._profile(a)
+            else:
+                self._frame(a)
+                if a.kind == "chart" and self.hooks.after_chart is not None:
+                    self.hooks.after_chart(p)
+            self.durations[a.kind].append(time.monotonic() - t)
+            self.report.taken += 1
+            self._progress(a)
+        if self.plan.kind == "scan":
+            self._gather(p)
+        s.update_pass(p, status="complete", completed=utc_now())
+        s.checkpoint()
+
+    def _held(self, a: Action) -> bool:
+        rec = self.session.capture(a.id)
+        if rec is None or rec.get("status") != "done":
+            return False
+        problem = self.session.verify_file(rec)
+        if problem is None:
+            return True
+        self.report.redone.append(a.id)
+        self._note(f"{a.id}: {problem}; taking it again")
+        return False
+
+    def _skip(self, actions: list[Action]) -> None:
+        for a in actions:
+            self.report.skipped += 1
+            self._progress(a)
+
+    def _progress(self, a: Action) -> None:
+        self.done += 1
+        if self.hooks.progress is None:
+            return
+        rest = self.actions[self.done:]
+        means = {k: float(np.mean(v)) for k, v in self.durations.items() if v}
+        if means:
+            overall = float(np.mean([x for v in self.durations.values() for x in v]))
+            eta: float | None = sum(means.get(r.kind, overall) for r in rest)
+        else:
+            eta = None
+        self.hooks.progress(CaptureProgress(self.done, len(self.actions), a.pass_no, a.id,
+                                            time.monotonic() - self.t0, eta))
+
+    # ---------------------------------------------------------------- recovery
+    def _recover(self, name: str, fn: Callable[[], Any]) -> Any:
+        """Call ``fn`` recovering a vanished port / silent device by reconnecting, up to ``max_recoveries``."""
+        dev = self.dev.turntable if name == "turntable" else self.dev.profiler
+        attempts = 0
+        while True:
+            try:
+                result = fn()
+                self._collect_recoveries(name, dev)
+                return result
+            except (TransportClosed, DeviceTimeout) as exc:
+                attempts += 1
+                if attempts > self.settings.max_recoveries:
+                    raise CaptureInterrupted(self._resume_hint(f"{name}: {exc}; gave up after {attempts - 1} "
+                                                               "reconnections"), session=self.session.root) from exc
+                what = "port vanished" if isinstance(exc, TransportClosed) else "stopped answering"
+                self._note(f"{name} on {dev.transport.url}: {what} ({exc}); reconnecting "
+                           f"(waiting up to {self.settings.reconnect_timeout_s:g} s)")
+                try:
+                    dev.reconnect(timeout_s=self.settings.reconnect_timeout_s)
+                except (TransportError, DriverError) as again:
+                    raise CaptureInterrupted(self._resume_hint(
+                        f"{name} on {dev.transport.url} did not come back within "
+                        f"{self.settings.reconnect_timeout_s:g} s ({again}); plug it back in and power it"),
+                        session=self.session.root) from again
+                if name == "turntable" and dev.position_uncertain_deg > 0:
+                    p = self.session.manifest["state"].get("pass_no")
+                    if p is not None:
+                        prev = float(self.session.pass_record(p).get("angle_uncertain_deg", 0.0))
+                        self.session.update_pass(p, angle_uncertain_deg=max(prev, dev.position_uncertain_deg))
+                    self._note(f"turntable: the port vanished mid-move; angle uncertain by up to "
+                               f"{dev.position_uncertain_deg:g} deg")
+            except DeviceAlarm as exc:
+                raise CaptureInterrupted(self._resume_hint(
+                    f"{name}: {exc}; the move was aborted (a jam?): clear it, then resume"),
+                    session=self.session.root) from exc
+            except DeviceError as exc:
+                raise CaptureInterrupted(self._resume_hint(f"{name}: {exc}"), session=self.session.root) from exc
+
+    def _collect_recoveries(self, name: str, dev: Any) -> None:
+        """Move the driver's own recoveries (re-requests, resends, resets) into the session history."""
+        rec = getattr(dev, "recoveries", None)
+        while rec:
+            self._note(f"{name}: {rec.popleft()}")
+
+    def _move(self, target: float, lasers: tuple[int, ...]) -> float:
+        tt = self.dev.turntable
+        if abs(tt.position_deg - target) > 1e-9:
+            self.session.set_state(moving_to=target, table_deg=tt.position_deg, fw_offset_deg=tt.firmware_offset_deg)
+        return self._recover("turntable", lambda: tt.step(target, lasers=lasers))
+
+    # ---------------------------------------------------------------- actions
+    def _profile(self, a: Action) -> None:
+        s, pr = self.session, self.dev.profiler
+        angle = self._move(a.angle_deg, self.plan.lasers)
+        prof = self._recover("laser profiler", lambda: pr.profile(self.settings.profile_deadline_s))
+        if not prof.valid.any() and self.plan.lasers:
+            # A laser the firmware's watchdog switched off shows as a profile with no return at all:
+            # re-assert the lasers and take it once more (an empty view stays empty, at the cost of one profile).
+            tt = self.dev.turntable
+            for i in self.plan.lasers:
+                self._recover("turntable", lambda i=i: tt.laser(i, True))
+            again = self._recover("laser profiler", lambda: pr.profile(self.settings.profile_deadline_s))
+            if again.valid.any():
+                self._note(f"{a.id}: no laser return until the lasers were re-asserted (the firmware's watchdog?)")
+            prof = again
+        info = s.write_arrays(f"passes/p{a.pass_no:02d}/profiles/{a.stem}.npz",
+                              x_mm=prof.x_mm.astype(np.float32), z_mm=prof.z_mm.astype(np.float32),
+                              angle_deg=np.float64(angle), seq=np.int64(prof.seq),
+                              timestamp_us=np.int64(prof.timestamp_us))
+        s.add_capture(a.id, kind="profile", **{"pass": a.pass_no}, index=a.index, angle_deg=angle,
+                      valid=int(prof.valid.sum()), file=info.path, sha256=info.sha256, bytes=info.bytes,
+                      state={"table_deg": angle, "moving_to": None,
+                             "fw_offset_deg": self.dev.turntable.firmware_offset_deg})
+
+    def _frame(self, a: Action) -> None:
+        s = self.session
+        angle = self._move(a.angle_deg, ())
+        path = self._shoot(f"p{a.pass_no:02d}_{a.stem}")
+        info = s.adopt_file(path, f"passes/p{a.pass_no:02d}/raw/{a.stem}{path.suffix.lower()}")
+        s.add_capture(a.id, kind=a.kind, **{"pass": a.pass_no}, index=a.index, angle_deg=angle,
+                      file=info.path, sha256=info.sha256, bytes=info.bytes,
+                      state={"table_deg": angle, "moving_to": None,
+                             "fw_offset_deg": self.dev.turntable.firmware_offset_deg})
+
+    def _shoot(self, name: str) -> Path:
+        assert self.camera is not None
+        tries = 0
+        while True:
+            try:
+                return self.camera.shoot(name)
+            except (CameraBusyError, CameraTimeoutError) as exc:
+                tries += 1
+                if tries > self.settings.camera_retries:
+                    raise CaptureInterrupted(self._resume_hint(f"camera: {exc} (tried {tries} times)"),
+                                             session=self.session.root) from exc
+                self._note(f"camera: {exc}; retrying in {self.settings.camera_retry_wait_s:g} s "
+                           f"({tries}/{self.settings.camera_retries})")
+                time.sleep(self.settings.camera_retry_wait_s)
+            except CameraError as exc:
+                raise CaptureInterrupted(self._resume_hint(f"camera: {exc}"), session=self.session.root) from exc
+
+    # ---------------------------------------------------------------- end of pass
+    def _gathered_ok(self, p: int) -> bool:
+        if self.plan.kind != "scan":
+            return True
+        rec = self.session.capture(f"p{p:02d}/profiles")
+        return rec is not None and self.session.verify_file(rec) is None
+
+    def _gather(self, p: int) -> None:
+        """Write the pass's profiles as one ``profiles.npz`` (angles_deg (S,), x_mm and z_mm (S, P))."""
+        s = self.session
+        rows = []
+        for a in self.plan.pass_actions(p):
+            if a.kind != "profile":
+                continue
+            rec = s.capture(a.id)
+            with np.load(s.path(rec["file"])) as z:
+                rows.append((float(z["angle_deg"]), z["x_mm"], z["z_mm"]))
+        width = max(r[1].size for r in rows)
+        x = np.full((len(rows), width), np.nan, np.float32)
+        zz = np.full((len(rows), width), np.nan, np.float32)
+        for i, (_, xr, zr) in enumerate(rows):
+            x[i, :xr.size] = xr
+            zz[i, :zr.size] = zr
+        angles = np.array([r[0] for r in rows])
+        buf = io.BytesIO()
+        np.savez(buf, angles_deg=angles, x_mm=x, z_mm=zz)
+        info = s.write_file(f"passes/p{p:02d}/profiles.npz", buf.getvalue())
+        s.add_capture(f"p{p:02d}/profiles", kind="profiles", **{"pass": p}, steps=len(rows), points=width,
+                      file=info.path, sha256=info.sha256, bytes=info.bytes)
+
+
+def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.ndarray]:
+    """The gathered profiles of a pass: ``angles_deg (S,)``, ``x_mm (S, P)``, ``z_mm (S, P)`` (NaN invalid).
+
+    Raises
+    ------
+    SessionError
+        The pass is not complete or its file fails its checksum.
+    """
+    manifest = Session.read(session_root)
+    rec = manifest["captures"].get(f"p{int(pass_no):02d}/profiles")
+    if rec is None:
+        raise SessionError(f"session {session_root}: pass {pass_no} has no gathered profiles (the pass is not "
+                           f"complete); resume the capture with 'kogei capture --resume {session_root}'")
+    path = Path(session_root) / rec["file"]
+    from app.session import sha256_file
+
+    if not path.is_file() or sha256_file(path) != rec["sha256"]:
+        raise SessionError(f"session {session_root}: {rec['file']} is missing or fails its checksum")
+    with np.load(path) as z:
+        return {k: z[k] for k in ("angles_deg", "x_mm", "z_mm")}

@@ -1,0 +1,559 @@
+"""The session store: a directory of captures with a versioned, crash-safe manifest.
+
+DESIGN.md section 2 and ``docs/session-format.md``.  A session directory
+holds ``session.json`` (schema ``kogei.session``, version
+:data:`SCHEMA_VERSION`) and the captured files.  Every file is written
+atomically (temporary file in the same folder, ``fsync``, rename, ``fsync``
+of the folder) and checksummed (SHA-256) before it is recorded.
+
+Recording a capture appends one line to ``session.journal`` (a write-ahead
+log), so a capture costs one small append however large the session is;
+:meth:`Session.checkpoint` folds the journal into ``session.json``
+(atomically) and empties it.  :meth:`Session.open` replays the journal, so a
+crash or ``kill -9`` at any point loses at most the capture in flight:
+
+* a file written but not yet recorded is simply written again on resume;
+* a torn last journal line (the process died mid-append) is ignored;
+* a record whose file is missing or fails its checksum is not "done".
+
+Durability against a power cut is a group commit: files and journal lines
+reach the operating system at once (so a process crash loses nothing) and
+are ``fsync``-ed together at most every ``sync_interval_s`` seconds, at every
+checkpoint and for every adopted RAW frame.  A power cut therefore costs at
+most the last ``sync_interval_s`` of profiles, which the checksums reveal and
+a resumed capture takes again; ``sync_interval_s=0`` syncs every record (at
+the price of several ``fsync`` per profile step, see docs/BENCHMARKS.md).
+
+One process at a time may write a session (an ``flock`` on
+``session.lock``, released by the kernel even after ``kill -9``).
+
+Examples
+--------
+>>> import tempfile, pathlib
+>>> root = pathlib.Path(tempfile.mkdtemp()) / "s1"
+>>> s = Session.create(root, plan={"kind": "scan", "steps": 4, "passes": 1})
+>>> info = s.write_file("passes/p01/note.txt", b"hello")
+>>> s.add_capture("p01/note", kind="note", file=info.path, sha256=info.sha256, bytes=info.bytes)
+>>> s.close()
+>>> t = Session.open(root)
+>>> t.is_done("p01/note"), t.manifest["schema"]
+(True, 'kogei.session')
+>>> t.close()
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import fcntl
+import hashlib
+import io
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "SCHEMA",
+    "SCHEMA_VERSION",
+    "MANIFEST",
+    "JOURNAL",
+    "SessionError",
+    "SessionLockedError",
+    "FileInfo",
+    "Session",
+    "atomic_write_bytes",
+    "sha256_file",
+    "utc_now",
+]
+
+SCHEMA = "kogei.session"
+#: Version of the manifest layout; :meth:`Session.open` refuses newer versions.
+SCHEMA_VERSION = 1
+MANIFEST = "session.json"
+JOURNAL = "session.journal"
+LOCK = "session.lock"
+
+_STATUSES = ("new", "capturing", "interrupted", "complete", "failed")
+
+
+class SessionError(ValueError):
+    """A session directory that cannot be created, opened or written; the message names it."""
+
+
+class SessionLockedError(SessionError):
+    """Another process is writing the session."""
+
+
+@dataclass(frozen=True)
+class FileInfo:
+    """A file written into a session: path relative to the session root, SHA-256, size in bytes."""
+
+    path: str
+    sha256: str
+    bytes: int
+
+
+def utc_now() -> str:
+    """The current UTC time as ISO 8601 with microseconds and a ``Z``."""
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def _fsync_dir(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    except OSError:  # some filesystems refuse fsync on a directory; the rename is still atomic
+        pass
+    finally:
+        os.close(fd)
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, *, durable: bool = True) -> Path:
+    """Write ``data`` to ``path`` so that readers see the old file or the new one, never a part.
+
+    Parameters
+    ----------
+    path
+        Destination; its folder is created if missing.
+    data
+        The bytes.
+    durable
+        ``fsync`` the file and its folder (survives a power cut, not only a
+        crash).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = atomic_write_bytes(pathlib.Path(tempfile.mkdtemp()) / "a" / "b.bin", b"xyz")
+    >>> p.read_bytes()
+    b'xyz'
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            if durable:
+                os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    if durable:
+        _fsync_dir(target.parent)
+    return target
+
+
+def sha256_file(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of a file's contents (read in 1 MiB blocks)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _check_rel(rel: str) -> str:
+    p = Path(rel)
+    if not rel or p.is_absolute() or ".." in p.parts or rel.startswith("."):
+        raise SessionError(f"session file name {rel!r} must be a relative path inside the session "
+                           "(no '..', not absolute, no leading dot)")
+    return p.as_posix()
+
+
+class Session:
+    """An open session directory (see the module docstring).
+
+    Use :meth:`create` or :meth:`open`; :meth:`close` (or the context
+    manager) checkpoints the journal and releases the lock.
+
+    Attributes
+    ----------
+    root
+        The session directory.
+    manifest
+        The manifest as a dict (``captures`` maps capture ids to records).
+    """
+
+    #: Default seconds between group ``fsync`` of files and journal (see the module docstring).
+    SYNC_INTERVAL_S = 1.0
+
+    def __init__(self, root: Path, manifest: dict[str, Any], lock_fd: int, sync_interval_s: float | None = None) -> None:
+        self.root = root
+        self.manifest = manifest
+        self._lock_fd = lock_fd
+        self._journal = open(root / JOURNAL, "ab")
+        self._journal_ops = 0
+        self.sync_interval_s = _interval(sync_interval_s, self.SYNC_INTERVAL_S)
+        self._unsynced: set[Path] = set()
+        self._last_sync = time.monotonic()
+
+    # ------------------------------------------------------------------ life cycle
+    @staticmethod
+    def _lock(root: Path) -> int:
+        fd = os.open(root / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise SessionLockedError(
+                f"session {root} is being written by another process (a capture still running?); "
+                "stop it first, or open the session read-only with Session.read") from None
+        return fd
+
+    @classmethod
+    def create(cls, root: str | os.PathLike[str], *, plan: dict[str, Any], object_info: dict[str, Any] | None = None,
+               devices: dict[str, Any] | None = None, settings: dict[str, Any] | None = None,
+               sync_interval_s: float | None = None) -> "Session":
+        """Create a new session directory (it must not exist, or be empty).
+
+        Parameters
+        ----------
+        root
+            The session directory.
+        plan
+            What will be captured (JSON-serialisable; ``docs/session-format.md``).
+        object_info
+            Object metadata (name, collection number, notes, ...).
+        devices
+            Device configuration (ports, camera, settings) for ``--resume``.
+        settings
+            Other capture settings to keep (JSON-serialisable).
+        sync_interval_s
+            Group-commit interval (see the module docstring); default
+            :attr:`SYNC_INTERVAL_S`.
+        """
+        _interval(sync_interval_s, cls.SYNC_INTERVAL_S)
+        path = Path(root)
+        if path.exists() and (not path.is_dir() or any(path.iterdir())):
+            raise SessionError(f"{path} already exists and is not an empty folder; choose a new session folder, "
+                               f"or continue that session with 'kogei capture --resume {path}'")
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SessionError(f"cannot create session folder {path}: {exc.strerror or exc}") from None
+        now = utc_now()
+        manifest: dict[str, Any] = {
+            "schema": SCHEMA,
+            "version": SCHEMA_VERSION,
+            "created_utc": now,
+            "updated_utc": now,
+            "status": "new",
+            "object": dict(object_info or {}),
+            "devices": dict(devices or {}),
+            "settings": dict(settings or {}),
+            "calibration": None,
+            "plan": dict(plan),
+            "passes": {},
+            "state": {},
+            "captures": {},
+            "history": [{"utc": now, "event": "created", "detail": ""}],
+        }
+        try:
+            json.dumps(manifest)
+        except (TypeError, ValueError) as exc:
+            raise SessionError(f"session {path}: plan, object, devices and settings must be JSON data: {exc}") from None
+        fd = cls._lock(path)
+        atomic_write_bytes(path / MANIFEST, _dump(manifest))
+        return cls(path, manifest, fd, sync_interval_s)
+
+    @classmethod
+    def read(cls, root: str | os.PathLike[str]) -> dict[str, Any]:
+        """The manifest with the journal replayed, without locking or changing anything (for viewers)."""
+        path = Path(root)
+        manifest = _load_manifest(path)
+        _replay(manifest, path / JOURNAL, strict=False)
+        return manifest
+
+    @classmethod
+    def open(cls, root: str | os.PathLike[str], *, sync_interval_s: float | None = None) -> "Session":
+        """Open an existing session for writing: lock it, replay its journal, checkpoint.
+
+        Raises
+        ------
+        SessionError
+            Not a session, an unreadable or newer manifest, a corrupt journal.
+        SessionLockedError
+            Another process holds the session.
+        """
+        _interval(sync_interval_s, cls.SYNC_INTERVAL_S)
+        path = Path(root)
+        manifest = _load_manifest(path)
+        fd = cls._lock(path)
+        try:
+            _replay(manifest, path / JOURNAL, strict=True)
+        except BaseException:
+            os.close(fd)
+            raise
+        session = cls(path, manifest, fd, sync_interval_s)
+        session.checkpoint()
+        return session
+
+    def close(self) -> None:
+        """Checkpoint and release the session (idempotent)."""
+        if self._lock_fd < 0:
+            return
+        try:
+            self.checkpoint()
+        finally:
+            self._journal.close()
+            os.close(self._lock_fd)
+            self._lock_fd = -1
+
+    def __enter__(self) -> "Session":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ files
+    def path(self, rel: str) -> Path:
+        """Absolute path of a session-relative file name."""
+        return self.root / _check_rel(rel)
+
+    def write_file(self, rel: str, data: bytes) -> FileInfo:
+        """Write ``data`` atomically and durably at ``rel``; returns its checksum (not yet recorded)."""
+        self._require_open()
+        rel = _check_rel(rel)
+        durable = self.sync_interval_s == 0
+        try:
+            atomic_write_bytes(self.root / rel, data, durable=durable)
+        except OSError as exc:
+            raise SessionError(f"session {self.root}: cannot write {rel}: {exc.strerror or exc} "
+                               "(disk full or read-only? free space and resume)") from None
+        if not durable:
+            self._unsynced.add(self.root / rel)
+        return FileInfo(rel, hashlib.sha256(data).hexdigest(), len(data))
+
+    def write_arrays(self, rel: str, **arrays: Any) -> FileInfo:
+        """Write NumPy arrays as an uncompressed ``.npz`` at ``rel`` (atomic, checksummed)."""
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        return self.write_file(rel, buf.getvalue())
+
+    def adopt_file(self, src: str | os.PathLike[str], rel: str) -> FileInfo:
+        """Move an existing file (e.g. a downloaded RAW frame) to ``rel`` atomically, replacing any old one."""
+        self._require_open()
+        rel = _check_rel(rel)
+        target = self.root / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        source = Path(src)
+        digest = sha256_file(source)
+        size = source.stat().st_size
+        try:
+            os.replace(source, target)
+        except OSError:
+            # another filesystem: copy to a temporary file beside the target, then rename
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+            os.close(fd)
+            shutil.copyfile(source, tmp)
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            os.replace(tmp, target)
+            source.unlink()
+        _fsync_dir(target.parent)
+        return FileInfo(rel, digest, size)
+
+    def verify_file(self, record: dict[str, Any]) -> str | None:
+        """Why a capture record's file is not intact, or None if it is (exists, size and SHA-256 match)."""
+        rel = record.get("file")
+        if not rel:
+            return None
+        p = self.root / rel
+        if not p.is_file():
+            return f"{rel} is missing"
+        if "bytes" in record and p.stat().st_size != record["bytes"]:
+            return f"{rel} has {p.stat().st_size} bytes, the manifest says {record['bytes']}"
+        if "sha256" in record and sha256_file(p) != record["sha256"]:
+            return f"{rel} fails its SHA-256 checksum"
+        return None
+
+    # ------------------------------------------------------------------ records
+    def add_capture(self, capture_id: str, *, state: dict[str, Any] | None = None, **record: Any) -> None:
+        """Record a finished capture (journaled immediately; its file must already be written).
+
+        ``state`` also merges into the running state in the same journal write.
+        """
+        rec = {"status": "done", "utc": utc_now(), **record}
+        ops = [{"op": "capture", "id": capture_id, "record": rec}]
+        if state:
+            ops.append({"op": "state", "fields": state})
+        self._apply(*ops)
+
+    def capture(self, capture_id: str) -> dict[str, Any] | None:
+        """The record of ``capture_id``, or None."""
+        return self.manifest["captures"].get(capture_id)
+
+    def is_done(self, capture_id: str, *, verify: bool = True) -> bool:
+        """True if ``capture_id`` is recorded as done (and its file is intact, with ``verify``)."""
+        rec = self.capture(capture_id)
+        if rec is None or rec.get("status") != "done":
+            return False
+        return not verify or self.verify_file(rec) is None
+
+    def update_pass(self, number: int, **fields: Any) -> None:
+        """Merge ``fields`` into the record of pass ``number``."""
+        self._apply({"op": "pass", "pass": int(number), "fields": fields})
+
+    def pass_record(self, number: int) -> dict[str, Any]:
+        """The record of pass ``number`` (empty if none)."""
+        return dict(self.manifest["passes"].get(str(int(number)), {}))
+
+    def set_state(self, **fields: Any) -> None:
+        """Merge ``fields`` into the session's running state (e.g. the table angle)."""
+        self._apply({"op": "state", "fields": fields})
+
+    def event(self, event: str, detail: str = "") -> None:
+        """Append an entry to the session's history (start, resume, recovered fault, interruption...)."""
+        self._apply({"op": "event", "entry": {"utc": utc_now(), "event": event, "detail": detail}})
+
+    def set_status(self, status: str) -> None:
+        """Set the session status (``new``, ``capturing``, ``interrupted``, ``complete``, ``failed``)."""
+        if status not in _STATUSES:
+            raise SessionError(f"status must be one of {', '.join(_STATUSES)}, got {status!r}")
+        self._apply({"op": "status", "status": status})
+
+    def update(self, key: str, value: Any) -> None:
+        """Replace a top-level manifest entry (``object``, ``devices``, ``calibration``, ``settings``...)."""
+        if key in ("schema", "version", "captures", "passes", "history", "state", "status"):
+            raise SessionError(f"manifest key {key!r} is managed by the session; use its own method")
+        self._apply({"op": "set", "key": key, "value": value})
+
+    def sync(self) -> None:
+        """Make every file written and every record journaled so far durable (``fsync``)."""
+        self._require_open()
+        folders = set()
+        for path in self._unsynced:
+            try:
+                fd = os.open(path, os.O_RDONLY)
+            except FileNotFoundError:
+                continue            # replaced or removed since; its successor is in the set too
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            folders.add(path.parent)
+        for folder in folders:
+            _fsync_dir(folder)
+        self._unsynced.clear()
+        self._journal.flush()
+        os.fsync(self._journal.fileno())
+        self._last_sync = time.monotonic()
+
+    def checkpoint(self) -> None:
+        """Fold the journal into ``session.json`` (atomic) and empty the journal."""
+        self._require_open()
+        self.sync()
+        self.manifest["updated_utc"] = utc_now()
+        atomic_write_bytes(self.root / MANIFEST, _dump(self.manifest))
+        self._journal.truncate(0)
+        self._journal.seek(0)
+        os.fsync(self._journal.fileno())
+        self._journal_ops = 0
+
+    # ------------------------------------------------------------------ internals
+    def _require_open(self) -> None:
+        if self._lock_fd < 0:
+            raise SessionError(f"session {self.root} is closed; open it again with Session.open")
+
+    def _apply(self, *ops: dict[str, Any]) -> None:
+        self._require_open()
+        try:
+            line = b"".join(json.dumps(op, separators=(",", ":"), allow_nan=False).encode() + b"\n" for op in ops)
+        except (TypeError, ValueError) as exc:
+            raise SessionError(f"session {self.root}: a record is not JSON data (NaN or an object?): {exc}") from None
+        try:
+            self._journal.write(line)
+            self._journal.flush()
+            if time.monotonic() - self._last_sync >= self.sync_interval_s:
+                self.sync()
+        except OSError as exc:
+            raise SessionError(f"session {self.root}: cannot append to {JOURNAL}: {exc.strerror or exc} "
+                               "(disk full? free space and resume)") from None
+        for op in ops:
+            _apply_op(self.manifest, op)
+        self._journal_ops += len(ops)
+
+
+def _interval(value: float | None, default: float) -> float:
+    interval = default if value is None else value
+    if not (isinstance(interval, (int, float)) and 0 <= interval < float("inf")):
+        raise SessionError(f"sync_interval_s must be a number of seconds >= 0, got {value!r}")
+    return float(interval)
+
+
+def _dump(manifest: dict[str, Any]) -> bytes:
+    return json.dumps(manifest, indent=1, allow_nan=False).encode() + b"\n"
+
+
+def _load_manifest(path: Path) -> dict[str, Any]:
+    file = path / MANIFEST
+    if not file.is_file():
+        raise SessionError(f"{path} is not a kogei session ({MANIFEST} not found); give the folder "
+                           "'kogei capture --out' created")
+    try:
+        manifest = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SessionError(f"{file} is unreadable ({exc}); restore it from a backup") from None
+    if not isinstance(manifest, dict) or manifest.get("schema") != SCHEMA:
+        raise SessionError(f"{file} is not a kogei session manifest (schema {manifest.get('schema')!r})"
+                           if isinstance(manifest, dict) else f"{file} is not a kogei session manifest")
+    version = manifest.get("version")
+    if not isinstance(version, int) or version > SCHEMA_VERSION:
+        raise SessionError(f"{file} has manifest version {version!r}; this kogei reads versions up to "
+                           f"{SCHEMA_VERSION}: update kogei")
+    return manifest
+
+
+def _replay(manifest: dict[str, Any], journal: Path, *, strict: bool) -> int:
+    """Apply the journal's operations to ``manifest``; returns how many were applied."""
+    if not journal.is_file():
+        return 0
+    lines = journal.read_bytes().split(b"\n")
+    applied = 0
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            op = json.loads(line)
+            _apply_op(manifest, op)
+        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
+            last = all(not rest.strip() for rest in lines[i + 1:])
+            if last:
+                break  # torn final line: the process died while appending it
+            if strict:
+                raise SessionError(f"{journal}: line {i + 1} is corrupt (not a torn last line); the session "
+                                   "needs attention: move the journal aside and resume (captures after the "
+                                   "last checkpoint will be taken again)") from None
+            continue
+        applied += 1
+    return applied
+
+
+def _apply_op(manifest: dict[str, Any], op: dict[str, Any]) -> None:
+    kind = op["op"]
+    if kind == "capture":
+        manifest["captures"][op["id"]] = op["record"]
+    elif kind == "pass":
+        manifest["passes"].setdefault(str(op["pass"]), {}).update(op["fields"])
+    elif kind == "state":
+        manifest["state"].update(op["fields"])
+    elif kind == "event":
+        manifest["history"].append(op["entry"])
+    elif kind == "status":
+        manifest["status"] = op["status"]
+    elif kind == "set":
+        manifest[op["key"]] = op["value"]
+    else:
+        raise KeyError(kind)

@@ -1,0 +1,62 @@
+"""Capture plans: the action list is complete, unique and ordered; camera angles snap to steps;
+swatch plans; bad plans are refused with the parameter named."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.capture import CapturePlan
+
+
+def test_scan_actions_are_unique_and_complete():
+    plan = CapturePlan("scan", steps=10, passes=3, camera_angles_deg=(0.0, 90.0, 180.0, 270.0))
+    ids = [a.id for a in plan.actions()]
+    assert len(ids) == len(set(ids)) == 3 * (1 + 10 + 4)
+    for p in (1, 2, 3):
+        acts = plan.pass_actions(p)
+        assert acts[0].kind == "chart" and acts[0].angle_deg == 0.0      # the chart comes first
+        assert [a.index for a in acts if a.kind == "profile"] == list(range(10))
+        assert all(a.pass_no == p for a in acts)
+
+
+def test_camera_angles_snap_to_the_nearest_step_and_follow_their_profile():
+    plan = CapturePlan("scan", steps=8, passes=1, camera_angles_deg=(100.0, -45.0, 359.0))
+    acts = plan.pass_actions(1)
+    frames = [(a.index, a.angle_deg) for a in acts if a.kind == "frame"]
+    # steps are 45 deg apart: 100 -> 90, -45 -> 315, 359 -> 0 (wraps)
+    assert sorted(frames) == [(0, 90.0), (1, 315.0), (2, 0.0)]
+    for k, a in enumerate(acts):
+        if a.kind == "frame":
+            prev = acts[k - 1]
+            assert prev.angle_deg == a.angle_deg and prev.kind in ("profile", "frame")
+
+
+def test_profiles_only_and_no_chart():
+    assert all(a.kind == "profile" for a in CapturePlan("scan", steps=4, passes=2, camera=False).actions())
+    acts = CapturePlan("scan", steps=4, passes=1, chart=False, camera_angles_deg=(0.0,)).actions()
+    assert [a.kind for a in acts].count("chart") == 0 and [a.kind for a in acts].count("frame") == 1
+
+
+def test_swatch_plan():
+    acts = CapturePlan("swatch", steps=6, passes=1).actions()
+    assert [a.kind for a in acts] == ["chart"] + ["frame"] * 6
+    assert [a.angle_deg for a in acts[1:]] == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
+
+
+def test_round_trip():
+    plan = CapturePlan("scan", steps=7, passes=2, camera_angles_deg=(30.0,), lasers=(1, 2))
+    assert CapturePlan.from_dict(plan.to_dict()) == plan
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"kind": "spiral"}, "plan kind"),
+    ({"steps": 0}, "steps must be"),
+    ({"steps": 2.5}, "steps must be"),
+    ({"passes": 0}, "passes must be"),
+    ({"passes": 100}, "passes must be"),
+    ({"camera_angles_deg": (float("nan"),)}, "finite"),
+    ({"kind": "swatch", "camera": False}, "needs the camera"),
+])
+def test_bad_plans(kw, match):
+    with pytest.raises(ValueError, match=match):
+        CapturePlan(**kw)
