@@ -88,6 +88,15 @@ def build_parser() -> argparse.ArgumentParser:
     from app.mock_command import add_mock_parser
 
     add_mock_parser(sub)
+    from app.calibrate_command import add_calibrate_parser
+
+    add_calibrate_parser(sub)
+    from app.process_command import add_process_parser
+
+    add_process_parser(sub)
+    from app.register_command import add_register_parser
+
+    add_register_parser(sub)
     return parser
 
 
@@ -117,6 +126,18 @@ def _run(args: argparse.Namespace) -> int:
         from app.mock_command import run_mock
 
         return run_mock(args)
+    if args.command == "calibrate":
+        from app.calibrate_command import run_calibrate
+
+        return run_calibrate(args)
+    if args.command == "process":
+        from app.process_command import run_process
+
+        return run_process(args)
+    if args.command == "register":
+        from app.register_command import run_register
+
+        return run_register(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 

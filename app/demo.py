@@ -128,10 +128,18 @@ def run_demo(args: argparse.Namespace) -> int:
 
             raise UsageError("--capture-steps and --capture-passes must be >= 1 (or --capture-steps 0: no capture)")
         cap = simulated_capture(out / "capture", steps=args.capture_steps, passes=args.capture_passes,
-                                camera=args.capture_camera)
+                                camera=args.capture_camera, process_preset=args.preset)
         summary["capture"] = cap
         print(f"capture: {cap['captures_taken']} captures in {cap['seconds']:.1f} s -> {cap['session']}",
               file=sys.stderr)
+        proc = cap.get("process")
+        if proc:
+            errs = proc["pose_error_vs_truth"]
+            worst = (max(e["rotation_deg"] for e in errs), max(e["translation_mm"] for e in errs)) if errs else (0, 0)
+            print(f"process: mesh {proc['mesh']['triangles']} triangles "
+                  f"({'watertight' if proc['mesh']['watertight'] else 'NOT watertight'}), registration error vs "
+                  f"the simulation's truth <= {worst[0]:.3f} deg, {worst[1]:.3f} mm -> "
+                  f"{cap['session']}/{proc['mesh']['file']}", file=sys.stderr)
 
     job, result, secs = _render(hawk_spec(size, args.preset, triangles), triangles)
     write_png(out / "hawk.png", result.srgb8)

@@ -24,8 +24,8 @@ __all__ = ["simulated_capture", "profiles_figure"]
 
 
 def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: str = "gphoto2",
-                      triangles: int = 20_000, seed: int = 1) -> dict[str, Any]:
-    """Capture a session of the procedural hawk from the simulated station into ``out``.
+                      triangles: int = 20_000, seed: int = 1, process_preset: str | None = "standard") -> dict[str, Any]:
+    """Calibrate the simulated scanner, capture a session of the procedural hawk into ``out``, process it.
 
     Returns
     -------
@@ -40,13 +40,17 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
 
     if camera not in ("gphoto2", "hotfolder", "none"):
         raise ValueError(f"camera must be gphoto2, hotfolder or none, got {camera!r}")
-    session_dir = out / "session"
-    if session_dir.exists():
-        import shutil
+    import shutil
 
-        shutil.rmtree(session_dir)
-    plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none")
+    session_dir = out / "session"
+    cal_dir = out / "calibration"
+    for d in (session_dir, cal_dir):
+        if d.exists():
+            shutil.rmtree(d)
     t0 = time.perf_counter()
+    calibration = _calibration_scan(out, cal_dir, seed)
+    print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
+    plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none")
     with SimulatedStation(World.hawk(triangles, width=240, height=160), root=out / "station", seed=seed) as st:
         config: dict[str, Any] = {"turntable": {"port": str(st.turntable_path)},
                                   "profiler": {"port": str(st.profiler_path)}}
@@ -83,15 +87,71 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     seconds = time.perf_counter() - t0
     profiles = [load_pass_profiles(session_dir, p) for p in range(1, passes + 1)]
     profiles_figure(profiles, out / "capture-profiles.png")
-    return {
+    summary = {
         "session": str(session_dir),
         "steps": steps, "passes": passes, "camera": camera,
         "captures_taken": report.taken, "recoveries": report.recoveries,
         "seconds": round(seconds, 2),
         "valid_fraction_per_pass": [round(float(np.isfinite(p["z_mm"]).mean()), 4) for p in profiles],
         "figure": "capture-profiles.png",
+        "calibration": calibration,
         "simulation_truth": truth,
     }
+    if process_preset:
+        summary["process"] = _process(session_dir, cal_dir, process_preset, truth)
+    return summary
+
+
+def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
+    """Scan the reference sphere (one pass, no camera) and calibrate the scanner from it."""
+    from app.calibrate_command import calibrate_session
+    from app.capture import CaptureHooks, CapturePlan, run_capture
+    from app.capture_devices import build_devices
+    from app.session import Session
+    from mocks.station import SimulatedStation
+    from mocks.world import World
+
+    plan = CapturePlan("scan", steps=90, passes=1, camera=False)
+    with SimulatedStation(World.calibration_sphere(25.0, 60.0), root=out / "station-calibration", seed=seed) as st:
+        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
+        session = Session.create(cal_dir, plan=plan.to_dict(), object_info={"name": "reference sphere, r = 25 mm"},
+                                 settings={"unattended": True, "device_config": config})
+        try:
+            run_capture(session, plan, build_devices(config, session.root),
+                        CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            session.close()
+        truth = st.sensor_to_room
+    ref = calibrate_session(cal_dir, 25.0)
+    from app.calibrate_command import session_calibration
+    from processing.registration import pose_difference
+
+    cal = session_calibration(cal_dir, Session.read(cal_dir))
+    rot, shift = pose_difference(cal.sensor_to_room, truth)
+    return {"session": str(cal_dir), "rms_mm": ref["rms_mm"], "max_mm": ref["max_mm"],
+            "error_vs_truth": {"rotation_deg": round(rot, 5), "translation_mm": round(shift, 5)}}
+
+
+def _process(session_dir: Path, cal_dir: Path, preset: str, truth: dict[str, Any]) -> dict[str, Any]:
+    """``kogei process`` on the captured session, and its registration error against the simulation's truth."""
+    from app.process_session import process_session
+    from processing.registration import pose_difference
+
+    report = process_session(session_dir, preset=preset, calibration=cal_dir,
+                             message=lambda text: print(f"process: {text}", file=sys.stderr))
+    poses = {int(k): np.asarray(v) for k, v in truth["poses"].items()}
+    errors = []
+    for entry in report["passes"]:
+        p = entry["pass"]
+        if p == 1 or entry.get("pose") is None:
+            continue
+        # registration maps pass p into pass 1's frame: the truth is T1 @ inv(Tp)
+        true = poses[1] @ np.linalg.inv(poses[p])
+        rot, shift = pose_difference(np.asarray(entry["pose"]), true)
+        errors.append({"pass": p, "rotation_deg": round(rot, 4), "translation_mm": round(shift, 4)})
+    return {"mesh": report["mesh"], "registered": [e.get("registered", False) for e in report["passes"]],
+            "pose_error_vs_truth": errors, "timings_s": report["timings_s"],
+            "holes": report["surface"].get("holes") if isinstance(report["surface"], dict) else None}
 
 
 def profiles_figure(profiles: list[dict[str, np.ndarray]], path: Path) -> Path:

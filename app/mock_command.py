@@ -63,8 +63,9 @@ def add_mock_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                     "pseudo-terminals, a fake gphoto2 and a hot folder, all looking at one simulated object. "
                     "'kogei mock place' and 'kogei mock shoot' talk to a running station.",
     )
-    p.add_argument("--world", default="hawk", metavar="hawk|MESH",
-                   help="the procedural hawk head (default) or a mesh file (PLY/OBJ/STL/glTF, millimetres)")
+    p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|MESH",
+                   help="the procedural hawk head (default), a calibration sphere of radius R mm (default 25) "
+                        "OFF mm from the axis (default 60), or a mesh file (PLY/OBJ/STL/glTF, millimetres)")
     p.add_argument("--triangles", type=int, default=None, metavar="N",
                    help="triangle count of the hawk mesh (default 4000)")
     p.add_argument("--material", default=None, metavar="SPEC",
@@ -139,6 +140,15 @@ def _build_world(args: argparse.Namespace) -> Any:
             if args.material is not None:
                 world.materials = {name: args.material for name in world.region_names}
             return world
+        if args.world == "sphere" or args.world.startswith("sphere:"):
+            parts = args.world.split(":")[1:]
+            try:
+                radius = float(parts[0]) if parts and parts[0] else 25.0
+                offset = float(parts[1]) if len(parts) > 1 else 60.0
+            except ValueError:
+                raise UsageError(f"--world {args.world}: use sphere, sphere:RADIUS_MM or "
+                                 "sphere:RADIUS_MM:OFFSET_MM") from None
+            return World.calibration_sphere(radius, offset)
         path = Path(args.world)
         if not path.is_file():
             raise UsageError(f"--world {args.world}: no such mesh file; give 'hawk' or the path of a "

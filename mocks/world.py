@@ -228,6 +228,28 @@ class World:
                    mesh_source=f"hawk:{triangles}", **kwargs)
 
     @classmethod
+    def calibration_sphere(cls, radius_mm: float = 25.0, offset_mm: float = 60.0, **kwargs: Any) -> "World":
+        """A reference sphere for scanner calibration, resting on the table ``offset_mm`` from the axis.
+
+        Examples
+        --------
+        >>> w = World.calibration_sphere(20.0, 50.0)
+        >>> w.mesh_source, round(float(w.pose[0, 3]), 1), round(float(w.pose[2, 3]), 1)
+        ('sphere:20:50', 50.0, 20.0)
+        """
+        import open3d as o3d
+
+        if not (math.isfinite(radius_mm) and radius_mm > 0 and math.isfinite(offset_mm) and offset_mm >= 0):
+            raise WorldError(f"calibration sphere: radius_mm must be > 0 and offset_mm >= 0, got "
+                             f"{radius_mm!r}, {offset_mm!r}")
+        mesh = o3d.geometry.TriangleMesh.create_sphere(float(radius_mm), resolution=120)
+        pose = np.eye(4)
+        pose[0, 3], pose[2, 3] = float(offset_mm), float(radius_mm)
+        kwargs.setdefault("pose", pose)
+        return cls(np.asarray(mesh.vertices), np.asarray(mesh.triangles), np.zeros(len(mesh.triangles), np.int64),
+                   ("sphere",), {"sphere": "urushi-red"}, mesh_source=f"sphere:{radius_mm:g}:{offset_mm:g}", **kwargs)
+
+    @classmethod
     def from_mesh_file(cls, path: str | os.PathLike[str], material: str = "nami-shibuichi",
                        **kwargs: Any) -> "World":
         """Any mesh file :func:`render.meshio.load_mesh` reads, as one region of ``material``."""
@@ -242,6 +264,13 @@ class World:
         """Rebuild a world from :meth:`to_dict` (the fake gphoto2's configuration)."""
         data = dict(data)
         source = str(data.pop("mesh", "hawk:4000"))
+        if source.startswith("sphere:"):
+            try:
+                radius, offset = (float(v) for v in source.split(":")[1:3])
+            except ValueError:
+                raise WorldError(f"mesh {source!r}: use 'sphere:<radius_mm>:<offset_mm>'") from None
+            data.pop("materials", None)
+            return cls.calibration_sphere(radius, offset, **world_settings(data))
         if source.startswith("hawk:"):
             try:
                 n = int(source.split(":", 1)[1])

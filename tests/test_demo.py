@@ -13,7 +13,7 @@ from app.cli import main
 def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, capsys):
     out = tmp_path / "demo"
     code = main(["demo", "--out", str(out), "--hawk-triangles", "6000", "--size", "240x180", "--preset", "draft",
-                 "--capture-steps", "12", "--capture-passes", "2", "--capture-camera", "hotfolder"])
+                 "--capture-steps", "60", "--capture-passes", "2", "--capture-camera", "hotfolder"])
     err = capsys.readouterr().err
     assert code == 0, err
     for name in ("hawk.png", "hawk.tiff", "spheres-D65.png", "spheres-A.png", "spheres-A-unadapted.png"):
@@ -25,11 +25,19 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     summary = json.loads((out / "demo.json").read_text())
     cap = summary["capture"]
     manifest = json.loads((out / "capture" / "session" / "session.json").read_text())
-    assert manifest["status"] == "complete" and cap["captures_taken"] == 2 * (1 + 12 + 4)
+    assert manifest["status"] == "complete" and cap["captures_taken"] == 2 * (1 + 60 + 4)
     assert sum(r["kind"] == "chart" for r in manifest["captures"].values()) == 2
     # single placements have holes (occlusion, specular dropouts) but see the object
     assert all(0.05 < f < 0.95 for f in cap["valid_fraction_per_pass"])
     assert (out / "capture" / "capture-profiles.png").stat().st_size > 5000
+    # the scanner was calibrated from a sphere scan, close to the simulated station's true pose
+    assert cap["calibration"]["error_vs_truth"]["rotation_deg"] < 0.05
+    assert cap["calibration"]["error_vs_truth"]["translation_mm"] < 0.05
+    proc = cap["process"]
+    assert proc["mesh"]["watertight"] and all(proc["registered"])
+    # the second pass lands where the simulation put it (a coarse bound: 60 steps, draft preset)
+    assert all(e["rotation_deg"] < 1.0 and e["translation_mm"] < 1.0 for e in proc["pose_error_vs_truth"])
+    assert (out / "capture" / "session" / "products" / "mesh.ply").stat().st_size > 10_000
     shift = summary["shift_D65_to_A"]
     # After adaptation to each light's white, a spectrally flat reflector looks the same under both
     # lights; a reflectance that rises steeply in the red (copper, bronze, shakudo) does not.
