@@ -149,6 +149,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"kogei {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except Exception as exc:
+        from app.capture import CaptureInterrupted
+
+        if not isinstance(exc, CaptureInterrupted):
+            raise
+        print(f"kogei {args.command}: {exc}", file=sys.stderr)
+        return 130 if exc.reason == "cancelled" else 1
     except KeyboardInterrupt:
         print(f"kogei {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -184,7 +184,8 @@ class Gphoto2Camera:
                     f"gphoto2 executable {self.executable} is not executable; chmod +x it or pass another path",
                     executable=self.executable,
                 )
-            return str(path)
+            # absolute: the program runs with the capture's own working folder
+            return str(path.resolve())
         found = shutil.which(self.executable)
         if found is None:
             raise CameraConfigError(

@@ -214,3 +214,13 @@ def test_extra_args_precede_the_command(tmp_path):
     cam = Gphoto2Camera(tmp_path, extra_args=["--port", "usb:001,004"])
     assert cam.command()[1:4] == ["--port", "usb:001,004", "--capture-image-and-download"]
     assert os.path.basename(cam.command()[0]) == "gphoto2"
+
+
+def test_relative_executable_path_works(fake, tmp_path, monkeypatch):
+    """A relative program path is taken from the caller's folder, not the capture's working folder."""
+    shim, _, session = fake
+    monkeypatch.chdir(tmp_path)
+    cam = Gphoto2Camera(session, executable="./bin/gphoto2", timeout_s=60)
+    assert cam._resolve_executable() == str(shim.resolve())
+    frame = cam.capture("f1")
+    assert frame.name == "f1.dng" and frame.stat().st_size > 1000
