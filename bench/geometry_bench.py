@@ -23,8 +23,8 @@ scaled to 200 mm on a larger station):
 * pose error after the pose graph (:func:`processing.registration.register_passes`);
 * ``kogei process`` of a 3-pass session at each preset: pose errors, mesh -> truth and truth ->
   mesh distances (:func:`processing.surface_distance.surface_distance`), the error of the filled
-  holes (mesh regions farther than the surface stage's support threshold from every measured
-  point), and the time.
+  holes (truth -> mesh over the object's surface that no pass measured: farther than the surface
+  stage's own hole threshold from every registered point), and the time.
 
 Pose errors are a rotation angle (deg) and the largest displacement (mm) of the object's
 vertices between the estimated and the true transform (:func:`pose_difference` with points),
@@ -44,7 +44,7 @@ import statistics
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -166,11 +166,12 @@ class BenchSettings:
     pairs
         Random placement pairs per object (consecutive placements ``(k, k + 1)``).
     pair_steps
-        Profiles per revolution of the pair passes.
-    mesh_steps
-        Profiles per revolution of the 3-pass session, per station (``small``, ``large``).
+        Profiles per revolution of the pair passes (the global registration downsamples anyway).
+    steps
+        Profiles per revolution of the pose-graph and 3-pass sessions, per station (``small``,
+        ``large``): about 200 000 points per pass.
     graph_passes
-        Placements in the pose-graph trial (the first ones of the pair session).
+        Placements of the pose-graph session (its first three are those of the 3-pass session).
     presets
         Presets of ``kogei process`` measured on the 3-pass session.
     repeats
@@ -185,7 +186,7 @@ class BenchSettings:
 
     pairs: int = 20
     pair_steps: int = 360
-    mesh_steps: dict[str, int] = field(default_factory=lambda: {"small": 900, "large": 800})
+    steps: dict[str, int] = field(default_factory=lambda: {"small": 900, "large": 800})
     graph_passes: int = 6
     presets: tuple[str, ...] = ("draft", "standard", "reference")
     repeats: int = 3
@@ -195,7 +196,7 @@ class BenchSettings:
 
 
 FULL = BenchSettings()
-QUICK = BenchSettings(pairs=3, pair_steps=120, mesh_steps={"small": 240, "large": 240}, graph_passes=3,
+QUICK = BenchSettings(pairs=3, pair_steps=120, steps={"small": 180, "large": 180}, graph_passes=4,
                       presets=("draft", "standard"), repeats=1, samples=50_000, truth_triangles=40_000,
                       objects=("hawk",))
 
@@ -384,6 +385,9 @@ def capture_session(world: Any, geometry: StationGeometry, root: Path, *, steps:
                     seed: int) -> dict[int, NDArray[np.float64]]:
     """Scan ``world`` in ``passes`` placements through the station's emulators into ``root/session``.
 
+    The station works on a copy of ``world`` (it moves the copy's pose), so every session starts from
+    the world's own base pose: placement 1 is that pose resting on the table.
+
     Returns
     -------
     dict
@@ -396,6 +400,7 @@ def capture_session(world: Any, geometry: StationGeometry, root: Path, *, steps:
     from mocks.world import rotation_z
 
     truth: dict[int, NDArray[np.float64]] = {}
+    world = replace(world, pose=np.array(world.pose))   # the station moves its world's pose
     with SimulatedStation(world, root=root / "station", seed=seed, **geometry.station_kwargs()) as st:
         plan = CapturePlan("scan", steps=steps, passes=passes, camera=False)
         config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
@@ -496,8 +501,8 @@ def pair_trials(clouds: list[dict[str, Any]], truth: dict[int, NDArray[np.float6
 def pose_graph_trial(clouds: list[dict[str, Any]], truth: dict[int, NDArray[np.float64]], world: Any,
                      passes: int, samples: int, preset: str = "standard") -> dict[str, Any]:
     """Register the first ``passes`` placements together (all pairs + pose graph), as ``kogei process``
-    does; pose error per pass, and the ``standard`` mesh of the merged passes scored like
-    :func:`process_trial`'s (more placements leave less unseen)."""
+    does; pose error per pass, and the ``standard`` mesh of the merged passes (``mesh["_scene"]``: what
+    :func:`score_mesh` needs, scored by :func:`run_object`)."""
     from processing.registration import merge_passes, register_passes
     from processing.surface import reconstruct_surface
 
@@ -510,8 +515,7 @@ def pose_graph_trial(clouds: list[dict[str, Any]], truth: dict[int, NDArray[np.f
     t0 = time.perf_counter()
     surf = reconstruct_surface(points, normals, confidence, preset=preset)
     mesh = {"points": int(len(points)), "seconds": time.perf_counter() - t0, "watertight": bool(surf.watertight),
-            **score_mesh(surf.vertices, surf.triangles, points, surf.summary(), truth[clouds[0]["pass"]], world,
-                         samples)}
+            "_scene": (surf.vertices, surf.triangles, points, truth[clouds[0]["pass"]])}
     return {"passes": passes, "used": len(clouds), "registered": sum(p.registered for p in res.poses),
             "pairs_verified": sum(r.verified for r in res.pairs), "pairs": len(res.pairs),
             "seconds": res.seconds, "points_per_pass": int(np.median([len(e["cloud"][0]) for e in clouds])),
@@ -538,30 +542,13 @@ def _pose_errors(pass_numbers: list[int], transforms: list[Any], truth: dict[int
             "displacement_error_mm": _stats([r["displacement_error_mm"] for r in good])}
 
 
-def _filled_region(vertices: NDArray[np.float64], triangles: NDArray[np.int64], merged: NDArray[np.float64],
-                   surface: dict[str, Any]) -> tuple[NDArray[np.int64], int]:
-    """Triangles of the final mesh in its holes: regions unsupported by any measured point.
-
-    The same rule as the surface stage (:func:`processing.mesh_support.mesh_support` with its
-    support threshold, grown over ``1.5`` point spacings, regions of at least ``pi threshold^2``),
-    applied to the written mesh and the registered measured points.
-    """
-    from processing.mesh_support import mesh_support
-
-    thr = float(surface["holes"]["threshold_mm"])
-    spacing = float(surface["points"]["spacing_mm"])
-    rep = mesh_support(vertices, triangles, merged, thr, min_hole_area_mm2=math.pi * thr**2,
-                       low_threshold_mm=min(thr, 1.5 * spacing))
-    return np.flatnonzero(rep.hole_label >= 0), rep.n_holes
-
-
 def process_trial(session_dir: Path, calibration: str, clouds: list[dict[str, Any]],
                   truth: dict[int, NDArray[np.float64]], world: Any, preset: str, samples: int,
                   repeats: int = 1) -> dict[str, Any]:
-    """``kogei process`` at ``preset`` (``repeats`` times, the median time kept); score the mesh.
+    """``kogei process`` at ``preset`` (``repeats`` times, the median time kept): time, report, pose errors.
 
-    ``clouds`` (:func:`session_clouds` of the same session) give the measured points of the
-    filled-hole rule.
+    ``clouds`` (:func:`session_clouds` of the same session) give the registered measured points;
+    ``"_scene"`` holds what :func:`score_mesh` needs (:func:`run_object` scores the meshes).
     """
     from app.process_session import process_session
     from render.meshio import load_mesh
@@ -579,7 +566,6 @@ def process_trial(session_dir: Path, calibration: str, clouds: list[dict[str, An
     pose = {e["pass"]: np.asarray(e["pose"]) for e in registered}
     merged = np.concatenate([_transformed(pose[e["pass"]], e["cloud"][0]) for e in clouds if e["pass"] in pose])
     first = registered[0]["pass"]
-    score = score_mesh(mesh.vertices, mesh.triangles, merged, report["surface"], truth[first], world, samples)
     diag = max(float(np.linalg.norm(np.ptp(e["cloud"][0], axis=0))) for e in clouds if "cloud" in e)
     return {
         "preset": preset,
@@ -591,43 +577,47 @@ def process_trial(session_dir: Path, calibration: str, clouds: list[dict[str, An
         "passes": len(passes),
         "settings": {**_preset_settings(preset), "pair_size_mm": diag,
                      "poisson_cell_mm": report["surface"]["mesh"]["cell_mm"],
+                     "hole_threshold_mm": report["surface"]["holes"]["threshold_mm"],
                      "point_spacing_mm": report["surface"]["points"]["spacing_mm"]},
         "consistency": report["registration"]["consistency"],
         "mesh": {**report["mesh"], "area_mm2": report["surface"]["mesh"]["area_mm2"],
                  "holes_reported": report["surface"]["holes"]["count"],
                  "hole_area_reported_mm2": report["surface"]["holes"]["total_area_mm2"],
                  "warnings": report["surface"]["warnings"]},
-        **score,
+        "_scene": (mesh.vertices, mesh.triangles, merged, truth[first]),
         **errors,
     }
 
 
 def score_mesh(vertices: NDArray[np.float64], triangles: NDArray[np.int64], merged: NDArray[np.float64],
-               surface: dict[str, Any], truth_pose: NDArray[np.float64], world: Any, samples: int) -> dict[str, Any]:
+               truth_pose: NDArray[np.float64], world: Any, samples: int, unseen_mm: float) -> dict[str, Any]:
     """Distances of a mesh (in the first pass's frame) to the world mesh moved by ``truth_pose``.
 
-    Returns mesh -> truth and truth -> mesh statistics, those of the measured part and of the
-    filled regions (:func:`_filled_region` against the registered measured points ``merged``) toward
-    the truth, the filled regions' count and area, and the mesh's area (mm, mm^2).
+    Returns the mesh -> truth and truth -> mesh statistics (mm), the mesh's area (mm^2), and the
+    truth -> mesh statistics split by what was measured: the *unseen* part of the object is its
+    surface farther than ``unseen_mm`` from every registered measured point (``merged``): the part
+    the mesh had to fill; the rest is the *seen* part.
     """
+    from scipy.spatial import cKDTree
+
     from processing.mesh_support import triangle_areas
     from processing.surface_distance import DistanceStats, distance_to_mesh, sample_surface, surface_distance
 
     v, t = np.asarray(vertices, np.float64), np.asarray(triangles, np.int64)
-    region, n_regions = _filled_region(v, t, merged, surface)
     truth_v = _transformed(truth_pose, world.vertices)
-    d = surface_distance(v, t, truth_v, world.triangles, n_samples=samples, region_triangles=region)
-    measured = np.setdiff1d(np.arange(len(t)), region)
-    on_data = distance_to_mesh(sample_surface(v, t, samples, seed=5, subset=measured), truth_v, world.triangles)
-    area = triangle_areas(v, t)
+    d = surface_distance(v, t, truth_v, world.triangles, n_samples=samples)
+    on_truth = sample_surface(truth_v, world.triangles, samples, seed=5)
+    to_mesh = distance_to_mesh(on_truth, v, t)
+    to_data, _ = cKDTree(merged).query(on_truth, workers=-1)
+    unseen = to_data > unseen_mm
     return {
         "to_truth_mm": asdict(d.to_truth),
         "from_truth_mm": asdict(d.from_truth),
-        "measured_to_truth_mm": asdict(DistanceStats.of(on_data)),
-        "filled_mm": None if d.region is None else asdict(d.region),
-        "filled_regions": n_regions,
-        "filled_area_mm2": float(area[region].sum()),
-        "area_mm2": float(area.sum()),
+        "seen_mm": asdict(DistanceStats.of(to_mesh[~unseen])),
+        "unseen_mm": asdict(DistanceStats.of(to_mesh[unseen])),
+        "unseen_share": float(unseen.mean()),
+        "unseen_threshold_mm": float(unseen_mm),
+        "area_mm2": float(triangle_areas(v, t).sum()),
     }
 
 
@@ -641,6 +631,17 @@ def _preset_settings(preset: str) -> dict[str, Any]:
             "max_rmse": r.max_rmse, "min_overlap": r.min_overlap, "min_margin": r.min_margin,
             "poisson_depth": s.depth, "fuse_voxel_factor": s.fuse_voxel_factor,
             "target_triangles": s.target_triangles}
+
+
+def _same_profiles(a: Path, b: Path, passes: int) -> bool:
+    """Whether two sessions hold bit-identical profiles and angles in their first ``passes`` passes."""
+    from app.capture import load_pass_profiles
+
+    for p in range(1, passes + 1):
+        pa, pb = load_pass_profiles(a, p), load_pass_profiles(b, p)
+        if not all(np.array_equal(pa[k], pb[k], equal_nan=True) for k in ("angles_deg", "x_mm", "z_mm")):
+            return False
+    return True
 
 
 def run_object(name: str, settings: BenchSettings, work: Path) -> dict[str, Any]:
@@ -658,23 +659,38 @@ def run_object(name: str, settings: BenchSettings, work: Path) -> dict[str, Any]
     cal = calibrate_station(geometry, work / "calibration")
     out["calibration"] = cal
     t0 = time.perf_counter()
-    n_pair_passes = max(settings.pairs + 1, settings.graph_passes)
     pair_truth = capture_session(world, geometry, work / "pairs", steps=settings.pair_steps,
-                                 passes=n_pair_passes, seed=11)
+                                 passes=settings.pairs + 1, seed=11)
     out["pair_capture_s"] = time.perf_counter() - t0
     out["pair_steps"] = settings.pair_steps
-    clouds = session_clouds(work / "pairs" / "session", cal["session"])
-    out["pairs"] = pair_trials(clouds, pair_truth, world, settings.pairs)
-    out["pose_graph"] = pose_graph_trial(clouds, pair_truth, world, settings.graph_passes, settings.samples)
+    out["pairs"] = pair_trials(session_clouds(work / "pairs" / "session", cal["session"]), pair_truth, world,
+                               settings.pairs)
+    steps = settings.steps[OBJECTS[name]["station"]]
+    out["steps"] = steps
+    # the same station seed: the pose-graph session's first three placements are the 3-pass session's
+    graph_truth = capture_session(world, geometry, work / "graph", steps=steps, passes=settings.graph_passes,
+                                  seed=23)
+    out["pose_graph"] = pose_graph_trial(session_clouds(work / "graph" / "session", cal["session"]), graph_truth,
+                                         world, settings.graph_passes, settings.samples)
     t0 = time.perf_counter()
-    steps = settings.mesh_steps[OBJECTS[name]["station"]]
     mesh_truth = capture_session(world, geometry, work / "mesh", steps=steps, passes=3, seed=23)
     out["mesh_capture_s"] = time.perf_counter() - t0
-    out["mesh_steps"] = steps
+    out["mesh_matches_graph_session"] = _same_profiles(work / "mesh" / "session", work / "graph" / "session", 3)
+    out["truth_poses"] = {"pairs": {p: t.tolist() for p, t in pair_truth.items()},
+                          "graph": {p: t.tolist() for p, t in graph_truth.items()},
+                          "mesh": {p: t.tolist() for p, t in mesh_truth.items()}}
     clouds = session_clouds(work / "mesh" / "session", cal["session"])
     out["presets"] = [process_trial(work / "mesh" / "session", cal["session"], clouds, mesh_truth, world, preset,
                                     settings.samples, settings.repeats if preset == "standard" else 1)
                       for preset in settings.presets]
+    # The unseen part of the object: farther than the surface stage's own hole threshold (4 point
+    # spacings) of the 3-pass `standard` mesh from every measured point; one threshold for every mesh
+    # of the object, so the presets and the session of more placements are compared on one region rule.
+    ref = next((r for r in out["presets"] if r["preset"] == "standard"), out["presets"][0])
+    unseen_mm = ref["settings"]["hole_threshold_mm"]
+    out["unseen_threshold_mm"] = unseen_mm
+    for r in [*out["presets"], out["pose_graph"]["mesh"]]:
+        r.update(score_mesh(*r.pop("_scene"), world, settings.samples, unseen_mm))
     out["seconds"] = time.perf_counter() - t_all
     out["peak_rss_mb"] = peak_rss_mb()
     return out
