@@ -40,6 +40,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.camera_response import CameraResponseError
+from processing.camera_response import camera_sensitivities as _camera_sensitivities
 from processing.spectra import SpectralGrid, resample
 
 __all__ = [
@@ -182,29 +184,10 @@ class RawFrame:
     model: str = "D5100 (simulated)"
 
 
-@functools.lru_cache(maxsize=8)
-def _sensitivities_cached(name: str, start: float, stop: float, step: float) -> NDArray[np.float64]:
-    import colour
-
-    try:
-        msds = colour.MSDS_CAMERA_SENSITIVITIES[name]
-    except KeyError:
-        names = ", ".join(sorted(colour.MSDS_CAMERA_SENSITIVITIES.keys()))
-        raise CameraSimError(f"unknown camera sensitivities {name!r}; choose one of: {names}") from None
-    grid = SpectralGrid(start, stop, step)
-    lo, hi = float(msds.wavelengths[0]), float(msds.wavelengths[-1])
-    if grid.start < lo or grid.stop > hi:
-        raise CameraSimError(
-            f"camera sensitivities {name!r} cover {lo:g}-{hi:g} nm; the spectral grid "
-            f"{grid.start:g}-{grid.stop:g} nm must lie inside"
-        )
-    values = resample(msds.wavelengths, np.asarray(msds.values, dtype=np.float64).T, grid).T
-    values.setflags(write=False)
-    return values
-
-
 def camera_sensitivities(grid: SpectralGrid, name: str = SENSITIVITIES) -> NDArray[np.float64]:
     """Spectral sensitivities ``(L, 3)`` (R, G, B) of camera ``name`` on ``grid`` (linear interpolation).
+
+    Loaded by :func:`processing.camera_response.camera_sensitivities`.
 
     Examples
     --------
@@ -212,9 +195,10 @@ def camera_sensitivities(grid: SpectralGrid, name: str = SENSITIVITIES) -> NDArr
     >>> s.shape, int(np.argmax(s[:, 1]) * 10 + 400) in range(510, 560)
     ((31, 3), True)
     """
-    if not isinstance(grid, SpectralGrid):
-        raise CameraSimError(f"grid must be a processing.spectra.SpectralGrid, got {type(grid).__name__}")
-    return _sensitivities_cached(name, grid.start, grid.stop, grid.step)
+    try:
+        return _camera_sensitivities(grid, name)
+    except CameraResponseError as exc:
+        raise CameraSimError(str(exc)) from None
 
 
 def channel_signal(radiance: ArrayLike, grid: SpectralGrid, name: str = SENSITIVITIES) -> NDArray[np.float64]:
