@@ -1,0 +1,281 @@
+"""The fitted spectral estimator shared by every method, and its per-pixel application.
+
+Matsuda et al., section 4, eq. (6)-(11): a reflectance is written in a basis,
+``s(lambda) = sum_i w_i b_i(lambda)`` (eq. (7)), and the weights follow from
+the camera response by a matrix, ``w = M M2 rho`` (eq. (9)-(11)).  Every
+estimator of this package (the paper's PCA, Wiener, root-polynomial, two
+lights) ends in the same form, held by :class:`SpectralFit`:
+
+``w = phi(rho T) A``
+
+with ``rho`` the camera channels as a row vector, ``T`` an optional chart
+transform into the model camera (eq. (11), :mod:`processing.camera_transfer`),
+``phi`` the feature expansion (identity, or the root-polynomial terms of
+Finlayson et al. 2015) and ``A`` the fitted map to the weights of the basis
+``B (L, p)``.  For linear features ``T`` is folded into ``A``, so a whole
+image is one matrix product.  Images become ``(H, W, p)`` weights, never
+``(H, W, L)`` spectra.
+
+Principal components here are of the second-moment matrix (no mean removed),
+as in Maloney's linear models of surface reflectance (JOSA A 3, 1986), so the
+estimate is linear in the camera response and scales with exposure.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from itertools import combinations_with_replacement
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from processing.spectra import SpectralGrid
+
+__all__ = [
+    "SpectralEstimationError",
+    "SpectralFit",
+    "pca_basis",
+    "checked_channels",
+    "checked_spectra",
+    "feature_names",
+    "expand_features",
+    "with_transform",
+]
+
+_CHUNK_PIXELS = 1 << 20   # pixels per block: bounds the float32 temporaries to tens of MB
+
+
+class SpectralEstimationError(ValueError):
+    """An input to spectral estimation is not valid; the message names it and what to do."""
+
+
+def checked_channels(name: str, rgb: ArrayLike, channels: int | None = None) -> NDArray[np.floating]:
+    """Validate camera channels ``(..., c)``: non-empty, finite, >= 0, ``c == channels`` when given.
+
+    Examples
+    --------
+    >>> checked_channels("rgb", [[0.1, 0.2, 0.3]], 3).shape
+    (1, 3)
+    """
+    a = np.asarray(rgb)
+    if a.dtype.kind not in "fiu":
+        raise SpectralEstimationError(f"{name} must be a numeric array, got dtype {a.dtype}")
+    if a.ndim == 0 or a.size == 0:
+        raise SpectralEstimationError(f"{name} is empty (shape {a.shape}); give camera values (..., channels)")
+    if channels is not None and a.shape[-1] != channels:
+        raise SpectralEstimationError(
+            f"{name} must have {channels} channels on its last axis, got shape {a.shape}"
+        )
+    if a.dtype.kind == "f":
+        if not np.isfinite(a).all():
+            raise SpectralEstimationError(f"{name} contains NaN or infinite values; mask those pixels first")
+        if (a < 0).any():
+            raise SpectralEstimationError(
+                f"{name} has negative values (min {float(a.min()):.3g}); clip the black-subtracted image at 0"
+            )
+    return a
+
+
+def checked_spectra(name: str, spectra: ArrayLike, grid: SpectralGrid | None = None) -> NDArray[np.float64]:
+    """Validate spectra ``(n, L)``: non-empty, finite, on ``grid`` when given.
+
+    Examples
+    --------
+    >>> checked_spectra("s", [[0.1, 0.2]]).shape
+    (1, 2)
+    """
+    s = np.asarray(spectra, dtype=np.float64)
+    if s.ndim != 2 or s.shape[0] == 0 or s.shape[1] == 0:
+        raise SpectralEstimationError(f"{name} must be a non-empty (n, L) array of spectra, got shape {s.shape}")
+    if grid is not None and s.shape[1] != grid.size:
+        raise SpectralEstimationError(f"{name} has {s.shape[1]} wavelengths, the grid {grid.size}")
+    if not np.isfinite(s).all():
+        raise SpectralEstimationError(f"{name} contains NaN or infinite values")
+    return s
+
+
+def pca_basis(spectra: ArrayLike, p: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The first ``p`` principal directions ``(L, p)`` of spectra and their singular values.
+
+    Uncentred (second-moment) PCA; the first vector is made positive.
+
+    Examples
+    --------
+    >>> b, sv = pca_basis(np.array([[1.0, 1.0], [2.0, 2.0]]), 1)
+    >>> np.round(b[:, 0], 4).tolist()
+    [0.7071, 0.7071]
+    """
+    s = checked_spectra("spectra", spectra)
+    if isinstance(p, bool) or not isinstance(p, (int, np.integer)) or not 1 <= p <= min(s.shape):
+        raise SpectralEstimationError(
+            f"basis size p must be an integer in [1, {min(s.shape)}] (spectra and wavelengths available), got {p!r}"
+        )
+    _, sv, vt = np.linalg.svd(s, full_matrices=False)
+    basis = vt[:p].T.copy()
+    if basis[:, 0].sum() < 0:
+        basis[:, 0] *= -1
+    return basis, sv
+
+
+def feature_names(channels: int, expansion: str) -> list[str]:
+    """Names of the features of ``expansion`` for ``channels`` inputs ('linear', 'rootpoly2', 'rootpoly3').
+
+    Examples
+    --------
+    >>> feature_names(3, "rootpoly2")
+    ['c0', 'c1', 'c2', 'sqrt(c0*c1)', 'sqrt(c0*c2)', 'sqrt(c1*c2)']
+    """
+    return [n for n, _ in _terms(channels, expansion)]
+
+
+def _terms(channels: int, expansion: str) -> list[tuple[str, tuple[int, ...]]]:
+    if expansion not in ("linear", "rootpoly2", "rootpoly3"):
+        raise SpectralEstimationError(f"unknown feature expansion {expansion!r}; use linear, rootpoly2 or rootpoly3")
+    degree = {"linear": 1, "rootpoly2": 2, "rootpoly3": 3}[expansion]
+    out: list[tuple[str, tuple[int, ...]]] = []
+    for d in range(1, degree + 1):
+        for combo in combinations_with_replacement(range(channels), d):
+            if d > 1 and len(set(combo)) == 1:
+                continue          # (r^2)^(1/2) = r repeats a linear term
+            if d == 1:
+                out.append((f"c{combo[0]}", combo))
+            else:
+                root = "sqrt" if d == 2 else "cbrt"
+                out.append((f"{root}({'*'.join(f'c{i}' for i in combo)})", combo))
+    return out
+
+
+def expand_features(rgb: NDArray[np.floating], expansion: str) -> NDArray[np.floating]:
+    """Root-polynomial features (Finlayson, Mackiewicz, Hurlbert, IEEE TIP 24(5), 2015, eq. (6)).
+
+    Each term is a product of d channels raised to 1/d, so every feature
+    scales linearly with exposure.
+
+    Examples
+    --------
+    >>> expand_features(np.array([[1.0, 4.0, 9.0]]), "rootpoly2").tolist()
+    [[1.0, 4.0, 9.0, 2.0, 3.0, 6.0]]
+    """
+    c = rgb.shape[-1]
+    terms = _terms(c, expansion)
+    if expansion == "linear":
+        return rgb
+    out = np.empty(rgb.shape[:-1] + (len(terms),), dtype=rgb.dtype)
+    for k, (_, combo) in enumerate(terms):
+        prod = rgb[..., combo[0]]
+        for i in combo[1:]:
+            prod = prod * rgb[..., i]
+        d = len(combo)
+        out[..., k] = prod if d == 1 else (np.sqrt(prod) if d == 2 else np.cbrt(prod))
+    return out
+
+
+@dataclass(frozen=True)
+class SpectralFit:
+    """A fitted estimator from camera channels to basis weights.
+
+    Attributes
+    ----------
+    method
+        Name of the method ('paper', 'wiener', 'rootpoly', 'twolight', ...).
+    basis
+        ``(L, p)`` basis spectra (columns), float64.
+    matrix
+        ``(f, p)`` map from the features to the weights, row-vector form
+        ``w = phi(rho T) @ matrix``.
+    grid
+        The wavelength grid of the basis.
+    channels
+        Number of camera channels c (3, or 6 for two exposures).
+    expansion
+        Feature expansion: 'linear', 'rootpoly2' or 'rootpoly3'.
+    transform
+        Optional ``(c, c)`` chart transform applied before the expansion
+        (None once folded into a linear ``matrix``).
+    training_rmse
+        RMS spectral error of the fit on its training spectra (reflectance).
+    condition
+        Condition numbers of the fitted systems, by name.
+    details
+        Method-specific figures (regularisation chosen, noise level...).
+    """
+
+    method: str
+    basis: NDArray[np.float64]
+    matrix: NDArray[np.float64]
+    grid: SpectralGrid
+    channels: int
+    expansion: str = "linear"
+    transform: NDArray[np.float64] | None = None
+    training_rmse: float = math.nan
+    condition: dict[str, float] = field(default_factory=dict)
+    details: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def wavelengths(self) -> NDArray[np.float64]:
+        """Wavelengths of the basis in nm."""
+        return self.grid.wavelengths
+
+    @property
+    def p(self) -> int:
+        """Number of basis vectors."""
+        return int(self.basis.shape[1])
+
+    def estimate_weights(self, rgb: ArrayLike) -> NDArray[np.float32]:
+        """Basis weights ``(..., p)`` float32 of camera channels ``(..., c)``.
+
+        Done in blocks of 2^20 pixels, each one matrix product (plus the
+        root-polynomial terms), in float32.
+
+        Examples
+        --------
+        >>> fit = SpectralFit("demo", np.eye(3), np.eye(3), SpectralGrid(400, 700, 150), 3)
+        >>> fit.estimate_weights([[1.0, 2.0, 3.0]]).tolist()
+        [[1.0, 2.0, 3.0]]
+        """
+        a = checked_channels("camera channels", rgb, self.channels)
+        flat = a.reshape(-1, self.channels)
+        out = np.empty((flat.shape[0], self.p), dtype=np.float32)
+        mat = self.matrix.astype(np.float32)
+        tr = None if self.transform is None else self.transform.astype(np.float32)
+        for i in range(0, flat.shape[0], _CHUNK_PIXELS):
+            block = flat[i:i + _CHUNK_PIXELS].astype(np.float32, copy=False)
+            if tr is not None:
+                block = np.maximum(block @ tr, 0.0)   # the chart map can push a dark pixel below 0
+            np.matmul(expand_features(block, self.expansion), mat, out=out[i:i + _CHUNK_PIXELS])
+        return out.reshape(a.shape[:-1] + (self.p,))
+
+    def estimate_spectra(self, rgb: ArrayLike) -> NDArray[np.float64]:
+        """Reflectance spectra ``(..., L)`` of a few camera values (for charts and regions, not images).
+
+        Examples
+        --------
+        >>> fit = SpectralFit("demo", np.eye(3), np.eye(3), SpectralGrid(400, 700, 150), 3)
+        >>> fit.estimate_spectra([0.1, 0.2, 0.3]).round(3).tolist()
+        [0.1, 0.2, 0.3]
+        """
+        return self.estimate_weights(rgb).astype(np.float64) @ self.basis.T
+
+
+def with_transform(fit: SpectralFit, transform: ArrayLike) -> SpectralFit:
+    """The estimator applied after a ``(c, c)`` chart transform (row form ``rho T``).
+
+    For linear features the transform is folded into the matrix.
+
+    Examples
+    --------
+    >>> fit = SpectralFit("demo", np.eye(3), np.eye(3), SpectralGrid(400, 700, 150), 3)
+    >>> with_transform(fit, 2 * np.eye(3)).estimate_weights([[1.0, 1.0, 1.0]]).tolist()
+    [[2.0, 2.0, 2.0]]
+    """
+    t = np.asarray(transform, dtype=np.float64)
+    if t.shape != (fit.channels, fit.channels) or not np.isfinite(t).all():
+        raise SpectralEstimationError(
+            f"chart transform must be a finite ({fit.channels}, {fit.channels}) matrix, got shape {t.shape}"
+        )
+    if fit.transform is not None:
+        t = t @ fit.transform      # the new transform acts first on the incoming channels
+    if fit.expansion == "linear":
+        return replace(fit, matrix=t @ fit.matrix, transform=None)
+    return replace(fit, transform=t)
