@@ -23,6 +23,7 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) -m bench.run --out docs/BENCHMARKS.md
+	$(PY) -m bench.unseen_figure --out docs/images/hawk-unseen.png
 
 clean:
 	rm -rf out .pytest_cache .hypothesis
