@@ -83,6 +83,11 @@ class ChartPlacement:
     tilt_deg: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
+        # lists from JSON become tuples, so placements compare and hash by value
+        for name in ("center", "tilt_deg"):
+            value = getattr(self, name)
+            if isinstance(value, (list, np.ndarray)):
+                object.__setattr__(self, name, tuple(float(v) for v in value))
         c = np.asarray(self.center, dtype=np.float64)
         t = np.asarray(self.tilt_deg, dtype=np.float64)
         if c.shape != (2,) or not np.all(np.isfinite(c)):
@@ -141,9 +146,10 @@ def _reflectances_cached(name: str, start: float, stop: float, step: float) -> N
     else:
         xyz = colour.sRGB_to_XYZ(reference_srgb8(name).astype(np.float64) / 255.0)
         rows = []
-        for v in xyz:
-            sd = colour.XYZ_to_sd(np.maximum(v, 1e-4), method="Otsu 2018")
-            rows.append(resample(sd.wavelengths, sd.values, grid))
+        with colour.utilities.suppress_warnings(colour_runtime_warnings=True):   # its shape/interpolation notices
+            for v in xyz:
+                sd = colour.XYZ_to_sd(np.maximum(v, 1e-4), method="Otsu 2018")
+                rows.append(resample(sd.wavelengths, sd.values, grid))
         out = np.clip(np.stack(rows), 0.005, 1.0)
     out.setflags(write=False)
     return out
@@ -169,11 +175,13 @@ def render_chart(
     grid: SpectralGrid,
     light: NDArray[np.float64],
     backdrop_reflectance: float,
+    reflectances: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int16], NDArray[np.float64]]:
     """Spectral radiance ``(H, W, L)``, labels ``(H, W)`` and outer corners ``(4, 2)`` of a chart frame.
 
     Lambertian at normal incidence: ``L = R(lambda) E(lambda) / pi`` for the
     patches, the frame and the backdrop.  Labels: patch index, -1 elsewhere.
+    ``reflectances`` ``(N, L)`` replaces :func:`chart_patch_reflectances`.
 
     Examples
     --------
@@ -200,7 +208,9 @@ def render_chart(
     on_patch = in_card & (col >= 0) & (row >= 0)
     labels = np.full(u.shape, -1, dtype=np.int16)
     labels[on_patch] = (row * layout.cols + col)[on_patch]
-    refl = chart_patch_reflectances(name, grid)
+    refl = chart_patch_reflectances(name, grid) if reflectances is None else np.asarray(reflectances, np.float64)
+    if refl.shape != (layout.size, grid.size):
+        raise ChartSceneError(f"reflectances must be ({layout.size}, {grid.size}) for {name}, got {refl.shape}")
     table = np.vstack([refl, np.full((1, grid.size), FRAME_REFLECTANCE), np.full((1, grid.size), backdrop_reflectance)])
     index = np.where(on_patch, labels, np.where(in_card, layout.size, layout.size + 1))
     radiance = table[index.reshape(height, width)] * (np.asarray(light, dtype=np.float64) / math.pi)

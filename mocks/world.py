@@ -8,8 +8,12 @@ spectra by default), one directional light with a named spectrum, the camera
 view, and the table angle.  :meth:`World.frame` returns the spectral radiance
 image a camera at the station sees:
 
-* ``kind="chart"``: the 24 patches (4 rows x 6 columns) filling the view,
-  lit at normal incidence: ``L = R(lambda) E(lambda) / pi`` (Lambertian).
+* ``kind="chart"``: with ``chart_layout="grid"`` the 24 patches (4 rows x 6
+  columns) filling the view, lit at normal incidence: ``L = R(lambda)
+  E(lambda) / pi`` (Lambertian); with ``"classic24"``, ``"sg140"`` or
+  ``"vinyl18"`` a physically laid-out chart (black frame, square patches with
+  gaps) lying on the backdrop at ``chart_placement`` in perspective
+  (:mod:`mocks.chart_scene`), which ``cv2.mcc`` can detect.
 * ``kind="object"``: the object turned by the table angle about the table's
   z axis, ray cast with Open3D (pinhole camera); per hit pixel
   ``L = f_r(lambda) E(lambda) cos_i`` with ``f_r`` the project's spectral BRDF
@@ -25,6 +29,7 @@ The light is scaled so that a white diffuser facing it has luminance Y = 1
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -108,6 +113,9 @@ class Frame:
         ``"chart"`` or ``"object"``.
     table_angle_deg
         Table angle of the frame.
+    chart_corners
+        ``(4, 2)`` image positions of a laid-out chart's outer corners (top-left,
+        top-right, bottom-right, bottom-left of the chart), else None.
     """
 
     radiance: NDArray[np.float64]
@@ -116,6 +124,7 @@ class Frame:
     labels: NDArray[np.int16]
     kind: str
     table_angle_deg: float
+    chart_corners: NDArray[np.float64] | None = None
 
 
 @dataclass
@@ -144,6 +153,13 @@ class World:
     chart_present
         False simulates the "missing chart" fault: the chart frame shows
         only the backdrop.
+    chart_layout
+        ``"grid"`` (patches filling the frame) or a chart laid out on the
+        backdrop: ``"classic24"``, ``"sg140"``, ``"vinyl18"``.
+    chart_placement
+        Where a laid-out chart lies (:class:`mocks.chart_scene.ChartPlacement`
+        or its fields as a dict); a placement reaching past the image is the
+        "chart partly outside the frame" fault.
     width, height
         Image size in pixels (even).
     camera_distance_mm, camera_elevation_deg, fov_deg
@@ -167,6 +183,8 @@ class World:
     light_direction: tuple[float, float, float] = (-0.4, -0.6, 0.7)
     chart: str = "ColorChecker N Ohta"
     chart_present: bool = True
+    chart_layout: str = "grid"
+    chart_placement: Any = None
     width: int = 96
     height: int = 64
     camera_distance_mm: float = 260.0
@@ -207,6 +225,20 @@ class World:
         if not self.camera_distance_mm > 0:
             raise WorldError(f"camera_distance_mm must be > 0, got {self.camera_distance_mm!r}")
         self.grid  # validates spectral_step
+        from mocks.chart_scene import ChartPlacement, ChartSceneError
+
+        if self.chart_layout not in ("grid", "classic24", "sg140", "vinyl18"):
+            raise WorldError(f"chart_layout must be 'grid', 'classic24', 'sg140' or 'vinyl18', got {self.chart_layout!r}")
+        if self.chart_placement is None:
+            self.chart_placement = ChartPlacement()
+        elif isinstance(self.chart_placement, dict):
+            try:
+                self.chart_placement = ChartPlacement(**self.chart_placement)
+            except (TypeError, ChartSceneError) as exc:
+                raise WorldError(f"chart_placement: {exc}") from None
+        elif not isinstance(self.chart_placement, ChartPlacement):
+            raise WorldError(f"chart_placement must be a ChartPlacement or a dict of its fields, "
+                             f"got {type(self.chart_placement).__name__}")
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -294,6 +326,9 @@ class World:
             "light_direction": list(self.light_direction),
             "chart": self.chart,
             "chart_present": self.chart_present,
+            "chart_layout": self.chart_layout,
+            "chart_placement": {k: (list(v) if isinstance(v, tuple) else v)
+                                for k, v in dataclasses.asdict(self.chart_placement).items()},
             "width": self.width,
             "height": self.height,
             "camera_distance_mm": self.camera_distance_mm,
@@ -349,6 +384,13 @@ class World:
     def _chart_frame(self, angle: float) -> Frame:
         grid, e = self.grid, self.light_spectrum()
         h, w = self.height, self.width
+        if self.chart_present and self.chart_layout != "grid":
+            from mocks.chart_scene import render_chart
+
+            refl = chart_reflectances(grid, self.chart) if self.chart_layout == "classic24" else None
+            radiance, labels, corners = render_chart(self.chart_layout, w, h, self.chart_placement, grid, e,
+                                                     BACKDROP_REFLECTANCE, refl)
+            return Frame(radiance, grid, e, labels, "chart", angle, corners)
         labels = np.full((h, w), -1, dtype=np.int16)
         if self.chart_present:
             rows = np.floor(np.arange(h) / h * 4).astype(int)
@@ -440,7 +482,8 @@ def world_settings(data: dict[str, Any]) -> dict[str, Any]:
     >>> world_settings({"light": "A", "light_direction": [0, 0, 1]})["light_direction"]
     (0.0, 0.0, 1.0)
     """
-    allowed = {"pose", "light", "light_direction", "chart", "chart_present", "width", "height",
+    allowed = {"pose", "light", "light_direction", "chart", "chart_present", "chart_layout", "chart_placement",
+               "width", "height",
                "camera_distance_mm", "camera_elevation_deg", "fov_deg", "spectral_step", "table_angle_deg"}
     unknown = set(data) - allowed
     if unknown:
