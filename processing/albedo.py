@@ -180,7 +180,8 @@ def directional_albedo(
     material_or_lobe
         A :class:`~processing.material.Material` (sum over all its lobes,
         mirror lobes included) or a single :class:`~processing.material.Lobe`
-        (with its weight).
+        (with its weight).  Anisotropic lobes give their albedo averaged
+        over the view azimuth (:func:`processing.anisotropic_albedo.azimuth_mean_albedo`).
     cos_o
         Cosines of the viewing angle in [0, 1], any shape.  At exactly 0
         (grazing) the BRDF is 0 and so is the albedo.
@@ -214,6 +215,15 @@ def directional_albedo(
         )
     total = None
     for lobe in lobes:
+        if lobe.kind == "anisotropic":
+            # depends on the view azimuth too: the mean over azimuth (processing.anisotropic_albedo)
+            from processing.anisotropic_albedo import azimuth_mean_albedo
+
+            co = np.asarray(cos_o, dtype=np.float64)
+            wl = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
+            a = lobe.weight * azimuth_mean_albedo(lobe, co.reshape(-1), wl).reshape(co.shape + (wl.size,))
+            total = a if total is None else total + a
+            continue
         a = lobe_albedo(lobe, cos_o, wavelengths, n_theta=n_theta, n_phi=n_phi)
         total = a if total is None else total + a
     if total is None:

@@ -29,11 +29,12 @@ from typing import Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.anisotropic_microfacet import anisotropic_lobe, check_axes
 from processing.microfacet import microfacet_lobe
 
 __all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter"]
 
-LobeKind = Literal["lambert", "microfacet"]
+LobeKind = Literal["lambert", "microfacet", "anisotropic"]
 
 
 @runtime_checkable
@@ -58,14 +59,22 @@ class Lobe:
     Attributes
     ----------
     kind
-        ``"lambert"`` (geometry 1/pi) or ``"microfacet"`` (Beckmann D, G).
+        ``"lambert"`` (geometry 1/pi), ``"microfacet"`` (Beckmann D, G) or
+        ``"anisotropic"`` (the yarn ellipsoid of Yasuda et al., eq. (1), as a
+        normalised distribution with Smith G:
+        :mod:`processing.anisotropic_microfacet`); an anisotropic lobe needs
+        the tangent-frame components of the light and view directions.
     weight
         Non-negative weight (alpha, beta or gamma of the paper's equations).
     spectral
         The spectral factor (Fresnel of a metal, alloy or dielectric, or a
         pigment reflectance).
     roughness
-        Beckmann RMS slope of a microfacet lobe (ignored for Lambert).
+        Beckmann RMS slope of a microfacet lobe; the ellipsoid semi-axis a_t
+        along the tangent t of an anisotropic lobe (ignored for Lambert).
+    roughness_b
+        The ellipsoid semi-axis a_b across the tangent (b = n x t) of an
+        anisotropic lobe (ignored otherwise).
     shadowing
         ``"smith"``, ``"torrance-sparrow"`` or ``"none"``.
     mirror
@@ -79,10 +88,15 @@ class Lobe:
     roughness: float = 0.0
     shadowing: str = "smith"
     mirror: bool = False
+    roughness_b: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.kind not in ("lambert", "microfacet"):
-            raise ValueError(f"lobe kind {self.kind!r} is not 'lambert' or 'microfacet'")
+        if self.kind not in ("lambert", "microfacet", "anisotropic"):
+            raise ValueError(f"lobe kind {self.kind!r} is not 'lambert', 'microfacet' or 'anisotropic'")
+        if self.kind == "anisotropic":
+            check_axes(self.roughness, self.roughness_b, "anisotropic lobe")
+            if self.mirror:
+                raise ValueError("an anisotropic lobe cannot be a mirror lobe")
         if not np.isfinite(self.weight) or self.weight < 0:
             raise ValueError(f"lobe weight must be finite and >= 0, got {self.weight}")
         if self.kind == "microfacet" and not (0.0 < self.roughness <= 1.0):
@@ -105,6 +119,11 @@ class Material:
     family: str = ""
     description: str = ""
     parameters: dict = field(default_factory=dict)
+
+    @property
+    def anisotropic(self) -> bool:
+        """True when a lobe needs a tangent frame (``kind == "anisotropic"``)."""
+        return any(lobe.kind == "anisotropic" for lobe in self.lobes)
 
 
 def checked_parameter(name: str, value: float, *, open_zero: bool = False, upper: float = 1.0) -> float:
@@ -136,8 +155,13 @@ def lobe_geometry(
     cos_o: ArrayLike,
     cos_h: ArrayLike,
     cos_d: ArrayLike,
+    tangential: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike] | None = None,
 ) -> NDArray[np.float64]:
     """Wavelength-independent factor of ``lobe`` in 1/sr (without the weight).
+
+    ``tangential`` holds ``(i_t, i_b, o_t, o_b)``, the components of the unit
+    light and view directions along the tangent t and along b = n x t; only
+    anisotropic lobes use it, and they require it.
 
     Examples
     --------
@@ -154,6 +178,13 @@ def lobe_geometry(
     if lobe.kind == "lambert":
         shape = np.broadcast_shapes(ci.shape, co.shape)
         return np.where((ci > 0) & (co > 0), 1.0 / np.pi, 0.0) * np.ones(shape)
+    if lobe.kind == "anisotropic":
+        if tangential is None:
+            raise ValueError(
+                "an anisotropic lobe needs the tangent-frame components (i_t, i_b, o_t, o_b) of the light and "
+                "view directions: pass tangential=..."
+            )
+        return anisotropic_lobe(ci, co, cos_h, cos_d, *tangential, lobe.roughness, lobe.roughness_b)
     return microfacet_lobe(ci, co, cos_h, cos_d, lobe.roughness, lobe.shadowing)
 
 
@@ -164,8 +195,12 @@ def material_brdf(
     cos_h: ArrayLike,
     cos_d: ArrayLike,
     wavelengths: ArrayLike,
+    tangential: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike] | None = None,
 ) -> NDArray[np.float64]:
     """Spectral BRDF (1/sr) of ``material``: shape ``broadcast(cos...) + (L,)``.
+
+    ``tangential`` = ``(i_t, i_b, o_t, o_b)`` as for :func:`lobe_geometry`
+    (required when the material has anisotropic lobes).
 
     The colour signal for a light of spectral irradiance E is
     ``material_brdf(...) * E * cos_i``.
@@ -177,6 +212,6 @@ def material_brdf(
     for lobe in material.lobes:
         if lobe.weight == 0.0:
             continue
-        g = lobe_geometry(lobe, cos_i, cos_o, cos_h, cos_d)
+        g = lobe_geometry(lobe, cos_i, cos_o, cos_h, cos_d, tangential)
         total += lobe.weight * np.broadcast_to(g, shape)[..., None] * lobe.spectral.reflectance(cd, wl)
     return total

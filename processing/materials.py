@@ -24,6 +24,7 @@ from types import MappingProxyType
 from typing import Any
 
 from processing.alloys import ALLOY_SOURCES, alloy_weights
+from processing.cloth_presets import CLOTH_PARAMETERS, CLOTH_PRESETS, CLOTH_SOURCES, build_cloth
 from processing.dielectric_model import (
     PigmentReflectance,
     dielectric_material,
@@ -73,7 +74,7 @@ class ParameterInfo:
 
 @dataclass(frozen=True)
 class _Preset:
-    family: str  # "metal" (pure metals and alloys) or "dielectric"
+    family: str  # "metal" (pure metals and alloys), "dielectric" or "cloth"
     defaults: dict[str, Any]
     composition: dict[str, float] | None = None
     pigment: Callable[[], PigmentReflectance] | None = None
@@ -141,6 +142,8 @@ _PRESETS: MappingProxyType[str, _Preset] = MappingProxyType(
             "red urushi (vermilion): parametric body reflectance with the HgS band edge "
             "at 600 nm (docs/materials.md), n = 1.5",
         ),
+        **{name: _Preset("cloth", dict(values), source=CLOTH_SOURCES[name])
+           for name, values in CLOTH_PRESETS.items()},
     }
 )
 
@@ -239,6 +242,12 @@ def parse_material_spec(spec: str) -> tuple[str, dict[str, str]]:
     return name, overrides
 
 
+def _ranges(preset: _Preset) -> dict[str, tuple[float, float, bool]]:
+    if preset.family == "cloth":
+        return {k: v[3] for k, v in CLOTH_PARAMETERS.items() if v[3] is not None}
+    return _RANGES
+
+
 def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] | None]:
     name, raw = parse_material_spec(spec)
     preset = _PRESETS[name]
@@ -252,6 +261,9 @@ def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] 
             raise MaterialError(
                 f"{name}: unknown parameter {key!r}; valid parameters: {', '.join(valid)}"
             )
+        if preset.family == "cloth" and CLOTH_PARAMETERS[canon][3] is None:
+            params[canon] = text        # yarn kinds and colours: checked by the builder
+            continue
         if canon == "shadowing":
             if text.lower() not in SHADOWING_MODELS:
                 raise MaterialError(
@@ -265,7 +277,7 @@ def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] 
             if canon in METALS:
                 hint = "a metal fraction must be a number >= 0"
             else:
-                lo, hi, open_low = _RANGES[canon]
+                lo, hi, open_low = _ranges(preset)[canon]
                 hint = f"valid range is {'(' if open_low else '['}{lo:g}, {hi:g}]"
             raise MaterialError(f"{name}: {canon}={text!r} is not a number; {hint}") from None
         if canon in METALS:
@@ -277,7 +289,7 @@ def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] 
             composition = {} if composition is None else composition
             composition[canon] = value
             continue
-        lo, hi, open_low = _RANGES[canon]
+        lo, hi, open_low = _ranges(preset)[canon]
         ok = math.isfinite(value) and (value > lo if open_low else value >= lo) and value <= hi
         if not ok:
             rng = f"({lo:g}, {hi:g}]" if open_low else f"[{lo:g}, {hi:g}]"
@@ -285,7 +297,8 @@ def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] 
         params[canon] = value
     if composition is not None and sum(composition.values()) <= 0:
         raise MaterialError(f"{name}: the metal fractions sum to 0; give at least one positive fraction")
-    energy_keys = ("diffuse", "gloss", "mirror") if preset.family == "dielectric" else ("gloss", "mirror")
+    energy_keys = {"dielectric": ("diffuse", "gloss", "mirror"), "cloth": ("specular", "internal", "diffuse")}.get(
+        preset.family, ("gloss", "mirror"))
     total = sum(float(params[k]) for k in energy_keys)
     if total > 1.0 + 1e-12:
         terms = " + ".join(f"{k}={params[k]:g}" for k in energy_keys)
@@ -328,6 +341,8 @@ def get_material(spec: str) -> Material:
     """
     name, preset, params, composition = _resolve(spec)
     try:
+        if preset.family == "cloth":
+            return build_cloth(name, params, description=preset.source)
         if preset.family == "metal":
             metals = composition if composition is not None else dict(preset.composition or {})
             return metal_material(name, metals, description=preset.source, **params)
@@ -368,6 +383,11 @@ def material_parameters(name: str) -> dict[str, ParameterInfo]:
                 f"weight w of {key} in Matsuda eq. (3)-(4), normalised to sum 1",
                 ">= 0; any metal of " + ", ".join(METALS),
             )
+        elif material.family == "cloth":
+            unit, desc, valid, _ = CLOTH_PARAMETERS[key]
+            if key in ("specular", "internal", "diffuse"):
+                valid += ", specular + internal + diffuse <= 1"
+            out[key] = ParameterInfo(value, unit, desc, valid)
         else:
             unit, desc, valid = _COMMON_INFO[key]
             if key in ("gloss", "mirror") and material.family != "dielectric":

@@ -25,11 +25,12 @@ PRESETS = [
     "nami-shibuichi", "shiro-shibuichi", "jo-shibuichi", "nami-shibuichi-uchi-sanbu",
     "nami-shibuichi-soto-sanbu", "shakudo", "bronze", "urushi-black", "urushi-red",
 ]
+CLOTH_PRESETS = ["silk", "cotton", "tamamushi", "satin"]   # tested in tests/test_cloth_model.py
 WL = SpectralGrid(400, 700, 20).wavelengths
 
 
 def test_list_materials_is_exactly_the_presets() -> None:
-    assert list_materials() == PRESETS
+    assert list_materials() == PRESETS + CLOTH_PRESETS
 
 
 @pytest.mark.parametrize("name", PRESETS)
