@@ -215,8 +215,7 @@ def _refine(preview: NDArray[np.uint8], h_prev: NDArray[np.float64], layout: Cha
     """Refit the model -> preview homography on segmented patch centroids; returns it and the inlier fraction."""
     import cv2
 
-    lab = cv2.cvtColor(preview, cv2.COLOR_RGB2Lab)
-    ph, pw = lab.shape[:2]
+    ph, pw = preview.shape[:2]
     quads = _apply(h_prev, layout.quads())
     centres = layout.centres()
     found_model, found_image = [], []
@@ -234,7 +233,8 @@ def _refine(preview: NDArray[np.uint8], h_prev: NDArray[np.float64], layout: Cha
         cx, cy = int(round(c[0])) - x0, int(round(c[1])) - y0
         if not (0 <= cx < x1 - x0 and 0 <= cy < y1 - y0):
             continue
-        win = lab[y0:y1, x0:x1].astype(np.float32)
+        # Lab per window only: converting a whole 24-megapixel preview would cost more than mcc itself
+        win = cv2.cvtColor(np.ascontiguousarray(preview[y0:y1, x0:x1]), cv2.COLOR_RGB2Lab).astype(np.float32)
         r = max(1, int(0.15 * side))
         core = win[max(cy - r, 0):cy + r + 1, max(cx - r, 0):cx + r + 1].reshape(-1, 3)
         ref = np.median(core, axis=0)
