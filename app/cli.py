@@ -97,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     from app.register_command import add_register_parser
 
     add_register_parser(sub)
+    from app.chart_command import add_chart_parser
+
+    add_chart_parser(sub)
     return parser
 
 
@@ -138,6 +141,10 @@ def _run(args: argparse.Namespace) -> int:
         from app.register_command import run_register
 
         return run_register(args)
+    if args.command == "chart":
+        from app.chart_command import run_chart
+
+        return run_chart(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 
