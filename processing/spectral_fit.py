@@ -50,8 +50,13 @@ class SpectralEstimationError(ValueError):
     """An input to spectral estimation is not valid; the message names it and what to do."""
 
 
-def checked_channels(name: str, rgb: ArrayLike, channels: int | None = None) -> NDArray[np.floating]:
+def checked_channels(
+    name: str, rgb: ArrayLike, channels: int | None = None, *, check_values: bool = True
+) -> NDArray[np.floating]:
     """Validate camera channels ``(..., c)``: non-empty, finite, >= 0, ``c == channels`` when given.
+
+    ``check_values=False`` checks only type and shape (the values are then
+    checked block by block by the caller).
 
     Examples
     --------
@@ -67,7 +72,7 @@ def checked_channels(name: str, rgb: ArrayLike, channels: int | None = None) -> 
         raise SpectralEstimationError(
             f"{name} must have {channels} channels on its last axis, got shape {a.shape}"
         )
-    if a.dtype.kind == "f":
+    if check_values and a.dtype.kind == "f":
         if not np.isfinite(a).all():
             raise SpectralEstimationError(f"{name} contains NaN or infinite values; mask those pixels first")
         if (a < 0).any():
@@ -146,6 +151,26 @@ def _terms(channels: int, expansion: str) -> list[tuple[str, tuple[int, ...]]]:
     return out
 
 
+def _expand_leading(xt: NDArray[np.floating], expansion: str) -> NDArray[np.floating]:
+    """Features along axis 0 of channels along axis 0 (contiguous rows: fast for images)."""
+    terms = _terms(xt.shape[0], expansion)
+    if expansion == "linear":
+        return xt
+    out = np.empty((len(terms),) + xt.shape[1:], dtype=xt.dtype)
+    for k, (_, combo) in enumerate(terms):
+        if len(combo) == 1:
+            out[k] = xt[combo[0]]
+            continue
+        np.multiply(xt[combo[0]], xt[combo[1]], out=out[k])
+        for i in combo[2:]:
+            out[k] *= xt[i]
+        if len(combo) == 2:
+            np.sqrt(out[k], out=out[k])
+        else:
+            np.cbrt(out[k], out=out[k])
+    return out
+
+
 def expand_features(rgb: NDArray[np.floating], expansion: str) -> NDArray[np.floating]:
     """Root-polynomial features (Finlayson, Mackiewicz, Hurlbert, IEEE TIP 24(5), 2015, eq. (6)).
 
@@ -157,18 +182,10 @@ def expand_features(rgb: NDArray[np.floating], expansion: str) -> NDArray[np.flo
     >>> expand_features(np.array([[1.0, 4.0, 9.0]]), "rootpoly2").tolist()
     [[1.0, 4.0, 9.0, 2.0, 3.0, 6.0]]
     """
-    c = rgb.shape[-1]
-    terms = _terms(c, expansion)
     if expansion == "linear":
+        _terms(rgb.shape[-1], expansion)
         return rgb
-    out = np.empty(rgb.shape[:-1] + (len(terms),), dtype=rgb.dtype)
-    for k, (_, combo) in enumerate(terms):
-        prod = rgb[..., combo[0]]
-        for i in combo[1:]:
-            prod = prod * rgb[..., i]
-        d = len(combo)
-        out[..., k] = prod if d == 1 else (np.sqrt(prod) if d == 2 else np.cbrt(prod))
-    return out
+    return np.moveaxis(_expand_leading(np.moveaxis(rgb, -1, 0), expansion), 0, -1)
 
 
 @dataclass(frozen=True)
@@ -234,16 +251,20 @@ class SpectralFit:
         >>> fit.estimate_weights([[1.0, 2.0, 3.0]]).tolist()
         [[1.0, 2.0, 3.0]]
         """
-        a = checked_channels("camera channels", rgb, self.channels)
+        a = checked_channels("camera channels", rgb, self.channels, check_values=False)
         flat = a.reshape(-1, self.channels)
         out = np.empty((flat.shape[0], self.p), dtype=np.float32)
-        mat = self.matrix.astype(np.float32)
-        tr = None if self.transform is None else self.transform.astype(np.float32)
+        # channels-first blocks: the features are built as contiguous rows and the product reads them
+        # transposed, writing the (n, p) result in place (several times faster than row-major features)
+        mat = np.ascontiguousarray(self.matrix, dtype=np.float32)
+        tr_t = None if self.transform is None else np.ascontiguousarray(self.transform.T, dtype=np.float32)
         for i in range(0, flat.shape[0], _CHUNK_PIXELS):
-            block = flat[i:i + _CHUNK_PIXELS].astype(np.float32, copy=False)
-            if tr is not None:
-                block = np.maximum(block @ tr, 0.0)   # the chart map can push a dark pixel below 0
-            np.matmul(expand_features(block, self.expansion), mat, out=out[i:i + _CHUNK_PIXELS])
+            block = flat[i:i + _CHUNK_PIXELS]
+            checked_channels("camera channels", block)
+            bt = np.ascontiguousarray(block.T, dtype=np.float32)
+            if tr_t is not None:
+                bt = np.maximum(tr_t @ bt, 0.0)     # the chart map can push a dark pixel below 0
+            np.matmul(_expand_leading(bt, self.expansion).T, mat, out=out[i:i + bt.shape[1]])
         return out.reshape(a.shape[:-1] + (self.p,))
 
     def estimate_spectra(self, rgb: ArrayLike) -> NDArray[np.float64]:
