@@ -186,7 +186,14 @@ def section(results: dict | None = None) -> list[str]:
             f"**{m['detect_s']:.2f}** | {', '.join(f'{t:.2f}' for t in m['detect_times_s'])} | "
             f"{m['confidence']:.2f} | {m['centre_error_max_px']:.2f} / {m['centre_error_mean_px']:.2f} |"
         )
-    lines += ["", f"Detection case peak RSS (both modes decoded in turn): {det['peak_rss_mb']:.0f} MB.", ""]
+    lines += [
+        "",
+        f"Ratios of medians: demosaic / bin2x2 decode {d['median_s'] / b['median_s']:.1f}; detection on the binned "
+        f"preview / binned decode {det['bin2x2']['detect_s'] / b['median_s']:.1f}; detection on the full preview / "
+        f"on the binned one {det['demosaic']['detect_s'] / det['bin2x2']['detect_s']:.1f}.  "
+        f"Detection case peak RSS (both modes decoded in turn): {det['peak_rss_mb']:.0f} MB.",
+        "",
+    ]
     return lines
 
 

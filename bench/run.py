@@ -337,11 +337,19 @@ def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
     return lines
 
 
+def chart_section() -> list[str]:
+    """RAW decoding and chart detection on a 24-megapixel frame (issue #5, bench/chart_bench.py)."""
+    from bench.chart_bench import section
+
+    return section()
+
+
 #: Sections of docs/BENCHMARKS.md: ``--only NAME`` key -> (heading prefix, builder).
 SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
     "devices": ("## Devices", devices_section),
     "geometry": ("## Scan processing", geometry_section),
+    "chart": ("## RAW decoding and chart detection", chart_section),
 }
 
 
