@@ -234,6 +234,8 @@ def _cfa_string(raw, path: Path) -> tuple[str, NDArray[np.int64]]:
         and desc[:3] == "RGB"
     )
     if ok:
+        # the visible area's own first cell: a sensor margin of odd width shifts the pattern
+        pattern = np.asarray(raw.raw_colors_visible[:2, :2])
         letters = "".join(desc[int(c)] for c in pattern.ravel())
         ok = sorted(letters) == ["B", "G", "G", "R"]
     if not ok:

@@ -252,3 +252,16 @@ def test_sniffing_names_common_containers():
     assert sniff_format(b"\x00\x00\x00\x18ftypheic....") == "HEIF"
     assert sniff_format(b"\x00\x00\x00\x18ftypcrx ....") == "ISOBMFF"        # Canon CR3 goes on to LibRaw
     assert sniff_format(b"FUJIFILMCCD-RAW ") == "unknown"
+
+
+@pytest.mark.parametrize("pattern", ["BGGR", "GRBG", "GBRG"])
+def test_other_cfa_patterns_put_each_colour_in_its_channel(tmp_path, pattern):
+    dn = {"R": 1600, "G": 3600, "B": 9600}
+    mosaic = np.empty((24, 24), np.uint16)
+    for k, letter in enumerate(pattern):
+        mosaic[k // 2::2, k % 2::2] = dn[letter]
+    p = write_dng(tmp_path / f"{pattern}.dng", mosaic, black_level=600, white_level=16383, cfa_pattern=pattern)
+    for mode in ("bin2x2", "demosaic"):
+        img = decode_raw(p, mode=mode)
+        assert img.cfa_pattern == pattern
+        np.testing.assert_allclose(img.rgb[3, 3], [(dn[c] - 600) / 15783 for c in "RGB"], rtol=1e-6)
