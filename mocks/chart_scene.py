@@ -22,9 +22,10 @@ method="Otsu 2018")``), clipped to [0.005, 1] -- plausible smooth spectra with
 the right colours under D65, not measurements.
 
 Faults: a chart partly outside the frame is a placement whose ``center`` and
-``size`` put part of the card beyond the image (e.g. ``center=(0.9, 0.5)``);
-an over-exposed chart is :func:`mocks.camera_sim.simulate_raw` with
-``exposure_boost > 1``.
+``size`` put part of the card beyond the image (:func:`outside_placement`;
+the station's ``world.chart_outside`` switch); an over-exposed chart is
+:func:`mocks.camera_sim.simulate_raw` with ``exposure_boost > 1`` (the
+station's ``camera.saturate`` switch).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ __all__ = [
     "chart_corners",
     "chart_homography",
     "chart_patch_reflectances",
+    "outside_placement",
     "render_chart",
 ]
 
@@ -98,6 +100,18 @@ class ChartPlacement:
             raise ChartSceneError(f"chart rotation_deg must be finite, got {self.rotation_deg!r}")
         if t.shape != (2,) or not np.all(np.abs(t) < 70):
             raise ChartSceneError(f"chart tilt_deg must be two angles within +-70 degrees, got {self.tilt_deg!r}")
+
+
+def outside_placement(placement: ChartPlacement) -> ChartPlacement:
+    """The "chart partly outside the frame" fault: the card moved right until a third of it is past the edge.
+
+    Examples
+    --------
+    >>> outside_placement(ChartPlacement(size=0.6)).center
+    (0.8, 0.5)
+    """
+    return ChartPlacement((1.0 - placement.size / 3.0, placement.center[1]), placement.size,
+                          placement.rotation_deg, placement.tilt_deg)
 
 
 def chart_corners(layout: ChartLayout, width: int, height: int, placement: ChartPlacement) -> NDArray[np.float64]:

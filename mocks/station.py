@@ -110,7 +110,7 @@ FAULT_NAMES: dict[str, dict[str, str]] = {
         "no_output": "switch", "saturate": "switch",
     },
     "hotfolder": {"partial": "count", "saturate": "count"},
-    "world": {"chart_present": "switch"},
+    "world": {"chart_present": "switch", "chart_outside": "switch"},
 }
 
 _KIND_HELP = {
@@ -707,7 +707,9 @@ class SimulatedStation:
         ``turntable`` and ``profiler`` faults set the shared :class:`Faults`;
         ``camera`` faults go into the fake gphoto2's configuration;
         ``hotfolder`` faults into :attr:`hotfolder_faults`; ``world.chart_present``
-        hides or shows the colour chart in chart frames.
+        hides or shows the colour chart in chart frames; ``world.chart_outside``
+        moves a laid-out chart (``World.chart_layout`` other than ``"grid"``)
+        a third out of the frame, or back.
         """
         from mocks.fake_gphoto2 import update_config
 
@@ -731,6 +733,20 @@ class SimulatedStation:
                 self.world.chart_present = bool(names["chart_present"])
                 if self._started:
                     update_config(self.config_path, chart_present=self.world.chart_present)
+            if device == "world" and "chart_outside" in names:
+                self._switch_chart_outside(bool(names["chart_outside"]))
+
+    def _switch_chart_outside(self, on: bool) -> None:
+        """Move a laid-out chart partly out of the frame (on) or back to where it was (off)."""
+        import dataclasses
+
+        from mocks.fake_gphoto2 import update_config
+        from mocks.chart_scene import outside_placement
+
+        home = self.__dict__.setdefault("_chart_home", self.world.chart_placement)
+        self.world.chart_placement = outside_placement(home) if on else home
+        if self._started:
+            update_config(self.config_path, chart_placement=dataclasses.asdict(self.world.chart_placement))
 
     # ----------------------------------------------------------- placements
     def _set_placement(self, n: int) -> NDArray[np.float64]:
