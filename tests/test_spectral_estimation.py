@@ -147,6 +147,19 @@ def test_camera_from_chart_recovers_known_sensitivities_on_noiseless_data(setup)
     assert fit.condition < 10
 
 
+def test_camera_from_chart_with_known_noise_uses_the_discrepancy_principle(setup):
+    rho = camera_rgb(setup["chart"], setup["d65"], setup["sens"], G)
+    noisy = rho * (1 + 0.001 * np.random.default_rng(2).standard_normal(rho.shape))
+    fit = estimate_sensitivities(noisy, setup["chart"], setup["d65"], G, noise=0.001)
+    rel = np.linalg.norm(fit.sensitivities - setup["sens"], axis=0) / np.linalg.norm(setup["sens"], axis=0)
+    assert np.all(rel < 0.15), rel                          # stated tolerance at 0.1 % noise: 15 %
+    assert fit.residual <= 0.001 * 1.01                      # the residual stays within the noise
+    # the estimated camera predicts the training reflectances' values within 0.2 % of full scale
+    pred = camera_rgb(setup["db"], setup["d65"], fit.sensitivities, G)
+    true = camera_rgb(setup["db"], setup["d65"], setup["sens"], G)
+    assert np.sqrt(np.mean(((pred - true) / true.max(axis=0)) ** 2)) < 0.002
+
+
 def test_camera_from_chart_with_only_grey_patches_raises_with_the_condition_number(setup):
     greys = setup["chart"][18:]
     rho = camera_rgb(greys, setup["d65"], setup["sens"], G)
