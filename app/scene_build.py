@@ -75,6 +75,7 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
     from render.scene import SceneObject
 
     region_index = None
+    tangents = None
     if obj.mesh is not None:
         base = load_mesh(obj.mesh)
         v, t, n = base.vertices, base.triangles, base.vertex_normals
@@ -102,8 +103,17 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
         elif kind == "plane":
             v, t, n = _plane_arrays(float(args.get("size", 10.0)))
             materials = [obj.material]
+        elif kind == "cloth":
+            from processing.draped_cloth import draped_cloth
+            from render.tangents import tangents_from_uvs
+
+            # the sheet has about 1.5 d^2 triangles for d divisions along x
+            sheet = draped_cloth(divisions=max(2, int(math.sqrt(float(args.get("triangles", 20_000)) / 1.5))))
+            v, t, n = sheet.vertices, sheet.triangles, sheet.normals
+            tangents = tangents_from_uvs(v, t, sheet.uvs, n)
+            materials = [obj.material]
         else:
-            raise UsageError(f"unknown procedural object {obj.procedural!r}; use hawk, sphere or plane")
+            raise UsageError(f"unknown procedural object {obj.procedural!r}; use hawk, sphere, plane or cloth")
         name = kind
 
     rot = rotation_matrix(obj.rotate_deg)
@@ -111,13 +121,16 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
         raise UsageError(f"object {name}: scale must be positive, got {obj.scale}")
     v = (np.asarray(v) * obj.scale) @ rot.T + np.asarray(obj.translate)
     n = np.asarray(n) @ rot.T
+    if tangents is not None:
+        tangents = tangents @ rot.T
     try:
         resolved = [get_material(m) for m in materials]
     except MaterialError as exc:
         raise UsageError(str(exc)) from None
     mesh = make_mesh(v, t, n, source=name)
     return SceneObject(mesh, resolved, material_index=region_index,
-                       material_index_on="triangle" if region_index is not None else None, name=name)
+                       material_index_on="triangle" if region_index is not None else None, name=name,
+                       tangents=tangents, weave_angle_deg=float(obj.weave_angle_deg or 0.0))
 
 
 def build_job(spec: SceneSpec, *, default_hawk_triangles: int = 250_000) -> RenderJob:

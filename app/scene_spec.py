@@ -235,7 +235,7 @@ def load_scene_file(path: str | Path) -> SceneSpec:
         where = f"{path} [[object]] #{i + 1}"
         _check_keys(obj, allowed, where)
         if ("mesh" in obj) == ("procedural" in obj):
-            raise UsageError(f"{where}: give exactly one of 'mesh' (a file) or 'procedural' (hawk, sphere, plane)")
+            raise UsageError(f"{where}: give exactly one of 'mesh' (a file) or 'procedural' (hawk, sphere, plane, cloth)")
         mesh = (path.parent / obj["mesh"]) if "mesh" in obj else None
         proc_args = {k: obj[k] for k in ("radius", "size", "triangles") if k in obj}
         regions = obj.get("materials", {})

@@ -28,7 +28,7 @@ __all__ = ["CLOTH_PRESETS", "CLOTH_PARAMETERS", "CLOTH_SOURCES", "build_cloth"]
 
 _SILK = {"a_t": 0.05, "a_b": 0.45, "weft_a_t": 0.05, "weft_a_b": 0.45, "warp_kind": "filament",
          "weft_kind": "filament", "warp_fraction": 0.5, "specular": 0.2, "internal": 0.35, "diffuse": 0.45,
-         "layers": 4, "rounding": 0.35, "n": 1.55, "scattering": 1.0,
+         "layers": 4, "rounding": 0.35, "n": 1.55, "scattering": 0.25,
          "warp_colour": "#a01830", "weft_colour": "#a01830"}
 
 CLOTH_PRESETS: MappingProxyType[str, dict[str, Any]] = MappingProxyType({
@@ -36,7 +36,7 @@ CLOTH_PRESETS: MappingProxyType[str, dict[str, Any]] = MappingProxyType({
     "cotton": dict(_SILK, a_t=0.35, a_b=0.55, weft_a_t=0.35, weft_a_b=0.55, warp_kind="spun", weft_kind="spun",
                    specular=0.06, internal=0.12, diffuse=0.82, rounding=0.7),
     "tamamushi": dict(_SILK, weft_a_t=0.35, weft_a_b=0.55, weft_kind="spun", warp_colour="#1f8a5a",
-                      weft_colour="#a02060", specular=0.15, internal=0.45, diffuse=0.4),
+                      weft_colour="#a02060", specular=0.1, internal=0.6, diffuse=0.3),
     "satin": dict(_SILK, a_t=0.03, a_b=0.3, weft_a_t=0.03, weft_a_b=0.3, warp_fraction=0.8, specular=0.3,
                   internal=0.35, diffuse=0.35, warp_colour="#d8c8a0", weft_colour="#d8c8a0"),
 })

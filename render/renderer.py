@@ -62,6 +62,7 @@ from render.shading import (
     TableBackend,
     dot3,
     light_samples,
+    orthonormal_basis,
     plan_material,
     shade,
 )
@@ -132,6 +133,21 @@ class RenderResult:
 
 
 # --------------------------------------------------------------------------- preparation
+def _vertex_tangents(obj) -> NDArray[np.float64]:
+    """Per-vertex yarn directions of an object: its own, else the global default, turned by its weave angle."""
+    from render.tangents import rotate_tangents, tangents_from_direction, tangents_from_field
+
+    normals = obj.mesh.vertex_normals
+    if obj.tangents is not None:
+        t = tangents_from_field(normals, obj.tangents)
+    else:
+        t = tangents_from_direction(normals)
+    if obj.weave_angle_deg:
+        t = rotate_tangents(t, normals, obj.weave_angle_deg)
+    return t
+
+
+
 @dataclass(eq=False)
 class _Prepared:
     raycaster: object
@@ -182,8 +198,10 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
             ids.append(number[id(m)])
         per_object_map.append(np.asarray(ids, dtype=np.int32))
     several = len(materials) > 1
+    anisotropic = any(m.anisotropic for m in materials)
     offsets = [0]
     normals = []
+    tangents = []
     corners = []
     for i, obj in enumerate(scene.objects):
         mesh = obj.mesh
@@ -195,6 +213,8 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
             raise RuntimeError(f"Open3D returned geometry id {gid} for object {i}")
         offsets.append(offsets[-1] + mesh.n_triangles)
         normals.append(mesh.vertex_normals.astype(np.float32)[mesh.triangles].reshape(-1, 9).T)
+        if anisotropic:
+            tangents.append(_vertex_tangents(obj).astype(np.float32)[mesh.triangles].reshape(-1, 9).T)
         if several:
             table = per_object_map[i]
             if obj.material_index is None:
@@ -204,6 +224,9 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
             else:
                 corners.append(table[obj.material_index][mesh.triangles])
     tri_normals = np.ascontiguousarray(normals[0] if len(normals) == 1 else np.concatenate(normals, axis=1))
+    tri_tangents = None
+    if anisotropic:
+        tri_tangents = np.ascontiguousarray(tangents[0] if len(tangents) == 1 else np.concatenate(tangents, axis=1))
     corner_material = np.concatenate(corners).astype(np.int32) if several else None
     per_vertex = any(obj.material_index_on == "vertex" for obj in scene.objects)
     triangle_material = None
@@ -300,6 +323,19 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
             bent *= _F32(1.0) / np.sqrt(dot3(bent, bent))
             ns[:, low] = bent
             cos_o[low] = np.maximum(dot3(bent, vl), _F32(1e-4))
+        tangent = None
+        if tri_tangents is not None:
+            # interpolated like the normals, then made orthogonal to the (final) shading normal
+            tc = np.take(tri_tangents, prim, axis=1)
+            tangent = tc[0:3] * w0
+            tangent += tc[3:6] * u
+            tangent += tc[6:9] * v
+            tangent -= ns * dot3(ns, tangent)
+            length = np.sqrt(dot3(tangent, tangent))
+            tangent *= _F32(1.0) / np.maximum(length, _F32(1e-30))
+            weak = np.flatnonzero(length < _F32(1e-4))
+            if weak.size:
+                tangent[:, weak] = orthonormal_basis(np.ascontiguousarray(ns[:, weak]))[0]
         if corner_material is None:
             material = np.zeros(rows.size, dtype=np.int32)
         elif triangle_material is not None:
@@ -307,7 +343,7 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
         else:
             nearest = np.argmax(np.stack([w0, u, v]), axis=0)
             material = corner_material[prim, nearest]
-        return Hits(position, ns, ng, view, cos_o, material)
+        return Hits(position, ns, ng, view, cos_o, material, tangent)
 
     ctx = ShadingContext(
         lights=lights,

@@ -176,12 +176,20 @@ class SceneObject:
         ``"triangle"`` or ``"vertex"``; inferred from the length when None.
     name
         Used in messages.
+    tangents
+        Optional ``(V, 3)`` per-vertex yarn (warp) directions for
+        anisotropic materials (:mod:`render.tangents` builds them from UVs,
+        a direction field or a global direction); None projects
+        :data:`render.tangents.DEFAULT_WARP_DIRECTION`.
+    weave_angle_deg
+        The weave turned about the normals by this angle (Yasuda et al.,
+        Fig. 16: 0 vs 45 degrees); only anisotropic materials see it.
 
     Raises
     ------
     RenderInputError
         No materials, an index of the wrong length or out of range, several
-        materials without an index.
+        materials without an index, tangents of the wrong shape.
     """
 
     mesh: Mesh
@@ -189,6 +197,8 @@ class SceneObject:
     material_index: ArrayLike | None = None
     material_index_on: str | None = None
     name: str = ""
+    tangents: ArrayLike | None = None
+    weave_angle_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.mesh, Mesh):
@@ -200,6 +210,16 @@ class SceneObject:
         object.__setattr__(self, "name", name)
         mats = _resolve_materials(self.materials, name)
         object.__setattr__(self, "materials", mats)
+        if self.tangents is not None:
+            tan = np.asarray(self.tangents, dtype=np.float64)
+            if tan.shape != (self.mesh.n_vertices, 3) or not np.all(np.isfinite(tan)):
+                raise RenderInputError(
+                    f"object {name!r}: tangents must be a finite ({self.mesh.n_vertices}, 3) array, one direction "
+                    f"per vertex, got shape {tan.shape}"
+                )
+            object.__setattr__(self, "tangents", tan)
+        if not math.isfinite(float(self.weave_angle_deg)):
+            raise RenderInputError(f"object {name!r}: weave_angle_deg must be finite, got {self.weave_angle_deg!r}")
         idx, on = self.material_index, self.material_index_on
         if idx is None and self.mesh.material_index is not None:
             idx, on = self.mesh.material_index, self.mesh.material_index_on

@@ -55,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erfc
 
+from processing.anisotropic_microfacet import anisotropic_lobe
 from processing.material import Lobe, Material, material_brdf
 from processing.spectra import SpectralGrid
 from render.scene import Sky
@@ -67,6 +68,7 @@ __all__ = [
     "LightPlan",
     "plan_material",
     "dot3",
+    "cross3",
     "microfacet_geometry",
     "smith_g1",
     "sample_beckmann_normals",
@@ -122,6 +124,17 @@ def dot3(a: NDArray[np.float32], b: NDArray[np.float32]) -> NDArray[np.float32]:
     return out
 
 
+def cross3(a: NDArray[np.float32], b: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Cross products of ``(3, m)`` vector arrays.
+
+    Examples
+    --------
+    >>> cross3(np.array([[0.0], [0.0], [1.0]]), np.array([[1.0], [0.0], [0.0]])).ravel().tolist()
+    [0.0, 1.0, 0.0]
+    """
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def _normalise(v: NDArray[np.float32]) -> NDArray[np.float32]:
     v *= _F32(1.0) / np.sqrt(dot3(v, v))
     return v
@@ -154,6 +167,9 @@ class Hits:
         ``(m,)`` shading normal . view, > 0.
     material
         ``(m,)`` global material number.
+    tangent
+        ``(3, m)`` unit yarn directions orthogonal to the shading normal
+        (only when the scene has anisotropic materials, else None).
     """
 
     position: NDArray[np.float32]
@@ -162,6 +178,7 @@ class Hits:
     view: NDArray[np.float32]
     cos_o: NDArray[np.float32]
     material: NDArray[np.int32]
+    tangent: NDArray[np.float32] | None = None
 
     def __len__(self) -> int:
         return int(self.cos_o.shape[0])
@@ -171,6 +188,7 @@ class Hits:
         return Hits(
             _take(self.position, idx), _take(self.shading_normal, idx), _take(self.geometric_normal, idx),
             _take(self.view, idx), _take(self.cos_o, idx), _take(self.material, idx),
+            None if self.tangent is None else _take(self.tangent, idx),
         )
 
 
@@ -308,12 +326,16 @@ def sample_beckmann_normals(
 # --------------------------------------------------------------------------- plans
 @dataclass(frozen=True)
 class LobeGroup:
-    """Lobes sharing one geometric factor (kind, roughness, shadowing); their spectral factors add."""
+    """Lobes sharing one geometric factor (kind, roughness(es), shadowing); their spectral factors add.
+
+    ``roughness_b`` is the second ellipsoid axis of an anisotropic group.
+    """
 
     kind: str
     roughness: float
     shadowing: str
     members: tuple[tuple[float, Any], ...]      # (weight, SpectralFactor)
+    roughness_b: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -325,6 +347,11 @@ class MaterialPlan:
     mirrors: tuple[Lobe, ...]
     sky_lobes: tuple[Lobe, ...]
 
+    @property
+    def anisotropic(self) -> bool:
+        """True when a lobe group needs the tangent frame."""
+        return any(g.kind == "anisotropic" for g in self.groups)
+
 
 def plan_material(material: Material) -> MaterialPlan:
     """Group a material's lobes (zero weights dropped).
@@ -334,16 +361,18 @@ def plan_material(material: Material) -> MaterialPlan:
     get sky light through their albedo.  A Lambert lobe flagged ``mirror``
     is treated as a plain Lambert lobe.
     """
-    groups: dict[tuple[str, float, str], list[tuple[float, Any]]] = {}
+    groups: dict[tuple[str, float, str, float], list[tuple[float, Any]]] = {}
     mirrors: list[Lobe] = []
     sky: list[Lobe] = []
     for lobe in material.lobes:
         if lobe.weight <= 0.0:
             continue
         if lobe.kind == "lambert":
-            key = ("lambert", 0.0, "")
+            key = ("lambert", 0.0, "", 0.0)
+        elif lobe.kind == "anisotropic":
+            key = ("anisotropic", float(lobe.roughness), "smith", float(lobe.roughness_b))
         else:
-            key = ("microfacet", float(lobe.roughness), lobe.shadowing)
+            key = ("microfacet", float(lobe.roughness), lobe.shadowing, 0.0)
         groups.setdefault(key, []).append((float(lobe.weight), lobe.spectral))
         if lobe.mirror and lobe.kind == "microfacet":
             mirrors.append(lobe)
@@ -351,7 +380,7 @@ def plan_material(material: Material) -> MaterialPlan:
             sky.append(lobe)
     return MaterialPlan(
         material,
-        tuple(LobeGroup(k[0], k[1], k[2], tuple(v)) for k, v in groups.items()),
+        tuple(LobeGroup(k[0], k[1], k[2], tuple(v), k[3]) for k, v in groups.items()),
         tuple(mirrors),
         tuple(sky),
     )
@@ -439,13 +468,17 @@ class SpectralBackend:
         else:
             out[idx] += term
 
-    def direct(self, mat: int, light: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, scale: Vec) -> NDArray[np.float64]:
+    def direct(self, mat: int, light: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, scale: Vec,
+               tangential: tuple[Vec, Vec, Vec, Vec] | None = None) -> NDArray[np.float64]:
         """Radiance from light ``light``: ``material_brdf * E * cos_i * scale``, ``(n, L)``.
 
         ``ci, co, ch, cd`` are cos_i, cos_o, cos_h, cos_d; ``scale`` the
-        irradiance scale (falloff and visibility).
+        irradiance scale (falloff and visibility); ``tangential`` the
+        tangent-frame components (i_t, i_b, o_t, o_b) for anisotropic lobes.
         """
-        f = material_brdf(self.plans[mat].material, ci, co, ch, cd, self.wavelengths)
+        if tangential is not None:
+            tangential = tuple(np.asarray(x, np.float64) for x in tangential)
+        f = material_brdf(self.plans[mat].material, ci, co, ch, cd, self.wavelengths, tangential)
         f *= (np.asarray(ci, np.float64) * scale)[:, None]
         f *= self.lights[light].spectrum
         return f
@@ -547,8 +580,13 @@ class TableBackend:
                 row = out[c]
                 row[idx] += term[c]
 
-    def direct(self, mat: int, light: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, scale: Vec) -> NDArray[np.float32]:
-        """XYZ from light ``light``: sum over lobe groups of geometry * cos_i * scale * T(cos_d)."""
+    def direct(self, mat: int, light: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, scale: Vec,
+               tangential: tuple[Vec, Vec, Vec, Vec] | None = None) -> NDArray[np.float32]:
+        """XYZ from light ``light``: sum over lobe groups of geometry * cos_i * scale * T(cos_d).
+
+        Anisotropic groups (no cut-off: the ellipsoid distribution has long
+        tails) use ``tangential`` = (i_t, i_b, o_t, o_b).
+        """
         plan = self.plans[mat]
         tables = self.light_tables[mat][light]
         n = len(ci)
@@ -559,6 +597,18 @@ class TableBackend:
                 if index is None:
                     index = table_index(cd, self.size)
                 out += table.lookup_channels(index=index) * (scale * (ci * _F32(1.0 / math.pi)))
+                continue
+            if group.kind == "anisotropic":
+                if tangential is None:
+                    raise ValueError("an anisotropic lobe needs the tangent frame of the hits")
+                if index is None:
+                    index = table_index(cd, self.size)
+                s = anisotropic_lobe(ci, co, ch, cd, *tangential, group.roughness, group.roughness_b)
+                s *= ci
+                s *= scale
+                term = table.lookup_channels(index=index)
+                term *= s
+                out += term
                 continue
             # Only samples whose half vector lies within the lobe: elsewhere D is
             # below exp(-D_CUTOFF) of its peak and the term is skipped.
@@ -750,7 +800,15 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
             _normalise(h)
             ch = dot3(ns, h)
             cd = np.clip(dot3(v, h), _F32(0.0), _F32(1.0))
-            term = backend.direct(mat, li, _take(cos_i, idx), _take(hits.cos_o, idx), ch, cd, _take(scale, idx))
+            tangential = None
+            if plan.anisotropic:
+                if hits.tangent is None:
+                    raise ValueError(f"material {plan.material.name!r} is anisotropic but the hits carry no tangents")
+                t = _take(hits.tangent, idx)
+                b = cross3(ns, t)
+                tangential = (dot3(t, ld), dot3(b, ld), dot3(t, v), dot3(b, v))
+            term = backend.direct(mat, li, _take(cos_i, idx), _take(hits.cos_o, idx), ch, cd, _take(scale, idx),
+                                  tangential)
             backend.add(out, idx, term)
         sel = None if in_mat is None else np.flatnonzero(in_mat)
         # ---- sky light through the albedo of non-mirror lobes
