@@ -7,10 +7,11 @@ coordinates, so perspective is exact): per patch the trimmed mean (the
 ``trim`` fraction cut from each end per channel, ASTM E2586 / scipy's
 ``trim_mean``), the standard deviation, the clipped (saturated) fraction, the
 pixel count, and a **non-uniformity**: the spread of the four quadrant means
-relative to the mean, ``(max - min - 3 s / sqrt(n)) / mean`` of the channel
+relative to the mean, ``(max - min - 4.7 s / sqrt(n)) / mean`` of the channel
 that varies most (``s`` the pixel standard deviation, ``n`` the pixels of the
 smallest quadrant: the part of the range that sensor noise explains is
-removed), so non-uniformity measures glare and shadows rather than noise.
+removed; in demosaic mode ``n`` is a quarter of the pixels, the independent
+photosites of a channel), so non-uniformity measures glare and shadows rather than noise.
 
 :func:`check_patches` applies the checks of a chart shot before it is used
 for colour calibration (cf. ISO 17321-1:2012, section 4.5, on chart capture:
@@ -204,9 +205,13 @@ def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: flo
         groups = [vals[quadrant == i] for i in range(4) if np.count_nonzero(quadrant == i) >= 2]
         if len(groups) > 1:
             qmeans = np.array([g.mean(axis=0) for g in groups])
-            smallest = min(len(g) for g in groups)
-            # the range of 4 noisy means is about 2 standard errors; 3 leaves noise below the threshold
-            noise = 3.0 * std[k] / np.sqrt(smallest)
+            # demosaiced pixels share photosites: a quadrant holds about a quarter as many independent
+            # samples of a channel as it has pixels (R and B sites are a quarter of the mosaic)
+            smallest = min(len(g) for g in groups) / (4.0 if raw_image.mode == "demosaic" else 1.0)
+            # the range of 4 normal means exceeds 4.7 standard errors with probability 0.5 % (the range's
+            # distribution: Tippett, Biometrika 17, 1925; 4.70 in a simulation of 4e6 draws), so noise
+            # alone rarely flags a patch
+            noise = 4.7 * std[k] / np.sqrt(max(smallest, 1.0))
             spread = np.maximum(qmeans.max(axis=0) - qmeans.min(axis=0) - noise, 0.0)
             nonuni[k] = float(np.max(spread / np.where(mean[k] > 0, mean[k], np.inf)))
     return PatchSamples(detection.chart, mean, std, clipped, count, nonuni, raw_image.exposure_time,

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from mocks.chart_scene import ChartPlacement
+from mocks.chart_scene import ChartPlacement, chart_corners
+from processing.chart_layout import chart_layout
+from processing.chart_sampling import check_patches, sample_patches
 from processing.chart_detection import (
     ChartDetectionError,
     ChartNotFoundError,
@@ -53,10 +57,30 @@ def test_demosaiced_image_and_a_preview_array_map_to_the_same_sensor_pixels(tmp_
 @pytest.mark.parametrize("layout", ["sg140", "vinyl18"])
 def test_other_charts_found_at_their_labels(tmp_path, layout):
     shot = chart_shot(tmp_path, layout, chart_placement=ChartPlacement(size=0.6, rotation_deg=15, tilt_deg=(10, 0)))
-    det = detect_chart(decode_raw(shot.path, mode="demosaic"), layout)
+    img = decode_raw(shot.path, mode="demosaic")
+    det = detect_chart(img, layout)
     err = np.linalg.norm(det.centres - shot.label_centres(), axis=1)
     assert det.centres.shape[0] == {"sg140": 140, "vinyl18": 18}[layout]
     assert err.max() < 1.5, err
+    # a good shot of either chart passes the checks: its neutral and hue orders hold
+    assert check_patches(sample_patches(img, det)).usable.all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(["classic24", "sg140", "vinyl18"]), st.floats(0.05, 3.0), st.floats(-180, 180),
+       st.floats(-65, 65), st.floats(-65, 65), st.floats(-1, 2), st.floats(-1, 2))
+def test_manual_corners_geometry_at_extreme_placements(chart, size, rot, tx, ty, cx, cy):
+    """Any placement, however steep: the frame's corners come back, every centre lies inside its patch."""
+    import cv2
+
+    layout = chart_layout(chart)
+    corners = chart_corners(layout, 640, 480, ChartPlacement((cx, cy), size, rot, (tx, ty)))
+    det = chart_from_corners(corners, chart)
+    np.testing.assert_allclose(det.corners, corners, atol=1e-6 * max(1.0, np.abs(corners).max()))
+    assert np.all(np.isfinite(det.quads))
+    for k in (0, layout.size // 2, layout.size - 1):
+        quad = det.quads[k].astype(np.float32)
+        assert cv2.pointPolygonTest(quad, tuple(float(v) for v in det.centres[k]), False) > 0
 
 
 def test_manual_corners_reproduce_the_labels(tmp_path):
