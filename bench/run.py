@@ -344,12 +344,20 @@ def chart_section() -> list[str]:
     return section()
 
 
+def spectral_section() -> list[str]:
+    """Spectral estimation and material identification (issue #5, bench/spectral_bench.py)."""
+    from bench.spectral_bench import collect, section
+
+    return section(collect())
+
+
 #: Sections of docs/BENCHMARKS.md: ``--only NAME`` key -> (heading prefix, builder).
 SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
     "devices": ("## Devices", devices_section),
     "geometry": ("## Scan processing", geometry_section),
     "chart": ("## RAW decoding and chart detection", chart_section),
+    "spectral": ("## Spectral estimation and material identification", spectral_section),
 }
 
 
