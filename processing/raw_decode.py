@@ -376,8 +376,11 @@ def bilinear_demosaic(mosaic: NDArray[np.floating], colour_index: NDArray[np.int
 
     Each channel is ``conv(values * mask) / conv(mask)`` with the bilinear
     kernel, ``mask`` marking that colour's live photosites; so edges and dead
-    photosites need no special case.  A pixel is saturated (dead) when a
-    photosite inside its kernel support for any channel is.
+    photosites need no special case.  Borders are mirrored about the edge
+    photosite, which keeps the CFA's parity, so without dead photosites
+    ``conv(mask)`` is the same in every 2 x 2 cell and is computed once.  A
+    pixel is saturated (dead) when a photosite inside its kernel support for
+    any channel is.
 
     Examples
     --------
@@ -392,27 +395,42 @@ def bilinear_demosaic(mosaic: NDArray[np.floating], colour_index: NDArray[np.int
     h, w = mosaic.shape
     rgb = np.empty((h, w, 3), np.float32)
     sat = np.zeros((h, w), bool)
-    dd = np.zeros((h, w), bool)
-    border = cv2.BORDER_CONSTANT
+    dd = dead.copy()
+    any_dead, any_sat = bool(dead.any()), bool(saturated.any())
+    mirror = cv2.BORDER_REFLECT_101
+    src = np.asarray(mosaic, dtype=np.float32)
     for c in range(3):
-        mask = np.zeros((h, w), np.float32)
-        for k in range(4):
-            if colour_index[k] == c:
-                mask[k // 2::2, k % 2::2] = 1.0
+        cells = [(k // 2, k % 2) for k in range(4) if colour_index[k] == c]
         kernel = _KERNEL_G if c == 1 else _KERNEL_RB
-        support = (kernel > 0).astype(np.float32)
-        channel_sat = (saturated & (mask > 0)).astype(np.float32)
-        sat |= cv2.filter2D(channel_sat, -1, support, borderType=border) > 0
-        channel_dead = dead & (mask > 0)
-        if channel_dead.any():
-            mask[channel_dead] = 0.0
-        weight = cv2.filter2D(mask, -1, kernel, borderType=border)
-        value = cv2.filter2D(mosaic * mask, -1, kernel, borderType=border)
-        lost = weight <= 0                     # every sample in reach is dead
-        dd |= lost
-        rgb[..., c] = value / np.where(lost, 1.0, weight)
-    if dead.any():
-        dd |= dead
+        plane = np.zeros((h, w), np.float32)
+        for i, j in cells:
+            plane[i::2, j::2] = src[i::2, j::2]
+        if any_sat:
+            channel_sat = np.zeros((h, w), np.uint8)
+            for i, j in cells:
+                channel_sat[i::2, j::2] = saturated[i::2, j::2]
+            support = (kernel > 0).astype(np.uint8)
+            sat |= cv2.dilate(channel_sat, support, borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        channel = rgb[..., c]
+        if any_dead:
+            live = np.zeros((h, w), np.float32)
+            for i, j in cells:
+                live[i::2, j::2] = 1.0
+            live[dead] = 0.0
+            plane[dead] = 0.0
+            weight = cv2.filter2D(live, -1, kernel, borderType=mirror)
+            lost = weight <= 0                     # every sample in reach is dead
+            dd |= lost
+            channel[...] = cv2.filter2D(plane, -1, kernel, borderType=mirror) / np.where(lost, 1.0, weight)
+        else:
+            tile = np.zeros((6, 6), np.float32)
+            for i, j in cells:
+                tile[i::2, j::2] = 1.0
+            cell_weight = cv2.filter2D(tile, -1, kernel)[2:4, 2:4]      # centre cell: no border in reach
+            value = cv2.filter2D(plane, -1, kernel, borderType=mirror)
+            for i in range(2):
+                for j in range(2):
+                    channel[i::2, j::2] = value[i::2, j::2] / cell_weight[i, j]
     return rgb, sat, dd
 
 
