@@ -152,22 +152,28 @@ def _terms(channels: int, expansion: str) -> list[tuple[str, tuple[int, ...]]]:
 
 
 def _expand_leading(xt: NDArray[np.floating], expansion: str) -> NDArray[np.floating]:
-    """Features along axis 0 of channels along axis 0 (contiguous rows: fast for images)."""
+    """Features along axis 0 of channels along axis 0 (contiguous rows: fast for images).
+
+    A term is the product of the channels' own roots (``sqrt(r) sqrt(g)``, not
+    ``sqrt(r g)``), so it neither overflows nor underflows where the channels
+    themselves do not (float32 holds 1e-30 .. 1e30 values exactly scaled).
+    """
     terms = _terms(xt.shape[0], expansion)
     if expansion == "linear":
         return xt
+    degree = max(len(c) for _, c in terms)
+    roots = {2: np.sqrt(xt)}
+    if degree == 3:
+        roots[3] = np.cbrt(xt)
     out = np.empty((len(terms),) + xt.shape[1:], dtype=xt.dtype)
     for k, (_, combo) in enumerate(terms):
         if len(combo) == 1:
             out[k] = xt[combo[0]]
             continue
-        np.multiply(xt[combo[0]], xt[combo[1]], out=out[k])
+        r = roots[len(combo)]
+        np.multiply(r[combo[0]], r[combo[1]], out=out[k])
         for i in combo[2:]:
-            out[k] *= xt[i]
-        if len(combo) == 2:
-            np.sqrt(out[k], out=out[k])
-        else:
-            np.cbrt(out[k], out=out[k])
+            out[k] *= r[i]
     return out
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from processing.alloys import ALLOY_COMPOSITIONS
 from processing.camera_response import camera_rgb, camera_sensitivities
@@ -89,6 +91,17 @@ def test_confidence_is_calibrated_on_a_confusable_pair():
         correct.append(r.material == name)
     assert 0.55 < np.mean(correct) < 0.95                       # genuinely hard, not trivial
     assert np.mean(conf) == pytest.approx(np.mean(correct), abs=0.06)
+
+
+@settings(max_examples=30, deadline=None)
+@given(exponent=st.floats(min_value=-20, max_value=20),
+       name=st.sampled_from(["gold", "shakudo", "jo-shibuichi", "urushi-red", "bronze"]))
+def test_identification_does_not_depend_on_brightness_over_forty_decades(cands, exponent, name):
+    noise = 1 + 0.01 * np.random.default_rng(1).standard_normal((100, 3))
+    r = identify_material(_true_rgb(name) * 10.0**exponent * noise, cands)
+    ref = identify_material(_true_rgb(name) * noise, cands)
+    assert r.material == name == ref.material
+    assert np.all(np.isfinite(r.chi2)) and r.confidence == pytest.approx(ref.confidence, rel=1e-6)
 
 
 def test_regions_of_an_image_are_identified_independently(cands):

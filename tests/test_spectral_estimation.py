@@ -101,6 +101,18 @@ def test_root_polynomial_weights_scale_with_exposure(rootpoly_fit, scale, patch)
     assert np.allclose(w2, scale * w1, rtol=2e-4, atol=1e-6 * scale * np.abs(w1).max())
 
 
+@settings(max_examples=40, deadline=None)
+@given(exponent=st.floats(min_value=-30, max_value=30), patch=st.integers(0, 23))
+def test_root_polynomial_weights_stay_finite_and_proportional_over_sixty_decades(rootpoly_fit, exponent, patch):
+    fit, rho = rootpoly_fit
+    w1 = fit.estimate_weights(rho[patch].astype(np.float32)).astype(np.float64)
+    scaled = (rho[patch] * 10.0**exponent).astype(np.float32)
+    w2 = fit.estimate_weights(scaled).astype(np.float64)
+    assert np.all(np.isfinite(w2))
+    ratio = float(scaled[1]) / float(np.float32(rho[patch][1]))
+    assert np.allclose(w2, ratio * w1, rtol=1e-3, atol=1e-6 * ratio * np.abs(w1).max())
+
+
 @pytest.fixture(scope="module")
 def rootpoly_fit(setup):
     fit = fit_rootpoly(setup["db"], setup["sens"], setup["d65"], G, p=8, degree=2)
@@ -261,3 +273,4 @@ def test_weights_of_an_image_are_float32_and_shaped_like_it(rootpoly_fit):
     w = fit.estimate_weights(img)
     assert w.dtype == np.float32 and w.shape == (4, 5, 8)
     assert np.allclose(w[:, 0], fit.estimate_weights(rho[:4]), rtol=1e-5, atol=1e-6)
+    assert np.all(fit.estimate_weights(np.zeros((2, 3), np.float32)) == 0)      # black: zero weights, no NaN
