@@ -100,6 +100,15 @@ def build_parser() -> argparse.ArgumentParser:
     from app.chart_command import add_chart_parser
 
     add_chart_parser(sub)
+    from app.gui_command import add_gui_parser
+
+    add_gui_parser(sub)
+    from app.batch_command import add_batch_parser
+
+    add_batch_parser(sub)
+    from app.report_command import add_report_parser
+
+    add_report_parser(sub)
     return parser
 
 
@@ -145,6 +154,18 @@ def _run(args: argparse.Namespace) -> int:
         from app.chart_command import run_chart
 
         return run_chart(args)
+    if args.command == "batch":
+        from app.batch_command import run_batch_command
+
+        return run_batch_command(args)
+    if args.command == "report":
+        from app.report_command import run_report
+
+        return run_report(args)
+    if args.command == "gui":
+        from app.gui_command import run_gui
+
+        return run_gui(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 

@@ -1,0 +1,150 @@
+"""The plots of the session report (``kogei report``): matplotlib figures returned as PNG bytes.
+
+Each function takes plain data read from the session (docs/report.md) and
+returns the PNG; :mod:`app.report` embeds it as a base64 data URI so the
+report is one self-contained file.  The Agg backend is used (no display).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["png_of", "calibration_residuals_figure", "pose_graph_figure", "coverage_figure", "holes_figure",
+           "timing_figure", "data_uri"]
+
+DPI = 100
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def png_of(fig: Any) -> bytes:
+    """Render a matplotlib figure to PNG bytes and close it."""
+    plt = _plt()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def data_uri(png: bytes) -> str:
+    """A ``data:image/png;base64,...`` URI of PNG bytes.
+
+    Examples
+    --------
+    >>> data_uri(b"\\x89PNG")[:30]
+    'data:image/png;base64,iVBORw=='
+    """
+    import base64
+
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def calibration_residuals_figure(step_indices: Sequence[int], step_rms_mm: Sequence[float], rms_mm: float) -> bytes:
+    """RMS distance of each used profile's points to the fitted sphere, against the profile's step."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.0, 2.6), constrained_layout=True)
+    ax.bar(np.asarray(step_indices), np.asarray(step_rms_mm) * 1000.0, width=0.8, color="#4a7ab5")
+    ax.axhline(rms_mm * 1000.0, color="#c0392b", lw=1, ls="--", label=f"overall RMS {rms_mm * 1000:.1f} um")
+    ax.set_xlabel("profile step of the sphere scan")
+    ax.set_ylabel("sphere residual RMS (um)")
+    ax.legend(loc="upper right", fontsize=8)
+    return png_of(fig)
+
+
+def pose_graph_figure(passes: Sequence[dict[str, Any]], pairs: Sequence[dict[str, Any]]) -> bytes:
+    """Passes as nodes on a circle; verified pairs solid green, rejected pairs dashed red, labelled with the RMS."""
+    plt = _plt()
+    n = len(passes)
+    fig, ax = plt.subplots(figsize=(4.2, 3.6), constrained_layout=True)
+    ang = np.pi / 2 - 2 * np.pi * np.arange(n) / max(n, 1)
+    xy = np.stack([np.cos(ang), np.sin(ang)], axis=1) if n > 1 else np.zeros((1, 2))
+    index = {int(p["pass"]): i for i, p in enumerate(passes)}
+    usable = [int(p["pass"]) for p in passes if "registered" in p]   # the passes that reached registration
+    for pr in pairs:
+        # pair indices count the passes that had usable clouds, in order
+        try:
+            a, b = index[usable[int(pr["source"])]], index[usable[int(pr["target"])]]
+        except (IndexError, KeyError):
+            continue
+        ok = bool(pr.get("verified"))
+        ax.plot(*xy[[a, b]].T, color="#2e8b57" if ok else "#c0392b", ls="-" if ok else "--", lw=2 if ok else 1.2)
+        mid = xy[[a, b]].mean(axis=0)
+        rmse = pr.get("rmse_mm")
+        if rmse is not None and math.isfinite(rmse):
+            ax.annotate(f"{rmse:.3f} mm", mid, fontsize=8, ha="center", va="center",
+                        bbox={"boxstyle": "round", "fc": "white", "ec": "none", "alpha": 0.8})
+    for p, (x, y) in zip(passes, xy):
+        reg = p.get("registered")
+        colour = "#2e8b57" if reg else ("#999999" if reg is None else "#c0392b")
+        ax.scatter([x], [y], s=700, color=colour, zorder=3)
+        ax.annotate(f"{p['pass']}", (x, y), color="white", ha="center", va="center", fontsize=12,
+                    fontweight="bold", zorder=4)
+    ax.set_xlim(-1.6, 1.6)
+    ax.set_ylim(-1.5, 1.5)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    ax.set_title("passes (green: registered) and pairs\n(solid: verified, dashed: rejected; RMS residual)",
+                 fontsize=9)
+    return png_of(fig)
+
+
+def coverage_figure(profiles: Sequence[dict[str, np.ndarray]]) -> bytes:
+    """Each pass's profiles as a range image (table angle down, point along the laser line across)."""
+    from app.demo_capture import profiles_figure
+
+    buf = io.BytesIO()
+    profiles_figure(list(profiles), buf)  # savefig accepts a file object
+    return buf.getvalue()
+
+
+def holes_figure(vertices: np.ndarray, holes: Sequence[dict[str, Any]], max_points: int = 20_000) -> bytes:
+    """The mesh's vertices from above and from the side, with the holes' centroids (marker area ~ hole area)."""
+    plt = _plt()
+    v = np.asarray(vertices, dtype=float)
+    if len(v) > max_points:
+        v = v[np.random.default_rng(0).choice(len(v), max_points, replace=False)]
+    fig, axes = plt.subplots(1, 2, figsize=(7.0, 3.2), constrained_layout=True)
+    for ax, (i, j, title) in zip(axes, [(0, 1, "from above (x, y)"), (0, 2, "from the side (x, z)")]):
+        ax.scatter(v[:, i], v[:, j], s=0.2, color="#888888", rasterized=True)
+        for h in holes:
+            c = h.get("centroid")
+            if c is None:
+                continue
+            filled = bool(h.get("closed"))
+            size = 30 + 4 * math.sqrt(max(float(h.get("area_mm2", 0.0)), 0.0))
+            ax.scatter([c[i]], [c[j]], s=size, facecolor="none", edgecolor="#2e8b57" if filled else "#c0392b",
+                       lw=2)
+        ax.set_aspect("equal")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("mm")
+    axes[0].set_ylabel("mm")
+    fig.suptitle("holes: green = filled and closed, red = left open", fontsize=9)
+    return png_of(fig)
+
+
+def timing_figure(rows: Sequence[tuple[str, float]]) -> bytes:
+    """Horizontal bars of seconds per step."""
+    plt = _plt()
+    labels = [r[0] for r in rows]
+    secs = [r[1] for r in rows]
+    fig, ax = plt.subplots(figsize=(6.0, 0.45 * len(rows) + 0.9), constrained_layout=True)
+    y = np.arange(len(rows))
+    ax.barh(y, secs, color="#4a7ab5")
+    ax.set_yticks(y, labels, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("seconds")
+    for yi, s in zip(y, secs):
+        ax.annotate(f"{s:.2f} s", (s, yi), xytext=(3, 0), textcoords="offset points", va="center", fontsize=8)
+    ax.set_xlim(0, max(secs + [1e-3]) * 1.25)
+    return png_of(fig)

@@ -1,0 +1,56 @@
+"""Tiny simulated sessions for the batch and report tests, built once per test process.
+
+A reference-sphere scan calibrates the simulated station; a one-pass scan of a small hawk (24
+profiles, one RAW frame after the chart frame) gives a session that ``kogei process`` can mesh in
+about two seconds.  The session is left unprocessed and uncalibrated (as ``kogei capture`` leaves
+it), so tests choose what to run; copy it before changing it.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+from app.calibrate_command import calibrate_session
+from app.capture import CaptureHooks, CapturePlan, run_capture
+from app.capture_devices import build_devices
+from app.session import Session
+from mocks.station import SimulatedStation
+from mocks.world import World
+
+__all__ = ["built_sessions", "copy_session"]
+
+_BUILT: dict[str, SimpleNamespace] = {}
+
+
+def _capture(world: World, root: Path, plan: CapturePlan, camera: bool, seed: int) -> None:
+    with SimulatedStation(world, root=root.parent / f"{root.name}-station", seed=seed) as st:
+        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
+        if camera:
+            config["camera"] = {"kind": "gphoto2", "executable": str(st.gphoto2_path)}
+        s = Session.create(root, plan=plan.to_dict(), object_info={"name": "hawk head (test)", "collection": "T-1"},
+                           settings={"unattended": True, "device_config": config})
+        try:
+            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            s.close()
+
+
+def built_sessions(tmp_path_factory) -> SimpleNamespace:
+    """``cal`` (a calibrated sphere session) and ``raw`` (a captured, unprocessed hawk session)."""
+    if "s" not in _BUILT:
+        tmp = tmp_path_factory.mktemp("batch-sessions")
+        _capture(World.calibration_sphere(25.0, 60.0), tmp / "cal", CapturePlan("scan", steps=48, passes=1,
+                                                                                camera=False), False, 5)
+        calibrate_session(tmp / "cal", 25.0)
+        _capture(World.hawk(4_000, width=96, height=64), tmp / "raw",
+                 CapturePlan("scan", steps=24, passes=1, camera_angles_deg=(0.0,)), True, 3)
+        _BUILT["s"] = SimpleNamespace(cal=tmp / "cal", raw=tmp / "raw")
+    return _BUILT["s"]
+
+
+def copy_session(src: Path, dst: Path) -> Path:
+    """A copy of a session folder (without its lock files)."""
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.lock"))
+    return dst
