@@ -23,12 +23,15 @@ estimate is linear in the camera response and scales with exposure.
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from itertools import combinations_with_replacement
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from threadpoolctl import threadpool_limits
 
 from processing.spectra import SpectralGrid
 
@@ -44,6 +47,7 @@ __all__ = [
 ]
 
 _CHUNK_PIXELS = 1 << 20   # pixels per block: bounds the float32 temporaries to tens of MB
+_SINGLE_THREAD_FROM = 1 << 16   # below this, setting the thread limit costs more than the product
 
 
 class SpectralEstimationError(ValueError):
@@ -264,13 +268,16 @@ class SpectralFit:
         # transposed, writing the (n, p) result in place (several times faster than row-major features)
         mat = np.ascontiguousarray(self.matrix, dtype=np.float32)
         tr_t = None if self.transform is None else np.ascontiguousarray(self.transform.T, dtype=np.float32)
-        for i in range(0, flat.shape[0], _CHUNK_PIXELS):
-            block = flat[i:i + _CHUNK_PIXELS]
-            checked_channels("camera channels", block)
-            bt = np.ascontiguousarray(block.T, dtype=np.float32)
-            if tr_t is not None:
-                bt = np.maximum(tr_t @ bt, 0.0)     # the chart map can push a dark pixel below 0
-            np.matmul(_expand_leading(bt, self.expansion).T, mat, out=out[i:i + bt.shape[1]])
+        # one BLAS thread: with an inner dimension of 3-21 the product is memory-bound, and on a shared
+        # machine OpenBLAS's spinning threads made it 2-20 times slower and erratic (measured)
+        with threadpool_limits(limits=1, user_api="blas") if flat.shape[0] >= _SINGLE_THREAD_FROM else _no_limit():
+            for i in range(0, flat.shape[0], _CHUNK_PIXELS):
+                block = flat[i:i + _CHUNK_PIXELS]
+                checked_channels("camera channels", block)
+                bt = np.ascontiguousarray(block.T, dtype=np.float32)
+                if tr_t is not None:
+                    bt = np.maximum(tr_t @ bt, 0.0)     # the chart map can push a dark pixel below 0
+                np.matmul(_expand_leading(bt, self.expansion).T, mat, out=out[i:i + bt.shape[1]])
         return out.reshape(a.shape[:-1] + (self.p,))
 
     def estimate_spectra(self, rgb: ArrayLike) -> NDArray[np.float64]:
@@ -283,6 +290,11 @@ class SpectralFit:
         [0.1, 0.2, 0.3]
         """
         return self.estimate_weights(rgb).astype(np.float64) @ self.basis.T
+
+
+@contextlib.contextmanager
+def _no_limit() -> Iterator[None]:
+    yield
 
 
 def with_transform(fit: SpectralFit, transform: ArrayLike) -> SpectralFit:
