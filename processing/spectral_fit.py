@@ -76,8 +76,8 @@ def checked_channels(
         raise SpectralEstimationError(
             f"{name} must have {channels} channels on its last axis, got shape {a.shape}"
         )
-    if check_values and a.dtype.kind == "f":
-        if not np.isfinite(a).all():
+    if check_values and a.dtype.kind in "fi":
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
             raise SpectralEstimationError(f"{name} contains NaN or infinite values; mask those pixels first")
         if (a < 0).any():
             raise SpectralEstimationError(
