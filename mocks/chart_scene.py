@@ -209,10 +209,11 @@ def render_chart(
     h_img = chart_homography(layout, corners)
     inv = np.linalg.inv(h_img)
     ys, xs = np.mgrid[0:height, 0:width]
-    pix = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)]).astype(np.float64)
-    m = inv @ pix
-    u, v = m[0] / m[2], m[1] / m[2]
-    in_card = (m[2] > 0) & (u >= 0) & (u < layout.width) & (v >= 0) & (v < layout.height)
+    x, y = xs.ravel().astype(np.float64), ys.ravel().astype(np.float64)
+    den = inv[2, 0] * x + inv[2, 1] * y + inv[2, 2]
+    u = (inv[0, 0] * x + inv[0, 1] * y + inv[0, 2]) / den
+    v = (inv[1, 0] * x + inv[1, 1] * y + inv[1, 2]) / den
+    in_card = (den > 0) & (u >= 0) & (u < layout.width) & (v >= 0) & (v < layout.height)
     col = np.full(u.shape, -1)
     row = np.full(u.shape, -1)
     for c, (x0, x1) in enumerate(layout.col_edges):

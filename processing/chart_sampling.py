@@ -181,10 +181,13 @@ def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: flo
         sel = np.zeros((0,), bool)
         if x1 > x0 and y1 > y0:
             ys, xs = np.mgrid[y0:y1, x0:x1]
-            sensor = raw_image.to_sensor(np.stack([xs, ys], axis=-1).reshape(-1, 2).astype(np.float64))
-            m = np.column_stack([sensor, np.ones(len(sensor))]) @ inv.T
-            s = (m[:, 0] / m[:, 2] - mx0) / (mx1 - mx0) - 0.5
-            t = (m[:, 1] / m[:, 2] - my0) / (my1 - my0) - 0.5
+            sx, sy = raw_image.to_sensor(np.stack([xs.ravel(), ys.ravel()], axis=-1).astype(np.float64)).T
+            # the inverse homography written out: (N, 3) @ (3, 3) matmuls are slow on large windows
+            den = inv[2, 0] * sx + inv[2, 1] * sy + inv[2, 2]
+            u = (inv[0, 0] * sx + inv[0, 1] * sy + inv[0, 2]) / den
+            v = (inv[1, 0] * sx + inv[1, 1] * sy + inv[1, 2]) / den
+            s = (u - mx0) / (mx1 - mx0) - 0.5
+            t = (v - my0) / (my1 - my0) - 0.5
             sel = (np.abs(s) < inset / 2) & (np.abs(t) < inset / 2)
         if sel.sum() < 4:
             raise ChartSamplingError(
