@@ -109,6 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
     from app.report_command import add_report_parser
 
     add_report_parser(sub)
+    from app.cloth_command import add_cloth_parser
+
+    add_cloth_parser(sub)
     return parser
 
 
@@ -166,6 +169,10 @@ def _run(args: argparse.Namespace) -> int:
         from app.gui_command import run_gui
 
         return run_gui(args)
+    if args.command == "cloth":
+        from app.cloth_command import run_cloth
+
+        return run_cloth(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 

@@ -1,0 +1,199 @@
+"""Swatch sessions: capture one on the simulated station, read one, fit the cloth model, plot the fit.
+
+A swatch session is a capture with the ``swatch`` plan (:mod:`app.capture`):
+a chart frame, then one RAW frame per table step.  Its set-up (camera pose,
+light direction, swatch size: :class:`processing.swatch_geometry.SwatchGeometry`)
+is a JSON file, by default ``swatch.json`` in the session folder.
+
+:func:`load_swatch_session` decodes the frames (:func:`processing.raw_decode.decode_raw`,
+2 x 2 binning, no demosaicing), calibrates them with the chart
+(:func:`processing.cloth_fit.chart_gains`) and picks the binned pixels that
+see the swatch at every angle; :func:`processing.cloth_fit.fit_swatch` does
+the fit; :func:`fit_figure` draws measured and fitted responses over angle.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.errors import UsageError
+
+__all__ = ["GEOMETRY_FILE", "SwatchData", "capture_swatch_session", "load_swatch_session", "fit_figure",
+           "fit_report"]
+
+GEOMETRY_FILE = "swatch.json"
+
+
+@dataclass(frozen=True)
+class SwatchData:
+    """A decoded swatch session: the measurement, its set-up and where it came from."""
+
+    measurement: Any          # processing.cloth_fit.SwatchMeasurement
+    geometry: Any             # processing.swatch_geometry.SwatchGeometry
+    gains: np.ndarray
+    session: Path
+
+
+def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int = 24, seed: int = 1,
+                           width: int = 96, height: int = 72) -> Path:
+    """Capture a swatch session of a simulated swatch of ``cloth`` into ``out`` (hot-folder camera).
+
+    Writes the set-up to ``out/swatch.json``.  Returns the session folder.
+    """
+    import shutil
+
+    from app.capture import CaptureHooks, CapturePlan, run_capture
+    from app.capture_devices import build_devices
+    from app.session import Session
+    from mocks.station import SimulatedStation
+    from mocks.swatch_world import SwatchWorld
+
+    out = Path(out)
+    if out.exists():
+        shutil.rmtree(out)
+    station_dir = out.parent / (out.name + "-station")
+    world = SwatchWorld.swatch(cloth, width=width, height=height)
+    plan = CapturePlan("swatch", steps=steps, passes=1)
+    with SimulatedStation(world, root=station_dir, seed=seed) as st:
+        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)},
+                  "camera": {"kind": "hotfolder", "folder": str(st.hotfolder), "stable_s": 0.1}}
+        session = Session.create(out, plan=plan.to_dict(), object_info={"name": f"swatch ({cloth}, simulated)"},
+                                 settings={"unattended": True, "device_config": config})
+        devices = build_devices(config, session.root, shutter=st.shoot)
+        try:
+            run_capture(session, plan, devices, CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            session.close()
+    shutil.rmtree(station_dir, ignore_errors=True)
+    (out / GEOMETRY_FILE).write_text(json.dumps(world.geometry(), indent=2) + "\n")
+    return out
+
+
+def _decode(path: Path):
+    from processing.raw_decode import RawDecodeError, decode_raw
+
+    try:
+        return decode_raw(path, mode="bin2x2")
+    except (RawDecodeError, OSError) as exc:
+        raise UsageError(f"{path}: {exc}") from None
+
+
+def load_swatch_session(session: str | Path, geometry: str | Path | None = None, *, max_pixels: int = 160,
+                        margin_mm: float = 3.0) -> SwatchData:
+    """Decode a swatch session into a calibrated :class:`processing.cloth_fit.SwatchMeasurement`.
+
+    Raises
+    ------
+    UsageError
+        Not a session, not a swatch capture, no chart frame, a bad or
+        missing geometry file, frames of another size than the geometry.
+    """
+    from app.session import Session
+    from processing.cloth_fit import ClothFitError, SwatchMeasurement, chart_gains, grid_chart_means
+    from processing.swatch_geometry import SwatchGeometry, SwatchGeometryError, swatch_samples
+
+    root = Path(session)
+    try:
+        manifest = Session.read(root)
+    except Exception as exc:  # noqa: BLE001 - any unreadable session is one message
+        raise UsageError(f"{root}: not a readable capture session ({exc})") from None
+    plan = manifest.get("plan", {}) or {}
+    if plan.get("kind") != "swatch":
+        raise UsageError(f"{root}: a {plan.get('kind', 'unknown')!r} capture, not a swatch capture "
+                         "(kogei capture --plan swatch)")
+    gpath = Path(geometry) if geometry is not None else root / GEOMETRY_FILE
+    try:
+        geom = SwatchGeometry.from_dict(json.loads(gpath.read_text()))
+    except FileNotFoundError:
+        raise UsageError(f"{gpath}: swatch geometry not found; give --geometry FILE.json (camera pose, light "
+                         "direction, swatch size)") from None
+    except (json.JSONDecodeError, SwatchGeometryError, TypeError, AttributeError) as exc:
+        raise UsageError(f"{gpath}: {exc}") from None
+    captures = manifest.get("captures", {})
+    charts = [r for r in captures.values() if r.get("kind") == "chart" and r.get("file")]
+    frames = sorted((r for r in captures.values() if r.get("kind") == "frame" and r.get("file")),
+                    key=lambda r: float(r.get("angle_deg", 0.0)))
+    if not charts:
+        raise UsageError(f"{root}: no chart frame; the fit calibrates the RAW values with the chart")
+    if len(frames) < 3:
+        raise UsageError(f"{root}: {len(frames)} swatch frames; the fit needs at least 3 table angles")
+    chart = _decode(root / charts[0]["file"])
+    if chart.rgb.shape[:2] != (geom.height // 2, geom.width // 2):
+        raise UsageError(f"{gpath}: the frames have {2 * chart.rgb.shape[1]} x {2 * chart.rgb.shape[0]} photosites, "
+                         f"the geometry says {geom.width} x {geom.height}")
+    try:
+        gains = chart_gains(grid_chart_means(chart.rgb), geom)
+    except ClothFitError as exc:
+        raise UsageError(f"{root}: {exc}") from None
+    angles = np.array([float(r["angle_deg"]) for r in frames])
+    hb, wb = geom.height // 2, geom.width // 2
+    ys, xs = np.mgrid[0:hb, 0:wb]
+    px = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    ok = np.ones(len(px), dtype=bool)
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        s = swatch_samples(geom, angles, 2 * px[:, 0] + dx, 2 * px[:, 1] + dy, margin_mm=margin_mm)
+        ok &= s.inside.all(axis=0)
+    images = [_decode(root / r["file"]) for r in frames]
+    for img in images:
+        ok &= ~(img.saturated | img.dead).reshape(-1)
+    px = px[ok]
+    if px.shape[0] > max_pixels:
+        px = px[np.linspace(0, px.shape[0] - 1, max_pixels).round().astype(int)]
+    if px.shape[0] < 8:
+        raise UsageError(f"{root}: only {px.shape[0]} binned pixels see the swatch at every angle; "
+                         "check the geometry file and that the swatch fills the view")
+    rgb = np.stack([img.rgb[px[:, 1], px[:, 0]].astype(np.float64) for img in images]) / gains
+    measurement = SwatchMeasurement(angles, px, rgb, chart.cfa_pattern)
+    return SwatchData(measurement, geom, gains, root)
+
+
+def fit_figure(data: SwatchData, fit, path: str | Path) -> Path:
+    """Measured (left) and fitted (right) swatch responses over table angle, R G B of the mean pixel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m = data.measurement
+    meas = m.rgb.mean(axis=1)
+    pred = fit.predicted.mean(axis=1)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=True)
+    for ax, values, title in ((axes[0], meas, "measured"), (axes[1], pred, "fitted")):
+        for c, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
+            ax.plot(m.angles_deg, values[:, c], "o-" if title == "measured" else "-", color=colour, ms=3,
+                    label="RGB"[c])
+            if title == "fitted":
+                ax.plot(m.angles_deg, meas[:, c], "o", color=colour, ms=2, alpha=0.4)
+        ax.set_title(f"{title} (mean of {m.pixels.shape[0]} pixels)")
+        ax.set_xlabel("table angle (deg)")
+    axes[0].set_ylabel("camera response (chart-calibrated)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"cloth fit: relative residual {100 * fit.relative_residual:.2f} %", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def fit_report(data: SwatchData, fit) -> dict[str, Any]:
+    """JSON-serialisable summary of a fit."""
+    return {
+        "session": str(data.session),
+        "angles": int(data.measurement.angles_deg.size),
+        "pixels": int(data.measurement.pixels.shape[0]),
+        "parameters": {k: round(v, 6) for k, v in fit.parameters.items()},
+        "sigma": {k: (round(v, 6) if math.isfinite(v) else None) for k, v in fit.sigma.items()},
+        "fixed": fit.fixed,
+        "material": fit.spec,
+        "residual_rms": fit.residual_rms,
+        "relative_residual": fit.relative_residual,
+        "chart_gains": [float(g) for g in data.gains],
+    }

@@ -1,0 +1,168 @@
+"""Measuring a swatch: the simulated swatch world against closed forms, a swatch capture through
+the station's hot folder, `kogei cloth fit` recovering the world's known parameters within 10 %
+and rendering unseen angles within mean delta E00 1.5, robustness to outliers, bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from mocks.swatch_world import SwatchWorld
+from processing.cloth_fit import SwatchMeasurement, chart_gains, fit_swatch, predict_rgb
+from processing.materials import get_material
+from processing.swatch_geometry import SwatchGeometry, swatch_samples
+
+TRUTH = {"a_t": 0.08, "a_b": 0.5, "specular": 0.25, "internal": 0.3, "diffuse": 0.4, "colour": "#3060a0"}
+TRUTH_SPEC = (f"silk:a_t={TRUTH['a_t']},a_b={TRUTH['a_b']},weft_a_t={TRUTH['a_t']},weft_a_b={TRUTH['a_b']},"
+              f"specular={TRUTH['specular']},internal={TRUTH['internal']},diffuse={TRUTH['diffuse']},"
+              f"warp_colour={TRUTH['colour']},weft_colour={TRUTH['colour']}")
+TRUTH_RGB = [int(TRUTH["colour"][i:i + 2], 16) / 255 for i in (1, 3, 5)]
+
+
+def _truth_vector():
+    return [TRUTH["a_t"], TRUTH["a_b"], TRUTH["specular"], TRUTH["internal"], TRUTH["diffuse"], *TRUTH_RGB]
+
+
+def test_geometry_rays_are_the_stations_pinhole():
+    w = SwatchWorld.swatch("silk", width=32, height=24)
+    eye, dirs = w._view()
+    g = SwatchGeometry.from_dict(w.geometry())
+    jj, ii = np.mgrid[0:24, 0:32]
+    np.testing.assert_allclose(g.rays(ii, jj), dirs, atol=1e-12)
+    np.testing.assert_allclose(g.camera_frame()[0], eye, atol=1e-9)
+
+
+def test_white_diffuse_swatch_is_lambertian():
+    # closed form: radiance = E cos_i / pi for a white Lambertian swatch, at every table angle
+    w = SwatchWorld.swatch("cotton:specular=0,internal=0,diffuse=1,warp_colour=#ffffff,weft_colour=#ffffff",
+                           width=32, height=24)
+    f = w.frame("object", 37.0)
+    e = w.light_spectrum()
+    cos_i = np.asarray(w.light_direction) / np.linalg.norm(w.light_direction)
+    on = f.labels == 0
+    assert on.mean() > 0.2
+    from processing.cloth_model import kubelka_munk_reflectance
+    from processing.cloth_model import Dye
+
+    r = kubelka_munk_reflectance(Dye.from_srgb("#ffffff", 0.25).absorbance / 0.25)
+    r = np.interp(w.grid.wavelengths, Dye.from_srgb("#ffffff").wavelengths, r)
+    np.testing.assert_allclose(f.radiance[on], np.broadcast_to(r * e * cos_i[2] / math.pi, f.radiance[on].shape),
+                               rtol=1e-9)
+
+
+def test_swatch_turns_with_the_table():
+    w = SwatchWorld.swatch("satin", width=32, height=24)
+    g = SwatchGeometry.from_dict(w.geometry())
+    # the warp seen at table angle a is the warp of a swatch placed at weave angle a
+    turned = SwatchWorld.swatch("satin", width=32, height=24, weave_angle_deg=30.0)
+    np.testing.assert_allclose(w.frame("object", 30.0).radiance[12, 16], turned.frame("object", 0.0).radiance[12, 16],
+                               rtol=1e-9)
+    s = swatch_samples(g, [0.0, 30.0], [32], [24])
+    assert s.tangential[0][0, 0] != pytest.approx(s.tangential[0][1, 0])
+
+
+def test_chart_gains_recover_a_known_gain():
+    import colour
+
+    from processing.camera_response import camera_rgb, camera_sensitivities
+    from processing.spectra import SpectralGrid, light_spectrum, resample
+
+    g = SwatchGeometry()
+    grid = SpectralGrid(400, 700, 10)
+    refl = np.stack([resample(sd.wavelengths, sd.values, grid) for sd in colour.SDS_COLOURCHECKERS[g.chart].values()])
+    pred = camera_rgb(refl / math.pi, light_spectrum("D65", grid), camera_sensitivities(grid, g.camera), grid)
+    np.testing.assert_allclose(chart_gains(pred * [2.0, 3.0, 0.5], g), [2.0, 3.0, 0.5], rtol=1e-12)
+
+
+def _synthetic(outliers: float = 0.0):
+    g = SwatchGeometry(width=48, height=36)
+    angles = np.arange(0.0, 180.0, 20.0)
+    xs, ys = np.meshgrid(np.arange(0, 24, 2), np.arange(0, 18, 2))
+    px = np.stack([xs.ravel(), ys.ravel()], 1)
+    ok = np.ones(len(px), bool)
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        ok &= swatch_samples(g, angles, 2 * px[:, 0] + dx, 2 * px[:, 1] + dy, margin_mm=2.0).inside.all(axis=0)
+    px = px[ok]
+    rgb = predict_rgb(get_material(TRUTH_SPEC), g, angles, px)
+    rng = np.random.default_rng(5)
+    rgb = rgb * (1 + 0.003 * rng.normal(size=rgb.shape))
+    if outliers:
+        bad = rng.random(rgb.shape[:2]) < outliers
+        rgb[bad] *= 3.0                              # e.g. glints of loose fibres, dust
+    return g, SwatchMeasurement(angles, px, rgb)
+
+
+def test_robust_fit_ignores_outlier_pixels():
+    g, m = _synthetic(outliers=0.05)
+    fit = fit_swatch(m, g, yarn="silk")
+    np.testing.assert_allclose(list(fit.parameters.values()), _truth_vector(), rtol=0.10)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    from app.cloth_fit_session import capture_swatch_session
+
+    return capture_swatch_session(tmp_path_factory.mktemp("swatch") / "s", TRUTH_SPEC, steps=8, width=64, height=48)
+
+
+def test_kogei_cloth_fit_recovers_the_swatch(session, tmp_path, capsys):
+    out = tmp_path / "fit"
+    code = main(["cloth", "fit", str(session), "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "+-" in captured.out and "residual rms" in captured.out
+    report = json.loads((out / "cloth-fit.json").read_text())
+    got = report["parameters"]
+    for name, want in zip(("a_t", "a_b", "specular", "internal", "diffuse", "dye_r", "dye_g", "dye_b"),
+                          _truth_vector()):
+        assert got[name] == pytest.approx(want, rel=0.10), name
+        assert report["sigma"][name] is not None and report["sigma"][name] < 0.1 * max(want, 0.05)
+    assert report["relative_residual"] < 0.05
+    assert (out / "cloth-fit.png").stat().st_size > 10_000
+
+    # render the fit and the truth at table angles the capture never saw: mean delta E00 <= 1.5
+    from processing.display import delta_e00, spectra_to_xyz
+
+    world = SwatchWorld.swatch(TRUTH_SPEC, width=64, height=48)
+    fitted = SwatchWorld.swatch(report["material"], width=64, height=48)
+    errors = []
+    for angle in (10.0, 55.0, 100.0, 200.0):
+        a, b = world.frame("object", angle), fitted.frame("object", angle)
+        on = a.labels == 0
+        xa = spectra_to_xyz(a.radiance[on], a.grid)
+        xb = spectra_to_xyz(b.radiance[on], b.grid)
+        white = spectra_to_xyz(a.light / math.pi, a.grid)       # a white diffuser facing the light
+        errors.append(delta_e00(xb, xa, white))
+    assert float(np.mean(np.concatenate(errors))) <= 1.5
+
+
+def test_bad_sessions_are_refused_in_one_line(session, tmp_path, capsys):
+    from app.capture import CapturePlan
+    from app.session import Session
+
+    assert main(["cloth", "fit", str(tmp_path / "nowhere")]) == 2
+    assert "session folder not found" in capsys.readouterr().err
+    Session.create(tmp_path / "scan", plan=CapturePlan("scan", steps=4, passes=1).to_dict()).close()
+    assert main(["cloth", "fit", str(tmp_path / "scan")]) == 2
+    assert "not a swatch capture" in capsys.readouterr().err
+    assert main(["cloth", "fit", str(session), "--geometry", str(tmp_path / "none.json")]) == 2
+    assert "swatch geometry not found" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"width": 64, "height": 48, "lens": 50}))
+    assert main(["cloth", "fit", str(session), "--geometry", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "unknown swatch geometry key(s) lens" in err and "Traceback" not in err
+
+
+def test_demo_cloth_scene_writes_an_image(tmp_path):
+    from PIL import Image
+
+    from app.cloth_scene import render_cloth_scene
+
+    path = render_cloth_scene(tmp_path, "draft", (32, 24))
+    assert path.name == "cloth-tamamushi.png"
+    assert np.asarray(Image.open(path)).shape[:2] == (24, 32)
