@@ -45,6 +45,8 @@ from processing.spectral_wiener import fit_wiener
 
 __all__ = ["METHODS", "fit_estimator", "reflectance_from_weights", "RegionSpectra", "region_spectra"]
 
+_BLOCK = 1 << 20   # pixels per float64 block in region statistics
+
 #: Methods of :func:`fit_estimator`.
 METHODS = ("paper", "wiener", "rootpoly", "more-basis", "twolight")
 
@@ -220,11 +222,12 @@ def region_spectra(
     ([[2.0, 2.0]], [[1.0, 1.0]])
     """
     b = np.asarray(basis, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
+    w = np.asarray(weights)                      # float32 images stay float32; sums are float64
     lab = np.asarray(labels)
-    if w.ndim != 3 or b.ndim != 2 or w.shape[2] != b.shape[1]:
+    if w.ndim != 3 or b.ndim != 2 or w.shape[2] != b.shape[1] or w.dtype.kind != "f":
         raise SpectralEstimationError(
-            f"weights must be (H, W, p) with p = {b.shape[1] if b.ndim == 2 else '?'} basis vectors, got {w.shape}"
+            f"weights must be float (H, W, p) with p = {b.shape[1] if b.ndim == 2 else '?'} basis vectors, "
+            f"got {w.shape} {w.dtype}"
         )
     if lab.shape != w.shape[:2] or lab.dtype.kind not in "iub":
         raise SpectralEstimationError(f"labels must be an integer (H, W) = {w.shape[:2]} image, got {lab.shape} {lab.dtype}")
@@ -232,25 +235,41 @@ def region_spectra(
         raise SpectralEstimationError("weights contain NaN or infinite values")
     if not (isinstance(method_error, (int, float, np.floating)) and math.isfinite(method_error) and method_error >= 0):
         raise SpectralEstimationError(f"method_error must be an RMS reflectance >= 0, got {method_error!r}")
-    lab = lab.astype(np.int64).ravel()
-    if np.any(lab < 0):
+    lab = lab.ravel()
+    if lab.dtype.kind == "i" and np.any(lab < 0):
         raise SpectralEstimationError("labels must be >= 0 (0 = background)")
-    present = np.unique(lab[lab > 0])
-    if present.size == 0:
+    pos = np.flatnonzero(lab > 0)
+    if pos.size == 0:
         raise SpectralEstimationError("the label image has no region (every label is 0)")
-    flat = w.reshape(-1, w.shape[2])
-    inside = lab > 0
-    idx = np.searchsorted(present, lab[inside])
+    lab_in = lab[pos].astype(np.int64)
+    top = int(lab_in.max())
+    if top < (1 << 24):                       # small labels: a lookup table instead of a sort
+        present = np.flatnonzero(np.bincount(lab_in, minlength=top + 1))
+        lut = np.zeros(top + 1, dtype=np.int64)
+        lut[present] = np.arange(present.size)
+        idx = lut[lab_in]
+    else:
+        present, idx = np.unique(lab_in, return_inverse=True)
     k, p = present.size, w.shape[2]
     count = np.bincount(idx, minlength=k)
-    sums = np.stack([np.bincount(idx, flat[inside, i], minlength=k) for i in range(p)], axis=1)
-    mean_w = sums / count[:, None]
-    centred = flat[inside] - mean_w[idx]
+    # pixels grouped by region (radix sort for fewer than 65536 regions), then per region the sum and
+    # the sum of outer products about the region's first pixel, in float64 blocks (no (n, p) float64 copy)
+    order = np.argsort(idx.astype(np.uint16) if k < (1 << 16) else idx, kind="stable")
+    rows = pos[order]
+    bounds = np.concatenate([[0], np.cumsum(count)])
+    wflat = w.reshape(-1, p)
+    mean_w = np.zeros((k, p))
     cov = np.zeros((k, p, p))
-    for i in range(p):
-        for j in range(i, p):
-            v = np.bincount(idx, centred[:, i] * centred[:, j], minlength=k) / count
-            cov[:, i, j] = cov[:, j, i] = v
+    for r in range(k):
+        ref = wflat[rows[bounds[r]]].astype(np.float64)
+        s1, s2 = np.zeros(p), np.zeros((p, p))
+        for lo in range(bounds[r], bounds[r + 1], _BLOCK):
+            x = wflat[rows[lo:min(lo + _BLOCK, bounds[r + 1])]].astype(np.float64) - ref
+            s1 += x.sum(axis=0)
+            s2 += x.T @ x
+        m = s1 / count[r]
+        mean_w[r] = m + ref
+        cov[r] = s2 / count[r] - np.outer(m, m)
     var = np.einsum("lp,kpq,lq->kl", b, cov, b)
     std = np.sqrt(np.maximum(var, 0.0))
     return RegionSpectra(

@@ -232,6 +232,19 @@ def test_region_spectra_mean_and_spread_of_known_regions():
     assert np.allclose(reflectance_from_weights(r.mean_weights, basis), r.mean)
 
 
+def test_region_spectra_match_a_direct_computation_on_random_float32_weights():
+    rng = np.random.default_rng(9)
+    basis = np.linalg.qr(rng.standard_normal((G.size, 4)))[0]
+    w = (rng.standard_normal((30, 40, 4)) * [0.3, 0.05, 0.02, 0.01] + [3.0, 0.2, 0.0, 0.1]).astype(np.float32)
+    labels = rng.integers(0, 4, (30, 40))
+    r = region_spectra(w, labels, basis, method_error=0.0)
+    spectra = w.astype(np.float64) @ basis.T
+    for k, lab in enumerate(r.labels):
+        sel = spectra[labels == lab]
+        assert np.allclose(r.mean[k], sel.mean(axis=0), atol=1e-9)
+        assert np.allclose(r.std[k], sel.std(axis=0), rtol=1e-6, atol=1e-9)
+
+
 @pytest.mark.parametrize(
     "rgb, words",
     [
