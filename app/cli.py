@@ -97,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     from app.register_command import add_register_parser
 
     add_register_parser(sub)
+    from app.gui_command import add_gui_parser
+
+    add_gui_parser(sub)
     from app.chart_command import add_chart_parser
 
     add_chart_parser(sub)
@@ -173,6 +176,10 @@ def _run(args: argparse.Namespace) -> int:
         from app.cloth_command import run_cloth
 
         return run_cloth(args)
+    if args.command == "gui":
+        from app.gui_command import run_gui
+
+        return run_gui(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 

@@ -96,7 +96,8 @@ def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[
 
 
 def process_session(session_dir: str | Path, *, preset: str = "standard", calibration: str | Path | None = None,
-                    message: Callable[[str], None] | None = None) -> dict[str, Any]:
+                    message: Callable[[str], None] | None = None,
+                    picks: dict[tuple[int, int], tuple[Any, Any]] | None = None) -> dict[str, Any]:
     """Process a captured session into ``products/mesh.ply`` and ``products/process-report.json``.
 
     Parameters
@@ -111,6 +112,11 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         into the session first; default: the session's own.
     message
         Called with progress and warnings.
+    picks
+        Manual registration of pass pairs: ``{(a, b): (points_on_a, points_on_b)}``
+        with pass numbers ``a < b`` (1-based) and three or more corresponding
+        points (mm, each pass's table frame) picked on each
+        (:func:`processing.registration.register_passes`).
 
     Returns
     -------
@@ -152,8 +158,13 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         note(f"registering {len(usable)} pass(es) ({', '.join(str(e['points']) for e in usable)} points)")
         t = time.perf_counter()
         try:
+            index_of = {e["pass"]: k for k, e in enumerate(usable)}
+            unknown = [pair for pair in (picks or {}) if pair[0] not in index_of or pair[1] not in index_of]
+            if unknown:
+                raise UsageError(f"session {root}: picks name passes without usable points: {unknown}")
             reg = register_passes([e["cloud"][0] for e in usable], [e["cloud"][1] for e in usable],
-                                  preset=preset, names=names)
+                                  preset=preset, names=names,
+                                  picks={(index_of[a], index_of[b]): v for (a, b), v in (picks or {}).items()})
         except RegistrationError as exc:
             raise UsageError(f"session {root}: registration: {exc}") from None
         timings["registration"] = time.perf_counter() - t

@@ -1,0 +1,262 @@
+"""Camera panel: shoot a RAW frame, show its decoded preview with the detected chart outlined and each
+patch's quality, and a histogram of the linear signal with a clipping warning.
+
+A thin shell over :func:`processing.raw_decode.decode_raw` (black level,
+white level and saturation from the file's own metadata),
+:func:`processing.raw_decode.preview_srgb8` and
+:func:`processing.chart_detection.detect_chart`.  Frames are shot with the
+camera of the Devices tab (:class:`app.capture_devices.Gphoto2Shooter` /
+:class:`app.capture_devices.HotFolderShooter`) into a folder of the window's
+own (test shots are not captures of the session); any RAW file, such as a
+session's chart frame, can be opened too.
+
+A patch's quality is judged on its central half (clear of the edges the
+homography may misplace by a pixel): ``clipped`` if any photosite of it
+reached the white level (its colour is then wrong), ``dark`` if its green
+signal is below 2% of full scale (quantisation and read noise dominate),
+``noisy`` if its signal-to-noise ratio is below 20, else ``ok``.
+
+Examples
+--------
+>>> patch_quality(np.array([0.5, 0.5, 0.5]), np.array([0.01, 0.01, 0.01]), 0.0)
+'ok'
+>>> patch_quality(np.array([0.9, 0.9, 0.9]), np.array([0.01, 0.01, 0.01]), 0.02)
+'clipped'
+>>> patch_quality(np.array([0.01, 0.01, 0.01]), np.array([0.001, 0.001, 0.001]), 0.0)
+'dark'
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from PySide6.QtWidgets import QFileDialog, QHBoxLayout, QLabel, QPushButton, QSplitter, QVBoxLayout, QWidget
+from PySide6.QtCore import Qt, Signal
+
+from app.gui.plots import PlotImage, style
+from app.gui.station_link import StationLink
+from app.gui.widgets import Panel
+from app.gui.workers import JobContext, Lane
+
+__all__ = ["CameraPanel", "FrameView", "analyse_frame", "patch_quality", "QUALITY_COLOURS"]
+
+QUALITY_COLOURS = {"ok": "#2e9e44", "noisy": "#e0a800", "dark": "#2f6fd0", "clipped": "#d0312d"}
+#: Fraction of clipped pixels above which the histogram warns.
+CLIP_WARN = 0.001
+
+
+def patch_quality(mean: np.ndarray, std: np.ndarray, clipped_fraction: float) -> str:
+    """``ok``, ``noisy``, ``dark`` or ``clipped`` from a patch's channel means and deviations (see module)."""
+    if clipped_fraction > 0:
+        return "clipped"
+    if float(mean[1]) < 0.02:
+        return "dark"
+    snr = float(np.min(mean / np.maximum(std, 1e-9)))
+    return "noisy" if snr < 20 else "ok"
+
+
+@dataclass
+class FrameView:
+    """A decoded frame as the panel shows it."""
+
+    path: Path
+    preview: np.ndarray                    # (H, W, 3) uint8
+    rgb: np.ndarray                        # (H, W, 3) float32 linear camera RGB (1 = saturation)
+    saturated: np.ndarray                  # (H, W) bool
+    scale: int
+    chart: Any = None                      # processing.chart_detection.ChartDetection or None
+    chart_problem: str = ""
+    quads: np.ndarray | None = None        # (N, 4, 2) patch corners in preview pixels
+    qualities: list[str] | None = None
+    raw: Any = None
+
+
+def analyse_frame(path: str | Path) -> FrameView:
+    """Decode ``path``, make its preview, find the chart and judge each patch."""
+    from processing.chart_detection import ChartDetectionError, detect_chart
+    from processing.raw_decode import decode_raw, preview_srgb8
+
+    raw = decode_raw(path, mode="bin2x2")
+    view = FrameView(Path(path), preview_srgb8(raw), raw.rgb, raw.saturated, raw.scale, raw=raw)
+    try:
+        det = detect_chart(raw)
+    except ChartDetectionError as exc:
+        view.chart_problem = str(exc)
+        return view
+    view.chart = det
+    quads = raw.from_sensor(det.quads)
+    view.quads = quads
+    h, w = raw.shape
+    qualities = []
+    for q in quads:
+        c = q.mean(axis=0)
+        half = 0.25 * np.abs(q - c).max(axis=0)        # the central half of the patch
+        x0, x1 = int(max(c[0] - half[0], 0)), int(min(c[0] + half[0], w - 1)) + 1
+        y0, y1 = int(max(c[1] - half[1], 0)), int(min(c[1] + half[1], h - 1)) + 1
+        block = raw.rgb[y0:y1, x0:x1].reshape(-1, 3)
+        if block.size == 0:
+            qualities.append("dark")
+            continue
+        clipped = float(raw.saturated[y0:y1, x0:x1].mean())
+        qualities.append(patch_quality(block.mean(axis=0), block.std(axis=0), clipped))
+    view.qualities = qualities
+    return view
+
+
+class CameraPanel(Panel):
+    """See the module docstring."""
+
+    frame_shown = Signal(object)           # FrameView
+
+    def __init__(self, link: StationLink, lane: Lane, plot_lane: Lane, session_root: Callable[[], Path | None],
+                 parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.link = link
+        self.lane = lane
+        self.session_root = session_root
+        self.frame: FrameView | None = None
+        self._shots = tempfile.TemporaryDirectory(prefix="kogei-gui-shots-")
+        self._count = 0
+        outer = QVBoxLayout(self)
+        row = QHBoxLayout()
+        self.shoot_button = QPushButton("Capture RAW  (Ctrl+R)")
+        self.shoot_button.setShortcut("Ctrl+R")
+        self.open_button = QPushButton("Open RAW…")
+        self.chart_frame_button = QPushButton("Open the session's chart frame")
+        self.shoot_button.clicked.connect(self.safe(self.shoot))
+        self.open_button.clicked.connect(self.safe(self._open))
+        self.chart_frame_button.clicked.connect(self.safe(self.open_session_chart))
+        for b in (self.shoot_button, self.open_button, self.chart_frame_button):
+            row.addWidget(b)
+        row.addStretch(1)
+        outer.addLayout(row)
+        self.state = QLabel("no frame yet")
+        self.state.setWordWrap(True)
+        outer.addWidget(self.state)
+        self.clip_warning = QLabel("")
+        self.clip_warning.setStyleSheet("color:#7a1512; font-weight:bold;")
+        self.clip_warning.setWordWrap(True)
+        outer.addWidget(self.clip_warning)
+        split = QSplitter(Qt.Orientation.Horizontal)
+        self.image_plot = PlotImage(plot_lane)
+        self.hist_plot = PlotImage(plot_lane)
+        split.addWidget(self.image_plot)
+        split.addWidget(self.hist_plot)
+        split.setStretchFactor(0, 3)
+        split.setStretchFactor(1, 2)
+        outer.addWidget(split, 1)
+
+    # ------------------------------------------------------------ sources
+    def shoot(self) -> None:
+        from app.capture_devices import Gphoto2Shooter, HotFolderShooter
+        from app.errors import UsageError
+
+        cam = dict(self.link.camera)
+        if cam.get("kind", "none") == "none":
+            raise UsageError("no camera chosen: pick gphoto2 or a hot folder on the Devices tab")
+        problem = self.link.camera_problem()
+        if problem:
+            raise UsageError(problem)
+        self._count += 1
+        name = f"shot_{self._count:03d}"
+        staging = Path(self._shots.name)
+        shutter = self.link.shutter
+
+        def work(ctx: JobContext) -> FrameView:
+            if cam["kind"] == "gphoto2":
+                shooter: Any = Gphoto2Shooter(staging, cam.get("executable", "gphoto2"), float(cam.get("timeout_s", 60)))
+            else:
+                shooter = HotFolderShooter(staging, cam["folder"], shutter, float(cam.get("stable_s", 0.3)),
+                                           float(cam.get("timeout_s", 60)))
+            return analyse_frame(shooter.shoot(name))
+
+        self.state.setText("shooting…")
+        self.lane.run(work, "shoot", succeeded=self.show_frame, failed=self._failed)
+
+    def open_file(self, path: str | Path) -> None:
+        """Decode and show a RAW file (on a worker thread)."""
+        self.state.setText(f"decoding {path}…")
+        self.lane.run(lambda ctx: analyse_frame(path), "decode", succeeded=self.show_frame, failed=self._failed)
+
+    def _open(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "RAW file", "", "RAW (*.dng *.DNG *.cr2 *.nef *.arw);;All (*)")
+        if path:
+            self.open_file(path)
+
+    def open_session_chart(self) -> None:
+        from app.errors import UsageError
+        from app.session import Session
+
+        root = self.session_root()
+        if root is None or not (root / "session.json").exists():
+            raise UsageError("open a session with camera frames first (Session tab)")
+        caps = Session.read(root)["captures"]
+        charts = [r for k, r in caps.items() if r.get("kind") == "chart"]
+        if not charts:
+            raise UsageError(f"session {root} has no chart frame (was the plan's chart option off?)")
+        self.open_file(root / charts[-1]["file"])
+
+    def _failed(self, text: str, exc: Any) -> None:
+        self.state.setText(f"failed: {text}")
+        self.error.emit(f"camera: {text}")
+
+    # ------------------------------------------------------------ display
+    def show_frame(self, view: FrameView) -> None:
+        self.frame = view
+        h, w = view.preview.shape[:2]
+        self.image_plot.plot(_frame_figure(view))
+        self.hist_plot.plot(_histogram_figure(view.rgb, float(view.saturated.mean())))
+        clipped = float(view.saturated.mean())
+        if clipped > CLIP_WARN:
+            self.clip_warning.setText(f"{100 * clipped:.2f}% of the pixels are clipped: lower the exposure or the "
+                                      "light (clipped colours cannot be measured)")
+        else:
+            self.clip_warning.setText("")
+        self.state.setText(f"{view.path.name}: {w}x{h} preview (2x2 binned)"
+                           + (f" · chart: {view.chart_problem}" if view.chart_problem else ""))
+        self.frame_shown.emit(view)
+
+
+def _frame_figure(view: FrameView) -> Callable[[Any], None]:
+    def build(fig: Any) -> None:
+        ax = fig.add_subplot(111)
+        ax.imshow(view.preview, interpolation="nearest")
+        if view.quads is not None and view.chart is not None:
+            outline = view.raw.from_sensor(view.chart.corners) if view.raw is not None else view.chart.corners
+            closed = np.vstack([outline, outline[:1]])
+            ax.plot(closed[:, 0], closed[:, 1], "-", color="#ffdd00", lw=1.5)
+            for n, (q, quality) in enumerate(zip(view.quads, view.qualities or []), start=1):
+                qq = np.vstack([q, q[:1]])
+                colour = QUALITY_COLOURS.get(quality, "#ffffff")
+                ax.plot(qq[:, 0], qq[:, 1], "-", color=colour, lw=1.2)
+                if len(view.quads) <= 30:
+                    c = q.mean(axis=0)
+                    ax.text(c[0], c[1], str(n), color="white", fontsize=7, ha="center", va="center",
+                            bbox={"facecolor": colour, "alpha": 0.7, "pad": 1, "lw": 0})
+            counts = {k: (view.qualities or []).count(k) for k in QUALITY_COLOURS}
+            title = (f"{view.chart.chart} chart, confidence {view.chart.confidence:.2f}; patches: "
+                     + ", ".join(f"{v} {k}" for k, v in counts.items() if v))
+        else:
+            title = f"{view.path.name}: no chart found" if view.chart_problem else view.path.name
+        style(ax, title)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    return build
+
+
+def _histogram_figure(rgb: np.ndarray, clipped: float) -> Callable[[Any], None]:
+    def build(fig: Any) -> None:
+        ax = fig.add_subplot(111)
+        bins = np.linspace(0.0, 1.0, 129)
+        for c, colour in enumerate(("#d0312d", "#2e9e44", "#2f6fd0")):
+            counts, _ = np.histogram(np.clip(rgb[..., c], 0, 1), bins=bins)
+            ax.stairs(np.maximum(counts, 0.8), bins, color=colour, label="RGB"[c])
+        ax.set_yscale("log")
+        ax.axvline(1.0, color="k", ls="--", lw=1)
+        style(ax, f"Linear signal ({100 * clipped:.2f}% clipped)", "fraction of full scale", "pixels")
+        ax.legend(fontsize=8)
+    return build

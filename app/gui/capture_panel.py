@@ -1,0 +1,621 @@
+"""Capture panel: turntable jog, laser, the scan plan, start / pause / abort with progress and ETA,
+the live profile plot, the growing point cloud and the "re-place the object" step between passes.
+
+A thin shell over :func:`app.capture.run_capture` (the engine ``kogei
+capture`` runs), on the instruments' lane of :class:`app.gui.station_link.StationLink`:
+
+* a new session is created with :meth:`app.session.Session.create` (plan,
+  object metadata, device configuration), an interrupted one is resumed with
+  its own plan (ports may be changed, as ``kogei capture --resume``);
+* the engine's ``before_pass`` hook waits for the technician's *Continue* in
+  the window (:class:`PromptGate`); with a simulated station the station is
+  then told to re-place the object;
+* *Pause* holds the capture at the next step boundary (the progress hook
+  waits); *Abort* sets the engine's cancel event, so the session stops
+  consistent and resumable at the next step;
+* each finished profile is read back from the session for the live plot;
+  the pass's profiles become points with the chosen scanner calibration
+  (:func:`processing.scan_points.profiles_to_points`), or a range image when
+  there is none.
+
+Examples
+--------
+>>> format_eta(None), format_eta(42.4), format_eta(3725)
+('ETA –', 'ETA 42 s', 'ETA 1 h 02 min')
+>>> parse_angles("0, 90,180")
+(0.0, 90.0, 180.0)
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from PySide6.QtCore import QObject, QTimer, Signal
+from PySide6.QtWidgets import (
+    QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QFrame, QGridLayout, QGroupBox, QHBoxLayout, QLabel,
+    QLineEdit, QProgressBar, QPushButton, QSpinBox, QSplitter, QVBoxLayout, QWidget,
+)
+from PySide6.QtCore import Qt
+
+from app.gui.plots import PlotImage, style
+from app.gui.station_link import StationLink
+from app.gui.widgets import Panel
+from app.gui.workers import Job, JobContext, Lane
+
+__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles"]
+
+
+def format_eta(seconds: float | None) -> str:
+    """Remaining time for the progress line."""
+    if seconds is None or not math.isfinite(seconds):
+        return "ETA –"
+    s = int(round(seconds))
+    if s < 60:
+        return f"ETA {s} s"
+    if s < 3600:
+        return f"ETA {s // 60} min {s % 60:02d} s"
+    return f"ETA {s // 3600} h {(s % 3600) // 60:02d} min"
+
+
+def parse_angles(text: str) -> tuple[float, ...]:
+    """Camera angles typed as degrees separated by commas (ValueError naming the field otherwise)."""
+    if not text.strip():
+        return ()
+    try:
+        angles = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"camera angles {text!r}: give degrees separated by commas, e.g. 0,90,180,270") from None
+    if not all(math.isfinite(a) for a in angles):
+        raise ValueError(f"camera angles {text!r}: angles must be finite")
+    return angles
+
+
+class PromptGate(QObject):
+    """A question from the capture thread that the technician answers in the window.
+
+    :meth:`ask` (capture thread) emits ``asked(text)`` and waits for
+    :meth:`answer` (GUI thread); the cancel event ends the wait too.
+    """
+
+    asked = Signal(str)
+
+    def __init__(self, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self._event = threading.Event()
+        self._go = False
+        self.pending = False
+
+    def ask(self, text: str, cancel: threading.Event) -> bool:
+        self._event.clear()
+        self._go = False
+        self.pending = True
+        self.asked.emit(text)
+        while not self._event.wait(0.05):
+            if cancel.is_set():
+                self.pending = False
+                return False
+        self.pending = False
+        return self._go
+
+    def answer(self, go: bool) -> None:
+        self._go = bool(go)
+        self._event.set()
+
+
+class CapturePanel(Panel):
+    """See the module docstring.
+
+    Parameters
+    ----------
+    link
+        The instruments.
+    session_root
+        Returns the session folder chosen on the Session tab (or None).
+    metadata
+        Returns the object metadata of the Session tab.
+    calibration
+        Returns the scanner calibration source (session folder or JSON), or None.
+    """
+
+    capture_started = Signal()
+    capture_stopped = Signal(str)         # 'complete', 'interrupted', 'cancelled', 'error'
+    note = Signal(str)
+
+    def __init__(self, link: StationLink, session_root: Callable[[], Path | None],
+                 metadata: Callable[[], dict[str, str]], calibration: Callable[[], str | None],
+                 plot_lane: Lane, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.link = link
+        self.session_root = session_root
+        self.metadata = metadata
+        self.calibration = calibration
+        self.gate = PromptGate(self)
+        self.gate.asked.connect(self._show_prompt)
+        self.job: Job | None = None
+        self.pause_event = threading.Event()
+        self.last_progress: Any = None
+        self.status_text = "idle"
+        self._root: Path | None = None
+        self._pending_profile: str | None = None
+        self.profile_caption = ""
+        self._pass_profiles: dict[int, dict[int, tuple[float, np.ndarray, np.ndarray]]] = {}
+        self._cal_cache: tuple[str, Any] | None = None
+        self._reconnect: list[str] = []
+
+        outer = QHBoxLayout(self)
+        left = QVBoxLayout()
+        outer.addLayout(left, 0)
+
+        jog = QGroupBox("Turntable and laser")
+        g = QGridLayout(jog)
+        self.angle = QDoubleSpinBox()
+        self.angle.setRange(-3600.0, 3600.0)
+        self.angle.setDecimals(2)
+        self.angle.setSuffix(" °")
+        self.go = QPushButton("Go to")
+        self.step_size = QDoubleSpinBox()
+        self.step_size.setRange(0.1, 180.0)
+        self.step_size.setValue(15.0)
+        self.step_size.setSuffix(" °")
+        self.minus = QPushButton("− step")
+        self.plus = QPushButton("+ step")
+        self.zero = QPushButton("Zero here")
+        self.laser_on = QPushButton("Laser on")
+        self.laser_off = QPushButton("Laser off")
+        self.position = QLabel("table: – (connect the turntable)")
+        g.addWidget(QLabel("Angle"), 0, 0)
+        g.addWidget(self.angle, 0, 1)
+        g.addWidget(self.go, 0, 2)
+        g.addWidget(QLabel("Step"), 1, 0)
+        g.addWidget(self.step_size, 1, 1)
+        row = QHBoxLayout()
+        row.addWidget(self.minus)
+        row.addWidget(self.plus)
+        g.addLayout(row, 1, 2)
+        g.addWidget(self.zero, 2, 0)
+        g.addWidget(self.laser_on, 2, 1)
+        g.addWidget(self.laser_off, 2, 2)
+        g.addWidget(self.position, 3, 0, 1, 3)
+        self.go.clicked.connect(self.safe(lambda: self.jog("move", self.angle.value())))
+        self.minus.clicked.connect(self.safe(lambda: self.jog("move", self.angle.value() - self.step_size.value())))
+        self.plus.clicked.connect(self.safe(lambda: self.jog("move", self.angle.value() + self.step_size.value())))
+        self.zero.clicked.connect(self.safe(lambda: self.jog("zero")))
+        self.laser_on.clicked.connect(self.safe(lambda: self.jog("laser", 1)))
+        self.laser_off.clicked.connect(self.safe(lambda: self.jog("laser", 0)))
+        left.addWidget(jog)
+
+        plan = QGroupBox("Scan plan")
+        f = QFormLayout(plan)
+        self.kind = QComboBox()
+        self.kind.addItems(["scan", "swatch"])
+        self.steps = QSpinBox()
+        self.steps.setRange(1, 100_000)
+        self.steps.setValue(200)
+        self.passes = QSpinBox()
+        self.passes.setRange(1, 99)
+        self.passes.setValue(3)
+        self.camera_angles = QLineEdit("0,90,180,270")
+        self.chart = QCheckBox("colour chart first in every pass")
+        self.chart.setChecked(True)
+        f.addRow("Kind", self.kind)
+        f.addRow("Steps per turn", self.steps)
+        f.addRow("Passes", self.passes)
+        f.addRow("Camera angles (°)", self.camera_angles)
+        f.addRow(self.chart)
+        left.addWidget(plan)
+
+        run = QGroupBox("Capture")
+        v = QVBoxLayout(run)
+        buttons = QHBoxLayout()
+        self.start = QPushButton("Start  (F5)")
+        self.pause = QPushButton("Pause  (F6)")
+        self.abort = QPushButton("Abort  (Esc)")
+        self.start.clicked.connect(self.safe(self.start_capture))
+        self.pause.clicked.connect(self.safe(self.toggle_pause))
+        self.abort.clicked.connect(self.safe(self.abort_capture))
+        for b in (self.start, self.pause, self.abort):
+            buttons.addWidget(b)
+        v.addLayout(buttons)
+        self.progress = QProgressBar()
+        self.progress.setFormat("%v / %m  (%p%)")
+        self.eta = QLabel("ETA –")
+        self.action = QLabel("idle")
+        self.action.setWordWrap(True)
+        v.addWidget(self.progress)
+        v.addWidget(self.eta)
+        v.addWidget(self.action)
+        self.prompt = QFrame()
+        self.prompt.setStyleSheet("QFrame{background:#fff6d6; border:1px solid #d9a400;}")
+        pl = QVBoxLayout(self.prompt)
+        self.prompt_text = QLabel()
+        self.prompt_text.setWordWrap(True)
+        self.prompt_text.setStyleSheet("font-weight:bold; border:none;")
+        prow = QHBoxLayout()
+        self.prompt_go = QPushButton("Continue  (Enter)")
+        self.prompt_stop = QPushButton("Stop here")
+        self.prompt_go.clicked.connect(lambda: self._answer(True))
+        self.prompt_stop.clicked.connect(lambda: self._answer(False))
+        prow.addWidget(self.prompt_go)
+        prow.addWidget(self.prompt_stop)
+        pl.addWidget(self.prompt_text)
+        pl.addLayout(prow)
+        self.prompt.hide()
+        v.addWidget(self.prompt)
+        left.addWidget(run)
+        left.addStretch(1)
+
+        plots = QSplitter(Qt.Orientation.Vertical)
+        self.profile_plot = PlotImage(plot_lane)
+        self.cloud_plot = PlotImage(plot_lane)
+        plots.addWidget(self.profile_plot)
+        plots.addWidget(self.cloud_plot)
+        outer.addWidget(plots, 1)
+        self._draw_empty()
+        self._timer = QTimer(self)
+        # the plots follow the capture at 2 Hz (the profile) and 0.5 Hz (the cloud) whatever its pace: each
+        # drawing costs 0.1-0.3 s of a core, which the capture and the instruments' threads need too
+        self._timer.setInterval(500)
+        self._ticks = 0
+        self._timer.timeout.connect(self._refresh_plots)
+        self._set_running(False)
+
+    # ------------------------------------------------------------ jog
+    def jog(self, action: str, value: float = 0.0) -> None:
+        if action == "move":
+            self.angle.setValue(value)
+        self.link.jog(action, value, done=self._jogged)
+
+    def _jogged(self, angle: float) -> None:
+        self.position.setText(f"table at {angle:.2f}° (confirmed by the firmware)")
+
+    # ------------------------------------------------------------ plan and session
+    def plan(self) -> Any:
+        from app.capture import CapturePlan
+
+        camera = self.link.camera.get("kind", "none") != "none"
+        kind = self.kind.currentText()
+        return CapturePlan(kind, steps=int(self.steps.value()), passes=int(self.passes.value()),
+                           camera_angles_deg=parse_angles(self.camera_angles.text()),
+                           chart=self.chart.isChecked(), camera=camera)
+
+    def set_plan(self, plan: dict[str, Any]) -> None:
+        """Show a session's plan (an opened session resumes with its own plan)."""
+        self.kind.setCurrentText(str(plan.get("kind", "scan")))
+        self.steps.setValue(int(plan.get("steps", 200)))
+        self.passes.setValue(int(plan.get("passes", 3)))
+        self.camera_angles.setText(",".join(f"{a:g}" for a in plan.get("camera_angles_deg", ())))
+        self.chart.setChecked(bool(plan.get("chart", True)))
+
+    def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
+        from app.capture import CapturePlan
+        from app.errors import UsageError
+        from app.session import Session, SessionError
+
+        root = self.session_root()
+        if root is None:
+            raise UsageError("choose a session first (Session tab: New session, or Open / resume)")
+        self.link_apply()
+        if (root / "session.json").exists():
+            try:
+                session = Session.open(root)
+            except SessionError as exc:
+                raise UsageError(str(exc)) from None
+            if session.manifest["status"] == "complete":
+                session.close()
+                raise UsageError(f"session {root} is already complete; nothing to resume")
+            plan = CapturePlan.from_dict(session.manifest["plan"])
+            settings = dict(session.manifest.get("settings") or {})
+            config = {k: dict(v) for k, v in (settings.get("device_config") or {}).items()}
+            for name in ("turntable", "profiler"):
+                if self.link.ports.get(name) and name in config:
+                    config[name]["port"] = self.link.ports[name]
+            if self.link.camera.get("kind", "none") != "none":
+                config["camera"] = dict(self.link.camera)
+            settings["device_config"] = config
+            session.update("settings", settings)
+            self.set_plan(plan.to_dict())
+            return session, plan, config
+        try:
+            plan = self.plan()
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        config = self.link.device_config()
+        missing = [n for n, need in (("turntable", True), ("profiler", plan.kind == "scan")) if need and n not in config]
+        if missing:
+            raise UsageError(f"choose the {' and the '.join(missing)} port on the Devices tab")
+        problem = self.link.camera_problem()
+        if plan.camera and problem:
+            raise UsageError(problem)
+        if plan.kind == "swatch" and not plan.camera:
+            raise UsageError("a swatch capture takes only RAW frames: choose a camera on the Devices tab")
+        try:
+            session = Session.create(root, plan=plan.to_dict(), object_info=self.metadata(),
+                                     settings={"unattended": False, "device_config": config, "station": "gui"},
+                                     devices={k: dict(v) for k, v in config.items()})
+        except SessionError as exc:
+            raise UsageError(str(exc)) from None
+        return session, plan, config
+
+    def link_apply(self) -> None:
+        """Hook for the window: copy the Devices tab's choices into the link."""
+
+    # ------------------------------------------------------------ run
+    def start_capture(self) -> None:
+        from app.capture import CaptureHooks, CaptureInterrupted, CaptureSettings, run_capture
+        from app.capture_devices import build_devices
+        from app.errors import UsageError
+
+        if self.job is not None and not self.job.done:
+            raise UsageError("a capture is already running")
+        if self.link.lane.busy:
+            self.link.lane.wait(5000)
+        session, plan, config = self._open_or_create()
+        self._root = session.root
+        self._pass_profiles.clear()
+        self._draw_empty()
+        self.pause_event.clear()
+        self._reconnect = self.link.release_for_capture()
+        link, gate = self.link, self.gate
+        simulated = link.placer is not None or bool(link.control_dir)
+        chart_prompt = plan.camera and plan.chart and not simulated
+        pause = self.pause_event
+
+        def work(ctx: JobContext) -> Any:
+            def before_pass(p: int, n: int) -> None:
+                what = "Place the object on the table" if p == 1 else "Re-place the object in a new orientation"
+                chart = " and put the colour chart in view of the camera" if plan.camera and plan.chart else ""
+                if not gate.ask(f"Pass {p} of {n}: {what}{chart}, then press Continue.", ctx.cancel):
+                    raise CaptureInterrupted(f"stopped before pass {p}; the session {session.root} is intact and "
+                                             "resumable (Start resumes it)", session=session.root, reason="cancelled")
+                done = link.place(p)
+                if done:
+                    ctx.message(f"pass {p}: {done}")
+
+            def after_chart(p: int) -> None:
+                if chart_prompt and not gate.ask("Chart frame taken: remove the chart from the view, then press "
+                                                 "Continue.", ctx.cancel):
+                    raise CaptureInterrupted("stopped after the chart frame; resumable", session=session.root,
+                                             reason="cancelled")
+
+            def progress(pr: Any) -> None:
+                ctx.progress(pr)
+                while pause.is_set() and not ctx.cancel.is_set():
+                    time.sleep(0.05)
+
+            try:
+                devices = build_devices(config, session.root, shutter=link.shutter)
+                hooks = CaptureHooks(before_pass=before_pass, after_chart=after_chart, progress=progress,
+                                     message=ctx.message, cancel=ctx.cancel)
+                return run_capture(session, plan, devices, hooks, CaptureSettings(reconnect_timeout_s=self.reconnect_timeout_s))
+            finally:
+                session.close()
+
+        self.job = Job(work, "capture")
+        self.job.signals.progress.connect(self._on_progress)
+        self.job.signals.message.connect(self._on_message)
+        self.job.signals.succeeded.connect(self._on_done)
+        self.job.signals.failed.connect(self._on_failed)
+        self.job.signals.finished.connect(self._on_finished)
+        self.link.lane.submit(self.job)
+        self.status_text = "running"
+        self.action.setText(f"capturing into {session.root}")
+        self.progress.setRange(0, len(plan.actions()))
+        self.progress.setValue(0)
+        self._set_running(True)
+        self._timer.start()
+        self.capture_started.emit()
+        self.log.emit(f"capture started: {plan.kind}, {plan.steps} steps × {plan.passes} passes -> {session.root}")
+
+    #: How long the engine waits for an unplugged instrument to come back (s).
+    reconnect_timeout_s = 30.0
+
+    def toggle_pause(self) -> None:
+        if self.job is None or self.job.done:
+            return
+        if self.pause_event.is_set():
+            self.pause_event.clear()
+            self.pause.setText("Pause  (F6)")
+            self.action.setText("continuing")
+            self.log.emit("capture continued")
+        else:
+            self.pause_event.set()
+            self.pause.setText("Continue  (F6)")
+            self.action.setText("paused after the current step (the instruments hold their state)")
+            self.log.emit("capture paused")
+
+    def abort_capture(self) -> None:
+        if self.job is None or self.job.done:
+            return
+        self.job.cancel()
+        self.pause_event.clear()
+        if self.gate.pending:
+            self.gate.answer(False)
+        self.action.setText("stopping after the current step…")
+        self.log.emit("capture: abort requested (the session stays resumable)")
+
+    def _answer(self, go: bool) -> None:
+        self.prompt.hide()
+        self.gate.answer(go)
+
+    def answer_prompt(self) -> None:
+        """The Enter shortcut: Continue if a prompt is shown."""
+        if not self.prompt.isHidden():
+            self._answer(True)
+
+    def _show_prompt(self, text: str) -> None:
+        self.prompt_text.setText(text)
+        self.prompt.show()
+        self.prompt_go.setFocus()
+        self.log.emit(text)
+
+    def _set_running(self, running: bool) -> None:
+        self.start.setEnabled(not running)
+        self.pause.setEnabled(running)
+        self.abort.setEnabled(running)
+        for w in (self.go, self.minus, self.plus, self.zero, self.laser_on, self.laser_off, self.kind,
+                  self.steps, self.passes, self.camera_angles, self.chart):
+            w.setEnabled(not running)
+
+    # ------------------------------------------------------------ engine signals
+    def _on_progress(self, pr: Any) -> None:
+        self.last_progress = pr
+        self.progress.setMaximum(pr.total)
+        self.progress.setValue(pr.done)
+        self.eta.setText(f"{format_eta(pr.eta_s)} · elapsed {pr.elapsed_s:.0f} s")
+        self.action.setText(f"pass {pr.pass_no}: {pr.action}")
+        if "/profile/" in pr.action:
+            self._pending_profile = pr.action
+
+    def _on_message(self, text: str) -> None:
+        self.link.capture_note(text)
+        self.note.emit(text)
+        self.log.emit(f"capture: {text}")
+
+    def _on_done(self, report: Any) -> None:
+        self.status_text = "complete"
+        self.action.setText(f"complete: {report.taken} taken, {report.skipped} already held, "
+                            f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
+        self.log.emit(f"capture complete: {self.action.text()}")
+
+    def _on_failed(self, text: str, exc: Any) -> None:
+        reason = getattr(exc, "reason", "error")
+        self.status_text = "cancelled" if reason == "cancelled" else "interrupted"
+        first = text.splitlines()[0]
+        self.action.setText(f"stopped: {first}\nThe session is intact: fix the cause and press Start to resume.")
+        self.error.emit(text)
+
+    def _on_finished(self) -> None:
+        self._timer.stop()
+        self._refresh_plots(both=True)
+        self.prompt.hide()
+        self.pause.setText("Pause  (F6)")
+        self._set_running(False)
+        self.link.capture_finished(self._reconnect)
+        self.capture_stopped.emit(self.status_text)
+
+    # ------------------------------------------------------------ plots
+    # Both figures are drawn off the GUI thread (app.gui.plots.PlotImage); the GUI thread only reads the
+    # newest profile back from the session and hands copies of the arrays to the drawing.
+    def _draw_empty(self) -> None:
+        def empty(title: str) -> Callable[[Any], None]:
+            def build(fig: Any) -> None:
+                ax = fig.add_subplot(111)
+                style(ax, title)
+                ax.text(0.5, 0.5, "starts with the capture", ha="center", va="center", transform=ax.transAxes,
+                        color="#777")
+                ax.set_xticks([])
+                ax.set_yticks([])
+            return build
+
+        self.profile_plot.plot(empty("Live profile"))
+        self.cloud_plot.plot(empty("Point cloud of the pass"))
+
+    def _refresh_plots(self, both: bool = False) -> None:
+        cid = self._pending_profile
+        if cid is None or self._root is None:
+            return
+        self._ticks += 1
+        if not both and (self.profile_plot.busy or self.cloud_plot.busy):
+            return                     # the drawings keep their own pace; the newest profile waits
+        self._pending_profile = None
+        p = int(cid[1:3])
+        idx = int(cid.rsplit("/", 1)[1])
+        rows = self._pass_profiles.setdefault(p, {})
+        last = max(rows) if rows else -1
+        for i in range(last + 1, idx + 1):         # this profile and any the ticks skipped
+            try:
+                with np.load(self._root / f"passes/p{p:02d}/profiles/{i:04d}.npz") as z:
+                    rows[i] = (float(z["angle_deg"]), z["x_mm"].astype(np.float64), z["z_mm"].astype(np.float64))
+            except (OSError, ValueError, KeyError):
+                continue               # a profile being replaced; the next tick shows it
+        if idx not in rows:
+            return
+        angle, x, zz = rows[idx]
+        self.profile_caption = f"pass {p}, step {idx}"
+        self.profile_plot.plot(_profile_figure(p, idx, angle, x, zz))
+        if not both and self._ticks % 4:
+            return
+        keys = sorted(rows)
+        width = max(rows[k][1].size for k in keys)
+        xs = np.full((len(keys), width), np.nan)
+        zs = np.full((len(keys), width), np.nan)
+        for i, k in enumerate(keys):
+            xs[i, :rows[k][1].size], zs[i, :rows[k][2].size] = rows[k][1], rows[k][2]
+        angles = np.array([rows[k][0] for k in keys])
+        self.cloud_plot.plot(_cloud_figure(p, angles, xs, zs, self._calibration()))
+
+    def _calibration(self) -> Any:
+        src = self.calibration()
+        root = self._root
+        if src is None and root is not None and (root / "calibration.json").exists():
+            src = str(root)
+        if src is None:
+            return None
+        if self._cal_cache is not None and self._cal_cache[0] == src:
+            return self._cal_cache[1]
+        from app.calibrate_command import load_calibration_source
+        from processing.calibration import ScannerCalibration
+
+        try:
+            cal = ScannerCalibration.from_dict(load_calibration_source(src))
+        except ValueError as exc:
+            self.log.emit(f"live point cloud: calibration {src} unusable ({exc}); showing the range image")
+            cal = None
+        self._cal_cache = (src, cal)
+        return cal
+
+
+def _profile_figure(p: int, idx: int, angle: float, x: np.ndarray, z: np.ndarray) -> Callable[[Any], None]:
+    def build(fig: Any) -> None:
+        ax = fig.add_subplot(111)
+        ok = np.isfinite(x) & np.isfinite(z)
+        ax.plot(x[ok], z[ok], ".", ms=3, color="#1f5fa8")
+        style(ax, f"Live profile: pass {p}, step {idx} at {angle:.1f}° ({int(ok.sum())} of {x.size} points)",
+              "x along the laser line (mm)", "range z (mm)")
+        ax.invert_yaxis()                  # the range grows away from the sensor: down the plot
+        ax.grid(alpha=0.3)
+    return build
+
+
+def _cloud_figure(p: int, angles: np.ndarray, x: np.ndarray, z: np.ndarray, cal: Any) -> Callable[[Any], None]:
+    def build(fig: Any) -> None:
+        finite = np.isfinite(z)
+        if cal is not None and finite.any():
+            from processing.scan_points import profiles_to_points
+
+            lo, hi = float(np.nanmin(z)), float(np.nanmax(z))
+            pad = 0.02 * max(hi - lo, 1.0)
+            sp = profiles_to_points(x, z, angles, cal, range_mm=(max(lo - pad, 0.0), hi + pad))
+            pts = sp.points
+            if len(pts) > 3000:
+                pts = pts[np.linspace(0, len(pts) - 1, 3000).astype(int)]
+            ax = fig.add_subplot(111, projection="3d")
+            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=1, c=pts[:, 2], cmap="viridis")
+            ax.set_title(f"Point cloud, pass {p}: {len(sp.points)} points after {len(angles)} profiles", fontsize=10)
+            ax.set_xlabel("x (mm)", fontsize=8)
+            ax.set_ylabel("y (mm)", fontsize=8)
+            ax.set_zlabel("z (mm)", fontsize=8)
+            ax.tick_params(labelsize=7)
+            if len(pts):
+                span = np.ptp(pts, axis=0).max() / 2 or 1.0
+                mid = (pts.max(axis=0) + pts.min(axis=0)) / 2
+                ax.set_xlim(mid[0] - span, mid[0] + span)
+                ax.set_ylim(mid[1] - span, mid[1] + span)
+                ax.set_zlim(mid[2] - span, mid[2] + span)
+            return
+        import matplotlib
+
+        ax = fig.add_subplot(111)
+        cmap = matplotlib.colormaps["viridis"].with_extremes(bad="black")
+        top = float(angles[-1]) if len(angles) > 1 else 1.0
+        im = ax.imshow(np.ma.masked_invalid(z), aspect="auto", cmap=cmap, interpolation="nearest",
+                       extent=(0, z.shape[1], top, float(angles[0])))
+        fig.colorbar(im, ax=ax, label="range (mm)")
+        style(ax, f"Pass {p} as a range image: {100 * finite.mean():.0f}% returns, black none\n"
+                  "(choose a calibration on the Processing tab for 3-D points)",
+              "point along the laser line", "table angle (°)")

@@ -1,0 +1,309 @@
+"""The capture station's main window: tabs for each stage, a drop-out banner, a log panel, shortcuts, settings.
+
+Issue #7.  Tabs: Devices, Session, Capture, Camera, Processing, Spectra and
+materials, Preview (one module each).  Long work runs off the GUI thread
+(:mod:`app.gui.workers`); errors appear as a readable line above the tabs and
+in the log panel, never as a lost session.  Window layout, ports, camera,
+simulated-station folder, last session and calibration persist in
+:class:`QSettings` (organisation ``kogei``, application ``capture-station``).
+
+Keyboard: F5 start / resume the capture, F6 pause / continue, Esc abort,
+Enter continue at a placement prompt, Ctrl+Left / Ctrl+Right jog the table
+by one step, Ctrl+0 zero the table, Ctrl+L / Ctrl+Shift+L laser on / off,
+Ctrl+1..7 switch tabs.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import QSettings, Qt
+from PySide6.QtGui import QAction, QKeySequence, QShortcut
+from PySide6.QtWidgets import (
+    QDockWidget, QHBoxLayout, QLabel, QMainWindow, QPlainTextEdit, QPushButton, QTabWidget, QVBoxLayout, QWidget,
+)
+
+from app.gui.camera_panel import CameraPanel
+from app.gui.capture_panel import CapturePanel
+from app.gui.devices_panel import DevicesPanel
+from app.gui.preview_panel import PreviewPanel
+from app.gui.processing_panel import ProcessingPanel
+from app.gui.session_panel import SessionPanel
+from app.gui.station_link import INSTRUMENTS, StationLink
+from app.gui.widgets import Banner
+from app.gui.workers import Lane
+
+__all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP"]
+
+SETTINGS_ORG = "kogei"
+SETTINGS_APP = "capture-station"
+
+
+class _LogHandler(logging.Handler):
+    def __init__(self, window: "MainWindow") -> None:
+        super().__init__(logging.INFO)
+        self.window = window
+
+    def emit(self, record: logging.LogRecord) -> None:
+        # records can come from worker threads: only the first line, through the queued log signal
+        self.window.link.log.emit(record.getMessage().splitlines()[0])
+
+
+class MainWindow(QMainWindow):
+    """See the module docstring.
+
+    Parameters
+    ----------
+    settings
+        A :class:`QSettings` to use (tests pass one backed by a temporary file).
+    """
+
+    def __init__(self, settings: QSettings | None = None, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        # Worker threads (capture, drawing, reading) share the interpreter lock with this thread; a short
+        # switch interval (default 5 ms) hands it back to the event loop sooner when they are busy.
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
+        self.setWindowTitle("kogei — capture station")
+        self.settings = settings or QSettings(SETTINGS_ORG, SETTINGS_APP)
+        self.station: Any = None                     # a simulated station started by the window
+        self.device_lane = Lane(1)                   # every serial operation, in order
+        self.work_lane = Lane(2)                     # reading sessions, thumbnails, decoding, renders
+        self.plot_lane = Lane(1)                     # drawing figures (app.gui.plots.PlotImage)
+        self._wire_tmp = tempfile.TemporaryDirectory(prefix="kogei-gui-wire-")
+        self.link = StationLink(self.device_lane, Path(self._wire_tmp.name), self)
+
+        central = QWidget()
+        v = QVBoxLayout(central)
+        self.banner = Banner()
+        v.addWidget(self.banner)
+        err_row = QHBoxLayout()
+        self.error_line = QLabel()
+        self.error_line.setWordWrap(True)
+        self.error_line.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+        self.error_line.setStyleSheet("color:#7a1512; background:#fff0ef; padding:4px;")
+        self.error_dismiss = QPushButton("Dismiss")
+        self.error_dismiss.clicked.connect(lambda: self.show_error(""))
+        err_row.addWidget(self.error_line, 1)
+        err_row.addWidget(self.error_dismiss)
+        v.addLayout(err_row)
+        self.show_error("")
+        self.tabs = QTabWidget()
+        v.addWidget(self.tabs, 1)
+        self.setCentralWidget(central)
+
+        self.devices = DevicesPanel(self.link)
+        self.session = SessionPanel(self.work_lane)
+        self.processing = ProcessingPanel(self.work_lane, lambda: self.session.root)
+        self.capture = CapturePanel(self.link, lambda: self.session.root, self.session.metadata,
+                                    self.processing.calibration_source, self.plot_lane)
+        self.capture.link_apply = self.devices.apply
+        self.camera = CameraPanel(self.link, self.work_lane, self.plot_lane, lambda: self.session.root)
+        self.preview = PreviewPanel(self.work_lane, lambda: self.session.root)
+        for panel, title in ((self.devices, "Devices"), (self.session, "Session"), (self.capture, "Capture"),
+                             (self.camera, "Camera"), (self.processing, "Processing"),
+                             (self.preview, "Preview")):
+            self.tabs.addTab(panel, title)
+            if hasattr(panel, "error"):
+                panel.error.connect(self.show_error)
+            if hasattr(panel, "log"):
+                panel.log.connect(self.append_log)
+
+        self.log_view = QPlainTextEdit()
+        self.log_view.setReadOnly(True)
+        self.log_view.setMaximumBlockCount(5000)
+        dock = QDockWidget("Log", self)
+        dock.setObjectName("log-dock")
+        dock.setWidget(self.log_view)
+        self.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, dock)
+        self.log_dock = dock
+
+        self.link.log.connect(self.append_log)
+        self.link.banner.connect(self.banner.show_text)
+        self.link.state.connect(self._state_changed)
+        self.devices.simulated_requested.connect(lambda: self.run_safely(self.start_simulated_station))
+        self.session.session_chosen.connect(self._session_chosen)
+        self.capture.capture_started.connect(lambda: setattr(self.session, "capturing", True))
+        self.capture.capture_stopped.connect(self._capture_stopped)
+        self.capture.job_progress = None
+        self._refresh_counter = 0
+        self.capture.progress.valueChanged.connect(self._maybe_refresh_session)
+        self.processing.processed.connect(self._processed)
+        self.statusBar().showMessage("ready")
+        self._log_handler = _LogHandler(self)
+        logging.getLogger("kogei.gui").addHandler(self._log_handler)
+        logging.getLogger("kogei.gui").setLevel(logging.INFO)
+        self._shortcuts()
+        self._menu()
+        self.restore_settings()
+        self.resize(1280, 860) if not self.settings.value("geometry") else None
+
+    # ------------------------------------------------------------ errors and log
+    def show_error(self, text: str) -> None:
+        """Show a readable error above the tabs ('' hides it) and write it to the log."""
+        self.error_line.setText(text)
+        self.error_line.setVisible(bool(text))
+        self.error_dismiss.setVisible(bool(text))
+        if text:
+            self.append_log(f"ERROR: {text}")
+            self.statusBar().showMessage(text.splitlines()[0], 15_000)
+
+    def append_log(self, text: str) -> None:
+        import time
+
+        self.log_view.appendPlainText(f"{time.strftime('%H:%M:%S')}  {text}")
+
+    def run_safely(self, fn: Any) -> None:
+        from app.gui.workers import describe_error
+
+        try:
+            fn()
+        except Exception as exc:  # noqa: BLE001 - shown in the window
+            self.show_error(describe_error(exc))
+
+    # ------------------------------------------------------------ shortcuts, menu
+    def _shortcuts(self) -> None:
+        def key(seq: Any, fn: Any) -> None:
+            sc = QShortcut(QKeySequence(seq), self)
+            sc.activated.connect(self.capture.safe(fn))
+
+        cap = self.capture
+        key(Qt.Key.Key_F5, lambda: cap.start_capture() if cap.start.isEnabled() else None)
+        key(Qt.Key.Key_F6, cap.toggle_pause)
+        key(Qt.Key.Key_Escape, cap.abort_capture)
+        key(Qt.Key.Key_Return, cap.answer_prompt)
+        key(Qt.Key.Key_Enter, cap.answer_prompt)
+        key("Ctrl+Left", lambda: cap.jog("move", cap.angle.value() - cap.step_size.value()))
+        key("Ctrl+Right", lambda: cap.jog("move", cap.angle.value() + cap.step_size.value()))
+        key("Ctrl+0", lambda: cap.jog("zero"))
+        key("Ctrl+L", lambda: cap.jog("laser", 1))
+        key("Ctrl+Shift+L", lambda: cap.jog("laser", 0))
+        for i in range(7):
+            sc = QShortcut(QKeySequence(f"Ctrl+{i + 1}"), self)
+            sc.activated.connect(lambda i=i: self.tabs.setCurrentIndex(i))
+
+    def _menu(self) -> None:
+        m = self.menuBar().addMenu("&Station")
+        act = QAction("Connect all instruments", self)
+        act.triggered.connect(lambda: self.run_safely(self.devices.connect_all))
+        m.addAction(act)
+        act = QAction("Start a simulated station", self)
+        act.triggered.connect(lambda: self.run_safely(self.start_simulated_station))
+        m.addAction(act)
+        m.addSeparator()
+        act = QAction("Quit", self)
+        act.setShortcut(QKeySequence.StandardKey.Quit)
+        act.triggered.connect(self.close)
+        m.addAction(act)
+        view = self.menuBar().addMenu("&View")
+        view.addAction(self.log_dock.toggleViewAction())
+
+    # ------------------------------------------------------------ simulated station
+    def start_simulated_station(self, triangles: int = 4000, seed: int = 0, image_size: tuple[int, int] = (240, 160),
+                                root: str | Path | None = None, n_points: int = 320, world: Any = None) -> Any:
+        """Start :class:`mocks.station.SimulatedStation` in this process and point the Devices tab at it."""
+        from mocks.station import SimulatedStation
+        from mocks.world import World
+
+        if self.station is not None:
+            raise ValueError("a simulated station is already running in this window")
+        if world is None:
+            world = World.hawk(triangles, width=image_size[0], height=image_size[1])
+        st = SimulatedStation(world, root=root, seed=seed, n_points=n_points)
+        st.start()
+        self.station = st
+        self.link.placer = st.place
+        self.link.shutter = st.shoot
+        self.devices.set_port("turntable", str(st.turntable_path))
+        self.devices.set_port("profiler", str(st.profiler_path))
+        self.devices.camera_kind.setCurrentText("gphoto2")
+        self.devices.camera_path.setText(str(st.gphoto2_path))
+        self.devices.sim_state.setText(f"running in this window: {st.root} (turntable {st.turntable_path}, "
+                                       f"profiler {st.profiler_path}, gphoto2 {st.gphoto2_path})")
+        self.devices.apply()
+        self.append_log(f"simulated station started in {st.root}")
+        return st
+
+    # ------------------------------------------------------------ state
+    def _state_changed(self, name: str, state: str, detail: str) -> None:
+        summary = " · ".join(f"{n}: {self.link.states.get(n)}" for n in INSTRUMENTS)
+        self.statusBar().showMessage(summary, 5000)
+
+    def _session_chosen(self, root: Any) -> None:
+        self.settings.setValue("session/last", str(root) if root else "")
+        manifest = self.session.manifest
+        if manifest is not None:
+            self.capture.set_plan(manifest.get("plan", {}))
+        self.setWindowTitle(f"kogei — capture station — {root}")
+
+    def _maybe_refresh_session(self, value: int) -> None:
+        # the session list follows a running capture at most once every 10 steps
+        self._refresh_counter += 1
+        if self._refresh_counter % 10 == 0:
+            self.session.refresh()
+
+    def _capture_stopped(self, status: str) -> None:
+        self.session.capturing = False
+        self.session.refresh()
+        self.statusBar().showMessage(f"capture {status}", 10_000)
+
+    def _processed(self, report: Any) -> None:
+        self.session.refresh()
+        self.run_safely(self.preview.mesh_changed)
+
+    # ------------------------------------------------------------ settings
+    def restore_settings(self) -> None:
+        s = self.settings
+        geo = s.value("geometry")
+        if geo is not None:
+            self.restoreGeometry(geo)
+        state = s.value("windowState")
+        if state is not None:
+            self.restoreState(state)
+        for name in INSTRUMENTS:
+            port = s.value(f"ports/{name}", "")
+            if port:
+                self.devices.set_port(name, str(port))
+        kind = s.value("camera/kind", "")
+        if kind:
+            self.devices.camera_kind.setCurrentText(str(kind))
+        self.devices.camera_path.setText(str(s.value("camera/path", "") or ""))
+        self.devices.control_dir.setText(str(s.value("station/control", "") or ""))
+        self.session.folder.setText(str(s.value("session/last", "") or ""))
+        self.processing.calibration.setText(str(s.value("processing/calibration", "") or ""))
+        self.tabs.setCurrentIndex(int(s.value("tab", 0) or 0))
+
+    def save_settings(self) -> None:
+        s = self.settings
+        s.setValue("geometry", self.saveGeometry())
+        s.setValue("windowState", self.saveState())
+        for name in INSTRUMENTS:
+            s.setValue(f"ports/{name}", self.devices.port(name))
+        s.setValue("camera/kind", self.devices.camera_kind.currentText())
+        s.setValue("camera/path", self.devices.camera_path.text())
+        s.setValue("station/control", self.devices.control_dir.text())
+        s.setValue("processing/calibration", self.processing.calibration.text())
+        s.setValue("tab", self.tabs.currentIndex())
+        s.sync()
+
+    def shutdown(self) -> None:
+        """Stop the capture and the workers, close the instruments and the simulated station."""
+        self.capture.abort_capture()
+        self.processing.cancel()
+        self.device_lane.wait(30_000)
+        self.work_lane.wait(30_000)
+        self.plot_lane.wait(30_000)
+        self.link.shutdown()
+        if self.station is not None:
+            self.station.stop()
+            self.station = None
+        logging.getLogger("kogei.gui").removeHandler(self._log_handler)
+        self._wire_tmp.cleanup()
+
+    def closeEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        self.save_settings()
+        self.shutdown()
+        super().closeEvent(event)

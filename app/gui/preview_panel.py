@@ -1,0 +1,342 @@
+"""Preview panel: the renderer's image of the session's mesh with a chosen material, under a chosen light.
+
+A thin shell over :func:`app.scene_build.build_job` and
+:func:`render.renderer.render` (what ``kogei render`` runs).  Dragging the
+image orbits the camera about the mesh's centre; while dragging a small
+``draft`` image is rendered (about 1/4 of the size), and once the mouse has
+been still for :attr:`PreviewPanel.settle_ms` the image is refined at full
+size with the chosen preset.  Renders run on a worker thread; only the latest
+request is rendered (a request made while one renders replaces any waiting
+one), so dragging never queues up stale work.  The illuminant is D65, A or a
+custom correlated colour temperature (``3200K`` style, as ``--illuminant``).
+
+Examples
+--------
+>>> import numpy as np
+>>> eye = orbit_eye(np.zeros(3), 100.0, azimuth_deg=0.0, elevation_deg=0.0)
+>>> np.round(eye, 6).tolist()
+[100.0, 0.0, 0.0]
+>>> light_vector(90.0, 0.0)
+(0.0, 1.0, 0.0)
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from PySide6.QtCore import QPoint, Qt, QTimer, Signal
+from PySide6.QtGui import QPixmap
+from PySide6.QtWidgets import (
+    QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSizePolicy,
+    QSpinBox, QVBoxLayout, QWidget,
+)
+
+from app.gui.session_panel import rgb_to_qimage
+from app.gui.widgets import Panel
+from app.gui.workers import JobContext, Lane
+
+__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view"]
+
+
+def orbit_eye(center: np.ndarray, distance: float, azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+    """Camera position on a sphere about ``center`` (mm; azimuth from +x toward +y, elevation above the table)."""
+    az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+    return np.asarray(center, float) + distance * np.array([math.cos(el) * math.cos(az),
+                                                            math.cos(el) * math.sin(az), math.sin(el)])
+
+
+def light_vector(azimuth_deg: float, elevation_deg: float) -> tuple[float, float, float]:
+    """Direction toward a directional light (unit vector, rounded to 12 digits)."""
+    v = orbit_eye(np.zeros(3), 1.0, azimuth_deg, elevation_deg)
+    return tuple(float(round(c, 12)) + 0.0 for c in v)
+
+
+def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, float, float],
+                azimuth_deg: float, elevation_deg: float, size: tuple[int, int], preset: str,
+                bounds: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
+    """Render ``mesh`` from the orbit camera.
+
+    Returns
+    -------
+    dict
+        ``srgb8`` ``(H, W, 3)`` uint8, ``mask`` ``(H, W)`` object coverage,
+        ``seconds`` of rendering, and the camera: ``eye``, ``target``, ``up``
+        (mm), ``fov_deg`` (vertical).
+    """
+    import time
+
+    from app.scene_build import build_job
+    from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec
+    from render.renderer import render
+
+    lo, hi = bounds
+    center = (lo + hi) / 2
+    radius = float(np.linalg.norm(hi - lo)) / 2 or 1.0
+    fov = 35.0
+    distance = radius / math.sin(math.radians(fov) / 2) * 1.05
+    eye = orbit_eye(center, distance, azimuth_deg, elevation_deg)
+    up = (0.0, 0.0, 1.0) if abs(elevation_deg) < 89.0 else (0.0, 1.0, 0.0)
+    spec = SceneSpec(objects=[ObjectSpec(mesh=Path(mesh), material=material)],
+                     lights=[LightSpec("directional", light)], illuminant=illuminant, size=size, preset=preset,
+                     camera=CameraSpec(eye=tuple(eye.tolist()), target=tuple(center.tolist()), up=up, fov_deg=fov))
+    job = build_job(spec)
+    t = time.perf_counter()
+    result = render(job.scene, job.camera, job.settings)
+    return {"srgb8": result.srgb8, "mask": result.mask, "seconds": time.perf_counter() - t, "eye": eye,
+            "target": center, "up": np.asarray(up, float), "fov_deg": fov}
+
+
+class _ImageView(QLabel):
+    """The rendered image; reports drags as orbit deltas."""
+
+    dragged = Signal(float, float)
+    released = Signal()
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.setMinimumSize(320, 240)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self.setStyleSheet("background:#202020; color:#ddd;")
+        self._last: QPoint | None = None
+
+    def mousePressEvent(self, e: Any) -> None:  # noqa: N802
+        self._last = e.position().toPoint()
+
+    def mouseMoveEvent(self, e: Any) -> None:  # noqa: N802
+        if self._last is None:
+            return
+        p = e.position().toPoint()
+        d = p - self._last
+        self._last = p
+        self.dragged.emit(float(d.x()), float(d.y()))
+
+    def mouseReleaseEvent(self, e: Any) -> None:  # noqa: N802
+        self._last = None
+        self.released.emit()
+
+
+class PreviewPanel(Panel):
+    """See the module docstring."""
+
+    rendered = Signal(str)           # 'draft' or 'final'
+
+    #: Stillness (ms) after which the image is refined.
+    settle_ms = 350
+
+    def __init__(self, lane: Lane, session_root: Callable[[], Path | None], parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lane = lane
+        self.session_root = session_root
+        self.mesh_path: str | None = None
+        self.bounds: tuple[np.ndarray, np.ndarray] | None = None
+        self.image: np.ndarray | None = None
+        self.last: dict[str, Any] | None = None
+        self.last_kind = ""
+        self._busy = False
+        self._waiting: tuple[str, dict[str, Any]] | None = None
+        outer = QHBoxLayout(self)
+        self.view = _ImageView()
+        self.view.setText("no mesh yet: process the session, or open a mesh")
+        self.view.dragged.connect(self._drag)
+        self.view.released.connect(self._settle_later)
+        outer.addWidget(self.view, 1)
+
+        side = QVBoxLayout()
+        outer.addLayout(side, 0)
+        g = QGroupBox("Scene")
+        f = QFormLayout(g)
+        self.mesh_label = QLabel("–")
+        self.mesh_label.setWordWrap(True)
+        open_mesh = QPushButton("Open mesh…")
+        open_mesh.clicked.connect(self.safe(self._open_mesh))
+        use_session = QPushButton("Use the session's mesh")
+        use_session.clicked.connect(self.safe(self.mesh_changed))
+        f.addRow("Mesh", self.mesh_label)
+        f.addRow(open_mesh)
+        f.addRow(use_session)
+        from processing.materials import list_materials
+
+        self.material = QComboBox()
+        self.material.addItems(list_materials())
+        self.material.setCurrentText("nami-shibuichi")
+        self.illuminant = QComboBox()
+        self.illuminant.addItems(["D65", "A", "custom CCT"])
+        self.cct = QSpinBox()
+        self.cct.setRange(1000, 25000)
+        self.cct.setSingleStep(100)
+        self.cct.setValue(3200)
+        self.cct.setSuffix(" K")
+        self.preset = QComboBox()
+        self.preset.addItems(["draft", "standard", "reference"])
+        self.preset.setCurrentText("standard")
+        self.size = QComboBox()
+        self.size.addItems(["480x360", "640x480", "800x600", "160x120"])
+        f.addRow("Material", self.material)
+        f.addRow("Illuminant", self.illuminant)
+        f.addRow("CCT", self.cct)
+        f.addRow("Preset (when still)", self.preset)
+        f.addRow("Image size", self.size)
+        side.addWidget(g)
+        lg = QGroupBox("Light and view")
+        lf = QFormLayout(lg)
+        self.light_az = QDoubleSpinBox()
+        self.light_el = QDoubleSpinBox()
+        self.azimuth = QDoubleSpinBox()
+        self.elevation = QDoubleSpinBox()
+        for sb, lo, hi, val in ((self.light_az, -360, 360, 200.0), (self.light_el, -89, 89, 50.0),
+                                (self.azimuth, -3600, 3600, -90.0), (self.elevation, -89, 89, 15.0)):
+            sb.setRange(lo, hi)
+            sb.setValue(val)
+            sb.setSuffix(" °")
+            sb.setKeyboardTracking(False)
+        lf.addRow("Light azimuth", self.light_az)
+        lf.addRow("Light elevation", self.light_el)
+        lf.addRow("View azimuth (drag)", self.azimuth)
+        lf.addRow("View elevation (drag)", self.elevation)
+        side.addWidget(lg)
+        self.render_button = QPushButton("Render")
+        self.render_button.clicked.connect(self.safe(lambda: self.request("final")))
+        self.save_button = QPushButton("Save image…")
+        self.save_button.clicked.connect(self.safe(self._save))
+        side.addWidget(self.render_button)
+        side.addWidget(self.save_button)
+        self.info = QLabel("")
+        self.info.setWordWrap(True)
+        side.addWidget(self.info)
+        side.addStretch(1)
+        for w in (self.material, self.illuminant, self.preset, self.size):
+            w.currentTextChanged.connect(lambda _: self._settle_later())
+        for w in (self.cct, self.light_az, self.light_el, self.azimuth, self.elevation):
+            w.valueChanged.connect(lambda _: self._settle_later())
+        self._settle = QTimer(self)
+        self._settle.setSingleShot(True)
+        self._settle.setInterval(self.settle_ms)
+        self._settle.timeout.connect(lambda: self.request("final"))
+
+    # ------------------------------------------------------------ mesh
+    def mesh_changed(self) -> None:
+        """Use the open session's ``products/mesh.ply`` (after processing)."""
+        from app.errors import UsageError
+
+        root = self.session_root()
+        mesh = None if root is None else root / "products" / "mesh.ply"
+        if mesh is None or not mesh.exists():
+            raise UsageError("the session has no mesh yet: process it on the Processing tab")
+        self.set_mesh(str(mesh))
+
+    def _open_mesh(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Mesh", "", "Meshes (*.ply *.obj *.stl *.glb *.gltf *.off)")
+        if path:
+            self.set_mesh(path)
+
+    def set_mesh(self, path: str) -> None:
+        """Use the mesh file ``path`` (read on a worker thread), then render it."""
+        def work(ctx: JobContext) -> tuple[np.ndarray, np.ndarray, int]:
+            from render.meshio import load_mesh
+
+            mesh = load_mesh(path)
+            v = np.asarray(mesh.vertices, float)
+            return v.min(axis=0), v.max(axis=0), len(mesh.triangles)
+
+        def loaded(result: tuple[np.ndarray, np.ndarray, int]) -> None:
+            lo, hi, n = result
+            self.bounds = (lo, hi)
+            self.mesh_path = path
+            self.mesh_label.setText(f"{path}\n{n} triangles")
+            self.request("final")
+
+        self.mesh_label.setText(f"reading {path}…")
+        self.lane.run(work, "read mesh", succeeded=loaded,
+                      failed=lambda text, exc: self.error.emit(f"preview: {path}: {text}"))
+
+    # ------------------------------------------------------------ rendering
+    def illuminant_name(self) -> str:
+        text = self.illuminant.currentText()
+        return f"{self.cct.value()}K" if text == "custom CCT" else text
+
+    def _size(self) -> tuple[int, int]:
+        w, h = (int(x) for x in self.size.currentText().split("x"))
+        return w, h
+
+    def _drag(self, dx: float, dy: float) -> None:
+        if self.mesh_path is None:
+            return
+        self.azimuth.blockSignals(True)
+        self.elevation.blockSignals(True)
+        self.azimuth.setValue(self.azimuth.value() - 0.5 * dx)
+        self.elevation.setValue(max(-89.0, min(89.0, self.elevation.value() + 0.5 * dy)))
+        self.azimuth.blockSignals(False)
+        self.elevation.blockSignals(False)
+        self._settle.stop()
+        self.request("draft")
+
+    def _settle_later(self) -> None:
+        if self.mesh_path is not None:
+            self._settle.start()
+
+    def request(self, kind: str) -> None:
+        """Ask for a ``draft`` (small, fast) or ``final`` image of the current view."""
+        if self.mesh_path is None or self.bounds is None:
+            return
+        w, h = self._size()
+        if kind == "draft":
+            size, preset = (max(64, w // 4), max(48, h // 4)), "draft"
+        else:
+            size, preset = (w, h), self.preset.currentText()
+        args = {"mesh": self.mesh_path, "material": self.material.currentText(),
+                "illuminant": self.illuminant_name(),
+                "light": light_vector(self.light_az.value(), self.light_el.value()),
+                "azimuth_deg": self.azimuth.value(), "elevation_deg": self.elevation.value(),
+                "size": size, "preset": preset, "bounds": self.bounds}
+        self._waiting = (kind, args)
+        self._next()
+
+    def _next(self) -> None:
+        if self._busy or self._waiting is None:
+            return
+        kind, args = self._waiting
+        self._waiting = None
+        self._busy = True
+        self.info.setText(f"rendering {kind} {args['size'][0]}x{args['size'][1]} ({args['preset']})…")
+
+        def work(ctx: JobContext) -> tuple[str, dict[str, Any], dict[str, Any]]:
+            return kind, render_view(**args), args
+
+        self.lane.run(work, f"render {kind}", succeeded=self._shown, failed=self._failed, finished=self._done)
+
+    def _shown(self, result: tuple[str, dict[str, Any], dict[str, Any]]) -> None:
+        kind, out, args = result
+        img, secs = out["srgb8"], out["seconds"]
+        self.image = img
+        self.last = out
+        self.last_kind = kind
+        pix = QPixmap.fromImage(rgb_to_qimage(img))
+        target = self.view.size()
+        self.view.setPixmap(pix.scaled(target, Qt.AspectRatioMode.KeepAspectRatio,
+                                       Qt.TransformationMode.SmoothTransformation))
+        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {args['material']} under "
+                          f"{args['illuminant']}, {secs:.2f} s")
+        self.rendered.emit(kind)
+
+    def _failed(self, text: str, exc: Any) -> None:
+        self.info.setText(f"render failed: {text}")
+        self.error.emit(f"preview: {text}")
+
+    def _done(self) -> None:
+        self._busy = False
+        self._next()
+
+    def _save(self) -> None:
+        from app.errors import UsageError
+        from render.image_io import write_png
+
+        if self.image is None:
+            raise UsageError("render an image first")
+        path, _ = QFileDialog.getSaveFileName(self, "Save image", "preview.png", "PNG (*.png)")
+        if path:
+            write_png(path, self.image)
+            self.log.emit(f"preview saved to {path}")

@@ -1,0 +1,271 @@
+"""Processing panel: scanner calibration, registration and meshing of the open session with progress and cancel,
+the residuals, and the manual 3-point registration when automatic registration fails.
+
+A thin shell over :func:`app.calibrate_command.calibrate_session` and
+:func:`app.process_session.process_session` (what ``kogei calibrate`` and
+``kogei process`` run).  Processing runs in a separate process
+(:class:`app.gui.workers.ProcessJob`): registration and meshing hold the
+interpreter for long stretches, and *Cancel* can stop them at once; the
+session's files are written atomically, so a cancelled run leaves it as it was.
+The residuals are the report's: per pass the points used, per pair the
+registration's RMS residual against the residual expected from the clouds'
+roughness, the overlap and the verdict, and the pose graph's consistency.
+
+Examples
+--------
+>>> pair_row({"source": 1, "target": 0, "rmse_mm": 0.0312, "expected_rmse_mm": 0.03, "overlap": 0.61,
+...           "verified": True, "reason": "ok", "method": "global"}, ["pass 1", "pass 2"])
+['pass 2 → pass 1', '0.0312', '0.0300', '61%', 'global', 'yes', 'ok']
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (
+    QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit, QProgressBar,
+    QPushButton, QTreeWidget, QTreeWidgetItem, QVBoxLayout, QWidget,
+)
+
+from app.gui.widgets import Panel
+from app.gui.workers import JobContext, Lane, ProcessJob
+
+__all__ = ["ProcessingPanel", "pair_row", "run_processing"]
+
+
+def pair_row(pair: dict[str, Any], names: list[str]) -> list[str]:
+    """Columns of one registered pair: pair, RMS, expected RMS, overlap, method, verified, reason."""
+    def mm(v: Any) -> str:
+        return "–" if v is None else f"{float(v):.4f}"
+
+    src = names[pair["source"]] if pair["source"] < len(names) else str(pair["source"])
+    tgt = names[pair["target"]] if pair["target"] < len(names) else str(pair["target"])
+    overlap = pair.get("overlap")
+    return [f"{src} → {tgt}", mm(pair.get("rmse_mm")), mm(pair.get("expected_rmse_mm")),
+            "–" if overlap is None else f"{100 * float(overlap):.0f}%", str(pair.get("method", "")),
+            "yes" if pair.get("verified") else "NO", str(pair.get("reason", ""))]
+
+
+def run_processing(session: str, preset: str, calibration: str | None, picks: dict | None = None, *,
+                   message: Callable[[str], None]) -> dict[str, Any]:
+    """:func:`app.process_session.process_session` in a worker process (module-level: picklable)."""
+    from app.process_session import process_session
+
+    return process_session(session, preset=preset, calibration=calibration, message=message, picks=picks)
+
+
+class ProcessingPanel(Panel):
+    """See the module docstring."""
+
+    processed = Signal(object)          # the report
+
+    def __init__(self, lane: Lane, session_root: Callable[[], Path | None], parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lane = lane
+        self.session_root = session_root
+        self.job: ProcessJob | None = None
+        self.report: dict[str, Any] | None = None
+        self.picks: dict[tuple[int, int], tuple[Any, Any]] = {}
+        outer = QVBoxLayout(self)
+
+        cal = QGroupBox("Scanner calibration")
+        f = QFormLayout(cal)
+        self.calibration = QLineEdit()
+        self.calibration.setPlaceholderText("a session calibrated from a sphere scan, or its calibration.json "
+                                            "(empty: the session's own)")
+        browse = QPushButton("Browse…")
+        browse.clicked.connect(self._browse)
+        row = QHBoxLayout()
+        row.addWidget(self.calibration, 1)
+        row.addWidget(browse)
+        f.addRow("Calibration", row)
+        self.radius = QDoubleSpinBox()
+        self.radius.setRange(0.1, 1000.0)
+        self.radius.setValue(25.0)
+        self.radius.setSuffix(" mm")
+        self.calibrate_button = QPushButton("Calibrate from the open session (a sphere scan)")
+        self.calibrate_button.clicked.connect(self.safe(self.calibrate))
+        crow = QHBoxLayout()
+        crow.addWidget(QLabel("Sphere radius"))
+        crow.addWidget(self.radius)
+        crow.addWidget(self.calibrate_button)
+        crow.addStretch(1)
+        f.addRow(crow)
+        self.cal_state = QLabel("")
+        f.addRow(self.cal_state)
+        outer.addWidget(cal)
+
+        run = QGroupBox("Registration and meshing")
+        v = QVBoxLayout(run)
+        r = QHBoxLayout()
+        self.preset = QComboBox()
+        self.preset.addItems(["draft", "standard", "reference"])
+        self.preset.setCurrentText("standard")
+        self.run_button = QPushButton("Process the open session")
+        self.cancel_button = QPushButton("Cancel")
+        self.pick_button = QPushButton("Manual 3-point registration…")
+        self.run_button.clicked.connect(self.safe(self.run))
+        self.cancel_button.clicked.connect(self.safe(self.cancel))
+        self.pick_button.clicked.connect(self.safe(self.open_pick_dialog))
+        r.addWidget(QLabel("Preset"))
+        r.addWidget(self.preset)
+        for b in (self.run_button, self.cancel_button, self.pick_button):
+            r.addWidget(b)
+        r.addStretch(1)
+        v.addLayout(r)
+        self.busy = QProgressBar()
+        self.busy.setRange(0, 1)
+        self.busy.setValue(0)
+        self.stage = QLabel("idle")
+        self.stage.setWordWrap(True)
+        v.addWidget(self.busy)
+        v.addWidget(self.stage)
+        outer.addWidget(run)
+
+        res = QGroupBox("Residuals")
+        rv = QVBoxLayout(res)
+        self.passes_tree = QTreeWidget()
+        self.passes_tree.setHeaderLabels(["Pass", "Points", "Registered", "Note"])
+        self.passes_tree.setRootIsDecorated(False)
+        self.pairs_tree = QTreeWidget()
+        self.pairs_tree.setHeaderLabels(["Pair", "RMS (mm)", "Expected (mm)", "Overlap", "Method", "Verified",
+                                         "Reason"])
+        self.pairs_tree.setRootIsDecorated(False)
+        self.pairs_tree.setColumnWidth(0, 150)
+        self.summary = QLabel("")
+        self.summary.setWordWrap(True)
+        rv.addWidget(self.passes_tree, 1)
+        rv.addWidget(self.pairs_tree, 1)
+        rv.addWidget(self.summary)
+        outer.addWidget(res, 1)
+        self.cancel_button.setEnabled(False)
+        self.pick_button.setEnabled(False)
+
+    def _browse(self) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Calibrated session")
+        if path:
+            self.calibration.setText(path)
+
+    def calibration_source(self) -> str | None:
+        text = self.calibration.text().strip()
+        return text or None
+
+    # ------------------------------------------------------------ calibrate
+    def calibrate(self) -> None:
+        from app.errors import UsageError
+
+        root = self.session_root()
+        if root is None:
+            raise UsageError("open the sphere-scan session first (Session tab)")
+        radius = float(self.radius.value())
+
+        def work(ctx: JobContext) -> dict[str, Any]:
+            from app.calibrate_command import calibrate_session
+
+            return calibrate_session(root, radius)
+
+        def done(ref: dict[str, Any]) -> None:
+            self.calibration.setText(str(root))
+            self.cal_state.setText(f"calibrated from {root}: sphere residual rms {ref['rms_mm']:.4f} mm, "
+                                   f"max {ref['max_mm']:.4f} mm")
+            self.log.emit(self.cal_state.text())
+
+        self.cal_state.setText("calibrating…")
+        self.lane.run(work, "calibrate", succeeded=done, failed=lambda text, exc: (self.cal_state.setText(""),
+                                                                                     self.error.emit(text)))
+
+    # ------------------------------------------------------------ process
+    def run(self) -> None:
+        from app.errors import UsageError
+
+        root = self.session_root()
+        if root is None or not (root / "session.json").exists():
+            raise UsageError("open a captured session first (Session tab)")
+        if self.job is not None and not self.job.done:
+            raise UsageError("processing is already running")
+        picks = {k: (list(map(list, a)), list(map(list, b))) for k, (a, b) in self.picks.items()} or None
+        self.job = ProcessJob(run_processing, str(root), self.preset.currentText(), self.calibration_source(), picks,
+                              parent=self)
+        self.job.message.connect(self._on_message)
+        self.job.succeeded.connect(self._on_done)
+        self.job.failed.connect(self._on_failed)
+        self.job.finished.connect(self._on_finished)
+        self.busy.setRange(0, 0)          # busy: the stages have no fixed length
+        self.stage.setText(f"processing {root} ({self.preset.currentText()})…")
+        self.run_button.setEnabled(False)
+        self.cancel_button.setEnabled(True)
+        self.log.emit(self.stage.text())
+        self.job.start()
+
+    def cancel(self) -> None:
+        if self.job is not None and not self.job.done:
+            self.job.cancel()
+
+    @property
+    def running(self) -> bool:
+        return self.job is not None and not self.job.done
+
+    def _on_message(self, text: str) -> None:
+        self.stage.setText(text)
+        self.log.emit(f"process: {text}")
+
+    def _on_done(self, report: dict[str, Any]) -> None:
+        self.show_report(report)
+        self.processed.emit(report)
+
+    def _on_failed(self, text: str, detail: Any) -> None:
+        self.stage.setText(f"stopped: {text.splitlines()[0]}")
+        self.error.emit(text)
+
+    def _on_finished(self) -> None:
+        self.busy.setRange(0, 1)
+        self.busy.setValue(1 if self.report is not None else 0)
+        self.run_button.setEnabled(True)
+        self.cancel_button.setEnabled(False)
+
+    def show_report(self, report: dict[str, Any]) -> None:
+        self.report = report
+        self.passes_tree.clear()
+        names = []
+        failed = False
+        for p in report["passes"]:
+            if "points" in p and not (p.get("skipped") or "").startswith("only"):
+                names.append(f"pass {p['pass']}")
+            reg = p.get("registered")
+            failed = failed or reg is False
+            self.passes_tree.addTopLevelItem(QTreeWidgetItem([
+                f"pass {p['pass']}", str(p.get("points", "–")), {True: "yes", False: "NO", None: "–"}[reg],
+                p.get("skipped", "") or ("" if not p.get("angle_uncertain_deg") else
+                                         f"angle uncertain by {p['angle_uncertain_deg']:g}°")]))
+        self.pairs_tree.clear()
+        for pr in report["registration"]["pairs"]:
+            self.pairs_tree.addTopLevelItem(QTreeWidgetItem(pair_row(pr, names)))
+        c = report["registration"]["consistency"]
+        m = report["mesh"]
+        self.summary.setText(
+            (f"Pose graph: largest disagreement {c['max_rotation_deg']:.3f}° / {c['max_displacement_mm']:.3f} mm · "
+             if c else "") +
+            f"Mesh: {m['triangles']} triangles, {'watertight' if m['watertight'] else 'NOT watertight'} · "
+            f"{report['timings_s']['total']:.1f} s"
+            + (" · a pass was not registered: use the manual 3-point registration" if failed else ""))
+        self.stage.setText("done")
+        self.pick_button.setEnabled(True)
+        self.log.emit(f"processed: {self.summary.text()}")
+
+    # ------------------------------------------------------------ manual registration
+    def open_pick_dialog(self) -> None:
+        from app.errors import UsageError
+        from app.gui.pick_dialog import PickDialog
+
+        root = self.session_root()
+        if root is None or not (root / "session.json").exists():
+            raise UsageError("open a captured session first (Session tab)")
+        dlg = PickDialog(root, self.calibration_source(), self.lane, self)
+        dlg.error.connect(self.error.emit)
+        if dlg.exec():
+            self.picks[dlg.pair] = dlg.picked()
+            self.log.emit(f"manual registration: {len(dlg.picked()[0])} point pairs for passes {dlg.pair}; "
+                          "press Process to use them")
+            self.stage.setText(f"picks for passes {dlg.pair[0]} and {dlg.pair[1]} set: press Process")

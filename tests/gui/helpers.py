@@ -1,0 +1,48 @@
+"""Shared helpers of the GUI tests: a window on temporary settings, the simulated station, waiting."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def make_window(qtbot, tmp_path: Path, name: str = "settings.ini"):
+    from PySide6.QtCore import QSettings
+
+    from app.gui.main_window import MainWindow
+
+    settings = QSettings(str(tmp_path / name), QSettings.Format.IniFormat)
+    w = MainWindow(settings)
+    qtbot.addWidget(w)
+    w.show()
+    return w
+
+
+def wait_capture(qtbot, w, timeout_s: float = 60.0, answer_prompts: bool = True) -> list[str]:
+    """Run the event loop until the capture job ends, pressing Continue at each prompt; returns the prompts."""
+    prompts: list[str] = []
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        qtbot.wait(20)
+        if answer_prompts and not w.capture.prompt.isHidden():
+            prompts.append(w.capture.prompt_text.text())
+            qtbot.mouseClick(w.capture.prompt_go, _left())
+        if w.capture.job is not None and w.capture.job.done:
+            break
+    qtbot.waitUntil(lambda: w.capture.start.isEnabled(), timeout=10_000)
+    return prompts
+
+
+def _left():
+    from PySide6.QtCore import Qt
+
+    return Qt.MouseButton.LeftButton
+
+
+def same_profiles(a: list[dict], b: list[dict]) -> None:
+    for pa, pb in zip(a, b, strict=True):
+        np.testing.assert_allclose(pa["angles_deg"], pb["angles_deg"], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(pa["x_mm"], pb["x_mm"])
+        np.testing.assert_array_equal(pa["z_mm"], pb["z_mm"])
