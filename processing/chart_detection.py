@@ -8,10 +8,11 @@ preview_srgb8`, shrunk to at most ``max_side`` pixels for speed.  ``mcc``
 returns the chart's outer box (model -> image homography, orientation chosen
 by matching the patch colours in all eight rotations and flips, so patch 1 is
 the chart's first patch however the chart lies); its box is a few percent off
-in our tests, so the patch centres are then **refined** on the full-resolution
-preview: each patch is segmented as the connected region of its own colour
-around the predicted centre, and a homography is fitted (RANSAC) from the
-layout's patch centres to the region centroids (Hartley & Zisserman, *Multiple
+in our tests, so the patch centres are then **refined** (on the shrunk
+preview when its patches are at least 40 pixels wide, else on the full-size
+one): each patch is segmented as the connected region of its own colour around
+the predicted centre, and a homography is fitted (RANSAC) from the layout's
+patch centres to the region centroids (Hartley & Zisserman, *Multiple
 View Geometry*, 2nd ed., algorithm 4.6).  ``confidence`` is the fraction of
 patches that agree with the fitted homography.
 
@@ -209,6 +210,9 @@ def chart_from_corners(corners: ArrayLike, chart: str = "classic24", *,
 
 _MCC_TYPE = {"classic24": "MCC24", "sg140": "SG140", "vinyl18": "VINYL18"}
 
+#: Patch side (pixels of the shrunk image) from which the refinement runs on the shrunk image.
+_REFINE_SIDE = 40.0
+
 
 def _refine(preview: NDArray[np.uint8], h_prev: NDArray[np.float64], layout: ChartLayout
             ) -> tuple[NDArray[np.float64], float]:
@@ -322,10 +326,18 @@ def detect_chart(image: RawImage | NDArray[np.uint8], chart: str = "classic24", 
         )
     best = min(checkers, key=lambda ch: ch.getCost())
     box_small = np.asarray(best.getBox(), dtype=np.float64).reshape(4, 2)
-    # resize maps pixel centres by (x + 0.5) / shrink - 0.5
-    box_prev = (box_small + 0.5) / shrink - 0.5
-    h_prev = _homography(layout.corners, box_prev)
-    h_prev, confidence = _refine(preview, h_prev, layout)
+    h_small = _homography(layout.corners, box_small)
+    # resize maps pixel centres by x_small = (x + 0.5) * f - 0.5, f the rounded size's own ratio per axis
+    fx, fy = small.shape[1] / pw, small.shape[0] / ph
+    small_to_prev = np.array([[1 / fx, 0, 0.5 / fx - 0.5], [0, 1 / fy, 0.5 / fy - 0.5], [0, 0, 1]])
+    quad = _apply(h_small, layout.quads()[0])
+    side_small = math.sqrt(0.5 * abs(np.sum(quad[:, 0] * np.roll(quad[:, 1], -1) - np.roll(quad[:, 0], -1) * quad[:, 1])))
+    if shrink == 1.0 or side_small >= _REFINE_SIDE:
+        # patches big enough in the shrunk image: centroids there are precise and cost far less
+        h_small, confidence = _refine(small, h_small, layout)
+        h_prev = small_to_prev @ h_small
+    else:
+        h_prev, confidence = _refine(preview, small_to_prev @ h_small, layout)
     to_sensor = np.array([[scale, 0, (scale - 1) / 2.0], [0, scale, (scale - 1) / 2.0], [0, 0, 1]])
     h = to_sensor @ h_prev
     return _build(chart, h / h[2, 2], confidence, "mcc", time.perf_counter() - t0, (pw * scale, ph * scale),
