@@ -351,6 +351,15 @@ def spectral_section() -> list[str]:
     return section(collect())
 
 
+def batch_section() -> list[str]:
+    """Batch reprocessing throughput and the batch layer's cost (issue #8, bench/batch_bench.py)."""
+    from bench.batch_bench import section
+
+    proc = subprocess.run([sys.executable, "-m", "bench.batch_bench"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=3600, check=True)
+    return section(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
 #: Sections of docs/BENCHMARKS.md: ``--only NAME`` key -> (heading prefix, builder).
 SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
@@ -358,6 +367,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "geometry": ("## Scan processing", geometry_section),
     "chart": ("## RAW decoding and chart detection", chart_section),
     "spectral": ("## Spectral estimation and material identification", spectral_section),
+    "batch": ("## Batch reprocessing", batch_section),
 }
 
 
