@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import sys
 import tempfile
@@ -139,6 +140,7 @@ def run_all() -> dict:
         truth = make_dng(dng)
         made = time.perf_counter() - t0
         centres = json.dumps(truth["centres"])
+        load_before = os.getloadavg()[0]
         results = {
             "machine": machine_description(),
             "size": [WIDTH, HEIGHT],
@@ -148,6 +150,7 @@ def run_all() -> dict:
             "decode-demosaic": run_case_subprocess("bench.chart_bench", "decode-demosaic", "--dng", str(dng)),
             "detect": run_case_subprocess("bench.chart_bench", "detect", "--dng", str(dng), "--centres", centres),
         }
+        results["load_average"] = [load_before, os.getloadavg()[0]]
     return results
 
 
@@ -165,7 +168,9 @@ def section(results: dict | None = None) -> list[str]:
         "patch-centroid refinement at full size); the preview's own cost is listed apart.  Centre errors are",
         "against the centroids of the simulation's labelled photosites, in sensor pixels.  Target: detection <= 1 s.",
         "",
-        f"Machine: {r['machine']}.",
+        f"Machine: {r['machine']}."
+        + (f"  Load average (1 min) at the start and end of the run: {r['load_average'][0]:.1f}, "
+           f"{r['load_average'][1]:.1f} -- other work shared the cores." if "load_average" in r else ""),
         "",
         "| step | output | median (s) | runs (s) | peak RSS (MB) |",
         "|---|---|---:|---|---:|",
