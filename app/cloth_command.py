@@ -27,6 +27,8 @@ def add_cloth_parser(sub: argparse._SubParsersAction) -> None:
     f.add_argument("--yarn", default="silk", choices=["silk", "cotton", "satin"],
                    help="preset whose layer count, rounding, fibre index and weave are held (default silk)")
     f.add_argument("--layers", type=int, default=None, metavar="K", help="internal layers to hold (default: the yarn's)")
+    f.add_argument("--pixels", type=int, default=160, metavar="N",
+                   help="swatch pixels fitted (spread over the swatch; default 160)")
     f.add_argument("--out", default=None, metavar="DIR", help="where to write cloth-fit.json and cloth-fit.png")
     f.add_argument("--quiet", action="store_true")
 
@@ -41,7 +43,9 @@ def run_cloth(args: argparse.Namespace) -> int:
     session = Path(args.session)
     if not session.is_dir():
         raise UsageError(f"{session}: session folder not found")
-    data = load_swatch_session(session, args.geometry)
+    if args.pixels < 8:
+        raise UsageError(f"--pixels must be at least 8, got {args.pixels}")
+    data = load_swatch_session(session, args.geometry, max_pixels=args.pixels)
     try:
         fit = fit_swatch(data.measurement, data.geometry, yarn=args.yarn, layers=args.layers)
     except ClothFitError as exc:

@@ -58,28 +58,34 @@ def _lobe_cd_weights(lobe: Lobe, wo: NDArray[np.float64], n_q: int, n_phi: int) 
     wgt = np.repeat(wq, n_phi) / n_phi            # dq dphi / (2 pi) with the 2 pi / n_phi midpoint rule
     h = np.stack([-lobe.roughness * u, -lobe.roughness_b * v, np.ones_like(u)])
     h /= np.linalg.norm(h, axis=0)
-    out = np.zeros((wo.shape[0], _TABLE_NODES))
-    for j, o in enumerate(wo):
-        od = o @ h                                 # o . h
-        wi = 2.0 * od * h - o[:, None]
-        ci, co, ch = wi[2], o[2], h[2]
-        ok = (od > 0) & (ci > 0) & (co > 0)
-        if not np.any(ok):
-            continue
-        idx = np.flatnonzero(ok)
-        cd = od[idx]
-        # through lobe_geometry, so the integrand is what the renderers evaluate:
-        # f ci d omega_i = f ci 4 (o.h) / (D cos_h) dP, with dP = D cos_h d omega_h the measure of the nodes
-        f = lobe_geometry(lobe, ci[idx], co, ch[idx], cd, (wi[0, idx], wi[1, idx], o[0], o[1]))
-        d = ellipsoid_ndf(h[0, idx], h[1, idx], ch[idx], lobe.roughness, lobe.roughness_b)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            val = f * ci[idx] * 4.0 * cd / (d * ch[idx])
-        val = np.where(np.isfinite(val), val, 0.0) * wgt[idx]
-        x = np.clip(cd, 0.0, 1.0) * (_TABLE_NODES - 1)
-        lo = np.minimum(x.astype(np.intp), _TABLE_NODES - 2)
-        frac = x - lo
-        out[j] += np.bincount(lo, val * (1.0 - frac), _TABLE_NODES)
-        out[j] += np.bincount(lo + 1, val * frac, _TABLE_NODES)
+    n = wo.shape[0]
+    od = wo @ h                                                   # (N, M): o . h
+    wi = 2.0 * od[None, :, :] * h[:, None, :] - wo.T[:, :, None]  # (3, N, M)
+    ci = wi[2]
+    co = np.broadcast_to(wo[:, 2:3], od.shape)
+    ch = np.broadcast_to(h[2][None, :], od.shape)
+    ok = (od > 0) & (ci > 0) & (co > 0)
+    rows, cols = np.nonzero(ok)
+    out = np.zeros((n, _TABLE_NODES))
+    if rows.size == 0:
+        return out
+    cd = od[rows, cols]
+    cir, chr_ = ci[rows, cols], ch[rows, cols]
+    # through lobe_geometry, so the integrand is what the renderers evaluate:
+    # f ci d omega_i = f ci 4 (o.h) / (D cos_h) dP, with dP = D cos_h d omega_h the measure of the nodes
+    f = lobe_geometry(lobe, cir, wo[rows, 2], chr_, cd,
+                      (wi[0][rows, cols], wi[1][rows, cols], wo[rows, 0], wo[rows, 1]))
+    d = ellipsoid_ndf(h[0, cols], h[1, cols], chr_, lobe.roughness, lobe.roughness_b)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        val = f * cir * 4.0 * cd / (d * chr_)
+    val = np.where(np.isfinite(val), val, 0.0) * wgt[cols]
+    x = np.clip(cd, 0.0, 1.0) * (_TABLE_NODES - 1)
+    lo = np.minimum(x.astype(np.intp), _TABLE_NODES - 2)
+    frac = x - lo
+    base = rows * _TABLE_NODES
+    flat = np.bincount(base + lo, val * (1.0 - frac), n * _TABLE_NODES)
+    flat += np.bincount(base + lo + 1, val * frac, n * _TABLE_NODES)
+    out = flat.reshape(n, _TABLE_NODES)
     return out
 
 
@@ -166,12 +172,14 @@ def material_albedo(
     return total
 
 
-def azimuth_mean_albedo(lobe: Lobe, cos_o: ArrayLike, wavelengths: ArrayLike, *, n_azimuth: int = 8,
-                        n_q: int = 24, n_phi: int = 32) -> NDArray[np.float64]:
+def azimuth_mean_albedo(lobe: Lobe, cos_o: ArrayLike, wavelengths: ArrayLike, *, n_azimuth: int = 4,
+                        n_q: int = 16, n_phi: int = 24) -> NDArray[np.float64]:
     """Albedo ``(N, L)`` of an anisotropic lobe averaged over the view azimuth (without its weight).
 
     Used for sky light, which the renderer tabulates over cos_o only.  The
     azimuths are spread over [0, pi/2) (the lobe is symmetric about t and b).
+    The default nodes agree with 16 azimuths and 64 x 96 nodes to 1e-3 of
+    the white for the silk preset (most at grazing view).
 
     Examples
     --------

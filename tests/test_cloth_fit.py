@@ -111,7 +111,7 @@ def session(tmp_path_factory):
 
 def test_kogei_cloth_fit_recovers_the_swatch(session, tmp_path, capsys):
     out = tmp_path / "fit"
-    code = main(["cloth", "fit", str(session), "--out", str(out)])
+    code = main(["cloth", "fit", str(session), "--out", str(out), "--pixels", "64"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert "+-" in captured.out and "residual rms" in captured.out

@@ -81,7 +81,7 @@ def test_smith_masking_projects_the_facets_onto_the_view(a_t, a_b, theta_o, phi_
         h = _sph(theta, phi)
         return max(0.0, float(np.dot(o, h))) * float(ellipsoid_ndf(*h, a_t, a_b)) * math.sin(theta)
 
-    val, _ = integrate.dblquad(f, 0.0, 2 * math.pi, 0.0, math.pi / 2, epsabs=1e-8, epsrel=1e-7)
+    val, _ = integrate.dblquad(f, 0.0, 2 * math.pi, 0.0, math.pi / 2, epsabs=1e-6, epsrel=1e-5)
     assert g1 * val == pytest.approx(math.cos(theta_o), rel=2e-4)
 
 
@@ -208,7 +208,7 @@ def test_albedo_at_normal_incidence_matches_a_one_dimensional_integral(a):
     assert got == pytest.approx(want, rel=1e-3)
 
 
-@settings(max_examples=150, deadline=None, derandomize=True)
+@settings(max_examples=80, deadline=None, derandomize=True)
 @given(
     ti=st.floats(0.0, math.pi / 2), to=st.floats(0.0, math.pi / 2), pi=st.floats(0.0, 2 * math.pi),
     po=st.floats(0.0, 2 * math.pi), lt=st.floats(-3.0, 0.0), lb=st.floats(-3.0, 2.0),
