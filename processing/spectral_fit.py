@@ -46,7 +46,7 @@ __all__ = [
     "with_transform",
 ]
 
-_CHUNK_PIXELS = 1 << 20   # pixels per block: bounds the float32 temporaries to tens of MB
+_CHUNK_PIXELS = 1 << 15   # pixels per block: the features (up to 21 x 128 kB) stay in cache
 _SINGLE_THREAD_FROM = 1 << 16   # below this, setting the thread limit costs more than the product
 
 
@@ -252,7 +252,7 @@ class SpectralFit:
     def estimate_weights(self, rgb: ArrayLike) -> NDArray[np.float32]:
         """Basis weights ``(..., p)`` float32 of camera channels ``(..., c)``.
 
-        Done in blocks of 2^20 pixels, each one matrix product (plus the
+        Done in blocks of 2^15 pixels, each one matrix product (plus the
         root-polynomial terms), in float32.
 
         Examples
