@@ -43,7 +43,15 @@ from processing.spectral_rootpoly import fit_rootpoly
 from processing.spectral_two_light import fit_two_light
 from processing.spectral_wiener import fit_wiener
 
-__all__ = ["METHODS", "fit_estimator", "reflectance_from_weights", "RegionSpectra", "region_spectra"]
+__all__ = [
+    "METHODS",
+    "fit_estimator",
+    "SpectralImage",
+    "spectral_image",
+    "reflectance_from_weights",
+    "RegionSpectra",
+    "region_spectra",
+]
 
 _BLOCK = 1 << 20   # pixels per float64 block in region statistics
 
@@ -147,6 +155,65 @@ def fit_estimator(
         condition={**fit.condition, "chart": transform.condition},
         details={**fit.details, "chart_residual": transform.residual},
     )
+
+
+@dataclass(frozen=True)
+class SpectralImage:
+    """An image as basis weights: the issue's output, never (H, W, L) spectra.
+
+    Attributes
+    ----------
+    weights
+        ``(H, W, p)`` float32 basis weights; 0 where ``mask`` is False.
+    basis
+        ``(L, p)`` basis spectra.
+    grid
+        Wavelength grid of the basis.
+    mask
+        ``(H, W)`` True where the pixel was estimated (False: saturated, dead or
+        otherwise excluded by the caller).
+    method
+        The estimator's name.
+    """
+
+    weights: NDArray[np.float32]
+    basis: NDArray[np.float64]
+    grid: SpectralGrid
+    mask: NDArray[np.bool_]
+    method: str
+
+
+def spectral_image(fit: SpectralFit, rgb: ArrayLike, mask: ArrayLike | None = None) -> SpectralImage:
+    """Basis weights of a linear camera image ``(H, W, c)``; pixels outside ``mask`` are skipped.
+
+    Masked pixels may hold anything (NaN from a decoder, clipped values);
+    they get zero weights.  Unmasked pixels must be finite and >= 0.
+
+    Examples
+    --------
+    >>> from processing.spectral_fit import SpectralFit
+    >>> fit = SpectralFit("demo", np.eye(3), np.eye(3), SpectralGrid(400, 700, 150), 3)
+    >>> img = np.ones((1, 2, 3)); img[0, 1] = np.nan
+    >>> out = spectral_image(fit, img, mask=[[True, False]])
+    >>> out.weights.tolist(), out.mask.tolist()
+    ([[[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]]], [[True, False]])
+    """
+    a = np.asarray(rgb)
+    if a.ndim != 3 or a.shape[2] != fit.channels:
+        raise SpectralEstimationError(f"rgb must be an (H, W, {fit.channels}) image, got shape {a.shape}")
+    if mask is None:
+        m = np.ones(a.shape[:2], dtype=bool)
+    else:
+        m = np.asarray(mask)
+        if m.shape != a.shape[:2] or m.dtype != bool:
+            raise SpectralEstimationError(f"mask must be a boolean (H, W) = {a.shape[:2]} image, got {m.shape} {m.dtype}")
+    if not m.any():
+        raise SpectralEstimationError("the mask excludes every pixel; nothing to estimate")
+    if not m.all():
+        a = np.where(m[..., None], a, 0).astype(np.float32, copy=False)
+    weights = fit.estimate_weights(a)
+    weights[~m] = 0.0
+    return SpectralImage(weights, fit.basis, fit.grid, m, fit.method)
 
 
 def reflectance_from_weights(weights: ArrayLike, basis: ArrayLike) -> NDArray[np.float64]:

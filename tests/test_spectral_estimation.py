@@ -12,7 +12,7 @@ from processing.camera_response import camera_rgb, camera_sensitivities, channel
 from processing.camera_transfer import ChartConditionError, fit_chart_transform
 from processing.reflectance_database import load_reflectances, without_near_duplicates
 from processing.spectra import SpectralGrid, light_spectrum
-from processing.spectral_estimation import fit_estimator, reflectance_from_weights, region_spectra
+from processing.spectral_estimation import fit_estimator, reflectance_from_weights, region_spectra, spectral_image
 from processing.spectral_fit import SpectralEstimationError
 from processing.spectral_pca_paper import fit_paper
 from processing.spectral_rootpoly import fit_rootpoly
@@ -278,6 +278,22 @@ def test_bad_estimator_arguments_raise_clear_errors(setup):
         region_spectra(np.zeros((2, 2, 3)), np.zeros((3, 3), int), np.ones((G.size, 3)), 0.0)
     with pytest.raises(SpectralEstimationError, match="no region"):
         region_spectra(np.zeros((2, 2, 3)), np.zeros((2, 2), int), np.ones((G.size, 3)), 0.0)
+
+
+def test_masked_pixels_are_skipped_and_unmasked_bad_pixels_refused(rootpoly_fit):
+    fit, rho = rootpoly_fit
+    img = np.broadcast_to(rho[:3, None, :], (3, 4, 3)).copy()
+    img[0, 0] = np.nan                                         # e.g. a dead photosite
+    img[1, 1] = -5.0
+    mask = np.ones((3, 4), bool)
+    mask[0, 0] = mask[1, 1] = False
+    out = spectral_image(fit, img, mask)
+    assert np.all(out.weights[~mask] == 0) and out.mask is not None
+    assert np.allclose(out.weights[2, 3], fit.estimate_weights(rho[2]), rtol=1e-5)
+    with pytest.raises(SpectralEstimationError, match="NaN"):
+        spectral_image(fit, img)
+    with pytest.raises(SpectralEstimationError, match="every pixel"):
+        spectral_image(fit, img, np.zeros((3, 4), bool))
 
 
 def test_weights_of_an_image_are_float32_and_shaped_like_it(rootpoly_fit):
