@@ -495,7 +495,7 @@ class CapturePanel(Panel):
         self.prompt.hide()
         self.pause.setText("Pause  (F6)")
         self._set_running(False)
-        self.link.capture_finished(self._reconnect)
+        self.link.capture_finished(self._reconnect, interrupted=self.status_text != "complete")
         self.capture_stopped.emit(self.status_text)
 
     # ------------------------------------------------------------ plots

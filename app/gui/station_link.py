@@ -243,10 +243,18 @@ class StationLink(QObject):
             self.log.emit(f"{_LABEL[name]}: back, re-handshaken")
         self._update_banner()
 
-    def capture_finished(self, reconnect: list[str]) -> None:
-        """The capture released the instruments: reconnect those that were connected before."""
+    def capture_finished(self, reconnect: list[str], interrupted: bool = False) -> None:
+        """The capture released the instruments: reconnect those that were connected before.
+
+        After an interrupted capture the turntable is left alone: connecting resets the board's
+        position counter, which a resumed capture reads to learn where the table stands.
+        """
         self.capturing = False
         for n in INSTRUMENTS:
+            if interrupted and n == "turntable" and n not in self._lost:
+                self._set(n, "disconnected", "left as the capture stopped, so that resuming reads the board's "
+                                             "position; connect it only to move the table by hand")
+                continue
             if n in self._lost and self.ports.get(n):
                 # it dropped out and the capture gave up on it: watch it and re-handshake when it returns
                 try:

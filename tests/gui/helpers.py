@@ -46,3 +46,4 @@ def same_profiles(a: list[dict], b: list[dict]) -> None:
         np.testing.assert_allclose(pa["angles_deg"], pb["angles_deg"], rtol=0, atol=1e-9)
         np.testing.assert_array_equal(pa["x_mm"], pb["x_mm"])
         np.testing.assert_array_equal(pa["z_mm"], pb["z_mm"])
+
