@@ -23,6 +23,8 @@ def add_batch_parser(sub: argparse._SubParsersAction) -> None:
                    help="geometry and render preset")
     p.add_argument("--calibration", default=None, metavar="CAL_SESSION|CAL.json",
                    help="install this scanner calibration into every session before its geometry step")
+    p.add_argument("--chart", default="classic24", choices=["classic24", "sg140", "vinyl18"],
+                   help="the colour chart in the chart frames (colour step)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes on this machine")
     p.add_argument("--dask", default=None, metavar="tcp://SCHEDULER:8786",
                    help="run the sessions on a Dask distributed cluster instead")
@@ -56,7 +58,7 @@ def run_batch_command(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
-    options = BatchOptions(preset=args.preset, calibration=args.calibration)
+    options = BatchOptions(preset=args.preset, calibration=args.calibration, chart=args.chart)
     summary = run_batch(args.sessions, args.steps, options=options, workers=args.workers, dask=args.dask,
                         progress=not args.quiet)
     Console(file=sys.stdout, width=max(100, Console().width)).print(summary_table(summary))

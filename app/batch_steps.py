@@ -19,8 +19,8 @@ moment leaves the session consistent, and the rerun redoes exactly the
 interrupted step.
 
 Steps: ``geometry`` (:func:`app.process_session.process_session`),
-``render`` (the mesh under D65 and A) and ``report``
-(:func:`app.report.build_report`).
+``colour`` (the chart frames, :mod:`app.batch_colour`), ``render`` (the mesh
+under D65 and A) and ``report`` (:func:`app.report.build_report`).
 """
 
 from __future__ import annotations
@@ -61,11 +61,14 @@ class BatchOptions:
         session's own calibration.
     render_size
         Width and height of the renders (pixels).
+    chart
+        The colour chart in the chart frames: ``classic24``, ``sg140`` or ``vinyl18``.
     """
 
     preset: str = "standard"
     calibration: str | None = None
     render_size: tuple[int, int] = RENDER_SIZE
+    chart: str = "classic24"
 
     def __post_init__(self) -> None:
         if self.preset not in ("draft", "standard", "reference"):
@@ -73,6 +76,8 @@ class BatchOptions:
         w, h = self.render_size
         if not (isinstance(w, int) and isinstance(h, int) and 16 <= w <= 4096 and 16 <= h <= 4096):
             raise UsageError(f"render size must be 16..4096 pixels each way, got {w}x{h}")
+        if self.chart not in ("classic24", "sg140", "vinyl18"):
+            raise UsageError(f"--chart must be classic24, sg140 or vinyl18, got {self.chart!r}")
 
 
 Log = Callable[[str], None]
@@ -231,9 +236,18 @@ def _report_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
     return {"products": ("report",), "summary": {"bytes": info.bytes}}
 
 
+def _colour_step() -> Step:
+    from app.batch_colour import colour_inputs, colour_params, colour_run
+
+    return Step("colour", ("app.batch_steps", "app.batch_colour", "app.chart_command", "processing.raw_decode",
+                           "processing.chart_detection", "processing.chart_sampling", "processing.chart_layout"),
+                colour_inputs, colour_params, colour_run)
+
+
 STEPS: dict[str, Step] = {
     "geometry": Step("geometry", ("app.batch_steps", "app.process_session", "app.calibrate_command", "app.capture"),
                      _geometry_inputs, _geometry_params, _geometry_run),
+    "colour": _colour_step(),
     "render": Step("render", ("app.batch_steps", "app.scene_build", "app.scene_spec", "render.renderer"),
                    _render_inputs, _render_params, _render_run, needs=("geometry",)),
     "report": Step("report", ("app.batch_steps", "app.report", "app.report_figures", "app.demo_capture", "app.capture"),
@@ -242,9 +256,8 @@ STEPS: dict[str, Step] = {
 STEP_NAMES = tuple(STEPS)
 #: Steps of the issue that this version cannot run, with the reason given to the user.
 UNAVAILABLE_STEPS = {
-    "colour": "the colour pipeline (RAW decoding, chart detection, spectral estimation) is not part of this "
-              "version of kogei",
-    "materials": "material identification is not part of this version of kogei",
+    "materials": "estimating the spectra of the object's regions from its RAW frames and identifying their "
+                 "materials per session is not part of this version of kogei (the colour step checks the charts)",
 }
 
 
@@ -256,7 +269,7 @@ def parse_steps(text: str | None) -> tuple[str, ...]:
     >>> parse_steps("report,geometry")
     ('geometry', 'report')
     >>> parse_steps(None)
-    ('geometry', 'render', 'report')
+    ('geometry', 'colour', 'render', 'report')
     """
     if text is None:
         return STEP_NAMES
@@ -330,10 +343,13 @@ def up_to_date(step: Step, root: Path, manifest: dict[str, Any], options: BatchO
     return True, "up to date", parts
 
 
-def _product_files(product: dict[str, Any]) -> list[dict[str, Any]]:
-    if "file" in product:
+def _product_files(product: Any) -> list[dict[str, Any]]:
+    """Every ``{"file", "sha256"}`` record inside a product entry (nested dicts included)."""
+    if not isinstance(product, dict):
+        return []
+    if "file" in product and "sha256" in product:
         return [{"file": product["file"], "sha256": product["sha256"]}]
-    return [{"file": v["file"], "sha256": v["sha256"]} for v in (product.get("images") or {}).values()]
+    return [f for value in product.values() for f in _product_files(value)]
 
 
 def run_step(step: Step, root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:

@@ -302,15 +302,49 @@ def _coverage(ctx: _Context, rep: dict[str, Any] | None) -> Section:
 
 
 def _chart(ctx: _Context) -> Section:
+    from app.report_figures import chart_overlay_figure, patch_error_figure
+
     charts = {cid: rec for cid, rec in (ctx.manifest.get("captures") or {}).items() if rec.get("kind") == "chart"}
     cmd = _step_command(ctx.root, "colour")
     if not charts:
         return Section("chart", "Colour chart", _missing("no colour-chart frame was captured (plan without camera "
                                                          "or chart)", "kogei capture --camera ... (chart first)"),
                        False)
-    body = _kv([("chart frames", ", ".join(sorted(charts)))])
-    body += _missing("chart detection and patch errors (the colour step has not run on this session)", cmd)
-    return Section("chart", "Colour chart", body, False)
+    colour = ctx.products.get("colour")
+    if not colour:
+        body = _kv([("chart frames", ", ".join(sorted(charts)))])
+        body += _missing("chart detection and patch errors (the colour step has not run on this session)", cmd)
+        return Section("chart", "Colour chart", body, False)
+    body = ""
+    shown = False
+    for tag, files in sorted((colour.get("passes") or {}).items()):
+        blob = ctx.product_bytes(files.get("chart"))
+        pre = ctx.product_bytes(files.get("preview"))
+        if blob is None or pre is None:
+            continue
+        chart = json.loads(blob)
+        from PIL import Image
+        import io
+
+        preview = np.asarray(Image.open(io.BytesIO(pre)).convert("RGB"))
+        errs = chart.get("patch_errors") or {}
+        usable = [p["usable"] for p in chart["patches"]]
+        body += f"<h3>{_e(tag)}: {_e(chart['raw'])}</h3>"
+        body += _kv([("chart", chart["chart"]), ("found by", f"{chart['method']} (confidence {chart['confidence']:.2f}, "
+                                                             f"{chart['detect_seconds']:.2f} s)"),
+                     ("usable patches", f"{sum(usable)} of {len(usable)}"),
+                     ("patch error (dE00, 3x3 fit)", f"mean {errs.get('mean', float('nan')):.2f}, "
+                                                     f"max {errs.get('max', float('nan')):.2f}"),
+                     ("exposure", f"{chart.get('exposure_time')} s, ISO {chart.get('iso')}, f/{chart.get('f_number')}"),
+                     ("warnings", "; ".join(chart.get("warnings") or []) or "none")])
+        body += "<div class='row'>" + _img(chart_overlay_figure(preview, chart), f"chart overlay {tag}",
+                                           "Detected chart and patch centres on the frame.")
+        if errs.get("delta_e00"):
+            body += _img(patch_error_figure([p["name"] for p in chart["patches"]], errs["delta_e00"], usable),
+                         f"patch errors {tag}", "CIEDE2000 left by the least-squares 3 x 3 camera RGB -> XYZ fit.")
+        body += "</div>"
+        shown = True
+    return Section("chart", "Colour chart", body or _missing("intact chart products", cmd), shown)
 
 
 def _spectra(ctx: _Context) -> Section:

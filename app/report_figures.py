@@ -14,7 +14,7 @@ from typing import Any, Sequence
 import numpy as np
 
 __all__ = ["png_of", "calibration_residuals_figure", "pose_graph_figure", "coverage_figure", "holes_figure",
-           "timing_figure", "data_uri"]
+           "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure"]
 
 DPI = 100
 
@@ -147,4 +147,43 @@ def timing_figure(rows: Sequence[tuple[str, float]]) -> bytes:
     for yi, s in zip(y, secs):
         ax.annotate(f"{s:.2f} s", (s, yi), xytext=(3, 0), textcoords="offset points", va="center", fontsize=8)
     ax.set_xlim(0, max(secs + [1e-3]) * 1.25)
+    return png_of(fig)
+
+
+def chart_overlay_figure(preview: np.ndarray, chart: dict[str, Any]) -> bytes:
+    """The chart frame's preview with the detected outline and each patch's centre and CIEDE2000 error.
+
+    ``chart`` is a colour-step result (``products/colour/pNN-chart.json``): corners and centres are
+    sensor pixels, ``preview_scale`` sensor pixels per preview pixel.
+    """
+    plt = _plt()
+    scale = float(chart.get("preview_scale", 1))
+    h, w = preview.shape[:2]
+    fig, ax = plt.subplots(figsize=(6.4, 6.4 * h / w + 0.5), constrained_layout=True)
+    ax.imshow(preview)
+    corners = np.asarray(chart["corners"], dtype=float) / scale
+    ring = np.vstack([corners, corners[:1]])
+    ax.plot(ring[:, 0], ring[:, 1], color="#00e5ff", lw=1.5)
+    de = chart.get("patch_errors", {}).get("delta_e00") or [float("nan")] * len(chart["patches"])
+    for p, d in zip(chart["patches"], de):
+        x, y = np.asarray(p["centre"], dtype=float) / scale
+        ax.scatter([x], [y], s=18, color="#2ecc71" if p["usable"] else "#e74c3c", edgecolor="black", lw=0.5)
+        ax.annotate(f"{d:.1f}", (x, y), xytext=(0, 5), textcoords="offset points", ha="center", fontsize=6,
+                    color="white", bbox={"boxstyle": "round,pad=0.1", "fc": "black", "ec": "none", "alpha": 0.5})
+    ax.set_axis_off()
+    ax.set_title(f"{chart['chart']} found by {chart['method']} (confidence {chart['confidence']:.2f}); "
+                 "dots: green usable, red excluded; labels: dE00", fontsize=8)
+    return png_of(fig)
+
+
+def patch_error_figure(names: Sequence[str], delta_e: Sequence[float], usable: Sequence[bool]) -> bytes:
+    """CIEDE2000 of each patch after the chart's 3 x 3 colour fit (bars; excluded patches hatched)."""
+    plt = _plt()
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(7.0, 2.8), constrained_layout=True)
+    colours = ["#4a7ab5" if u else "#cccccc" for u in usable]
+    ax.bar(x, delta_e, color=colours, hatch=None)
+    ax.set_xticks(x, [str(n) for n in names], rotation=90, fontsize=6)
+    ax.set_ylabel("dE00 after 3x3 fit")
+    ax.set_title("patch errors (grey: excluded from the fit)", fontsize=9)
     return png_of(fig)

@@ -1,8 +1,8 @@
 """Tiny simulated sessions for the batch and report tests, built once per test process.
 
 A reference-sphere scan calibrates the simulated station; a one-pass scan of a small hawk (24
-profiles, one RAW frame after the chart frame) gives a session that ``kogei process`` can mesh in
-about two seconds.  The session is left unprocessed and uncalibrated (as ``kogei capture`` leaves
+profiles, one 240 x 160 RAW frame after the chart frame, a ColorChecker Classic that ``cv2.mcc``
+finds) gives a session that ``kogei process`` can mesh in about two seconds.  The session is left unprocessed and uncalibrated (as ``kogei capture`` leaves
 it), so tests choose what to run; copy it before changing it.
 """
 
@@ -44,7 +44,7 @@ def built_sessions(tmp_path_factory) -> SimpleNamespace:
         _capture(World.calibration_sphere(25.0, 60.0), tmp / "cal", CapturePlan("scan", steps=48, passes=1,
                                                                                 camera=False), False, 5)
         calibrate_session(tmp / "cal", 25.0)
-        _capture(World.hawk(4_000, width=96, height=64), tmp / "raw",
+        _capture(World.hawk(4_000, width=240, height=160, chart_layout="classic24"), tmp / "raw",
                  CapturePlan("scan", steps=24, passes=1, camera_angles_deg=(0.0,)), True, 3)
         _BUILT["s"] = SimpleNamespace(cal=tmp / "cal", raw=tmp / "raw")
     return _BUILT["s"]

@@ -35,7 +35,7 @@ from app.session import Session
 from tests.batch_session import built_sessions, copy_session
 
 ROOT = Path(__file__).resolve().parent.parent
-ALL = ("geometry", "render", "report")
+ALL = ("geometry", "colour", "render", "report")
 
 
 @pytest.fixture(scope="module")
@@ -61,14 +61,22 @@ def _assert_consistent(root: Path) -> dict:
     with Session.open(root) as s:        # the lock is free and the journal replays
         manifest = json.loads(json.dumps(s.manifest))
     for key, rec in (manifest.get("products") or {}).items():
-        files = [rec] if "file" in rec else list((rec.get("images") or {}).values())
-        for f in files:
+        for f in _files(rec):
             assert _sha(root / f["file"]) == f["sha256"], (key, f["file"])
     for name, rec in ((manifest.get("batch") or {}).get("steps") or {}).items():
         for files in rec["outputs"].values():
             for f in files:
                 assert _sha(root / f["file"]) == f["sha256"], (name, f["file"])
     return manifest
+
+
+def _files(rec) -> list[dict]:
+    """Every file record (``file`` + ``sha256``) inside a product entry."""
+    if not isinstance(rec, dict):
+        return []
+    if "file" in rec:
+        return [rec]
+    return [f for v in rec.values() for f in _files(v)]
 
 
 def _statuses(result) -> dict[str, str]:
@@ -78,7 +86,7 @@ def _statuses(result) -> dict[str, str]:
 def test_every_step_runs_once_then_is_skipped(done):
     root, options, first = done
     assert first.status == "ok", first
-    assert _statuses(first) == {"geometry": "ran", "render": "ran", "report": "ran"}
+    assert _statuses(first) == {"geometry": "ran", "colour": "ran", "render": "ran", "report": "ran"}
     manifest = _assert_consistent(root)
     steps = manifest["batch"]["steps"]
     assert set(steps) == set(ALL)
@@ -96,7 +104,7 @@ def test_every_step_runs_once_then_is_skipped(done):
 
     again = process_one(str(root), ALL, options)
     assert again.status == "skipped"
-    assert _statuses(again) == {"geometry": "skipped", "render": "skipped", "report": "skipped"}
+    assert _statuses(again) == {"geometry": "skipped", "colour": "skipped", "render": "skipped", "report": "skipped"}
     assert _assert_consistent(root)["batch"] == manifest["batch"]
 
 
@@ -107,8 +115,8 @@ def test_a_changed_parameter_or_product_reruns_only_what_depends_on_it(done, tmp
     # a parameter of the render step: render and the report (which shows the renders) run again
     bigger = BatchOptions(preset=options.preset, calibration=options.calibration, render_size=(112, 84))
     r = process_one(str(root), ALL, bigger)
-    assert _statuses(r) == {"geometry": "skipped", "render": "ran", "report": "ran"}
-    assert r.steps[1].reason == "params changed"
+    assert _statuses(r) == {"geometry": "skipped", "colour": "skipped", "render": "ran", "report": "ran"}
+    assert r.steps[2].reason == "params changed"
     after = _assert_consistent(root)
     assert after["batch"]["steps"]["geometry"] == before["batch"]["steps"]["geometry"]
     assert Image.open(root / "products/renders/A.png").size == (112, 84)
@@ -182,8 +190,8 @@ def test_worker_pool_isolates_failed_sessions(base, done, tmp_path):
     assert by["ok"].status == "skipped"                # the other sessions' failures did not stop it
     assert by["broken"].status == "failed"
     assert "no pass has usable points" in by["broken"].reason and "profiles.npz" in by["broken"].reason
-    assert _statuses(by["broken"]) == {"geometry": "failed", "render": "not run", "report": "ran"}
-    assert "needs geometry, which failed" in by["broken"].steps[1].reason
+    assert _statuses(by["broken"]) == {"geometry": "failed", "colour": "ran", "render": "not run", "report": "ran"}
+    assert "needs geometry, which failed" in by["broken"].steps[2].reason
     assert by["empty"].status == "failed" and "not a kogei session" in by["empty"].reason
     assert summary.exit_code == 1 and summary.count("failed") == 2 and summary.count("skipped") == 1
     console = Console(record=True, width=200)
@@ -230,10 +238,10 @@ def test_ctrl_c_and_kill_mid_step_leave_the_session_consistent(base, tmp_path):
     code = _run_until(cmd, root / LOG_FILE, "render: started", signal.SIGKILL, 0.1)
     assert code == -signal.SIGKILL
     manifest = _assert_consistent(root)
-    assert set(manifest["batch"]["steps"]) == {"geometry"}
+    assert set(manifest["batch"]["steps"]) == {"geometry", "colour"}
     # the rerun does exactly what is missing
     r = process_one(str(root), ALL, BatchOptions(preset="draft", calibration=str(base.cal)))
-    assert _statuses(r) == {"geometry": "skipped", "render": "ran", "report": "ran"}
+    assert _statuses(r) == {"geometry": "skipped", "colour": "skipped", "render": "ran", "report": "ran"}
     assert set(_assert_consistent(root)["batch"]["steps"]) == set(ALL)
 
 
@@ -253,7 +261,7 @@ def test_dask_local_cluster_runs_the_same_tasks(done, tmp_path):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--steps", "colour"], "not available"),
+    (["--steps", "materials"], "not available"),
     (["--steps", "geometry,shading"], "unknown step 'shading'"),
     (["--workers", "0"], "--workers must be"),
     (["--dask", "bogus://scheduler:8786"], "cannot reach the Dask scheduler"),

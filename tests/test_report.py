@@ -37,7 +37,7 @@ def sessions(tmp_path_factory):
     base = built_sessions(tmp_path_factory)
     tmp = tmp_path_factory.mktemp("report")
     processed = copy_session(base.raw, tmp / "processed")
-    r = process_one(str(processed), ("geometry", "render"),
+    r = process_one(str(processed), ("geometry", "colour", "render"),
                     BatchOptions(preset="draft", calibration=str(base.cal), render_size=(96, 72)))
     assert r.status == "ok", r
     return base, processed
@@ -83,19 +83,19 @@ def test_report_is_self_contained_and_renders_in_chromium(sessions, tmp_path):
     # nothing outside the file: no links to files or the network, every image inline
     assert not re.search(r"(src|href)=['\"](?!data:|#)", html)
     images = _images(html)
-    # calibration, pose graph, 3 mesh views, coverage, holes, 2 renders, timing
-    assert len(images) == 10
+    # calibration, pose graph, 3 mesh views, coverage, holes, chart overlay, patch errors, 2 renders, timing
+    assert len(images) == 12
     for uri in images:
         assert uri.startswith("data:image/png;base64,")
         img = Image.open(io.BytesIO(base64.b64decode(uri.split(",", 1)[1])))
         img.load()
         assert img.format == "PNG" and min(img.size) >= 50
     shown, broken = _chromium_counts(out, tmp_path)
-    assert (shown, broken) == (10, 0)
+    assert (shown, broken) == (12, 0)
     # the same check catches a broken image
     bad = tmp_path / "bad.html"
     bad.write_text(html.replace(images[0], "data:image/png;base64,AAAA"), encoding="utf-8")
-    assert _chromium_counts(bad, tmp_path) == (10, 1)
+    assert _chromium_counts(bad, tmp_path) == (12, 1)
 
 
 def test_report_of_an_unprocessed_session_says_what_is_missing(sessions):
