@@ -1,8 +1,8 @@
 """Camera spectral sensitivities and the camera response to reflectance under a light.
 
 A camera channel c records ``rho_c = sum_lambda R(lambda) E(lambda) s_c(lambda)
-dlambda`` for a surface of reflectance R under light E (Matsuda et al., eq. (6);
-the linear signal model of EMVA Standard 1288, release 4.0, section 2).  The
+dlambda`` for a surface of reflectance R under light E (the linear signal
+model of EMVA Standard 1288, release 4.0, section 2).  The
 sum is over the samples of a :class:`~processing.spectra.SpectralGrid` with the
 weight ``step`` (trapezoid rule with the ends held, as in
 :func:`processing.spectra.resample`).

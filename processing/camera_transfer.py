@@ -1,11 +1,12 @@
-"""Chart transform from the object camera into the model camera: M2 of Matsuda et al., eq. (11).
+"""Chart transform from the object camera into the model camera: M2 of Matsuda et al., eq. (9).
 
 The estimator is trained for a model camera (known sensitivities under a
 known light).  The object is shot by another camera, or the same camera at
 another exposure, together with a colour chart.  Matsuda et al. map that
-camera into the model camera by ``M2 = rho_O rho_T^+``, the least-squares
-3 x 3 matrix between the chart patches as the model camera sees them and as
-the object camera recorded them.  In the row-vector form of
+camera into the model camera by ``M2 = rho_O rho_T^+`` (eq. (9)), the
+least-squares 3 x 3 matrix between the chart patches as the reference (model)
+camera sees them, ``rho_O`` (3 x k), and as the object camera recorded them,
+``rho_T``; a pixel's weights are then ``w = M M2 rho_s`` (eq. (10)).  In the row-vector form of
 :mod:`processing.spectral_fit` this is ``rho_model ~= rho_object @ T`` with
 ``T = pinv(rho_object) @ rho_model``.
 

@@ -1,7 +1,7 @@
 """Material identification by forward-modelling candidate materials into the camera, and alloy weights.
 
-Matsuda et al., section 4, end: a region's material is the known material
-whose colour signal is nearest to the measured one, ``argmin_j ||C_j - S||``,
+Matsuda et al., section 4.2, eq. (11): a region's material is the known
+material whose colour signal is nearest to the measured one, ``argmin_j ||C_j - S||``,
 and alloy compositions follow eq. (3)-(4), ``C_alloy = sum_j w_j C_j``.
 The comparison here is made in camera space, not in a 3-vector basis (which
 cannot represent metal spectra well):

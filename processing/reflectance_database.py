@@ -1,6 +1,6 @@
 """Reflectance databases for spectral estimation: training spectra, the ColorChecker, user CSV files.
 
-Matsuda et al., section 4 (eq. (6)-(7)) learn a basis of reflectance spectra
+Matsuda et al., section 4.1 (eq. (6)-(8)) learn a basis of reflectance spectra
 and a camera-to-weights map from a database of measured reflectances.  This
 module provides the databases on a :class:`~processing.spectra.SpectralGrid`:
 

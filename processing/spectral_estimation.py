@@ -1,6 +1,6 @@
 """Spectral estimation, front door: choose a method, calibrate it to the chart, spectra per region.
 
-Matsuda et al., section 4, eq. (6)-(11), and the better estimators after it.
+Matsuda et al., section 4.1, eq. (6)-(10), and the better estimators after it.
 :func:`fit_estimator` selects among
 
 * ``paper``: PCA p = 3 and the 3 x 3 M (:mod:`processing.spectral_pca_paper`);
@@ -10,7 +10,7 @@ Matsuda et al., section 4, eq. (6)-(11), and the better estimators after it.
 * ``twolight``: two exposures under two lights, six channels (:mod:`processing.spectral_two_light`);
 
 and, when the chart shot with the object is given, composes it with the
-chart transform M2 (eq. (11), :mod:`processing.camera_transfer`), so the
+chart transform M2 (eq. (9), :mod:`processing.camera_transfer`), so the
 object camera's linear values go straight to basis weights.
 
 Per region (:func:`region_spectra`) the mean spectrum comes with an

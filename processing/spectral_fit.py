@@ -1,15 +1,15 @@
 """The fitted spectral estimator shared by every method, and its per-pixel application.
 
-Matsuda et al., section 4, eq. (6)-(11): a reflectance is written in a basis,
+Matsuda et al., section 4.1, eq. (6)-(10): a reflectance is written in a basis,
 ``s(lambda) = sum_i w_i b_i(lambda)`` (eq. (7)), and the weights follow from
-the camera response by a matrix, ``w = M M2 rho`` (eq. (9)-(11)).  Every
+the camera response by a matrix, ``w = M M2 rho`` (eq. (8)-(10)).  Every
 estimator of this package (the paper's PCA, Wiener, root-polynomial, two
 lights) ends in the same form, held by :class:`SpectralFit`:
 
 ``w = phi(rho T) A``
 
 with ``rho`` the camera channels as a row vector, ``T`` an optional chart
-transform into the model camera (eq. (11), :mod:`processing.camera_transfer`),
+transform into the model camera (eq. (9), :mod:`processing.camera_transfer`),
 ``phi`` the feature expansion (identity, or the root-polynomial terms of
 Finlayson et al. 2015) and ``A`` the fitted map to the weights of the basis
 ``B (L, p)``.  For linear features ``T`` is folded into ``A``, so a whole
@@ -182,7 +182,7 @@ def _expand_leading(xt: NDArray[np.floating], expansion: str) -> NDArray[np.floa
 
 
 def expand_features(rgb: NDArray[np.floating], expansion: str) -> NDArray[np.floating]:
-    """Root-polynomial features (Finlayson, Mackiewicz, Hurlbert, IEEE TIP 24(5), 2015, eq. (6)).
+    """Root-polynomial features (Finlayson, Mackiewicz, Hurlbert, IEEE TIP 24(5), 2015).
 
     Each term is a product of d channels raised to 1/d, so every feature
     scales linearly with exposure.

@@ -1,11 +1,11 @@
 """The paper's spectral estimator: PCA basis with p = 3 and a 3 x 3 camera-to-weights matrix.
 
-Matsuda et al., section 4, eq. (6)-(10): the reflectances of a database are
-written in their first p = 3 principal components ``B (L, 3)`` (eq. (7)),
-``w = B^T s``; the database's reference-camera values ``rho = K^T s`` (eq.
-(6)) are regressed on the weights by least squares, ``w = M rho`` (eq. (9)),
-and a pixel's reflectance is ``s = B M rho`` (eq. (10)).  The object camera
-enters through the chart transform M2 (eq. (11), :mod:`processing.camera_transfer`).
+Matsuda et al., section 4.1, eq. (6)-(10): the reflectances of a database are
+written in their first p = 3 principal components ``B (L, 3)`` (eq. (6)-(7)),
+``w = B^T s``; the database's reference-camera values ``rho = K^T s`` are
+regressed on the weights by least squares, ``w = M rho`` (eq. (8)),
+and a pixel's reflectance is ``s = B M rho``.  The object camera
+enters through the chart transform M2 (eq. (9)-(10), :mod:`processing.camera_transfer`).
 
 When every database spectrum lies in the span of the three basis vectors
 the mapping from camera values to weights is exactly linear, and the

@@ -2,7 +2,7 @@
 
 Finlayson, Mackiewicz & Hurlbert, "Color correction using root-polynomial
 regression", IEEE TIP 24(5), 2015: the camera values are expanded into terms
-``rho_i``, ``(rho_i rho_j)^(1/2)``, ``(rho_i rho_j rho_k)^(1/3)`` ... (eq. (6)),
+``rho_i``, ``(rho_i rho_j)^(1/2)``, ``(rho_i rho_j rho_k)^(1/3)`` ...,
 each of degree one in the exposure, and a linear map of the terms is fitted by
 least squares.  Here the target is the weights of the database's first ``p``
 principal components (``p`` = 8 by default, more than the paper's 3), so the

@@ -4,7 +4,7 @@ For camera values ``rho = s K + n`` (row vectors; ``K (L, c)`` the channel
 matrix of :func:`processing.camera_response.channel_matrix`) with a prior
 second-moment matrix ``R = E[s^T s]`` of reflectances and noise covariance
 ``N``, the linear estimator of least mean-square error is (Pratt & Mancill,
-Applied Optics 15, 1976; Shimano, IEEE TIP 15(7), 2006, eq. (6))
+Applied Optics 15, 1976; Shimano, IEEE TIP 15(7), 2006)
 
 ``s_hat = rho (K^T R K + N)^-1 K^T R``.
 
