@@ -22,8 +22,11 @@ specular, internal and diffuse weights, and the dye as an sRGB colour
 (:meth:`processing.cloth_model.Dye.from_srgb`; the dye's absorption
 spectrum then follows from the camera's spectral sensitivities).  Held at
 the yarn preset's values: the layer count and rounding, the fibre index,
-the scattering and the warp fraction (``fixed``; the layer count can be
-chosen by comparing fits, :func:`fit_swatch` with ``layers=``).  The
+the scattering and the warp fraction (``fixed``).  The layer count is
+chosen by :func:`choose_layers`, which fits each candidate and keeps the
+lowest cost; on simulated swatches the true count wins, but its neighbours
+come close (the count is weakly determined by the angular data, and the
+costs of all candidates are reported so the user sees by how much).  The
 residual is scaled by a noise model (1 % of the pixel's value plus 0.2 % of
 the swatch mean) and minimised with the soft-L1 loss
 (``scipy.optimize.least_squares``), which down-weights outliers such as
@@ -52,7 +55,12 @@ __all__ = [
     "fit_material",
     "predict_rgb",
     "fit_swatch",
+    "LAYER_CANDIDATES",
+    "choose_layers",
 ]
+
+#: Layer counts :func:`choose_layers` tries by default.
+LAYER_CANDIDATES = (1, 2, 3, 4, 6, 8)
 
 FIT_PARAMETERS = ("a_t", "a_b", "specular", "internal", "diffuse", "dye_r", "dye_g", "dye_b")
 _LOWER = np.array([2e-3, 2e-3, 0.0, 0.0, 0.0, 0.02, 0.02, 0.02])
@@ -334,3 +342,19 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
             f"warp_colour={hexa},weft_colour={hexa},weft_kind={fixed['weft_kind']}")
     return ClothFit(dict(zip(FIT_PARAMETERS, map(float, x))), dict(zip(FIT_PARAMETERS, map(float, sig))), fixed,
                     spec, rms, rms / max(float(np.mean(np.abs(meas))), 1e-300), pred, float(result.cost))
+
+
+def choose_layers(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn: str = "silk",
+                  candidates: tuple[int, ...] = LAYER_CANDIDATES, step: float = 10.0) -> tuple[ClothFit, dict[int, float]]:
+    """Fit every layer count of ``candidates`` and return the fit of lowest robust cost and all costs.
+
+    Raises
+    ------
+    ClothFitError
+        No candidates, or a candidate outside 0..50.
+    """
+    if not candidates or any(not isinstance(k, (int, np.integer)) or not 0 <= k <= 50 for k in candidates):
+        raise ClothFitError(f"layer candidates must be integers in 0..50, got {candidates!r}")
+    fits = {int(k): fit_swatch(measurement, geometry, yarn=yarn, layers=int(k), step=step) for k in candidates}
+    best = min(fits, key=lambda k: fits[k].cost)
+    return fits[best], {k: f.cost for k, f in fits.items()}

@@ -98,6 +98,14 @@ def test_robust_fit_ignores_outlier_pixels():
     np.testing.assert_allclose(list(fit.parameters.values()), _truth_vector(), rtol=0.10)
 
 
+def test_layer_count_is_chosen_by_the_lowest_cost():
+    from processing.cloth_fit import choose_layers
+
+    g, m = _synthetic()                            # the truth has the silk preset's 4 layers
+    fit, costs = choose_layers(m, g, yarn="silk", candidates=(1, 4, 8))
+    assert fit.fixed["layers"] == 4 and costs[4] < min(costs[1], costs[8])
+
+
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     from app.cloth_fit_session import capture_swatch_session
@@ -142,6 +150,8 @@ def test_bad_sessions_are_refused_in_one_line(session, tmp_path, capsys):
 
     assert main(["cloth", "fit", str(tmp_path / "nowhere")]) == 2
     assert "session folder not found" in capsys.readouterr().err
+    assert main(["cloth", "fit", str(session), "--layers", "many"]) == 2
+    assert "--layers must be a whole number" in capsys.readouterr().err
     Session.create(tmp_path / "scan", plan=CapturePlan("scan", steps=4, passes=1).to_dict()).close()
     assert main(["cloth", "fit", str(tmp_path / "scan")]) == 2
     assert "not a swatch capture" in capsys.readouterr().err
