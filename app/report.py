@@ -347,16 +347,25 @@ def _chart(ctx: _Context) -> Section:
     return Section("chart", "Colour chart", body or _missing("intact chart products", cmd), shown)
 
 
+def _not_produced(what: str, why: str) -> str:
+    return (f"<p class='missing'><b>Not in this session:</b> {_e(what)}. "
+            f"This version of kogei does not produce it: {_e(why)}</p>")
+
+
 def _spectra(ctx: _Context) -> Section:
-    return Section("spectra", "Spectra with uncertainty vs model spectra", _missing(
-        "estimated spectral reflectance (the colour step has not run on this session)",
-        _step_command(ctx.root, "colour")), False)
+    return Section("spectra", "Spectra with uncertainty vs model spectra", _not_produced(
+        "estimated spectral reflectance of the object's regions with its uncertainty, against the model spectra",
+        "the batch has no step that estimates spectra from the object frames (the colour step checks the chart "
+        "frames only)"), False)
 
 
 def _materials(ctx: _Context) -> Section:
-    return Section("materials", "Material map and confidences", _missing(
-        "identified materials (the materials step has not run on this session); renders use the stated default "
-        "material", _step_command(ctx.root, "materials")), False)
+    from app.batch_steps import DEFAULT_MATERIAL, UNAVAILABLE_STEPS
+
+    return Section("materials", "Material map and confidences", _not_produced(
+        "identified materials and their confidences",
+        f"{UNAVAILABLE_STEPS.get('materials', 'no materials step')}; the renders use the stated default material "
+        f"{DEFAULT_MATERIAL}"), False)
 
 
 def _renders(ctx: _Context) -> Section:

@@ -99,6 +99,11 @@ def test_every_step_runs_once_then_is_skipped(done):
         assert img.size == (96, 72)
         assert np.asarray(img)[..., :3].std() > 5      # the object is in view, not an empty frame
     assert (root / "products/report.html").read_bytes().startswith(b"<!DOCTYPE html>")
+    # the chart of the simulated frame: found by mcc, every patch usable, and a 3x3 fit of the simulated
+    # camera (linear, known sensitivities) to the chart's reference colours within a few dE00
+    chart = json.loads((root / manifest["products"]["colour"]["passes"]["p01"]["chart"]["file"]).read_text())
+    assert chart["method"] == "mcc" and all(p["usable"] for p in chart["patches"])
+    assert chart["patch_errors"]["mean"] < 3.0 and chart["patch_errors"]["max"] < 6.0
     log = (root / LOG_FILE).read_text()
     assert "geometry: started (never run)" in log and "report: done" in log
 
@@ -164,6 +169,21 @@ def test_code_version_hashes_the_modules_a_step_imports():
         {"processing.spectra", "processing.spectra.x", "processing", "processing.fresnel"}
     with pytest.raises(ValueError, match="no source file"):
         code_version(("app.no_such_module",))
+
+
+def test_patch_errors_see_a_misordered_chart():
+    from app.batch_colour import patch_errors
+    from processing.chart_layout import reference_lab
+
+    lab = np.asarray(reference_lab("classic24"))
+    import colour
+
+    xyz = colour.Lab_to_XYZ(lab, colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
+    rgb = xyz @ np.linalg.inv(np.array([[0.6, 0.3, 0.1], [0.2, 0.7, 0.1], [0.0, 0.1, 0.9]]))
+    assert patch_errors(rgb, lab, np.ones(24, bool))["max"] < 1e-6      # a linear camera: no error
+    assert patch_errors(rgb[::-1], lab, np.ones(24, bool))["mean"] > 10  # patches read in the wrong order
+    with pytest.raises(ValueError, match="3 or more"):
+        patch_errors(rgb, lab, np.arange(24) < 2)
 
 
 def test_fingerprint_is_canonical():
