@@ -297,6 +297,8 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
     meas = measurement.rgb
     if not np.all(np.isfinite(meas)):
         raise ClothFitError("the swatch responses contain NaN or infinite values")
+    if not float(np.mean(meas)) > 0:
+        raise ClothFitError("the swatch frames are black (mean response <= 0): check the exposure and the light")
     preset = dict(CLOTH_PRESETS[yarn])
     fixed = {k: preset[k] for k in ("warp_kind", "weft_kind", "warp_fraction", "layers", "rounding", "n", "scattering")}
     fixed["weft_kind"] = fixed["warp_kind"]

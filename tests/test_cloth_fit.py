@@ -98,6 +98,20 @@ def test_robust_fit_ignores_outlier_pixels():
     np.testing.assert_allclose(list(fit.parameters.values()), _truth_vector(), rtol=0.10)
 
 
+def test_fit_refuses_data_it_cannot_use():
+    from processing.cloth_fit import ClothFitError
+
+    g, m = _synthetic()
+    with pytest.raises(ClothFitError, match="black"):
+        fit_swatch(SwatchMeasurement(m.angles_deg, m.pixels, np.zeros_like(m.rgb)), g)
+    with pytest.raises(ClothFitError, match="at least 3 table angles"):
+        fit_swatch(SwatchMeasurement(m.angles_deg[:2], m.pixels, m.rgb[:2]), g)
+    with pytest.raises(ClothFitError, match="unknown yarn preset 'wool'"):
+        fit_swatch(m, g, yarn="wool")
+    with pytest.raises(ClothFitError, match="shape"):
+        SwatchMeasurement(m.angles_deg, m.pixels, m.rgb[:, :3])
+
+
 def test_layer_count_is_chosen_by_the_lowest_cost():
     from processing.cloth_fit import choose_layers
 
