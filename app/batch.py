@@ -247,7 +247,8 @@ class _Display:
 
         self.console = console or Console(stderr=True)
         self.progress = Progress(TextColumn("{task.description:<22}"), BarColumn(), MofNCompleteColumn(),
-                                 TextColumn("{task.fields[note]}"), TimeElapsedColumn(), console=self.console)
+                                 TextColumn("{task.fields[note]}"), TimeElapsedColumn(), console=self.console,
+                                 redirect_stdout=False, redirect_stderr=False)
         self.overall = self.progress.add_task("all steps", total=sessions * len(steps), note="")
         self.bars = {s: self.progress.add_task(f"  {s}", total=sessions, note="") for s in steps}
         self.running: dict[str, set[str]] = {s: set() for s in steps}

@@ -14,8 +14,10 @@ What is checked against what:
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -205,7 +207,8 @@ def test_worker_pool_isolates_failed_sessions(base, done, tmp_path):
     (broken / "passes/p01/profiles.npz").unlink()       # the pass's gathered profiles are lost
     not_a_session = tmp_path / "empty"
     not_a_session.mkdir()
-    summary = run_batch([ok, broken, not_a_session], None, options=options, workers=2)
+    progress = Console(file=io.StringIO(), width=160, height=20)   # not a terminal: the final frame is written once
+    summary = run_batch([ok, broken, not_a_session], None, options=options, workers=2, progress=True, console=progress)
     by = {Path(r.session).name: r for r in summary.results}
     assert by["ok"].status == "skipped"                # the other sessions' failures did not stop it
     assert by["broken"].status == "failed"
@@ -223,6 +226,13 @@ def test_worker_pool_isolates_failed_sessions(base, done, tmp_path):
     assert "Not in this session:</b> no mesh" in html and f"kogei process {broken}" in html
     _assert_consistent(broken)
     assert "geometry: FAILED" in (broken / LOG_FILE).read_text()
+    # the progress display: a bar per step with what happened to the three sessions, and one overall
+    bars = progress.file.getvalue()
+    assert re.search(r"all steps .* 12/12", bars)
+    assert re.search(r"geometry .* 3/3 +2 failed, 1 skipped", bars)
+    assert re.search(r"colour .* 3/3 +1 failed, 1 ran, 1 skipped", bars)
+    assert re.search(r"render .* 3/3 +2 failed, 1 skipped", bars)
+    assert re.search(r"report .* 3/3 +1 failed, 1 ran, 1 skipped", bars)
 
 
 def _run_until(cmd: list[str], log: Path, marker: str, sig: int, delay_s: float) -> int:
