@@ -25,5 +25,8 @@ bench: $(STAMP)
 	$(PY) -m bench.run --out docs/BENCHMARKS.md
 	$(PY) -m bench.unseen_figure --out docs/images/hawk-unseen.png
 
+screenshots: $(STAMP)
+	QT_QPA_PLATFORM=offscreen $(PY) -m app.gui.screenshots --out docs/screenshots
+
 clean:
 	rm -rf out .pytest_cache .hypothesis

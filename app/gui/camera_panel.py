@@ -258,5 +258,5 @@ def _histogram_figure(rgb: np.ndarray, clipped: float) -> Callable[[Any], None]:
         ax.set_yscale("log")
         ax.axvline(1.0, color="k", ls="--", lw=1)
         style(ax, f"Linear signal ({100 * clipped:.2f}% clipped)", "fraction of full scale", "pixels")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="upper right")
     return build

@@ -143,6 +143,9 @@ class CapturePanel(Panel):
         self._root: Path | None = None
         self._pending_profile: str | None = None
         self.profile_caption = ""
+        self.cloud_caption = ""
+        self._cloud_pass_no: int | None = None
+        self._cloud_dirty = False
         self._pass_profiles: dict[int, dict[int, tuple[float, np.ndarray, np.ndarray]]] = {}
         self._cal_cache: tuple[str, Any] | None = None
         self._reconnect: list[str] = []
@@ -357,6 +360,8 @@ class CapturePanel(Panel):
         session, plan, config = self._open_or_create()
         self._root = session.root
         self._pass_profiles.clear()
+        self._cloud_pass_no = None
+        self._cloud_dirty = False
         self._draw_empty()
         self.pause_event.clear()
         self._reconnect = self.link.release_for_capture()
@@ -403,6 +408,7 @@ class CapturePanel(Panel):
         self.job.signals.finished.connect(self._on_finished)
         self.link.lane.submit(self.job)
         self.status_text = "running"
+        self.position.setText("table: driven by the capture")
         self.action.setText(f"capturing into {session.root}")
         self.progress.setRange(0, len(plan.actions()))
         self.progress.setValue(0)
@@ -448,6 +454,7 @@ class CapturePanel(Panel):
             self._answer(True)
 
     def _show_prompt(self, text: str) -> None:
+        self._refresh_plots(both=True)          # the pass just finished, whole
         self.prompt_text.setText(text)
         self.prompt.show()
         self.prompt_go.setFocus()
@@ -516,38 +523,41 @@ class CapturePanel(Panel):
         self.cloud_plot.plot(empty("Point cloud of the pass"))
 
     def _refresh_plots(self, both: bool = False) -> None:
-        cid = self._pending_profile
-        if cid is None or self._root is None:
-            return
+        """Hand the newest profile (2 Hz) and the pass's cloud (every 4th tick) to the drawings."""
         self._ticks += 1
-        if not both and (self.profile_plot.busy or self.cloud_plot.busy):
-            return                     # the drawings keep their own pace; the newest profile waits
-        self._pending_profile = None
-        p = int(cid[1:3])
-        idx = int(cid.rsplit("/", 1)[1])
-        rows = self._pass_profiles.setdefault(p, {})
-        last = max(rows) if rows else -1
-        for i in range(last + 1, idx + 1):         # this profile and any the ticks skipped
-            try:
-                with np.load(self._root / f"passes/p{p:02d}/profiles/{i:04d}.npz") as z:
-                    rows[i] = (float(z["angle_deg"]), z["x_mm"].astype(np.float64), z["z_mm"].astype(np.float64))
-            except (OSError, ValueError, KeyError):
-                continue               # a profile being replaced; the next tick shows it
-        if idx not in rows:
-            return
-        angle, x, zz = rows[idx]
-        self.profile_caption = f"pass {p}, step {idx}"
-        self.profile_plot.plot(_profile_figure(p, idx, angle, x, zz))
-        if not both and self._ticks % 4:
-            return
-        keys = sorted(rows)
-        width = max(rows[k][1].size for k in keys)
-        xs = np.full((len(keys), width), np.nan)
-        zs = np.full((len(keys), width), np.nan)
-        for i, k in enumerate(keys):
-            xs[i, :rows[k][1].size], zs[i, :rows[k][2].size] = rows[k][1], rows[k][2]
-        angles = np.array([rows[k][0] for k in keys])
-        self.cloud_plot.plot(_cloud_figure(p, angles, xs, zs, self._calibration()))
+        cid = self._pending_profile
+        if cid is not None and self._root is not None and (both or not self.profile_plot.busy):
+            self._pending_profile = None
+            p = int(cid[1:3])
+            idx = int(cid.rsplit("/", 1)[1])
+            rows = self._pass_profiles.setdefault(p, {})
+            last = max(rows) if rows else -1
+            for i in range(last + 1, idx + 1):         # this profile and any the ticks skipped
+                try:
+                    with np.load(self._root / f"passes/p{p:02d}/profiles/{i:04d}.npz") as z:
+                        rows[i] = (float(z["angle_deg"]), z["x_mm"].astype(np.float64),
+                                   z["z_mm"].astype(np.float64))
+                except (OSError, ValueError, KeyError):
+                    continue           # a profile being replaced; the next tick shows it
+            if idx in rows:
+                angle, x, zz = rows[idx]
+                self.profile_caption = f"pass {p}, step {idx}"
+                self.profile_plot.plot(_profile_figure(p, idx, angle, x, zz))
+                self._cloud_pass_no = p
+                self._cloud_dirty = True
+        p = self._cloud_pass_no
+        if self._cloud_dirty and p is not None and (both or (not self.cloud_plot.busy and self._ticks % 4 == 0)):
+            self._cloud_dirty = False
+            rows = self._pass_profiles[p]
+            keys = sorted(rows)
+            width = max(rows[k][1].size for k in keys)
+            xs = np.full((len(keys), width), np.nan)
+            zs = np.full((len(keys), width), np.nan)
+            for i, k in enumerate(keys):
+                xs[i, :rows[k][1].size], zs[i, :rows[k][2].size] = rows[k][1], rows[k][2]
+            angles = np.array([rows[k][0] for k in keys])
+            self.cloud_caption = f"pass {p}, {len(keys)} profiles"
+            self.cloud_plot.plot(_cloud_figure(p, angles, xs, zs, self._calibration()))
 
     def _calibration(self) -> Any:
         src = self.calibration()
@@ -619,3 +629,4 @@ def _cloud_figure(p: int, angles: np.ndarray, x: np.ndarray, z: np.ndarray, cal:
         style(ax, f"Pass {p} as a range image: {100 * finite.mean():.0f}% returns, black none\n"
                   "(choose a calibration on the Processing tab for 3-D points)",
               "point along the laser line", "table angle (°)")
+    return build

@@ -119,6 +119,7 @@ class MainWindow(QMainWindow):
         dock.setObjectName("log-dock")
         dock.setWidget(self.log_view)
         self.addDockWidget(Qt.DockWidgetArea.BottomDockWidgetArea, dock)
+        self.resizeDocks([dock], [150], Qt.Orientation.Vertical)
         self.log_dock = dock
 
         self.link.log.connect(self.append_log)

@@ -74,6 +74,7 @@ class PlotImage(QLabel):
         self._last: Callable[[Figure], Any] | None = None
         self.rgba: np.ndarray | None = None
         self.draws = 0
+        self.failure = ""
 
     def plot(self, build: Callable[[Figure], Any]) -> None:
         self._waiting = build
@@ -105,6 +106,7 @@ class PlotImage(QLabel):
         self.drawn.emit()
 
     def _failed(self, text: str, exc: Any) -> None:
+        self.failure = text
         self.setText(f"plot failed: {text}")
 
     def _done(self) -> None:

@@ -208,6 +208,8 @@ class PreviewPanel(Panel):
         self.info.setWordWrap(True)
         side.addWidget(self.info)
         side.addStretch(1)
+        self.cct.setEnabled(False)
+        self.illuminant.currentTextChanged.connect(lambda t: self.cct.setEnabled(t == "custom CCT"))
         for w in (self.material, self.illuminant, self.preset, self.size):
             w.currentTextChanged.connect(lambda _: self._settle_later())
         for w in (self.cct, self.light_az, self.light_el, self.azimuth, self.elevation):

@@ -130,6 +130,7 @@ class SessionPanel(Panel):
         cl.addWidget(self.thumbs, 1)
         split.addWidget(caps)
         split.setStretchFactor(1, 2)
+        split.setSizes([380, 900])
         outer.addWidget(split, 1)
         self.capturing = False
 

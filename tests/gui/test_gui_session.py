@@ -105,7 +105,9 @@ def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration)
     qtbot.mouseClick(w.session.new_button, Qt.MouseButton.LeftButton)
     assert w.error_line.isHidden(), w.error_line.text()
 
-    # Capture: plan, start, press Continue at each placement prompt
+    # Capture: plan, start, press Continue at each placement prompt (with the calibration chosen, the live
+    # cloud shows the pass's points)
+    w.processing.calibration.setText(str(calibration))
     w.tabs.setCurrentWidget(w.capture)
     w.capture.steps.setValue(STEPS)
     w.capture.passes.setValue(PASSES)
@@ -128,6 +130,9 @@ def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration)
     # the live plots showed the last profile of the last pass
     assert w.capture.profile_caption == f"pass {PASSES}, step {STEPS - 1}"
     qtbot.waitUntil(lambda: not w.capture.profile_plot.busy and not w.capture.cloud_plot.busy, timeout=20_000)
+    assert w.capture.cloud_caption == f"pass {PASSES}, {STEPS} profiles"
+    assert w.capture.cloud_plot.failure == "" and w.capture.profile_plot.failure == ""
+    assert w.capture.cloud_plot.rgba is not None
     # the session list holds every capture
     qtbot.waitUntil(lambda: w.session.tree.topLevelItemCount() == len(m["captures"]), timeout=10_000)
 

@@ -1,0 +1,164 @@
+"""``python -m app.gui.screenshots --out docs/screenshots``: drive the window through a simulated session
+and save a PNG of each main view (``make screenshots``).
+
+The window runs offscreen against the simulated station (the same as
+``kogei gui --mock``): a reference sphere is scanned and calibrated first
+(through the library, as ``kogei calibrate``), then the hawk is captured in
+three placements with RAW frames, processed and previewed, every step
+through the window's own widgets.  Settings go to a temporary file, so the
+user's window settings are untouched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+__all__ = ["main", "take_screenshots"]
+
+
+def _calibration(tmp: Path) -> Path:
+    from app.calibrate_command import calibrate_session
+    from app.capture import CaptureHooks, CapturePlan, run_capture
+    from app.capture_devices import build_devices
+    from app.session import Session
+    from mocks.station import SimulatedStation
+    from mocks.world import World
+
+    plan = CapturePlan("scan", steps=90, passes=1, camera=False)
+    with SimulatedStation(World.calibration_sphere(25.0, 60.0), root=tmp / "cal-station", seed=1) as st:
+        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
+        s = Session.create(tmp / "calibration", plan=plan.to_dict(), object_info={"name": "reference sphere r 25"})
+        try:
+            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            s.close()
+    calibrate_session(tmp / "calibration", 25.0)
+    return tmp / "calibration"
+
+
+def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callable[[str], None] = print) -> list[Path]:
+    """Run the session in the window and write ``devices.png``, ``session.png``, ... into ``out``."""
+    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+    from PySide6.QtCore import QSettings
+    from PySide6.QtWidgets import QApplication
+
+    from app.gui.main_window import MainWindow
+
+    app = QApplication.instance() or QApplication([])
+    out.mkdir(parents=True, exist_ok=True)
+    tmp_dir = tempfile.TemporaryDirectory(prefix="kogei-screenshots-")
+    tmp = Path(tmp_dir.name)
+    saved: list[Path] = []
+
+    def wait(pred: Callable[[], bool], what: str, timeout_s: float = 300.0) -> None:
+        end = time.monotonic() + timeout_s
+        while not pred():
+            if time.monotonic() > end:
+                raise TimeoutError(f"screenshots: timed out waiting for {what}")
+            app.processEvents()
+            time.sleep(0.01)
+
+    def settle(seconds: float = 0.5) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            app.processEvents()
+            time.sleep(0.01)
+
+    def shot(w: Any, name: str) -> None:
+        settle(0.3)
+        path = out / f"{name}.png"
+        w.grab().save(str(path))
+        saved.append(path)
+        log(f"wrote {path}")
+
+    log("calibrating the simulated scanner (sphere scan)…")
+    cal = _calibration(tmp)
+    w = MainWindow(QSettings(str(tmp / "settings.ini"), QSettings.Format.IniFormat))
+    w.resize(1360, 900)
+    w.show()
+    try:
+        from mocks.world import World
+
+        # a laid-out ColorChecker on the backdrop (mocks.chart_scene), which the chart detection finds
+        world = World.hawk(20_000, width=600, height=400, chart_layout="classic24")
+        w.start_simulated_station(world=world, n_points=400, seed=1, root=tmp / "station")
+        w.devices.connect_all()
+        wait(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), "the instruments")
+        w.tabs.setCurrentWidget(w.devices)
+        shot(w, "devices")
+
+        w.processing.calibration.setText(str(cal))
+        w.session.folder.setText(str(tmp / "hawk-2026-11-24"))
+        for key, value in (("name", "Hawk head, okimono (simulated)"), ("collection_id", "M-1893-017"),
+                           ("period", "Meiji, c. 1890"), ("materials", "shibuichi, gold, copper, urushi"),
+                           ("operator", "capture station 2")):
+            w.session.meta_edits[key].setText(value)
+        w.session.new_button.click()
+        w.capture.steps.setValue(steps)
+        w.capture.passes.setValue(passes)
+        w.capture.camera_angles.setText("0,180")
+        w.tabs.setCurrentWidget(w.capture)
+        w.capture.start.click()
+        prompts = 0
+        while True:
+            wait(lambda: not w.capture.prompt.isHidden() or w.capture.job.done, "the capture")
+            if w.capture.job.done:
+                break
+            prompts += 1
+            if prompts == 2:        # pass 1 done: its cloud and the re-placement prompt
+                wait(lambda: not w.capture.cloud_plot.busy and not w.capture.profile_plot.busy, "the plots")
+                shot(w, "capture")
+            w.capture.prompt_go.click()
+        wait(lambda: w.capture.start.isEnabled(), "the end of the capture")
+        if w.capture.status_text != "complete":
+            raise RuntimeError(f"screenshots: the capture did not complete: {w.error_line.text()}")
+
+        w.tabs.setCurrentWidget(w.session)
+        w.session.refresh()
+        wait(lambda: w.session.thumbs.count() >= 3 * passes and not w.work_lane.busy, "the thumbnails")
+        shot(w, "session")
+
+        w.tabs.setCurrentWidget(w.camera)
+        w.camera.open_session_chart()
+        wait(lambda: w.camera.frame is not None and w.camera.image_plot.draws > 0 and not w.camera.image_plot.busy
+             and not w.camera.hist_plot.busy, "the chart frame")
+        shot(w, "camera")
+
+        w.tabs.setCurrentWidget(w.processing)
+        w.processing.preset.setCurrentText("standard")
+        w.processing.run()
+        wait(lambda: not w.processing.running, "processing", 900)
+        if w.processing.report is None:
+            raise RuntimeError(f"screenshots: processing failed: {w.error_line.text()}")
+        shot(w, "processing")
+
+        w.tabs.setCurrentWidget(w.preview)
+        w.preview.size.setCurrentText("640x480")
+        w.preview.preset.setCurrentText("standard")
+        wait(lambda: w.preview.last_kind == "final" and w.preview.last is not None
+             and w.preview.last["srgb8"].shape[:2] == (480, 640) and not w.preview._busy
+             and w.preview._waiting is None and not w.preview._settle.isActive(), "the preview", 600)
+        shot(w, "preview")
+    finally:
+        w.close()
+        tmp_dir.cleanup()
+    return saved
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m app.gui.screenshots", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="docs/screenshots")
+    parser.add_argument("--steps", type=int, default=90)
+    args = parser.parse_args(argv)
+    take_screenshots(Path(args.out), steps=args.steps)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
