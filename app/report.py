@@ -244,10 +244,10 @@ def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
         return Section("mesh", "Mesh", _missing("no mesh", f"kogei process {ctx.root} (or kogei batch {ctx.root} "
                                                 "--steps geometry)"), False)
     pairs = [("file", mesh["file"]), ("preset", mesh.get("preset"))]
-    if rep is not None:
+    if rep is not None and isinstance(rep.get("mesh"), dict):
         m = rep["surface"].get("mesh", {}) if isinstance(rep.get("surface"), dict) else {}
-        pairs += [("vertices / triangles", f"{rep['mesh']['vertices']} / {rep['mesh']['triangles']}"),
-                  ("watertight", rep["mesh"]["watertight"]), ("boundary edges", m.get("boundary_edges")),
+        pairs += [("vertices / triangles", f"{rep['mesh'].get('vertices')} / {rep['mesh'].get('triangles')}"),
+                  ("watertight", rep["mesh"].get("watertight")), ("boundary edges", m.get("boundary_edges")),
                   ("components", m.get("components")), ("area", f"{m.get('area_mm2', float('nan')):.0f} mm2")]
     views = []
     for name, direction in MESH_VIEWS:
@@ -416,13 +416,29 @@ def report_sections(session_dir: str | os.PathLike[str]) -> list[Section]:
     except (json.JSONDecodeError, UnicodeDecodeError):
         ctx.problems.append("products/process-report.json is not JSON")
         rep = None
-    builders: list[Callable[[], Section]] = [
-        lambda: _object(ctx), lambda: _capture_log(ctx), lambda: _calibration(ctx),
-        lambda: _registration(ctx, rep), lambda: _mesh(ctx, rep), lambda: _coverage(ctx, rep),
-        lambda: _chart(ctx), lambda: _spectra(ctx), lambda: _materials(ctx), lambda: _renders(ctx),
-        lambda: _timing(ctx, rep),
+    builders: list[tuple[str, str, Callable[[], Section]]] = [
+        ("object", "Object and plan", lambda: _object(ctx)),
+        ("capture", "Capture log", lambda: _capture_log(ctx)),
+        ("calibration", "Scanner calibration", lambda: _calibration(ctx)),
+        ("registration", "Registration and pose graph", lambda: _registration(ctx, rep)),
+        ("mesh", "Mesh views", lambda: _mesh(ctx, rep)),
+        ("coverage", "Coverage and filled holes", lambda: _coverage(ctx, rep)),
+        ("chart", "Colour chart", lambda: _chart(ctx)),
+        ("spectra", "Spectra with uncertainty vs model spectra", lambda: _spectra(ctx)),
+        ("materials", "Material map and confidences", lambda: _materials(ctx)),
+        ("renders", "Renders under D65 and A", lambda: _renders(ctx)),
+        ("timing", "Timing of every step", lambda: _timing(ctx, rep)),
     ]
-    sections = [b() for b in builders]
+    sections = []
+    for key, title, build in builders:
+        try:
+            sections.append(build())
+        except (ValueError, OSError, KeyError, TypeError, IndexError) as exc:
+            # a product the section cannot read (an older or damaged file) must not cost the whole report
+            text = f"{title}: the session's data could not be shown ({type(exc).__name__}: {exc})"
+            ctx.problems.append(text)
+            sections.append(Section(key, title, f"<p class='missing'><b>Could not be shown:</b> {_e(text)}</p>",
+                                    False))
     if ctx.problems:
         body = "<ul>" + "".join(f"<li>{_e(p)}</li>" for p in dict.fromkeys(ctx.problems)) + "</ul>"
         sections.insert(0, Section("problems", "Problems found", body, True))

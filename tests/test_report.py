@@ -124,6 +124,21 @@ def test_tampered_product_is_reported_not_shown(sessions, tmp_path):
     assert "alt='render under D65'" in html and "alt='render under A'" not in html
 
 
+def test_an_unreadable_product_costs_only_its_section(sessions, tmp_path):
+    _, processed = sessions
+    s = copy_session(processed, tmp_path / "s")
+    with Session.open(s) as session:      # a process report of another layout, checksummed as if genuine
+        info = session.write_file("products/process-report.json", b'{"passes": []}')
+        products = dict(session.manifest["products"])
+        products["process_report"] = {"file": info.path, "sha256": info.sha256, "bytes": info.bytes}
+        session.update("products", products)
+    html = build_report(s)
+    assert "<b>Could not be shown:</b> Registration and pose graph: the session&#x27;s data could not be shown " \
+           "(KeyError: &#x27;registration&#x27;)" in html
+    assert "<h2>Problems found</h2>" in html
+    assert "alt='render under A'" in html and "alt='mesh front'" in html      # the other sections are there
+
+
 def test_default_report_is_recorded_in_the_session(sessions, tmp_path, capsys):
     _, processed = sessions
     s = copy_session(processed, tmp_path / "s")
