@@ -171,3 +171,12 @@ def test_bad_candidates_and_geometry_raise_clear_errors():
         candidate_set(SENS, D65, G, names=["gold"])
     with pytest.raises(SpectralEstimationError, match="alloy metals"):
         estimate_alloy_weights(np.ones((1, 3)), SENS, D65, G, metals=("Ag", "Xx"))
+
+
+def test_bronze_tin_fraction_from_a_copper_tin_model():
+    refl = ConductorFresnel({"Cu": 0.88, "Sn": 0.12}).reflectance(COS_D, G.wavelengths)
+    rgb = camera_rgb(refl, D65, SENS, G)
+    rng = np.random.default_rng(8)
+    sn = [estimate_alloy_weights(rgb * (1 + 0.01 * rng.standard_normal((100, 3))), SENS, D65, G,
+                                 metals=("Cu", "Sn"), light_deg=LIGHT_DEG).as_dict()["Sn"] for _ in range(20)]
+    assert np.max(np.abs(np.array(sn) - 0.12)) < 0.03

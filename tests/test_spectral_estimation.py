@@ -85,6 +85,14 @@ def test_wiener_equals_the_closed_form_linear_mmse_for_a_gaussian_prior(setup):
     assert np.mean(np.sum((worse - s) ** 2, axis=1)) > mse
 
 
+def test_wiener_with_a_singular_system_says_so(setup):
+    flat = np.zeros((G.size, G.size))
+    with pytest.raises(SpectralEstimationError, match="singular"):
+        fit_wiener(None, setup["sens"], setup["d65"], G, second_moment=flat, noise=0.0)
+    with pytest.raises(SpectralEstimationError, match="symmetric"):
+        fit_wiener(None, setup["sens"], setup["d65"], G, second_moment=np.triu(np.ones((G.size, G.size))))
+
+
 def test_wiener_cross_validation_picks_a_level_and_fits(setup):
     fit = fit_wiener(setup["db"], setup["sens"], setup["d65"], G, noise=None)
     assert 1e-4 <= fit.details["noise"] <= 1.0
