@@ -351,6 +351,15 @@ def spectral_section() -> list[str]:
     return section(collect())
 
 
+def cloth_section() -> list[str]:
+    """Render cost of cloth vs metal and the internal layers' speed/accuracy (issue #6, bench/cloth_bench.py)."""
+    from bench.cloth_bench import section
+
+    proc = subprocess.run([sys.executable, "-m", "bench.cloth_bench"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=3600, check=True)
+    return section(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
 def batch_section() -> list[str]:
     """Batch reprocessing throughput and the batch layer's cost (issue #8, bench/batch_bench.py)."""
     from bench.batch_bench import section
@@ -367,6 +376,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "geometry": ("## Scan processing", geometry_section),
     "chart": ("## RAW decoding and chart detection", chart_section),
     "spectral": ("## Spectral estimation and material identification", spectral_section),
+    "cloth": ("## Cloth", cloth_section),
     "batch": ("## Batch reprocessing", batch_section),
 }
 
