@@ -225,6 +225,25 @@ def identify_material(
 ) -> Identification:
     """Identify the material of one region from its pixels' camera values ``(n, c)`` (or one ``(c,)``).
 
+    Parameters
+    ----------
+    pixels
+        Linear camera values in the model camera's units (after the chart
+        transform), ``(n, c)`` with c the candidates' channels; finite, >= 0.
+    candidates
+        The forward-modelled candidates (:func:`candidate_set`).
+    noise
+        Relative noise of one pixel's channel (0.01 = 1 %).
+    model_error
+        Relative error of the forward model, added in quadrature to the
+        region mean's noise (0: the simulated case).
+
+    Returns
+    -------
+    Identification
+        Material (or "neutral metal"), posterior confidence, runner-up,
+        likelihood ratio, group, chi-square per candidate, brightness.
+
     Examples
     --------
     >>> from processing.camera_response import camera_sensitivities
@@ -273,6 +292,9 @@ def identify_regions(
     rgb: ArrayLike, labels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01, model_error: float = 0.0
 ) -> dict[int, Identification]:
     """Identify every labelled region (label > 0) of an image ``(H, W, c)``.
+
+    ``labels`` is an integer ``(H, W)`` image, 0 for pixels to leave out (the
+    mask); the result maps each label to its :class:`Identification`.
 
     Examples
     --------
