@@ -33,6 +33,7 @@ from app.gui.devices_panel import DevicesPanel
 from app.gui.preview_panel import PreviewPanel
 from app.gui.processing_panel import ProcessingPanel
 from app.gui.session_panel import SessionPanel
+from app.gui.spectra_panel import SpectraPanel
 from app.gui.station_link import INSTRUMENTS, StationLink
 from app.gui.widgets import Banner
 from app.gui.workers import Lane
@@ -102,10 +103,11 @@ class MainWindow(QMainWindow):
                                     self.processing.calibration_source, self.plot_lane)
         self.capture.link_apply = self.devices.apply
         self.camera = CameraPanel(self.link, self.work_lane, self.plot_lane, lambda: self.session.root)
+        self.spectra = SpectraPanel(self.work_lane, self.plot_lane, lambda: self.session.root)
         self.preview = PreviewPanel(self.work_lane, lambda: self.session.root)
         for panel, title in ((self.devices, "Devices"), (self.session, "Session"), (self.capture, "Capture"),
                              (self.camera, "Camera"), (self.processing, "Processing"),
-                             (self.preview, "Preview")):
+                             (self.spectra, "Spectra and materials"), (self.preview, "Preview")):
             self.tabs.addTab(panel, title)
             if hasattr(panel, "error"):
                 panel.error.connect(self.show_error)

@@ -1,0 +1,386 @@
+"""Spectra and materials panel: click on an object frame to plot the estimated reflectance (with its
+uncertainty) against the identified material's model spectrum; a material map over the frame.
+
+A composition of the colour pipeline's library calls (issue #5):
+
+1. the pass's chart frame: :func:`processing.raw_decode.decode_raw`,
+   :func:`processing.chart_detection.detect_chart`,
+   :func:`processing.chart_sampling.sample_patches` and
+   :func:`processing.chart_sampling.check_patches` (the usable patches);
+2. the estimator (Matsuda et al., section 4.1, eq. (6)-(10), or a better
+   method) fitted for the model camera under the shot's light and
+   calibrated to the chart with the chart transform M2, eq. (9):
+   :func:`processing.spectral_estimation.fit_estimator` with the
+   ColorChecker's reflectances (:func:`processing.reflectance_database.load_reflectances`);
+3. a clicked point: the mean reflectance of the pixels around it with its
+   uncertainty (pixel spread and the method's held-out error in quadrature,
+   :func:`processing.spectral_estimation.region_spectra`);
+4. its material (Matsuda et al., section 4.2, eq. (11)): the candidate whose
+   forward-modelled camera colour is nearest
+   (:func:`processing.material_identification.identify_material` on the
+   chart-transformed camera values); the candidate's model spectrum is its
+   reflectance factor at the identification geometry
+   (:func:`processing.material.material_brdf` times pi cos_i), scaled to the
+   measured spectrum by least squares for the plot (brightness is a free
+   parameter of the identification);
+5. the material map: the same identification over square blocks of the frame
+   (:func:`processing.material_identification.identify_regions`).
+
+Examples
+--------
+>>> block_labels((4, 6), 2).tolist()
+[[1, 1, 2, 2, 3, 3], [1, 1, 2, 2, 3, 3], [4, 4, 5, 5, 6, 6], [4, 4, 5, 5, 6, 6]]
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QPixmap
+from PySide6.QtWidgets import (
+    QComboBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSizePolicy, QSpinBox, QSplitter,
+    QVBoxLayout, QWidget,
+)
+
+from app.gui.plots import PlotImage, style
+from app.gui.session_panel import rgb_to_qimage
+from app.gui.widgets import Panel
+from app.gui.workers import JobContext, Lane
+
+__all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "block_labels",
+           "LIGHT_DEG"]
+
+#: Angle of the light from the surface normal assumed by the identification (degrees).
+LIGHT_DEG = 30.0
+
+
+def block_labels(shape: tuple[int, int], block: int) -> np.ndarray:
+    """Labels 1.. of square ``block`` x ``block`` tiles over an image of ``shape`` (row-major)."""
+    h, w = shape
+    rows = np.arange(h)[:, None] // block
+    cols = np.arange(w)[None, :] // block
+    return (rows * ((w + block - 1) // block) + cols + 1).astype(np.int64)
+
+
+@dataclass
+class SpectralScene:
+    """An object frame with its chart-calibrated estimator."""
+
+    frame: Path
+    chart_frame: Path
+    preview: np.ndarray            # (H, W, 3) uint8
+    rgb: np.ndarray                # (H, W, 3) linear object-camera RGB
+    fit: Any                       # processing.spectral_fit.SpectralFit (calibrated)
+    candidates: Any                # processing.material_identification.CandidateSet
+    method_error: float
+    usable_patches: int
+    light: str
+
+
+def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = "D65", method: str = "wiener",
+                    chart: str = "classic24") -> SpectralScene:
+    """Decode the frames, calibrate the estimator to the chart and forward-model the candidates."""
+    from processing.camera_response import camera_sensitivities
+    from processing.chart_detection import detect_chart
+    from processing.chart_sampling import check_patches, sample_patches
+    from processing.material_identification import candidate_set
+    from processing.raw_decode import decode_raw, preview_srgb8
+    from processing.reflectance_database import load_reflectances
+    from processing.spectra import SpectralGrid, light_spectrum
+    from processing.spectral_estimation import fit_estimator
+
+    g = SpectralGrid(400, 700, 10)
+    chart_raw = decode_raw(chart_frame, mode="bin2x2")
+    det = detect_chart(chart_raw, chart)
+    samples = sample_patches(chart_raw, det)
+    usable = check_patches(samples).usable
+    if chart != "classic24":
+        raise ValueError(f"chart {chart!r}: the spectra are calibrated with the ColorChecker Classic (classic24)")
+    refl = load_reflectances("colorchecker", g).spectra
+    sens = camera_sensitivities(g)
+    e = light_spectrum(light, g)
+    fit = fit_estimator(method, load_reflectances("training", g).spectra, sens, e, g,
+                        chart_rgb=samples.mean[usable], chart_reflectance=refl[usable])
+    obj = decode_raw(frame, mode="bin2x2")
+    err = float(fit.training_rmse) if math.isfinite(fit.training_rmse) else 0.0
+    # black subtraction leaves read noise of either sign around 0; the estimator takes signals >= 0
+    rgb = np.maximum(obj.rgb, 0.0)
+    return SpectralScene(Path(frame), Path(chart_frame), preview_srgb8(obj), rgb, fit,
+                         candidate_set(sens, e, g, light_deg=LIGHT_DEG), err, int(usable.sum()), light)
+
+
+def _model_camera(scene: SpectralScene, rgb: np.ndarray) -> np.ndarray:
+    """Object-camera values -> the model camera's, by the chart transform (negative values clipped)."""
+    t = scene.fit.transform
+    out = rgb.reshape(-1, 3).astype(np.float64)
+    return np.maximum(out @ np.asarray(t).T, 0.0) if t is not None else out
+
+
+def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
+    """Reflectance around image pixel ``(x, y)`` with its uncertainty, the material and its model spectrum."""
+    from processing.material import material_brdf
+    from processing.material_identification import identify_material
+    from processing.materials import get_material
+    from processing.spectral_estimation import region_spectra
+
+    h, w = scene.rgb.shape[:2]
+    if not (0 <= x < w and 0 <= y < h):
+        raise ValueError(f"pixel ({x}, {y}) is outside the {w} x {h} frame")
+    y0, y1, x0, x1 = max(y - radius, 0), min(y + radius + 1, h), max(x - radius, 0), min(x + radius + 1, w)
+    patch = scene.rgb[y0:y1, x0:x1]
+    weights = scene.fit.estimate_weights(patch)
+    reg = region_spectra(weights, np.ones(patch.shape[:2], np.int64), scene.fit.basis, scene.method_error)
+    ident = identify_material(_model_camera(scene, patch), scene.candidates)
+    wl = scene.fit.wavelengths
+    name = ident.material if ident.material in scene.candidates.names else ident.group[0]
+    t = math.radians(LIGHT_DEG)
+    mat = get_material(name)
+    model = material_brdf(mat, math.cos(t), 1.0, math.cos(t / 2), math.cos(t / 2), wl) * (math.pi * math.cos(t))
+    mean = reg.mean[0]
+    k = float(model @ mean / max(model @ model, 1e-300))
+    return {"x": x, "y": y, "wavelengths": wl, "mean": mean, "uncertainty": reg.uncertainty[0],
+            "identification": ident, "model_name": name, "model": model * k, "model_scale": k,
+            "pixels": int(reg.count[0])}
+
+
+def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01) -> tuple[np.ndarray, dict[int, str]]:
+    """Material of each ``block`` x ``block`` tile (0: too dark to judge); returns labels and their names."""
+    from processing.material_identification import identify_regions
+
+    h, w = scene.rgb.shape[:2]
+    labels = block_labels((h, w), block)
+    dark = scene.rgb[..., 1] < min_signal
+    labels = np.where(dark, 0, labels)
+    model = _model_camera(scene, scene.rgb).reshape(h, w, 3)
+    found = identify_regions(model, labels, scene.candidates)
+    names = sorted({r.material for r in found.values()})
+    index = {n: i + 1 for i, n in enumerate(names)}
+    lut = np.zeros(int(labels.max()) + 1, np.int64)
+    for lab, r in found.items():
+        lut[lab] = index[r.material]
+    return lut[labels], {i: n for n, i in index.items()}
+
+
+_MAP_COLOURS = np.array([[0, 0, 0], [228, 26, 28], [55, 126, 184], [77, 175, 74], [152, 78, 163], [255, 127, 0],
+                         [255, 255, 51], [166, 86, 40], [247, 129, 191], [153, 153, 153], [0, 206, 209]], np.uint8)
+
+
+class _ClickImage(QLabel):
+    clicked = Signal(int, int)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.setMinimumSize(320, 240)
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Ignored)
+        self.setStyleSheet("background:#202020; color:#ddd;")
+        self.image_size: tuple[int, int] | None = None       # (w, h) of the image shown
+        self._rect = None
+
+    def show_rgb(self, rgb: np.ndarray) -> None:
+        h, w = rgb.shape[:2]
+        self.image_size = (w, h)
+        pix = QPixmap.fromImage(rgb_to_qimage(rgb)).scaled(self.size(), Qt.AspectRatioMode.KeepAspectRatio,
+                                                             Qt.TransformationMode.FastTransformation)
+        self.setPixmap(pix)
+        ox, oy = (self.width() - pix.width()) / 2, (self.height() - pix.height()) / 2
+        self._rect = (ox, oy, pix.width() / w, pix.height() / h)
+
+    def mousePressEvent(self, e: Any) -> None:  # noqa: N802
+        if self._rect is None or self.image_size is None:
+            return
+        ox, oy, sx, sy = self._rect
+        p = e.position()
+        x, y = int((p.x() - ox) / sx), int((p.y() - oy) / sy)
+        if 0 <= x < self.image_size[0] and 0 <= y < self.image_size[1]:
+            self.clicked.emit(x, y)
+
+
+class SpectraPanel(Panel):
+    """See the module docstring."""
+
+    analysed = Signal(object)          # spectrum_at's dict
+    map_ready = Signal()
+
+    def __init__(self, lane: Lane, plot_lane: Lane, session_root: Callable[[], Path | None],
+                 parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.lane = lane
+        self.session_root = session_root
+        self.scene: SpectralScene | None = None
+        self.last: dict[str, Any] | None = None
+        self.map: tuple[np.ndarray, dict[int, str]] | None = None
+        outer = QHBoxLayout(self)
+        left = QVBoxLayout()
+        outer.addLayout(left, 0)
+        src = QGroupBox("Frame")
+        f = QFormLayout(src)
+        self.frames = QComboBox()
+        self.frames.setMinimumContentsLength(14)
+        self.list_button = refresh = QPushButton("List the session's frames")
+        refresh.clicked.connect(self.safe(self.list_frames))
+        self.light = QComboBox()
+        self.light.addItems(["D65", "A", "D50", "F2"])
+        self.light.setEditable(True)
+        self.light.setToolTip("the light of the shot: D65, A, a CCT such as 3200K, or a CSV file")
+        self.method = QComboBox()
+        self.method.addItems(["wiener", "rootpoly", "more-basis", "paper"])
+        self.load_button = QPushButton("Calibrate with the pass's chart")
+        self.load_button.clicked.connect(self.safe(self.load))
+        self.block = QSpinBox()
+        self.block.setRange(2, 64)
+        self.block.setValue(6)
+        self.block.setSuffix(" px")
+        self.map_button = QPushButton("Material map")
+        self.map_button.clicked.connect(self.safe(self.make_map))
+        f.addRow(refresh)
+        f.addRow("Object frame", self.frames)
+        f.addRow("Light of the shot", self.light)
+        f.addRow("Method", self.method)
+        f.addRow(self.load_button)
+        f.addRow("Map block", self.block)
+        f.addRow(self.map_button)
+        left.addWidget(src)
+        self.state = QLabel("list the frames of a captured session, then calibrate")
+        self.state.setWordWrap(True)
+        self.state.setMaximumWidth(300)
+        left.addWidget(self.state)
+        self.legend = QLabel("")
+        self.legend.setWordWrap(True)
+        self.legend.setMaximumWidth(300)
+        left.addWidget(self.legend)
+        left.addStretch(1)
+        split = QSplitter(Qt.Orientation.Horizontal)
+        self.image = _ClickImage()
+        self.image.setText("no frame")
+        self.image.clicked.connect(lambda x, y: self.safe(lambda: self.pick(x, y))())
+        self.plot = PlotImage(plot_lane)
+        split.addWidget(self.image)
+        split.addWidget(self.plot)
+        outer.addWidget(split, 1)
+        self.plot.plot(_empty_plot)
+
+    # ------------------------------------------------------------ sources
+    def list_frames(self) -> None:
+        from app.errors import UsageError
+        from app.session import Session
+
+        root = self.session_root()
+        if root is None or not (root / "session.json").exists():
+            raise UsageError("open a session with camera frames first (Session tab)")
+        caps = Session.read(root)["captures"]
+        frames = [k for k, r in caps.items() if r.get("kind") == "frame"]
+        if not frames:
+            raise UsageError(f"session {root} has no object frames (captured without the camera?)")
+        self.frames.clear()
+        self.frames.addItems(frames)
+
+    def load(self) -> None:
+        from app.errors import UsageError
+        from app.session import Session
+
+        root = self.session_root()
+        cid = self.frames.currentText()
+        if root is None or not cid:
+            raise UsageError("list the session's frames and choose one")
+        caps = Session.read(root)["captures"]
+        chart = caps.get(f"{cid.split('/')[0]}/chart")
+        if chart is None:
+            raise UsageError(f"{cid}: its pass has no chart frame, so the camera cannot be calibrated")
+        frame, chart_path = root / caps[cid]["file"], root / chart["file"]
+        light, method = self.light.currentText().strip(), self.method.currentText()
+
+        def work(ctx: JobContext) -> SpectralScene:
+            return analyse_spectra(frame, chart_path, light=light, method=method)
+
+        self.state.setText(f"calibrating {cid} with its pass's chart…")
+        self.lane.run(work, "spectra", succeeded=self._loaded,
+                      failed=lambda text, exc: (self.state.setText(f"failed: {text}"), self.error.emit(text)))
+
+    def _loaded(self, scene: SpectralScene) -> None:
+        self.scene = scene
+        self.map = None
+        self.legend.setText("")
+        self.image.show_rgb(scene.preview)
+        self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated on {scene.usable_patches} "
+                           f"chart patches under {scene.light} (held-out error {scene.method_error:.3f}). Click the "
+                           "object to see its spectrum.")
+        self.log.emit(self.state.text())
+
+    # ------------------------------------------------------------ click and map
+    def pick(self, x: int, y: int) -> None:
+        from app.errors import UsageError
+
+        if self.scene is None:
+            raise UsageError("calibrate a frame first")
+        scene = self.scene
+
+        def work(ctx: JobContext) -> dict[str, Any]:
+            return spectrum_at(scene, x, y)
+
+        self.lane.run(work, "spectrum", succeeded=self._picked,
+                      failed=lambda text, exc: self.error.emit(f"spectrum: {text}"))
+
+    def _picked(self, res: dict[str, Any]) -> None:
+        self.last = res
+        self.plot.plot(_spectrum_plot(res))
+        ident = res["identification"]
+        self.state.setText(f"pixel ({res['x']}, {res['y']}): {ident.material} (confidence {ident.confidence:.2f}, "
+                           f"runner-up {ident.runner_up})")
+        self.analysed.emit(res)
+
+    def make_map(self) -> None:
+        from app.errors import UsageError
+
+        if self.scene is None:
+            raise UsageError("calibrate a frame first")
+        scene, block = self.scene, int(self.block.value())
+
+        def work(ctx: JobContext) -> tuple[np.ndarray, dict[int, str]]:
+            return material_map(scene, block)
+
+        self.state.setText("identifying the material of every block…")
+        self.lane.run(work, "material map", succeeded=self._mapped,
+                      failed=lambda text, exc: self.error.emit(f"material map: {text}"))
+
+    def _mapped(self, result: tuple[np.ndarray, dict[int, str]]) -> None:
+        self.map = result
+        labels, names = result
+        colours = _MAP_COLOURS[np.minimum(labels, len(_MAP_COLOURS) - 1)]
+        base = self.scene.preview.astype(np.float32)
+        alpha = np.where(labels > 0, 0.45, 0.0)[..., None]
+        self.image.show_rgb((base * (1 - alpha) + colours * alpha).astype(np.uint8))
+        self.legend.setText("<br>".join(
+            f"<span style='background:rgb({c[0]},{c[1]},{c[2]})'>&nbsp;&nbsp;&nbsp;</span> {n}"
+            for i, n in sorted(names.items()) for c in [_MAP_COLOURS[min(i, len(_MAP_COLOURS) - 1)]]))
+        self.state.setText(f"material map: {len(names)} materials over blocks of {self.block.value()} px "
+                           "(dark blocks left out)")
+        self.map_ready.emit()
+
+
+def _empty_plot(fig: Any) -> None:
+    ax = fig.add_subplot(111)
+    style(ax, "Reflectance", "wavelength (nm)", "reflectance")
+    ax.text(0.5, 0.5, "click the object in the frame", ha="center", va="center", transform=ax.transAxes,
+            color="#777")
+
+
+def _spectrum_plot(res: dict[str, Any]) -> Callable[[Any], None]:
+    def build(fig: Any) -> None:
+        ax = fig.add_subplot(111)
+        wl, m, u = res["wavelengths"], res["mean"], res["uncertainty"]
+        ax.fill_between(wl, m - u, m + u, color="#1f5fa8", alpha=0.2, label="uncertainty (1 sd)")
+        ax.plot(wl, m, color="#1f5fa8", lw=2, label=f"estimated ({res['pixels']} px)")
+        ax.plot(wl, res["model"], color="#d0312d", lw=1.5, ls="--", label=f"{res['model_name']} model (scaled)")
+        ident = res["identification"]
+        style(ax, f"({res['x']}, {res['y']}): {ident.material}, confidence {ident.confidence:.2f}",
+              "wavelength (nm)", "reflectance")
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    return build

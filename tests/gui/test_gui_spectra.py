@@ -1,0 +1,68 @@
+"""The spectra and materials panel on a simulated session: a lacquered (urushi-red) sphere shot with the
+chart through the fake gphoto2 and captured by the window; a click gives the estimated reflectance, its
+uncertainty and the identified material; the material map covers the sphere.
+
+Ground truth: the simulated world's material of the sphere (urushi-red) and its spectral radiance image
+(:meth:`mocks.world.World.frame`): the estimated spectrum must follow the simulated radiance factor's
+shape at the clicked pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from PySide6.QtCore import Qt
+from scipy import ndimage
+
+from mocks.world import World
+from tests.gui.helpers import make_window, wait_capture
+
+LEFT = Qt.MouseButton.LeftButton
+
+
+def test_click_gives_spectrum_and_material_and_the_map_covers_the_sphere(qtbot, tmp_path):
+    w = make_window(qtbot, tmp_path)
+    world = World.calibration_sphere(40.0, 0.0, width=600, height=400, chart_layout="classic24")
+    st = w.start_simulated_station(world=world, seed=4, n_points=96)
+    w.devices.connect_all()
+    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+    w.session.folder.setText(str(tmp_path / "s"))
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    w.capture.steps.setValue(4)
+    w.capture.passes.setValue(1)
+    w.capture.camera_angles.setText("0")
+    qtbot.mouseClick(w.capture.start, LEFT)
+    wait_capture(qtbot, w, timeout_s=120)
+    assert w.capture.status_text == "complete", w.error_line.text()
+    truth = world.frame("object", 0.0)           # the frame p01/frame/00 was shot at table angle 0
+
+    w.tabs.setCurrentWidget(w.spectra)
+    qtbot.mouseClick(w.spectra.list_button, LEFT)
+    assert w.spectra.frames.currentText() == "p01/frame/00"
+    qtbot.mouseClick(w.spectra.load_button, LEFT)
+    qtbot.waitUntil(lambda: w.spectra.scene is not None, timeout=60_000)
+    # the pixel deepest inside the sphere, in the binned image's coordinates
+    depth = ndimage.distance_transform_edt(truth.labels == 0)
+    y, x = np.unravel_index(np.argmax(depth), depth.shape)
+    w.spectra.pick(int(x) // 2, int(y) // 2)
+    qtbot.waitUntil(lambda: w.spectra.last is not None, timeout=30_000)
+    res = w.spectra.last
+    assert res["identification"].material == "urushi-red" == world.materials["sphere"]
+    assert "urushi-red" in w.spectra.state.text()
+    factor = truth.radiance[y - 4:y + 6, x - 4:x + 6].reshape(-1, truth.radiance.shape[2]).mean(axis=0) / truth.light
+    expected = np.interp(res["wavelengths"], truth.grid.wavelengths, factor)
+    assert np.corrcoef(res["mean"], expected)[0, 1] > 0.95        # the red lacquer's spectral shape
+    assert np.all(res["uncertainty"] > 0) and np.all(np.isfinite(res["mean"]))
+    qtbot.waitUntil(lambda: not w.spectra.plot.busy and w.spectra.plot.draws >= 2, timeout=30_000)
+    assert w.spectra.plot.failure == ""
+
+    qtbot.mouseClick(w.spectra.map_button, LEFT)
+    qtbot.waitUntil(lambda: w.spectra.map is not None, timeout=60_000)
+    labels, names = w.spectra.map
+    inside = (truth.labels == 0)[::2, ::2][:labels.shape[0], :labels.shape[1]]
+    core = ndimage.binary_erosion(inside, iterations=8)      # away from the rim and the blocks it cuts
+    found = labels[core]
+    judged = found[found > 0]                                 # blocks in the sphere's shadow are too dark
+    red = [k for k, n in names.items() if n == "urushi-red"]
+    assert judged.size > 0.5 * found.size
+    assert red and np.mean(judged == red[0]) > 0.9
+    assert "urushi-red" in w.spectra.legend.text()
