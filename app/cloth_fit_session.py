@@ -41,10 +41,13 @@ class SwatchData:
 
 
 def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int = 24, seed: int = 1,
-                           width: int = 96, height: int = 72) -> Path:
-    """Capture a swatch session of a simulated swatch of ``cloth`` into ``out`` (hot-folder camera).
+                           width: int = 96, height: int = 72, camera: str = "hotfolder") -> Path:
+    """Capture a swatch session of a simulated swatch of ``cloth`` into ``out``.
 
-    Writes the set-up to ``out/swatch.json``.  Returns the session folder.
+    ``camera`` is ``"hotfolder"`` (the station writes each frame into its hot
+    folder) or ``"gphoto2"`` (the station's fake ``gphoto2`` program, which
+    rebuilds the swatch world from its configuration).  Writes the set-up to
+    ``out/swatch.json``.  Returns the session folder.
     """
     import shutil
 
@@ -54,6 +57,8 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
     from mocks.station import SimulatedStation
     from mocks.swatch_world import SwatchWorld
 
+    if camera not in ("hotfolder", "gphoto2"):
+        raise UsageError(f"simulated swatch camera must be 'hotfolder' or 'gphoto2', got {camera!r}")
     out = Path(out)
     if out.exists():
         shutil.rmtree(out)
@@ -61,11 +66,13 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
     world = SwatchWorld.swatch(cloth, width=width, height=height)
     plan = CapturePlan("swatch", steps=steps, passes=1)
     with SimulatedStation(world, root=station_dir, seed=seed) as st:
+        cam = ({"kind": "hotfolder", "folder": str(st.hotfolder), "stable_s": 0.1} if camera == "hotfolder" else
+               {"kind": "gphoto2", "executable": str(st.gphoto2_path)})
         config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)},
-                  "camera": {"kind": "hotfolder", "folder": str(st.hotfolder), "stable_s": 0.1}}
+                  "camera": cam}
         session = Session.create(out, plan=plan.to_dict(), object_info={"name": f"swatch ({cloth}, simulated)"},
                                  settings={"unattended": True, "device_config": config})
-        devices = build_devices(config, session.root, shutter=st.shoot)
+        devices = build_devices(config, session.root, shutter=st.shoot if camera == "hotfolder" else None)
         try:
             run_capture(session, plan, devices, CaptureHooks(before_pass=lambda p, n: st.place(p)))
         finally:

@@ -10,9 +10,10 @@ configuration (the half vector about 10 degrees off the normal), where the
 anisotropic lobes change most with the table angle.  Chart frames are those
 of the station world.
 
-The world renders in-process (the simulated hot-folder camera); the
-serialised form the fake ``gphoto2`` reads has no swatch, so use the hot
-folder camera for swatch captures.
+The world renders in-process for the simulated hot-folder camera; its
+serialised form (:meth:`SwatchWorld.to_dict`, the station world's mapping with
+a ``"swatch"`` entry: cloth spec, size, weave angle) lets the fake ``gphoto2``
+rebuild it (:meth:`mocks.world.World.from_dict` dispatches on that entry).
 
 :meth:`SwatchWorld.geometry` is the set-up a lab would measure and give to
 ``kogei cloth fit`` (camera pose, light direction, swatch size).
@@ -75,6 +76,35 @@ class SwatchWorld(World):
         kwargs.setdefault("height", 120)
         return cls(vertices, triangles, np.zeros(2, np.int64), ("swatch",), {"swatch": cloth},
                    mesh_source=f"swatch:{swatch_mm:g}", cloth=cloth, swatch_mm=float(swatch_mm), **kwargs)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "SwatchWorld":
+        """Rebuild a swatch world from :meth:`to_dict` (the fake gphoto2's configuration).
+
+        Examples
+        --------
+        >>> w = SwatchWorld.swatch("satin", swatch_mm=50.0, width=32, height=24, weave_angle_deg=20.0)
+        >>> v = SwatchWorld.from_dict(w.to_dict())
+        >>> v.cloth, v.swatch_mm, v.weave_angle_deg, v.width
+        ('satin', 50.0, 20.0, 32)
+        """
+        from mocks.world import world_settings
+
+        data = dict(data)
+        swatch = data.pop("swatch")
+        if not isinstance(swatch, dict) or set(swatch) != {"cloth", "swatch_mm", "weave_angle_deg"}:
+            raise WorldError(f"world 'swatch' entry must map cloth, swatch_mm and weave_angle_deg, got {swatch!r}")
+        data.pop("mesh", None)
+        data.pop("materials", None)
+        return cls.swatch(str(swatch["cloth"]), float(swatch["swatch_mm"]),
+                          weave_angle_deg=float(swatch["weave_angle_deg"]), **world_settings(data))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The station world's mapping plus ``"swatch"``: cloth spec, side (mm) and weave angle (degrees)."""
+        out = super().to_dict()
+        out["swatch"] = {"cloth": self.cloth, "swatch_mm": float(self.swatch_mm),
+                         "weave_angle_deg": float(self.weave_angle_deg)}
+        return out
 
     def geometry(self) -> dict[str, Any]:
         """The set-up as ``kogei cloth fit`` reads it (:class:`processing.swatch_geometry.SwatchGeometry`)."""

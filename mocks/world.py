@@ -293,7 +293,14 @@ class World:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "World":
-        """Rebuild a world from :meth:`to_dict` (the fake gphoto2's configuration)."""
+        """Rebuild a world from :meth:`to_dict` (the fake gphoto2's configuration).
+
+        A mapping with a ``"swatch"`` entry is a :class:`mocks.swatch_world.SwatchWorld`.
+        """
+        if "swatch" in data:
+            from mocks.swatch_world import SwatchWorld      # imported here: it builds on this module
+
+            return SwatchWorld.from_dict(data)
         data = dict(data)
         source = str(data.pop("mesh", "hawk:4000"))
         if source.startswith("sphere:"):

@@ -186,3 +186,24 @@ def test_demo_cloth_scene_writes_an_image(tmp_path):
     path = render_cloth_scene(tmp_path, "draft", (32, 24))
     assert path.name == "cloth-tamamushi.png"
     assert np.asarray(Image.open(path)).shape[:2] == (24, 32)
+
+
+def test_swatch_capture_through_the_fake_gphoto2(session, tmp_path):
+    # the fake gphoto2 rebuilds the swatch world from its configuration file: its frames must be the
+    # swatch (not the station's default object), equal to the hot-folder frames up to sensor noise and to
+    # the cloth model's prediction for the world's known parameters
+    from app.cloth_fit_session import capture_swatch_session, load_swatch_session
+
+    shot = capture_swatch_session(tmp_path / "g", TRUTH_SPEC, steps=8, width=64, height=48, camera="gphoto2")
+    via_gphoto2 = load_swatch_session(shot, max_pixels=64)
+    via_folder = load_swatch_session(session, max_pixels=64)
+    m, ref = via_gphoto2.measurement, via_folder.measurement
+    assert m.angles_deg.tolist() == ref.angles_deg.tolist() and m.pixels.tolist() == ref.pixels.tolist()
+    np.testing.assert_allclose(m.rgb.mean(axis=1), ref.rgb.mean(axis=1), rtol=0.02)
+    truth = predict_rgb(get_material(TRUTH_SPEC), via_gphoto2.geometry, m.angles_deg, m.pixels)
+    np.testing.assert_allclose(m.rgb.mean(axis=1), truth.mean(axis=1), rtol=0.03)
+    # pixel by pixel too: the highlight's place in the frame is the model's (the swatch varies across the
+    # view by far more than the noise)
+    spread = truth.sum(axis=2)
+    assert spread.max() > 1.5 * spread.min()
+    assert np.median(np.abs(m.rgb / truth - 1.0)) < 0.03
