@@ -103,9 +103,6 @@ def build_parser() -> argparse.ArgumentParser:
     from app.chart_command import add_chart_parser
 
     add_chart_parser(sub)
-    from app.gui_command import add_gui_parser
-
-    add_gui_parser(sub)
     from app.batch_command import add_batch_parser
 
     add_batch_parser(sub)
@@ -176,10 +173,6 @@ def _run(args: argparse.Namespace) -> int:
         from app.cloth_command import run_cloth
 
         return run_cloth(args)
-    if args.command == "gui":
-        from app.gui_command import run_gui
-
-        return run_gui(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 
