@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
+import os
 import subprocess
 import sys
 from collections.abc import Callable
@@ -369,6 +370,15 @@ def batch_section() -> list[str]:
     return section(json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
+def gui_section() -> list[str]:
+    """The capture station window's responsiveness and cost during a simulated session (issue #7, bench/gui_bench.py)."""
+    from bench.gui_bench import section
+
+    proc = subprocess.run([sys.executable, "-m", "bench.gui_bench"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=3600, check=True, env={**os.environ, "QT_QPA_PLATFORM": "offscreen"})
+    return section(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
 #: Sections of docs/BENCHMARKS.md: ``--only NAME`` key -> (heading prefix, builder).
 SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
@@ -378,6 +388,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "spectral": ("## Spectral estimation and material identification", spectral_section),
     "cloth": ("## Cloth", cloth_section),
     "batch": ("## Batch reprocessing", batch_section),
+    "gui": ("## Capture station window", gui_section),
 }
 
 

@@ -120,6 +120,10 @@ class CapturePanel(Panel):
         Returns the object metadata of the Session tab.
     calibration
         Returns the scanner calibration source (session folder or JSON), or None.
+    plot_lane
+        The thread that draws the figures.
+    apply_devices
+        Copies the Devices tab's choices into ``link`` before a capture starts.
     """
 
     capture_started = Signal()
@@ -128,9 +132,11 @@ class CapturePanel(Panel):
 
     def __init__(self, link: StationLink, session_root: Callable[[], Path | None],
                  metadata: Callable[[], dict[str, str]], calibration: Callable[[], str | None],
-                 plot_lane: Lane, parent: QWidget | None = None) -> None:
+                 plot_lane: Lane, apply_devices: Callable[[], None] | None = None,
+                 parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.link = link
+        self.apply_devices = apply_devices
         self.session_root = session_root
         self.metadata = metadata
         self.calibration = calibration
@@ -302,7 +308,8 @@ class CapturePanel(Panel):
         root = self.session_root()
         if root is None:
             raise UsageError("choose a session first (Session tab: New session, or Open / resume)")
-        self.link_apply()
+        if self.apply_devices is not None:
+            self.apply_devices()            # the Devices tab's current choices
         if (root / "session.json").exists():
             try:
                 session = Session.open(root)
@@ -343,9 +350,6 @@ class CapturePanel(Panel):
         except SessionError as exc:
             raise UsageError(str(exc)) from None
         return session, plan, config
-
-    def link_apply(self) -> None:
-        """Hook for the window: copy the Devices tab's choices into the link."""
 
     # ------------------------------------------------------------ run
     def start_capture(self) -> None:

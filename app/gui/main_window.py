@@ -100,8 +100,7 @@ class MainWindow(QMainWindow):
         self.session = SessionPanel(self.work_lane)
         self.processing = ProcessingPanel(self.work_lane, lambda: self.session.root)
         self.capture = CapturePanel(self.link, lambda: self.session.root, self.session.metadata,
-                                    self.processing.calibration_source, self.plot_lane)
-        self.capture.link_apply = self.devices.apply
+                                    self.processing.calibration_source, self.plot_lane, self.devices.apply)
         self.camera = CameraPanel(self.link, self.work_lane, self.plot_lane, lambda: self.session.root)
         self.spectra = SpectraPanel(self.work_lane, self.plot_lane, lambda: self.session.root)
         self.preview = PreviewPanel(self.work_lane, lambda: self.session.root)
@@ -131,7 +130,6 @@ class MainWindow(QMainWindow):
         self.session.session_chosen.connect(self._session_chosen)
         self.capture.capture_started.connect(lambda: setattr(self.session, "capturing", True))
         self.capture.capture_stopped.connect(self._capture_stopped)
-        self.capture.job_progress = None
         self._refresh_counter = 0
         self.capture.progress.valueChanged.connect(self._maybe_refresh_session)
         self.processing.processed.connect(self._processed)

@@ -19,6 +19,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 __all__ = ["main", "take_screenshots"]
 
 
@@ -129,6 +131,18 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
         wait(lambda: w.camera.frame is not None and w.camera.image_plot.draws > 0 and not w.camera.image_plot.busy
              and not w.camera.hist_plot.busy, "the chart frame")
         shot(w, "camera")
+
+        w.tabs.setCurrentWidget(w.spectra)
+        w.spectra.list_frames()
+        w.spectra.load()
+        wait(lambda: w.spectra.scene is not None, "the spectral calibration")
+        rgb = w.spectra.scene.rgb
+        y, x = np.unravel_index(np.argmax(rgb.sum(axis=2)), rgb.shape[:2])   # a highlight: the metal's own colour
+        w.spectra.pick(int(x), int(y))
+        wait(lambda: w.spectra.last is not None and not w.spectra.plot.busy, "the spectrum")
+        w.spectra.make_map()
+        wait(lambda: w.spectra.map is not None, "the material map")
+        shot(w, "spectra")
 
         w.tabs.setCurrentWidget(w.processing)
         w.processing.preset.setCurrentText("standard")

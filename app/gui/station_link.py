@@ -30,6 +30,7 @@ True
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 from pathlib import Path
@@ -372,6 +373,6 @@ class StationLink(QObject):
         for drv in self.drivers.values():
             try:
                 drv.close()
-            except Exception:  # noqa: BLE001 - best effort on exit
-                pass
+            except Exception as exc:  # noqa: BLE001 - best effort on exit: say so and go on closing
+                logging.getLogger("kogei.gui").warning("closing %s on exit: %s", type(drv).__name__, exc)
         self.drivers.clear()
