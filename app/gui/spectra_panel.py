@@ -24,7 +24,9 @@ A composition of the colour pipeline's library calls (issue #5):
    measured spectrum by least squares for the plot (brightness is a free
    parameter of the identification);
 5. the material map: the same identification over square blocks of the frame
-   (:func:`processing.material_identification.identify_regions`).
+   (:func:`processing.material_identification.identify_regions`), leaving out
+   blocks too dark to have a colour and the backdrop (the colour of the
+   frame's rim).
 
 Examples
 --------
@@ -52,8 +54,8 @@ from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane
 
-__all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "block_labels",
-           "LIGHT_DEG"]
+__all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "backdrop_mask",
+           "block_labels", "LIGHT_DEG"]
 
 #: Angle of the light from the surface normal assumed by the identification (degrees).
 LIGHT_DEG = 30.0
@@ -148,14 +150,40 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
             "pixels": int(reg.count[0])}
 
 
+def backdrop_mask(rgb: np.ndarray, tolerance: float = 0.15, rim: float = 0.05) -> np.ndarray:
+    """Pixels of the backdrop: within ``tolerance`` (relative, per channel) of the median colour of the frame's rim.
+
+    The object stands in the middle of the frame on a uniform backdrop, so the
+    outer ``rim`` fraction of the frame is backdrop.
+
+    Examples
+    --------
+    >>> img = np.full((20, 20, 3), 0.2); img[8:12, 8:12] = [0.6, 0.3, 0.1]
+    >>> int(backdrop_mask(img).sum())
+    384
+    """
+    h, w = rgb.shape[:2]
+    k = max(1, int(round(rim * min(h, w))))
+    border = np.concatenate([rgb[:k].reshape(-1, 3), rgb[-k:].reshape(-1, 3), rgb[:, :k].reshape(-1, 3),
+                             rgb[:, -k:].reshape(-1, 3)])
+    ref = np.median(border, axis=0)
+    return np.all(np.abs(rgb - ref) <= tolerance * np.maximum(ref, 1e-6), axis=2)
+
+
 def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01) -> tuple[np.ndarray, dict[int, str]]:
-    """Material of each ``block`` x ``block`` tile (0: too dark to judge); returns labels and their names."""
+    """Material of each ``block`` x ``block`` tile of the object; returns labels and their names.
+
+    Label 0: not judged -- too dark (green below ``min_signal`` of full
+    scale: no colour to measure) or the backdrop (:func:`backdrop_mask`).
+    """
     from processing.material_identification import identify_regions
 
     h, w = scene.rgb.shape[:2]
     labels = block_labels((h, w), block)
-    dark = scene.rgb[..., 1] < min_signal
-    labels = np.where(dark, 0, labels)
+    skip = (scene.rgb[..., 1] < min_signal) | backdrop_mask(scene.rgb)
+    labels = np.where(skip, 0, labels)
+    if not labels.any():
+        raise ValueError("no pixel of the frame is both lit and unlike the backdrop: nothing to identify")
     model = _model_camera(scene, scene.rgb).reshape(h, w, 3)
     found = identify_regions(model, labels, scene.candidates)
     names = sorted({r.material for r in found.values()})
@@ -166,8 +194,12 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01)
     return lut[labels], {i: n for n, i in index.items()}
 
 
-_MAP_COLOURS = np.array([[0, 0, 0], [228, 26, 28], [55, 126, 184], [77, 175, 74], [152, 78, 163], [255, 127, 0],
-                         [255, 255, 51], [166, 86, 40], [247, 129, 191], [153, 153, 153], [0, 206, 209]], np.uint8)
+def _map_colours(n: int) -> np.ndarray:
+    """Row 0 black, then ``n`` distinct colours (Matplotlib's tab20)."""
+    import matplotlib
+
+    tab = matplotlib.colormaps["tab20"](np.arange(20))[:, :3]
+    return np.vstack([[0, 0, 0], np.round(255 * tab[np.arange(n) % 20])]).astype(np.uint8)
 
 
 class _ClickImage(QLabel):
@@ -262,6 +294,7 @@ class SpectraPanel(Panel):
         self.plot = PlotImage(plot_lane)
         split.addWidget(self.image)
         split.addWidget(self.plot)
+        split.setSizes([560, 560])
         outer.addWidget(split, 1)
         self.plot.plot(_empty_plot)
 
@@ -351,15 +384,16 @@ class SpectraPanel(Panel):
     def _mapped(self, result: tuple[np.ndarray, dict[int, str]]) -> None:
         self.map = result
         labels, names = result
-        colours = _MAP_COLOURS[np.minimum(labels, len(_MAP_COLOURS) - 1)]
+        palette = _map_colours(max(names, default=0))
+        colours = palette[labels]
         base = self.scene.preview.astype(np.float32)
         alpha = np.where(labels > 0, 0.45, 0.0)[..., None]
         self.image.show_rgb((base * (1 - alpha) + colours * alpha).astype(np.uint8))
         self.legend.setText("<br>".join(
             f"<span style='background:rgb({c[0]},{c[1]},{c[2]})'>&nbsp;&nbsp;&nbsp;</span> {n}"
-            for i, n in sorted(names.items()) for c in [_MAP_COLOURS[min(i, len(_MAP_COLOURS) - 1)]]))
+            for i, n in sorted(names.items()) for c in [palette[i]]))
         self.state.setText(f"material map: {len(names)} materials over blocks of {self.block.value()} px "
-                           "(dark blocks left out)")
+                           "(dark and backdrop blocks left out)")
         self.map_ready.emit()
 
 
@@ -379,7 +413,7 @@ def _spectrum_plot(res: dict[str, Any]) -> Callable[[Any], None]:
         ax.plot(wl, res["model"], color="#d0312d", lw=1.5, ls="--", label=f"{res['model_name']} model (scaled)")
         ident = res["identification"]
         style(ax, f"({res['x']}, {res['y']}): {ident.material}, confidence {ident.confidence:.2f}",
-              "wavelength (nm)", "reflectance")
+              "wavelength (nm)", "reflectance factor")
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")

@@ -66,7 +66,7 @@ def _pinhole(points: np.ndarray, eye: np.ndarray, target: np.ndarray, up: np.nda
     return np.stack([x, y], axis=1)
 
 
-def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration):
+def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration, monkeypatch):
     from app.gui.responsiveness import EventLoopMonitor
 
     w = make_window(qtbot, tmp_path)
@@ -185,6 +185,36 @@ def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration)
     monitor.stop()
     stalls = monitor.summary()
     print(f"event loop over the whole session: {stalls}")
+    # Manual 3-point registration: picks on pass 1 and the corresponding points of pass 2 (the truth maps
+    # one onto the other); the pair is then registered from the picks, verified, at the true pose
+    from app.gui import pick_dialog
+
+    t21 = truth[1] @ np.linalg.inv(truth[2])                  # pass 2 -> pass 1
+
+    def scripted_exec(dlg) -> int:
+        dlg.load()
+        qtbot.waitUntil(lambda: bool(dlg.clouds), timeout=30_000)
+        a = dlg.clouds["a"]
+        chosen = a[np.linspace(0, len(a) - 1, 5).astype(int)[1:-1]]          # 3 points spread over pass 1
+        chosen = np.vstack([chosen, a[np.argmax(a[:, 2])]])                  # and the top of the head
+        on_b = (np.linalg.inv(t21) @ np.c_[chosen, np.ones(len(chosen))].T).T[:, :3]
+        b = dlg.clouds["b"]
+        nearest = b[np.argmin(((b[None, :, :] - on_b[:, None, :]) ** 2).sum(axis=2), axis=1)]
+        dlg.set_picks(chosen, nearest)
+        assert dlg.buttons.button(dlg.buttons.StandardButton.Ok).isEnabled()
+        return 1
+
+    monkeypatch.setattr(pick_dialog.PickDialog, "exec", scripted_exec)
+    w.tabs.setCurrentWidget(w.processing)
+    qtbot.mouseClick(w.processing.pick_button, Qt.MouseButton.LeftButton)
+    assert w.processing.picks.keys() == {(1, 2)}
+    qtbot.mouseClick(w.processing.run_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: not w.processing.running, timeout=120_000)
+    pair = next(p for p in w.processing.report["registration"]["pairs"] if (p["source"], p["target"]) == (1, 0))
+    assert pair["method"] == "picks" and pair["verified"], pair
+    rot, shift = pose_difference(np.asarray(w.processing.report["passes"][1]["pose"]), t21)
+    assert rot < POSE_DEG and shift < POSE_MM, (rot, shift)
+
     # The window stays responsive (issue #7): its own work never holds the event loop 100 ms (the GUI
     # thread's CPU time between two firings of a 10 ms timer), and 99% of the firings come within 100 ms
     # of wall-clock time although the capture, the drawings and the simulated instruments run in this
