@@ -15,19 +15,16 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-import matplotlib
+# The canvases are used directly (never pyplot), so the process-wide Matplotlib backend is left alone.
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
+from matplotlib.figure import Figure
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QImage, QPixmap
+from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget
 
-matplotlib.use("QtAgg")
-
-import numpy as np  # noqa: E402
-from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
-from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from PySide6.QtCore import Qt, Signal  # noqa: E402
-from PySide6.QtGui import QImage, QPixmap  # noqa: E402
-from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget  # noqa: E402
-
-from app.gui.workers import JobContext, Lane  # noqa: E402
+from app.gui.workers import JobContext, Lane
 
 __all__ = ["PlotCanvas", "PlotImage", "style", "draw_figure"]
 
