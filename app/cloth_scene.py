@@ -17,6 +17,7 @@ warp tangents from its UVs:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,11 +36,17 @@ class ClothView:
     fov_deg: float = 30.0
 
 
-#: Looking down at the sheet (Fig. 15-17), and the two views of Fig. 18: the light above,
-#: the camera 40 degrees off the normal toward +y (h tilts across the warp) or toward +x (along it).
+#: Looking down at the sheet (Fig. 15-17), and the two views of Fig. 18: the light 30 degrees off
+#: the normal toward -y, the camera 40 degrees off it toward +y (near the mirror direction, the half
+#: vector 5 degrees across the warp: the warp's lobe at its peak) or, walked a quarter turn round the
+#: cloth, toward +x (the half vector 21 degrees along the warp, where its narrow axis leaves it dark).
+#: The camera is far (20 units, 13 degree field) so the whole sheet sees nearly one half vector: the
+#: filament warp's lobe is narrow along the yarn and a wide field would sweep across it.
 TOP = ClothView()
-ACROSS_WARP = ClothView(eye=(0.0, 6.0, 5.0), light=(0.0, 0.0, 1.0), fov_deg=32.0)
-ALONG_WARP = ClothView(eye=(6.0, 0.0, 5.0), light=(0.0, 0.0, 1.0), fov_deg=32.0)
+_LIGHT_18 = (0.0, -0.5, math.sqrt(0.75))
+_EYE_18 = (20.0 * math.sin(math.radians(40.0)), 20.0 * math.cos(math.radians(40.0)))
+ACROSS_WARP = ClothView(eye=(0.0, _EYE_18[0], _EYE_18[1]), light=_LIGHT_18, fov_deg=13.0)
+ALONG_WARP = ClothView(eye=(_EYE_18[0], 0.0, _EYE_18[1]), light=_LIGHT_18, fov_deg=13.0)
 
 FIGURES = ("fig15_components.png", "fig16_weave_angle.png", "fig17_cotton_silk.png", "fig18_tamamushi.png")
 
@@ -62,15 +69,18 @@ def cloth_object(material: str, weave_angle_deg: float = 0.0, divisions: int = 9
 
 def render_cloth(material: str, size: tuple[int, int], preset: str = "standard", *, view: ClothView = TOP,
                  weave_angle_deg: float = 0.0, divisions: int = 96, illuminant: str = "D65",
-                 fold_amplitude: float = 0.25, wrinkle_amplitude: float = 0.012):
-    """Render the draped sheet; returns the :class:`render.renderer.RenderResult`."""
+                 fold_amplitude: float = 0.25, wrinkle_amplitude: float = 0.012, sky: float = 0.15):
+    """Render the draped sheet under one sun (``view.light``) and a uniform sky of zenith radiance ``sky``.
+
+    Returns the :class:`render.renderer.RenderResult`.
+    """
     from render.camera import Camera
     from render.presets import get_preset
     from render.renderer import render
     from render.scene import Light, Scene, Sky
 
     scene = Scene([cloth_object(material, weave_angle_deg, divisions, fold_amplitude, wrinkle_amplitude)],
-                  [Light("directional", view.light, illuminant, 1.0)], Sky("uniform", zenith=0.15, spectrum=illuminant))
+                  [Light("directional", view.light, illuminant, 1.0)], Sky("uniform", zenith=sky, spectrum=illuminant))
     width, height = size
     eye = np.asarray(view.eye, dtype=np.float64)
     up = (0.0, 1.0, 0.0) if abs(eye[2]) > 0.95 * np.linalg.norm(eye) else (0.0, 0.0, 1.0)
@@ -105,8 +115,8 @@ def render_figures(out_dir: str | Path, preset: str = "standard", size: tuple[in
         _montage([img("silk"), img("silk", weave_angle_deg=45.0)], 2),
         _montage([img("cotton"), img("silk")], 1),
         # gentle folds: most of the sheet sees the same tilt of h, across or along the warp
-        _montage([img("tamamushi", view=ACROSS_WARP, fold_amplitude=0.06, wrinkle_amplitude=0.0),
-                  img("tamamushi", view=ALONG_WARP, fold_amplitude=0.06, wrinkle_amplitude=0.0)], 2),
+        _montage([img("tamamushi", view=ACROSS_WARP, fold_amplitude=0.02, wrinkle_amplitude=0.0),
+                  img("tamamushi", view=ALONG_WARP, fold_amplitude=0.02, wrinkle_amplitude=0.0)], 2),
     ]
     paths = []
     for name, picture in zip(FIGURES, figures):

@@ -33,7 +33,9 @@ A pixel sees warp and weft together (section 3.3, Fig. 13): the two yarn
 directions are weighted by their visible fractions, ``warp_fraction`` and
 ``1 - warp_fraction`` (plain weave 1:1; satin shows mostly warp).  Each yarn
 has its own axes and dye (tamamushi: filament warp of one colour, spun weft
-of another, section 4).  Spun yarn has rounder ellipsoids than filament.
+of another, section 4), and may have its own component weights (a filament
+returns its dyed light mostly through the internal lobe, a spun yarn mostly
+diffusely).  Spun yarn has rounder ellipsoids than filament.
 
 Energy: with ``specular + internal + diffuse <= 1`` every lobe's albedo is at
 most its weight, so the directional albedo is <= 1 at every incidence
@@ -359,6 +361,7 @@ def cloth_material(
     rounding: float = 0.4,
     n: float = FIBRE_INDEX,
     scattering: float = 1.0,
+    weft_weights: tuple[float, float, float] | None = None,
     description: str = "",
     parameters: dict | None = None,
 ) -> Material:
@@ -383,6 +386,12 @@ def cloth_material(
     scattering
         Kubelka-Munk scattering per layer thickness (> 0): the diffuse body
         reflectance is ``KM(c / scattering)``.
+    weft_weights
+        ``(specular, internal, diffuse)`` of the weft when it differs from the
+        warp (default: the same weights).  A filament yarn of parallel
+        transparent fibres sends its dyed light mostly into the internal lobe;
+        a spun yarn of twisted staple fibres scatters it in all directions
+        (mostly diffuse); shot silk weaves one of each.
     description
         Free text.
     parameters
@@ -415,15 +424,26 @@ def cloth_material(
     scattering = checked_parameter("scattering", scattering, open_zero=True, upper=1e3)
     if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or not 0 <= layers <= MAX_LAYERS:
         raise ValueError(f"layers must be an integer in 0..{MAX_LAYERS}, got {layers!r}")
-    total = specular + internal + diffuse
-    if total > 1.0 + 1e-12:
-        raise ValueError(
-            f"specular + internal + diffuse = {total:g} exceeds 1 (energy conservation); lower one of them"
-        )
-    common = dict(specular=specular, internal=internal, diffuse=diffuse, layers=int(layers), rounding=rounding,
-                  n=n, scattering=scattering)
-    lobes = _yarn_lobes(warp, warp_fraction, False, **common) + _yarn_lobes(weft, 1.0 - warp_fraction, True, **common)
+    if weft_weights is None:
+        weft_weights = (specular, internal, diffuse)
+    if len(weft_weights) != 3:
+        raise ValueError(f"weft_weights must be (specular, internal, diffuse), got {weft_weights!r}")
+    weft_weights = tuple(checked_parameter(f"weft_{what}", v)
+                         for what, v in zip(("specular", "internal", "diffuse"), weft_weights))
+    for who, weights in (("", (specular, internal, diffuse)), ("weft_", weft_weights)):
+        total = sum(weights)
+        if total > 1.0 + 1e-12:
+            raise ValueError(
+                f"{who}specular + {who}internal + {who}diffuse = {total:g} exceeds 1 (energy conservation); "
+                "lower one of them"
+            )
+    common = dict(layers=int(layers), rounding=rounding, n=n, scattering=scattering)
+    warp_w = dict(specular=specular, internal=internal, diffuse=diffuse)
+    weft_w = dict(zip(("specular", "internal", "diffuse"), weft_weights))
+    lobes = (_yarn_lobes(warp, warp_fraction, False, **warp_w, **common)
+             + _yarn_lobes(weft, 1.0 - warp_fraction, True, **weft_w, **common))
     if parameters is None:
-        parameters = {"warp_fraction": warp_fraction, **common, "a_t": warp.a_t, "a_b": warp.a_b,
-                      "weft_a_t": weft.a_t, "weft_a_b": weft.a_b}
+        parameters = {"warp_fraction": warp_fraction, **warp_w, **common, "a_t": warp.a_t, "a_b": warp.a_b,
+                      "weft_a_t": weft.a_t, "weft_a_b": weft.a_b,
+                      **{f"weft_{k}": v for k, v in weft_w.items()}}
     return Material(name, tuple(lobes), family="cloth", description=description, parameters=dict(parameters))

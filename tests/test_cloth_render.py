@@ -130,6 +130,44 @@ def test_tamamushi_dominant_colour_flips_with_the_view():
     assert rgb_a[1] > rgb_a[0] and rgb_b[0] > rgb_b[1]     # green over red, then red over green
 
 
+def _mean_hue_deg(xyz, white):
+    import colour
+
+    lab = colour.XYZ_to_Lab(xyz / white[1], colour.XYZ_to_xy(white / white[1]))
+    return math.degrees(math.atan2(lab[:, 2].mean(), lab[:, 1].mean())) % 360.0
+
+
+def _hue_gap(a, b):
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def test_tamamushi_figure_flips_between_the_dye_colours():
+    # Yasuda Fig. 18 on the rendered image: the mean CIELAB hue of the cloth pixels is near the warp
+    # dye's hue in one view and near the weft dye's in the other, each by a wide margin (the dyes' hues
+    # from their sRGB colours through colour-science, not through the renderer)
+    import colour
+
+    from app.cloth_scene import ACROSS_WARP, ALONG_WARP, render_cloth
+    from processing.cloth_presets import CLOTH_PRESETS
+
+    def dye_hue(hexa):
+        lab = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(colour.notation.HEX_to_RGB(hexa)))
+        return math.degrees(math.atan2(lab[2], lab[1])) % 360.0
+
+    warp, weft = (dye_hue(CLOTH_PRESETS["tamamushi"][k]) for k in ("warp_colour", "weft_colour"))
+    assert _hue_gap(warp, weft) > 120.0                              # two clearly different dyes
+    hues = []
+    for view in (ACROSS_WARP, ALONG_WARP):
+        r = render_cloth("tamamushi", (40, 30), "standard", view=view, divisions=20, fold_amplitude=0.02,
+                         wrinkle_amplitude=0.0)
+        on = r.mask > 0.99
+        assert on.mean() > 0.2
+        hues.append(_mean_hue_deg(r.xyz[on].astype(np.float64), np.asarray(r.white, dtype=np.float64)))
+    across, along = hues
+    assert _hue_gap(across, warp) + 60.0 < _hue_gap(across, weft), (across, warp, weft)
+    assert _hue_gap(along, weft) + 60.0 < _hue_gap(along, warp), (along, warp, weft)
+
+
 def test_cloth_scene_renders_with_sky_and_both_backends():
     from app.cloth_scene import render_cloth
 
