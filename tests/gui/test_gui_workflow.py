@@ -1,0 +1,109 @@
+"""Pausing and aborting a capture, reopening the interrupted session in a new window and resuming it there;
+cancelling processing (a worker process) without touching the session.
+
+Ground truth: the session store (what was recorded, its status and products) and the plan.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from PySide6.QtCore import Qt
+
+from app.capture import CaptureHooks, CapturePlan, run_capture
+from app.capture_devices import build_devices
+from app.session import Session
+from mocks.station import SimulatedStation
+from mocks.world import World
+from tests.gui.helpers import make_window, wait_capture
+
+LEFT = Qt.MouseButton.LeftButton
+
+
+def _station_window(qtbot, tmp_path: Path, name: str = "settings.ini"):
+    w = make_window(qtbot, tmp_path, name)
+    st = w.start_simulated_station(world=World.hawk(2000, width=48, height=32), seed=6, n_points=96)
+    w.devices.camera_kind.setCurrentText("none")
+    w.devices.connect_all()
+    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+    return w, st
+
+
+def test_pause_abort_reopen_and_resume(qtbot, tmp_path):
+    w, st = _station_window(qtbot, tmp_path)
+    w.session.folder.setText(str(tmp_path / "s"))
+    w.session.meta_edits["name"].setText("tsuba")
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    w.capture.steps.setValue(30)
+    w.capture.passes.setValue(2)
+    qtbot.mouseClick(w.capture.start, LEFT)
+    qtbot.waitUntil(lambda: not w.capture.prompt.isHidden(), timeout=10_000)
+    qtbot.mouseClick(w.capture.prompt_go, LEFT)
+    qtbot.waitUntil(lambda: w.capture.progress.value() >= 5, timeout=10_000)
+    qtbot.mouseClick(w.capture.pause, LEFT)
+    assert w.capture.pause.text().startswith("Continue")
+    qtbot.wait(300)                                   # the step in flight ends, then the capture holds
+    held = w.capture.progress.value()
+    qtbot.wait(500)
+    assert w.capture.progress.value() == held < 60    # nothing is taken while paused
+    qtbot.mouseClick(w.capture.pause, LEFT)           # continue
+    qtbot.waitUntil(lambda: w.capture.progress.value() > held, timeout=10_000)
+    qtbot.mouseClick(w.capture.abort, LEFT)
+    wait_capture(qtbot, w, timeout_s=30, answer_prompts=False)
+    assert w.capture.status_text == "cancelled"
+    m = Session.read(tmp_path / "s")
+    assert m["status"] == "interrupted"
+    taken = sum(1 for r in m["captures"].values() if r["kind"] == "profile")
+    assert held < taken < 60
+    w.station = None                   # the station outlives this window (another window resumes on it)
+    w.close()
+
+    # a new window: open the interrupted session on the Session tab; its plan and metadata come back
+    w2 = make_window(qtbot, tmp_path, "settings.ini")
+    w2.link.placer = st.place
+    for name in ("turntable", "profiler"):
+        w2.devices.set_port(name, str(getattr(st, f"{name}_path")))
+    w2.devices.camera_kind.setCurrentText("none")
+    assert w2.session.folder.text() == str(tmp_path / "s")          # the last session is remembered
+    qtbot.mouseClick(w2.session.open_button, LEFT)
+    assert "interrupted" in w2.session.status.text() and w2.session.meta_edits["name"].text() == "tsuba"
+    assert w2.session.tree.topLevelItemCount() == len(m["captures"])
+    assert (w2.capture.steps.value(), w2.capture.passes.value()) == (30, 2)
+    qtbot.mouseClick(w2.capture.start, LEFT)
+    wait_capture(qtbot, w2, timeout_s=60)
+    assert w2.capture.status_text == "complete", w2.error_line.text()
+    m = Session.read(tmp_path / "s")
+    assert m["status"] == "complete"
+    assert sum(1 for r in m["captures"].values() if r["kind"] == "profile") == 60
+    assert f"{taken} already held" in w2.capture.action.text()
+    w2.close()
+    st.stop()
+
+
+def test_cancel_processing_leaves_the_session_as_it_was(qtbot, tmp_path):
+    plan = CapturePlan("scan", steps=12, passes=2, camera=False)
+    with SimulatedStation(World.hawk(2000), root=tmp_path / "station", seed=1) as st:
+        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
+        s = Session.create(tmp_path / "s", plan=plan.to_dict())
+        try:
+            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            s.close()
+    before = (tmp_path / "s" / "session.json").read_bytes()
+    w = make_window(qtbot, tmp_path)
+    w.session.folder.setText(str(tmp_path / "s"))
+    qtbot.mouseClick(w.session.open_button, LEFT)
+    qtbot.mouseClick(w.processing.run_button, LEFT)
+    assert w.processing.running and w.processing.cancel_button.isEnabled()
+    qtbot.mouseClick(w.processing.cancel_button, LEFT)
+    qtbot.waitUntil(lambda: not w.processing.running, timeout=10_000)
+    assert "cancelled by the user" in w.error_line.text()
+    assert not w.processing.job._proc.is_alive()
+    assert w.processing.run_button.isEnabled() and w.processing.report is None
+    assert (tmp_path / "s" / "session.json").read_bytes() == before
+    assert not (tmp_path / "s" / "products").exists()
+    # without a calibration, processing says what to do, in the window
+    qtbot.mouseClick(w.processing.run_button, LEFT)
+    qtbot.waitUntil(lambda: not w.processing.running, timeout=60_000)
+    assert "has no scanner calibration" in w.error_line.text() and "kogei calibrate" in w.error_line.text()
