@@ -112,6 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
     from app.cloth_command import add_cloth_parser
 
     add_cloth_parser(sub)
+    from app.spectral_command import add_spectral_parser
+
+    add_spectral_parser(sub)
+    from app.identify_command import add_identify_parser
+
+    add_identify_parser(sub)
     return parser
 
 
@@ -173,6 +179,14 @@ def _run(args: argparse.Namespace) -> int:
         from app.cloth_command import run_cloth
 
         return run_cloth(args)
+    if args.command == "spectral":
+        from app.spectral_command import run_spectral
+
+        return run_spectral(args)
+    if args.command == "identify":
+        from app.identify_command import run_identify
+
+        return run_identify(args)
     raise AssertionError(args.command)  # argparse only admits the commands above
 
 
