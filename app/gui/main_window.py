@@ -126,7 +126,7 @@ class MainWindow(QMainWindow):
         self.link.log.connect(self.append_log)
         self.link.banner.connect(self.banner.show_text)
         self.link.state.connect(self._state_changed)
-        self.devices.simulated_requested.connect(lambda: self.run_safely(self.start_simulated_station))
+        self.devices.simulated_requested.connect(lambda: self.run_safely(self.start_simulated_station_async))
         self.session.session_chosen.connect(self._session_chosen)
         self.capture.capture_started.connect(lambda: setattr(self.session, "capturing", True))
         self.capture.capture_stopped.connect(self._capture_stopped)
@@ -192,7 +192,7 @@ class MainWindow(QMainWindow):
         act.triggered.connect(lambda: self.run_safely(self.devices.connect_all))
         m.addAction(act)
         act = QAction("Start a simulated station", self)
-        act.triggered.connect(lambda: self.run_safely(self.start_simulated_station))
+        act.triggered.connect(lambda: self.run_safely(self.start_simulated_station_async))
         m.addAction(act)
         m.addSeparator()
         act = QAction("Quit", self)
@@ -215,6 +215,34 @@ class MainWindow(QMainWindow):
             world = World.hawk(triangles, width=image_size[0], height=image_size[1])
         st = SimulatedStation(world, root=root, seed=seed, n_points=n_points)
         st.start()
+        return self._attach_station(st)
+
+    def start_simulated_station_async(self) -> None:
+        """The Devices tab's button: build the simulated world and start the station on a worker thread."""
+        if self.station is not None or getattr(self, "_station_starting", False):
+            raise ValueError("a simulated station is already running in this window")
+        self._station_starting = True
+        self.devices.sim_state.setText("starting (building the simulated world)…")
+
+        def work(ctx: Any) -> Any:
+            from mocks.station import SimulatedStation
+            from mocks.world import World
+
+            return SimulatedStation(World.hawk(4000, width=240, height=160), n_points=320).start()
+
+        def done(st: Any) -> None:
+            self._station_starting = False
+            self._attach_station(st)
+
+        def failed(text: str, exc: Any) -> None:
+            self._station_starting = False
+            self.devices.sim_state.setText("none")
+            self.show_error(f"simulated station: {text}")
+
+        self.work_lane.run(work, "start simulated station", succeeded=done, failed=failed)
+
+    def _attach_station(self, st: Any) -> Any:
+        """Point the Devices tab at a running simulated station (ports, gphoto2 shim, placements)."""
         self.station = st
         self.link.placer = st.place
         self.link.shutter = st.shoot

@@ -338,6 +338,7 @@ class SpectraPanel(Panel):
     def _loaded(self, scene: SpectralScene) -> None:
         self.scene = scene
         self.map = None
+        self.last = None
         self.legend.setText("")
         self.image.show_rgb(scene.preview)
         self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated on {scene.usable_patches} "
@@ -361,6 +362,7 @@ class SpectraPanel(Panel):
 
     def _picked(self, res: dict[str, Any]) -> None:
         self.last = res
+        self._show_frame()
         self.plot.plot(_spectrum_plot(res))
         ident = res["identification"]
         self.state.setText(f"pixel ({res['x']}, {res['y']}): {ident.material} (confidence {ident.confidence:.2f}, "
@@ -381,14 +383,27 @@ class SpectraPanel(Panel):
         self.lane.run(work, "material map", succeeded=self._mapped,
                       failed=lambda text, exc: self.error.emit(f"material map: {text}"))
 
+    def _show_frame(self) -> None:
+        """The frame, the material map over it (if made) and a cross at the clicked point."""
+        img = self.scene.preview.copy()
+        if self.map is not None:
+            labels, names = self.map
+            colours = _map_colours(max(names, default=0))[labels]
+            alpha = np.where(labels > 0, 0.45, 0.0)[..., None]
+            img = (img.astype(np.float32) * (1 - alpha) + colours * alpha).astype(np.uint8)
+        if self.last is not None:
+            x, y = self.last["x"], self.last["y"]
+            h, w = img.shape[:2]
+            arm = max(3, min(h, w) // 40)
+            img[max(y - arm, 0):y + arm + 1, x] = (255, 40, 40)
+            img[y, max(x - arm, 0):x + arm + 1] = (255, 40, 40)
+        self.image.show_rgb(img)
+
     def _mapped(self, result: tuple[np.ndarray, dict[int, str]]) -> None:
         self.map = result
         labels, names = result
         palette = _map_colours(max(names, default=0))
-        colours = palette[labels]
-        base = self.scene.preview.astype(np.float32)
-        alpha = np.where(labels > 0, 0.45, 0.0)[..., None]
-        self.image.show_rgb((base * (1 - alpha) + colours * alpha).astype(np.uint8))
+        self._show_frame()
         self.legend.setText("<br>".join(
             f"<span style='background:rgb({c[0]},{c[1]},{c[2]})'>&nbsp;&nbsp;&nbsp;</span> {n}"
             for i, n in sorted(names.items()) for c in [palette[i]]))

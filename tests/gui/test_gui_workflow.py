@@ -107,3 +107,15 @@ def test_cancel_processing_leaves_the_session_as_it_was(qtbot, tmp_path):
     qtbot.mouseClick(w.processing.run_button, LEFT)
     qtbot.waitUntil(lambda: not w.processing.running, timeout=60_000)
     assert "has no scanner calibration" in w.error_line.text() and "kogei calibrate" in w.error_line.text()
+
+
+def test_the_devices_button_starts_a_simulated_station_without_blocking(qtbot, tmp_path):
+    w = make_window(qtbot, tmp_path)
+    w.devices.simulated_requested.emit()
+    assert "starting" in w.devices.sim_state.text()          # returned at once; the world is built meanwhile
+    qtbot.waitUntil(lambda: w.station is not None, timeout=60_000)
+    assert w.devices.port("turntable") == str(w.station.turntable_path)
+    w.devices.simulated_requested.emit()                      # a second one is refused, readably
+    assert "already running" in w.error_line.text()
+    w.devices.connect_all()
+    qtbot.waitUntil(lambda: w.link.states["turntable"] == "connected", timeout=10_000)
