@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QSettings, Qt
+from PySide6.QtCore import QCoreApplication, QSettings, Qt
 from PySide6.QtGui import QAction, QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QDockWidget, QHBoxLayout, QLabel, QMainWindow, QPlainTextEdit, QPushButton, QTabWidget, QVBoxLayout, QWidget,
@@ -325,6 +325,8 @@ class MainWindow(QMainWindow):
         self.device_lane.wait(30_000)
         self.work_lane.wait(30_000)
         self.plot_lane.wait(30_000)
+        # deliver the finished jobs' results (a simulated station that finished starting is stopped below)
+        QCoreApplication.processEvents()
         self.link.shutdown()
         if self.station is not None:
             self.station.stop()
