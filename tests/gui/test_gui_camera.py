@@ -7,6 +7,10 @@ chart's outer corners in sensor pixels) and the camera fault switch that saturat
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+
 import numpy as np
 from PySide6.QtCore import Qt
 

@@ -9,10 +9,13 @@ angle, so every profile the window's capture records must be identical to it.
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+
 from pathlib import Path
 
 import numpy as np
-import pytest
 from PySide6.QtCore import Qt
 
 from app.capture import CaptureHooks, CapturePlan, load_pass_profiles, run_capture

@@ -9,12 +9,15 @@ the orbit camera, computed here with a plain pinhole model), and the plan (angle
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+
 import math
 import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 from PySide6.QtCore import QPoint, Qt
 
 from app.capture import CaptureHooks, CapturePlan, run_capture

@@ -9,6 +9,10 @@ shape at the clicked pixel.
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+
 import numpy as np
 from PySide6.QtCore import Qt
 from scipy import ndimage

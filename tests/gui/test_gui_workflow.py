@@ -6,9 +6,12 @@ Ground truth: the session store (what was recorded, its status and products) and
 
 from __future__ import annotations
 
+import pytest
+
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+
 from pathlib import Path
 
-import pytest
 from PySide6.QtCore import Qt
 
 from app.capture import CaptureHooks, CapturePlan, run_capture
