@@ -97,10 +97,9 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
 
         w.processing.calibration.setText(str(cal))
         w.session.folder.setText(str(tmp / "hawk-2026-11-24"))
-        for key, value in (("name", "Hawk head, okimono (simulated)"), ("collection_id", "M-1893-017"),
-                           ("period", "Meiji, c. 1890"), ("materials", "shibuichi, gold, copper, urushi"),
-                           ("operator", "capture station 2")):
-            w.session.meta_edits[key].setText(value)
+        w.session.set_metadata({"name": "Hawk head, okimono (simulated)", "collection_id": "M-1893-017",
+                                "period": "Meiji, c. 1890", "materials": "shibuichi, gold, copper, urushi",
+                                "operator": "capture station 2"})
         w.session.new_button.click()
         w.capture.steps.setValue(steps)
         w.capture.passes.setValue(passes)

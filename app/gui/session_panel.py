@@ -140,6 +140,12 @@ class SessionPanel(Panel):
         if path:
             self.folder.setText(path)
 
+    def set_metadata(self, values: dict[str, str]) -> None:
+        """Fill the object form (each field shows its beginning)."""
+        for key, edit in self.meta_edits.items():
+            edit.setText(values.get(key, ""))
+            edit.setCursorPosition(0)
+
     def metadata(self) -> dict[str, str]:
         return {k: e.text().strip() for k, e in self.meta_edits.items() if e.text().strip()}
 
@@ -175,8 +181,7 @@ class SessionPanel(Panel):
             raise UsageError(str(exc)) from None
         self.root = path
         self.folder.setText(str(path))
-        for key, edit in self.meta_edits.items():
-            edit.setText(str(manifest.get("object", {}).get(key, "")))
+        self.set_metadata({k: str(v) for k, v in manifest.get("object", {}).items()})
         self._thumbs.clear()
         self.thumbs.clear()
         self.show_manifest(manifest)
