@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from app.errors import UsageError
 from app.spectral_command import SpectralResult, load_result
 
-__all__ = ["add_identify_parser", "run_identify", "read_labels", "identify_result", "RegionReport"]
+__all__ = ["add_identify_parser", "run_identify", "read_labels", "identify_result", "usable_regions", "RegionReport"]
 
 #: Metals of the alloy model (Matsuda et al., eq. (3)-(4); Table 1's shibuichi and shakudo are Ag-Cu-Au).
 ALLOY_METALS = ("Ag", "Cu", "Au")
@@ -119,6 +119,30 @@ def _is_metal(name: str) -> bool:
     return name == NEUTRAL_METAL or get_material(name).family in ("metal", "alloy")
 
 
+def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_level: float = 0.005) -> NDArray[np.int64]:
+    """``labels`` with 0 where a pixel is masked or darker than ``min_level`` of a white diffuser (module text).
+
+    Examples
+    --------
+    >>> from processing.camera_response import camera_sensitivities
+    >>> from processing.spectra import SpectralGrid
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> cam = np.zeros((1, 2, 3), np.float32); cam[0, 0] = 5.0
+    >>> r = SpectralResult(np.zeros((1, 2, 3), np.float32), np.eye(31, 3), g.wavelengths, np.ones((1, 2), bool),
+    ...                    cam, camera_sensitivities(g), np.ones((1, 31)), "demo")
+    >>> usable_regions(r, np.array([[1, 1]])).tolist()
+    [[1, 0]]
+    """
+    from processing.camera_response import channel_matrix
+
+    lights = result.lights[0] if result.lights.shape[0] == 1 else result.lights
+    white = np.ones(result.grid.size) @ channel_matrix(result.sensitivities, lights, result.grid)
+    live = np.asarray(labels, dtype=np.int64) * result.mask
+    # shadows and the off-highlight pixels of a glossy surface hold noise, not colour
+    live[(result.camera < min_level * white.astype(np.float32)).all(axis=2)] = 0
+    return live
+
+
 def identify_result(
     result: SpectralResult,
     labels: NDArray[np.integer] | None = None,
@@ -129,7 +153,6 @@ def identify_result(
     min_level: float = 0.005,
 ) -> list[RegionReport]:
     """Identify every region (label > 0) of ``result``; ``labels=None``: the whole unmasked image."""
-    from processing.camera_response import channel_matrix
     from processing.material_identification import candidate_set, estimate_alloy_weights, identify_material
     from processing.spectral_estimation import region_spectra
     from processing.spectral_fit import SpectralEstimationError
@@ -149,10 +172,7 @@ def identify_result(
         cands = candidate_set(result.sensitivities, lights, grid, light_deg=light_deg)
     except SpectralEstimationError as exc:
         raise UsageError(str(exc)) from None
-    live = lab * result.mask
-    white = np.ones(grid.size) @ channel_matrix(result.sensitivities, lights, grid)
-    # shadows and the off-highlight pixels of a glossy surface hold noise, not colour
-    live[(result.camera < min_level * white.astype(np.float32)).all(axis=2)] = 0
+    live = usable_regions(result, lab, min_level)
     spectra = region_spectra(result.weights, live, result.basis, result.method_error) if live.any() else None
     row = {} if spectra is None else {int(v): i for i, v in enumerate(spectra.labels)}
     flat_cam = result.camera.reshape(-1, result.camera.shape[2])
