@@ -163,7 +163,7 @@ class ChartMeasurement:
     shape
         ``(H, W)`` of the decoded frame.
     method
-        ``"mcc"`` or ``"corners"``.
+        ``"mcc"`` or ``"manual"`` (from ``--chart-corners``).
     """
 
     mean: NDArray[np.float64]

@@ -20,6 +20,8 @@ from pathlib import Path
 import colour
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from app.cli import main
 from app.spectral_command import load_result
@@ -254,3 +256,86 @@ def test_bad_results_pixels_and_labels_are_refused(shots, tmp_path, capsys):
     _fails(capsys, ["identify", path, "--regions", str(rgb)], "single-channel")
     blank = write_labels(tmp_path / "blank.png", np.zeros((h, w), np.int64))
     _fails(capsys, ["identify", path, "--regions", str(blank)], "no region")
+
+
+# ---------------------------------------------------------------------------------------------- settings and extremes
+
+
+def test_exposure_difference_between_object_and_chart_is_taken_from_the_files(shots, tmp_path):
+    # the object at 1/40 of the chart's exposure: the chart is scaled by the files' exposure times, so the
+    # reflectances come out the same (a darker frame has more relative noise: a looser bound than at full exposure)
+    from mocks.camera_sim import simulate_raw, write_raw
+
+    truth = shots["truth"]
+    w = world("D65")
+    e, g = w.light_spectrum(), w.grid
+    sensor_rad = np.repeat(np.repeat(_board_radiance(truth, e), 2, axis=0), 2, axis=1)
+    dim = write_raw(tmp_path / "dim.dng", simulate_raw(sensor_rad, g, e, seed=7, exposure_s=0.01 / 40))
+    out = tmp_path / "dim.npz"
+    assert main(["spectral", "estimate", str(dim), "--chart", str(shots["chart"]), "--out", str(out), "--quiet"]) == 0
+    rmse, de = _patch_errors(out, truth)
+    assert rmse.mean() < 0.07 and de.mean() < 2.5
+    res = load_result(out)
+    assert np.isfinite(res.weights).all() and np.isfinite(res.camera).all()
+
+
+def _board_radiance(truth, e):
+    import math
+
+    rad = np.broadcast_to(0.05 * e / math.pi, truth.labels.shape + (e.size,)).copy()
+    for k in range(24):
+        rad[truth.labels == k + 1] = truth.reflectance[k] * e / math.pi
+    return rad
+
+
+def test_manual_corners_and_own_chart_reflectances(shots, tmp_path, capsys):
+    w = world("D65")
+    corners = w.frame("chart").chart_corners
+    text = ",".join(f"{v:.2f}" for v in np.asarray(corners).ravel())
+    csv = tmp_path / "chart.csv"
+    truth = shots["truth"]
+    rows = ["nm," + ",".join(f"p{k + 1}" for k in range(24))]
+    rows += [f"{lam:.0f}," + ",".join(f"{v:.6f}" for v in truth.reflectance[:, i])
+             for i, lam in enumerate(truth.grid.wavelengths)]
+    csv.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "manual.npz"
+    assert main(["spectral", "estimate", str(shots["board"]), "--chart", str(shots["chart"]), "--chart-corners", text,
+                 "--chart-reflectances", str(csv), "--out", str(out), "--quiet"]) == 0
+    assert load_result(out).metadata["chart_found_by"] == ["manual"]
+    rmse, de = _patch_errors(out, truth)
+    assert rmse.mean() < 0.06 and de.mean() < 1.5
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(r.rsplit(",", 1)[0] for r in rows) + "\n")
+    _fails(capsys, ["spectral", "estimate", str(shots["board"]), "--chart", str(shots["chart"]),
+                    "--chart-reflectances", str(short), "--out", str(out)], "23 spectra", "24 patches")
+    _fails(capsys, ["spectral", "estimate", str(shots["board"]), "--chart", str(shots["chart"]),
+                    "--chart-type", "sg140", "--out", str(out)], "--chart-reflectances")
+
+
+def test_a_saturated_pixel_is_masked_and_refused_by_at(shots, tmp_path, capsys):
+    from mocks.camera_sim import simulate_raw, write_raw
+
+    w = world("D65")
+    e, g = w.light_spectrum(), w.grid
+    rad = np.repeat(np.repeat(_board_radiance(shots["truth"], e), 2, axis=0), 2, axis=1)
+    rad[:4, :4] *= 50.0                                   # a glint in the top-left corner clips
+    dng = write_raw(tmp_path / "glint.dng", simulate_raw(rad, g, e, seed=8))
+    out = tmp_path / "glint.npz"
+    assert main(["spectral", "estimate", str(dng), "--chart", str(shots["chart"]), "--out", str(out), "--quiet"]) == 0
+    res = load_result(out)
+    assert not res.mask[:2, :2].any() and res.mask[2:, 2:].all()
+    assert (res.weights[:2, :2] == 0).all() and (res.camera[:2, :2] == 0).all()
+    _fails(capsys, ["spectral", "at", str(out), "1", "1"], "masked")
+
+
+@given(st.lists(st.tuples(st.integers(1, 24), st.integers(0, 5)), min_size=1, max_size=6))
+@settings(max_examples=50, deadline=None)
+def test_patch_lists_select_exactly_the_named_patches(ranges):
+    from app.spectral_command import parse_patch_list
+
+    spans = [(a, min(a + n, 24)) for a, n in ranges]
+    text = ",".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans)
+    expected = np.zeros(24, bool)
+    for a, b in spans:
+        expected[a - 1:b] = True
+    assert parse_patch_list(text, 24).tolist() == expected.tolist()
