@@ -35,8 +35,8 @@ def summary_table(summary) -> object:
     """A ``rich`` table: one row per session with its status, the reason of a failure, and each step."""
     from rich.table import Table
 
-    table = Table(title=f"kogei batch: {len(summary.results)} session(s), {summary.engine}, "
-                        f"{summary.workers} worker(s), {summary.seconds:.1f} s")
+    table = Table(title="kogei batch", caption=f"{len(summary.results)} session(s), {summary.engine}, "
+                                              f"{summary.workers} worker(s), {summary.seconds:.1f} s")
     table.add_column("session", overflow="fold")
     table.add_column("result")
     table.add_column("steps", overflow="fold")

@@ -41,7 +41,7 @@ def built_sessions(tmp_path_factory) -> SimpleNamespace:
     """``cal`` (a calibrated sphere session) and ``raw`` (a captured, unprocessed hawk session)."""
     if "s" not in _BUILT:
         tmp = tmp_path_factory.mktemp("batch-sessions")
-        _capture(World.calibration_sphere(25.0, 60.0), tmp / "cal", CapturePlan("scan", steps=48, passes=1,
+        _capture(World.calibration_sphere(25.0, 60.0), tmp / "cal", CapturePlan("scan", steps=36, passes=1,
                                                                                 camera=False), False, 5)
         calibrate_session(tmp / "cal", 25.0)
         _capture(World.hawk(4_000, width=240, height=160, chart_layout="classic24"), tmp / "raw",

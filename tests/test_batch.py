@@ -254,8 +254,9 @@ def _run_until(cmd: list[str], log: Path, marker: str, sig: int, delay_s: float)
     return proc.returncode
 
 
-def test_ctrl_c_and_kill_mid_step_leave_the_session_consistent(base, tmp_path):
+def test_ctrl_c_and_a_killed_worker_leave_sessions_consistent(base, done, tmp_path):
     root = copy_session(base.raw, tmp_path / "s")
+    other = copy_session(done[0], tmp_path / "other")
     cmd = [sys.executable, "-m", "app.cli", "batch", str(root), "--preset", "draft", "--calibration", str(base.cal),
            "--quiet"]
     # Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while the mesh is being computed
@@ -264,15 +265,35 @@ def test_ctrl_c_and_kill_mid_step_leave_the_session_consistent(base, tmp_path):
     manifest = _assert_consistent(root)
     assert "geometry" not in (manifest.get("batch") or {}).get("steps", {})
     assert "batch: interrupted" in (root / LOG_FILE).read_text()
-    # kill -9 of the batch and its worker while rendering
-    code = _run_until(cmd, root / LOG_FILE, "render: started", signal.SIGKILL, 0.1)
-    assert code == -signal.SIGKILL
-    manifest = _assert_consistent(root)
-    assert set(manifest["batch"]["steps"]) == {"geometry", "colour"}
-    # the rerun does exactly what is missing
-    r = process_one(str(root), ALL, BatchOptions(preset="draft", calibration=str(base.cal)))
-    assert _statuses(r) == {"geometry": "skipped", "colour": "skipped", "render": "ran", "report": "ran"}
-    assert set(_assert_consistent(root)["batch"]["steps"]) == set(ALL)
+    # kill -9 of the worker alone while it renders (out of memory, a crash in a native library), with
+    # another session waiting for the same worker: the pool breaks, each session runs again in a pool of
+    # its own, and both complete
+    cmd[4:5] = [str(root), str(other)]
+    proc = subprocess.Popen(cmd + ["--workers", "1"], cwd=ROOT, start_new_session=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not ((root / LOG_FILE).is_file() and "render: started" in (root / LOG_FILE).read_text()):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.02)
+        time.sleep(0.1)
+        worker = int(re.findall(r"pid (\d+)", (root / LOG_FILE).read_text())[-1])
+        os.kill(worker, signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, err.decode()[-2000:]
+    log = (root / LOG_FILE).read_text()
+    pids = [int(p) for p in re.findall(r"pid (\d+)", log)]
+    assert len(pids) == 3 and pids[1] == worker and pids[2] != worker
+    # the run after the kill redid exactly what was missing
+    last = log[log.rindex("batch: steps"):]
+    assert "geometry: skipped (up to date)" in last and "colour: skipped (up to date)" in last
+    assert "render: started (never run)" in last and "report: done" in last
+    for s in (root, other):
+        assert set(_assert_consistent(s)["batch"]["steps"]) == set(ALL)
 
 
 def test_dask_local_cluster_runs_the_same_tasks(done, tmp_path):
