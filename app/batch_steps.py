@@ -256,8 +256,9 @@ STEPS: dict[str, Step] = {
 STEP_NAMES = tuple(STEPS)
 #: Steps of the issue that this version cannot run, with the reason given to the user.
 UNAVAILABLE_STEPS = {
-    "materials": "estimating the spectra of the object's regions from its RAW frames and identifying their "
-                 "materials per session is not part of this version of kogei (the colour step checks the charts)",
+    "materials": "identifying a session's materials needs the object's regions in its RAW frames (the mesh "
+                 "projected into the camera), which this version does not compute; for one frame and a label "
+                 "image use 'kogei spectral estimate' then 'kogei identify --regions' (docs/colour-pipeline.md)",
 }
 
 

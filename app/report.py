@@ -356,7 +356,8 @@ def _spectra(ctx: _Context) -> Section:
     return Section("spectra", "Spectra with uncertainty vs model spectra", _not_produced(
         "estimated spectral reflectance of the object's regions with its uncertainty, against the model spectra",
         "the batch has no step that estimates spectra from the object frames (the colour step checks the chart "
-        "frames only)"), False)
+        "frames only); for one frame use 'kogei spectral estimate FRAME --chart CHART' and 'kogei spectral at'"),
+        False)
 
 
 def _materials(ctx: _Context) -> Section:
