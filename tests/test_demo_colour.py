@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 
 import cv2
 import pytest
 
+from app.cli import main
 from app.demo_colour import colour_demo
 from processing.alloys import alloy_weights
-from processing.procedural_hawk import DEFAULT_MATERIALS
+from processing.procedural_hawk import DEFAULT_MATERIALS, hawk_head
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -40,3 +43,16 @@ def test_colour_demo_identifies_the_hawks_metals(tmp_path):
             assert r["pixels"] == 0 and r["note"]
         else:
             assert 0 < r["confidence"] <= 1 and r["runner_up"] != r["material"]
+    # the same files through the command line, with the world's label image as the regions: the same answers
+    out = tmp_path / "result.npz"
+    assert main(["spectral", "estimate", str(tmp_path / "object_-025.dng"), "--chart", str(tmp_path / "chart.dng"),
+                 "--out", str(out), "--quiet"]) == 0
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["identify", str(out), "--regions", str(tmp_path / "labels_-025.png"), "--light-deg",
+                     str(summary["light_deg"]), "--model-error", str(summary["model_error"]), "--json"]) == 0
+    cli = {r["label"]: r for r in json.loads(buf.getvalue())["regions"]}
+    for k, name in enumerate(hawk_head(2_000).region_names, start=1):
+        assert cli[k]["material"] == regions[name]["material"] and cli[k]["pixels"] == regions[name]["pixels"]
+        if cli[k]["confidence"] is not None:
+            assert cli[k]["confidence"] == pytest.approx(regions[name]["confidence"], rel=1e-9)
