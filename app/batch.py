@@ -303,10 +303,10 @@ def _local(sessions: list[str], steps: tuple[str, ...], options: BatchOptions, w
         queue = manager.Queue()
         batches = [(sessions, workers)]
         while batches and not interrupted:
-            todo, n = batches.pop(0)
+            waiting, n = batches.pop(0)
             broken: list[str] = []
-            pool = ProcessPoolExecutor(max_workers=max(1, min(n, len(todo))), mp_context=ctx)
-            futures: dict[Future, str] = {pool.submit(process_one, s, steps, options, queue): s for s in todo}
+            pool = ProcessPoolExecutor(max_workers=max(1, min(n, len(waiting))), mp_context=ctx)
+            futures: dict[Future, str] = {pool.submit(process_one, s, steps, options, queue): s for s in waiting}
             try:
                 pending = set(futures)
                 while pending:
@@ -336,7 +336,7 @@ def _local(sessions: list[str], steps: tuple[str, ...], options: BatchOptions, w
                             results[s] = SessionResult(s, "interrupted", "Ctrl-C")
             _drain(queue, display)
             if broken:
-                if len(broken) == 1 and len(todo) == 1:
+                if len(broken) == 1 and len(waiting) == 1:
                     results[broken[0]] = SessionResult(broken[0], "failed", "its worker process died (killed, out "
                                                        f"of memory or crashed); see {Path(broken[0]) / LOG_FILE}")
                 else:   # run each again alone, so only the session that kills its worker fails

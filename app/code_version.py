@@ -87,12 +87,12 @@ def code_version(modules: tuple[str, ...]) -> CodeVersion:
         A named module has no source file in the project.
     """
     seen: dict[str, Path] = {}
-    todo = list(modules)
+    waiting = list(modules)
     for name in modules:
         if _module_file(name) is None:
             raise ValueError(f"code_version: module {name!r} has no source file under {_ROOT}")
-    while todo:
-        name = todo.pop()
+    while waiting:
+        name = waiting.pop()
         if name in seen:
             continue
         path = _module_file(name)
@@ -102,7 +102,7 @@ def code_version(modules: tuple[str, ...]) -> CodeVersion:
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         for imported in module_imports(path.read_text(encoding="utf-8"), package):
             if imported.split(".")[0] in FOLLOWED_PACKAGES and imported not in seen:
-                todo.append(imported)
+                waiting.append(imported)
     digest = hashlib.sha256()
     files = []
     for path in sorted(set(seen.values())):
