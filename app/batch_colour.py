@@ -69,8 +69,11 @@ def patch_errors(camera_rgb: np.ndarray, reference_lab: np.ndarray, usable: np.n
     if rgb.shape != lab.shape or rgb.ndim != 2 or rgb.shape[1] != 3 or use.shape != (len(rgb),):
         raise ValueError(f"patch_errors: camera_rgb {rgb.shape}, reference_lab {lab.shape} and usable {use.shape} "
                          "must describe the same N patches")
-    if use.sum() < 3 or not np.all(np.isfinite(rgb[use])):
-        raise ValueError(f"patch_errors: {int(use.sum())} usable patches with finite RGB; a 3 x 3 fit needs 3 or more")
+    if use.sum() < 3:
+        raise ValueError(f"patch_errors: {int(use.sum())} usable patches; a 3 x 3 fit needs 3 or more")
+    if not np.all(np.isfinite(rgb[use])):
+        bad = [int(i) + 1 for i in np.flatnonzero(use & ~np.isfinite(rgb).all(axis=1))]
+        raise ValueError(f"patch_errors: usable patch(es) {bad} have no finite camera RGB")
     white = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
     xyz = colour.Lab_to_XYZ(lab, white)
     matrix, *_ = np.linalg.lstsq(rgb[use], xyz[use], rcond=None)

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 
 from app.batch import LOG_FILE, process_one, run_batch
@@ -186,6 +188,25 @@ def test_patch_errors_see_a_misordered_chart():
     assert patch_errors(rgb[::-1], lab, np.ones(24, bool))["mean"] > 10  # patches read in the wrong order
     with pytest.raises(ValueError, match="3 or more"):
         patch_errors(rgb, lab, np.arange(24) < 2)
+
+
+@settings(max_examples=40, deadline=None)
+@given(exponent=st.floats(-30, 30), seed=st.integers(0, 2**16))
+def test_patch_errors_do_not_depend_on_the_exposure_scale(exponent, seed):
+    from app.batch_colour import patch_errors
+    from processing.chart_layout import reference_lab
+
+    lab = np.asarray(reference_lab("classic24"))
+    rng = np.random.default_rng(seed)
+    rgb = rng.uniform(0.02, 0.9, size=(24, 3))          # any camera response: the fit absorbs a 3x3 map
+    base = patch_errors(rgb, lab, np.ones(24, bool))
+    scaled = patch_errors(rgb * 10.0 ** exponent, lab, np.ones(24, bool))
+    assert np.all(np.isfinite(scaled["delta_e00"]))
+    np.testing.assert_allclose(scaled["delta_e00"], base["delta_e00"], rtol=1e-6, atol=1e-6)
+    bad = rgb.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match=r"usable patch\(es\) \[4\] have no finite camera RGB"):
+        patch_errors(bad, lab, np.ones(24, bool))
 
 
 def test_fingerprint_is_canonical():
