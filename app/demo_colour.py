@@ -27,6 +27,10 @@ urushi mixes pigment and gloss in varying proportions, which the one-geometry
 candidates do not follow; without it thousands of pooled pixels would make
 every answer look certain.
 
+The radiance is blurred by a Gaussian of one sensor pixel before the mosaic
+(a lens and its anti-aliasing filter); region labels leave out the ring of
+pixels the blur mixes with the neighbouring region.
+
 Writes into ``out_dir``: ``chart.dng``, ``object_<angle>.dng`` and
 ``labels_<angle>.png`` (binned resolution, region index + 1), ``identify.json``
 (the comparison) and ``spectra.png`` (per region the estimated spectrum with
@@ -51,13 +55,31 @@ __all__ = ["colour_demo", "LIGHT_DIRECTION", "model_spectrum"]
 #: Toward the light, table frame: about 15 deg from the camera (which looks from -y, 15 deg up).
 LIGHT_DIRECTION = (0.2, -0.93, 0.45)
 _CHART_EXPOSURE_S = 0.01        # the simulated camera's white diffuser at about 70 % of full scale
+_BLUR_SIGMA = 1.0               # sensor pixels: a lens and an optical low-pass filter
+
+
+def _lens_blur(radiance: NDArray[np.float64], sigma: float = _BLUR_SIGMA) -> NDArray[np.float64]:
+    """The lens and anti-aliasing filter: a Gaussian of ``sigma`` sensor pixels over the image plane.
+
+    Without it a mirror-sharp highlight one photosite wide lights a single colour of its CFA cell.
+    """
+    from scipy.ndimage import gaussian_filter
+
+    return gaussian_filter(radiance, sigma=(sigma, sigma, 0.0), mode="nearest")
 
 
 def _binned_labels(labels: NDArray[np.integer]) -> NDArray[np.int64]:
-    """Region index + 1 per 2 x 2 cell whose four photosites see the same region, else 0."""
+    """Region index + 1 per 2 x 2 cell whose neighbourhood (the cell and the cells around it) is one region.
+
+    The ring of cells is left out because the lens blur mixes neighbouring regions there.
+    """
+    from scipy.ndimage import maximum_filter, minimum_filter
+
     lab = labels.astype(np.int64) + 1
     cells = np.stack([lab[0::2, 0::2], lab[0::2, 1::2], lab[1::2, 0::2], lab[1::2, 1::2]])
-    return np.where((cells == cells[0]).all(axis=0), cells[0], 0)
+    lo, hi = cells.min(axis=0), cells.max(axis=0)
+    same = (minimum_filter(lo, size=3, mode="nearest") == maximum_filter(hi, size=3, mode="nearest"))
+    return np.where(same, cells[0], 0)
 
 
 def model_spectrum(material: str, wavelengths: NDArray[np.float64], cos_d: float) -> NDArray[np.float64]:
@@ -144,13 +166,14 @@ def colour_demo(
     world = World.hawk(triangles, chart_layout="classic24", width=width, height=height,
                        light_direction=light_direction)
     chart = world.frame("chart")
-    chart_path = write_raw(out / "chart.dng", simulate_raw(chart.radiance, chart.grid, chart.light, seed=seed,
-                                                           exposure_s=_CHART_EXPOSURE_S))
+    chart_raw = simulate_raw(_lens_blur(chart.radiance), chart.grid, chart.light, seed=seed,
+                             exposure_s=_CHART_EXPOSURE_S)
+    chart_path = write_raw(out / "chart.dng", chart_raw)
     results, label_images = [], []
     for k, angle in enumerate(angles):
         frame = world.frame("object", angle)
         name = f"object_{angle:+04.0f}"
-        raw = simulate_raw(frame.radiance, frame.grid, frame.light, seed=seed + 1 + k,
+        raw = simulate_raw(_lens_blur(frame.radiance), frame.grid, frame.light, seed=seed + 1 + k,
                            exposure_s=_CHART_EXPOSURE_S * object_exposure)
         dng = write_raw(out / f"{name}.dng", raw)
         labels = _binned_labels(frame.labels)
