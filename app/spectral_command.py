@@ -383,17 +383,18 @@ def estimate_spectral(
 
 
 def save_result(result: SpectralResult, path: Path) -> Path:
-    """Write ``result`` as an ``.npz`` (atomically, no pickled objects)."""
+    """Write ``result`` as an uncompressed ``.npz`` (atomically, no pickled objects)."""
     path = Path(path)
     if not path.parent.is_dir():
         raise UsageError(f"--out {path}: the folder {path.parent} does not exist")
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".spectral-", suffix=".npz")
     try:
         with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(fh, weights=result.weights, basis=result.basis, wavelengths=result.wavelengths,
-                                mask=result.mask, camera=result.camera, sensitivities=result.sensitivities,
-                                lights=result.lights, method=np.array(result.method),
-                                metadata=np.array(json.dumps(result.metadata)))
+            # uncompressed: float weights barely shrink (about 10 %) and zlib took 50x longer (6 s, 2000 x 3000 x 8)
+            np.savez(fh, weights=result.weights, basis=result.basis, wavelengths=result.wavelengths,
+                     mask=result.mask, camera=result.camera, sensitivities=result.sensitivities,
+                     lights=result.lights, method=np.array(result.method),
+                     metadata=np.array(json.dumps(result.metadata)))
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
