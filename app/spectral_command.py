@@ -440,6 +440,8 @@ def _run_estimate(args: argparse.Namespace) -> int:
                         ("--second-chart", args.second_chart)):
         if value is not None and not Path(value).exists():
             raise UsageError(f"{flag} {value}: no such file")
+    if not Path(args.out).parent.is_dir():       # before the work, not after it
+        raise UsageError(f"--out {args.out}: the folder {Path(args.out).parent} does not exist")
     result = estimate_spectral(
         Path(args.image), Path(args.chart), method=args.method,
         second=None if args.second is None else Path(args.second),

@@ -197,6 +197,10 @@ def test_bad_raw_files_are_refused_by_name(shots, tmp_path, capsys):
     jpeg.write_bytes(buf.tobytes())
     _fails(capsys, ["spectral", "estimate", str(shots["board"]), "--chart", str(jpeg), "--out", out],
            "photo.dng", "JPEG")
+    _fails(capsys, ["spectral", "estimate", str(shots["board"]), "--chart", chart, "--out",
+                    str(tmp_path / "nowhere" / "r.npz")], "nowhere", "does not exist")
+    _fails(capsys, ["spectral", "estimate", str(shots["board"]), "--chart", chart, "--light", "XYZ", "--out", out],
+           "--light", "XYZ")
     assert not Path(out).exists()
 
 
