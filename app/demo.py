@@ -8,7 +8,8 @@
   (Matsuda et al., section 5: nami-shibuichi head, gold and urushi beak,
   copper eyes) under daylight: a sun plus a gradient sky;
 * one sphere per material preset under D65 and under illuminant A, labelled,
-  so the colour shift of each alloy between the two lights can be compared.
+  so the colour shift of each alloy between the two lights can be compared;
+* woven cloth (Yasuda et al.): silk and tamamushi (shot silk) on a draped sheet.
 """
 
 from __future__ import annotations
@@ -141,6 +142,9 @@ def run_demo(args: argparse.Namespace) -> int:
                   f"the simulation's truth <= {worst[0]:.3f} deg, {worst[1]:.3f} mm -> "
                   f"{cap['session']}/{proc['mesh']['file']}", file=sys.stderr)
 
+        if proc:
+            summary["batch"] = _batch_steps(Path(cap["session"]), args.preset)
+
     job, result, secs = _render(hawk_spec(size, args.preset, triangles), triangles)
     write_png(out / "hawk.png", result.srgb8)
     write_xyz_tiff(out / "hawk.tiff", result.xyz)
@@ -169,9 +173,33 @@ def run_demo(args: argparse.Namespace) -> int:
     for name, de in summary["shift_D65_to_A"].items():
         print(f"  {name:<28} mean delta E00 D65 vs A (both adapted): {de:.2f}", file=sys.stderr)
 
+    from app.cloth_scene import render_cloth_scene
+
+    for cloth in ("silk", "tamamushi"):
+        t0 = time.perf_counter()
+        png = render_cloth_scene(out, args.preset, (size[0] * 5 // 8, size[1] * 5 // 8), material=cloth)
+        secs = time.perf_counter() - t0
+        summary["renders"].append({"image": png.name, "seconds": round(secs, 3)})
+        print(f"cloth ({cloth}, Yasuda et al.): {secs:.1f} s -> {png}", file=sys.stderr)
+
     (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     print(f"demo written to {out}/", file=sys.stderr)
     return 0
+
+
+def _batch_steps(session: Path, preset: str) -> dict:
+    """The session's colour, render and report steps through ``kogei batch`` (its geometry is processed)."""
+    from app.batch import run_batch
+    from app.batch_steps import BatchOptions
+
+    t0 = time.perf_counter()
+    result = run_batch([session], "colour,render,report", options=BatchOptions(preset=preset), workers=1).results[0]
+    secs = time.perf_counter() - t0
+    report = session / "products" / "report.html"
+    print(f"batch (colour, render, report): {result.status}"
+          + (f" ({result.reason})" if result.reason else "") + f", {secs:.1f} s; report -> {report}", file=sys.stderr)
+    return {"status": result.status, "reason": result.reason, "seconds": round(secs, 2),
+            "report": str(report) if report.is_file() else None}
 
 
 def colour_shift_table(res_d65, res_a, camera, names: list[str]) -> dict[str, float]:

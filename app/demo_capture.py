@@ -51,7 +51,7 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     calibration = _calibration_scan(out, cal_dir, seed)
     print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
     plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none")
-    with SimulatedStation(World.hawk(triangles, width=240, height=160), root=out / "station", seed=seed) as st:
+    with SimulatedStation(World.hawk(triangles, width=240, height=160, chart_layout="classic24"), root=out / "station", seed=seed) as st:
         config: dict[str, Any] = {"turntable": {"port": str(st.turntable_path)},
                                   "profiler": {"port": str(st.profiler_path)}}
         if camera == "gphoto2":

@@ -38,6 +38,14 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     # the second pass lands where the simulation put it (a coarse bound: 60 steps, draft preset)
     assert all(e["rotation_deg"] < 1.0 and e["translation_mm"] < 1.0 for e in proc["pose_error_vs_truth"])
     assert (out / "capture" / "session" / "products" / "mesh.ply").stat().st_size > 10_000
+    # the session's colour, render and report steps ran through the batch; the report is one HTML file
+    assert summary["batch"]["status"] == "ok", summary["batch"]
+    html = (out / "capture" / "session" / "products" / "report.html").read_text()
+    assert "<img" in html and 'src="http' not in html
+    # the woven cloth scenes (Yasuda et al.) show a lit sheet, not a blank frame
+    for cloth in ("silk", "tamamushi"):
+        img = np.asarray(Image.open(out / f"cloth-{cloth}.png"))
+        assert img.std() > 5, cloth
     shift = summary["shift_D65_to_A"]
     # After adaptation to each light's white, a spectrally flat reflector looks the same under both
     # lights; a reflectance that rises steeply in the red (copper, bronze, shakudo) does not.
