@@ -207,6 +207,7 @@ def colour_demo(
             "material": rep.material,
             "correct": rep.material == true or (true in rep.group),
             "confidence": rep.confidence,
+            "chi2": rep.chi2,
             "runner_up": rep.runner_up,
             "group": list(rep.group),
             "pixels": rep.pixels,

@@ -92,7 +92,12 @@ def read_labels(path: Path, shape: tuple[int, int]) -> NDArray[np.int64]:
 
 @dataclass(frozen=True)
 class RegionReport:
-    """One region's identification (JSON-ready through :meth:`as_dict`)."""
+    """One region's identification (JSON-ready through :meth:`as_dict`).
+
+    ``chi2`` is the best candidate's chi-square under the noise model (c - 1 degrees of freedom
+    for c channels, the brightness being free): far above that, no candidate explains the region
+    and the confidence, a probability among the candidates, says nothing about it.
+    """
 
     label: int
     pixels: int
@@ -106,6 +111,7 @@ class RegionReport:
     reflectance: list[float] | None
     uncertainty: list[float] | None
     note: str = ""
+    chi2: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """The fields as a dict."""
@@ -200,6 +206,7 @@ def identify_result(
             r, int(px.shape[0]), found.material, float(found.confidence), found.runner_up,
             float(found.likelihood_ratio), tuple(found.group), alloy, alloy_std,
             spectra.mean[i].tolist(), spectra.uncertainty[i].tolist(),
+            chi2=float(np.min(found.chi2)),
         ))
     return reports
 

@@ -343,3 +343,16 @@ def test_patch_lists_select_exactly_the_named_patches(ranges):
     for a, b in spans:
         expected[a - 1:b] = True
     assert parse_patch_list(text, 24).tolist() == expected.tolist()
+
+
+def test_identify_reports_how_well_the_best_candidate_fits(shots, capsys):
+    # a gold tile fits its candidate within the noise model (2 degrees of freedom); the chart's blue tile is
+    # like no metal or lacquer, whichever candidate is the least bad
+    path = str(_estimate(shots, "rootpoly"))
+    capsys.readouterr()
+    assert main(["identify", path, "--regions", str(shots["labels"]), "--json", "--model-error", "0.01"]) == 0
+    regions = json.loads(capsys.readouterr().out)["regions"]
+    gold = regions[24]
+    blue = regions[shots["truth"].names.index("blue")]
+    assert gold["material"] == "gold" and gold["chi2"] < 10
+    assert blue["chi2"] > 1000
