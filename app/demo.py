@@ -4,6 +4,8 @@
   (turntable and laser profiler emulators on pseudo-terminals, a fake
   gphoto2), several placements, profiles and RAW frames with the chart first
   (:mod:`app.demo_capture`);
+* the hawk's materials identified from simulated RAW frames calibrated by the
+  colour chart, compared with the simulation's truth (:mod:`app.demo_colour`);
 * the procedural hawk's head with the materials of the paper's object
   (Matsuda et al., section 5: nami-shibuichi head, gold and urushi beak,
   copper eyes) under daylight: a sun plus a gradient sky;
@@ -144,6 +146,20 @@ def run_demo(args: argparse.Namespace) -> int:
 
         if proc:
             summary["batch"] = _batch_steps(Path(cap["session"]), args.preset)
+
+    from app.demo_colour import colour_demo
+
+    colour = colour_demo(out / "colour")
+    summary["colour"] = {k: colour[k] for k in ("correct", "regions_identified", "seconds")}
+    summary["colour"]["regions"] = [{k: r[k] for k in ("region", "true_material", "material", "correct", "confidence",
+                                                       "runner_up", "alloy_weights", "true_alloy_weights")}
+                                    for r in colour["regions"]]
+    print(f"colour: the hawk's regions identified from RAW frames calibrated by the chart, "
+          f"{colour['correct']} of {colour['regions_identified']} as in the simulation ({colour['seconds']:.1f} s):",
+          file=sys.stderr)
+    for r in colour["regions"]:
+        print(f"  {r['region']:<8} true {r['true_material']:<16} identified {r['material']:<16} "
+              f"confidence {r['confidence']:.2f}{'' if r['correct'] else '  (wrong)'}", file=sys.stderr)
 
     job, result, secs = _render(hawk_spec(size, args.preset, triangles), triangles)
     write_png(out / "hawk.png", result.srgb8)

@@ -42,6 +42,10 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     assert summary["batch"]["status"] == "ok", summary["batch"]
     html = (out / "capture" / "session" / "products" / "report.html").read_text()
     assert "<img" in html and 'src="http' not in html
+    # the hawk's materials from RAW frames calibrated by the chart, against the simulation's truth
+    regions = {r["region"]: r for r in summary["colour"]["regions"]}
+    assert regions["beak"]["true_material"] == "gold" and regions["beak"]["material"] == "gold"
+    assert summary["colour"]["correct"] == sum(r["material"] == r["true_material"] for r in regions.values())
     # the woven cloth scenes (Yasuda et al.) show a lit sheet, not a blank frame
     for cloth in ("silk", "tamamushi"):
         img = np.asarray(Image.open(out / f"cloth-{cloth}.png"))
