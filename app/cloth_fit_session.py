@@ -18,7 +18,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -41,12 +41,15 @@ class SwatchData:
 
 
 def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int = 24, seed: int = 1,
-                           width: int = 96, height: int = 72, camera: str = "hotfolder") -> Path:
+                           width: int = 96, height: int = 72, camera: str = "hotfolder",
+                           lights: Sequence[Sequence[float]] | None = None) -> Path:
     """Capture a swatch session of a simulated swatch of ``cloth`` into ``out``.
 
     ``camera`` is ``"hotfolder"`` (the station writes each frame into its hot
     folder) or ``"gphoto2"`` (the station's fake ``gphoto2`` program, which
-    rebuilds the swatch world from its configuration).  Writes the set-up to
+    rebuilds the swatch world from its configuration).  ``lights`` (directions
+    toward the light, z > 0) makes one pass per light, the lamp moved between
+    passes (default: one pass under the world's light).  Writes the set-up to
     ``out/swatch.json``.  Returns the session folder.
     """
     import shutil
@@ -54,6 +57,7 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
     from app.capture import CaptureHooks, CapturePlan, run_capture
     from app.capture_devices import build_devices
     from app.session import Session
+    from mocks.fake_gphoto2 import update_config
     from mocks.station import SimulatedStation
     from mocks.swatch_world import SwatchWorld
 
@@ -64,7 +68,11 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
         shutil.rmtree(out)
     station_dir = out.parent / (out.name + "-station")
     world = SwatchWorld.swatch(cloth, width=width, height=height)
-    plan = CapturePlan("swatch", steps=steps, passes=1)
+    pass_lights = [tuple(float(v) for v in world.light_direction)] if lights is None else \
+        [tuple(float(v) for v in d) for d in lights]
+    if not pass_lights or any(len(d) != 3 or not d[2] > 0 for d in pass_lights):
+        raise UsageError(f"lights must be directions (x, y, z) with z > 0, one per pass, got {lights!r}")
+    plan = CapturePlan("swatch", steps=steps, passes=len(pass_lights))
     with SimulatedStation(world, root=station_dir, seed=seed) as st:
         cam = ({"kind": "hotfolder", "folder": str(st.hotfolder), "stable_s": 0.1} if camera == "hotfolder" else
                {"kind": "gphoto2", "executable": str(st.gphoto2_path)})
@@ -73,12 +81,21 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
         session = Session.create(out, plan=plan.to_dict(), object_info={"name": f"swatch ({cloth}, simulated)"},
                                  settings={"unattended": True, "device_config": config})
         devices = build_devices(config, session.root, shutter=st.shoot if camera == "hotfolder" else None)
+
+        def before_pass(p: int, n: int) -> None:
+            # the lamp moved to its place for this pass: the in-process world and the fake gphoto2's copy
+            world.light_direction = pass_lights[p - 1]
+            update_config(st.config_path, light_direction=list(pass_lights[p - 1]))
+            st.place(p)
+
         try:
-            run_capture(session, plan, devices, CaptureHooks(before_pass=lambda p, n: st.place(p)))
+            run_capture(session, plan, devices, CaptureHooks(before_pass=before_pass))
         finally:
             session.close()
     shutil.rmtree(station_dir, ignore_errors=True)
-    (out / GEOMETRY_FILE).write_text(json.dumps(world.geometry(), indent=2) + "\n")
+    geometry = {**world.geometry(), "light_direction": list(pass_lights[0]),
+                "pass_light_directions": [list(d) for d in pass_lights[1:]]}
+    (out / GEOMETRY_FILE).write_text(json.dumps(geometry, indent=2) + "\n")
     return out
 
 
@@ -123,21 +140,31 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
     except (json.JSONDecodeError, SwatchGeometryError, TypeError, AttributeError) as exc:
         raise UsageError(f"{gpath}: {exc}") from None
     captures = manifest.get("captures", {})
-    charts = [r for r in captures.values() if r.get("kind") == "chart" and r.get("file")]
+    charts = {int(r.get("pass", 1)): r for r in sorted(
+        (r for r in captures.values() if r.get("kind") == "chart" and r.get("file")), key=lambda r: r["file"])}
     frames = sorted((r for r in captures.values() if r.get("kind") == "frame" and r.get("file")),
-                    key=lambda r: float(r.get("angle_deg", 0.0)))
+                    key=lambda r: (int(r.get("pass", 1)), float(r.get("angle_deg", 0.0))))
     if not charts:
         raise UsageError(f"{root}: no chart frame; the fit calibrates the RAW values with the chart")
     if len(frames) < 3:
         raise UsageError(f"{root}: {len(frames)} swatch frames; the fit needs at least 3 table angles")
-    chart = _decode(root / charts[0]["file"])
-    if chart.rgb.shape[:2] != (geom.height // 2, geom.width // 2):
-        raise UsageError(f"{gpath}: the frames have {2 * chart.rgb.shape[1]} x {2 * chart.rgb.shape[0]} photosites, "
-                         f"the geometry says {geom.width} x {geom.height}")
-    try:
-        gains = chart_gains(grid_chart_means(chart.rgb), geom)
-    except ClothFitError as exc:
-        raise UsageError(f"{root}: {exc}") from None
+    passes = np.array([int(r.get("pass", 1)) for r in frames])
+    if int(passes.max()) > geom.passes:
+        raise UsageError(f"{gpath}: the session has frames of {int(passes.max())} passes but the geometry gives "
+                         f"{geom.passes} light direction(s); add pass_light_directions (the light of passes 2, "
+                         "3, ...)")
+    gains_of = {}
+    for p in np.unique(passes):
+        # each pass is calibrated by its own chart frame (the lamp moved: its power at the table may differ)
+        record = charts.get(int(p), charts[min(charts)])
+        chart = _decode(root / record["file"])
+        if chart.rgb.shape[:2] != (geom.height // 2, geom.width // 2):
+            raise UsageError(f"{gpath}: the frames have {2 * chart.rgb.shape[1]} x {2 * chart.rgb.shape[0]} "
+                             f"photosites, the geometry says {geom.width} x {geom.height}")
+        try:
+            gains_of[int(p)] = chart_gains(grid_chart_means(chart.rgb), geom.for_pass(int(p)))
+        except ClothFitError as exc:
+            raise UsageError(f"{root}: {exc}") from None
     angles = np.array([float(r["angle_deg"]) for r in frames])
     hb, wb = geom.height // 2, geom.width // 2
     ys, xs = np.mgrid[0:hb, 0:wb]
@@ -155,8 +182,10 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
     if px.shape[0] < 8:
         raise UsageError(f"{root}: only {px.shape[0]} binned pixels see the swatch at every angle; "
                          "check the geometry file and that the swatch fills the view")
-    rgb = np.stack([img.rgb[px[:, 1], px[:, 0]].astype(np.float64) for img in images]) / gains
-    measurement = SwatchMeasurement(angles, px, rgb, chart.cfa_pattern)
+    gain_rows = np.stack([gains_of[int(p)] for p in passes])[:, None, :]
+    rgb = np.stack([img.rgb[px[:, 1], px[:, 0]].astype(np.float64) for img in images]) / gain_rows
+    measurement = SwatchMeasurement(angles, px, rgb, images[0].cfa_pattern, passes)
+    gains = next(iter(gains_of.values())) if len(gains_of) == 1 else np.stack([gains_of[k] for k in sorted(gains_of)])
     return SwatchData(measurement, geom, gains, root)
 
 
@@ -171,12 +200,16 @@ def fit_figure(data: SwatchData, fit, path: str | Path) -> Path:
     meas = m.rgb.mean(axis=1)
     pred = fit.predicted.mean(axis=1)
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=True)
+    passes = np.unique(m.passes)
     for ax, values, title in ((axes[0], meas, "measured"), (axes[1], pred, "fitted")):
         for c, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
-            ax.plot(m.angles_deg, values[:, c], "o-" if title == "measured" else "-", color=colour, ms=3,
-                    label="RGB"[c])
-            if title == "fitted":
-                ax.plot(m.angles_deg, meas[:, c], "o", color=colour, ms=2, alpha=0.4)
+            for k, p in enumerate(passes):          # one curve per light position (pass)
+                rows = m.passes == p
+                label = "RGB"[c] + (f" (light {p})" if passes.size > 1 else "")
+                style = ("o" if title == "measured" else "") + ("-", "--", ":", "-.")[k % 4]
+                ax.plot(m.angles_deg[rows], values[rows, c], style, color=colour, ms=3, label=label)
+                if title == "fitted":
+                    ax.plot(m.angles_deg[rows], meas[rows, c], "o", color=colour, ms=2, alpha=0.4)
         ax.set_title(f"{title} (mean of {m.pixels.shape[0]} pixels)")
         ax.set_xlabel("table angle (deg)")
     axes[0].set_ylabel("camera response (chart-calibrated)")
@@ -202,5 +235,5 @@ def fit_report(data: SwatchData, fit) -> dict[str, Any]:
         "material": fit.spec,
         "residual_rms": fit.residual_rms,
         "relative_residual": fit.relative_residual,
-        "chart_gains": [float(g) for g in data.gains],
+        "chart_gains": np.asarray(data.gains, dtype=np.float64).tolist(),
     }

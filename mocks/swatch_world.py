@@ -21,6 +21,7 @@ rebuild it (:meth:`mocks.world.World.from_dict` dispatches on that entry).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -117,6 +118,15 @@ class SwatchWorld(World):
                 "light_direction": (d / np.linalg.norm(d)).tolist(), "light": str(self.light),
                 "swatch_mm": float(self.swatch_mm), "warp_angle_deg": float(self.weave_angle_deg),
                 "camera": SENSITIVITIES, "chart": self.chart}
+
+    def _view(self) -> tuple[np.ndarray, np.ndarray]:
+        """The station's camera, aimed at the table centre whatever the placement's pose.
+
+        The swatch lies flat where it was put: a new pass of a swatch capture
+        moves the lamp, not the swatch, so the station's placement poses
+        (meant for re-placing a scanned object) must not turn the camera.
+        """
+        return World._view(dataclasses.replace(self, pose=np.eye(4)))
 
     def _object_frame(self, angle: float) -> Frame:
         """The swatch at table angle ``angle``: the plane z = 0 hit by the camera rays, shaded by the cloth model."""

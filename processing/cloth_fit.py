@@ -87,12 +87,17 @@ class SwatchMeasurement:
         ``(A, P, 3)`` camera responses (RAW divided by the chart gains).
     cfa_pattern
         The 2 x 2 colour filter cell in row order, e.g. ``"RGGB"``.
+    passes
+        ``(A,)`` the pass (1-based) of each frame, i.e. which light of the set-up
+        lit it (:meth:`processing.swatch_geometry.SwatchGeometry.for_pass`);
+        default all 1.
     """
 
     angles_deg: NDArray[np.float64]
     pixels: NDArray[np.int64]
     rgb: NDArray[np.float64]
     cfa_pattern: str = "RGGB"
+    passes: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         a = np.asarray(self.angles_deg, dtype=np.float64).reshape(-1)
@@ -103,6 +108,10 @@ class SwatchMeasurement:
         cfa = str(self.cfa_pattern).upper()
         if len(cfa) != 4 or set(cfa) != {"R", "G", "B"}:
             raise ClothFitError(f"cfa_pattern must be a 2 x 2 cell such as 'RGGB', got {self.cfa_pattern!r}")
+        passes = np.ones(a.size, np.int64) if self.passes is None else np.asarray(self.passes).reshape(-1)
+        if passes.shape != a.shape or not np.issubdtype(passes.dtype, np.integer) or np.any(passes < 1):
+            raise ClothFitError(f"passes must hold one pass number >= 1 per angle ({a.size}), got {self.passes!r}")
+        object.__setattr__(self, "passes", passes.astype(np.int64))
         object.__setattr__(self, "angles_deg", a)
         object.__setattr__(self, "pixels", px)
         object.__setattr__(self, "rgb", rgb)
@@ -227,18 +236,33 @@ def fit_material(values: ArrayLike, fixed: dict[str, Any]):
 
 
 def predict_rgb(material, geometry: SwatchGeometry, angles_deg: ArrayLike, pixels: ArrayLike,
-                cfa_pattern: str = "RGGB", step: float = 10.0) -> NDArray[np.float64]:
+                cfa_pattern: str = "RGGB", step: float = 10.0, passes: ArrayLike | None = None) -> NDArray[np.float64]:
     """Camera responses ``(A, P, 3)`` of ``material`` at binned pixels over table angles.
 
     Each channel is the mean over the photosites of that colour in the
-    pixel's 2 x 2 cell, as a ``bin2x2`` RAW decode forms it.
+    pixel's 2 x 2 cell, as a ``bin2x2`` RAW decode forms it.  ``passes``
+    (``(A,)``, 1-based) picks the light of each frame (default: pass 1).
     """
+    a = np.asarray(angles_deg, dtype=np.float64).reshape(-1)
+    if passes is not None:
+        p = np.asarray(passes, dtype=np.int64).reshape(-1)
+        if p.shape != a.shape:
+            raise ClothFitError(f"passes must hold one pass number per angle ({a.size}), got shape {p.shape}")
+        if np.any(p != 1):
+            px = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+            out = np.empty((a.size, px.shape[0], 3))
+            for k in np.unique(p):
+                try:
+                    g = geometry.for_pass(int(k))
+                except ValueError as exc:
+                    raise ClothFitError(str(exc)) from None
+                out[p == k] = predict_rgb(material, g, a[p == k], px, cfa_pattern, step)
+            return out
     from processing.camera_response import camera_rgb
     from processing.material import material_brdf
 
     grid, e, sens = _spectral_setup(geometry, step)
     px = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
-    a = np.asarray(angles_deg, dtype=np.float64).reshape(-1)
     i = (2 * px[:, 0][:, None] + np.array([o[0] for o in _CFA_OFFSETS])[None, :]).ravel()
     j = (2 * px[:, 1][:, None] + np.array([o[1] for o in _CFA_OFFSETS])[None, :]).ravel()
     s = swatch_samples(geometry, a, i, j)
@@ -294,6 +318,11 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
             f"a swatch fit needs at least 3 table angles and 8 swatch pixels, got {measurement.angles_deg.size} "
             f"angles and {measurement.pixels.shape[0]} pixels"
         )
+    if int(measurement.passes.max()) > geometry.passes:
+        raise ClothFitError(
+            f"the measurement has frames of pass {int(measurement.passes.max())} but the set-up gives "
+            f"{geometry.passes} light direction(s); add pass_light_directions to the swatch geometry"
+        )
     meas = measurement.rgb
     if not np.all(np.isfinite(meas)):
         raise ClothFitError("the swatch responses contain NaN or infinite values")
@@ -313,7 +342,7 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
     def residual(x: NDArray[np.float64]) -> NDArray[np.float64]:
         try:
             pred = predict_rgb(fit_material(x, fixed), geometry, measurement.angles_deg, measurement.pixels,
-                               measurement.cfa_pattern, step)
+                               measurement.cfa_pattern, step, measurement.passes)
         except ValueError:
             return np.full(meas.size + 1, 1e3)
         excess = max(0.0, float(np.sum(x[2:5])) - 1.0)     # energy: specular + internal + diffuse <= 1
@@ -326,7 +355,8 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
     if fixed["warp_fraction"] == 0.5 and x[0] > x[1]:
         x[[0, 1]] = x[[1, 0]]                   # plain weave of equal yarns: the axes are an unordered pair
     material = fit_material(x, fixed)
-    pred = predict_rgb(material, geometry, measurement.angles_deg, measurement.pixels, measurement.cfa_pattern, step)
+    pred = predict_rgb(material, geometry, measurement.angles_deg, measurement.pixels, measurement.cfa_pattern, step,
+                       measurement.passes)
     r = result.fun[:-1]
     dof = max(r.size - x.size, 1)
     jac = result.jac[:-1]

@@ -6,7 +6,9 @@ axis, warp along the table's x axis turned by ``warp_angle_deg``), the camera
 looks at the table centre from the room's -y side at ``camera_elevation_deg``
 and ``camera_distance_mm`` (pinhole, horizontal field of view ``fov_deg``,
 ``width`` x ``height`` photosites), and a distant light shines from
-``light_direction`` (fixed in the room).  Turning the table by theta turns
+``light_direction`` (fixed in the room).  A capture of several passes may
+move the lamp between passes: ``pass_light_directions`` are the light
+directions of passes 2, 3, ... (:meth:`SwatchGeometry.for_pass`).  Turning the table by theta turns
 the warp by theta about the normal; the light, view and half vectors stay
 where they are.  Per photosite this module gives the four cosines and the
 tangent-frame components the anisotropic lobes need
@@ -21,7 +23,7 @@ through photosite (i, j) along ``fwd + x right + y up`` with
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -56,6 +58,7 @@ class SwatchGeometry:
     warp_angle_deg: float = 0.0
     camera: str = "Nikon 5100 (NPL)"
     chart: str = "ColorChecker N Ohta"
+    pass_light_directions: tuple[tuple[float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -76,6 +79,41 @@ class SwatchGeometry:
                 f"got {self.light_direction!r}"
             )
         object.__setattr__(self, "light_direction", tuple(float(v) for v in d / np.linalg.norm(d)))
+        lights = []
+        for k, item in enumerate(self.pass_light_directions, start=2):
+            try:
+                d = np.asarray(item, dtype=np.float64)
+            except (TypeError, ValueError):
+                d = np.zeros(0)
+            if d.shape != (3,) or not np.all(np.isfinite(d)) or d[2] <= 0:
+                raise SwatchGeometryError(
+                    f"pass_light_directions: the light of pass {k} must be three numbers toward the light with "
+                    f"z > 0 (above the table), got {item!r}"
+                )
+            lights.append(tuple(float(v) for v in d / np.linalg.norm(d)))
+        object.__setattr__(self, "pass_light_directions", tuple(lights))
+
+    @property
+    def passes(self) -> int:
+        """Number of light positions (passes) the set-up describes."""
+        return 1 + len(self.pass_light_directions)
+
+    def for_pass(self, pass_no: int) -> "SwatchGeometry":
+        """The one-light set-up of pass ``pass_no`` (1-based).
+
+        Examples
+        --------
+        >>> g = SwatchGeometry(pass_light_directions=((0.0, -0.6, 0.8),))
+        >>> g.passes, g.for_pass(2).light_direction, g.for_pass(1) == SwatchGeometry()
+        (2, (0.0, -0.6, 0.8), True)
+        """
+        if isinstance(pass_no, bool) or not isinstance(pass_no, (int, np.integer)) or not 1 <= pass_no <= self.passes:
+            raise SwatchGeometryError(
+                f"pass {pass_no!r} has no light direction: the set-up gives {self.passes} "
+                "(light_direction for pass 1, pass_light_directions for passes 2, 3, ...)"
+            )
+        light = self.light_direction if pass_no == 1 else self.pass_light_directions[pass_no - 2]
+        return replace(self, light_direction=light, pass_light_directions=())
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "SwatchGeometry":
@@ -89,6 +127,11 @@ class SwatchGeometry:
         kw = dict(data)
         if "light_direction" in kw:
             kw["light_direction"] = tuple(kw["light_direction"])
+        if "pass_light_directions" in kw:
+            lights = kw["pass_light_directions"]
+            if not isinstance(lights, (list, tuple)):
+                raise SwatchGeometryError(f"pass_light_directions must be a list of directions, got {lights!r}")
+            kw["pass_light_directions"] = tuple(tuple(d) if isinstance(d, (list, tuple)) else d for d in lights)
         try:
             return cls(**kw)
         except TypeError as exc:
@@ -98,6 +141,7 @@ class SwatchGeometry:
         """JSON form."""
         out = asdict(self)
         out["light_direction"] = list(self.light_direction)
+        out["pass_light_directions"] = [list(d) for d in self.pass_light_directions]
         return out
 
     def camera_frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:

@@ -4,6 +4,7 @@ and rendering unseen angles within mean delta E00 1.5, robustness to outliers, b
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -12,7 +13,7 @@ import pytest
 
 from app.cli import main
 from mocks.swatch_world import SwatchWorld
-from processing.cloth_fit import SwatchMeasurement, chart_gains, fit_swatch, predict_rgb
+from processing.cloth_fit import ClothFitError, SwatchMeasurement, chart_gains, fit_swatch, predict_rgb
 from processing.materials import get_material
 from processing.swatch_geometry import SwatchGeometry, swatch_samples
 
@@ -207,3 +208,60 @@ def test_swatch_capture_through_the_fake_gphoto2(session, tmp_path):
     spread = truth.sum(axis=2)
     assert spread.max() > 1.5 * spread.min()
     assert np.median(np.abs(m.rgb / truth - 1.0)) < 0.03
+
+
+COTTON = ("cotton:a_t=0.3,a_b=0.6,weft_a_t=0.3,weft_a_b=0.6,specular=0.08,internal=0.15,diffuse=0.7,"
+          "warp_colour=#c08040,weft_colour=#c08040")
+SECOND_LIGHT = (-0.22, -0.6, 0.77)        # the lamp moved to the camera's side for pass 2
+
+
+def test_swatch_capture_with_the_lamp_moved_between_passes(tmp_path):
+    # two passes, each under its own light: the decoded responses of each pass are the world's cloth model
+    # under that pass's light (and not under the other's), calibrated by that pass's chart frame
+    from app.cloth_fit_session import capture_swatch_session, load_swatch_session
+
+    first = tuple(SwatchWorld.swatch("cotton", width=64, height=48).light_direction)
+    shot = capture_swatch_session(tmp_path / "s", COTTON, steps=4, width=64, height=48, lights=[first, SECOND_LIGHT])
+    data = load_swatch_session(shot, max_pixels=48)
+    m, g = data.measurement, data.geometry
+    assert g.passes == 2 and m.passes.tolist() == [1] * 4 + [2] * 4
+    assert np.asarray(data.gains).shape == (2, 3)
+    truth = predict_rgb(get_material(COTTON), g, m.angles_deg, m.pixels, m.cfa_pattern, passes=m.passes)
+    assert np.median(np.abs(m.rgb / truth - 1.0)) < 0.03
+    wrong = predict_rgb(get_material(COTTON), g, m.angles_deg, m.pixels, m.cfa_pattern)      # pass 1's light only
+    assert np.median(np.abs(m.rgb[4:] / wrong[4:] - 1.0)) > 0.06
+    with pytest.raises(ClothFitError, match="1 light direction"):
+        fit_swatch(m, g.for_pass(1), yarn="cotton")
+
+
+def test_second_light_separates_the_broad_lobes_of_cotton():
+    # the parameters' standard deviations from the Fisher information (J^T J)^-1 of the model at the truth,
+    # noise 1.8 % per value (the simulated captures' relative residual): from one light the specular,
+    # internal and diffuse weights of cotton trade against each other; a second light separates them
+    from processing.cloth_fit import fit_material
+
+    g = SwatchGeometry.from_dict(SwatchWorld.swatch("cotton", width=64, height=48).geometry())
+    angles = np.arange(0.0, 360.0, 45.0)
+    xs, ys = np.meshgrid(np.arange(10, 22, 2), np.arange(8, 16, 2))
+    px = np.stack([xs.ravel(), ys.ravel()], 1)
+    fixed = {"warp_kind": "spun", "weft_kind": "spun", "warp_fraction": 0.5, "layers": 4, "rounding": 0.7,
+             "n": 1.55, "scattering": 0.25}
+    x0 = np.array([0.3, 0.6, 0.08, 0.15, 0.7, 0xc0 / 255, 0x80 / 255, 0x40 / 255])
+
+    def sigma(geometry, passes):
+        a = np.tile(angles, len(set(passes)))
+        p = np.repeat(sorted(set(passes)), angles.size)
+
+        def f(x):
+            return predict_rgb(fit_material(x, fixed), geometry, a, px, passes=p).ravel()
+
+        y = f(x0)
+        jac = np.stack([(f(x0 + dx) - f(x0 - dx)) / (2 * dx[k]) for k, dx in enumerate(np.diag(1e-4 * x0))], 1)
+        jn = jac / (0.018 * np.abs(y))[:, None]
+        return np.sqrt(np.diag(np.linalg.inv(jn.T @ jn))) / x0
+
+    one = sigma(g, [1])
+    two = sigma(dataclasses.replace(g, pass_light_directions=(SECOND_LIGHT,)), [1, 2])
+    weights = slice(2, 5)
+    assert np.all(one[weights] > 0.15)                  # one light: the weights are not determined to 10 %
+    assert np.all(two[weights] < 0.5 * one[weights])    # a second light at least halves every weight's spread
