@@ -192,6 +192,9 @@ def _hooks(session: Any, plan: Any, settings: dict[str, Any], cancel: threading.
         if unattended:
             return
         what = "place the object on the table" if p == 1 else "re-place the object in a new orientation"
+        if plan.kind == "swatch":         # a swatch stays put; a new pass moves the lamp (pass_light_directions)
+            what = ("lay the swatch flat on the table centre" if p == 1 else
+                    f"move the lamp to the light direction of pass {p} in swatch.json; leave the swatch as it lies")
         chart = " and put the colour chart in view of the camera" if plan.camera and plan.chart else ""
         answer = input(f"\nPass {p} of {passes}: {what}{chart}.\nPress Enter to start, or q and Enter to stop: ")
         if answer.strip().lower().startswith("q"):
