@@ -4,7 +4,11 @@ The measurement (``kogei cloth fit``): a flat swatch on the table, camera and
 light fixed (:mod:`processing.swatch_geometry`), one RAW frame per table
 angle and a colour chart frame.  Turning the table turns the yarn under a
 fixed light and view, which is what the anisotropic lobes of Yasuda et al.
-respond to.
+respond to.  A capture may repeat the turn with the lamp moved (passes, each
+with its own light direction,
+:meth:`processing.swatch_geometry.SwatchGeometry.for_pass`): one light leaves
+the weights of a broad-lobed cloth such as cotton correlated (docs/cloth.md
+gives the Fisher information), a second separates them.
 
 Units.  The chart frame's patches have known reflectances rho (the
 ColorChecker of the set-up, spectra from colour-science) and radiance
