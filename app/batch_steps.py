@@ -19,8 +19,9 @@ moment leaves the session consistent, and the rerun redoes exactly the
 interrupted step.
 
 Steps: ``geometry`` (:func:`app.process_session.process_session`),
-``colour`` (the chart frames, :mod:`app.batch_colour`), ``render`` (the mesh
-under D65 and A) and ``report`` (:func:`app.report.build_report`).
+``colour`` (the chart frames, :mod:`app.batch_colour`), ``materials`` (the
+object frames' regions and materials, :mod:`app.batch_materials`), ``render``
+(the mesh under D65 and A, in the largest identified material) and ``report`` (:func:`app.report.build_report`).
 """
 
 from __future__ import annotations
@@ -135,12 +136,26 @@ def _geometry_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]
 # ---------------------------------------------------------------------------- render
 def _render_inputs(root: Path, manifest: dict[str, Any], options: BatchOptions) -> dict[str, str]:
     products = manifest.get("products") or {}
-    return {"mesh": (products.get("mesh") or {}).get("sha256", "none")}
+    materials = ((products.get("materials") or {}).get("report") or {}).get("sha256", "none")
+    return {"mesh": (products.get("mesh") or {}).get("sha256", "none"), "materials": materials}
+
+
+def render_material(root: Path) -> tuple[str, str]:
+    """The render's material and where it comes from: the identified material covering most pixels, or the default.
+
+    Regions are found in the RAW frames, not on the mesh (the camera's pose relative to the table is not
+    recorded), so one material stands for the whole mesh.
+    """
+    largest = ((_manifest(root).get("products") or {}).get("materials") or {}).get("largest")
+    if largest and largest.get("material"):
+        return largest["material"], (f"identified: the material covering the largest identified area "
+                                     f"({largest['pixels']} pixels of the object frames), for the whole mesh")
+    return DEFAULT_MATERIAL, "default (no identified materials)"
 
 
 def _render_params(options: BatchOptions) -> dict[str, Any]:
     return {"preset": options.preset, "size": list(options.render_size), "illuminants": list(RENDER_ILLUMINANTS),
-            "material": DEFAULT_MATERIAL}
+            "default_material": DEFAULT_MATERIAL}
 
 
 def _png_bytes(srgb8: Any) -> bytes:
@@ -189,9 +204,11 @@ def _render_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
 
     images = {}
     seconds = {}
+    material, source = render_material(root)
+    log(f"render material: {material} ({source})")
     for ill in RENDER_ILLUMINANTS:
         t = time.perf_counter()
-        result = render_session_mesh(root, ill, options.render_size, options.preset)
+        result = render_session_mesh(root, ill, options.render_size, options.preset, material=material)
         seconds[ill] = round(time.perf_counter() - t, 3)
         images[ill] = _png_bytes(result.srgb8)
         log(f"rendered under {ill} ({options.render_size[0]}x{options.render_size[1]}, {seconds[ill]:.2f} s)")
@@ -199,12 +216,12 @@ def _render_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
         files = {ill: session.write_file(f"{RENDERS}/{ill}.png", blob) for ill, blob in images.items()}
         products = dict(session.manifest.get("products") or {})
         products["renders"] = {
-            "material": DEFAULT_MATERIAL, "material_source": "default (no identified materials)",
+            "material": material, "material_source": source,
             "size": list(options.render_size), "preset": options.preset,
             "images": {ill: {"file": f.path, "sha256": f.sha256, "bytes": f.bytes} for ill, f in files.items()},
         }
         session.update("products", products)
-    return {"products": ("renders",), "summary": {"seconds": seconds, "material": DEFAULT_MATERIAL}}
+    return {"products": ("renders",), "summary": {"seconds": seconds, "material": material}}
 
 
 # ---------------------------------------------------------------------------- report
@@ -244,10 +261,19 @@ def _colour_step() -> Step:
                 colour_inputs, colour_params, colour_run)
 
 
+def _materials_step() -> Step:
+    from app.batch_materials import materials_inputs, materials_params, materials_run
+
+    return Step("materials", ("app.batch_steps", "app.batch_materials", "app.spectral_command", "app.identify_command",
+                              "app.materials_command", "processing.material_segmentation"),
+                materials_inputs, materials_params, materials_run, needs=("colour",))
+
+
 STEPS: dict[str, Step] = {
     "geometry": Step("geometry", ("app.batch_steps", "app.process_session", "app.calibrate_command", "app.capture"),
                      _geometry_inputs, _geometry_params, _geometry_run),
     "colour": _colour_step(),
+    "materials": _materials_step(),
     "render": Step("render", ("app.batch_steps", "app.scene_build", "app.scene_spec", "render.renderer"),
                    _render_inputs, _render_params, _render_run, needs=("geometry",)),
     "report": Step("report", ("app.batch_steps", "app.report", "app.report_figures", "app.demo_capture", "app.capture"),
@@ -255,11 +281,7 @@ STEPS: dict[str, Step] = {
 }
 STEP_NAMES = tuple(STEPS)
 #: Steps of the issue that this version cannot run, with the reason given to the user.
-UNAVAILABLE_STEPS = {
-    "materials": "identifying a session's materials needs the object's regions in its RAW frames (the mesh "
-                 "projected into the camera), which this version does not compute; for one frame and a label "
-                 "image use 'kogei spectral estimate' then 'kogei identify --regions' (docs/colour-pipeline.md)",
-}
+UNAVAILABLE_STEPS: dict[str, str] = {}
 
 
 def parse_steps(text: str | None) -> tuple[str, ...]:
@@ -270,7 +292,7 @@ def parse_steps(text: str | None) -> tuple[str, ...]:
     >>> parse_steps("report,geometry")
     ('geometry', 'report')
     >>> parse_steps(None)
-    ('geometry', 'colour', 'render', 'report')
+    ('geometry', 'colour', 'materials', 'render', 'report')
     """
     if text is None:
         return STEP_NAMES

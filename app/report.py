@@ -347,26 +347,72 @@ def _chart(ctx: _Context) -> Section:
     return Section("chart", "Colour chart", body or _missing("intact chart products", cmd), shown)
 
 
-def _not_produced(what: str, why: str) -> str:
-    return (f"<p class='missing'><b>Not in this session:</b> {_e(what)}. "
-            f"This version of kogei does not produce it: {_e(why)}</p>")
+def _materials_doc(ctx: _Context) -> dict[str, Any] | None:
+    blob = ctx.product_bytes(((ctx.products.get("materials") or {}).get("report")))
+    return None if blob is None else json.loads(blob)
+
+
+def _no_materials(ctx: _Context, what: str) -> str:
+    from app.batch_steps import DEFAULT_MATERIAL
+
+    return _missing(f"{what} (the materials step has not run on this session; the renders use the stated "
+                    f"default material {DEFAULT_MATERIAL})", _step_command(ctx.root, "materials"))
 
 
 def _spectra(ctx: _Context) -> Section:
-    return Section("spectra", "Spectra with uncertainty vs model spectra", _not_produced(
-        "estimated spectral reflectance of the object's regions with its uncertainty, against the model spectra",
-        "the batch has no step that estimates spectra from the object frames (the colour step checks the chart "
-        "frames only); for one frame use 'kogei spectral estimate FRAME --chart CHART' and 'kogei spectral at'"),
-        False)
+    from app.report_figures import region_spectra_figure
+
+    title = "Spectra with uncertainty vs model spectra"
+    doc = _materials_doc(ctx)
+    if doc is None:
+        return Section("spectra", title, _no_materials(
+            ctx, "estimated spectral reflectance of the object's regions with its uncertainty"), False)
+    shown = [r for r in doc["regions"] if r.get("material") and r.get("reflectance")]
+    if not shown:
+        return Section("spectra", title, "<p>No region was identified, so there is no spectrum to show.</p>", False)
+    body = _kv([("estimator", f"{doc['method']}, chart {doc['chart']}"),
+                ("candidates modelled at", f"{doc['light_deg']:.0f} deg from the normal")])
+    body += _img(region_spectra_figure(doc["wavelengths"], shown, doc["light_deg"]), "region spectra",
+                 "Per region: estimated reflectance (shape, mean 1) +- its uncertainty, and the identified "
+                 "material's model spectrum.")
+    return Section("spectra", title, body, True)
 
 
 def _materials(ctx: _Context) -> Section:
-    from app.batch_steps import DEFAULT_MATERIAL, UNAVAILABLE_STEPS
+    from app.report_figures import material_map_figure
 
-    return Section("materials", "Material map and confidences", _not_produced(
-        "identified materials and their confidences",
-        f"{UNAVAILABLE_STEPS.get('materials', 'no materials step')}; the renders use the stated default material "
-        f"{DEFAULT_MATERIAL}"), False)
+    title = "Material map and confidences"
+    doc = _materials_doc(ctx)
+    if doc is None:
+        return Section("materials", title, _no_materials(ctx, "identified materials and their confidences"), False)
+    rows = []
+    for r in doc["regions"]:
+        alloy = ""
+        if r.get("alloy_weights"):
+            alloy = ", ".join(f"{m} {100 * r['alloy_weights'][m]:.0f} +- {100 * r['alloy_std'][m]:.0f} %"
+                              for m in r["alloy_weights"])
+        rows.append([r["region"], r["material"] or "not identified",
+                     "" if r["confidence"] is None else f"{r['confidence']:.2f}", r.get("runner_up") or "",
+                     "" if r.get("chi2") is None else f"{r['chi2']:.1f}", r["pixels"], ", ".join(r["frames"]),
+                     alloy, r.get("note", "")])
+    largest = doc.get("largest")
+    body = _kv([("largest identified material", "none" if not largest else
+                 f"{largest['material']} ({largest['pixels']} pixels; used for the whole mesh in the renders)")])
+    body += _table(["region", "material", "confidence", "runner-up", "chi2", "pixels", "frames", "alloy (Ag, Cu, Au)",
+                    "note"], rows)
+    from PIL import Image
+    import io
+
+    figs = ""
+    for cid, rec in sorted(((ctx.products.get("materials") or {}).get("maps") or {}).items()):
+        blob = ctx.product_bytes(rec)
+        if blob is not None:
+            img = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
+            figs += _img(material_map_figure(img, doc["regions"]), f"material map {cid}",
+                         f"{cid}: each lit object pixel coloured by its region's material under D65; backdrop dark "
+                         "grey, unused pixels black.")
+    body += "<div class='row'>" + figs + "</div>"
+    return Section("materials", title, body, bool(figs))
 
 
 def _renders(ctx: _Context) -> Section:

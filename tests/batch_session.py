@@ -19,7 +19,7 @@ from app.session import Session
 from mocks.station import SimulatedStation
 from mocks.world import World
 
-__all__ = ["built_sessions", "copy_session"]
+__all__ = ["built_sessions", "copy_session", "materials_session", "MATERIALS_WORLD"]
 
 _BUILT: dict[str, SimpleNamespace] = {}
 
@@ -54,3 +54,22 @@ def copy_session(src: Path, dst: Path) -> Path:
     """A copy of a session folder (without its lock files)."""
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.lock"))
     return dst
+
+
+#: Head and beak of distinct materials, the light 15 deg from the camera (as in app.demo_colour) so that
+#: metal highlights face the camera: the materials step's test world.
+MATERIALS_WORLD = {"materials": {"head": "gold", "beak": "urushi-red"}, "light_direction": (0.2, -0.93, 0.45)}
+
+
+def materials_session(tmp_path_factory) -> Path:
+    """A captured, unprocessed one-pass session of :data:`MATERIALS_WORLD` (240 x 160, classic24 chart)."""
+    if "m" not in _BUILT:
+        root = tmp_path_factory.mktemp("materials-session") / "raw"
+        _capture(materials_world(), root, CapturePlan("scan", steps=24, passes=1, camera_angles_deg=(0.0,)), True, 3)
+        _BUILT["m"] = SimpleNamespace(root=root)
+    return _BUILT["m"].root
+
+
+def materials_world() -> World:
+    """The world of :func:`materials_session` (its truth: region labels per pixel, materials per region)."""
+    return World.hawk(4_000, width=240, height=160, chart_layout="classic24", **MATERIALS_WORLD)

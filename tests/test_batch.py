@@ -39,7 +39,7 @@ from app.session import Session
 from tests.batch_session import built_sessions, copy_session
 
 ROOT = Path(__file__).resolve().parent.parent
-ALL = ("geometry", "colour", "render", "report")
+ALL = ("geometry", "colour", "materials", "render", "report")
 
 
 @pytest.fixture(scope="module")
@@ -90,14 +90,16 @@ def _statuses(result) -> dict[str, str]:
 def test_every_step_runs_once_then_is_skipped(done):
     root, options, first = done
     assert first.status == "ok", first
-    assert _statuses(first) == {"geometry": "ran", "colour": "ran", "render": "ran", "report": "ran"}
+    assert _statuses(first) == {"geometry": "ran", "colour": "ran", "materials": "ran", "render": "ran",
+                                 "report": "ran"}
     manifest = _assert_consistent(root)
     steps = manifest["batch"]["steps"]
     assert set(steps) == set(ALL)
     # the geometry step read exactly the gathered profiles of the one pass
     assert set(steps["geometry"]["inputs"]) == {"p01/profiles"}
     assert steps["geometry"]["inputs"]["p01/profiles"] == manifest["captures"]["p01/profiles"]["sha256"]
-    assert steps["render"]["inputs"] == {"mesh": manifest["products"]["mesh"]["sha256"]}
+    assert steps["render"]["inputs"] == {"mesh": manifest["products"]["mesh"]["sha256"],
+                                         "materials": manifest["products"]["materials"]["report"]["sha256"]}
     for ill in ("D65", "A"):
         img = Image.open(root / manifest["products"]["renders"]["images"][ill]["file"])
         assert img.size == (96, 72)
@@ -113,7 +115,8 @@ def test_every_step_runs_once_then_is_skipped(done):
 
     again = process_one(str(root), ALL, options)
     assert again.status == "skipped"
-    assert _statuses(again) == {"geometry": "skipped", "colour": "skipped", "render": "skipped", "report": "skipped"}
+    assert _statuses(again) == {"geometry": "skipped", "colour": "skipped", "materials": "skipped",
+                                 "render": "skipped", "report": "skipped"}
     assert _assert_consistent(root)["batch"] == manifest["batch"]
 
 
@@ -124,8 +127,9 @@ def test_a_changed_parameter_or_product_reruns_only_what_depends_on_it(done, tmp
     # a parameter of the render step: render and the report (which shows the renders) run again
     bigger = BatchOptions(preset=options.preset, calibration=options.calibration, render_size=(112, 84))
     r = process_one(str(root), ALL, bigger)
-    assert _statuses(r) == {"geometry": "skipped", "colour": "skipped", "render": "ran", "report": "ran"}
-    assert r.steps[2].reason == "params changed"
+    assert _statuses(r) == {"geometry": "skipped", "colour": "skipped", "materials": "skipped", "render": "ran",
+                            "report": "ran"}
+    assert r.steps[3].reason == "params changed"
     after = _assert_consistent(root)
     assert after["batch"]["steps"]["geometry"] == before["batch"]["steps"]["geometry"]
     assert Image.open(root / "products/renders/A.png").size == (112, 84)
@@ -234,8 +238,9 @@ def test_worker_pool_isolates_failed_sessions(base, done, tmp_path):
     assert by["ok"].status == "skipped"                # the other sessions' failures did not stop it
     assert by["broken"].status == "failed"
     assert "no pass has usable points" in by["broken"].reason and "profiles.npz" in by["broken"].reason
-    assert _statuses(by["broken"]) == {"geometry": "failed", "colour": "ran", "render": "not run", "report": "ran"}
-    assert "needs geometry, which failed" in by["broken"].steps[2].reason
+    assert _statuses(by["broken"]) == {"geometry": "failed", "colour": "ran", "materials": "ran",
+                                         "render": "not run", "report": "ran"}
+    assert "needs geometry, which failed" in by["broken"].steps[3].reason
     assert by["empty"].status == "failed" and "not a kogei session" in by["empty"].reason
     assert summary.exit_code == 1 and summary.count("failed") == 2 and summary.count("skipped") == 1
     console = Console(record=True, width=200)
@@ -249,7 +254,7 @@ def test_worker_pool_isolates_failed_sessions(base, done, tmp_path):
     assert "geometry: FAILED" in (broken / LOG_FILE).read_text()
     # the progress display: a bar per step with what happened to the three sessions, and one overall
     bars = progress.file.getvalue()
-    assert re.search(r"all steps .* 12/12", bars)
+    assert re.search(r"all steps .* 15/15", bars)
     assert re.search(r"geometry .* 3/3 +2 failed, 1 skipped", bars)
     assert re.search(r"colour .* 3/3 +1 failed, 1 ran, 1 skipped", bars)
     assert re.search(r"render .* 3/3 +2 failed, 1 skipped", bars)
@@ -333,7 +338,7 @@ def test_dask_local_cluster_runs_the_same_tasks(done, tmp_path):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--steps", "materials"], "not available"),
+    (["--steps", "materialz"], "unknown step 'materialz'"),
     (["--steps", "geometry,shading"], "unknown step 'shading'"),
     (["--workers", "0"], "--workers must be"),
     (["--dask", "bogus://scheduler:8786"], "cannot reach the Dask scheduler"),
