@@ -141,7 +141,7 @@ def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_l
     Segmentation
     """
     from scipy.cluster.vq import kmeans2
-    from scipy.ndimage import uniform_filter
+    from scipy.ndimage import binary_dilation, uniform_filter
 
     x = np.asarray(rel, dtype=np.float64)
     m = np.asarray(mask, dtype=bool)
@@ -163,6 +163,9 @@ def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_l
     near_level = (level <= b_level * backdrop_factor) & (level >= b_level / backdrop_factor)
     near_chroma = np.linalg.norm(chroma - b_chroma, axis=2) <= backdrop_chroma
     backdrop = m & near_level & near_chroma
+    # a binned cell on the silhouette mixes backdrop photosites with the object's (one channel from each):
+    # the ring next to the backdrop, no brighter than the backdrop, goes with it
+    backdrop |= m & binary_dilation(backdrop) & (level <= b_level)
     lit = m & ~backdrop & (x.max(axis=2) >= min_level)
     labels = np.zeros(m.shape, np.int64)
     n = int(lit.sum())

@@ -54,14 +54,17 @@ def test_largest_regions_get_their_true_materials(done):
     assert img.shape[:2] == truth.shape
     for name in ("head", "beak"):
         k = world.region_names.index(name)
-        coloured = [tuple(c) for c in img[truth == k].tolist() if tuple(c) != (0, 0, 0)]
+        pixels = [tuple(c) for c in img[truth == k].tolist()]
+        # few of the object's pixels are taken for backdrop (dark ones on the silhouette)
+        assert pixels.count((40, 40, 40)) < 0.1 * len(pixels), name
+        coloured = [c for c in pixels if c not in ((0, 0, 0), (40, 40, 40))]     # given a material
         assert len(coloured) >= 50, name              # enough lit pixels to speak of
         top, count = Counter(coloured).most_common(1)[0]
         assert top == material_colour(world.materials[name]), (name, Counter(coloured).most_common(3))
         assert count >= 0.6 * len(coloured)
-    # the backdrop is recognised as such almost everywhere
+    # the backdrop is recognised as such almost everywhere (silhouette cells included)
     back = img[truth == -1]
-    assert np.mean(np.all(back == (40, 40, 40), axis=1)) > 0.95
+    assert np.mean(np.all(back == (40, 40, 40), axis=1)) > 0.99
     # the material over the most pixels is the true material of the largest lit region (the head)
     assert doc["largest"]["material"] == "gold"
     assert doc["largest"]["material"] == largest_material(doc["regions"])[0]
