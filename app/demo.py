@@ -204,18 +204,33 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def _batch_steps(session: Path, preset: str) -> dict:
-    """The session's colour, render and report steps through ``kogei batch`` (its geometry is processed)."""
+    """The session's colour, materials, render and report steps through ``kogei batch`` (its geometry is processed)."""
+    import json
+
     from app.batch import run_batch
     from app.batch_steps import BatchOptions
 
     t0 = time.perf_counter()
-    result = run_batch([session], "colour,render,report", options=BatchOptions(preset=preset), workers=1).results[0]
+    result = run_batch([session], "colour,materials,render,report", options=BatchOptions(preset=preset),
+                       workers=1).results[0]
     secs = time.perf_counter() - t0
     report = session / "products" / "report.html"
-    print(f"batch (colour, render, report): {result.status}"
+    print(f"batch (colour, materials, render, report): {result.status}"
           + (f" ({result.reason})" if result.reason else "") + f", {secs:.1f} s; report -> {report}", file=sys.stderr)
+    materials = []
+    path = session / "products" / "materials.json"
+    if path.is_file():
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        materials = [{k: r[k] for k in ("region", "material", "confidence", "pixels")} for r in doc["regions"]]
+        largest = doc.get("largest") or {}
+        print(f"batch materials (regions found without labels; renders in {largest.get('material', 'the default')}):",
+              file=sys.stderr)
+        for r in materials:
+            conf = "" if r["confidence"] is None else f" (confidence {r['confidence']:.2f})"
+            print(f"  {r['region']:<8} {r['material'] or 'not identified':<24}{conf}, {r['pixels']} pixels",
+                  file=sys.stderr)
     return {"status": result.status, "reason": result.reason, "seconds": round(secs, 2),
-            "report": str(report) if report.is_file() else None}
+            "report": str(report) if report.is_file() else None, "materials": materials}
 
 
 def colour_shift_table(res_d65, res_a, camera, names: list[str]) -> dict[str, float]:
