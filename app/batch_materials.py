@@ -138,10 +138,9 @@ def _pooled(results: list[Any]) -> Any:
 
 def _relative_levels(result: Any) -> NDArray[np.float64]:
     """Camera values over those of a white diffuser lit like the chart (1.0 = white)."""
-    from processing.camera_response import channel_matrix
+    from app.identify_command import white_response
 
-    lights = result.lights[0] if result.lights.shape[0] == 1 else result.lights
-    white = np.ones(result.grid.size) @ channel_matrix(result.sensitivities, lights, result.grid)
+    white = white_response(result)
     return result.camera.astype(np.float64) / np.maximum(white, 1e-12)
 
 

@@ -44,7 +44,8 @@ from numpy.typing import NDArray
 from app.errors import UsageError
 from app.spectral_command import SpectralResult, load_result
 
-__all__ = ["add_identify_parser", "run_identify", "read_labels", "identify_result", "usable_regions", "RegionReport"]
+__all__ = ["add_identify_parser", "run_identify", "read_labels", "identify_result", "usable_regions", "white_response",
+           "RegionReport"]
 
 #: Metals of the alloy model (Matsuda et al., eq. (3)-(4); Table 1's shibuichi and shakudo are Ag-Cu-Au).
 ALLOY_METALS = ("Ag", "Cu", "Au")
@@ -125,6 +126,26 @@ def _is_metal(name: str) -> bool:
     return name == NEUTRAL_METAL or get_material(name).family in ("metal", "alloy")
 
 
+def white_response(result: SpectralResult) -> NDArray[np.float64]:
+    """Camera values of a white diffuser lit like the chart (``(1, ..., 1) @ K``, the model camera's units).
+
+    Examples
+    --------
+    >>> from processing.camera_response import camera_sensitivities
+    >>> from processing.spectra import SpectralGrid
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> r = SpectralResult(np.zeros((1, 1, 3), np.float32), np.eye(31, 3), g.wavelengths, np.ones((1, 1), bool),
+    ...                    np.zeros((1, 1, 3), np.float32), camera_sensitivities(g), np.ones((1, 31)), "demo")
+    >>> white_response(r).shape
+    (3,)
+    """
+    from processing.camera_response import channel_matrix
+
+    lights = result.lights[0] if result.lights.shape[0] == 1 else result.lights
+    return np.asarray(np.ones(result.grid.size) @ channel_matrix(result.sensitivities, lights, result.grid),
+                      dtype=np.float64)
+
+
 def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_level: float = 0.005) -> NDArray[np.int64]:
     """``labels`` with 0 where a pixel is masked or darker than ``min_level`` of a white diffuser (module text).
 
@@ -139,10 +160,7 @@ def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_leve
     >>> usable_regions(r, np.array([[1, 1]])).tolist()
     [[1, 0]]
     """
-    from processing.camera_response import channel_matrix
-
-    lights = result.lights[0] if result.lights.shape[0] == 1 else result.lights
-    white = np.ones(result.grid.size) @ channel_matrix(result.sensitivities, lights, result.grid)
+    white = white_response(result)
     live = np.asarray(labels, dtype=np.int64) * result.mask
     # shadows and the off-highlight pixels of a glossy surface hold noise, not colour
     live[(result.camera < min_level * white.astype(np.float32)).all(axis=2)] = 0
