@@ -569,6 +569,10 @@ class _Runner:
                 self.hooks.before_pass(p, self.plan.passes)
             s.update_pass(p, placed=utc_now(), status="capturing")
         if not rec.get("zeroed"):
+            if self.plan.kind == "swatch" and p > 1:
+                # the swatch stays where it lies while the lamp moves: finish the turn so that this pass's
+                # zero is pass 1's, the orientation the fit's warp angle refers to
+                self._move(360.0 * math.ceil(self.dev.turntable.position_deg / 360.0 - 1e-9), ())
             self._recover("turntable", self.dev.turntable.zero)
             s.set_state(pass_no=p, table_deg=0.0, moving_to=None, fw_offset_deg=0.0)
             s.update_pass(p, zeroed=True)

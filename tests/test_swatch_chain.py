@@ -22,6 +22,7 @@ from processing.raw_decode import decode_raw
 COTTON = ("cotton:a_t=0.3,a_b=0.6,weft_a_t=0.3,weft_a_b=0.6,specular=0.08,internal=0.15,diffuse=0.7,"
           "warp_colour=#c08040,weft_colour=#c08040")
 W, H = 64, 48
+CAMERA_SIDE = (-0.22, -0.6, 0.77)     # pass 2's lamp: near the mirror direction, where turning the table matters most
 
 
 def _binned(a: np.ndarray) -> np.ndarray:
@@ -34,14 +35,21 @@ def chain(tmp_path_factory):
     from app.cloth_fit_session import capture_swatch_session, load_swatch_session
     from app.session import Session
 
+    world = SwatchWorld.swatch(COTTON, width=W, height=H)
+    lights = [tuple(world.light_direction), CAMERA_SIDE]
+    # 6 steps of 60 deg: a pass starting one step off its recorded zero would show (the plain weave's period
+    # is 90 deg), by up to 1 % of the frame mean under the camera-side lamp
     root = capture_swatch_session(tmp_path_factory.mktemp("chain") / "s", COTTON, steps=6, width=W, height=H,
-                                  seed=3)
+                                  seed=3, lights=lights)
     data = load_swatch_session(root, max_pixels=10_000)          # every pixel that sees the swatch throughout
     frames = sorted((r for r in Session.read(root)["captures"].values() if r.get("kind") == "frame"),
-                    key=lambda r: float(r["angle_deg"]))
-    world = SwatchWorld.swatch(COTTON, width=W, height=H)
-    noise_free = [simulate_raw(f.radiance, f.grid, f.light, seed=0).mean_electrons
-                  for f in (world.frame("object", float(r["angle_deg"])) for r in frames)]
+                    key=lambda r: (int(r["pass"]), float(r["angle_deg"])))
+    noise_free = []
+    for r in frames:
+        world.light_direction = lights[int(r["pass"]) - 1]
+        f = world.frame("object", float(r["angle_deg"]))        # the swatch at the angle the session records
+        noise_free.append(simulate_raw(f.radiance, f.grid, f.light, seed=0).mean_electrons)
+    world.light_direction = lights[0]
     return root, data, frames, world, noise_free
 
 
@@ -51,9 +59,10 @@ def test_noise_free_signal_is_the_model_times_the_chart_gain(chain):
     _, data, frames, world, noise_free = chain
     m, g = data.measurement, data.geometry
     assert m.angles_deg.tolist() == [float(r["angle_deg"]) for r in frames]
+    assert m.passes.tolist() == [1] * 6 + [2] * 6
     px = m.pixels
     mu = np.stack([_binned(e)[px[:, 1], px[:, 0]] for e in noise_free])
-    ratio = mu / predict_rgb(get_material(COTTON), g, m.angles_deg, px, m.cfa_pattern)
+    ratio = mu / predict_rgb(get_material(COTTON), g, m.angles_deg, px, m.cfa_pattern, passes=m.passes)
     chart = world.frame("chart", 0.0)
     chart_mu = _binned(simulate_raw(chart.radiance, chart.grid, chart.light, seed=0).mean_electrons)
     gain = chart_gains(grid_chart_means(chart_mu), g)
@@ -63,7 +72,9 @@ def test_noise_free_signal_is_the_model_times_the_chart_gain(chain):
 
 def test_decoded_frame_means_depart_from_the_signal_only_by_pixel_noise(chain):
     # DNG -> decode -> the fit's pixels: each frame's summed electrons minus the noise-free sum, over the
-    # closed-form standard deviation (shot mu + read noise^2 + quantisation g^2 / 12 per photosite)
+    # closed-form standard deviation (shot mu + read noise^2 + quantisation g^2 / 12 per photosite); the
+    # second pass too, its lamp moved and the swatch left where it lies (the table turned back to the
+    # first pass's zero, not re-zeroed where the first pass ended)
     root, data, frames, _, noise_free = chain
     s = SensorModel()
     px = data.measurement.pixels
@@ -78,6 +89,7 @@ def test_decoded_frame_means_depart_from_the_signal_only_by_pixel_noise(chain):
         z.append((got - mu).sum(axis=0) / np.sqrt(var.sum(axis=0)))
     z = np.array(z)                                                      # (frames, 3)
     # a departure of 0.5 % shared by a frame's pixels gives z of 4 to 7 in R and G here (2 to 4 in B), and an rms
-    # of about 4; pixel noise alone keeps |z| below 3 (about 230 binned pixels per frame)
+    # of about 4; pixel noise alone keeps |z| below 3 (about 230 binned pixels per frame, 36 values)
     assert np.abs(z).max() < 4.0
     assert 0.4 < np.sqrt(np.mean(z ** 2)) < 1.7
+    assert 0.4 < np.sqrt(np.mean(z[6:] ** 2)) < 1.9                    # the second pass alone
