@@ -21,9 +21,7 @@ of the two-exposure estimator.
 from __future__ import annotations
 
 import functools
-import math
 import os
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -44,7 +42,6 @@ __all__ = [
 #: Default reference camera (a key of ``colour.MSDS_CAMERA_SENSITIVITIES``).
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
 
-_SPLIT = re.compile(r"[,;\s]+")
 
 
 class CameraResponseError(ValueError):
@@ -65,44 +62,12 @@ def camera_names() -> list[str]:
 
 
 def _read_sensitivity_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CameraResponseError(f"cannot read camera sensitivity file '{path}': {exc}") from exc
-    rows: list[list[float]] = []
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        fields = [f for f in _SPLIT.split(line.strip(",; \t")) if f]
-        try:
-            nums = [float(f) for f in fields]
-        except ValueError:
-            if not rows:
-                continue  # one header line
-            raise CameraResponseError(
-                f"{path}, line {lineno}: expected four numbers 'wavelength_nm, r, g, b', got {line!r}"
-            ) from None
-        if len(nums) != 4:
-            raise CameraResponseError(
-                f"{path}, line {lineno}: expected 4 columns 'wavelength_nm, r, g, b', got {len(nums)}"
-            )
-        if not all(math.isfinite(v) for v in nums):
-            raise CameraResponseError(f"{path}, line {lineno}: NaN or infinite value in {line!r}")
-        bad = [i for i in (1, 2, 3) if nums[i] < 0]
-        if bad:
-            raise CameraResponseError(
-                f"{path}, line {lineno}, column {bad[0] + 1}: a sensitivity must be >= 0, got {nums[bad[0]]:g}"
-            )
-        if rows and nums[0] <= rows[-1][0]:
-            raise CameraResponseError(
-                f"{path}, line {lineno}: wavelength {nums[0]:g} nm does not increase; sort the rows"
-            )
-        rows.append(nums)
-    if len(rows) < 2:
-        raise CameraResponseError(f"{path}: needs at least two 'wavelength_nm, r, g, b' rows, found {len(rows)}")
-    arr = np.asarray(rows)
-    return arr[:, 0], arr[:, 1:]
+    from processing.wavelength_table import read_wavelength_table
+
+    table = read_wavelength_table(
+        path, what="camera sensitivity", error=CameraResponseError, columns=4, layout="'wavelength_nm, r, g, b'",
+        check=lambda col, v: None if v >= 0 else f"a sensitivity must be >= 0, got {v:g}")
+    return table.wavelengths, table.values
 
 
 @functools.lru_cache(maxsize=16)

@@ -28,7 +28,6 @@ from __future__ import annotations
 import functools
 import math
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +50,6 @@ __all__ = [
 #: Default near-duplicate threshold: RMS reflectance difference over the grid.
 DUPLICATE_RMSE = 0.0125
 
-_SPLIT = re.compile(r"[,;\t ]+")
 _MAX_REFLECTANCE = 1.5   # fluorescent or specular samples exceed 1 a little; more is a unit error
 
 
@@ -156,52 +154,15 @@ def read_reflectance_csv(path: "str | os.PathLike[str]", grid: SpectralGrid = RE
     >>> s.names, s.spectra.round(2).tolist()
     (('tile', 'paper'), [[0.1, 0.2, 0.3], [0.8, 0.85, 0.9]])
     """
+    from processing.wavelength_table import read_wavelength_table
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ReflectanceDatabaseError(f"cannot read reflectance file '{path}': {exc}") from exc
-    header: list[str] | None = None
-    rows: list[list[float]] = []
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if not line or line.startswith("#"):
-            continue
-        fields = [f for f in _SPLIT.split(line.strip(",; \t")) if f]
-        if header is None and not rows:
-            try:
-                float(fields[0])
-            except ValueError:
-                header = fields[1:]
-                continue
-        nums = []
-        for col, f in enumerate(fields, start=1):
-            try:
-                v = float(f)
-            except ValueError:
-                raise ReflectanceDatabaseError(f"{path}, line {lineno}, column {col}: not a number: {f!r}") from None
-            if not math.isfinite(v):
-                raise ReflectanceDatabaseError(f"{path}, line {lineno}, column {col}: NaN or infinite value")
-            if col > 1 and not 0.0 <= v <= _MAX_REFLECTANCE:
-                raise ReflectanceDatabaseError(
-                    f"{path}, line {lineno}, column {col}: reflectance {v:g} outside [0, {_MAX_REFLECTANCE:g}]; "
-                    "give reflectance as a fraction, not percent"
-                )
-            nums.append(v)
-        if len(nums) < 2:
-            raise ReflectanceDatabaseError(f"{path}, line {lineno}: needs a wavelength and at least one reflectance")
-        if rows and len(nums) != len(rows[0]):
-            raise ReflectanceDatabaseError(
-                f"{path}, line {lineno}: {len(nums)} columns, but the first data line has {len(rows[0])}"
-            )
-        if rows and nums[0] <= rows[-1][0]:
-            raise ReflectanceDatabaseError(
-                f"{path}, line {lineno}, column 1: wavelength {nums[0]:g} nm does not increase; sort the rows"
-            )
-        rows.append(nums)
-    if len(rows) < 2:
-        raise ReflectanceDatabaseError(f"{path}: needs at least two wavelength rows, found {len(rows)}")
-    arr = np.asarray(rows)
+    table = read_wavelength_table(
+        path, what="reflectance", error=ReflectanceDatabaseError,
+        check=lambda col, v: None if 0.0 <= v <= _MAX_REFLECTANCE else
+        f"reflectance {v:g} outside [0, {_MAX_REFLECTANCE:g}]; give reflectance as a fraction, not percent")
+    header = table.header
+    arr = np.column_stack([table.wavelengths, table.values])
     if arr[0, 0] > grid.start or arr[-1, 0] < grid.stop:
         raise ReflectanceDatabaseError(
             f"{path}: wavelengths {arr[0, 0]:g}-{arr[-1, 0]:g} nm do not cover the grid {grid.start:g}-{grid.stop:g} nm"
