@@ -36,6 +36,7 @@ from app.gui.session_panel import SessionPanel
 from app.gui.spectra_panel import SpectraPanel
 from app.gui.station_link import INSTRUMENTS, StationLink
 from app.gui.widgets import Banner
+from app.gui.warm_up import warm_up
 from app.gui.workers import Lane
 
 __all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP"]
@@ -68,6 +69,7 @@ class MainWindow(QMainWindow):
         # Worker threads (capture, drawing, reading) share the interpreter lock with this thread; a short
         # switch interval (default 5 ms) hands it back to the event loop sooner when they are busy.
         sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
+        warm_up()                                    # first uses that hold the interpreter lock, before showing
         self.setWindowTitle("kogei — capture station")
         self.settings = settings or QSettings(SETTINGS_ORG, SETTINGS_APP)
         self.station: Any = None                     # a simulated station started by the window
@@ -322,6 +324,9 @@ class MainWindow(QMainWindow):
         """Stop the capture and the workers, close the instruments and the simulated station."""
         self.capture.abort_capture()
         self.processing.cancel()
+        final = getattr(self.preview, "_process_job", None)
+        if final is not None and not final.done:
+            final.cancel()                   # a full-size preview render in its worker process
         self.device_lane.wait(30_000)
         self.work_lane.wait(30_000)
         self.plot_lane.wait(30_000)
