@@ -122,7 +122,7 @@ class Action:
     def stem(self) -> str:
         """File stem of the action's file."""
         if self.kind == "chart":
-            return "chart"
+            return "chart" if self.id.endswith("/chart") else f"chart_{self.index:02d}"
         if self.kind == "frame":
             return f"frame_{self.index:02d}"
         return f"{self.index:04d}"
@@ -151,6 +151,11 @@ class CapturePlan:
         line's power); they are off for every camera frame.
     camera
         False for a profiles-only scan (no camera frames, no chart).
+    chart_frames
+        Chart frames per pass, their gains averaged by the fit (default 4
+        for ``swatch``, whose fit is limited by the chart's pixel noise, and
+        1 for ``scan``).  One frame has the id ``pNN/chart``; several have
+        ``pNN/chart/00``, ``pNN/chart/01``, ...
 
     Examples
     --------
@@ -159,6 +164,8 @@ class CapturePlan:
     ['p01/chart', 'p01/profile/0000', 'p01/frame/00', 'p01/profile/0001']
     >>> len(plan.actions())
     22
+    >>> [a.id for a in CapturePlan("swatch", steps=2, passes=1, chart_frames=2).actions()]
+    ['p01/chart/00', 'p01/chart/01', 'p01/frame/00', 'p01/frame/01']
     """
 
     kind: str = "scan"
@@ -168,6 +175,7 @@ class CapturePlan:
     chart: bool = True
     lasers: tuple[int, ...] = (1,)
     camera: bool = True
+    chart_frames: int | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in PLAN_KINDS:
@@ -183,6 +191,12 @@ class CapturePlan:
         object.__setattr__(self, "lasers", tuple(int(i) for i in self.lasers))
         if self.kind == "swatch" and not self.camera:
             raise ValueError("a swatch plan needs the camera (it takes only RAW frames)")
+        if self.chart_frames is None:
+            object.__setattr__(self, "chart_frames", 4 if self.kind == "swatch" else 1)
+        if not isinstance(self.chart_frames, int) or isinstance(self.chart_frames, bool) or \
+                not 1 <= self.chart_frames <= 99:
+            raise ValueError(f"chart_frames must be an integer in 1..99 (chart frames per pass), "
+                             f"got {self.chart_frames!r}")
 
     @property
     def step_deg(self) -> float:
@@ -201,7 +215,10 @@ class CapturePlan:
         p = f"p{pass_no:02d}"
         out: list[Action] = []
         if self.camera and self.chart:
-            out.append(Action(f"{p}/chart", "chart", pass_no, 0, 0.0))
+            if self.chart_frames == 1:
+                out.append(Action(f"{p}/chart", "chart", pass_no, 0, 0.0))
+            else:
+                out += [Action(f"{p}/chart/{k:02d}", "chart", pass_no, k, 0.0) for k in range(self.chart_frames)]
         if self.kind == "swatch":
             out += [Action(f"{p}/frame/{i:02d}" if self.steps <= 100 else f"{p}/frame/{i:04d}", "frame",
                            pass_no, i, self.step_angle(i)) for i in range(self.steps)]
@@ -223,13 +240,17 @@ class CapturePlan:
         """JSON form (stored in the session manifest's ``plan``)."""
         return {"kind": self.kind, "steps": self.steps, "passes": self.passes,
                 "camera_angles_deg": list(self.camera_angles_deg), "chart": self.chart,
-                "lasers": list(self.lasers), "camera": self.camera}
+                "lasers": list(self.lasers), "camera": self.camera,
+                "chart_frames": self.chart_frames}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "CapturePlan":
         """Inverse of :meth:`to_dict`."""
-        known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera"}
-        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in known})
+        known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera", "chart_frames"}
+        args = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in known}
+        # a manifest written before chart_frames existed was taken with one chart frame per pass
+        args.setdefault("chart_frames", 1)
+        return cls(**args)
 
 
 # ---------------------------------------------------------------------------- devices and hooks
@@ -265,8 +286,12 @@ class CaptureHooks:
     before_pass
         ``before_pass(pass_no, passes)``: place the object (and the chart)
         for a new pass; raise :class:`CaptureInterrupted` to stop.
+    before_chart
+        ``before_chart(pass_no, index)``: chart frame ``index`` of the pass
+        is next (the chart must be in view).
     after_chart
-        ``after_chart(pass_no)``: the chart frame is taken (remove the chart).
+        ``after_chart(pass_no)``: the pass's last chart frame is taken
+        (remove the chart).
     progress
         Called after every action with a :class:`CaptureProgress`.
     message
@@ -276,6 +301,7 @@ class CaptureHooks:
     """
 
     before_pass: Callable[[int, int], None] | None = None
+    before_chart: Callable[[int, int], None] | None = None
     after_chart: Callable[[int], None] | None = None
     progress: Callable[["CaptureProgress"], None] | None = None
     message: Callable[[str], None] | None = None
@@ -585,8 +611,10 @@ class _Runner:
             if a.kind == "profile":
                 self._profile(a)
             else:
+                if a.kind == "chart" and self.hooks.before_chart is not None:
+                    self.hooks.before_chart(p, a.index)
                 self._frame(a)
-                if a.kind == "chart" and self.hooks.after_chart is not None:
+                if a.kind == "chart" and a.index == self.plan.chart_frames - 1 and self.hooks.after_chart is not None:
                     self.hooks.after_chart(p)
             self.durations[a.kind].append(time.monotonic() - t)
             self.report.taken += 1

@@ -1,13 +1,15 @@
 """Swatch sessions: capture one on the simulated station, read one, fit the cloth model, plot the fit.
 
 A swatch session is a capture with the ``swatch`` plan (:mod:`app.capture`):
-a chart frame, then one RAW frame per table step.  Its set-up (camera pose,
+chart frames (4 by default), then one RAW frame per table step.  Its set-up (camera pose,
 light direction, swatch size: :class:`processing.swatch_geometry.SwatchGeometry`)
 is a JSON file, by default ``swatch.json`` in the session folder.
 
 :func:`load_swatch_session` decodes the frames (:func:`processing.raw_decode.decode_raw`,
 2 x 2 binning, no demosaicing), calibrates them with the chart
-(:func:`processing.cloth_fit.chart_gains`) and picks the binned pixels that
+(:func:`processing.cloth_fit.chart_gains` of the mean of each pass's chart
+frames: the gains are shared by every frame of a pass, so their pixel noise
+is not averaged out by the swatch frames) and picks the binned pixels that
 see the swatch at every angle; :func:`processing.cloth_fit.fit_swatch` does
 the fit; :func:`fit_figure` draws measured and fitted responses over angle.
 """
@@ -42,14 +44,15 @@ class SwatchData:
 
 def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int = 24, seed: int = 1,
                            width: int = 96, height: int = 72, camera: str = "hotfolder",
-                           lights: Sequence[Sequence[float]] | None = None) -> Path:
+                           lights: Sequence[Sequence[float]] | None = None, chart_frames: int = 4) -> Path:
     """Capture a swatch session of a simulated swatch of ``cloth`` into ``out``.
 
     ``camera`` is ``"hotfolder"`` (the station writes each frame into its hot
     folder) or ``"gphoto2"`` (the station's fake ``gphoto2`` program, which
     rebuilds the swatch world from its configuration).  ``lights`` (directions
     toward the light, z > 0) makes one pass per light, the lamp moved between
-    passes (default: one pass under the world's light).  Writes the set-up to
+    passes (default: one pass under the world's light).  ``chart_frames``
+    chart frames open each pass.  Writes the set-up to
     ``out/swatch.json``.  Returns the session folder.
     """
     import shutil
@@ -72,7 +75,10 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
         [tuple(float(v) for v in d) for d in lights]
     if not pass_lights or any(len(d) != 3 or not d[2] > 0 for d in pass_lights):
         raise UsageError(f"lights must be directions (x, y, z) with z > 0, one per pass, got {lights!r}")
-    plan = CapturePlan("swatch", steps=steps, passes=len(pass_lights))
+    try:
+        plan = CapturePlan("swatch", steps=steps, passes=len(pass_lights), chart_frames=chart_frames)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     with SimulatedStation(world, root=station_dir, seed=seed) as st:
         cam = ({"kind": "hotfolder", "folder": str(st.hotfolder), "stable_s": 0.1} if camera == "hotfolder" else
                {"kind": "gphoto2", "executable": str(st.gphoto2_path)})
@@ -88,8 +94,13 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
             update_config(st.config_path, light_direction=list(pass_lights[p - 1]))
             st.place(p)
 
+        def before_chart(p: int, k: int) -> None:
+            # the chart stays in view for every chart frame of the pass (the station shows it once per placement);
+            # each chart frame is a new exposure with its own noise
+            update_config(st.config_path, chart_next=True, chart_index=k)
+
         try:
-            run_capture(session, plan, devices, CaptureHooks(before_pass=before_pass))
+            run_capture(session, plan, devices, CaptureHooks(before_pass=before_pass, before_chart=before_chart))
         finally:
             session.close()
     shutil.rmtree(station_dir, ignore_errors=True)
@@ -140,8 +151,10 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
     except (json.JSONDecodeError, SwatchGeometryError, TypeError, AttributeError) as exc:
         raise UsageError(f"{gpath}: {exc}") from None
     captures = manifest.get("captures", {})
-    charts = {int(r.get("pass", 1)): r for r in sorted(
-        (r for r in captures.values() if r.get("kind") == "chart" and r.get("file")), key=lambda r: r["file"])}
+    charts: dict[int, list[dict[str, Any]]] = {}
+    for r in sorted((r for r in captures.values() if r.get("kind") == "chart" and r.get("file")),
+                    key=lambda r: r["file"]):
+        charts.setdefault(int(r.get("pass", 1)), []).append(r)
     frames = sorted((r for r in captures.values() if r.get("kind") == "frame" and r.get("file")),
                     key=lambda r: (int(r.get("pass", 1)), float(r.get("angle_deg", 0.0))))
     if not charts:
@@ -155,14 +168,17 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
                          "3, ...)")
     gains_of = {}
     for p in np.unique(passes):
-        # each pass is calibrated by its own chart frame (the lamp moved: its power at the table may differ)
-        record = charts.get(int(p), charts[min(charts)])
-        chart = _decode(root / record["file"])
-        if chart.rgb.shape[:2] != (geom.height // 2, geom.width // 2):
-            raise UsageError(f"{gpath}: the frames have {2 * chart.rgb.shape[1]} x {2 * chart.rgb.shape[0]} "
-                             f"photosites, the geometry says {geom.width} x {geom.height}")
+        # each pass is calibrated by its own chart frames (the lamp moved: its power at the table may differ),
+        # averaged: the gain's pixel noise is shared by every frame of the pass
+        chart_rgb = []
+        for record in charts.get(int(p), charts[min(charts)]):
+            chart = _decode(root / record["file"])
+            if chart.rgb.shape[:2] != (geom.height // 2, geom.width // 2):
+                raise UsageError(f"{gpath}: the frames have {2 * chart.rgb.shape[1]} x {2 * chart.rgb.shape[0]} "
+                                 f"photosites, the geometry says {geom.width} x {geom.height}")
+            chart_rgb.append(chart.rgb.astype(np.float64))
         try:
-            gains_of[int(p)] = chart_gains(grid_chart_means(chart.rgb), geom.for_pass(int(p)))
+            gains_of[int(p)] = chart_gains(grid_chart_means(np.mean(chart_rgb, axis=0)), geom.for_pass(int(p)))
         except ClothFitError as exc:
             raise UsageError(f"{root}: {exc}") from None
     angles = np.array([float(r["angle_deg"]) for r in frames])

@@ -59,6 +59,7 @@ __all__ = [
     "CONFIG_ENV",
     "DEFAULT_FAULTS",
     "cache_mesh",
+    "chart_seed_kind",
     "chart_taken",
     "config_lock",
     "expand_pattern",
@@ -170,9 +171,12 @@ def config_lock(path: str | os.PathLike[str]) -> Iterator[None]:
 
 
 def update_config(path: str | os.PathLike[str], *, faults: dict[str, Any] | None = None,
-                  placement: int | None = None, chart_next: bool | None = None,
+                  placement: int | None = None, chart_next: bool | None = None, chart_index: int | None = None,
                   **world_changes: Any) -> None:
     """Change fault switches, the placement, the chart flag and world settings (e.g. ``table_angle_deg``).
+
+    ``chart_index`` numbers repeated chart frames of one placement: each is a
+    new exposure (its own sensor noise), where index 0 is the single chart frame.
 
     The change is a read-modify-write under :func:`config_lock`, written
     atomically (temporary file + rename).
@@ -190,6 +194,8 @@ def update_config(path: str | os.PathLike[str], *, faults: dict[str, Any] | None
             config["placement"] = int(placement)
         if chart_next is not None:
             config["chart_next"] = bool(chart_next)
+        if chart_index is not None:
+            config["chart_index"] = int(chart_index)
         config["world"].update(world_changes)
         _atomic_json(Path(path), config)
 
@@ -199,6 +205,16 @@ def _chart_next(config: dict[str, Any], number: int) -> bool:
     if "chart_next" in config:
         return bool(config["chart_next"])
     return bool(config.get("chart_first", True)) and number == 1
+
+
+def chart_seed_kind(config: dict[str, Any], kind: str) -> str:
+    """The frame kind as the noise seed sees it: a repeated chart frame (``chart_index`` > 0) is a new exposure.
+
+    >>> chart_seed_kind({"chart_index": 2}, "chart"), chart_seed_kind({}, "chart"), chart_seed_kind({"chart_index": 2}, "object")
+    ('chart/2', 'chart', 'object')
+    """
+    k = int(config.get("chart_index", 0))
+    return f"chart/{k}" if kind == "chart" and k > 0 else kind
 
 
 def chart_taken(path: str | os.PathLike[str], placement: int) -> None:
@@ -391,7 +407,8 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
         placement = int(config.get("placement", 0))
         frame = world.frame(kind)
         raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=float(config["exposure_s"]),
-                           seed=frame_seed(int(config["seed"]), placement, kind, world.table_angle_deg),
+                           seed=frame_seed(int(config["seed"]), placement, chart_seed_kind(config, kind),
+                                           world.table_angle_deg),
                            exposure_boost=_SATURATION_BOOST if faults["saturate"] else 1.0)
         write_raw(name, raw)
         if chart:

@@ -810,7 +810,7 @@ class SimulatedStation:
 
     def _shoot(self) -> dict[str, Any]:
         """:meth:`shoot`, returning what was shot (file, kind, angle, placement, partial)."""
-        from mocks.fake_gphoto2 import chart_taken, read_config
+        from mocks.fake_gphoto2 import chart_seed_kind, chart_taken, read_config
         from mocks.hotfolder_writer import HotFolderWriter
 
         if not self._started or self._stopped:
@@ -818,7 +818,8 @@ class SimulatedStation:
         angle = self.table_angle_deg
         with self._lock:
             placement, pose = self._placement, self._pose.copy()
-            chart = bool(read_config(self.config_path).get("chart_next"))
+            config = read_config(self.config_path)
+            chart = bool(config.get("chart_next"))
             shot = self._shots
             self._shots += 1
         kind = "chart" if chart else "object"
@@ -828,7 +829,7 @@ class SimulatedStation:
         writer = HotFolderWriter(self.hotfolder, world, exposure_s=self.exposure_s, count=shot)
         path = writer.capture(kind, angle, chunks=self.hotfolder_chunks, interval_s=self.hotfolder_interval_s,
                               partial=partial, saturate=saturate,
-                              seed=frame_seed(self.seed, placement, kind, angle))
+                              seed=frame_seed(self.seed, placement, chart_seed_kind(config, kind), angle))
         if chart and not partial:
             chart_taken(self.config_path, placement)
         return {"file": str(path), "kind": kind, "table_angle_deg": angle, "placement": placement,

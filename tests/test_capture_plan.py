@@ -39,8 +39,8 @@ def test_profiles_only_and_no_chart():
 
 def test_swatch_plan():
     acts = CapturePlan("swatch", steps=6, passes=1).actions()
-    assert [a.kind for a in acts] == ["chart"] + ["frame"] * 6
-    assert [a.angle_deg for a in acts[1:]] == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
+    assert [a.kind for a in acts] == ["chart"] * 4 + ["frame"] * 6      # four chart frames by default
+    assert [a.angle_deg for a in acts[4:]] == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
 
 
 def test_round_trip():
@@ -60,3 +60,25 @@ def test_round_trip():
 def test_bad_plans(kw, match):
     with pytest.raises(ValueError, match=match):
         CapturePlan(**kw)
+
+
+def test_swatch_chart_frames_have_their_own_ids():
+    # several chart frames per swatch pass, each a distinct capture (resumable like the others); scan plans
+    # keep their single pNN/chart
+    acts = CapturePlan("swatch", steps=2, passes=2, chart_frames=3).actions()
+    charts = [a for a in acts if a.kind == "chart"]
+    assert [a.id for a in charts] == [f"p0{p}/chart/0{k}" for p in (1, 2) for k in range(3)]
+    assert len({a.stem for a in charts if a.pass_no == 1}) == 3
+    assert [a.id for a in CapturePlan("scan", steps=2, passes=1).actions() if a.kind == "chart"] == ["p01/chart"]
+    assert CapturePlan("swatch").chart_frames == 4 and CapturePlan("scan").chart_frames == 1
+    plan = CapturePlan("swatch", steps=5, passes=1, chart_frames=2)
+    assert CapturePlan.from_dict(plan.to_dict()) == plan
+    # a manifest written before the setting existed was taken with one chart frame
+    old = {k: v for k, v in CapturePlan("swatch", steps=5).to_dict().items() if k != "chart_frames"}
+    assert CapturePlan.from_dict(old).chart_frames == 1
+
+
+@pytest.mark.parametrize("bad", [0, 100, 2.0, True, "4"])
+def test_bad_chart_frames_are_refused(bad):
+    with pytest.raises(ValueError, match="chart_frames"):
+        CapturePlan("swatch", chart_frames=bad)
