@@ -322,7 +322,9 @@ class SpectraPanel(Panel):
         if root is None or not cid:
             raise UsageError("list the session's frames and choose one")
         caps = Session.read(root)["captures"]
-        chart = caps.get(f"{cid.split('/')[0]}/chart")
+        # a scan pass has one chart frame (pNN/chart); a swatch pass several (pNN/chart/00, ...): take the first
+        pass_id = cid.split('/')[0]
+        chart = caps.get(f"{pass_id}/chart") or caps.get(f"{pass_id}/chart/00")
         if chart is None:
             raise UsageError(f"{cid}: its pass has no chart frame, so the camera cannot be calibrated")
         frame, chart_path = root / caps[cid]["file"], root / chart["file"]
