@@ -77,6 +77,7 @@ __all__ = [
     "CaptureInterrupted",
     "run_capture",
     "load_pass_profiles",
+    "parse_camera_angles",
 ]
 
 PLAN_KINDS = ("scan", "swatch")
@@ -785,6 +786,25 @@ class _Runner:
         info = s.write_file(f"passes/p{p:02d}/profiles.npz", buf.getvalue())
         s.add_capture(f"p{p:02d}/profiles", kind="profiles", **{"pass": p}, steps=len(rows), points=width,
                       file=info.path, sha256=info.sha256, bytes=info.bytes)
+
+
+def parse_camera_angles(text: str, what: str = "camera angles") -> tuple[float, ...]:
+    """Camera angles (degrees) typed as numbers separated by commas; ``ValueError`` naming ``what`` otherwise.
+
+    Examples
+    --------
+    >>> parse_camera_angles("0, 90,180"), parse_camera_angles(" ")
+    ((0.0, 90.0, 180.0), ())
+    """
+    if not text.strip():
+        return ()
+    try:
+        angles = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"{what} {text!r}: give degrees separated by commas, e.g. 0,90,180,270") from None
+    if not all(math.isfinite(a) for a in angles):
+        raise ValueError(f"{what} {text!r}: angles must be finite")
+    return angles
 
 
 def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.ndarray]:

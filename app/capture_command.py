@@ -69,17 +69,14 @@ def _positive(name: str, value: float | None) -> None:
 
 
 def _camera_angles(text: str | None) -> tuple[float, ...] | None:
+    from app.capture import parse_camera_angles
+
     if text is None:
         return None
-    if not text.strip():
-        return ()
     try:
-        angles = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise UsageError(f"--camera-angles {text!r}: give degrees separated by commas, e.g. 0,90,180,270") from None
-    if not all(math.isfinite(a) for a in angles):
-        raise UsageError(f"--camera-angles {text!r}: angles must be finite")
-    return angles
+        return parse_camera_angles(text, "--camera-angles")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:

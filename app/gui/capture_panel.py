@@ -64,15 +64,9 @@ def format_eta(seconds: float | None) -> str:
 
 def parse_angles(text: str) -> tuple[float, ...]:
     """Camera angles typed as degrees separated by commas (ValueError naming the field otherwise)."""
-    if not text.strip():
-        return ()
-    try:
-        angles = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise ValueError(f"camera angles {text!r}: give degrees separated by commas, e.g. 0,90,180,270") from None
-    if not all(math.isfinite(a) for a in angles):
-        raise ValueError(f"camera angles {text!r}: angles must be finite")
-    return angles
+    from app.capture import parse_camera_angles
+
+    return parse_camera_angles(text)
 
 
 class PromptGate(QObject):
