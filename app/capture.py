@@ -153,9 +153,9 @@ class CapturePlan:
     camera
         False for a profiles-only scan (no camera frames, no chart).
     chart_frames
-        Chart frames per pass, their gains averaged by the fit (default 4
-        for ``swatch``, whose fit is limited by the chart's pixel noise, and
-        1 for ``scan``).  One frame has the id ``pNN/chart``; several have
+        Chart frames per pass, their gains averaged by the fit (default 16
+        for ``swatch``, whose fit is limited by the chart's pixel noise:
+        docs/cloth.md; 1 for ``scan``).  One frame has the id ``pNN/chart``; several have
         ``pNN/chart/00``, ``pNN/chart/01``, ...
 
     Examples
@@ -193,7 +193,7 @@ class CapturePlan:
         if self.kind == "swatch" and not self.camera:
             raise ValueError("a swatch plan needs the camera (it takes only RAW frames)")
         if self.chart_frames is None:
-            object.__setattr__(self, "chart_frames", 4 if self.kind == "swatch" else 1)
+            object.__setattr__(self, "chart_frames", 16 if self.kind == "swatch" else 1)
         if not isinstance(self.chart_frames, int) or isinstance(self.chart_frames, bool) or \
                 not 1 <= self.chart_frames <= 99:
             raise ValueError(f"chart_frames must be an integer in 1..99 (chart frames per pass), "

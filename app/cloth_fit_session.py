@@ -44,7 +44,7 @@ class SwatchData:
 
 def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int = 24, seed: int = 1,
                            width: int = 96, height: int = 72, camera: str = "hotfolder",
-                           lights: Sequence[Sequence[float]] | None = None, chart_frames: int = 4) -> Path:
+                           lights: Sequence[Sequence[float]] | None = None, chart_frames: int = 16) -> Path:
     """Capture a swatch session of a simulated swatch of ``cloth`` into ``out``.
 
     ``camera`` is ``"hotfolder"`` (the station writes each frame into its hot

@@ -39,8 +39,8 @@ def test_profiles_only_and_no_chart():
 
 def test_swatch_plan():
     acts = CapturePlan("swatch", steps=6, passes=1).actions()
-    assert [a.kind for a in acts] == ["chart"] * 4 + ["frame"] * 6      # four chart frames by default
-    assert [a.angle_deg for a in acts[4:]] == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
+    assert [a.kind for a in acts] == ["chart"] * 16 + ["frame"] * 6     # sixteen chart frames by default
+    assert [a.angle_deg for a in acts[16:]] == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
 
 
 def test_round_trip():
@@ -70,7 +70,7 @@ def test_swatch_chart_frames_have_their_own_ids():
     assert [a.id for a in charts] == [f"p0{p}/chart/0{k}" for p in (1, 2) for k in range(3)]
     assert len({a.stem for a in charts if a.pass_no == 1}) == 3
     assert [a.id for a in CapturePlan("scan", steps=2, passes=1).actions() if a.kind == "chart"] == ["p01/chart"]
-    assert CapturePlan("swatch").chart_frames == 4 and CapturePlan("scan").chart_frames == 1
+    assert CapturePlan("swatch").chart_frames == 16 and CapturePlan("scan").chart_frames == 1
     plan = CapturePlan("swatch", steps=5, passes=1, chart_frames=2)
     assert CapturePlan.from_dict(plan.to_dict()) == plan
     # a manifest written before the setting existed was taken with one chart frame

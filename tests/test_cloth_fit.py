@@ -276,7 +276,7 @@ def test_swatch_pass_is_calibrated_by_several_chart_exposures(tmp_path):
     from app.errors import UsageError
     from app.session import Session
 
-    shot = capture_swatch_session(tmp_path / "s", COTTON, steps=3, width=64, height=48, seed=5)
+    shot = capture_swatch_session(tmp_path / "s", COTTON, steps=3, width=64, height=48, seed=5, chart_frames=4)
     charts = {k: r for k, r in Session.read(shot)["captures"].items() if r["kind"] == "chart"}
     assert sorted(charts) == ["p01/chart/00", "p01/chart/01", "p01/chart/02", "p01/chart/03"]
     assert len({r["sha256"] for r in charts.values()}) == 4
