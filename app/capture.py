@@ -78,6 +78,7 @@ __all__ = [
     "run_capture",
     "load_pass_profiles",
     "parse_camera_angles",
+    "open_for_resume",
 ]
 
 PLAN_KINDS = ("scan", "swatch")
@@ -786,6 +787,29 @@ class _Runner:
         info = s.write_file(f"passes/p{p:02d}/profiles.npz", buf.getvalue())
         s.add_capture(f"p{p:02d}/profiles", kind="profiles", **{"pass": p}, steps=len(rows), points=width,
                       file=info.path, sha256=info.sha256, bytes=info.bytes)
+
+
+def open_for_resume(root: str | Path) -> tuple[Any, "CapturePlan", dict[str, Any], dict[str, Any]]:
+    """Open an unfinished session to resume its capture: the open session, its plan, its settings
+    and a copy of its device configuration (``UsageError`` for a bad or complete session).
+
+    The caller adjusts the settings and devices (new ports, a camera) and stores them with
+    ``session.update("settings", ...)`` before capturing.
+    """
+    from app.errors import UsageError
+    from app.session import Session, SessionError
+
+    try:
+        session = Session.open(root)
+    except SessionError as exc:
+        raise UsageError(str(exc)) from None
+    if session.manifest["status"] == "complete":
+        session.close()
+        raise UsageError(f"session {root} is already complete; nothing to resume")
+    plan = CapturePlan.from_dict(session.manifest["plan"])
+    settings = dict(session.manifest.get("settings") or {})
+    config = {k: dict(v) for k, v in (settings.get("device_config") or {}).items()}
+    return session, plan, settings, config
 
 
 def parse_camera_angles(text: str, what: str = "camera angles") -> tuple[float, ...]:

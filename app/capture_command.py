@@ -140,20 +140,10 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
 
 
 def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
-    from app.capture import CapturePlan
+    from app.capture import open_for_resume
     from app.capture_devices import parse_camera_spec
-    from app.session import Session, SessionError
 
-    try:
-        session = Session.open(args.resume)
-    except SessionError as exc:
-        raise UsageError(str(exc)) from None
-    if session.manifest["status"] == "complete":
-        session.close()
-        raise UsageError(f"session {args.resume} is already complete; nothing to resume")
-    plan = CapturePlan.from_dict(session.manifest["plan"])
-    settings = dict(session.manifest.get("settings") or {})
-    config = {k: dict(v) for k, v in (settings.get("device_config") or {}).items()}
+    session, plan, settings, config = open_for_resume(args.resume)
     if args.turntable:
         config.setdefault("turntable", {})["port"] = args.turntable
     if args.laser:

@@ -295,7 +295,7 @@ class CapturePanel(Panel):
         self.chart.setChecked(bool(plan.get("chart", True)))
 
     def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
-        from app.capture import CapturePlan
+        from app.capture import open_for_resume
         from app.errors import UsageError
         from app.session import Session, SessionError
 
@@ -305,16 +305,7 @@ class CapturePanel(Panel):
         if self.apply_devices is not None:
             self.apply_devices()            # the Devices tab's current choices
         if (root / "session.json").exists():
-            try:
-                session = Session.open(root)
-            except SessionError as exc:
-                raise UsageError(str(exc)) from None
-            if session.manifest["status"] == "complete":
-                session.close()
-                raise UsageError(f"session {root} is already complete; nothing to resume")
-            plan = CapturePlan.from_dict(session.manifest["plan"])
-            settings = dict(session.manifest.get("settings") or {})
-            config = {k: dict(v) for k, v in (settings.get("device_config") or {}).items()}
+            session, plan, settings, config = open_for_resume(root)
             for name in ("turntable", "profiler"):
                 if self.link.ports.get(name) and name in config:
                     config[name]["port"] = self.link.ports[name]
