@@ -25,7 +25,7 @@ from PySide6.QtWidgets import (
 )
 
 from app.gui.station_link import INSTRUMENTS, StationLink
-from app.gui.widgets import StatusLight
+from app.gui.widgets import StatusLight, browse_row
 
 __all__ = ["DevicesPanel", "port_label"]
 
@@ -85,11 +85,7 @@ class DevicesPanel(QWidget):
         self.camera_kind.addItems(["none", "gphoto2", "hotfolder"])
         self.camera_path = QLineEdit()
         self.camera_path.setPlaceholderText("gphoto2 program (default: gphoto2 on PATH) or the hot folder")
-        browse = QPushButton("Browse…")
-        browse.clicked.connect(self._browse_camera)
-        row = QHBoxLayout()
-        row.addWidget(self.camera_path, 1)
-        row.addWidget(browse)
+        row = browse_row(self.camera_path, self._browse_camera)
         self.camera_light = StatusLight()
         self.camera_state = QLabel("no camera (profiles only)")
         check = QPushButton("Check camera")

@@ -29,7 +29,7 @@ from PySide6.QtWidgets import (
     QPushButton, QTreeWidget, QTreeWidgetItem, QVBoxLayout, QWidget,
 )
 
-from app.gui.widgets import Panel
+from app.gui.widgets import Panel, browse_row
 from app.gui.workers import JobContext, Lane, ProcessJob
 
 __all__ = ["ProcessingPanel", "pair_row", "run_processing"]
@@ -75,11 +75,7 @@ class ProcessingPanel(Panel):
         self.calibration = QLineEdit()
         self.calibration.setPlaceholderText("a session calibrated from a sphere scan, or its calibration.json "
                                             "(empty: the session's own)")
-        browse = QPushButton("Browse…")
-        browse.clicked.connect(self._browse)
-        row = QHBoxLayout()
-        row.addWidget(self.calibration, 1)
-        row.addWidget(browse)
+        row = browse_row(self.calibration, self._browse)
         f.addRow("Calibration", row)
         self.radius = QDoubleSpinBox()
         self.radius.setRange(0.1, 1000.0)

@@ -25,7 +25,7 @@ from PySide6.QtWidgets import (
     QSplitter, QTreeWidget, QTreeWidgetItem, QVBoxLayout, QWidget,
 )
 
-from app.gui.widgets import Panel
+from app.gui.widgets import Panel, browse_row
 from app.gui.workers import JobContext, Lane
 
 __all__ = ["SessionPanel", "capture_row", "rgb_to_qimage", "METADATA_FIELDS"]
@@ -81,11 +81,7 @@ class SessionPanel(Panel):
         form = QFormLayout(top)
         self.folder = QLineEdit()
         self.folder.setPlaceholderText("folder of a new session, or of one to open / resume")
-        browse = QPushButton("Browse…")
-        browse.clicked.connect(self._browse)
-        row = QHBoxLayout()
-        row.addWidget(self.folder, 1)
-        row.addWidget(browse)
+        row = browse_row(self.folder, self._browse)
         form.addRow("Folder", row)
         buttons = QHBoxLayout()
         self.new_button = QPushButton("New session")

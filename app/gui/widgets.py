@@ -11,9 +11,9 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from PySide6.QtCore import Qt, Signal
-from PySide6.QtWidgets import QLabel, QWidget
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QLineEdit, QPushButton, QWidget
 
-__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel"]
+__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel", "browse_row"]
 
 #: Colour of each instrument state.
 LIGHT_COLOURS = {
@@ -83,3 +83,13 @@ class Panel(QWidget):
                 logging.getLogger("kogei.gui").info("handler failed:\n%s", traceback.format_exc())
                 self.error.emit(describe_error(exc))
         return slot
+
+
+def browse_row(field: QLineEdit, browse: Callable[[], None]) -> QHBoxLayout:
+    """A path field with a "Browse…" button after it that calls ``browse``."""
+    button = QPushButton("Browse…")
+    button.clicked.connect(browse)
+    row = QHBoxLayout()
+    row.addWidget(field, 1)
+    row.addWidget(button)
+    return row
