@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -51,7 +53,10 @@ def _true_rgb(name: str, lights=D65) -> np.ndarray:
 
 @pytest.mark.parametrize("name", DEFAULT_CANDIDATES)
 def test_each_candidate_is_identified_from_noisy_regions(cands, name):
-    rng = np.random.default_rng(abs(hash(name)) % 2**32)
+    # a seed fixed per material (str hashes change from one interpreter to the next): the neutral metals are
+    # confused about 1 time in 400 at 100 pixels (tin 99.0 %, docs/BENCHMARKS.md), which a random draw of
+    # four regions per run would turn into an occasional failure
+    rng = np.random.default_rng(zlib.crc32(name.encode()))
     truth = _true_rgb(name)
     for _ in range(4):
         px = truth * rng.uniform(0.1, 3.0) * (1 + 0.01 * rng.standard_normal((100, 3)))
