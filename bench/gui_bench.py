@@ -154,32 +154,30 @@ def measure(runs: int = 3, steps: int = 60, passes: int = 3) -> dict[str, Any]:
 
 #: What was found about the stalls and changed (2026-11-24), printed under the table.
 FINDINGS = [
-    "Where the stalls came from (measured 2026-11-24, before the changes below; wall-clock maximum stall 116 ms, "
-    "median of 3 runs):",
+    "Where the stalls came from, and what was changed (2026-11-24):",
     "",
-    "* Not the simulated station.  The same session with the station in its own process (as `kogei mock` runs "
-    "it) stalled as long or longer (maximum 114 and 207 ms against 100 and 67 ms in the same process, two runs "
-    "each, alternated): the extra process competes for the two cores.  `py-spy record --gil` over one session: "
-    "the station's serving and firmware threads held the interpreter lock in 7 % of the samples, its Open3D "
-    "ray casts (320 rays a profile) in 0.4 %.",
-    "* Much of the wall-clock stall is the machine not running the process: the run-queue waits of its threads "
-    "reached up to 200 ms during stalls (the other processes on the two cores, and the processing worker process).",
-    "* The rest, found with a stack snapshot of every thread whenever the timer was 60 ms late and with timestamps "
-    "around every worker job: single C calls holding the interpreter lock on a worker thread -- Matplotlib's "
-    "first text layout on the drawing thread (its font list, FreeType faces: 120-150 ms), the first import of "
-    "colour-science's dataset modules on the preview's render thread (unmarshalling large code objects: "
-    "125 ms), and Open3D's `RaycastingScene.cast_rays` of a full-size preview (one call for all 172,800 rays of "
-    "480 x 360; measured alone, a thread casting them kept a 1 ms sleeper on another thread waiting 50 ms, "
-    "8 ms for an eighth of the rays; over 100 ms on a busy machine).",
+    "1. Single C calls holding the interpreter lock on worker threads, found with a stack snapshot of every thread "
+    "whenever the timer was 60 ms late: Matplotlib's first text layout (its font list, FreeType faces: "
+    "120-150 ms), the first import of colour-science's dataset modules on the preview's render thread "
+    "(125 ms), and Open3D's `RaycastingScene.cast_rays` for a full-size preview (172,800 rays in one call).  "
+    "Changed: the window imports the heavy modules and lays out Matplotlib text before it is shown "
+    "(`app/gui/warm_up.py`, 1.6 s of start-up); a full-size preview renders in a worker process.  Before: "
+    "stall max 116 ms (175, 116, 75).",
+    "2. Drawing the live plots on a drawing thread: Matplotlib holds the lock while it lays out and rasterises "
+    "(60-170 ms a figure on this machine).  Changed: every figure of the window is a module-level builder "
+    "(`app/gui/figures.py`) drawn in one long-lived worker process (`app.gui.plots.FigureDrawer`); the window "
+    "only pickles the data and waits on the pipe.  Before: stall max 157 ms (152, 172, 157), own stall max "
+    "147 ms; after: the first session in a process still reached 96-109 ms of own stall, later ones 13-35 ms.",
+    "3. That first-session stall was Python's cyclic garbage collector: with `gc.callbacks` timing every "
+    "collection, one full (oldest-generation) collection took 109.6 ms, on whichever thread allocated, "
+    "holding the lock -- it walks the 160,000 objects the imports left (73 ms for them alone).  Changed: the window collects once "
+    "and freezes the start-up heap (`gc.freeze`, `app.gui.warm_up.freeze_heap`) before it is shown; later "
+    "full collections walk only the session's own objects.",
     "",
-    "Changed: the window imports colour-science, Open3D, SciPy's spatial module and the capture and render modules "
-    "and lays out Matplotlib text once before it is shown (`app/gui/warm_up.py`, 1.6 s of start-up); a full-size "
-    "preview render runs in a worker process (drafts, a sixteenth of the rays, stay on a thread for the orbit).  "
-    "The switch interval was already 1 ms.  Still open: drawing the live plots (both figures at the end of a pass) "
-    "on the drawing thread holds the interpreter lock in stretches that make own stalls of 100-170 ms in about "
-    "half the test sessions and most bench runs; drawing them in a worker process is the next step.  The GUI test therefore asserts "
-    "the own stalls' 99.9th percentile (below 100 ms), the GUI thread's busy maximum and the wall-clock 99th "
-    "percentile, not the maximum.",
+    "The simulated station's serving and firmware threads run in the window's process here (as in the tests); "
+    "with a real station they are hardware.  `py-spy record --gil` over one session had them holding the lock "
+    "in 7 % of the samples; with the station in its own process (as `kogei mock` runs it) the wall-clock "
+    "stalls were no shorter, the extra process competing for the two cores.",
     "",
 ]
 
@@ -215,9 +213,8 @@ def section(results: dict[str, Any]) -> list[str]:
         f"{r['capture_gui_s']:.2f} | {r['capture_library_s']:.2f} | {r['capture_ratio']:.2f} | "
         f"{r['process_s']:.1f} |",
         "",
-        f"Own stalls of 100 ms or more: {over} of {r['runs']} runs.  Before the changes below (same bench, "
-        "2026-11-24): stall max 116 ms (175, 116, 75), p99 34.4 ms, GUI busy max 20.4 ms (own stalls were not "
-        "measured then); the wall-clock maximum has not come down.",
+        f"Own stalls of 100 ms or more: {over} of {r['runs']} runs.  The test "
+        "(`tests/gui/test_gui_session.py`) asserts the own stall's maximum below 100 ms over its whole session.",
         "",
         *FINDINGS,
     ]

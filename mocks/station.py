@@ -766,6 +766,38 @@ class SimulatedStation:
             self.world.pose = pose
         return pose
 
+    def put_object(self, world: Any) -> NDArray[np.float64]:
+        """Take the object off the table and put ``world``'s on it, in placement 1 (the instruments keep running).
+
+        What a technician does between sessions -- the reference sphere for
+        the calibration scan, then the piece -- without restarting the
+        station, so connected instruments stay connected.  The camera sees
+        the new object (and its chart) from the next frame.
+
+        Returns
+        -------
+        NDArray
+            The new object -> table pose (4 x 4, mm), also :attr:`pose`.
+        """
+        from mocks.fake_gphoto2 import cache_mesh, write_config
+        from mocks.world import World
+
+        if not isinstance(world, World):
+            raise ValueError(f"world must be a mocks.world.World, got {type(world).__name__}")
+        with self._lock:
+            self.world = world
+            self._base_pose = np.array(world.pose, dtype=np.float64)
+            self.__dict__.pop("_chart_home", None)
+            pose = self._set_placement(1)
+            if self._started:
+                label, camera_world = self._camera_world()
+                camera_world["pose"] = pose.tolist()
+                camera_world["table_angle_deg"] = self.table_angle_deg
+                write_config(self.config_path, camera_world, faults=self._camera_faults, chart_first=True,
+                             exposure_s=self.exposure_s, seed=self.seed, placement=1)
+                cache_mesh(self.config_path, world, label)
+        return pose.copy()
+
     def place(self, placement: int) -> NDArray[np.float64]:
         """Put the object in the rest pose of ``placement`` (>= 1); the next camera frame shows the chart.
 

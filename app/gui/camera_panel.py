@@ -37,14 +37,14 @@ import numpy as np
 from PySide6.QtWidgets import QFileDialog, QHBoxLayout, QLabel, QPushButton, QSplitter, QVBoxLayout, QWidget
 from PySide6.QtCore import Qt, Signal
 
-from app.gui.plots import PlotImage, style
+from app.gui.figures import HISTOGRAM_BINS, QUALITY_COLOURS, display_image, frame_figure, histogram_figure
+from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.station_link import StationLink
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane
 
 __all__ = ["CameraPanel", "FrameView", "analyse_frame", "patch_quality", "QUALITY_COLOURS"]
 
-QUALITY_COLOURS = {"ok": "#2e9e44", "noisy": "#e0a800", "dark": "#2f6fd0", "clipped": "#d0312d"}
 #: Fraction of clipped pixels above which the histogram warns.
 CLIP_WARN = 0.001
 
@@ -73,6 +73,9 @@ class FrameView:
     quads: np.ndarray | None = None        # (N, 4, 2) patch corners in preview pixels
     qualities: list[str] | None = None
     raw: Any = None
+    outline: np.ndarray | None = None      # (4, 2) the chart's corners in preview pixels
+    histogram: np.ndarray | None = None    # (3, 128) pixel counts of the linear signal over HISTOGRAM_BINS
+    clipped: float = 0.0                   # fraction of saturated pixels
 
 
 def analyse_frame(path: str | Path) -> FrameView:
@@ -82,12 +85,16 @@ def analyse_frame(path: str | Path) -> FrameView:
 
     raw = decode_raw(path, mode="bin2x2")
     view = FrameView(Path(path), preview_srgb8(raw), raw.rgb, raw.saturated, raw.scale, raw=raw)
+    view.clipped = float(raw.saturated.mean())
+    view.histogram = np.stack([np.histogram(np.clip(raw.rgb[..., c], 0, 1), bins=HISTOGRAM_BINS)[0]
+                               for c in range(3)])
     try:
         det = detect_chart(raw)
     except ChartDetectionError as exc:
         view.chart_problem = str(exc)
         return view
     view.chart = det
+    view.outline = raw.from_sensor(det.corners)
     quads = raw.from_sensor(det.quads)
     view.quads = quads
     h, w = raw.shape
@@ -112,7 +119,7 @@ class CameraPanel(Panel):
 
     frame_shown = Signal(object)           # FrameView
 
-    def __init__(self, link: StationLink, lane: Lane, plot_lane: Lane, session_root: Callable[[], Path | None],
+    def __init__(self, link: StationLink, lane: Lane, drawer: FigureDrawer, session_root: Callable[[], Path | None],
                  parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.link = link
@@ -142,8 +149,8 @@ class CameraPanel(Panel):
         self.clip_warning.setWordWrap(True)
         outer.addWidget(self.clip_warning)
         split = QSplitter(Qt.Orientation.Horizontal)
-        self.image_plot = PlotImage(plot_lane)
-        self.hist_plot = PlotImage(plot_lane)
+        self.image_plot = PlotImage(drawer)
+        self.hist_plot = PlotImage(drawer)
         split.addWidget(self.image_plot)
         split.addWidget(self.hist_plot)
         split.setStretchFactor(0, 3)
@@ -208,9 +215,17 @@ class CameraPanel(Panel):
     def show_frame(self, view: FrameView) -> None:
         self.frame = view
         h, w = view.preview.shape[:2]
-        self.image_plot.plot(_frame_figure(view))
-        self.hist_plot.plot(_histogram_figure(view.rgb, float(view.saturated.mean())))
-        clipped = float(view.saturated.mean())
+        if view.quads is not None and view.chart is not None:
+            counts = {k: (view.qualities or []).count(k) for k in QUALITY_COLOURS}
+            title = (f"{view.chart.chart} chart, confidence {view.chart.confidence:.2f}; patches: "
+                     + ", ".join(f"{v} {k}" for k, v in counts.items() if v))
+        else:
+            title = f"{view.path.name}: no chart found" if view.chart_problem else view.path.name
+        self.image_plot.plot(frame_figure, image=display_image(view.preview), size=(w, h), title=title,
+                             outline=view.outline, quads=view.quads, qualities=view.qualities)
+        clipped = view.clipped
+        if view.histogram is not None:
+            self.hist_plot.plot(histogram_figure, counts=view.histogram, clipped=clipped)
         if clipped > CLIP_WARN:
             self.clip_warning.setText(f"{100 * clipped:.2f}% of the pixels are clipped: lower the exposure or the "
                                       "light (clipped colours cannot be measured)")
@@ -219,44 +234,3 @@ class CameraPanel(Panel):
         self.state.setText(f"{view.path.name}: {w}x{h} preview (2x2 binned)"
                            + (f" · chart: {view.chart_problem}" if view.chart_problem else ""))
         self.frame_shown.emit(view)
-
-
-def _frame_figure(view: FrameView) -> Callable[[Any], None]:
-    def build(fig: Any) -> None:
-        ax = fig.add_subplot(111)
-        ax.imshow(view.preview, interpolation="nearest")
-        if view.quads is not None and view.chart is not None:
-            outline = view.raw.from_sensor(view.chart.corners) if view.raw is not None else view.chart.corners
-            closed = np.vstack([outline, outline[:1]])
-            ax.plot(closed[:, 0], closed[:, 1], "-", color="#ffdd00", lw=1.5)
-            for n, (q, quality) in enumerate(zip(view.quads, view.qualities or []), start=1):
-                qq = np.vstack([q, q[:1]])
-                colour = QUALITY_COLOURS.get(quality, "#ffffff")
-                ax.plot(qq[:, 0], qq[:, 1], "-", color=colour, lw=1.2)
-                if len(view.quads) <= 30:
-                    c = q.mean(axis=0)
-                    ax.text(c[0], c[1], str(n), color="white", fontsize=7, ha="center", va="center",
-                            bbox={"facecolor": colour, "alpha": 0.7, "pad": 1, "lw": 0})
-            counts = {k: (view.qualities or []).count(k) for k in QUALITY_COLOURS}
-            title = (f"{view.chart.chart} chart, confidence {view.chart.confidence:.2f}; patches: "
-                     + ", ".join(f"{v} {k}" for k, v in counts.items() if v))
-        else:
-            title = f"{view.path.name}: no chart found" if view.chart_problem else view.path.name
-        style(ax, title)
-        ax.set_xticks([])
-        ax.set_yticks([])
-    return build
-
-
-def _histogram_figure(rgb: np.ndarray, clipped: float) -> Callable[[Any], None]:
-    def build(fig: Any) -> None:
-        ax = fig.add_subplot(111)
-        bins = np.linspace(0.0, 1.0, 129)
-        for c, colour in enumerate(("#d0312d", "#2e9e44", "#2f6fd0")):
-            counts, _ = np.histogram(np.clip(rgb[..., c], 0, 1), bins=bins)
-            ax.stairs(np.maximum(counts, 0.8), bins, color=colour, label="RGB"[c])
-        ax.set_yscale("log")
-        ax.axvline(1.0, color="k", ls="--", lw=1)
-        style(ax, f"Linear signal ({100 * clipped:.2f}% clipped)", "fraction of full scale", "pixels")
-        ax.legend(fontsize=8, loc="upper right")
-    return build

@@ -42,10 +42,11 @@ from PySide6.QtWidgets import (
 )
 from PySide6.QtCore import Qt
 
-from app.gui.plots import PlotImage, style
+from app.gui.figures import cloud_figure, empty_figure, profile_figure
+from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.station_link import StationLink
 from app.gui.widgets import Panel
-from app.gui.workers import Job, JobContext, Lane
+from app.gui.workers import Job, JobContext
 
 __all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles"]
 
@@ -114,8 +115,8 @@ class CapturePanel(Panel):
         Returns the object metadata of the Session tab.
     calibration
         Returns the scanner calibration source (session folder or JSON), or None.
-    plot_lane
-        The thread that draws the figures.
+    drawer
+        Draws the figures (in its own process).
     apply_devices
         Copies the Devices tab's choices into ``link`` before a capture starts.
     """
@@ -126,7 +127,7 @@ class CapturePanel(Panel):
 
     def __init__(self, link: StationLink, session_root: Callable[[], Path | None],
                  metadata: Callable[[], dict[str, str]], calibration: Callable[[], str | None],
-                 plot_lane: Lane, apply_devices: Callable[[], None] | None = None,
+                 drawer: FigureDrawer, apply_devices: Callable[[], None] | None = None,
                  parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.link = link
@@ -253,8 +254,8 @@ class CapturePanel(Panel):
         left.addStretch(1)
 
         plots = QSplitter(Qt.Orientation.Vertical)
-        self.profile_plot = PlotImage(plot_lane)
-        self.cloud_plot = PlotImage(plot_lane)
+        self.profile_plot = PlotImage(drawer)
+        self.cloud_plot = PlotImage(drawer)
         plots.addWidget(self.profile_plot)
         plots.addWidget(self.cloud_plot)
         outer.addWidget(plots, 1)
@@ -495,21 +496,11 @@ class CapturePanel(Panel):
         self.capture_stopped.emit(self.status_text)
 
     # ------------------------------------------------------------ plots
-    # Both figures are drawn off the GUI thread (app.gui.plots.PlotImage); the GUI thread only reads the
+    # Both figures are drawn in the drawing process (app.gui.plots.FigureDrawer); the GUI thread only reads the
     # newest profile back from the session and hands copies of the arrays to the drawing.
     def _draw_empty(self) -> None:
-        def empty(title: str) -> Callable[[Any], None]:
-            def build(fig: Any) -> None:
-                ax = fig.add_subplot(111)
-                style(ax, title)
-                ax.text(0.5, 0.5, "starts with the capture", ha="center", va="center", transform=ax.transAxes,
-                        color="#777")
-                ax.set_xticks([])
-                ax.set_yticks([])
-            return build
-
-        self.profile_plot.plot(empty("Live profile"))
-        self.cloud_plot.plot(empty("Point cloud of the pass"))
+        self.profile_plot.plot(empty_figure, title="Live profile", hint="starts with the capture")
+        self.cloud_plot.plot(empty_figure, title="Point cloud of the pass", hint="starts with the capture")
 
     def _refresh_plots(self, both: bool = False) -> None:
         """Hand the newest profile (2 Hz) and the pass's cloud (every 4th tick) to the drawings."""
@@ -531,7 +522,7 @@ class CapturePanel(Panel):
             if idx in rows:
                 angle, x, zz = rows[idx]
                 self.profile_caption = f"pass {p}, step {idx}"
-                self.profile_plot.plot(_profile_figure(p, idx, angle, x, zz))
+                self.profile_plot.plot(profile_figure, p=p, idx=idx, angle=angle, x=x, z=zz)
                 self._cloud_pass_no = p
                 self._cloud_dirty = True
         p = self._cloud_pass_no
@@ -546,7 +537,7 @@ class CapturePanel(Panel):
                 xs[i, :rows[k][1].size], zs[i, :rows[k][2].size] = rows[k][1], rows[k][2]
             angles = np.array([rows[k][0] for k in keys])
             self.cloud_caption = f"pass {p}, {len(keys)} profiles"
-            self.cloud_plot.plot(_cloud_figure(p, angles, xs, zs, self._calibration()))
+            self.cloud_plot.plot(cloud_figure, p=p, angles=angles, x=xs, z=zs, cal=self._calibration())
 
     def _calibration(self) -> Any:
         src = self.calibration()
@@ -567,55 +558,3 @@ class CapturePanel(Panel):
             cal = None
         self._cal_cache = (src, cal)
         return cal
-
-
-def _profile_figure(p: int, idx: int, angle: float, x: np.ndarray, z: np.ndarray) -> Callable[[Any], None]:
-    def build(fig: Any) -> None:
-        ax = fig.add_subplot(111)
-        ok = np.isfinite(x) & np.isfinite(z)
-        ax.plot(x[ok], z[ok], ".", ms=3, color="#1f5fa8")
-        style(ax, f"Live profile: pass {p}, step {idx} at {angle:.1f}° ({int(ok.sum())} of {x.size} points)",
-              "x along the laser line (mm)", "range z (mm)")
-        ax.invert_yaxis()                  # the range grows away from the sensor: down the plot
-        ax.grid(alpha=0.3)
-    return build
-
-
-def _cloud_figure(p: int, angles: np.ndarray, x: np.ndarray, z: np.ndarray, cal: Any) -> Callable[[Any], None]:
-    def build(fig: Any) -> None:
-        finite = np.isfinite(z)
-        if cal is not None and finite.any():
-            from processing.scan_points import profiles_to_points
-
-            lo, hi = float(np.nanmin(z)), float(np.nanmax(z))
-            pad = 0.02 * max(hi - lo, 1.0)
-            sp = profiles_to_points(x, z, angles, cal, range_mm=(max(lo - pad, 0.0), hi + pad))
-            pts = sp.points
-            if len(pts) > 3000:
-                pts = pts[np.linspace(0, len(pts) - 1, 3000).astype(int)]
-            ax = fig.add_subplot(111, projection="3d")
-            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=1, c=pts[:, 2], cmap="viridis")
-            ax.set_title(f"Point cloud, pass {p}: {len(sp.points)} points after {len(angles)} profiles", fontsize=10)
-            ax.set_xlabel("x (mm)", fontsize=8)
-            ax.set_ylabel("y (mm)", fontsize=8)
-            ax.set_zlabel("z (mm)", fontsize=8)
-            ax.tick_params(labelsize=7)
-            if len(pts):
-                span = np.ptp(pts, axis=0).max() / 2 or 1.0
-                mid = (pts.max(axis=0) + pts.min(axis=0)) / 2
-                ax.set_xlim(mid[0] - span, mid[0] + span)
-                ax.set_ylim(mid[1] - span, mid[1] + span)
-                ax.set_zlim(mid[2] - span, mid[2] + span)
-            return
-        import matplotlib
-
-        ax = fig.add_subplot(111)
-        cmap = matplotlib.colormaps["viridis"].with_extremes(bad="black")
-        top = float(angles[-1]) if len(angles) > 1 else 1.0
-        im = ax.imshow(np.ma.masked_invalid(z), aspect="auto", cmap=cmap, interpolation="nearest",
-                       extent=(0, z.shape[1], top, float(angles[0])))
-        fig.colorbar(im, ax=ax, label="range (mm)")
-        style(ax, f"Pass {p} as a range image: {100 * finite.mean():.0f}% returns, black none\n"
-                  "(choose a calibration on the Processing tab for 3-D points)",
-              "point along the laser line", "table angle (°)")
-    return build

@@ -27,7 +27,11 @@ from PySide6.QtWidgets import (
 from app.gui.station_link import INSTRUMENTS, StationLink
 from app.gui.widgets import StatusLight, browse_row
 
-__all__ = ["DevicesPanel", "port_label"]
+__all__ = ["DevicesPanel", "port_label", "SIMULATED_OBJECTS"]
+
+#: What the simulated station can have on its table: the piece, and the reference sphere for the calibration
+#: scan (its radius is the Processing tab's default sphere radius).
+SIMULATED_OBJECTS = ("hawk head", "calibration sphere (radius 25 mm, 60 mm off the axis)")
 
 _TITLES = {"turntable": "Turntable (Horus)", "profiler": "Laser profiler"}
 
@@ -42,6 +46,7 @@ class DevicesPanel(QWidget):
     """Ports and lights of the instruments (see the module docstring)."""
 
     simulated_requested = Signal()
+    object_requested = Signal(str)        # one of SIMULATED_OBJECTS
 
     def __init__(self, link: StationLink, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -73,6 +78,8 @@ class DevicesPanel(QWidget):
                 grid.addWidget(w, r, c)
             self.port_boxes[name], self.lights[name], self.banners[name] = box, light, banner
             self.connect_buttons[name], self.disconnect_buttons[name] = con, dis
+        grid.setColumnStretch(2, 3)           # a pty or by-id path is long: the port column takes the width
+        grid.setColumnStretch(5, 2)
         refresh = QPushButton("Refresh ports")
         refresh.clicked.connect(self.refresh_ports)
         grid.addWidget(refresh, len(INSTRUMENTS) + 1, 2)
@@ -104,12 +111,25 @@ class DevicesPanel(QWidget):
         self.control_dir = QLineEdit()
         self.control_dir.setPlaceholderText("control folder printed by 'kogei mock' (re-places the object "
                                             "between passes)")
-        start = QPushButton("Start a simulated station in this window")
+        self.start_sim_button = start = QPushButton("Start a simulated station in this window")
         start.clicked.connect(self.simulated_requested.emit)
+        self.sim_object = QComboBox()
+        self.sim_object.addItems(SIMULATED_OBJECTS)
+        self.sim_object.setToolTip("the object on the simulated table: scan the sphere to calibrate the scanner "
+                                   "(Processing tab), then the piece")
+        self.put_button = QPushButton("Put on the table")
+        self.put_button.setToolTip("swap the object on the running simulated station (the instruments stay "
+                                   "connected)")
+        self.put_button.setEnabled(False)
+        self.put_button.clicked.connect(lambda: self.object_requested.emit(self.sim_object.currentText()))
+        obj_row = QHBoxLayout()
+        obj_row.addWidget(self.sim_object, 1)
+        obj_row.addWidget(self.put_button)
         self.sim_state = QLabel("none")
         self.sim_state.setWordWrap(True)
         sform.addRow("kogei mock control folder", self.control_dir)
         sform.addRow(start)
+        sform.addRow("Object on the table", obj_row)
         sform.addRow("Station", self.sim_state)
         outer.addWidget(sim)
         outer.addStretch(1)

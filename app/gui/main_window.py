@@ -29,20 +29,41 @@ from PySide6.QtWidgets import (
 
 from app.gui.camera_panel import CameraPanel
 from app.gui.capture_panel import CapturePanel
-from app.gui.devices_panel import DevicesPanel
+from app.gui.devices_panel import SIMULATED_OBJECTS, DevicesPanel
 from app.gui.preview_panel import PreviewPanel
 from app.gui.processing_panel import ProcessingPanel
 from app.gui.session_panel import SessionPanel
 from app.gui.spectra_panel import SpectraPanel
 from app.gui.station_link import INSTRUMENTS, StationLink
 from app.gui.widgets import Banner
-from app.gui.warm_up import warm_up
+from app.gui.plots import FigureDrawer
+from app.gui.warm_up import freeze_heap, warm_up
 from app.gui.workers import Lane
 
-__all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP"]
+__all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "simulated_world"]
 
 SETTINGS_ORG = "kogei"
 SETTINGS_APP = "capture-station"
+
+
+def simulated_world(name: str, triangles: int = 4000, image_size: tuple[int, int] = (240, 160)) -> Any:
+    """The :class:`mocks.world.World` of an entry of :data:`app.gui.devices_panel.SIMULATED_OBJECTS`."""
+    from mocks.world import World
+
+    w, h = image_size
+    if name == SIMULATED_OBJECTS[0]:
+        return World.hawk(triangles, width=w, height=h)
+    if name == SIMULATED_OBJECTS[1]:
+        return World.calibration_sphere(25.0, 60.0, width=w, height=h)
+    raise ValueError(f"unknown simulated object {name!r}; choose one of: {', '.join(SIMULATED_OBJECTS)}")
+
+
+def _object_label(world: Any) -> str:
+    source = world.mesh_source or ""
+    if source.startswith("sphere:"):
+        _, r, off = source.split(":")
+        return f"the calibration sphere (radius {r} mm, {off} mm off the axis)"
+    return "the hawk head" if "head" in world.region_names else f"the object {source or '(inline mesh)'}"
 
 
 class _LogHandler(logging.Handler):
@@ -70,12 +91,14 @@ class MainWindow(QMainWindow):
         # switch interval (default 5 ms) hands it back to the event loop sooner when they are busy.
         sys.setswitchinterval(min(sys.getswitchinterval(), 0.001))
         warm_up()                                    # first uses that hold the interpreter lock, before showing
+        freeze_heap()                                # and keep the start-up heap out of later full collections
         self.setWindowTitle("kogei — capture station")
         self.settings = settings or QSettings(SETTINGS_ORG, SETTINGS_APP)
         self.station: Any = None                     # a simulated station started by the window
         self.device_lane = Lane(1)                   # every serial operation, in order
         self.work_lane = Lane(2)                     # reading sessions, thumbnails, decoding, renders
-        self.plot_lane = Lane(1)                     # drawing figures (app.gui.plots.PlotImage)
+        self.drawer = FigureDrawer()                 # figures, drawn in a worker process (app.gui.plots)
+        self.drawer.start()
         self._wire_tmp = tempfile.TemporaryDirectory(prefix="kogei-gui-wire-")
         self.link = StationLink(self.device_lane, Path(self._wire_tmp.name), self)
 
@@ -102,9 +125,9 @@ class MainWindow(QMainWindow):
         self.session = SessionPanel(self.work_lane)
         self.processing = ProcessingPanel(self.work_lane, lambda: self.session.root)
         self.capture = CapturePanel(self.link, lambda: self.session.root, self.session.metadata,
-                                    self.processing.calibration_source, self.plot_lane, self.devices.apply)
-        self.camera = CameraPanel(self.link, self.work_lane, self.plot_lane, lambda: self.session.root)
-        self.spectra = SpectraPanel(self.work_lane, self.plot_lane, lambda: self.session.root)
+                                    self.processing.calibration_source, self.drawer, self.devices.apply)
+        self.camera = CameraPanel(self.link, self.work_lane, self.drawer, lambda: self.session.root)
+        self.spectra = SpectraPanel(self.work_lane, self.drawer, lambda: self.session.root)
         self.preview = PreviewPanel(self.work_lane, lambda: self.session.root)
         for panel, title in ((self.devices, "Devices"), (self.session, "Session"), (self.capture, "Capture"),
                              (self.camera, "Camera"), (self.processing, "Processing"),
@@ -129,6 +152,7 @@ class MainWindow(QMainWindow):
         self.link.banner.connect(self.banner.show_text)
         self.link.state.connect(self._state_changed)
         self.devices.simulated_requested.connect(lambda: self.run_safely(self.start_simulated_station_async))
+        self.devices.object_requested.connect(lambda name: self.run_safely(lambda: self.put_simulated_object(name)))
         self.session.session_chosen.connect(self._session_chosen)
         self.capture.capture_started.connect(lambda: setattr(self.session, "capturing", True))
         self.capture.capture_stopped.connect(self._capture_stopped)
@@ -226,11 +250,12 @@ class MainWindow(QMainWindow):
         self._station_starting = True
         self.devices.sim_state.setText("starting (building the simulated world)…")
 
+        name = self.devices.sim_object.currentText()
+
         def work(ctx: Any) -> Any:
             from mocks.station import SimulatedStation
-            from mocks.world import World
 
-            return SimulatedStation(World.hawk(4000, width=240, height=160), n_points=320).start()
+            return SimulatedStation(simulated_world(name), n_points=320).start()
 
         def done(st: Any) -> None:
             self._station_starting = False
@@ -243,6 +268,39 @@ class MainWindow(QMainWindow):
 
         self.work_lane.run(work, "start simulated station", succeeded=done, failed=failed)
 
+    def put_simulated_object(self, name: str) -> None:
+        """The Devices tab's "Put on the table": swap the simulated station's object (on a worker thread)."""
+        from app.errors import UsageError
+
+        st = self.station
+        if st is None:
+            raise UsageError("no simulated station runs in this window: start one first")
+        if self.capture.job is not None and not self.capture.job.done:
+            raise UsageError("a capture is running: the object stays on the table until it ends")
+        size = (st.world.width, st.world.height)
+        self.devices.put_button.setEnabled(False)
+        self.devices.sim_state.setText(f"putting the {name} on the table…")
+
+        def work(ctx: Any) -> Any:
+            return st.put_object(simulated_world(name, image_size=size))
+
+        def done(pose: Any) -> None:
+            self.devices.put_button.setEnabled(True)
+            self._describe_station(st)
+            self.append_log(f"simulated station: the {name} is on the table")
+
+        def failed(text: str, exc: Any) -> None:
+            self.devices.put_button.setEnabled(True)
+            self._describe_station(st)
+            self.show_error(f"simulated station: {text}")
+
+        self.work_lane.run(work, "put the object on the table", succeeded=done, failed=failed)
+
+    def _describe_station(self, st: Any) -> None:
+        self.devices.sim_state.setText(f"running in this window: {st.root} with {_object_label(st.world)} on the "
+                                       f"table (turntable {st.turntable_path}, profiler {st.profiler_path}, "
+                                       f"gphoto2 {st.gphoto2_path})")
+
     def _attach_station(self, st: Any) -> Any:
         """Point the Devices tab at a running simulated station (ports, gphoto2 shim, placements)."""
         self.station = st
@@ -252,8 +310,9 @@ class MainWindow(QMainWindow):
         self.devices.set_port("profiler", str(st.profiler_path))
         self.devices.camera_kind.setCurrentText("gphoto2")
         self.devices.camera_path.setText(str(st.gphoto2_path))
-        self.devices.sim_state.setText(f"running in this window: {st.root} (turntable {st.turntable_path}, "
-                                       f"profiler {st.profiler_path}, gphoto2 {st.gphoto2_path})")
+        self._describe_station(st)
+        self.devices.put_button.setEnabled(True)
+        self.devices.start_sim_button.setEnabled(False)          # one simulated station per window
         self.devices.apply()
         self.append_log(f"simulated station started in {st.root}")
         return st
@@ -329,7 +388,7 @@ class MainWindow(QMainWindow):
             final.cancel()                   # a full-size preview render in its worker process
         self.device_lane.wait(30_000)
         self.work_lane.wait(30_000)
-        self.plot_lane.wait(30_000)
+        self.drawer.shutdown(30_000)
         # deliver the finished jobs' results (a simulated station that finished starting is stopped below)
         QCoreApplication.processEvents()
         self.link.shutdown()

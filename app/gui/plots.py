@@ -1,81 +1,207 @@
-"""Plots for the window: figures drawn off the GUI thread, and an interactive canvas for picking.
+"""Plots for the window: figures drawn in a separate process, and an interactive canvas for picking.
 
 Drawing a Matplotlib figure takes 60-170 ms on a busy two-core machine
-(measured: a 320-point line plot, a 60 x 320 image with a colour bar), more
-than the 100 ms the event loop may be held.  :class:`PlotImage` therefore
-draws each figure on a worker thread with the Agg canvas
-(``matplotlib.backends.backend_agg``; a separate :class:`Figure` per draw,
-never pyplot, so no state is shared between threads) and shows the finished
-bitmap; requests made while a draw runs are coalesced into the latest one.
+(measured: a 320-point line plot, a 60 x 320 image with a colour bar, a
+3-D scatter), and Matplotlib holds the interpreter lock while it lays out
+and rasterises -- so drawing on a thread of the window's process still kept
+the event loop waiting past 100 ms (docs/BENCHMARKS.md, "gui").
+:class:`FigureDrawer` therefore draws in one long-lived worker process
+(``multiprocessing`` spawn context, a :func:`multiprocessing.Pipe`): a
+figure is a module-level builder of :mod:`app.gui.figures` and its plain
+data, pickled on a drawing thread of the window, drawn with Agg in the
+worker, and returned as an RGBA bitmap.  The window's thread only waits on
+the pipe, which releases the lock.  :class:`PlotImage` shows the bitmaps;
+requests made while a drawing runs are coalesced into the latest one.
 :class:`PlotCanvas` (Matplotlib's Qt canvas, ``FigureCanvasQTAgg``) is kept
 for the interactive picking dialog, where the technician waits for the plot.
+
+A drawing process that dies (killed, out of memory) fails only the figure
+it was drawing, with a readable message; the next figure starts a new one.
 """
 
 from __future__ import annotations
 
+import logging
+import multiprocessing as mp
+import threading
+import traceback
 from typing import Any, Callable
 
 # The canvases are used directly (never pyplot), so the process-wide Matplotlib backend is left alone.
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
 from matplotlib.figure import Figure
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget
 
+from app.gui.figures import draw_figure, empty_figure, style
 from app.gui.workers import JobContext, Lane
 
-__all__ = ["PlotCanvas", "PlotImage", "style", "draw_figure"]
+__all__ = ["FigureDrawer", "PlotCanvas", "PlotImage", "style", "draw_figure"]
+
+_LOG = logging.getLogger("kogei.gui")
 
 
-def style(ax: Any, title: str = "", xlabel: str = "", ylabel: str = "") -> None:
-    """Title and labels at sizes that stay readable in a small panel."""
-    if title:
-        ax.set_title(title, fontsize=10)
-    if xlabel:
-        ax.set_xlabel(xlabel, fontsize=9)
-    if ylabel:
-        ax.set_ylabel(ylabel, fontsize=9)
-    ax.tick_params(labelsize=8)
+def _serve(conn: Any) -> None:
+    """The drawing process: lay out text once, then draw each ``(build, data, w, h)`` received until ``None``."""
+    draw_figure(empty_figure, {"title": "warm-up: 0.0 (mm) °", "hint": "x"}, 64, 64)
+    while True:
+        try:
+            request = conn.recv()
+        except (EOFError, OSError):
+            return                                   # the window has gone
+        if request is None:
+            return
+        build, data, w, h = request
+        try:
+            reply = ("drawn", draw_figure(build, data, w, h))
+        except BaseException as exc:  # noqa: BLE001 - reported to the window as a failed plot
+            reply = ("failed", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+        try:
+            conn.send(reply)
+        except (EOFError, OSError):
+            return
 
 
-def draw_figure(build: Callable[[Figure], Any], width_px: int, height_px: int, dpi: int = 100) -> np.ndarray:
-    """``build(fig)`` on a new figure of the given size, drawn with Agg; returns ``(H, W, 4)`` uint8 RGBA."""
-    fig = Figure(figsize=(max(width_px, 50) / dpi, max(height_px, 50) / dpi), dpi=dpi, layout="constrained")
-    canvas = FigureCanvasAgg(fig)
-    build(fig)
-    canvas.draw()
-    return np.asarray(canvas.buffer_rgba()).copy()
+class FigureDrawer:
+    """Draw figures in a worker process, one at a time, from a drawing thread of the window.
+
+    Parameters
+    ----------
+    timeout_s
+        A drawing that takes longer is abandoned: the process is stopped and
+        the figure fails with a message (the next one starts a new process).
+
+    :meth:`submit` queues a drawing on the drawer's :class:`Lane`;
+    :meth:`draw` is the blocking call the lane runs (usable directly from
+    any thread but the GUI's).  :meth:`start` starts the process ahead of
+    the first figure; :meth:`shutdown` stops it.
+    """
+
+    def __init__(self, timeout_s: float = 60.0) -> None:
+        self.lane = Lane(1)
+        self.timeout_s = float(timeout_s)
+        self._lock = threading.Lock()
+        self._proc: Any = None
+        self._conn: Any = None
+        self._closed = False
+        self.processes_started = 0
+
+    @property
+    def pid(self) -> int | None:
+        """The drawing process's id while it runs."""
+        return self._proc.pid if self._proc is not None and self._proc.is_alive() else None
+
+    def start(self) -> None:
+        """Start the drawing process now, off the GUI thread (it takes a second or two to import Matplotlib)."""
+        self.lane.run(lambda ctx: self._ensure_locked(), "start the drawing process",
+                      failed=lambda text, exc: _LOG.error("drawing process: %s", text))
+
+    def _ensure_locked(self) -> None:
+        with self._lock:
+            if not self._closed:
+                self._ensure()
+
+    def _ensure(self) -> None:
+        if self._proc is not None and self._proc.is_alive():
+            return
+        self._stop()
+        ctx = mp.get_context("spawn")          # never fork a process that runs Qt threads
+        parent, child = ctx.Pipe()
+        proc = ctx.Process(target=_serve, args=(child,), daemon=True, name="kogei-figures")
+        proc.start()
+        child.close()
+        self._proc, self._conn = proc, parent
+        self.processes_started += 1
+
+    def _stop(self) -> None:
+        proc, conn, self._proc, self._conn = self._proc, self._conn, None, None
+        if conn is not None:
+            try:
+                conn.send(None)
+            except (OSError, ValueError):
+                pass
+            conn.close()
+        if proc is not None:
+            proc.join(2.0)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(2.0)
+
+    def draw(self, build: Callable[..., Any], data: dict[str, Any], width_px: int, height_px: int) -> np.ndarray:
+        """``build(fig, **data)`` drawn in the worker process at ``width_px`` x ``height_px``; RGBA uint8.
+
+        ``build`` must be a module-level function and ``data`` picklable.
+        Raises :class:`RuntimeError` with a readable message when the
+        drawing fails, times out or the process dies.
+        """
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the window is closing; the figure was not drawn")
+            self._ensure()
+            conn, proc = self._conn, self._proc
+            try:
+                conn.send((build, data, int(width_px), int(height_px)))
+                if not conn.poll(self.timeout_s):
+                    self._stop()
+                    raise RuntimeError(f"drawing the figure took over {self.timeout_s:.0f} s and was abandoned")
+                reply = conn.recv()
+            except (EOFError, OSError) as exc:
+                if proc is not None:
+                    proc.join(2.0)             # reap it, so that its exit code is known
+                code = proc.exitcode if proc is not None else None
+                self._stop()
+                raise RuntimeError(f"the figure-drawing process stopped (exit code {code}: {exc or 'no reply'}); "
+                                   "the next figure starts a new one") from exc
+        if reply[0] == "failed":
+            _LOG.error("drawing a figure failed in the drawing process:\n%s", reply[2])
+            raise RuntimeError(f"drawing the figure failed: {reply[1]}")
+        return reply[1]
+
+    def submit(self, build: Callable[..., Any], data: dict[str, Any], width_px: int, height_px: int, **receivers: Any):
+        """Queue :meth:`draw` on the drawer's lane; ``receivers`` as for :meth:`Lane.run`."""
+        def work(ctx: JobContext) -> np.ndarray:
+            return self.draw(build, data, width_px, height_px)
+
+        return self.lane.run(work, "plot", **receivers)
+
+    def shutdown(self, timeout_ms: int = 30_000) -> None:
+        """Let queued drawings finish, then stop the process."""
+        self.lane.wait(timeout_ms)
+        with self._lock:
+            self._closed = True
+            self._stop()
 
 
 class PlotImage(QLabel):
-    """A figure drawn off the GUI thread (see the module docstring).
+    """A figure drawn by a :class:`FigureDrawer` (see the module docstring).
 
-    ``plot(build)`` asks for a new drawing; ``build(fig)`` runs on the
-    worker thread and must only use its arguments and immutable data.
+    ``plot(build, **data)`` asks for a new drawing of ``build(fig, **data)``
+    (a module-level builder of :mod:`app.gui.figures` and plain data);
     ``drawn`` is emitted after each drawing is shown.
     """
 
     drawn = Signal()
 
-    def __init__(self, lane: Lane, parent: QWidget | None = None, min_size: tuple[int, int] = (260, 200)) -> None:
+    def __init__(self, drawer: FigureDrawer, parent: QWidget | None = None,
+                 min_size: tuple[int, int] = (260, 200)) -> None:
         super().__init__(parent)
-        self.lane = lane
+        self.drawer = drawer
         self.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Ignored)
         self.setMinimumSize(*min_size)
         self.setStyleSheet("background:white;")
-        self._waiting: Callable[[Figure], Any] | None = None
+        self._waiting: tuple[Callable[..., Any], dict[str, Any]] | None = None
         self._busy = False
-        self._last: Callable[[Figure], Any] | None = None
+        self._last: tuple[Callable[..., Any], dict[str, Any]] | None = None
         self.rgba: np.ndarray | None = None
         self.draws = 0
         self.failure = ""
 
-    def plot(self, build: Callable[[Figure], Any]) -> None:
-        self._waiting = build
-        self._last = build
+    def plot(self, build: Callable[..., Any], **data: Any) -> None:
+        """Draw ``build(fig, **data)`` next (replacing any drawing still waiting)."""
+        self._waiting = self._last = (build, data)
         self._next()
 
     @property
@@ -85,17 +211,14 @@ class PlotImage(QLabel):
     def _next(self) -> None:
         if self._busy or self._waiting is None:
             return
-        build, self._waiting = self._waiting, None
+        (build, data), self._waiting = self._waiting, None
         self._busy = True
-        w, h = max(self.width(), 320), max(self.height(), 240)
-
-        def work(ctx: JobContext) -> np.ndarray:
-            return draw_figure(build, w, h)
-
-        self.lane.run(work, "plot", succeeded=self._show, failed=self._failed, finished=self._done)
+        self.drawer.submit(build, data, max(self.width(), 320), max(self.height(), 240),
+                           succeeded=self._show, failed=self._failed, finished=self._done)
 
     def _show(self, rgba: np.ndarray) -> None:
         self.rgba = rgba
+        self.failure = ""
         h, w = rgba.shape[:2]
         img = QImage(rgba.data, w, h, 4 * w, QImage.Format.Format_RGBA8888).copy()
         self.setPixmap(QPixmap.fromImage(img))
@@ -113,7 +236,7 @@ class PlotImage(QLabel):
     def resizeEvent(self, e: Any) -> None:  # noqa: N802 - Qt's name
         super().resizeEvent(e)
         if self._last is not None and self.rgba is not None and abs(self.rgba.shape[1] - self.width()) > 40:
-            self.plot(self._last)
+            self.plot(self._last[0], **self._last[1])
 
 
 class PlotCanvas(FigureCanvasQTAgg):

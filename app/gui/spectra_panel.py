@@ -49,7 +49,8 @@ from PySide6.QtWidgets import (
     QVBoxLayout, QWidget,
 )
 
-from app.gui.plots import PlotImage, style
+from app.gui.figures import empty_figure, spectrum_figure
+from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane
@@ -239,7 +240,7 @@ class SpectraPanel(Panel):
     analysed = Signal(object)          # spectrum_at's dict
     map_ready = Signal()
 
-    def __init__(self, lane: Lane, plot_lane: Lane, session_root: Callable[[], Path | None],
+    def __init__(self, lane: Lane, drawer: FigureDrawer, session_root: Callable[[], Path | None],
                  parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lane = lane
@@ -291,12 +292,13 @@ class SpectraPanel(Panel):
         self.image = _ClickImage()
         self.image.setText("no frame")
         self.image.clicked.connect(lambda x, y: self.safe(lambda: self.pick(x, y))())
-        self.plot = PlotImage(plot_lane)
+        self.plot = PlotImage(drawer)
         split.addWidget(self.image)
         split.addWidget(self.plot)
         split.setSizes([560, 560])
         outer.addWidget(split, 1)
-        self.plot.plot(_empty_plot)
+        self.plot.plot(empty_figure, title="Reflectance", hint="click the object in the frame",
+                       xlabel="wavelength (nm)", ylabel="reflectance")
 
     # ------------------------------------------------------------ sources
     def list_frames(self) -> None:
@@ -365,8 +367,11 @@ class SpectraPanel(Panel):
     def _picked(self, res: dict[str, Any]) -> None:
         self.last = res
         self._show_frame()
-        self.plot.plot(_spectrum_plot(res))
         ident = res["identification"]
+        self.plot.plot(spectrum_figure, wavelengths=res["wavelengths"], mean=res["mean"],
+                       uncertainty=res["uncertainty"], model=res["model"], model_name=res["model_name"],
+                       pixels=res["pixels"],
+                       title=f"({res['x']}, {res['y']}): {ident.material}, confidence {ident.confidence:.2f}")
         self.state.setText(f"pixel ({res['x']}, {res['y']}): {ident.material} (confidence {ident.confidence:.2f}, "
                            f"runner-up {ident.runner_up})")
         self.analysed.emit(res)
@@ -412,26 +417,3 @@ class SpectraPanel(Panel):
         self.state.setText(f"material map: {len(names)} materials over blocks of {self.block.value()} px "
                            "(dark and backdrop blocks left out)")
         self.map_ready.emit()
-
-
-def _empty_plot(fig: Any) -> None:
-    ax = fig.add_subplot(111)
-    style(ax, "Reflectance", "wavelength (nm)", "reflectance")
-    ax.text(0.5, 0.5, "click the object in the frame", ha="center", va="center", transform=ax.transAxes,
-            color="#777")
-
-
-def _spectrum_plot(res: dict[str, Any]) -> Callable[[Any], None]:
-    def build(fig: Any) -> None:
-        ax = fig.add_subplot(111)
-        wl, m, u = res["wavelengths"], res["mean"], res["uncertainty"]
-        ax.fill_between(wl, m - u, m + u, color="#1f5fa8", alpha=0.2, label="uncertainty (1 sd)")
-        ax.plot(wl, m, color="#1f5fa8", lw=2, label=f"estimated ({res['pixels']} px)")
-        ax.plot(wl, res["model"], color="#d0312d", lw=1.5, ls="--", label=f"{res['model_name']} model (scaled)")
-        ident = res["identification"]
-        style(ax, f"({res['x']}, {res['y']}): {ident.material}, confidence {ident.confidence:.2f}",
-              "wavelength (nm)", "reflectance factor")
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
-    return build

@@ -218,15 +218,13 @@ def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration,
     rot, shift = pose_difference(np.asarray(w.processing.report["passes"][1]["pose"]), t21)
     assert rot < POSE_DEG and shift < POSE_MM, (rot, shift)
 
-    # The window stays responsive (issue #7).  Asserted: the GUI thread's own CPU time between two firings of
-    # a 10 ms timer never reaches 100 ms; 999 in 1000 firings come within 100 ms of the previous one while
-    # the machine runs this process -- the wall-clock stall minus the time no CPU ran it (run-queue waits of
-    # the GUI thread and of the longest-waiting other thread, hypervisor steal; app.gui.responsiveness) --
-    # whether the window's own work or a thread holding the interpreter lock delays it; and 99% of the
-    # firings within 100 ms of plain wall-clock time on this shared two-core machine.  Not asserted: the
-    # maximum own stall, which a Matplotlib drawing of the live plots on the drawing thread still pushes to
-    # 100-170 ms in about half the runs (docs/BENCHMARKS.md, "gui").
+    # The window stays responsive (issue #7): the event loop is never kept waiting 100 ms while the machine
+    # runs this process -- every firing of a 10 ms timer comes within 100 ms of the previous one, less the
+    # time no CPU ran the process (run-queue waits of the GUI thread and of the longest-waiting other thread,
+    # hypervisor steal; app.gui.responsiveness) -- whether the window's own work or a thread holding the
+    # interpreter lock would delay it.  Also: the GUI thread's own CPU time between two firings stays under
+    # 100 ms, and 99% of the firings come within 100 ms of plain wall-clock time on this shared machine.
     assert len(monitor.excused) == len(monitor.stamps) - 1 and all(e >= 0 for e in monitor.excused), stalls
-    assert stalls["own_p999_ms"] < 100.0, stalls
+    assert stalls["own_max_ms"] < 100.0, stalls
     assert stalls["busy_max_ms"] < 100.0, stalls
     assert stalls["p99_ms"] < 100.0, stalls

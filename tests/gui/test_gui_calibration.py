@@ -1,0 +1,140 @@
+"""Scanner calibration without the command line: the simulated station's object swapped from the Devices tab
+(the reference sphere, then the piece), the sphere scanned and the scanner calibrated from the Processing tab.
+
+Ground truth: the simulated station's own sensor pose (``SimulatedStation.sensor_to_room``; the calibration
+must recover it as ``kogei calibrate`` does in tests/test_calibrate_command.py), and a fresh station with the
+hawk on its table from the start (the swapped station must give the same profiles: they are deterministic per
+seed, placement and table angle).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+
+from PySide6.QtCore import Qt
+
+from app.calibrate_command import session_calibration
+from app.capture import CaptureHooks, CapturePlan, load_pass_profiles, run_capture
+from app.capture_devices import build_devices
+from app.gui.devices_panel import SIMULATED_OBJECTS
+from app.session import Session
+from mocks.station import SimulatedStation
+from mocks.world import World
+from tests.gui.helpers import make_window, same_profiles, wait_capture
+
+SEED, N_POINTS, SIZE = 5, 400, (96, 64)
+LEFT = Qt.MouseButton.LeftButton
+
+
+def _hawk_reference(tmp: Path, steps: int) -> dict:
+    plan = CapturePlan("scan", steps=steps, passes=1, camera=False)
+    with SimulatedStation(World.hawk(4000, width=SIZE[0], height=SIZE[1]), root=tmp / "ref-station", seed=SEED,
+                          n_points=N_POINTS) as st:
+        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
+        s = Session.create(tmp / "ref", plan=plan.to_dict())
+        try:
+            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            s.close()
+    return load_pass_profiles(tmp / "ref", 1)
+
+
+def _put(qtbot, w, name: str) -> None:
+    w.devices.sim_object.setCurrentText(name)
+    qtbot.mouseClick(w.devices.put_button, LEFT)
+    assert not w.devices.put_button.isEnabled()                     # busy while the world is built
+    qtbot.waitUntil(lambda: w.devices.put_button.isEnabled(), timeout=60_000)
+    assert w.error_line.isHidden(), w.error_line.text()
+
+
+def _capture(qtbot, w, folder: Path, steps: int) -> None:
+    w.tabs.setCurrentWidget(w.session)
+    w.session.folder.setText(str(folder))
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    w.tabs.setCurrentWidget(w.capture)
+    w.capture.steps.setValue(steps)
+    w.capture.passes.setValue(1)
+    qtbot.mouseClick(w.capture.start, LEFT)
+    wait_capture(qtbot, w, timeout_s=90)
+    assert w.capture.status_text == "complete", w.error_line.text()
+
+
+def test_sphere_scan_calibrates_the_scanner_then_the_piece_goes_on_the_table(qtbot, tmp_path):
+    w = make_window(qtbot, tmp_path)
+    assert not w.devices.put_button.isEnabled()                     # no station yet
+    st = w.start_simulated_station(triangles=4000, image_size=SIZE, n_points=N_POINTS, seed=SEED)
+    assert "the hawk head" in w.devices.sim_state.text()
+    w.devices.camera_kind.setCurrentText("none")
+    w.devices.connect_all()
+    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+
+    # The reference sphere goes on the table; the instruments stay connected
+    _put(qtbot, w, SIMULATED_OBJECTS[1])
+    assert st.world.mesh_source == "sphere:25:60" and "calibration sphere" in w.devices.sim_state.text()
+    assert all(w.link.states[n] == "connected" for n in ("turntable", "profiler"))
+    _capture(qtbot, w, tmp_path / "sphere", steps=72)
+
+    # Calibrate from the open session on the Processing tab
+    w.tabs.setCurrentWidget(w.processing)
+    assert w.processing.radius.value() == 25.0
+    qtbot.mouseClick(w.processing.calibrate_button, LEFT)
+    qtbot.waitUntil(lambda: w.processing.cal_state.text().startswith("calibrated"), timeout=60_000)
+    assert w.error_line.isHidden(), w.error_line.text()
+    assert w.processing.calibration_source() == str(tmp_path / "sphere")
+    cal = session_calibration(tmp_path / "sphere", Session.read(tmp_path / "sphere"))
+    truth = st.sensor_to_room
+    rot = cal.sensor_to_room[:3, :3].T @ truth[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1)))
+    assert angle < 0.05 and np.linalg.norm(cal.sensor_to_room[:3, 3] - truth[:3, 3]) < 0.05, (angle, cal)
+    assert np.hypot(*cal.sphere_center_mm[:2]) == pytest.approx(60.0, abs=0.05)
+
+    # The piece goes back on the table: the same profiles as a station that had the hawk from the start
+    _put(qtbot, w, SIMULATED_OBJECTS[0])
+    assert "head" in st.world.region_names and "the hawk head" in w.devices.sim_state.text()
+    # the table turned back to its mark (physical 0, where a fresh station's table starts) with the jog
+    # controls: zero here, then go to minus the angle it stands at
+    w.tabs.setCurrentWidget(w.capture)
+    qtbot.waitUntil(lambda: w.capture.zero.isEnabled(), timeout=20_000)
+    physical = (st.table_angle_deg + 180.0) % 360.0 - 180.0
+    qtbot.mouseClick(w.capture.zero, LEFT)
+    qtbot.waitUntil(lambda: "table at 0.00" in w.capture.position.text(), timeout=20_000)
+    w.capture.angle.setValue(-physical)
+    qtbot.mouseClick(w.capture.go, LEFT)
+    qtbot.waitUntil(lambda: abs((st.table_angle_deg + 180.0) % 360.0 - 180.0) < 360 / 3200, timeout=20_000)
+    _capture(qtbot, w, tmp_path / "hawk", steps=12)
+    same_profiles([load_pass_profiles(tmp_path / "hawk", 1)], [_hawk_reference(tmp_path, 12)])
+    # the live cloud of the pass used the calibration just made (3-D points, not the range image)
+    qtbot.waitUntil(lambda: not w.capture.cloud_plot.busy, timeout=30_000)
+    assert w.capture.cloud_plot.failure == "" and w.capture.cloud_caption == "pass 1, 12 profiles"
+
+
+def test_putting_an_object_needs_a_station_and_waits_for_the_capture(qtbot, tmp_path):
+    from app.gui.main_window import simulated_world
+
+    w = make_window(qtbot, tmp_path)
+    w.run_safely(lambda: w.put_simulated_object(SIMULATED_OBJECTS[1]))
+    assert "no simulated station runs in this window" in w.error_line.text()
+    st = w.start_simulated_station(triangles=2000, image_size=(48, 32), n_points=96, seed=SEED)
+    w.devices.camera_kind.setCurrentText("none")
+    w.devices.connect_all()
+    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+    w.session.folder.setText(str(tmp_path / "s"))
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    w.capture.steps.setValue(400)
+    w.capture.passes.setValue(1)
+    qtbot.mouseClick(w.capture.start, LEFT)
+    qtbot.waitUntil(lambda: not w.capture.prompt.isHidden(), timeout=30_000)
+    qtbot.mouseClick(w.capture.prompt_go, LEFT)
+    qtbot.waitUntil(lambda: w.capture.progress.value() > 2, timeout=30_000)
+    w.run_safely(lambda: w.put_simulated_object(SIMULATED_OBJECTS[1]))
+    assert "a capture is running" in w.error_line.text()
+    assert "head" in st.world.region_names                          # nothing was swapped
+    qtbot.mouseClick(w.capture.abort, LEFT)
+    qtbot.waitUntil(lambda: w.capture.start.isEnabled(), timeout=30_000)
+    with pytest.raises(ValueError, match="unknown simulated object 'teapot'"):
+        simulated_world("teapot")

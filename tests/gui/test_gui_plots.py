@@ -1,0 +1,87 @@
+"""Figures drawn in the drawing process (app.gui.plots.FigureDrawer): the same pixels as drawn in this
+process, failures as readable messages, a process that dies or hangs replaced by a new one."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+pytest.importorskip("PySide6.QtCore", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+
+from app.gui.figures import cloud_figure, draw_figure, empty_figure, profile_figure, spectrum_figure
+from app.gui.plots import FigureDrawer
+
+
+class _ExitOnArrival:
+    """Unpickling this in the drawing process ends that process at once with exit code 3."""
+
+    def __reduce__(self):
+        return (os._exit, (3,))
+
+
+@pytest.fixture
+def drawer():
+    d = FigureDrawer(timeout_s=60.0)
+    yield d
+    d.shutdown()
+
+
+def _profile_data() -> dict:
+    x = np.linspace(-40.0, 40.0, 320)
+    z = 150.0 + 10.0 * np.cos(x / 20.0)
+    z[::7] = np.nan                                        # no return at some points
+    return {"p": 2, "idx": 17, "angle": 34.0, "x": x, "z": z}
+
+
+def test_a_figure_drawn_in_the_drawing_process_is_the_figure_drawn_here(drawer):
+    for build, data in ((profile_figure, _profile_data()),
+                        (cloud_figure, {"p": 1, "angles": np.arange(12.0), "x": np.tile(np.arange(50.0), (12, 1)),
+                                        "z": np.full((12, 50), 120.0), "cal": None})):
+        there = drawer.draw(build, data, 400, 300)
+        here = draw_figure(build, data, 400, 300)
+        assert there.shape == (300, 400, 4) and there.dtype == np.uint8
+        np.testing.assert_array_equal(there, here)
+    assert drawer.pid is not None and drawer.pid != os.getpid()
+    assert drawer.processes_started == 1                  # one process serves every drawing
+
+
+def test_a_builder_that_fails_is_reported_readably_and_the_process_serves_on(drawer):
+    wl = np.arange(400.0, 710.0, 10.0)
+    with pytest.raises(RuntimeError, match=r"drawing the figure failed: ValueError"):
+        drawer.draw(spectrum_figure, {"wavelengths": wl, "mean": np.ones(5), "uncertainty": np.ones(5),
+                                      "model": np.ones(5), "model_name": "gold", "pixels": 4, "title": "t"},
+                    300, 200)
+    pid = drawer.pid
+    rgba = drawer.draw(empty_figure, {"title": "Reflectance", "hint": "click"}, 300, 200)
+    assert rgba.shape == (200, 300, 4) and drawer.pid == pid and drawer.processes_started == 1
+
+
+def test_a_drawing_process_that_dies_fails_that_figure_only(drawer):
+    drawer.draw(empty_figure, {"title": "a", "hint": "b"}, 100, 100)
+    first = drawer.pid
+    with pytest.raises(RuntimeError, match=r"figure-drawing process stopped \(exit code 3"):
+        drawer.draw(empty_figure, {"title": "a", "hint": _ExitOnArrival()}, 100, 100)
+    rgba = drawer.draw(empty_figure, {"title": "a", "hint": "b"}, 100, 100)
+    assert rgba.shape == (100, 100, 4)
+    assert drawer.processes_started == 2 and drawer.pid not in (None, first)
+
+
+def test_a_drawing_past_the_time_limit_is_abandoned_and_the_next_one_gets_a_new_process(drawer):
+    drawer.draw(empty_figure, {"title": "a", "hint": "b"}, 100, 100)
+    drawer.timeout_s = 1e-4                                # no drawing returns this fast
+    with pytest.raises(RuntimeError, match=r"took over .* s and was abandoned"):
+        drawer.draw(profile_figure, _profile_data(), 400, 300)
+    drawer.timeout_s = 60.0
+    np.testing.assert_array_equal(drawer.draw(profile_figure, _profile_data(), 400, 300),
+                                  draw_figure(profile_figure, _profile_data(), 400, 300))
+    assert drawer.processes_started == 2
+
+
+def test_a_closed_drawer_refuses_readably_and_starts_no_process():
+    d = FigureDrawer()
+    d.shutdown()
+    with pytest.raises(RuntimeError, match="the window is closing"):
+        d.draw(empty_figure, {"title": "a", "hint": "b"}, 100, 100)
+    assert d.processes_started == 0 and d.pid is None
