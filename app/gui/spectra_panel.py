@@ -45,8 +45,8 @@ import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QPixmap
 from PySide6.QtWidgets import (
-    QComboBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSizePolicy, QSpinBox, QSplitter,
-    QVBoxLayout, QWidget,
+    QComboBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSizePolicy, QSpinBox,
+    QSplitter, QVBoxLayout, QWidget,
 )
 
 from app.gui.figures import empty_figure, spectrum_figure
@@ -55,8 +55,8 @@ from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane
 
-__all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "backdrop_mask",
-           "block_labels", "LIGHT_DEG"]
+__all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "UNCERTAIN",
+           "backdrop_mask", "block_labels", "LIGHT_DEG"]
 
 #: Angle of the light from the surface normal assumed by the identification (degrees).
 LIGHT_DEG = 30.0
@@ -171,14 +171,27 @@ def backdrop_mask(rgb: np.ndarray, tolerance: float = 0.15, rim: float = 0.05) -
     return np.all(np.abs(rgb - ref) <= tolerance * np.maximum(ref, 1e-6), axis=2)
 
 
-def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01) -> tuple[np.ndarray, dict[int, str]]:
+#: Name of the map's label for blocks identified with too little confidence to name a material.
+UNCERTAIN = "uncertain"
+
+
+def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01,
+                 min_confidence: float = 0.5) -> tuple[np.ndarray, dict[int, str]]:
     """Material of each ``block`` x ``block`` tile of the object; returns labels and their names.
 
     Label 0: not judged -- too dark (green below ``min_signal`` of full
     scale: no colour to measure) or the backdrop (:func:`backdrop_mask`).
+    A tile whose best candidate has a confidence below ``min_confidence``
+    (:func:`processing.material_identification.identify_material`: the
+    posterior probability among the candidates) is labelled
+    :data:`UNCERTAIN` rather than given a name it may not have -- on
+    polished metal lit by one lamp, tiles at the edge of a highlight often
+    fit two or three alloys about equally.
     """
     from processing.material_identification import identify_regions
 
+    if not 0.0 <= min_confidence <= 1.0:
+        raise ValueError(f"min_confidence must be within 0..1, got {min_confidence!r}")
     h, w = scene.rgb.shape[:2]
     labels = block_labels((h, w), block)
     skip = (scene.rgb[..., 1] < min_signal) | backdrop_mask(scene.rgb)
@@ -187,20 +200,26 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01)
         raise ValueError("no pixel of the frame is both lit and unlike the backdrop: nothing to identify")
     model = _model_camera(scene, scene.rgb).reshape(h, w, 3)
     found = identify_regions(model, labels, scene.candidates)
-    names = sorted({r.material for r in found.values()})
+    named = {lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()}
+    names = sorted(set(named.values()) - {UNCERTAIN}) + ([UNCERTAIN] if UNCERTAIN in named.values() else [])
     index = {n: i + 1 for i, n in enumerate(names)}
     lut = np.zeros(int(labels.max()) + 1, np.int64)
-    for lab, r in found.items():
-        lut[lab] = index[r.material]
+    for lab, name in named.items():
+        lut[lab] = index[name]
     return lut[labels], {i: n for n, i in index.items()}
 
 
-def _map_colours(n: int) -> np.ndarray:
-    """Row 0 black, then ``n`` distinct colours (Matplotlib's tab20)."""
+def _map_colours(names: dict[int, str]) -> np.ndarray:
+    """Row 0 black, then a distinct colour per label (Matplotlib's tab20); :data:`UNCERTAIN` grey."""
     import matplotlib
 
+    n = max(names, default=0)
     tab = matplotlib.colormaps["tab20"](np.arange(20))[:, :3]
-    return np.vstack([[0, 0, 0], np.round(255 * tab[np.arange(n) % 20])]).astype(np.uint8)
+    out = np.vstack([[0, 0, 0], np.round(255 * tab[np.arange(n) % 20])]).astype(np.uint8)
+    for i, name in names.items():
+        if name == UNCERTAIN:
+            out[i] = (150, 150, 150)
+    return out
 
 
 class _ClickImage(QLabel):
@@ -269,6 +288,12 @@ class SpectraPanel(Panel):
         self.block.setRange(2, 64)
         self.block.setValue(6)
         self.block.setSuffix(" px")
+        self.min_confidence = QDoubleSpinBox()
+        self.min_confidence.setRange(0.0, 1.0)
+        self.min_confidence.setSingleStep(0.05)
+        self.min_confidence.setValue(0.5)
+        self.min_confidence.setToolTip("blocks whose best material is less likely than this are shown as "
+                                       "'uncertain' rather than named")
         self.map_button = QPushButton("Material map")
         self.map_button.clicked.connect(self.safe(self.make_map))
         f.addRow(refresh)
@@ -277,6 +302,7 @@ class SpectraPanel(Panel):
         f.addRow("Method", self.method)
         f.addRow(self.load_button)
         f.addRow("Map block", self.block)
+        f.addRow("Min. confidence", self.min_confidence)
         f.addRow(self.map_button)
         left.addWidget(src)
         self.state = QLabel("list the frames of a captured session, then calibrate")
@@ -381,10 +407,10 @@ class SpectraPanel(Panel):
 
         if self.scene is None:
             raise UsageError("calibrate a frame first")
-        scene, block = self.scene, int(self.block.value())
+        scene, block, confidence = self.scene, int(self.block.value()), float(self.min_confidence.value())
 
         def work(ctx: JobContext) -> tuple[np.ndarray, dict[int, str]]:
-            return material_map(scene, block)
+            return material_map(scene, block, min_confidence=confidence)
 
         self.state.setText("identifying the material of every block…")
         self.lane.run(work, "material map", succeeded=self._mapped,
@@ -395,7 +421,7 @@ class SpectraPanel(Panel):
         img = self.scene.preview.copy()
         if self.map is not None:
             labels, names = self.map
-            colours = _map_colours(max(names, default=0))[labels]
+            colours = _map_colours(names)[labels]
             alpha = np.where(labels > 0, 0.45, 0.0)[..., None]
             img = (img.astype(np.float32) * (1 - alpha) + colours * alpha).astype(np.uint8)
         if self.last is not None:
@@ -409,11 +435,16 @@ class SpectraPanel(Panel):
     def _mapped(self, result: tuple[np.ndarray, dict[int, str]]) -> None:
         self.map = result
         labels, names = result
-        palette = _map_colours(max(names, default=0))
+        palette = _map_colours(names)
         self._show_frame()
+        confidence = self.min_confidence.value()
         self.legend.setText("<br>".join(
-            f"<span style='background:rgb({c[0]},{c[1]},{c[2]})'>&nbsp;&nbsp;&nbsp;</span> {n}"
+            f"<span style='background:rgb({c[0]},{c[1]},{c[2]})'>&nbsp;&nbsp;&nbsp;</span> "
+            + (f"{n} (confidence below {confidence:.2f})" if n == UNCERTAIN else n)
             for i, n in sorted(names.items()) for c in [palette[i]]))
-        self.state.setText(f"material map: {len(names)} materials over blocks of {self.block.value()} px "
-                           "(dark and backdrop blocks left out)")
+        materials = sum(1 for n in names.values() if n != UNCERTAIN)
+        share = float(np.mean(labels[labels > 0] == next((i for i, n in names.items() if n == UNCERTAIN), -1))) \
+            if (labels > 0).any() else 0.0
+        self.state.setText(f"material map: {materials} materials over blocks of {self.block.value()} px "
+                           f"({100 * share:.0f}% of the judged area uncertain; dark and backdrop blocks left out)")
         self.map_ready.emit()

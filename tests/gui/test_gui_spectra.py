@@ -70,3 +70,20 @@ def test_click_gives_spectrum_and_material_and_the_map_covers_the_sphere(qtbot, 
     assert judged.size > 0.5 * found.size
     assert red and np.mean(judged == red[0]) > 0.9
     assert "urushi-red" in w.spectra.legend.text()
+    if "uncertain" in names.values():
+        assert "uncertain (confidence below 0.50)" in w.spectra.legend.text()
+
+    # Raising the confidence a block needs only turns names into 'uncertain', never into another name; with
+    # no bound nothing is uncertain; a bound outside 0..1 is refused
+    from app.gui.spectra_panel import UNCERTAIN, material_map
+
+    free, free_names = material_map(w.spectra.scene, 6, min_confidence=0.0)
+    strict, strict_names = material_map(w.spectra.scene, 6, min_confidence=0.99)
+    assert UNCERTAIN not in free_names.values()
+    assert np.array_equal(free > 0, strict > 0)
+    lookup_free = np.array([""] + [free_names[i] for i in range(1, max(free_names) + 1)], dtype=object)
+    lookup_strict = np.array([""] + [strict_names[i] for i in range(1, max(strict_names) + 1)], dtype=object)
+    a, b = lookup_free[free], lookup_strict[strict]
+    assert np.all((a == b) | (b == UNCERTAIN))
+    with pytest.raises(ValueError, match="min_confidence must be within 0..1"):
+        material_map(w.spectra.scene, 6, min_confidence=1.5)
