@@ -24,7 +24,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-__all__ = ["style", "draw_figure", "empty_figure", "profile_figure", "cloud_figure", "frame_figure",
+__all__ = ["style", "draw_figure", "render_figure", "axes_pixel", "empty_figure", "pick_figure", "profile_figure", "cloud_figure", "frame_figure",
            "histogram_figure", "spectrum_figure", "display_image", "QUALITY_COLOURS", "HISTOGRAM_BINS"]
 
 #: Colour of each patch quality in the camera preview (see :mod:`app.gui.camera_panel`).
@@ -44,14 +44,56 @@ def style(ax: Any, title: str = "", xlabel: str = "", ylabel: str = "") -> None:
     ax.tick_params(labelsize=8)
 
 
-def draw_figure(build: Callable[..., Any], data: dict[str, Any], width_px: int, height_px: int,
-                dpi: int = 100) -> np.ndarray:
-    """``build(fig, **data)`` on a new figure of the given size (px), drawn with Agg; ``(H, W, 4)`` uint8 RGBA."""
+def render_figure(build: Callable[..., Any], data: dict[str, Any], width_px: int, height_px: int,
+                  dpi: int = 100) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """``build(fig, **data)`` drawn with Agg: ``(H, W, 4)`` uint8 RGBA and where each 2-D axes landed.
+
+    Each axes is described as ``{"gid", "bbox", "xlim", "ylim"}``: its
+    :meth:`~matplotlib.artist.Artist.get_gid`, its box ``(x0, y0, x1, y1)``
+    in image pixels (y down, as the bitmap is shown), and its data limits
+    after drawing (an equal aspect adjusts them at draw time) -- what a
+    window needs to turn a click on the bitmap into data coordinates
+    (:func:`axes_pixel`).  3-D axes are left out.
+    """
     fig = Figure(figsize=(max(width_px, 50) / dpi, max(height_px, 50) / dpi), dpi=dpi, layout="constrained")
     canvas = FigureCanvasAgg(fig)
     build(fig, **data)
     canvas.draw()
-    return np.asarray(canvas.buffer_rgba()).copy()
+    rgba = np.asarray(canvas.buffer_rgba()).copy()
+    h = rgba.shape[0]
+    axes = []
+    for ax in fig.axes:
+        if ax.name != "rectilinear":
+            continue
+        box = ax.get_window_extent()
+        axes.append({"gid": ax.get_gid(),
+                     "bbox": (float(box.x0), float(h - box.y1), float(box.x1), float(h - box.y0)),
+                     "xlim": tuple(map(float, ax.get_xlim())), "ylim": tuple(map(float, ax.get_ylim()))})
+    return rgba, axes
+
+
+def draw_figure(build: Callable[..., Any], data: dict[str, Any], width_px: int, height_px: int,
+                dpi: int = 100) -> np.ndarray:
+    """``build(fig, **data)`` on a new figure of the given size (px), drawn with Agg; ``(H, W, 4)`` uint8 RGBA."""
+    return render_figure(build, data, width_px, height_px, dpi)[0]
+
+
+def axes_pixel(axes: dict[str, Any], x: float, y: float, inverse: bool = False) -> tuple[float, float]:
+    """Data ``(x, y)`` of an axes of :func:`render_figure` to image pixels, or pixels to data (``inverse``).
+
+    Linear scales only.
+
+    >>> ax = {"bbox": (10.0, 20.0, 110.0, 220.0), "xlim": (0.0, 50.0), "ylim": (-1.0, 1.0)}
+    >>> axes_pixel(ax, 25.0, 1.0)
+    (60.0, 20.0)
+    >>> axes_pixel(ax, 60.0, 20.0, inverse=True)
+    (25.0, 1.0)
+    """
+    x0, y0, x1, y1 = axes["bbox"]
+    (a0, a1), (b0, b1) = axes["xlim"], axes["ylim"]
+    if inverse:
+        return a0 + (x - x0) / (x1 - x0) * (a1 - a0), b1 - (y - y0) / (y1 - y0) * (b1 - b0)
+    return x0 + (x - a0) / (a1 - a0) * (x1 - x0), y0 + (b1 - y) / (b1 - b0) * (y1 - y0)
 
 
 def display_image(image: np.ndarray, max_side: int = 1024) -> np.ndarray:
@@ -185,3 +227,24 @@ def spectrum_figure(fig: Figure, wavelengths: np.ndarray, mean: np.ndarray, unce
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
+
+
+def pick_figure(fig: Figure, a: np.ndarray, b: np.ndarray, picks_a: np.ndarray, picks_b: np.ndarray, i: int, j: int,
+                label_a: str, label_b: str) -> None:
+    """Two passes' points (mm) side by side in the projection on coordinates ``i``, ``j``, picks numbered.
+
+    The axes are tagged ``"a"`` and ``"b"`` (their gid) so that a click on
+    the drawing can be mapped back to a pass and its data coordinates.
+    """
+    names = "xyz"
+    for k, (side, pts, picks, label) in enumerate((("a", a, picks_a, label_a), ("b", b, picks_b, label_b))):
+        ax = fig.add_subplot(1, 2, k + 1)
+        ax.set_gid(side)
+        if len(pts):
+            ax.scatter(pts[:, i], pts[:, j], s=2, c=pts[:, 3 - i - j], cmap="viridis")
+            for n, p in enumerate(picks, start=1):
+                ax.plot(p[i], p[j], "o", mfc="none", mec="#d0312d", ms=10, mew=2)
+                ax.annotate(str(n), (p[i], p[j]), xytext=(6, 6), textcoords="offset points", color="#d0312d",
+                            fontsize=11, fontweight="bold")
+            ax.set_aspect("equal", adjustable="datalim")
+        style(ax, f"{label}: {len(picks)} picks", f"{names[i]} (mm)", f"{names[j]} (mm)")

@@ -123,7 +123,7 @@ class MainWindow(QMainWindow):
 
         self.devices = DevicesPanel(self.link)
         self.session = SessionPanel(self.work_lane)
-        self.processing = ProcessingPanel(self.work_lane, lambda: self.session.root)
+        self.processing = ProcessingPanel(self.work_lane, lambda: self.session.root, self.drawer)
         self.capture = CapturePanel(self.link, lambda: self.session.root, self.session.metadata,
                                     self.processing.calibration_source, self.drawer, self.devices.apply)
         self.camera = CameraPanel(self.link, self.work_lane, self.drawer, lambda: self.session.root)

@@ -5,14 +5,18 @@ three or more corresponding points per pair, Kabsch / Umeyama without scale,
 refined by ICP and verified).  Each pass's points come from its profiles and
 the scanner calibration (:func:`processing.scan_points.profiles_to_points`),
 as :func:`app.process_session.process_session` makes them; a click picks the
-nearest *measured* point (matplotlib pick events on the scatter), so a pick
-is always a real 3-D point of the cloud, whichever projection is shown.
+nearest *measured* point within a few pixels of the click, so a pick is
+always a real 3-D point of the cloud, whichever projection is shown.  The
+two clouds are drawn in the window's drawing process
+(:class:`app.gui.plots.FigureDrawer`; a redraw of two scatters of thousands
+of points takes 150-300 ms, too long for the event loop) and a click on the
+bitmap is mapped back to the projection's coordinates
+(:class:`app.gui.plots.PlotImage`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from PySide6.QtCore import Signal
@@ -20,13 +24,16 @@ from PySide6.QtWidgets import (
     QComboBox, QDialog, QDialogButtonBox, QHBoxLayout, QLabel, QPushButton, QSpinBox, QVBoxLayout, QWidget,
 )
 
-from app.gui.plots import PlotCanvas
+from app.gui.figures import pick_figure
+from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.workers import JobContext, Lane
 
 __all__ = ["PickDialog", "pass_points", "PROJECTIONS"]
 
 #: Projections offered: label -> the two coordinate axes shown.
 PROJECTIONS = {"top (x, y)": (0, 1), "front (x, z)": (0, 2), "side (y, z)": (1, 2)}
+#: How far from a click (bitmap pixels) the nearest point may be to be picked.
+PICK_RADIUS_PX = 6.0
 
 
 def pass_points(root: Path, calibration: str | None, pass_no: int, max_points: int = 6000) -> np.ndarray:
@@ -64,7 +71,8 @@ class PickDialog(QDialog):
 
     error = Signal(str)
 
-    def __init__(self, root: Path, calibration: str | None, lane: Lane, parent: QWidget | None = None) -> None:
+    def __init__(self, root: Path, calibration: str | None, lane: Lane, drawer: FigureDrawer,
+                 parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.setWindowTitle("Manual 3-point registration")
         self.root = root
@@ -93,9 +101,9 @@ class PickDialog(QDialog):
                            "points (not on a line).")
         self.help.setWordWrap(True)
         v.addWidget(self.help)
-        self.canvas = PlotCanvas(self, 9.0, 4.5)
-        self.canvas.mpl_connect("pick_event", self._picked)
-        v.addWidget(self.canvas, 1)
+        self.plot = PlotImage(drawer, self, min_size=(600, 360))
+        self.plot.clicked.connect(self.pick_at)
+        v.addWidget(self.plot, 1)
         self.state = QLabel("load the passes")
         v.addWidget(self.state)
         self.buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel)
@@ -149,35 +157,28 @@ class PickDialog(QDialog):
         self._update()
 
     def draw(self) -> None:
-        fig = self.canvas.figure
-        fig.clear()
+        """Draw both passes with their picks (in the drawing process)."""
         i, j = PROJECTIONS[self.view.currentText()]
-        names = "xyz"
-        for k, side in enumerate(("a", "b")):
-            ax = fig.add_subplot(1, 2, k + 1)
-            pts = self.clouds.get(side)
-            label = f"pass {self.pass_a.value() if side == 'a' else self.pass_b.value()}"
-            if pts is not None and len(pts):
-                sc = ax.scatter(pts[:, i], pts[:, j], s=2, c=pts[:, 3 - i - j], cmap="viridis", picker=True,
-                                pickradius=4)
-                sc.set_gid(side)
-                for n, p in enumerate(self.picks[side], start=1):
-                    ax.plot(p[i], p[j], "o", mfc="none", mec="#d0312d", ms=10, mew=2)
-                    ax.annotate(str(n), (p[i], p[j]), xytext=(6, 6), textcoords="offset points", color="#d0312d",
-                                fontsize=11, fontweight="bold")
-                ax.set_aspect("equal", adjustable="datalim")
-            PlotCanvas.style(ax, f"{label}: {len(self.picks[side])} picks", f"{names[i]} (mm)", f"{names[j]} (mm)")
-        self.canvas.redraw()
+        empty = np.zeros((0, 3))
+        self.plot.plot(pick_figure, a=self.clouds.get("a", empty), b=self.clouds.get("b", empty),
+                       picks_a=np.array(self.picks["a"]).reshape(-1, 3),
+                       picks_b=np.array(self.picks["b"]).reshape(-1, 3), i=i, j=j, label_a=f"pass {self.pass_a.value()}", label_b=f"pass {self.pass_b.value()}")
 
-    def _picked(self, event: Any) -> None:
-        side = event.artist.get_gid()
-        if side not in self.clouds or not len(event.ind):
+    def pick_at(self, side: str, x: float, y: float) -> None:
+        """Pick the point of pass ``side`` ('a' or 'b') nearest to ``(x, y)`` of the projection shown.
+
+        Nothing is picked when no point lies within :data:`PICK_RADIUS_PX`
+        pixels of the click.
+        """
+        pts = self.clouds.get(side)
+        if pts is None or not len(pts):
             return
         i, j = PROJECTIONS[self.view.currentText()]
-        pts = self.clouds[side]
-        cand = np.asarray(event.ind)
-        click = np.array([event.mouseevent.xdata, event.mouseevent.ydata], float)
-        best = cand[np.argmin(np.sum((pts[cand][:, [i, j]] - click) ** 2, axis=1))]
+        d2 = (pts[:, i] - x) ** 2 + (pts[:, j] - y) ** 2
+        best = int(np.argmin(d2))
+        if np.sqrt(d2[best]) > PICK_RADIUS_PX * self.plot.data_per_pixel(side):
+            self.state.setText(f"no point of {'A' if side == 'a' else 'B'} there: click on the cloud")
+            return
         self.picks[side].append(pts[best].copy())
         self.draw()
         self._update()

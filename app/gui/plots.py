@@ -1,4 +1,4 @@
-"""Plots for the window: figures drawn in a separate process, and an interactive canvas for picking.
+"""Plots for the window: figures drawn in a separate process, shown as bitmaps that can be clicked.
 
 Drawing a Matplotlib figure takes 60-170 ms on a busy two-core machine
 (measured: a 320-point line plot, a 60 x 320 image with a colour bar, a
@@ -12,8 +12,8 @@ data, pickled on a drawing thread of the window, drawn with Agg in the
 worker, and returned as an RGBA bitmap.  The window's thread only waits on
 the pipe, which releases the lock.  :class:`PlotImage` shows the bitmaps;
 requests made while a drawing runs are coalesced into the latest one.
-:class:`PlotCanvas` (Matplotlib's Qt canvas, ``FigureCanvasQTAgg``) is kept
-for the interactive picking dialog, where the technician waits for the plot.
+:class:`PlotImage` also maps a click on the bitmap back to data
+coordinates, which is how the manual registration dialog picks points.
 
 A drawing process that dies (killed, out of memory) fails only the figure
 it was drawing, with a readable message; the next figure starts a new one.
@@ -29,23 +29,21 @@ from typing import Any, Callable
 
 # The canvases are used directly (never pyplot), so the process-wide Matplotlib backend is left alone.
 import numpy as np
-from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
-from matplotlib.figure import Figure
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget
 
-from app.gui.figures import draw_figure, empty_figure, style
+from app.gui.figures import axes_pixel, draw_figure, empty_figure, render_figure, style
 from app.gui.workers import JobContext, Lane
 
-__all__ = ["FigureDrawer", "PlotCanvas", "PlotImage", "style", "draw_figure"]
+__all__ = ["FigureDrawer", "PlotImage", "style", "draw_figure"]
 
 _LOG = logging.getLogger("kogei.gui")
 
 
 def _serve(conn: Any) -> None:
     """The drawing process: lay out text once, then draw each ``(build, data, w, h)`` received until ``None``."""
-    draw_figure(empty_figure, {"title": "warm-up: 0.0 (mm) °", "hint": "x"}, 64, 64)
+    render_figure(empty_figure, {"title": "warm-up: 0.0 (mm) °", "hint": "x"}, 64, 64)
     while True:
         try:
             request = conn.recv()
@@ -55,7 +53,7 @@ def _serve(conn: Any) -> None:
             return
         build, data, w, h = request
         try:
-            reply = ("drawn", draw_figure(build, data, w, h))
+            reply = ("drawn", *render_figure(build, data, w, h))
         except BaseException as exc:  # noqa: BLE001 - reported to the window as a failed plot
             reply = ("failed", f"{type(exc).__name__}: {exc}", traceback.format_exc())
         try:
@@ -136,6 +134,11 @@ class FigureDrawer:
         Raises :class:`RuntimeError` with a readable message when the
         drawing fails, times out or the process dies.
         """
+        return self.draw_with_axes(build, data, width_px, height_px)[0]
+
+    def draw_with_axes(self, build: Callable[..., Any], data: dict[str, Any], width_px: int,
+                       height_px: int) -> tuple[np.ndarray, list[dict[str, Any]]]:
+        """As :meth:`draw`, with where each axes landed (:func:`app.gui.figures.render_figure`)."""
         with self._lock:
             if self._closed:
                 raise RuntimeError("the window is closing; the figure was not drawn")
@@ -157,12 +160,12 @@ class FigureDrawer:
         if reply[0] == "failed":
             _LOG.error("drawing a figure failed in the drawing process:\n%s", reply[2])
             raise RuntimeError(f"drawing the figure failed: {reply[1]}")
-        return reply[1]
+        return reply[1], reply[2]
 
     def submit(self, build: Callable[..., Any], data: dict[str, Any], width_px: int, height_px: int, **receivers: Any):
-        """Queue :meth:`draw` on the drawer's lane; ``receivers`` as for :meth:`Lane.run`."""
-        def work(ctx: JobContext) -> np.ndarray:
-            return self.draw(build, data, width_px, height_px)
+        """Queue :meth:`draw_with_axes` on the drawer's lane; ``receivers`` as for :meth:`Lane.run`."""
+        def work(ctx: JobContext) -> tuple[np.ndarray, list[dict[str, Any]]]:
+            return self.draw_with_axes(build, data, width_px, height_px)
 
         return self.lane.run(work, "plot", **receivers)
 
@@ -179,10 +182,13 @@ class PlotImage(QLabel):
 
     ``plot(build, **data)`` asks for a new drawing of ``build(fig, **data)``
     (a module-level builder of :mod:`app.gui.figures` and plain data);
-    ``drawn`` is emitted after each drawing is shown.
+    ``drawn`` is emitted after each drawing is shown.  A click on an axes
+    that has a gid emits ``clicked(gid, x, y)`` in that axes' data
+    coordinates (linear axes), so a bitmap can still be picked on.
     """
 
     drawn = Signal()
+    clicked = Signal(str, float, float)
 
     def __init__(self, drawer: FigureDrawer, parent: QWidget | None = None,
                  min_size: tuple[int, int] = (260, 200)) -> None:
@@ -196,6 +202,7 @@ class PlotImage(QLabel):
         self._busy = False
         self._last: tuple[Callable[..., Any], dict[str, Any]] | None = None
         self.rgba: np.ndarray | None = None
+        self.axes: list[dict[str, Any]] = []
         self.draws = 0
         self.failure = ""
 
@@ -216,7 +223,8 @@ class PlotImage(QLabel):
         self.drawer.submit(build, data, max(self.width(), 320), max(self.height(), 240),
                            succeeded=self._show, failed=self._failed, finished=self._done)
 
-    def _show(self, rgba: np.ndarray) -> None:
+    def _show(self, drawing: tuple[np.ndarray, list[dict[str, Any]]]) -> None:
+        rgba, self.axes = drawing
         self.rgba = rgba
         self.failure = ""
         h, w = rgba.shape[:2]
@@ -233,25 +241,42 @@ class PlotImage(QLabel):
         self._busy = False
         self._next()
 
+    # ------------------------------------------------------------ clicks
+    def _origin(self) -> tuple[float, float]:
+        """Widget position of the bitmap's top-left corner (it is shown centred)."""
+        h, w = self.rgba.shape[:2]
+        return (self.width() - w) / 2.0, (self.height() - h) / 2.0
+
+    def axes_named(self, gid: str) -> dict[str, Any]:
+        for ax in self.axes:
+            if ax["gid"] == gid:
+                return ax
+        raise KeyError(f"the drawing has no axes {gid!r}")
+
+    def widget_point(self, gid: str, x: float, y: float) -> tuple[float, float]:
+        """Where data ``(x, y)`` of axes ``gid`` is shown, in widget pixels."""
+        ox, oy = self._origin()
+        px, py = axes_pixel(self.axes_named(gid), x, y)
+        return ox + px, oy + py
+
+    def data_per_pixel(self, gid: str) -> float:
+        """Data units per bitmap pixel along x of axes ``gid``."""
+        ax = self.axes_named(gid)
+        return abs(ax["xlim"][1] - ax["xlim"][0]) / max(ax["bbox"][2] - ax["bbox"][0], 1e-9)
+
+    def mousePressEvent(self, e: Any) -> None:  # noqa: N802 - Qt's name
+        super().mousePressEvent(e)
+        if self.rgba is None:
+            return                       # (the axes are those of the bitmap shown, even while the next one draws)
+        ox, oy = self._origin()
+        px, py = e.position().x() - ox, e.position().y() - oy
+        for ax in self.axes:
+            x0, y0, x1, y1 = ax["bbox"]
+            if ax["gid"] and x0 <= px <= x1 and y0 <= py <= y1:
+                self.clicked.emit(str(ax["gid"]), *axes_pixel(ax, px, py, inverse=True))
+                return
+
     def resizeEvent(self, e: Any) -> None:  # noqa: N802 - Qt's name
         super().resizeEvent(e)
         if self._last is not None and self.rgba is not None and abs(self.rgba.shape[1] - self.width()) > 40:
             self.plot(self._last[0], **self._last[1])
-
-
-class PlotCanvas(FigureCanvasQTAgg):
-    """An interactive figure in the window (drawn on the GUI thread)."""
-
-    def __init__(self, parent: QWidget | None = None, width: float = 5.0, height: float = 3.5) -> None:
-        self.figure = Figure(figsize=(width, height), dpi=100, layout="constrained")
-        super().__init__(self.figure)
-        if parent is not None:
-            self.setParent(parent)
-        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
-        self.setMinimumSize(240, 180)
-
-    def redraw(self) -> None:
-        """Draw at the next event-loop turn."""
-        self.draw_idle()
-
-    style = staticmethod(style)

@@ -29,6 +29,7 @@ from PySide6.QtWidgets import (
     QPushButton, QTreeWidget, QTreeWidgetItem, QVBoxLayout, QWidget,
 )
 
+from app.gui.plots import FigureDrawer
 from app.gui.widgets import Panel, browse_row
 from app.gui.workers import JobContext, Lane, ProcessJob
 
@@ -61,10 +62,12 @@ class ProcessingPanel(Panel):
 
     processed = Signal(object)          # the report
 
-    def __init__(self, lane: Lane, session_root: Callable[[], Path | None], parent: QWidget | None = None) -> None:
+    def __init__(self, lane: Lane, session_root: Callable[[], Path | None], drawer: FigureDrawer,
+                 parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lane = lane
         self.session_root = session_root
+        self.drawer = drawer                    # draws the manual registration dialog's clouds
         self.job: ProcessJob | None = None
         self.report: dict[str, Any] | None = None
         self.picks: dict[tuple[int, int], tuple[Any, Any]] = {}
@@ -258,7 +261,7 @@ class ProcessingPanel(Panel):
         root = self.session_root()
         if root is None or not (root / "session.json").exists():
             raise UsageError("open a captured session first (Session tab)")
-        dlg = PickDialog(root, self.calibration_source(), self.lane, self)
+        dlg = PickDialog(root, self.calibration_source(), self.lane, self.drawer, self)
         dlg.error.connect(self.error.emit)
         if dlg.exec():
             self.picks[dlg.pair] = dlg.picked()

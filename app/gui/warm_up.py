@@ -4,13 +4,13 @@ Measured while a simulated session ran through the window (issue #7; see
 the "gui" section of docs/BENCHMARKS.md): the event loop's longest stalls
 while the machine was running the process (120-150 ms) came from
 first uses in worker threads, during which a single C call holds the
-interpreter lock -- Matplotlib's first text layout (its font list and
-FreeType faces; the window's figures are now drawn in their own process,
-:class:`app.gui.plots.FigureDrawer`, but the picking dialog still draws in
-the window) and the import of colour-science's dataset modules
-(unmarshalling their large code objects, on the preview's render thread).
-Doing both once on the GUI thread before the window is shown moves that
-time to start-up, where nothing waits for the event loop.
+interpreter lock, such as the import of colour-science's dataset modules
+(unmarshalling their large code objects, on the preview's render thread:
+125 ms).  Importing them once on the GUI thread before the window is shown
+moves that time to start-up, where nothing waits for the event loop.
+(Matplotlib's first text layout, 120-150 ms, was the other; the window's
+figures are now drawn in their own process, :class:`app.gui.plots.FigureDrawer`,
+which lays out text once when it starts.)
 
 The imports leave about 160,000 objects that Python's cyclic garbage
 collector walks in full whenever its oldest generation is due (73 ms for
@@ -44,12 +44,9 @@ HEAVY_MODULES = ("colour", "open3d", "scipy.spatial", "app.capture", "app.captur
 
 @functools.cache
 def warm_up() -> tuple[str, ...]:
-    """Import :data:`HEAVY_MODULES` and lay out Matplotlib text once (per process); returns the modules."""
+    """Import :data:`HEAVY_MODULES` once (per process); returns the modules."""
     for name in HEAVY_MODULES:
         importlib.import_module(name)
-    from app.gui.figures import draw_figure, empty_figure
-
-    draw_figure(empty_figure, {"title": "warm-up: 0.0 (mm) °", "hint": "x"}, 64, 64)
     return HEAVY_MODULES
 
 
