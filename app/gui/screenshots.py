@@ -136,7 +136,9 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
         w.spectra.load()
         wait(lambda: w.spectra.scene is not None, "the spectral calibration")
         rgb = w.spectra.scene.rgb
-        y, x = np.unravel_index(np.argmax(rgb.sum(axis=2)), rgb.shape[:2])   # a highlight: the metal's own colour
+        # the brightest unclipped pixel (a clipped one has no colour to measure): the metal's own colour
+        brightness = np.where(w.spectra.scene.clipped, -1.0, rgb.sum(axis=2))
+        y, x = np.unravel_index(np.argmax(brightness), rgb.shape[:2])
         w.spectra.pick(int(x), int(y))
         wait(lambda: w.spectra.last is not None and not w.spectra.plot.busy, "the spectrum")
         w.spectra.make_map()

@@ -83,6 +83,7 @@ class SpectralScene:
     method_error: float
     usable_patches: int
     light: str
+    clipped: np.ndarray | None = None   # (H, W) bool: a photosite of the pixel reached the white level
 
 
 def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = "D65", method: str = "wiener",
@@ -114,7 +115,8 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
     # black subtraction leaves read noise of either sign around 0; the estimator takes signals >= 0
     rgb = np.maximum(obj.rgb, 0.0)
     return SpectralScene(Path(frame), Path(chart_frame), preview_srgb8(obj), rgb, fit,
-                         candidate_set(sens, e, g, light_deg=LIGHT_DEG), err, int(usable.sum()), light)
+                         candidate_set(sens, e, g, light_deg=LIGHT_DEG), err, int(usable.sum()), light,
+                         np.asarray(obj.saturated, bool))
 
 
 def _model_camera(scene: SpectralScene, rgb: np.ndarray) -> np.ndarray:
@@ -136,6 +138,11 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
         raise ValueError(f"pixel ({x}, {y}) is outside the {w} x {h} frame")
     y0, y1, x0, x1 = max(y - radius, 0), min(y + radius + 1, h), max(x - radius, 0), min(x + radius + 1, w)
     patch = scene.rgb[y0:y1, x0:x1]
+    keep = np.ones(patch.shape[:2], bool) if scene.clipped is None else ~scene.clipped[y0:y1, x0:x1]
+    if not keep.any():
+        raise ValueError(f"pixel ({x}, {y}) and its neighbours are clipped (saturated): their colour cannot be "
+                         "measured; click a less bright part of the object, or shoot with less exposure")
+    patch = patch[keep][:, None, :]                  # the unclipped pixels, as an (N, 1, 3) image
     weights = scene.fit.estimate_weights(patch)
     reg = region_spectra(weights, np.ones(patch.shape[:2], np.int64), scene.fit.basis, scene.method_error)
     ident = identify_material(_model_camera(scene, patch), scene.candidates)
@@ -180,7 +187,8 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01,
     """Material of each ``block`` x ``block`` tile of the object; returns labels and their names.
 
     Label 0: not judged -- too dark (green below ``min_signal`` of full
-    scale: no colour to measure) or the backdrop (:func:`backdrop_mask`).
+    scale: no colour to measure), clipped (a photosite at the white level:
+    the colour is wrong) or the backdrop (:func:`backdrop_mask`).
     A tile whose best candidate has a confidence below ``min_confidence``
     (:func:`processing.material_identification.identify_material`: the
     posterior probability among the candidates) is labelled
@@ -195,9 +203,11 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01,
     h, w = scene.rgb.shape[:2]
     labels = block_labels((h, w), block)
     skip = (scene.rgb[..., 1] < min_signal) | backdrop_mask(scene.rgb)
+    if scene.clipped is not None:
+        skip |= scene.clipped
     labels = np.where(skip, 0, labels)
     if not labels.any():
-        raise ValueError("no pixel of the frame is both lit and unlike the backdrop: nothing to identify")
+        raise ValueError("no pixel of the frame is lit, unclipped and unlike the backdrop: nothing to identify")
     model = _model_camera(scene, scene.rgb).reshape(h, w, 3)
     found = identify_regions(model, labels, scene.candidates)
     named = {lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()}
@@ -210,12 +220,12 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01,
 
 
 def _map_colours(names: dict[int, str]) -> np.ndarray:
-    """Row 0 black, then a distinct colour per label (Matplotlib's tab20); :data:`UNCERTAIN` grey."""
+    """Row 0 black, then a colour per label (Matplotlib's tab20 less its greys); :data:`UNCERTAIN` grey."""
     import matplotlib
 
     n = max(names, default=0)
-    tab = matplotlib.colormaps["tab20"](np.arange(20))[:, :3]
-    out = np.vstack([[0, 0, 0], np.round(255 * tab[np.arange(n) % 20])]).astype(np.uint8)
+    tab = matplotlib.colormaps["tab20"](np.r_[0:14, 16:20])[:, :3]         # tab20's 14 and 15 are greys
+    out = np.vstack([[0, 0, 0], np.round(255 * tab[np.arange(n) % len(tab)])]).astype(np.uint8)
     for i, name in names.items():
         if name == UNCERTAIN:
             out[i] = (150, 150, 150)
@@ -446,5 +456,6 @@ class SpectraPanel(Panel):
         share = float(np.mean(labels[labels > 0] == next((i for i, n in names.items() if n == UNCERTAIN), -1))) \
             if (labels > 0).any() else 0.0
         self.state.setText(f"material map: {materials} materials over blocks of {self.block.value()} px "
-                           f"({100 * share:.0f}% of the judged area uncertain; dark and backdrop blocks left out)")
+                           f"({100 * share:.0f}% of the judged area uncertain; dark, clipped and backdrop pixels "
+                           "left out)")
         self.map_ready.emit()

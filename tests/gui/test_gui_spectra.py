@@ -87,3 +87,29 @@ def test_click_gives_spectrum_and_material_and_the_map_covers_the_sphere(qtbot, 
     assert np.all((a == b) | (b == UNCERTAIN))
     with pytest.raises(ValueError, match="min_confidence must be within 0..1"):
         material_map(w.spectra.scene, 6, min_confidence=1.5)
+
+    # A clipped pixel has no colour to measure: its value never reaches a spectrum or the map (here the
+    # clipped pixels are also made white, which would pull the estimate off if they were used), and a
+    # click where everything is clipped says so
+    import dataclasses
+
+    from app.gui.spectra_panel import spectrum_at
+
+    scene = w.spectra.scene
+    cy, cx = int(y) // 2, int(x) // 2
+    mask = np.zeros(scene.rgb.shape[:2], bool)
+    mask[cy - 2:cy + 3, cx - 2:cx] = True                     # two of the five columns around the click
+    clean = spectrum_at(dataclasses.replace(scene, clipped=mask), cx, cy)
+    white = scene.rgb.copy()
+    white[mask] = 1.0
+    burnt = spectrum_at(dataclasses.replace(scene, rgb=white, clipped=mask), cx, cy)
+    assert clean["pixels"] == burnt["pixels"] == 15
+    np.testing.assert_array_equal(burnt["mean"], clean["mean"])
+    assert burnt["identification"].material == "urushi-red"
+    with pytest.raises(ValueError, match=r"clipped \(saturated\)"):
+        spectrum_at(dataclasses.replace(scene, clipped=np.ones_like(mask)), cx, cy)
+    block = np.zeros_like(mask)
+    block[cy - 12:cy + 12, cx - 12:cx + 12] = True
+    labels_clipped, _ = material_map(dataclasses.replace(scene, rgb=np.where(block[..., None], 1.0, scene.rgb),
+                                                         clipped=block), 6)
+    assert not labels_clipped[block].any() and labels_clipped[~block].any()
