@@ -85,3 +85,28 @@ def test_a_closed_drawer_refuses_readably_and_starts_no_process():
     with pytest.raises(RuntimeError, match="the window is closing"):
         d.draw(empty_figure, {"title": "a", "hint": "b"}, 100, 100)
     assert d.processes_started == 0 and d.pid is None
+
+
+def test_figures_of_nothing_draw_without_warnings():
+    """A pass with no laser return, an empty histogram, a flat spectrum, passes not loaded yet: each draws."""
+    import warnings
+
+    from app.gui.figures import histogram_figure, pick_figure
+
+    nan = np.full(320, np.nan)
+    empty = np.zeros((0, 3))
+    cases = [
+        (profile_figure, {"p": 1, "idx": 0, "angle": 0.0, "x": nan, "z": nan}),
+        (cloud_figure, {"p": 1, "angles": np.zeros(1), "x": nan[None], "z": nan[None], "cal": None}),
+        (histogram_figure, {"counts": np.zeros((3, 128)), "clipped": 0.0}),
+        (spectrum_figure, {"wavelengths": np.arange(400.0, 710.0, 10.0), "mean": np.zeros(31),
+                           "uncertainty": np.zeros(31), "model": np.zeros(31), "model_name": "gold", "pixels": 1,
+                           "title": "flat"}),
+        (pick_figure, {"a": empty, "b": empty, "picks_a": empty, "picks_b": empty, "i": 0, "j": 1,
+                       "label_a": "pass 1", "label_b": "pass 2"}),
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for build, data in cases:
+            rgba = draw_figure(build, data, 320, 240)
+            assert rgba.shape == (240, 320, 4) and rgba[..., :3].std() > 0     # drawn, not blank
