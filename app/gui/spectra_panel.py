@@ -25,8 +25,16 @@ A composition of the colour pipeline's library calls (issue #5):
    parameter of the identification);
 5. the material map: the same identification over square blocks of the frame
    (:func:`processing.material_identification.identify_regions`), leaving out
-   blocks too dark to have a colour and the backdrop (the colour of the
-   frame's rim).
+   pixels too dark to have a colour, clipped pixels and the backdrop (the
+   colour of the frame's rim), and blocks left less than half full.
+
+Both identifications allow the candidates the same model error as the batch
+``materials`` step (:data:`app.batch_materials.MODEL_ERROR`, 2 %): the
+shibuichi alloys, shakudo and bronze differ by 0.005-0.02 in camera
+chromaticity, about what one block of a highlight varies by on polished
+metal, so a block map tells families apart (gold, copper-rich, silver-rich,
+lacquer) far better than the alloys of a family; regions pooled over a
+whole part (``kogei identify``, the batch step) separate the alloys.
 
 Examples
 --------
@@ -49,6 +57,7 @@ from PySide6.QtWidgets import (
     QSplitter, QVBoxLayout, QWidget,
 )
 
+from app.batch_materials import MODEL_ERROR
 from app.gui.figures import empty_figure, spectrum_figure
 from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.session_panel import rgb_to_qimage
@@ -60,6 +69,9 @@ __all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "m
 
 #: Angle of the light from the surface normal assumed by the identification (degrees).
 LIGHT_DEG = 30.0
+#: Green signal (fraction of full scale) below which a pixel has no measurable colour (as the camera panel's
+#: 'dark' patches: quantisation and read noise dominate).
+MIN_SIGNAL = 0.02
 
 
 def block_labels(shape: tuple[int, int], block: int) -> np.ndarray:
@@ -145,7 +157,7 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
     patch = patch[keep][:, None, :]                  # the unclipped pixels, as an (N, 1, 3) image
     weights = scene.fit.estimate_weights(patch)
     reg = region_spectra(weights, np.ones(patch.shape[:2], np.int64), scene.fit.basis, scene.method_error)
-    ident = identify_material(_model_camera(scene, patch), scene.candidates)
+    ident = identify_material(_model_camera(scene, patch), scene.candidates, model_error=MODEL_ERROR)
     wl = scene.fit.wavelengths
     name = ident.material if ident.material in scene.candidates.names else ident.group[0]
     t = math.radians(LIGHT_DEG)
@@ -182,13 +194,15 @@ def backdrop_mask(rgb: np.ndarray, tolerance: float = 0.15, rim: float = 0.05) -
 UNCERTAIN = "uncertain"
 
 
-def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01,
+def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_SIGNAL,
                  min_confidence: float = 0.5) -> tuple[np.ndarray, dict[int, str]]:
     """Material of each ``block`` x ``block`` tile of the object; returns labels and their names.
 
     Label 0: not judged -- too dark (green below ``min_signal`` of full
     scale: no colour to measure), clipped (a photosite at the white level:
-    the colour is wrong) or the backdrop (:func:`backdrop_mask`).
+    the colour is wrong), the backdrop (:func:`backdrop_mask`), or a block
+    with fewer than half its pixels left (the rim of a highlight or of the
+    object: too few pixels to average).
     A tile whose best candidate has a confidence below ``min_confidence``
     (:func:`processing.material_identification.identify_material`: the
     posterior probability among the candidates) is labelled
@@ -206,10 +220,13 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = 0.01,
     if scene.clipped is not None:
         skip |= scene.clipped
     labels = np.where(skip, 0, labels)
+    ids, counts = np.unique(labels[labels > 0], return_counts=True)
+    labels = np.where(np.isin(labels, ids[counts < (block * block + 1) // 2]), 0, labels)
     if not labels.any():
-        raise ValueError("no pixel of the frame is lit, unclipped and unlike the backdrop: nothing to identify")
+        raise ValueError("no block of the frame is at least half lit, unclipped and unlike the backdrop: nothing "
+                         "to identify (a smaller block may do)")
     model = _model_camera(scene, scene.rgb).reshape(h, w, 3)
-    found = identify_regions(model, labels, scene.candidates)
+    found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR)
     named = {lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()}
     names = sorted(set(named.values()) - {UNCERTAIN}) + ([UNCERTAIN] if UNCERTAIN in named.values() else [])
     index = {n: i + 1 for i, n in enumerate(names)}
