@@ -27,16 +27,15 @@ import threading
 import traceback
 from typing import Any, Callable
 
-# The canvases are used directly (never pyplot), so the process-wide Matplotlib backend is left alone.
 import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget
 
-from app.gui.figures import axes_pixel, draw_figure, empty_figure, render_figure, style
+from app.gui.figures import axes_pixel, empty_figure, render_figure
 from app.gui.workers import JobContext, Lane
 
-__all__ = ["FigureDrawer", "PlotImage", "style", "draw_figure"]
+__all__ = ["FigureDrawer", "PlotImage"]
 
 _LOG = logging.getLogger("kogei.gui")
 
