@@ -47,3 +47,23 @@ def same_profiles(a: list[dict], b: list[dict]) -> None:
         np.testing.assert_array_equal(pa["x_mm"], pb["x_mm"])
         np.testing.assert_array_equal(pa["z_mm"], pb["z_mm"])
 
+
+
+def library_capture(world, folder: Path, *, steps: int, passes: int, seed: int, **station) -> Path:
+    """The plan captured through :func:`app.capture.run_capture` alone, without the window: the ground truth
+    the GUI tests compare with (a station's profiles are deterministic per seed, placement and table angle).
+    The station lives in ``folder / "station"``; returns the session folder ``folder / "s"``."""
+    from app.capture import CaptureHooks, CapturePlan, run_capture
+    from app.capture_devices import build_devices
+    from app.session import Session
+    from mocks.station import SimulatedStation
+
+    plan = CapturePlan("scan", steps=steps, passes=passes, camera=False)
+    with SimulatedStation(world, root=folder / "station", seed=seed, **station) as st:
+        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
+        s = Session.create(folder / "s", plan=plan.to_dict())
+        try:
+            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            s.close()
+    return folder / "s"

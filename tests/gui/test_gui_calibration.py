@@ -19,29 +19,14 @@ pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip
 from PySide6.QtCore import Qt
 
 from app.calibrate_command import session_calibration
-from app.capture import CaptureHooks, CapturePlan, load_pass_profiles, run_capture
-from app.capture_devices import build_devices
+from app.capture import load_pass_profiles
 from app.gui.devices_panel import SIMULATED_OBJECTS
 from app.session import Session
-from mocks.station import SimulatedStation
 from mocks.world import World
-from tests.gui.helpers import make_window, same_profiles, wait_capture
+from tests.gui.helpers import library_capture, make_window, same_profiles, wait_capture
 
 SEED, N_POINTS, SIZE = 5, 400, (96, 64)
 LEFT = Qt.MouseButton.LeftButton
-
-
-def _hawk_reference(tmp: Path, steps: int) -> dict:
-    plan = CapturePlan("scan", steps=steps, passes=1, camera=False)
-    with SimulatedStation(World.hawk(4000, width=SIZE[0], height=SIZE[1]), root=tmp / "ref-station", seed=SEED,
-                          n_points=N_POINTS) as st:
-        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
-        s = Session.create(tmp / "ref", plan=plan.to_dict())
-        try:
-            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
-        finally:
-            s.close()
-    return load_pass_profiles(tmp / "ref", 1)
 
 
 def _put(qtbot, w, name: str) -> None:
@@ -107,7 +92,9 @@ def test_sphere_scan_calibrates_the_scanner_then_the_piece_goes_on_the_table(qtb
     qtbot.mouseClick(w.capture.go, LEFT)
     qtbot.waitUntil(lambda: abs((st.table_angle_deg + 180.0) % 360.0 - 180.0) < 360 / 3200, timeout=20_000)
     _capture(qtbot, w, tmp_path / "hawk", steps=12)
-    same_profiles([load_pass_profiles(tmp_path / "hawk", 1)], [_hawk_reference(tmp_path, 12)])
+    reference = library_capture(World.hawk(4000, width=SIZE[0], height=SIZE[1]), tmp_path / "ref", steps=12,
+                                passes=1, seed=SEED, n_points=N_POINTS)
+    same_profiles([load_pass_profiles(tmp_path / "hawk", 1)], [load_pass_profiles(reference, 1)])
     # the live cloud of the pass used the calibration just made (3-D points, not the range image)
     qtbot.waitUntil(lambda: not w.capture.cloud_plot.busy, timeout=30_000)
     assert w.capture.cloud_plot.failure == "" and w.capture.cloud_caption == "pass 1, 12 profiles"

@@ -15,15 +15,12 @@ pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip
 
 from pathlib import Path
 
-import numpy as np
 from PySide6.QtCore import Qt
 
-from app.capture import CaptureHooks, CapturePlan, load_pass_profiles, run_capture
-from app.capture_devices import build_devices
+from app.capture import load_pass_profiles
 from app.session import Session
-from mocks.station import SimulatedStation
 from mocks.world import World
-from tests.gui.helpers import make_window, same_profiles, wait_capture
+from tests.gui.helpers import library_capture, make_window, same_profiles, wait_capture
 
 STEPS, PASSES, SEED, N_POINTS = 12, 2, 3, 96
 LEFT = Qt.MouseButton.LeftButton
@@ -35,16 +32,9 @@ def _world() -> World:
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> list[dict]:
-    tmp = tmp_path_factory.mktemp("gui-ref")
-    plan = CapturePlan("scan", steps=STEPS, passes=PASSES, camera=False)
-    with SimulatedStation(_world(), root=tmp / "station", seed=SEED, n_points=N_POINTS) as st:
-        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
-        s = Session.create(tmp / "s", plan=plan.to_dict())
-        try:
-            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
-        finally:
-            s.close()
-    return [load_pass_profiles(tmp / "s", p) for p in range(1, PASSES + 1)]
+    root = library_capture(_world(), tmp_path_factory.mktemp("gui-ref"), steps=STEPS, passes=PASSES, seed=SEED,
+                           n_points=N_POINTS)
+    return [load_pass_profiles(root, p) for p in range(1, PASSES + 1)]
 
 
 def _window_with_station(qtbot, tmp_path: Path):

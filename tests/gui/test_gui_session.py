@@ -14,21 +14,17 @@ import pytest
 pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
 
 import math
-import time
 from pathlib import Path
 
 import numpy as np
 from PySide6.QtCore import QPoint, Qt
 
-from app.capture import CaptureHooks, CapturePlan, run_capture
-from app.capture_devices import build_devices
 from app.calibrate_command import calibrate_session
 from app.session import Session
-from mocks.station import SimulatedStation
 from mocks.world import World, rotation_z
 from processing.registration import pose_difference
 from render.meshio import load_mesh
-from tests.gui.helpers import make_window, wait_capture
+from tests.gui.helpers import library_capture, make_window, wait_capture
 
 STEPS = 60
 PASSES = 3
@@ -41,17 +37,10 @@ POSE_MM = 0.3
 @pytest.fixture(scope="module")
 def calibration(tmp_path_factory) -> Path:
     """A session that scanned the reference sphere, calibrated (the library path, as kogei calibrate)."""
-    tmp = tmp_path_factory.mktemp("gui-cal")
-    plan = CapturePlan("scan", steps=72, passes=1, camera=False)
-    with SimulatedStation(World.calibration_sphere(25.0, 60.0), root=tmp / "station", seed=5) as st:
-        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
-        s = Session.create(tmp / "cal", plan=plan.to_dict())
-        try:
-            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
-        finally:
-            s.close()
-    calibrate_session(tmp / "cal", 25.0)
-    return tmp / "cal"
+    root = library_capture(World.calibration_sphere(25.0, 60.0), tmp_path_factory.mktemp("gui-cal"), steps=72,
+                           passes=1, seed=5)
+    calibrate_session(root, 25.0)
+    return root
 
 
 def _pinhole(points: np.ndarray, eye: np.ndarray, target: np.ndarray, up: np.ndarray, fov_deg: float,

@@ -26,7 +26,7 @@ LEFT = Qt.MouseButton.LeftButton
 def test_click_gives_spectrum_and_material_and_the_map_covers_the_sphere(qtbot, tmp_path):
     w = make_window(qtbot, tmp_path)
     world = World.calibration_sphere(40.0, 0.0, width=600, height=400, chart_layout="classic24")
-    st = w.start_simulated_station(world=world, seed=4, n_points=96)
+    w.start_simulated_station(world=world, seed=4, n_points=96)
     w.devices.connect_all()
     qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
     w.session.folder.setText(str(tmp_path / "s"))

@@ -14,12 +14,9 @@ from pathlib import Path
 
 from PySide6.QtCore import Qt
 
-from app.capture import CaptureHooks, CapturePlan, run_capture
-from app.capture_devices import build_devices
 from app.session import Session
-from mocks.station import SimulatedStation
 from mocks.world import World
-from tests.gui.helpers import make_window, wait_capture
+from tests.gui.helpers import library_capture, make_window, wait_capture
 
 LEFT = Qt.MouseButton.LeftButton
 
@@ -85,14 +82,7 @@ def test_pause_abort_reopen_and_resume(qtbot, tmp_path):
 
 
 def test_cancel_processing_leaves_the_session_as_it_was(qtbot, tmp_path):
-    plan = CapturePlan("scan", steps=12, passes=2, camera=False)
-    with SimulatedStation(World.hawk(2000), root=tmp_path / "station", seed=1) as st:
-        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
-        s = Session.create(tmp_path / "s", plan=plan.to_dict())
-        try:
-            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
-        finally:
-            s.close()
+    library_capture(World.hawk(2000), tmp_path, steps=12, passes=2, seed=1)
     before = (tmp_path / "s" / "session.json").read_bytes()
     w = make_window(qtbot, tmp_path)
     w.session.folder.setText(str(tmp_path / "s"))
