@@ -105,6 +105,7 @@ class SessionPanel(Panel):
         self.meta_edits: dict[str, QLineEdit] = {}
         for key, label in METADATA_FIELDS:
             edit = QLineEdit()
+            edit.setMinimumWidth(260)          # a catalogue name fits whole
             self.meta_edits[key] = edit
             mform.addRow(label, edit)
         split.addWidget(meta)
@@ -126,7 +127,7 @@ class SessionPanel(Panel):
         cl.addWidget(self.thumbs, 1)
         split.addWidget(caps)
         split.setStretchFactor(1, 2)
-        split.setSizes([380, 900])
+        split.setSizes([470, 810])
         outer.addWidget(split, 1)
         self.capturing = False
 
