@@ -1,6 +1,7 @@
 """The ``colour`` step of ``kogei batch``: every pass's chart frame located, sampled, checked and scored.
 
-docs/batch.md.  For each ``pNN/chart`` capture the RAW frame is decoded,
+docs/batch.md.  For each pass's chart frame (``pNN/chart``; the first,
+``pNN/chart/00``, of a swatch pass that took several) the RAW frame is decoded,
 the chart found and its patches sampled and checked by
 :func:`app.chart_command.chart_report` (``kogei chart``:
 :mod:`processing.raw_decode`, :mod:`processing.chart_detection`,
@@ -26,7 +27,7 @@ import numpy as np
 
 from app.errors import UsageError
 
-__all__ = ["colour_inputs", "colour_params", "colour_run", "patch_errors", "CHARTS"]
+__all__ = ["colour_inputs", "colour_params", "colour_run", "first_chart_frames", "patch_errors", "CHARTS"]
 
 CHARTS = ("classic24", "sg140", "vinyl18")
 COLOUR_DIR = "products/colour"
@@ -83,9 +84,31 @@ def patch_errors(camera_rgb: np.ndarray, reference_lab: np.ndarray, usable: np.n
             "max": float(de[use].max())}
 
 
+def first_chart_frames(manifest: dict[str, Any]) -> dict[str, tuple[str, dict[str, Any], int]]:
+    """Per pass (``pNN``): its first chart frame taken (id and record) and how many the pass has.
+
+    A scan pass opens with one chart frame (``pNN/chart``), a swatch pass
+    with several (``pNN/chart/00`` ...; ``CapturePlan.chart_frames``): the
+    first calibrates the pass, as in the window's spectra panel.
+
+    >>> done = {"kind": "chart", "status": "done"}
+    >>> caps = {"p01/chart/01": done, "p01/chart/00": done, "p02/chart": done,
+    ...         "p01/frame/00": {"kind": "frame", "status": "done"}}
+    >>> {tag: (cid, n) for tag, (cid, rec, n) in first_chart_frames({"captures": caps}).items()}
+    {'p01': ('p01/chart/00', 2), 'p02': ('p02/chart', 1)}
+    """
+    out: dict[str, tuple[str, dict[str, Any], int]] = {}
+    for cid, rec in sorted(manifest["captures"].items()):
+        if rec.get("kind") != "chart" or rec.get("status") != "done":
+            continue
+        tag = cid.split("/")[0]
+        first = out.get(tag)
+        out[tag] = (cid, rec, 1) if first is None else (first[0], first[1], first[2] + 1)
+    return out
+
+
 def colour_inputs(root: Path, manifest: dict[str, Any], options: Any) -> dict[str, str]:
-    return {cid: rec.get("sha256", "") for cid, rec in sorted(manifest["captures"].items())
-            if rec.get("kind") == "chart"}
+    return {cid: rec.get("sha256", "") for cid, rec, _ in first_chart_frames(manifest).values()}
 
 
 def colour_params(options: Any) -> dict[str, Any]:
@@ -107,14 +130,15 @@ def colour_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str
     from processing.raw_decode import RawDecodeError, decode_raw, preview_srgb8
 
     manifest = Session.read(root)
-    charts = {cid: rec for cid, rec in sorted(manifest["captures"].items())
-              if rec.get("kind") == "chart" and rec.get("status") == "done"}
+    charts = first_chart_frames(manifest)
     if not charts:
         raise UsageError(f"session {root} has no colour-chart frame (captured without camera or chart); capture "
                          "with the camera on, the chart in the first frame of every pass")
     results = {}
-    for cid, rec in charts.items():
-        tag = cid.split("/")[0]
+    for tag, (cid, rec, count) in charts.items():
+        if count > 1:
+            log(f"{tag}: {count} chart frames; the first ({cid}) calibrates the pass (the others are for the "
+                "cloth fit's average gain)")
         path = root / rec["file"]
         try:
             report = chart_report(path, chart=options.chart)

@@ -356,3 +356,28 @@ def test_a_session_given_twice_is_refused(done):
     assert parse_steps("report, geometry") == ("geometry", "report")
     parts = step_inputs(STEPS["report"], done[0], Session.read(done[0]), done[1])
     assert set(parts) == {"inputs", "params", "code"}
+
+
+def test_a_pass_with_several_chart_frames_is_calibrated_by_its_first(tmp_path):
+    """Swatch passes open with several chart frames (pNN/chart/00 ...): the colour step decodes the first
+    one only, names it in the product and says so in the log; the others leave the step up to date."""
+    from app.capture import CapturePlan
+    from mocks.world import World
+    from tests.batch_session import _capture
+
+    root = tmp_path / "s"
+    _capture(World.hawk(2_000, width=240, height=160, chart_layout="classic24"), root,
+             CapturePlan("scan", steps=4, passes=1, camera_angles_deg=(0.0,), chart_frames=3), True, 3)
+    caps = Session.read(root)["captures"]
+    assert sorted(c for c in caps if "/chart" in c) == ["p01/chart/00", "p01/chart/01", "p01/chart/02"]
+    options = BatchOptions()
+    result = process_one(str(root), ("colour",), options)
+    assert [(s.name, s.status) for s in result.steps] == [("colour", "ran")], result
+    product = Session.read(root)["products"]["colour"]["passes"]
+    assert list(product) == ["p01"]
+    report = json.loads((root / product["p01"]["chart"]["file"]).read_text())
+    assert report["raw"] == caps["p01/chart/00"]["file"]
+    assert "p01: 3 chart frames; the first (p01/chart/00) calibrates the pass" in (root / LOG_FILE).read_text()
+    # the step's inputs are the first frame's checksum only
+    inputs = step_inputs(STEPS["colour"], root, Session.read(root), options)["inputs"]
+    assert inputs == {"p01/chart/00": caps["p01/chart/00"]["sha256"]}
