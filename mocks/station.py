@@ -626,7 +626,7 @@ class SimulatedStation:
     # ----------------------------------------------------------- life cycle
     def start(self) -> SimulatedStation:
         """Create the folders, the camera configuration and shim, and start the devices (idempotent)."""
-        from mocks.fake_gphoto2 import cache_mesh, install, write_config
+        from mocks.fake_gphoto2 import install
         from mocks.horus_firmware import HorusFirmware
         from mocks.profiler_firmware import ProfilerFirmware
 
@@ -638,14 +638,7 @@ class SimulatedStation:
             folder.mkdir(parents=True, exist_ok=True)
         self._shots = max([int(m.group(1)) for p in self.hotfolder.iterdir()
                            if (m := re.fullmatch(r"IMG_(\d+)\.DNG", p.name))], default=0)
-        label, world = self._camera_world()
-        with self._lock:
-            world["pose"] = self._pose.tolist()
-            placement = self._placement
-        world["table_angle_deg"] = 0.0
-        write_config(self.config_path, world, faults=self._camera_faults, chart_first=True,
-                     exposure_s=self.exposure_s, seed=self.seed, placement=placement)
-        cache_mesh(self.config_path, self.world, label)
+        self._write_camera_config(table_angle_deg=0.0)
         install(self.gphoto2_path.parent, self.config_path)
         self._started = True
         try:
@@ -779,7 +772,6 @@ class SimulatedStation:
         NDArray
             The new object -> table pose (4 x 4, mm), also :attr:`pose`.
         """
-        from mocks.fake_gphoto2 import cache_mesh, write_config
         from mocks.world import World
 
         if not isinstance(world, World):
@@ -790,12 +782,7 @@ class SimulatedStation:
             self.__dict__.pop("_chart_home", None)
             pose = self._set_placement(1)
             if self._started:
-                label, camera_world = self._camera_world()
-                camera_world["pose"] = pose.tolist()
-                camera_world["table_angle_deg"] = self.table_angle_deg
-                write_config(self.config_path, camera_world, faults=self._camera_faults, chart_first=True,
-                             exposure_s=self.exposure_s, seed=self.seed, placement=1)
-                cache_mesh(self.config_path, world, label)
+                self._write_camera_config(table_angle_deg=self.table_angle_deg)
         return pose.copy()
 
     def place(self, placement: int) -> NDArray[np.float64]:
@@ -817,6 +804,19 @@ class SimulatedStation:
         return pose.copy()
 
     # ----------------------------------------------------------- cameras
+    def _write_camera_config(self, table_angle_deg: float) -> None:
+        """The fake gphoto2's configuration for the current world and placement (the next frame: the chart)."""
+        from mocks.fake_gphoto2 import cache_mesh, write_config
+
+        label, world = self._camera_world()
+        with self._lock:
+            world["pose"] = self._pose.tolist()
+            placement = self._placement
+        world["table_angle_deg"] = float(table_angle_deg)
+        write_config(self.config_path, world, faults=self._camera_faults, chart_first=True,
+                     exposure_s=self.exposure_s, seed=self.seed, placement=placement)
+        cache_mesh(self.config_path, self.world, label)
+
     def _camera_world(self) -> tuple[str, dict[str, Any]]:
         label = self.world.mesh_source or "station:inline-mesh"
         return label, dataclasses.replace(self.world, mesh_source=label).to_dict()
