@@ -20,6 +20,22 @@ def make_window(qtbot, tmp_path: Path, name: str = "settings.ini"):
     return w
 
 
+def connect_instruments(qtbot, w, camera: bool = False) -> None:
+    """Connect the turntable and the profiler from the Devices tab (without the camera unless ``camera``)."""
+    if not camera:
+        w.devices.camera_kind.setCurrentText("none")
+    w.devices.connect_all()
+    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+
+
+def station_window(qtbot, tmp_path: Path, *, camera: bool = False, name: str = "settings.ini", **station):
+    """A window with a simulated station (``station``: its arguments) and both instruments connected."""
+    w = make_window(qtbot, tmp_path, name)
+    st = w.start_simulated_station(**station)
+    connect_instruments(qtbot, w, camera)
+    return w, st
+
+
 def wait_capture(qtbot, w, timeout_s: float = 60.0, answer_prompts: bool = True) -> list[str]:
     """Run the event loop until the capture job ends, pressing Continue at each prompt; returns the prompts."""
     prompts: list[str] = []

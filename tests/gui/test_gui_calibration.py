@@ -23,7 +23,7 @@ from app.capture import load_pass_profiles
 from app.gui.devices_panel import SIMULATED_OBJECTS
 from app.session import Session
 from mocks.world import World
-from tests.gui.helpers import library_capture, make_window, same_profiles, wait_capture
+from tests.gui.helpers import connect_instruments, library_capture, make_window, same_profiles, wait_capture
 
 SEED, N_POINTS, SIZE = 5, 400, (96, 64)
 LEFT = Qt.MouseButton.LeftButton
@@ -54,9 +54,7 @@ def test_sphere_scan_calibrates_the_scanner_then_the_piece_goes_on_the_table(qtb
     assert not w.devices.put_button.isEnabled()                     # no station yet
     st = w.start_simulated_station(triangles=4000, image_size=SIZE, n_points=N_POINTS, seed=SEED)
     assert "the hawk head" in w.devices.sim_state.text()
-    w.devices.camera_kind.setCurrentText("none")
-    w.devices.connect_all()
-    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+    connect_instruments(qtbot, w)
 
     # The reference sphere goes on the table; the instruments stay connected
     _put(qtbot, w, SIMULATED_OBJECTS[1])
@@ -107,9 +105,7 @@ def test_putting_an_object_needs_a_station_and_waits_for_the_capture(qtbot, tmp_
     w.run_safely(lambda: w.put_simulated_object(SIMULATED_OBJECTS[1]))
     assert "no simulated station runs in this window" in w.error_line.text()
     st = w.start_simulated_station(triangles=2000, image_size=(48, 32), n_points=96, seed=SEED)
-    w.devices.camera_kind.setCurrentText("none")
-    w.devices.connect_all()
-    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+    connect_instruments(qtbot, w)
     w.session.folder.setText(str(tmp_path / "s"))
     qtbot.mouseClick(w.session.new_button, LEFT)
     w.capture.steps.setValue(400)

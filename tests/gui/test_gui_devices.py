@@ -20,7 +20,7 @@ from PySide6.QtCore import Qt
 from app.capture import load_pass_profiles
 from app.session import Session
 from mocks.world import World
-from tests.gui.helpers import library_capture, make_window, same_profiles, wait_capture
+from tests.gui.helpers import library_capture, make_window, same_profiles, station_window, wait_capture
 
 STEPS, PASSES, SEED, N_POINTS = 12, 2, 3, 96
 LEFT = Qt.MouseButton.LeftButton
@@ -38,12 +38,7 @@ def reference(tmp_path_factory) -> list[dict]:
 
 
 def _window_with_station(qtbot, tmp_path: Path):
-    w = make_window(qtbot, tmp_path)
-    st = w.start_simulated_station(world=_world(), seed=SEED, n_points=N_POINTS)
-    w.devices.camera_kind.setCurrentText("none")
-    w.devices.connect_all()
-    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
-    return w, st
+    return station_window(qtbot, tmp_path, world=_world(), seed=SEED, n_points=N_POINTS)
 
 
 def test_unplug_mid_pass_recovered_then_lost_then_resumed(qtbot, tmp_path, reference):

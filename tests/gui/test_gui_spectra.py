@@ -18,17 +18,14 @@ from PySide6.QtCore import Qt
 from scipy import ndimage
 
 from mocks.world import World
-from tests.gui.helpers import make_window, wait_capture
+from tests.gui.helpers import station_window, wait_capture
 
 LEFT = Qt.MouseButton.LeftButton
 
 
 def test_click_gives_spectrum_and_material_and_the_map_covers_the_sphere(qtbot, tmp_path):
-    w = make_window(qtbot, tmp_path)
     world = World.calibration_sphere(40.0, 0.0, width=600, height=400, chart_layout="classic24")
-    w.start_simulated_station(world=world, seed=4, n_points=96)
-    w.devices.connect_all()
-    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+    w, _ = station_window(qtbot, tmp_path, camera=True, world=world, seed=4, n_points=96)
     w.session.folder.setText(str(tmp_path / "s"))
     qtbot.mouseClick(w.session.new_button, LEFT)
     w.capture.steps.setValue(4)

@@ -16,18 +16,14 @@ from PySide6.QtCore import Qt
 
 from app.session import Session
 from mocks.world import World
-from tests.gui.helpers import library_capture, make_window, wait_capture
+from tests.gui.helpers import library_capture, make_window, station_window, wait_capture
 
 LEFT = Qt.MouseButton.LeftButton
 
 
 def _station_window(qtbot, tmp_path: Path, name: str = "settings.ini"):
-    w = make_window(qtbot, tmp_path, name)
-    st = w.start_simulated_station(world=World.hawk(2000, width=48, height=32), seed=6, n_points=96)
-    w.devices.camera_kind.setCurrentText("none")
-    w.devices.connect_all()
-    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
-    return w, st
+    return station_window(qtbot, tmp_path, name=name, world=World.hawk(2000, width=48, height=32), seed=6,
+                          n_points=96)
 
 
 def test_pause_abort_reopen_and_resume(qtbot, tmp_path):
