@@ -470,8 +470,9 @@ class SpectraPanel(Panel):
             + (f"{n} (confidence below {confidence:.2f})" if n == UNCERTAIN else n)
             for i, n in sorted(names.items()) for c in [palette[i]]))
         materials = sum(1 for n in names.values() if n != UNCERTAIN)
-        share = float(np.mean(labels[labels > 0] == next((i for i, n in names.items() if n == UNCERTAIN), -1))) \
-            if (labels > 0).any() else 0.0
+        uncertain = [i for i, n in names.items() if n == UNCERTAIN]
+        judged = labels[labels > 0]
+        share = float(np.isin(judged, uncertain).mean()) if judged.size else 0.0
         self.state.setText(f"material map: {materials} materials over blocks of {self.block.value()} px "
                            f"({100 * share:.0f}% of the judged area uncertain; dark, clipped and backdrop pixels "
                            "left out)")
