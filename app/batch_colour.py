@@ -4,15 +4,15 @@ docs/batch.md.  For each pass's chart frame (``pNN/chart``; the first,
 ``pNN/chart/00``, of a swatch pass that took several) the RAW frame is decoded,
 the chart found and its patches sampled and checked by
 :func:`app.chart_command.chart_report` (``kogei chart``:
-:mod:`processing.raw_decode`, :mod:`processing.chart_detection`,
-:mod:`processing.chart_sampling`).  The **patch errors** are the CIEDE2000
+:mod:`processing.camera.raw_decode`, :mod:`processing.camera.chart_detection`,
+:mod:`processing.camera.chart_sampling`).  The **patch errors** are the CIEDE2000
 differences left by the least-squares 3 x 3 matrix from the usable patches'
 linear camera RGB to the chart's reference XYZ (D65,
-:func:`processing.chart_layout.reference_lab`): the residual of a linear
+:func:`processing.camera.chart_layout.reference_lab`): the residual of a linear
 colour calibration on the chart itself (in-sample, so a lower bound of the
 error elsewhere in the frame), large where a patch is mis-sampled, clipped
 or the camera is far from linear.  Each pass's result and a white-balanced
-preview of its frame (:func:`processing.raw_decode.preview_srgb8`) become
+preview of its frame (:func:`processing.camera.raw_decode.preview_srgb8`) become
 products ``products/colour/pNN-chart.json`` and ``pNN-chart.png``.
 """
 
@@ -126,8 +126,8 @@ def _png(srgb8: np.ndarray) -> bytes:
 def colour_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str, Any]:
     from app.chart_command import chart_report
     from app.session import Session
-    from processing.chart_layout import reference_lab
-    from processing.raw_decode import RawDecodeError, decode_raw, preview_srgb8
+    from processing.camera.chart_layout import reference_lab
+    from processing.camera.raw_decode import RawDecodeError, decode_raw, preview_srgb8
 
     manifest = Session.read(root)
     charts = first_chart_frames(manifest)

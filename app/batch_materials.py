@@ -7,7 +7,7 @@ spectral estimate``: :func:`app.spectral_command.estimate_spectral`); every
 object RAW frame of the pass gives basis weights and chart-calibrated camera
 values with saturated and dead pixels masked.  The frames of a pass are
 pooled side by side, split into regions without ground truth
-(:func:`processing.material_segmentation.segment_regions`: backdrop removed
+(:func:`processing.materials.segmentation.segment_regions`: backdrop removed
 by its level and colour measured on the frame's border, lit pixels clustered
 by chromaticity), each cluster identified (:func:`app.identify_command.
 identify_result`: eq. (11), (3)-(4)), and clusters whose identified material
@@ -80,7 +80,7 @@ def material_colour(name: str | None) -> tuple[int, int, int]:
     (255, 0, 255)
     """
     from app.materials_command import preset_srgb
-    from processing.material_identification import NEUTRAL_METAL
+    from processing.materials.identification import NEUTRAL_METAL
 
     if name is None:
         return _UNIDENTIFIED_COLOUR
@@ -98,8 +98,8 @@ def largest_material(regions: list[dict[str, Any]]) -> tuple[str, int] | None:
     ...                   {"material": "copper", "pixels": 7}, {"material": None, "pixels": 50}])
     ('copper', 13)
     """
-    from processing.material_identification import NEUTRAL_METAL
-    from processing.materials import get_material
+    from processing.materials.identification import NEUTRAL_METAL
+    from processing.materials.presets import get_material
 
     totals: dict[str, int] = {}
     for reg in regions:
@@ -177,7 +177,7 @@ def _png(rgb8: NDArray[np.uint8]) -> bytes:
 def _pass_materials(root: Path, tag: str, chart: dict[str, Any], frames: list[tuple[str, dict[str, Any]]],
                     options: Any, log: Callable[[str], None]) -> tuple[list[dict[str, Any]], dict[str, bytes], dict]:
     from app.spectral_command import estimate_spectral
-    from processing.material_segmentation import SegmentationError, segment_regions
+    from processing.materials.segmentation import SegmentationError, segment_regions
 
     chart_path = root / chart["raw"]
     corners = ",".join(f"{v:.3f}" for v in np.asarray(chart["corners"], dtype=np.float64).ravel())
@@ -256,7 +256,7 @@ def materials_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[
         raise UsageError(f"session {root} has no object RAW frame in a pass with a chart frame; capture with "
                          "the camera on (--camera-angles)")
     from app.spectral_command import GRID
-    from processing.spectra import SpectralGrid
+    from processing.spectral.spectra import SpectralGrid
 
     wavelengths = SpectralGrid(*GRID).wavelengths.tolist()
     largest = largest_material(regions)

@@ -176,7 +176,7 @@ def render_session_mesh(root: Path, illuminant: str, size: tuple[int, int], pres
     """
     from app.scene_build import build_job
     from app.scene_spec import ObjectSpec, SceneSpec
-    from processing.materials import MaterialError
+    from processing.materials.presets import MaterialError
     from render.camera import Camera
     from render.errors import RenderInputError
     from render.renderer import render
@@ -256,8 +256,8 @@ def _report_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
 def _colour_step() -> Step:
     from app.batch_colour import colour_inputs, colour_params, colour_run
 
-    return Step("colour", ("app.batch_steps", "app.batch_colour", "app.chart_command", "processing.raw_decode",
-                           "processing.chart_detection", "processing.chart_sampling", "processing.chart_layout"),
+    return Step("colour", ("app.batch_steps", "app.batch_colour", "app.chart_command", "processing.camera.raw_decode",
+                           "processing.camera.chart_detection", "processing.camera.chart_sampling", "processing.camera.chart_layout"),
                 colour_inputs, colour_params, colour_run)
 
 
@@ -265,7 +265,7 @@ def _materials_step() -> Step:
     from app.batch_materials import materials_inputs, materials_params, materials_run
 
     return Step("materials", ("app.batch_steps", "app.batch_materials", "app.spectral_command", "app.identify_command",
-                              "app.materials_command", "processing.material_segmentation"),
+                              "app.materials_command", "processing.materials.segmentation"),
                 materials_inputs, materials_params, materials_run, needs=("colour",))
 
 

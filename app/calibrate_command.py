@@ -1,6 +1,6 @@
 """``kogei calibrate``: the scanner calibration from a session that scanned a reference sphere.
 
-The calibration (:func:`processing.calibration.calibrate_sphere`: the laser
+The calibration (:func:`processing.geometry.calibration.calibrate_sphere`: the laser
 plane's pose relative to the table axis) is written into the session as
 ``calibration.json`` and referenced from its manifest (path, SHA-256,
 residuals).  Other sessions use it with ``kogei process SESSION --calibration
@@ -50,7 +50,7 @@ def calibrate_session(session_dir: str | Path, sphere_radius_mm: float, *, spher
     """
     from app.capture import load_pass_profiles
     from app.session import Session, SessionError
-    from processing.calibration import CalibrationError, calibrate_sphere
+    from processing.geometry.calibration import CalibrationError, calibrate_sphere
 
     if not (math.isfinite(sphere_radius_mm) and sphere_radius_mm > 0):
         raise UsageError(f"--sphere-radius must be a positive number of millimetres, got {sphere_radius_mm!r}")
@@ -86,7 +86,7 @@ def install_calibration(session: Any, data: dict[str, Any]) -> dict[str, Any]:
 
 def session_calibration(session_dir: str | Path, manifest: dict[str, Any]) -> Any:
     """The session's referenced calibration, checked against its checksum."""
-    from processing.calibration import CalibrationError, ScannerCalibration
+    from processing.geometry.calibration import CalibrationError, ScannerCalibration
 
     ref = manifest.get("calibration")
     if not ref:
@@ -110,7 +110,7 @@ def session_calibration(session_dir: str | Path, manifest: dict[str, Any]) -> An
 
 def load_calibration_source(source: str | Path) -> dict[str, Any]:
     """A calibration's JSON form from a calibrated session folder or a calibration JSON file."""
-    from processing.calibration import CalibrationError, ScannerCalibration
+    from processing.geometry.calibration import CalibrationError, ScannerCalibration
 
     p = Path(source)
     file = p / CALIBRATION_FILE if p.is_dir() else p

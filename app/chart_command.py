@@ -2,11 +2,11 @@
 
 ``kogei chart RAW [--chart classic24|sg140|vinyl18] [--chart-corners x1,y1,...,x4,y4]
 [--mode bin2x2|demosaic] [--json OUT.json]`` decodes the RAW
-(:func:`processing.raw_decode.decode_raw`), finds the chart with ``cv2.mcc``
-(:func:`processing.chart_detection.detect_chart`) or takes its four outer
+(:func:`processing.camera.raw_decode.decode_raw`), finds the chart with ``cv2.mcc``
+(:func:`processing.camera.chart_detection.detect_chart`) or takes its four outer
 corners from ``--chart-corners`` (sensor pixels, top-left of the chart first,
 clockwise), samples the linear RGB of every patch and checks the shot
-(:func:`processing.chart_sampling.check_patches`).  It prints one summary line
+(:func:`processing.camera.chart_sampling.check_patches`).  It prints one summary line
 and one line per excluded patch; ``--json`` writes the per-patch statistics,
 the patch positions and the exposure metadata.
 
@@ -51,9 +51,9 @@ def add_chart_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
 def chart_report(raw_path: Path, *, chart: str = "classic24", corners: str | None = None, mode: str = "bin2x2",
                  inset: float = 0.6, trim: float = 0.1) -> dict:
     """Decode, locate, sample and check; the JSON-ready report.  Errors are ``UsageError``."""
-    from processing.chart_detection import ChartDetectionError, chart_from_corners, detect_chart, parse_corners
-    from processing.chart_sampling import ChartRejectedError, ChartSamplingError, check_patches, sample_patches
-    from processing.raw_decode import RawDecodeError, decode_raw
+    from processing.camera.chart_detection import ChartDetectionError, chart_from_corners, detect_chart, parse_corners
+    from processing.camera.chart_sampling import ChartRejectedError, ChartSamplingError, check_patches, sample_patches
+    from processing.camera.raw_decode import RawDecodeError, decode_raw
 
     try:
         img = decode_raw(raw_path, mode=mode)

@@ -36,7 +36,7 @@ def add_cloth_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_cloth(args: argparse.Namespace) -> int:
-    from processing.cloth_fit import ClothFitError, choose_layers, fit_swatch
+    from processing.cloth.fit import ClothFitError, choose_layers, fit_swatch
 
     from app.cloth_fit_session import fit_figure, fit_report, load_swatch_session
 

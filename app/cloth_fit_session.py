@@ -2,15 +2,15 @@
 
 A swatch session is a capture with the ``swatch`` plan (:mod:`app.capture`):
 chart frames (4 by default), then one RAW frame per table step.  Its set-up (camera pose,
-light direction, swatch size: :class:`processing.swatch_geometry.SwatchGeometry`)
+light direction, swatch size: :class:`processing.cloth.swatch_geometry.SwatchGeometry`)
 is a JSON file, by default ``swatch.json`` in the session folder.
 
-:func:`load_swatch_session` decodes the frames (:func:`processing.raw_decode.decode_raw`,
+:func:`load_swatch_session` decodes the frames (:func:`processing.camera.raw_decode.decode_raw`,
 2 x 2 binning, no demosaicing), calibrates them with the chart
-(:func:`processing.cloth_fit.chart_gains` of the mean of each pass's chart
+(:func:`processing.cloth.fit.chart_gains` of the mean of each pass's chart
 frames: the gains are shared by every frame of a pass, so their pixel noise
 is not averaged out by the swatch frames) and picks the binned pixels that
-see the swatch at every angle; :func:`processing.cloth_fit.fit_swatch` does
+see the swatch at every angle; :func:`processing.cloth.fit.fit_swatch` does
 the fit; :func:`fit_figure` draws measured and fitted responses over angle.
 """
 
@@ -36,8 +36,8 @@ GEOMETRY_FILE = "swatch.json"
 class SwatchData:
     """A decoded swatch session: the measurement, its set-up and where it came from."""
 
-    measurement: Any          # processing.cloth_fit.SwatchMeasurement
-    geometry: Any             # processing.swatch_geometry.SwatchGeometry
+    measurement: Any          # processing.cloth.fit.SwatchMeasurement
+    geometry: Any             # processing.cloth.swatch_geometry.SwatchGeometry
     gains: np.ndarray
     session: Path
 
@@ -111,7 +111,7 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
 
 
 def _decode(path: Path):
-    from processing.raw_decode import RawDecodeError, decode_raw
+    from processing.camera.raw_decode import RawDecodeError, decode_raw
 
     try:
         return decode_raw(path, mode="bin2x2")
@@ -121,7 +121,7 @@ def _decode(path: Path):
 
 def load_swatch_session(session: str | Path, geometry: str | Path | None = None, *, max_pixels: int = 160,
                         margin_mm: float = 3.0) -> SwatchData:
-    """Decode a swatch session into a calibrated :class:`processing.cloth_fit.SwatchMeasurement`.
+    """Decode a swatch session into a calibrated :class:`processing.cloth.fit.SwatchMeasurement`.
 
     Raises
     ------
@@ -130,8 +130,8 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
         missing geometry file, frames of another size than the geometry.
     """
     from app.session import Session
-    from processing.cloth_fit import ClothFitError, SwatchMeasurement, chart_gains, grid_chart_means
-    from processing.swatch_geometry import SwatchGeometry, SwatchGeometryError, swatch_samples
+    from processing.cloth.fit import ClothFitError, SwatchMeasurement, chart_gains, grid_chart_means
+    from processing.cloth.swatch_geometry import SwatchGeometry, SwatchGeometryError, swatch_samples
 
     root = Path(session)
     try:

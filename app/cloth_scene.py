@@ -1,6 +1,6 @@
 """Cloth scenes: the figures of Yasuda et al. (Fig. 15-18) on a draped sheet, and the demo's cloth scene.
 
-Each figure is a montage of renders of :func:`processing.draped_cloth.draped_cloth`
+Each figure is a montage of renders of :func:`processing.cloth.draped.draped_cloth`
 (the paper's "simple wrinkles expressed with trigonometric functions") with
 warp tangents from its UVs:
 
@@ -54,8 +54,8 @@ FIGURES = ("fig15_components.png", "fig16_weave_angle.png", "fig17_cotton_silk.p
 def cloth_object(material: str, weave_angle_deg: float = 0.0, divisions: int = 96, fold_amplitude: float = 0.25,
                  wrinkle_amplitude: float = 0.012):
     """The draped sheet with ``material`` (a spec string) and warp tangents from its UVs."""
-    from processing.draped_cloth import draped_cloth
-    from processing.materials import get_material
+    from processing.cloth.draped import draped_cloth
+    from processing.materials.presets import get_material
     from render.meshio import make_mesh
     from render.scene import SceneObject
     from render.tangents import tangents_from_uvs

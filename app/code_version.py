@@ -101,8 +101,10 @@ def code_version(modules: tuple[str, ...]) -> CodeVersion:
         seen[name] = path
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
         for imported in module_imports(path.read_text(encoding="utf-8"), package):
-            if imported.split(".")[0] in FOLLOWED_PACKAGES and imported not in seen:
-                waiting.append(imported)
+            if imported.split(".")[0] in FOLLOWED_PACKAGES:
+                # Importing a.b.c runs a/__init__.py and a/b/__init__.py too.
+                parts = imported.split(".")
+                waiting.extend(n for n in (".".join(parts[:i]) for i in range(1, len(parts) + 1)) if n not in seen)
     digest = hashlib.sha256()
     files = []
     for path in sorted(set(seen.values())):

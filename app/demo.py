@@ -112,9 +112,9 @@ def _render(spec: SceneSpec, hawk_triangles: int):
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    from processing.materials import list_materials
-    from processing.procedural_hawk import HAWK_PRESET_TRIANGLES
-    from processing.display import xyz_to_srgb8
+    from processing.materials.presets import list_materials
+    from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
+    from processing.spectral.display import xyz_to_srgb8
     from render.image_io import write_png, write_xyz_tiff
 
     out = Path(args.out)
@@ -240,7 +240,7 @@ def colour_shift_table(res_d65, res_a, camera, names: list[str]) -> dict[str, fl
     """
     from colour.adaptation import chromatic_adaptation_VonKries
 
-    from processing.display import delta_e00
+    from processing.spectral.display import delta_e00
 
     d65_white = np.asarray(res_d65.white, dtype=np.float64)
     xyz_a = chromatic_adaptation_VonKries(np.asarray(res_a.xyz, dtype=np.float64),

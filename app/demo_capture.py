@@ -124,7 +124,7 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
         truth = st.sensor_to_room
     ref = calibrate_session(cal_dir, 25.0)
     from app.calibrate_command import session_calibration
-    from processing.registration import pose_difference
+    from processing.geometry.registration import pose_difference
 
     cal = session_calibration(cal_dir, Session.read(cal_dir))
     rot, shift = pose_difference(cal.sensor_to_room, truth)
@@ -135,7 +135,7 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
 def _process(session_dir: Path, cal_dir: Path, preset: str, truth: dict[str, Any]) -> dict[str, Any]:
     """``kogei process`` on the captured session, and its registration error against the simulation's truth."""
     from app.process_session import process_session
-    from processing.registration import pose_difference
+    from processing.geometry.registration import pose_difference
 
     report = process_session(session_dir, preset=preset, calibration=cal_dir,
                              message=lambda text: print(f"process: {text}", file=sys.stderr))

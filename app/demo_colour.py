@@ -91,7 +91,7 @@ def model_spectrum(material: str, wavelengths: NDArray[np.float64], cos_d: float
     >>> bool(r[1] > r[0])        # gold reflects red more than blue
     True
     """
-    from processing.materials import get_material
+    from processing.materials.presets import get_material
 
     mat = get_material(material)
     # the lobe with the largest weight carries the colour (the gloss lobe of a lacquer is nearly white)
@@ -156,7 +156,7 @@ def colour_demo(
     from app.spectral_command import SpectralResult, estimate_spectral
     from mocks.camera_sim import simulate_raw, write_raw
     from mocks.world import World
-    from processing.materials import get_material
+    from processing.materials.presets import get_material
 
     t0 = time.perf_counter()
     out = Path(out_dir)

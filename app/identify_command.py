@@ -1,14 +1,14 @@
 """``kogei identify``: the material of each region of a spectral result.
 
 Matsuda et al., section 4.2, eq. (11) and eq. (3)-(4), as implemented by
-:mod:`processing.material_identification`: every candidate material
+:mod:`processing.materials.identification`: every candidate material
 (metals, the alloys, urushi) is forward-modelled into the model camera and
 compared with the region's values in that camera (the ``camera`` array of
 the RESULT.npz written by ``kogei spectral estimate``, i.e. after the chart
 transform), with a free brightness; the answer comes with a confidence (the
 posterior probability), the runner-up, and for a metal or alloy the Ag, Cu,
 Au weights of the alloy model.  The region's mean reflectance and its
-uncertainty (:func:`processing.spectral_estimation.region_spectra`, with the
+uncertainty (:func:`processing.spectral.estimation.estimator.region_spectra`, with the
 estimate's error on the chart as the method error) ride along.
 
 ``kogei identify RESULT.npz [--regions LABELS.png] [--json]``
@@ -120,8 +120,8 @@ class RegionReport:
 
 
 def _is_metal(name: str) -> bool:
-    from processing.material_identification import NEUTRAL_METAL
-    from processing.materials import get_material
+    from processing.materials.identification import NEUTRAL_METAL
+    from processing.materials.presets import get_material
 
     return name == NEUTRAL_METAL or get_material(name).family in ("metal", "alloy")
 
@@ -131,15 +131,15 @@ def white_response(result: SpectralResult) -> NDArray[np.float64]:
 
     Examples
     --------
-    >>> from processing.camera_response import camera_sensitivities
-    >>> from processing.spectra import SpectralGrid
+    >>> from processing.camera.response import camera_sensitivities
+    >>> from processing.spectral.spectra import SpectralGrid
     >>> g = SpectralGrid(400, 700, 10)
     >>> r = SpectralResult(np.zeros((1, 1, 3), np.float32), np.eye(31, 3), g.wavelengths, np.ones((1, 1), bool),
     ...                    np.zeros((1, 1, 3), np.float32), camera_sensitivities(g), np.ones((1, 31)), "demo")
     >>> white_response(r).shape
     (3,)
     """
-    from processing.camera_response import channel_matrix
+    from processing.camera.response import channel_matrix
 
     lights = result.lights[0] if result.lights.shape[0] == 1 else result.lights
     return np.asarray(np.ones(result.grid.size) @ channel_matrix(result.sensitivities, lights, result.grid),
@@ -151,8 +151,8 @@ def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_leve
 
     Examples
     --------
-    >>> from processing.camera_response import camera_sensitivities
-    >>> from processing.spectra import SpectralGrid
+    >>> from processing.camera.response import camera_sensitivities
+    >>> from processing.spectral.spectra import SpectralGrid
     >>> g = SpectralGrid(400, 700, 10)
     >>> cam = np.zeros((1, 2, 3), np.float32); cam[0, 0] = 5.0
     >>> r = SpectralResult(np.zeros((1, 2, 3), np.float32), np.eye(31, 3), g.wavelengths, np.ones((1, 2), bool),
@@ -177,9 +177,9 @@ def identify_result(
     min_level: float = 0.005,
 ) -> list[RegionReport]:
     """Identify every region (label > 0) of ``result``; ``labels=None``: the whole unmasked image."""
-    from processing.material_identification import candidate_set, estimate_alloy_weights, identify_material
-    from processing.spectral_estimation import region_spectra
-    from processing.spectral_fit import SpectralEstimationError
+    from processing.materials.identification import candidate_set, estimate_alloy_weights, identify_material
+    from processing.spectral.estimation.estimator import region_spectra
+    from processing.spectral.estimation.fit import SpectralEstimationError
 
     h, w = result.mask.shape
     lab = np.ones((h, w), np.int64) if labels is None else np.asarray(labels, dtype=np.int64)

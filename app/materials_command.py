@@ -25,10 +25,10 @@ def preset_srgb(spec: str, illuminant: str = "D65") -> tuple[int, int, int]:
     >>> r > g > b          # gold is yellow: red and green high, blue low
     True
     """
-    from processing.albedo import directional_albedo
-    from processing.display import spectra_to_xyz, white_xyz, xyz_scale, xyz_to_srgb8
-    from processing.materials import get_material
-    from processing.spectra import REFERENCE_GRID, light_spectrum
+    from processing.materials.albedo import directional_albedo
+    from processing.spectral.display import spectra_to_xyz, white_xyz, xyz_scale, xyz_to_srgb8
+    from processing.materials.presets import get_material
+    from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
 
     grid = REFERENCE_GRID
     material = get_material(spec)
@@ -41,7 +41,7 @@ def preset_srgb(spec: str, illuminant: str = "D65") -> tuple[int, int, int]:
 
 
 def run_materials(args: argparse.Namespace) -> int:
-    from processing.materials import MaterialError, get_material, list_materials, material_parameters
+    from processing.materials.presets import MaterialError, get_material, list_materials, material_parameters
 
     try:
         if not args.name:

@@ -122,7 +122,7 @@ def capture_commands(info: dict[str, Any], steps: int = 36, passes: int = 3,
 
 def _build_world(args: argparse.Namespace) -> Any:
     from mocks.world import World, WorldError
-    from processing.materials import MaterialError, get_material
+    from processing.materials.presets import MaterialError, get_material
 
     if args.material is not None:
         try:

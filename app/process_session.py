@@ -4,14 +4,14 @@ Issue #4; DESIGN.md section 2.  The stages, each a plain library call:
 
 1. per complete pass: profiles + table angles + the session's scanner
    calibration -> points, normals and confidences in that pass's table frame
-   (:func:`processing.scan_points.profiles_to_points`); an incomplete pass is
+   (:func:`processing.geometry.scan_points.profiles_to_points`); an incomplete pass is
    skipped and reported (resume the capture to include it);
 2. registration of the passes into pass 1's frame: global search, ICP, pose
-   graph, every pair verified (:func:`processing.registration.register_passes`);
+   graph, every pair verified (:func:`processing.geometry.registration.register_passes`);
    a pass that cannot be registered is left out and reported, never merged
    with a wrong pose;
 3. the merged, confidence-weighted cloud -> a watertight mesh with its holes
-   filled and reported (:mod:`processing.surface`);
+   filled and reported (:mod:`processing.geometry.surface`);
 4. ``products/mesh.ply`` (binary PLY with vertex normals) and
    ``products/process-report.json`` are written atomically into the session
    and referenced, with checksums, from its manifest (``products``).
@@ -48,7 +48,7 @@ def _observed_range(z_mm: np.ndarray) -> tuple[float, float]:
 def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[[str], None]) -> list[dict[str, Any]]:
     from app.capture import load_pass_profiles
     from app.session import SessionError
-    from processing.scan_points import profiles_to_points
+    from processing.geometry.scan_points import profiles_to_points
 
     plan = manifest["plan"]
     out = []
@@ -116,7 +116,7 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         Manual registration of pass pairs: ``{(a, b): (points_on_a, points_on_b)}``
         with pass numbers ``a < b`` (1-based) and three or more corresponding
         points (mm, each pass's table frame) picked on each
-        (:func:`processing.registration.register_passes`).
+        (:func:`processing.geometry.registration.register_passes`).
 
     Returns
     -------
@@ -125,9 +125,9 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
     """
     from app.calibrate_command import install_calibration, load_calibration_source, session_calibration
     from app.session import Session, SessionError
-    from processing.registration import RegistrationError, merge_passes, register_passes
-    from processing.mesh_ply import write_mesh_ply
-    from processing.surface import SurfaceError, reconstruct_surface
+    from processing.geometry.registration import RegistrationError, merge_passes, register_passes
+    from processing.geometry.mesh_ply import write_mesh_ply
+    from processing.geometry.surface import SurfaceError, reconstruct_surface
 
     note = message or (lambda text: None)
     if preset not in PRESETS:

@@ -4,7 +4,7 @@
 [--preset draft|standard|reference]`` reads PLY / PCD / XYZ clouds (Open3D
 readers; normals are used when the file has them and estimated otherwise),
 registers every pair without an initial guess and optimises a pose graph
-(:func:`processing.registration.register_passes`), then writes
+(:func:`processing.geometry.registration.register_passes`), then writes
 
 * ``poses.json``: per input its 4 x 4 matrix mapping it into the first
   input's frame (``null`` when it could not be registered, with the reason),
@@ -223,7 +223,7 @@ def run_register(args: argparse.Namespace) -> int:
     """Run ``kogei register``; returns the exit status (UsageError for bad input)."""
     import open3d as o3d
 
-    from processing.registration import RegistrationError, merge_passes, register_passes
+    from processing.geometry.registration import RegistrationError, merge_passes, register_passes
 
     out = _check_output(args.out, "--out", _WRITABLE)
     poses_path = _check_output(args.poses, "--poses", (".json",))

@@ -51,7 +51,7 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
 
 
 def run_render(args: argparse.Namespace) -> int:
-    from processing.materials import MaterialError
+    from processing.materials.presets import MaterialError
     from render.errors import RenderInputError
     from render.image_io import write_png, write_xyz_tiff
     from render.renderer import render

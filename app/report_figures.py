@@ -197,7 +197,7 @@ def region_spectra_figure(wavelengths: Sequence[float], regions: Sequence[dict[s
     material, so the shapes are compared (as in ``app.demo_colour``).
     """
     from app.demo_colour import model_spectrum
-    from processing.material_identification import NEUTRAL_METAL
+    from processing.materials.identification import NEUTRAL_METAL
 
     plt = _plt()
     wl = np.asarray(wavelengths, dtype=np.float64)

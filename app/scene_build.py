@@ -70,7 +70,7 @@ def _plane_arrays(size: float, divisions: int = 8) -> tuple[NDArray, NDArray, ND
 
 def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
     """Build the :class:`render.scene.SceneObject` of one object spec."""
-    from processing.materials import MaterialError, get_material
+    from processing.materials.presets import MaterialError, get_material
     from render.meshio import load_mesh, make_mesh
     from render.scene import SceneObject
 
@@ -85,7 +85,7 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
         kind = (obj.procedural or "").lower()
         args = obj.procedural_args
         if kind == "hawk":
-            from processing.procedural_hawk import DEFAULT_MATERIALS, hawk_head
+            from mocks.procedural_hawk import DEFAULT_MATERIALS, hawk_head
 
             hawk = hawk_head(int(args.get("triangles", default_hawk_triangles)))
             v, t, n = hawk.vertices, hawk.triangles, hawk.vertex_normals
@@ -104,7 +104,7 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
             v, t, n = _plane_arrays(float(args.get("size", 10.0)))
             materials = [obj.material]
         elif kind == "cloth":
-            from processing.draped_cloth import draped_cloth
+            from processing.cloth.draped import draped_cloth
             from render.tangents import tangents_from_uvs
 
             # the sheet has about 1.5 d^2 triangles for d divisions along x
@@ -135,7 +135,7 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
 
 def build_job(spec: SceneSpec, *, default_hawk_triangles: int = 250_000) -> RenderJob:
     """Build scene, camera and settings; every bad value becomes a :class:`UsageError`."""
-    from processing.spectra import REFERENCE_GRID, light_spectrum
+    from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
     from render.camera import Camera
     from render.presets import get_preset
     from render.scene import Light, Scene, Sky

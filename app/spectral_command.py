@@ -5,12 +5,12 @@ Matsuda et al., section 4.1, eq. (6)-(10) and the better estimators after it
 
 ``kogei spectral estimate IMAGE --chart CHART [--method paper|wiener|rootpoly|more-basis|twolight]
 [--second IMAGE2 --second-chart CHART2] [--chart-corners ...] [--mode bin2x2|demosaic] --out RESULT.npz``
-decodes both RAW frames (:func:`processing.raw_decode.decode_raw`), finds and
-checks the chart (:mod:`processing.chart_detection`,
-:mod:`processing.chart_sampling`), fits the chosen estimator for the model
+decodes both RAW frames (:func:`processing.camera.raw_decode.decode_raw`), finds and
+checks the chart (:mod:`processing.camera.chart_detection`,
+:mod:`processing.camera.chart_sampling`), fits the chosen estimator for the model
 camera and calibrates it to the object camera with the chart's usable patches
-(:func:`processing.spectral_estimation.fit_estimator`, eq. (9)), and writes the
-image as basis weights (:func:`processing.spectral_estimation.spectral_image`).
+(:func:`processing.spectral.estimation.estimator.fit_estimator`, eq. (9)), and writes the
+image as basis weights (:func:`processing.spectral.estimation.estimator.spectral_image`).
 
 ``kogei spectral at RESULT.npz X Y [--json]`` prints the reflectance at one
 pixel with its uncertainty (the method's error on the chart, see below).
@@ -29,7 +29,7 @@ The RESULT file (NumPy ``.npz``, no pickled objects) holds
 ``chart_rmse`` is the RMS reflectance error of the calibrated estimator on
 the chart's own usable patches.  The estimator is trained on the database
 without the near-duplicates of the chart
-(:func:`processing.reflectance_database.without_near_duplicates`), so the
+(:func:`processing.spectral.reflectance_database.without_near_duplicates`), so the
 patches are held out from its training; only the 3 x 3 chart transform per
 exposure (9 numbers) is fitted on them.  It is the per-pixel uncertainty of
 ``spectral at`` and the method error of the region spectra of ``kogei identify``.
@@ -177,9 +177,9 @@ class ChartMeasurement:
 def measure_chart(path: Path, *, chart: str = "classic24", corners: str | None = None,
                   mode: str = "bin2x2") -> ChartMeasurement:
     """Decode, locate, sample and check a chart frame; errors are :class:`UsageError` naming the file."""
-    from processing.chart_detection import ChartDetectionError, chart_from_corners, detect_chart, parse_corners
-    from processing.chart_sampling import ChartRejectedError, ChartSamplingError, check_patches, sample_patches
-    from processing.raw_decode import RawDecodeError, decode_raw
+    from processing.camera.chart_detection import ChartDetectionError, chart_from_corners, detect_chart, parse_corners
+    from processing.camera.chart_sampling import ChartRejectedError, ChartSamplingError, check_patches, sample_patches
+    from processing.camera.raw_decode import RawDecodeError, decode_raw
 
     try:
         img = decode_raw(path, mode=mode)
@@ -216,8 +216,8 @@ class SpectralResult:
 
     @property
     def grid(self):
-        """The wavelength grid of the basis (:class:`processing.spectra.SpectralGrid`)."""
-        from processing.spectra import SpectralGrid
+        """The wavelength grid of the basis (:class:`processing.spectral.spectra.SpectralGrid`)."""
+        from processing.spectral.spectra import SpectralGrid
 
         wl = self.wavelengths
         return SpectralGrid(float(wl[0]), float(wl[-1]), float(wl[1] - wl[0]))
@@ -229,7 +229,7 @@ class SpectralResult:
 
 
 def _decode_image(path: Path, mode: str):
-    from processing.raw_decode import RawDecodeError, decode_raw
+    from processing.camera.raw_decode import RawDecodeError, decode_raw
 
     try:
         return decode_raw(path, mode=mode)
@@ -238,8 +238,8 @@ def _decode_image(path: Path, mode: str):
 
 
 def _chart_reflectances(chart: str, csv: str | None, grid) -> NDArray[np.float64]:
-    from processing.chart_layout import chart_layout
-    from processing.reflectance_database import ReflectanceDatabaseError, load_reflectances
+    from processing.camera.chart_layout import chart_layout
+    from processing.spectral.reflectance_database import ReflectanceDatabaseError, load_reflectances
 
     n = chart_layout(chart).size
     if csv is None:
@@ -286,12 +286,12 @@ def estimate_spectral(
 
     Every bad input raises :class:`UsageError` with a one-line message.
     """
-    from processing.camera_response import CameraResponseError, camera_rgb, camera_sensitivities
-    from processing.camera_transfer import fit_chart_transform
-    from processing.reflectance_database import ReflectanceDatabaseError, load_reflectances, without_near_duplicates
-    from processing.spectra import SpectralGrid, light_spectrum
-    from processing.spectral_estimation import fit_estimator, spectral_image
-    from processing.spectral_fit import SpectralEstimationError
+    from processing.camera.response import CameraResponseError, camera_rgb, camera_sensitivities
+    from processing.camera.transfer import fit_chart_transform
+    from processing.spectral.reflectance_database import ReflectanceDatabaseError, load_reflectances, without_near_duplicates
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
+    from processing.spectral.estimation.estimator import fit_estimator, spectral_image
+    from processing.spectral.estimation.fit import SpectralEstimationError
 
     if method not in METHODS:
         raise UsageError(f"--method {method!r}: choose one of {', '.join(METHODS)}")

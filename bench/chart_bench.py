@@ -1,14 +1,14 @@
 """Cost of the colour-pipeline front end on a 24-megapixel RAW: decoding and chart detection (issue #5).
 
 A 6000 x 4000 RGGB DNG (14 bit) of a ColorChecker Classic lying tilted and turned on the grey
-backdrop is simulated once: the layout of :mod:`processing.chart_layout` is drawn in model units,
+backdrop is simulated once: the layout of :mod:`processing.camera.chart_layout` is drawn in model units,
 warped into the image by the card's homography (:mod:`mocks.chart_scene` placement, nearest
 neighbour), and each photosite gets its patch's camera signal through the Nikon D5100
 sensitivities and the noisy sensor of :mod:`mocks.camera_sim` (the full spectral image would
 need 3 GB).  Then, each in a fresh process so the peak memory is that case's alone:
 
-* ``decode-bin2x2`` / ``decode-demosaic``: :func:`processing.raw_decode.decode_raw`, median of 3;
-* ``detect``: :func:`processing.chart_detection.detect_chart` on the full-size sRGB preview of
+* ``decode-bin2x2`` / ``decode-demosaic``: :func:`processing.camera.raw_decode.decode_raw`, median of 3;
+* ``detect``: :func:`processing.camera.chart_detection.detect_chart` on the full-size sRGB preview of
   the binned image (3000 x 2000) and of the demosaiced one (6000 x 4000), median of 3 each, the
   preview's own cost reported apart; the patch centres are scored against the centroids of the
   simulation's labelled photosites.
@@ -47,9 +47,9 @@ def make_dng(path: Path) -> dict:
     from mocks.chart_scene import FRAME_REFLECTANCE, ChartPlacement, chart_corners, chart_homography
     from mocks.chart_scene import chart_patch_reflectances
     from mocks.world import BACKDROP_REFLECTANCE
-    from processing.chart_layout import chart_layout
-    from processing.display import xyz_scale
-    from processing.spectra import SpectralGrid, light_spectrum
+    from processing.camera.chart_layout import chart_layout
+    from processing.spectral.display import xyz_scale
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
 
     layout = chart_layout("classic24")
     grid = SpectralGrid(400, 700, 10)
@@ -107,7 +107,7 @@ def _median(fn, repeats: int = 3) -> tuple[float, list[float], object]:
 
 
 def case_decode(dng: Path, mode: str) -> dict:
-    from processing.raw_decode import decode_raw
+    from processing.camera.raw_decode import decode_raw
 
     med, times, img = _median(lambda: decode_raw(dng, mode=mode))
     return {"case": f"decode-{mode}", "median_s": med, "times_s": times, "shape": list(img.rgb.shape),
@@ -115,8 +115,8 @@ def case_decode(dng: Path, mode: str) -> dict:
 
 
 def case_detect(dng: Path, centres: list) -> dict:
-    from processing.chart_detection import detect_chart
-    from processing.raw_decode import decode_raw, preview_srgb8
+    from processing.camera.chart_detection import detect_chart
+    from processing.camera.raw_decode import decode_raw, preview_srgb8
 
     truth = np.asarray(centres)
     out = {"case": "detect"}

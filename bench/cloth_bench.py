@@ -34,7 +34,7 @@ def _render(material: str, size, preset: str):
 
 def case_cost(repeats: int = 3) -> dict:
     """The draped sheet (about 21 000 triangles), sun + uniform sky, ``standard`` preset, silk vs gold."""
-    from processing.materials import get_material
+    from processing.materials.presets import get_material
 
     rows = []
     for material in ("gold", "gold:mirror=0", "silk", "tamamushi"):
@@ -57,7 +57,7 @@ def case_cost(repeats: int = 3) -> dict:
 
 def case_layers(repeats: int = 3) -> dict:
     """silk with K internal layers vs K = 50: time and CIEDE2000 per covered pixel."""
-    from processing.display import delta_e00
+    from processing.spectral.display import delta_e00
 
     t_ref, ref = _render(f"silk:layers={REFERENCE_LAYERS}", LAYER_SIZE, "standard")
     on = ref.mask > 0.99
@@ -91,7 +91,7 @@ def section(results: dict | None = None) -> list[str]:
         f"`bench/cloth_bench.py`: the draped sheet of docs/cloth.md seen across the warp, one sun and a uniform",
         f"sky, `standard` preset (4 samples per pixel, angular XYZ tables), {c['size'][0]} x {c['size'][1]}.",
         "Medians of 3 runs after a warm-up; `setup` includes the tables and the sky-light albedo tables of every",
-        "lobe (an anisotropic lobe's albedo is integrated over the view azimuth, `processing.anisotropic_albedo`).",
+        "lobe (an anisotropic lobe's albedo is integrated over the view azimuth, `processing.cloth.anisotropic_albedo`).",
         "",
         f"Machine: {r['machine']}."
         + (f"  Load average (1 min) at the start and end of the run: {r['load_average'][0]:.1f}, "

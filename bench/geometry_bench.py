@@ -17,12 +17,12 @@ Measured per object (the procedural hawk on the default station; the Stanford bu
 scaled to 200 mm on a larger station):
 
 * the calibration's residual and its error against the station's true sensor pose;
-* pairwise automatic registration (:func:`processing.registration.register_pair`) of random
+* pairwise automatic registration (:func:`processing.geometry.registration.register_pair`) of random
   placement pairs: success = verified *and* within 0.5 deg / 0.5 mm of the truth; a verified pair
   outside those limits is listed as verified-but-wrong;
-* pose error after the pose graph (:func:`processing.registration.register_passes`);
+* pose error after the pose graph (:func:`processing.geometry.registration.register_passes`);
 * ``kogei process`` of a 3-pass session at each preset: pose errors, mesh -> truth and truth ->
-  mesh distances (:func:`processing.surface_distance.surface_distance`), the error of the filled
+  mesh distances (:func:`processing.geometry.surface_distance.surface_distance`), the error of the filled
   holes (truth -> mesh over the object's surface that no pass measured: farther than the surface
   stage's own hole threshold from every registered point), and the time.
 
@@ -279,7 +279,7 @@ def close_boundary_loops(vertices: ArrayLike, triangles: ArrayLike) -> tuple[NDA
 
     Examples
     --------
-    >>> from processing.mesh_topology import mesh_topology
+    >>> from processing.geometry.mesh_topology import mesh_topology
     >>> box = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
     >>> open_box = [[0, 2, 1], [0, 3, 2], [0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6],
     ...             [3, 0, 4], [3, 4, 7]]                      # no lid
@@ -290,7 +290,7 @@ def close_boundary_loops(vertices: ArrayLike, triangles: ArrayLike) -> tuple[NDA
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from processing.mesh_topology import boundary_edges
+    from processing.geometry.mesh_topology import boundary_edges
 
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
@@ -325,7 +325,7 @@ def prepare_scan_mesh(vertices: ArrayLike, triangles: ArrayLike, size_mm: float 
     >>> np.ptp(pv, axis=0).tolist(), float(pv[:, 2].min())
     ([10.0, 10.0, 10.0], 0.0)
     """
-    from processing.mesh_topology import mesh_topology
+    from processing.geometry.mesh_topology import mesh_topology
 
     v, t = close_boundary_loops(vertices, triangles)
     topo = mesh_topology(t)
@@ -357,8 +357,8 @@ def _read_scan_mesh(path: Path) -> tuple[NDArray[np.float64], NDArray[np.int64]]
 def load_object(name: str, work: Path, settings: BenchSettings) -> tuple[Any, str] | None:
     """The world of object ``name`` and a note on where it came from; None if its file is missing."""
     from mocks.world import World
-    from processing.mesh_ply import write_mesh_ply
-    from processing.mesh_topology import boundary_edges
+    from processing.geometry.mesh_ply import write_mesh_ply
+    from processing.geometry.mesh_topology import boundary_edges
 
     spec = OBJECTS[name]
     if spec["file"] is None:
@@ -422,7 +422,7 @@ def calibrate_station(geometry: StationGeometry, root: Path, seed: int = 7) -> d
     from app.calibrate_command import calibrate_session, session_calibration
     from app.session import Session
     from mocks.world import World
-    from processing.registration import pose_difference
+    from processing.geometry.registration import pose_difference
 
     world = World.calibration_sphere(geometry.sphere_radius_mm, geometry.sphere_offset_mm)
     t0 = time.perf_counter()
@@ -461,7 +461,7 @@ def pair_trials(clouds: list[dict[str, Any]], truth: dict[int, NDArray[np.float6
 
     ``clouds`` are the session's pass clouds as ``kogei process`` builds them (:func:`session_clouds`).
     """
-    from processing.registration import pose_difference, register_pair
+    from processing.geometry.registration import pose_difference, register_pair
 
     rows = []
     for k in range(1, pairs + 1):
@@ -503,8 +503,8 @@ def pose_graph_trial(clouds: list[dict[str, Any]], truth: dict[int, NDArray[np.f
     """Register the first ``passes`` placements together (all pairs + pose graph), as ``kogei process``
     does; pose error per pass, and the ``standard`` mesh of the merged passes (``mesh["_scene"]``: what
     :func:`score_mesh` needs, scored by :func:`run_object`)."""
-    from processing.registration import merge_passes, register_passes
-    from processing.surface import reconstruct_surface
+    from processing.geometry.registration import merge_passes, register_passes
+    from processing.geometry.surface import reconstruct_surface
 
     clouds = [e for e in clouds[:passes] if "cloud" in e]
     res = register_passes([e["cloud"][0] for e in clouds], [e["cloud"][1] for e in clouds], preset=preset,
@@ -525,7 +525,7 @@ def pose_graph_trial(clouds: list[dict[str, Any]], truth: dict[int, NDArray[np.f
 def _pose_errors(pass_numbers: list[int], transforms: list[Any], truth: dict[int, NDArray[np.float64]],
                  world: Any) -> dict[str, Any]:
     """Errors of the poses (pass -> first pass's frame) against ``T_first @ inv(T_p)``."""
-    from processing.registration import pose_difference
+    from processing.geometry.registration import pose_difference
 
     first = pass_numbers[0]
     rows = []
@@ -600,8 +600,8 @@ def score_mesh(vertices: NDArray[np.float64], triangles: NDArray[np.int64], merg
     """
     from scipy.spatial import cKDTree
 
-    from processing.mesh_support import triangle_areas
-    from processing.surface_distance import DistanceStats, distance_to_mesh, sample_surface, surface_distance
+    from processing.geometry.mesh_support import triangle_areas
+    from processing.geometry.surface_distance import DistanceStats, distance_to_mesh, sample_surface, surface_distance
 
     v, t = np.asarray(vertices, np.float64), np.asarray(triangles, np.int64)
     truth_v = _transformed(truth_pose, world.vertices)
@@ -622,8 +622,8 @@ def score_mesh(vertices: NDArray[np.float64], triangles: NDArray[np.int64], merg
 
 
 def _preset_settings(preset: str) -> dict[str, Any]:
-    from processing.registration import PRESETS
-    from processing.surface import SURFACE_PRESETS
+    from processing.geometry.registration import PRESETS
+    from processing.geometry.surface import SURFACE_PRESETS
 
     r, s = PRESETS[preset], SURFACE_PRESETS[preset]
     return {"rotation_samples": r.rotation_samples, "icp_voxels": list(r.icp_voxels),

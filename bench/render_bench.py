@@ -24,7 +24,7 @@ def _hawk_job(size, preset, triangles, material=None, sky="none"):
     """The benchmark hawk: one sun; ``material`` replaces every region's default material."""
     from app.scene_build import build_job
     from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, SkySpec
-    from processing.procedural_hawk import DEFAULT_MATERIALS
+    from mocks.procedural_hawk import DEFAULT_MATERIALS
 
     obj = ObjectSpec(procedural="hawk", procedural_args={"triangles": triangles})
     if material:
@@ -43,7 +43,7 @@ def _hawk_job(size, preset, triangles, material=None, sky="none"):
 def case_speed(preset: str = "standard", repeats: int = 3) -> dict:
     """1024x1024, ~1M triangles, one directional light with shadows, metal (gold, no mirror lobe,
     no sky: exactly primary + shadow rays, so the baseline casts the same rays)."""
-    from processing.procedural_hawk import HAWK_PRESET_TRIANGLES
+    from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
     from render.renderer import cast_rays_baseline, render
 
     tri = HAWK_PRESET_TRIANGLES["reference"]
@@ -96,9 +96,9 @@ def _accuracy_variants():
 
 
 def case_accuracy() -> dict:
-    from processing.display import delta_e00, white_xyz
-    from processing.spectra import REFERENCE_GRID, light_spectrum
-    from processing.procedural_hawk import HAWK_PRESET_TRIANGLES
+    from processing.spectral.display import delta_e00, white_xyz
+    from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
+    from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
     from render.renderer import render
 
     tri = HAWK_PRESET_TRIANGLES["draft"]

@@ -153,7 +153,7 @@ def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
         "`T_i @ inv(T_j)`, and the true surface is the world mesh moved by `T_1`.  Pose errors are the rotation",
         "angle and the *largest* displacement of the object's vertices between the estimated and the true",
         "transform.  Surface distances are sampled (200 000 points per surface) and exact to the other mesh",
-        "(`processing.surface_distance`).  The *unseen* part of an object is its true surface farther from every",
+        "(`processing.geometry.surface_distance`).  The *unseen* part of an object is its true surface farther from every",
         "registered measured point than the surface stage's own hole threshold (4 point spacings, that of the",
         "3-placement `standard` mesh, one value per object for every mesh of it): what the mesh had to fill; the",
         "filled holes' error is the truth -> mesh distance there.  The bunny's five",
@@ -266,7 +266,7 @@ def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
     lines += ["", "### Registration of random placement pairs", "",
               "Placements `(k, k + 1)`, k = 1..N, of one session per object (the station's pseudo-random rest poses: "
               "tilted 20-90 deg about a random horizontal axis, turned 0-360 deg), registered pairwise with no "
-              "initial guess at `standard` (`processing.registration.register_pair`).",
+              "initial guess at `standard` (`processing.geometry.registration.register_pair`).",
               "",
               "| object | profiles per pass | points per pass (median) | succeeded | rotation error median / max (deg) "
               "| displacement error median / max (mm) | unverified | verified but wrong | time per pair median / max (s) |",

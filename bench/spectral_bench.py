@@ -2,7 +2,7 @@
 
 Held-out evaluation (the issue's protocol): the estimators are trained on
 the 190 RAW to ACES training reflectances less their near-duplicates of the
-ColorChecker (RMS difference < 0.0125, :mod:`processing.reflectance_database`)
+ColorChecker (RMS difference < 0.0125, :mod:`processing.spectral.reflectance_database`)
 and tested on the 24 ColorChecker N Ohta patches, camera Nikon 5100 (NPL),
 400-700 nm at 5 nm.  Noise: every channel of every test sample gets
 Gaussian noise of 1 % of its value (20 noisy draws per patch, seeded); the
@@ -19,10 +19,10 @@ cross-validation), more-basis (linear, 8 PCA weights, ridge), two lights
 camera transfer (a second camera: the Nikon's sensitivities shifted by
 +10 nm; its chart shot gives M2 and the root-polynomial estimator trained for
 the Nikon is used through it), and Wiener with the Nikon's sensitivities
-estimated from the (noisy) chart shot (:mod:`processing.camera_from_chart`).
+estimated from the (noisy) chart shot (:mod:`processing.camera.from_chart`).
 
 Identification: every candidate of
-:data:`processing.material_identification.DEFAULT_CANDIDATES`, camera values
+:data:`processing.materials.identification.DEFAULT_CANDIDATES`, camera values
 from the material's own spectral factors (:func:`material_brdf` at normal
 view, light at 30 degrees), random brightness, 1 % noise per pixel; regions
 of 1, 25 and 100 pixels and single pixels of two exposures (D65 and A), 200
@@ -65,9 +65,9 @@ TARGETS = {
 
 
 def _setup():
-    from processing.camera_response import camera_sensitivities
-    from processing.reflectance_database import load_reflectances, without_near_duplicates
-    from processing.spectra import REFERENCE_GRID, light_spectrum
+    from processing.camera.response import camera_sensitivities
+    from processing.spectral.reflectance_database import load_reflectances, without_near_duplicates
+    from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
 
     g = REFERENCE_GRID
     train = load_reflectances("training", g)
@@ -91,7 +91,7 @@ def _shifted(sens: np.ndarray, grid, shift_nm: float) -> np.ndarray:
 
 
 def _metrics(est: np.ndarray, truth: np.ndarray, s: dict) -> dict[str, float]:
-    from processing.display import delta_e00, spectra_to_xyz
+    from processing.spectral.display import delta_e00, spectra_to_xyz
 
     g = s["grid"]
     out = {"rmse": float(np.sqrt(np.mean((est - truth) ** 2)))}
@@ -112,9 +112,9 @@ def _noisy(rho: np.ndarray, level: float, rng: np.random.Generator, draws: int) 
 
 def measure_accuracy(seed: int = 0) -> dict:
     """The held-out table (see the module text)."""
-    from processing.camera_from_chart import estimate_sensitivities
-    from processing.camera_response import camera_rgb
-    from processing.spectral_estimation import fit_estimator
+    from processing.camera.from_chart import estimate_sensitivities
+    from processing.camera.response import camera_rgb
+    from processing.spectral.estimation.estimator import fit_estimator
 
     s = _setup()
     g, db, test, sens = s["grid"], s["train"], s["test"], s["sens"]
@@ -167,18 +167,18 @@ def measure_accuracy(seed: int = 0) -> dict:
 
 def measure_identification(seed: int = 0, trials: int = 200) -> dict:
     """Identification accuracy per material and the alloy Ag-fraction error (see the module text)."""
-    from processing.alloys import ALLOY_COMPOSITIONS
-    from processing.camera_response import camera_rgb
-    from processing.material import material_brdf
-    from processing.material_identification import (
+    from processing.materials.alloys import ALLOY_COMPOSITIONS
+    from processing.camera.response import camera_rgb
+    from processing.materials.lobes import material_brdf
+    from processing.materials.identification import (
         DEFAULT_CANDIDATES,
         NEUTRAL_METAL,
         candidate_set,
         estimate_alloy_weights,
         identify_material,
     )
-    from processing.materials import get_material
-    from processing.metal_model import ConductorFresnel
+    from processing.materials.presets import get_material
+    from processing.materials.metal_model import ConductorFresnel
 
     s = _setup()
     g, sens, e = s["grid"], s["sens"], s["d65"]
@@ -240,7 +240,7 @@ def measure_identification(seed: int = 0, trials: int = 200) -> dict:
 def measure_speed(height: int = 4000, width: int = 6000, repeats: int = 5) -> dict:
     """24 MP float32 image to weights: median seconds per method, peak RSS (see the module text)."""
     from bench.common import median_time, peak_rss_mb
-    from processing.spectral_estimation import fit_estimator
+    from processing.spectral.estimation.estimator import fit_estimator
 
     s = _setup()
     g = s["grid"]

@@ -37,9 +37,9 @@ def _sample(v: np.ndarray, t: np.ndarray, n: int, rng: np.random.Generator, nois
 def sweep(points: int = 200_000, depths: tuple[int, ...] = (8, 9, 10, 11), *, decimate: bool = False,
           noise: float = 0.05, seed: int = 0) -> list[dict[str, float]]:
     """One row per depth (see the module docstring)."""
-    from processing.procedural_hawk import hawk_head
-    from processing.surface import SURFACE_PRESETS, reconstruct_surface
-    from processing.surface_distance import surface_distance
+    from mocks.procedural_hawk import hawk_head
+    from processing.geometry.surface import SURFACE_PRESETS, reconstruct_surface
+    from processing.geometry.surface_distance import surface_distance
 
     hawk = hawk_head(250_000)
     v, t = hawk.vertices, hawk.triangles.astype(np.int64)

@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> None:
 
     from bench.geometry_bench import (FULL, STATIONS, _transformed, calibrate_station, capture_session,
                                       load_object, process_trial, session_clouds)
-    from processing.surface_distance import distance_to_mesh, sample_surface
+    from processing.geometry.surface_distance import distance_to_mesh, sample_surface
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "images" / "hawk-unseen.png"))

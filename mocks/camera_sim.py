@@ -40,9 +40,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.camera_response import CameraResponseError
-from processing.camera_response import camera_sensitivities as _camera_sensitivities
-from processing.spectra import SpectralGrid, resample
+from processing.camera.response import CameraResponseError
+from processing.camera.response import camera_sensitivities as _camera_sensitivities
+from processing.spectral.spectra import SpectralGrid, resample
 
 __all__ = [
     "SENSITIVITIES",
@@ -187,7 +187,7 @@ class RawFrame:
 def camera_sensitivities(grid: SpectralGrid, name: str = SENSITIVITIES) -> NDArray[np.float64]:
     """Spectral sensitivities ``(L, 3)`` (R, G, B) of camera ``name`` on ``grid`` (linear interpolation).
 
-    Loaded by :func:`processing.camera_response.camera_sensitivities`.
+    Loaded by :func:`processing.camera.response.camera_sensitivities`.
 
     Examples
     --------
@@ -300,8 +300,8 @@ def expose(
 def _matrix_cached(name: str, start: float, stop: float, step: float) -> NDArray[np.float64]:
     import colour
 
-    from processing.display import spectra_to_xyz
-    from processing.spectra import light_spectrum
+    from processing.spectral.display import spectra_to_xyz
+    from processing.spectral.spectra import light_spectrum
 
     grid = SpectralGrid(start, stop, step)
     chart = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
@@ -336,7 +336,7 @@ def white_balance_neutral(light: ArrayLike, grid: SpectralGrid, name: str = SENS
 
     Examples
     --------
-    >>> from processing.spectra import light_spectrum
+    >>> from processing.spectral.spectra import light_spectrum
     >>> g = SpectralGrid(400, 700, 10)
     >>> n = white_balance_neutral(light_spectrum("A", g), g)
     >>> bool(n[0] > n[2])      # incandescent light: red above blue

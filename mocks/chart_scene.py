@@ -2,7 +2,7 @@
 
 The chart is a flat card: a matte black frame (reflectance
 :data:`FRAME_REFLECTANCE`) holding square patches with gaps, laid out as in
-:mod:`processing.chart_layout` (ColorChecker Classic: 16.75 x 11.25 model
+:mod:`processing.camera.chart_layout` (ColorChecker Classic: 16.75 x 11.25 model
 units, about 276 x 186 mm).  Its placement is a pinhole view of the card
 (Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., section 8.1: a plane
 maps to the image by a homography): the card is tilted about its horizontal
@@ -37,8 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from processing.chart_layout import ChartLayout, chart_layout, reference_srgb8
-from processing.spectra import SpectralGrid, resample
+from processing.camera.chart_layout import ChartLayout, chart_layout, reference_srgb8
+from processing.spectral.spectra import SpectralGrid, resample
 
 __all__ = [
     "FRAME_REFLECTANCE",

@@ -1,7 +1,7 @@
 """A simulated fabric swatch on the turntable, with known cloth parameters.
 
 The station's world (:class:`mocks.world.World`) with a flat square swatch of
-a cloth material (Yasuda et al.'s model, :mod:`processing.cloth_model`)
+a cloth material (Yasuda et al.'s model, :mod:`processing.cloth.model`)
 instead of a scanned object: its object frames are rendered with the
 anisotropic model, the warp turning with the table, so a ``swatch`` capture
 plan records how the cloth's reflection changes with the yarn direction.
@@ -63,7 +63,7 @@ class SwatchWorld(World):
         >>> f.radiance.shape[:2], int(f.labels.max()), w.geometry()["swatch_mm"]
         ((24, 32), 0, 80.0)
         """
-        from processing.materials import get_material
+        from processing.materials.presets import get_material
 
         get_material(cloth)                                  # refuse a bad spec early, by name
         if not (math.isfinite(swatch_mm) and swatch_mm > 0):
@@ -108,7 +108,7 @@ class SwatchWorld(World):
         return out
 
     def geometry(self) -> dict[str, Any]:
-        """The set-up as ``kogei cloth fit`` reads it (:class:`processing.swatch_geometry.SwatchGeometry`)."""
+        """The set-up as ``kogei cloth fit`` reads it (:class:`processing.cloth.swatch_geometry.SwatchGeometry`)."""
         from mocks.camera_sim import SENSITIVITIES
 
         d = np.asarray(self.light_direction, dtype=np.float64)
@@ -130,8 +130,8 @@ class SwatchWorld(World):
 
     def _object_frame(self, angle: float) -> Frame:
         """The swatch at table angle ``angle``: the plane z = 0 hit by the camera rays, shaded by the cloth model."""
-        from processing.material import material_brdf
-        from processing.materials import get_material
+        from processing.materials.lobes import material_brdf
+        from processing.materials.presets import get_material
 
         grid, e = self.grid, self.light_spectrum()
         eye, dirs = self._view()

@@ -1,7 +1,7 @@
 """The simulated world the mock devices share: an object on a turntable, a colour chart, a light.
 
 :class:`World` holds the object mesh (the procedural hawk head of
-:mod:`processing.procedural_hawk` or a mesh file), its pose on the table
+:mod:`mocks.procedural_hawk` or a mesh file), its pose on the table
 (object -> table, 4 x 4, millimetres), a material per mesh region, the
 ColorChecker (colour-science's ``SDS_COLOURCHECKERS``, Ohta's measured
 spectra by default), one directional light with a named spectrum, the camera
@@ -17,14 +17,14 @@ image a camera at the station sees:
 * ``kind="object"``: the object turned by the table angle about the table's
   z axis, ray cast with Open3D (pinhole camera); per hit pixel
   ``L = f_r(lambda) E(lambda) cos_i`` with ``f_r`` the project's spectral BRDF
-  (:func:`processing.material.material_brdf`, Matsuda et al. eq. (2) for
+  (:func:`processing.materials.lobes.material_brdf`, Matsuda et al. eq. (2) for
   metals and alloys, eq. (5) for lacquer), a shadow ray toward the light,
   and a dark grey backdrop.  Direct light only: mirror lobes reflect the
   light but not the surroundings (there is no environment in the booth),
   and there are no inter-reflections.
 
 The light is scaled so that a white diffuser facing it has luminance Y = 1
-(:func:`processing.display.xyz_scale`).
+(:func:`processing.spectral.display.xyz_scale`).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from processing.spectra import SpectralGrid, light_spectrum, resample
+from processing.spectral.spectra import SpectralGrid, light_spectrum, resample
 
 __all__ = [
     "Frame",
@@ -140,11 +140,11 @@ class World:
     region_names
         Region names.
     materials
-        Material spec (``processing.materials.get_material``) per region name.
+        Material spec (``processing.materials.presets.get_material``) per region name.
     pose
         4 x 4 object -> table transform (mm); the table turns about its z axis.
     light
-        Light spectrum name or CCT (``processing.spectra.light_spectrum``).
+        Light spectrum name or CCT (``processing.spectral.spectra.light_spectrum``).
     light_direction
         Unit vector toward the light in the table's frame at angle 0 (fixed
         in the room; the table turns under it).
@@ -251,7 +251,7 @@ class World:
         >>> w.region_names[:2], w.materials["beak"]
         (('head', 'beak'), 'gold')
         """
-        from processing.procedural_hawk import DEFAULT_MATERIALS, hawk_head
+        from mocks.procedural_hawk import DEFAULT_MATERIALS, hawk_head
 
         mesh = hawk_head(triangles)
         mats = dict(DEFAULT_MATERIALS)
@@ -356,7 +356,7 @@ class World:
 
     def light_spectrum(self) -> NDArray[np.float64]:
         """The light's spectral irradiance, scaled so a white diffuser facing it has Y = 1."""
-        from processing.display import xyz_scale
+        from processing.spectral.display import xyz_scale
 
         e = light_spectrum(self.light, self.grid)
         return e * xyz_scale(e, self.grid)
@@ -430,8 +430,8 @@ class World:
     def _object_frame(self, angle: float) -> Frame:
         import open3d as o3d
 
-        from processing.material import material_brdf
-        from processing.materials import get_material
+        from processing.materials.lobes import material_brdf
+        from processing.materials.presets import get_material
 
         grid, e = self.grid, self.light_spectrum()
         m = rotation_z(angle) @ self.pose

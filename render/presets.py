@@ -17,7 +17,7 @@ angular tables and the shadow rays:
 ``standard``
     the same 5 nm spectral integral, but through per-(material, light)
     angular tables (exact spectral result at RGB cost, table error measured
-    in ``tests/test_render_tables.py``: below 0.001 delta E00), 4 samples
+    in ``tests/render/test_render_tables.py``: below 0.001 delta E00), 4 samples
     per pixel on the rotated grid, refined to 64 samples (8 x 8) where they
     disagree by more than 0.5 L* or see different surfaces; one bounce, one
     jittered mirror ray per sample.

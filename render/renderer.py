@@ -21,7 +21,7 @@ Pipeline per tile of pixels (DESIGN.md sections 4-5):
    Lambertian surface facing the first light has Y = 1 (for a point light,
    at the distance from the light to the centre of the scene's bounds), and
    converted to 8-bit sRGB with chromatic adaptation from the first light's
-   white (:func:`processing.display.xyz_to_srgb8`).
+   white (:func:`processing.spectral.display.xyz_to_srgb8`).
 
 Pixels no object covers show the sky along the camera ray (black when the
 sky is ``"none"``); ``RenderResult.mask`` holds the fraction of each pixel's
@@ -49,7 +49,7 @@ from typing import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from processing.spectra import SpectralGrid
+from processing.spectral.spectra import SpectralGrid
 from render.camera import Camera
 from render.errors import RenderCancelled, RenderInputError
 from render.presets import PRESETS, RenderSettings
@@ -180,7 +180,7 @@ def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -
 
 def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends: bool = True) -> _Prepared:
     import open3d as o3d
-    from processing.display import white_xyz, xyz_scale
+    from processing.spectral.display import white_xyz, xyz_scale
 
     timings: dict[str, float] = {"primary_rays": 0.0, "shadow_rays": 0.0, "mirror_rays": 0.0}
     t0 = time.perf_counter()
@@ -586,8 +586,8 @@ def render(
     --------
     A white Lambertian square facing a directional light renders at Y = 1:
 
-    >>> from processing.material import Lobe, Material
-    >>> from processing.dielectric_model import PigmentReflectance
+    >>> from processing.materials.lobes import Lobe, Material
+    >>> from processing.materials.dielectric_model import PigmentReflectance
     >>> from render.meshio import make_mesh
     >>> from render.scene import Light, SceneObject, Sky
     >>> white = Material("white", (Lobe("lambert", 1.0, PigmentReflectance([400, 700], [1.0, 1.0])),))
@@ -597,7 +597,7 @@ def render(
     >>> round(float(result.xyz[..., 1].mean()), 4), int(result.srgb8.min())
     (1.0, 255)
     """
-    from processing.display import xyz_to_srgb8
+    from processing.spectral.display import xyz_to_srgb8
 
     settings = _check_args(scene, camera, settings)
     t_start = time.perf_counter()

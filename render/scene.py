@@ -3,10 +3,10 @@
 The terms of the colour signal of Matsuda et al., eq. (2) and (5): the
 light's spectral power E(lambda) and its incidence (directional and point
 lights), the environment reflected by the mirror term (the sky), and the
-objects' reflection models (materials of :mod:`processing.materials`).
+objects' reflection models (materials of :mod:`processing.materials.presets`).
 
 * :class:`SceneObject`: a :class:`~render.meshio.Mesh` with a list of
-  :class:`~processing.material.Material` and an optional material index per
+  :class:`~processing.materials.lobes.Material` and an optional material index per
   triangle or per vertex (a vertex-indexed material covers the part of each
   triangle nearest to that vertex: the largest barycentric weight wins).
 * :class:`Light`: ``"directional"`` (``vector`` is the direction from the
@@ -43,8 +43,8 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.material import Material
-from processing.spectra import REFERENCE_GRID, SpectralGrid, light_spectrum, resample
+from processing.materials.lobes import Material
+from processing.spectral.spectra import REFERENCE_GRID, SpectralGrid, light_spectrum, resample
 from render.errors import RenderInputError
 from render.meshio import Mesh
 
@@ -68,7 +68,7 @@ def resolve_spectrum(spec: SpectrumLike, grid: SpectralGrid, what: str = "spectr
     ----------
     spec
         A CIE illuminant name, a colour temperature (``"3200K"`` or a number
-        in K) or a CSV path (see :func:`processing.spectra.light_spectrum`);
+        in K) or a CSV path (see :func:`processing.spectral.spectra.light_spectrum`);
         or an array: ``(K, 2)`` rows of (nm, value), or ``(61,)`` values on
         the 400-700 nm / 5 nm reference grid.
     grid
@@ -139,7 +139,7 @@ def _resolve_materials(materials: Sequence[Material | str], name: str) -> tuple[
     out: list[Material] = []
     for i, m in enumerate(materials):
         if isinstance(m, str):
-            from processing.materials import get_material
+            from processing.materials.presets import get_material
 
             try:
                 m = get_material(m)
@@ -147,7 +147,7 @@ def _resolve_materials(materials: Sequence[Material | str], name: str) -> tuple[
                 raise RenderInputError(f"object {name!r} material {i}: {exc}") from None
         if not isinstance(m, Material):
             raise RenderInputError(
-                f"object {name!r} material {i} must be a processing.material.Material or a material "
+                f"object {name!r} material {i} must be a processing.materials.lobes.Material or a material "
                 f"spec string, got {type(m).__name__}"
             )
         if not m.lobes:
@@ -168,7 +168,7 @@ class SceneObject:
         The geometry.
     materials
         One or more materials (or material spec strings for
-        :func:`processing.materials.get_material`).
+        :func:`processing.materials.presets.get_material`).
     material_index
         Material number per triangle ``(T,)`` or per vertex ``(V,)``; None
         uses the mesh's own index if it has one, else material 0 everywhere.

@@ -11,7 +11,7 @@ and lobes of a material::
 with V the shadow-ray visibility and the inverse-square falloff of point
 lights.  Two interchangeable colour backends evaluate the spectral part:
 
-* :class:`SpectralBackend` (reference): :func:`processing.material.material_brdf`
+* :class:`SpectralBackend` (reference): :func:`processing.materials.lobes.material_brdf`
   over the grid's wavelengths for every sample; colours are spectra
   ``(n, L)``, converted to XYZ at the end;
 * :class:`TableBackend` (standard, draft): colours are XYZ, stored
@@ -55,9 +55,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erfc
 
-from processing.anisotropic_microfacet import anisotropic_lobe
-from processing.material import Lobe, Material, material_brdf
-from processing.spectra import SpectralGrid
+from processing.cloth.anisotropic_microfacet import anisotropic_lobe
+from processing.materials.lobes import Lobe, Material, material_brdf
+from processing.spectral.spectra import SpectralGrid
 from render.scene import Sky
 from render.tables import AngleTable, spectral_factor_table, table_index
 
@@ -196,7 +196,7 @@ class Hits:
 def smith_g1(cos_v: NDArray[np.float32], roughness: float) -> NDArray[np.float32]:
     """Smith masking of the Beckmann distribution, float32.
 
-    The same function as :func:`processing.microfacet.smith_g1_beckmann`
+    The same function as :func:`processing.materials.microfacet.smith_g1_beckmann`
     (Walter et al. 2007, eq. (27)), written with ``erfc`` so the large-``a``
     end needs no cancellation: ``Lambda = (exp(-a^2)/(a sqrt(pi)) - erfc(a)) / 2``
     with ``a = cot(theta) / sigma``; it is evaluated only where
@@ -232,7 +232,7 @@ def microfacet_geometry(
 ) -> NDArray[np.float32]:
     """``D G / (4 cos_i cos_o)`` of a Beckmann lobe in 1/sr, float32.
 
-    The float32 counterpart of :func:`processing.microfacet.microfacet_lobe`
+    The float32 counterpart of :func:`processing.materials.microfacet.microfacet_lobe`
     used by the table path.  Zero where either cosine is <= 0.
 
     Examples
@@ -404,9 +404,9 @@ def _albedo_spectra(lobe: Lobe, cos_o: NDArray[np.float64], grid: SpectralGrid) 
     """Directional albedo ``(N, L)`` of one lobe including its weight.
 
     A Lambert lobe's albedo is its weight times its reflectance at every
-    cos_o; other lobes use :func:`processing.albedo.directional_albedo`.
+    cos_o; other lobes use :func:`processing.materials.albedo.directional_albedo`.
     """
-    from processing.albedo import directional_albedo
+    from processing.materials.albedo import directional_albedo
 
     if lobe.kind == "lambert" and not getattr(lobe.spectral, "angle_dependent", True):
         s = np.asarray(lobe.spectral.reflectance(np.array([1.0]), grid.wavelengths), dtype=np.float64)
@@ -515,7 +515,7 @@ class SpectralBackend:
 
     def to_xyz(self, colour: NDArray[np.float64]) -> NDArray[np.float32]:
         """XYZ ``(n, 3)``."""
-        from processing.display import spectra_to_xyz
+        from processing.spectral.display import spectra_to_xyz
 
         return (self.k * spectra_to_xyz(colour, self.grid)).astype(_F32)
 
@@ -534,7 +534,7 @@ class TableBackend:
         size: int,
         spectral: SpectralBackend,
     ) -> None:
-        from processing.display import spectra_to_xyz
+        from processing.spectral.display import spectra_to_xyz
 
         self.grid = grid
         self.k = k

@@ -40,8 +40,8 @@ from typing import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.material import SpectralFactor
-from processing.spectra import SpectralGrid
+from processing.materials.lobes import SpectralFactor
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = [
     "AngleTable",
@@ -163,7 +163,7 @@ class AngleTable:
 
 
 def _spectra_to_xyz(spectra: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
-    from processing.display import spectra_to_xyz
+    from processing.spectral.display import spectra_to_xyz
 
     return spectra_to_xyz(spectra, grid)
 
@@ -200,8 +200,8 @@ def spectral_factor_table(
     --------
     A white factor: k XYZ(E / pi) has Y = 1, so the table holds Y = pi.
 
-    >>> from processing.display import xyz_scale
-    >>> from processing.spectra import light_spectrum
+    >>> from processing.spectral.display import xyz_scale
+    >>> from processing.spectral.spectra import light_spectrum
     >>> class White:
     ...     angle_dependent = False
     ...     def reflectance(self, cos_d, wl):

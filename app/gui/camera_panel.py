@@ -1,10 +1,10 @@
 """Camera panel: shoot a RAW frame, show its decoded preview with the detected chart outlined and each
 patch's quality, and a histogram of the linear signal with a clipping warning.
 
-A thin shell over :func:`processing.raw_decode.decode_raw` (black level,
+A thin shell over :func:`processing.camera.raw_decode.decode_raw` (black level,
 white level and saturation from the file's own metadata),
-:func:`processing.raw_decode.preview_srgb8` and
-:func:`processing.chart_detection.detect_chart`.  Frames are shot with the
+:func:`processing.camera.raw_decode.preview_srgb8` and
+:func:`processing.camera.chart_detection.detect_chart`.  Frames are shot with the
 camera of the Devices tab (:class:`app.capture_devices.Gphoto2Shooter` /
 :class:`app.capture_devices.HotFolderShooter`) into a folder of the window's
 own (test shots are not captures of the session); any RAW file, such as a
@@ -68,7 +68,7 @@ class FrameView:
     rgb: np.ndarray                        # (H, W, 3) float32 linear camera RGB (1 = saturation)
     saturated: np.ndarray                  # (H, W) bool
     scale: int
-    chart: Any = None                      # processing.chart_detection.ChartDetection or None
+    chart: Any = None                      # processing.camera.chart_detection.ChartDetection or None
     chart_problem: str = ""
     quads: np.ndarray | None = None        # (N, 4, 2) patch corners in preview pixels
     qualities: list[str] | None = None
@@ -80,8 +80,8 @@ class FrameView:
 
 def analyse_frame(path: str | Path) -> FrameView:
     """Decode ``path``, make its preview, find the chart and judge each patch."""
-    from processing.chart_detection import ChartDetectionError, detect_chart
-    from processing.raw_decode import decode_raw, preview_srgb8
+    from processing.camera.chart_detection import ChartDetectionError, detect_chart
+    from processing.camera.raw_decode import decode_raw, preview_srgb8
 
     raw = decode_raw(path, mode="bin2x2")
     view = FrameView(Path(path), preview_srgb8(raw), raw.rgb, raw.saturated, raw.scale, raw=raw)

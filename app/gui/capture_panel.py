@@ -15,7 +15,7 @@ capture`` runs), on the instruments' lane of :class:`app.gui.station_link.Statio
   consistent and resumable at the next step;
 * each finished profile is read back from the session for the live plot;
   the pass's profiles become points with the chosen scanner calibration
-  (:func:`processing.scan_points.profiles_to_points`), or a range image when
+  (:func:`processing.geometry.scan_points.profiles_to_points`), or a range image when
   there is none.
 
 Examples
@@ -549,7 +549,7 @@ class CapturePanel(Panel):
         if self._cal_cache is not None and self._cal_cache[0] == src:
             return self._cal_cache[1]
         from app.calibrate_command import load_calibration_source
-        from processing.calibration import ScannerCalibration
+        from processing.geometry.calibration import ScannerCalibration
 
         try:
             cal = ScannerCalibration.from_dict(load_calibration_source(src))

@@ -139,7 +139,7 @@ def cloud_figure(fig: Figure, p: int, angles: np.ndarray, x: np.ndarray, z: np.n
     """
     finite = np.isfinite(z)
     if cal is not None and finite.any():
-        from processing.scan_points import profiles_to_points
+        from processing.geometry.scan_points import profiles_to_points
 
         lo, hi = float(np.nanmin(z)), float(np.nanmax(z))
         pad = 0.02 * max(hi - lo, 1.0)

@@ -1,9 +1,9 @@
 """Manual 3-point registration: pick corresponding points on two passes' clouds.
 
-The fallback of :func:`processing.registration.register_passes` (``picks``:
+The fallback of :func:`processing.geometry.registration.register_passes` (``picks``:
 three or more corresponding points per pair, Kabsch / Umeyama without scale,
 refined by ICP and verified).  Each pass's points come from its profiles and
-the scanner calibration (:func:`processing.scan_points.profiles_to_points`),
+the scanner calibration (:func:`processing.geometry.scan_points.profiles_to_points`),
 as :func:`app.process_session.process_session` makes them; a click picks the
 nearest *measured* point within a few pixels of the click, so a pick is
 always a real 3-D point of the cloud, whichever projection is shown.  The
@@ -42,8 +42,8 @@ def pass_points(root: Path, calibration: str | None, pass_no: int, max_points: i
     from app.capture import load_pass_profiles
     from app.errors import UsageError
     from app.session import Session
-    from processing.calibration import ScannerCalibration
-    from processing.scan_points import profiles_to_points
+    from processing.geometry.calibration import ScannerCalibration
+    from processing.geometry.scan_points import profiles_to_points
 
     if calibration:
         cal = ScannerCalibration.from_dict(load_calibration_source(calibration))

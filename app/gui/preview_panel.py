@@ -163,7 +163,7 @@ class PreviewPanel(Panel):
         f.addRow("Mesh", self.mesh_label)
         f.addRow(open_mesh)
         f.addRow(use_session)
-        from processing.materials import list_materials
+        from processing.materials.presets import list_materials
 
         self.material = QComboBox()
         self.material.addItems(list_materials())

@@ -4,7 +4,7 @@ The session store is :mod:`app.session` (``docs/session-format.md``).  The
 list is read with :meth:`app.session.Session.read` (the manifest with the
 journal replayed, without locking), so it can be refreshed while a capture
 writes the session; RAW thumbnails are decoded on a worker thread
-(:func:`processing.raw_decode.decode_raw`, :func:`processing.raw_decode.preview_srgb8`).
+(:func:`processing.camera.raw_decode.decode_raw`, :func:`processing.camera.raw_decode.preview_srgb8`).
 
 Examples
 --------
@@ -57,7 +57,7 @@ def rgb_to_qimage(rgb: np.ndarray) -> QImage:
 
 
 def _thumbnail(path: Path, side: int = 96) -> np.ndarray:
-    from processing.raw_decode import decode_raw, preview_srgb8
+    from processing.camera.raw_decode import decode_raw, preview_srgb8
 
     img = preview_srgb8(decode_raw(path, mode="bin2x2"))
     step = max(1, int(np.ceil(max(img.shape[:2]) / side)))

@@ -3,28 +3,28 @@ uncertainty) against the identified material's model spectrum; a material map ov
 
 A composition of the colour pipeline's library calls (issue #5):
 
-1. the pass's chart frame: :func:`processing.raw_decode.decode_raw`,
-   :func:`processing.chart_detection.detect_chart`,
-   :func:`processing.chart_sampling.sample_patches` and
-   :func:`processing.chart_sampling.check_patches` (the usable patches);
+1. the pass's chart frame: :func:`processing.camera.raw_decode.decode_raw`,
+   :func:`processing.camera.chart_detection.detect_chart`,
+   :func:`processing.camera.chart_sampling.sample_patches` and
+   :func:`processing.camera.chart_sampling.check_patches` (the usable patches);
 2. the estimator (Matsuda et al., section 4.1, eq. (6)-(10), or a better
    method) fitted for the model camera under the shot's light and
    calibrated to the chart with the chart transform M2, eq. (9):
-   :func:`processing.spectral_estimation.fit_estimator` with the
-   ColorChecker's reflectances (:func:`processing.reflectance_database.load_reflectances`);
+   :func:`processing.spectral.estimation.estimator.fit_estimator` with the
+   ColorChecker's reflectances (:func:`processing.spectral.reflectance_database.load_reflectances`);
 3. a clicked point: the mean reflectance of the pixels around it with its
    uncertainty (pixel spread and the method's held-out error in quadrature,
-   :func:`processing.spectral_estimation.region_spectra`);
+   :func:`processing.spectral.estimation.estimator.region_spectra`);
 4. its material (Matsuda et al., section 4.2, eq. (11)): the candidate whose
    forward-modelled camera colour is nearest
-   (:func:`processing.material_identification.identify_material` on the
+   (:func:`processing.materials.identification.identify_material` on the
    chart-transformed camera values); the candidate's model spectrum is its
    reflectance factor at the identification geometry
-   (:func:`processing.material.material_brdf` times pi cos_i), scaled to the
+   (:func:`processing.materials.lobes.material_brdf` times pi cos_i), scaled to the
    measured spectrum by least squares for the plot (brightness is a free
    parameter of the identification);
 5. the material map: the same identification over square blocks of the frame
-   (:func:`processing.material_identification.identify_regions`), leaving out
+   (:func:`processing.materials.identification.identify_regions`), leaving out
    pixels too dark to have a colour, clipped pixels and the backdrop (the
    colour of the frame's rim), and blocks left less than half full.
 
@@ -90,8 +90,8 @@ class SpectralScene:
     chart_frame: Path
     preview: np.ndarray            # (H, W, 3) uint8
     rgb: np.ndarray                # (H, W, 3) linear object-camera RGB
-    fit: Any                       # processing.spectral_fit.SpectralFit (calibrated)
-    candidates: Any                # processing.material_identification.CandidateSet
+    fit: Any                       # processing.spectral.estimation.fit.SpectralFit (calibrated)
+    candidates: Any                # processing.materials.identification.CandidateSet
     method_error: float
     usable_patches: int
     light: str
@@ -101,14 +101,14 @@ class SpectralScene:
 def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = "D65", method: str = "wiener",
                     chart: str = "classic24") -> SpectralScene:
     """Decode the frames, calibrate the estimator to the chart and forward-model the candidates."""
-    from processing.camera_response import camera_sensitivities
-    from processing.chart_detection import detect_chart
-    from processing.chart_sampling import check_patches, sample_patches
-    from processing.material_identification import candidate_set
-    from processing.raw_decode import decode_raw, preview_srgb8
-    from processing.reflectance_database import load_reflectances
-    from processing.spectra import SpectralGrid, light_spectrum
-    from processing.spectral_estimation import fit_estimator
+    from processing.camera.response import camera_sensitivities
+    from processing.camera.chart_detection import detect_chart
+    from processing.camera.chart_sampling import check_patches, sample_patches
+    from processing.materials.identification import candidate_set
+    from processing.camera.raw_decode import decode_raw, preview_srgb8
+    from processing.spectral.reflectance_database import load_reflectances
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
+    from processing.spectral.estimation.estimator import fit_estimator
 
     g = SpectralGrid(400, 700, 10)
     chart_raw = decode_raw(chart_frame, mode="bin2x2")
@@ -140,10 +140,10 @@ def _model_camera(scene: SpectralScene, rgb: np.ndarray) -> np.ndarray:
 
 def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
     """Reflectance around image pixel ``(x, y)`` with its uncertainty, the material and its model spectrum."""
-    from processing.material import material_brdf
-    from processing.material_identification import identify_material
-    from processing.materials import get_material
-    from processing.spectral_estimation import region_spectra
+    from processing.materials.lobes import material_brdf
+    from processing.materials.identification import identify_material
+    from processing.materials.presets import get_material
+    from processing.spectral.estimation.estimator import region_spectra
 
     h, w = scene.rgb.shape[:2]
     if not (0 <= x < w and 0 <= y < h):
@@ -204,13 +204,13 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
     with fewer than half its pixels left (the rim of a highlight or of the
     object: too few pixels to average).
     A tile whose best candidate has a confidence below ``min_confidence``
-    (:func:`processing.material_identification.identify_material`: the
+    (:func:`processing.materials.identification.identify_material`: the
     posterior probability among the candidates) is labelled
     :data:`UNCERTAIN` rather than given a name it may not have -- on
     polished metal lit by one lamp, tiles at the edge of a highlight often
     fit two or three alloys about equally.
     """
-    from processing.material_identification import identify_regions
+    from processing.materials.identification import identify_regions
 
     if not 0.0 <= min_confidence <= 1.0:
         raise ValueError(f"min_confidence must be within 0..1, got {min_confidence!r}")

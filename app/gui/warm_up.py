@@ -39,7 +39,7 @@ __all__ = ["HEAVY_MODULES", "warm_up", "freeze_heap"]
 
 #: Modules the window's worker threads import on first use, in the order a session needs them.
 HEAVY_MODULES = ("colour", "open3d", "scipy.spatial", "app.capture", "app.capture_devices",
-                 "processing.scan_points", "render.renderer", "app.scene_build")
+                 "processing.geometry.scan_points", "render.renderer", "app.scene_build")
 
 
 @functools.cache

@@ -2,7 +2,7 @@
 (the reference sphere, then the piece), the sphere scanned and the scanner calibrated from the Processing tab.
 
 Ground truth: the simulated station's own sensor pose (``SimulatedStation.sensor_to_room``; the calibration
-must recover it as ``kogei calibrate`` does in tests/test_calibrate_command.py), and a fresh station with the
+must recover it as ``kogei calibrate`` does in tests/app/test_calibrate_command.py), and a fresh station with the
 hawk on its table from the start (the swapped station must give the same profiles: they are deterministic per
 seed, placement and table angle).
 """

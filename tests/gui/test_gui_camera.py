@@ -16,7 +16,7 @@ from PySide6.QtCore import Qt
 
 from mocks.chart_scene import chart_corners
 from mocks.world import World
-from processing.chart_layout import chart_layout
+from processing.camera.chart_layout import chart_layout
 from tests.gui.helpers import make_window
 
 W, H = 600, 400

@@ -2,7 +2,7 @@
 capture -> process -> preview, and the event loop's responsiveness throughout.
 
 Ground truth: the simulated station's placements (the registered pose of pass p must equal
-``T_1 @ inv(T_p)`` with ``T_p = Rz(theta_p) @ place(p)``, as in tests/test_process_session.py), the
+``T_1 @ inv(T_p)`` with ``T_p = Rz(theta_p) @ place(p)``, as in tests/app/test_process_session.py), the
 mesh's own geometry (the preview's silhouette must be the projection of the mesh's vertices through
 the orbit camera, computed here with a plain pinhole model), and the plan (angles, counts).
 """
@@ -22,14 +22,14 @@ from PySide6.QtCore import QPoint, Qt
 from app.calibrate_command import calibrate_session
 from app.session import Session
 from mocks.world import World, rotation_z
-from processing.registration import pose_difference
+from processing.geometry.registration import pose_difference
 from render.meshio import load_mesh
 from tests.gui.helpers import library_capture, make_window, wait_capture
 
 STEPS = 60
 PASSES = 3
 # Bounds of the registered poses: a right pose is within a few hundredths of a degree / millimetre at this
-# size (tests/test_process_session.py measures 0.02 deg / 0.025 mm at 90 steps); a wrong one is off by degrees.
+# size (tests/app/test_process_session.py measures 0.02 deg / 0.025 mm at 90 steps); a wrong one is off by degrees.
 POSE_DEG = 0.2
 POSE_MM = 0.3
 

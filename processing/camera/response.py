@@ -1,0 +1,222 @@
+"""Camera spectral sensitivities and the camera response to reflectance under a light.
+
+A camera channel c records ``rho_c = sum_lambda R(lambda) E(lambda) s_c(lambda)
+dlambda`` for a surface of reflectance R under light E (the linear signal
+model of EMVA Standard 1288, release 4.0, section 2).  The
+sum is over the samples of a :class:`~processing.spectral.spectra.SpectralGrid` with the
+weight ``step`` (trapezoid rule with the ends held, as in
+:func:`processing.spectral.spectra.resample`).
+
+Sensitivities come by name from ``colour.MSDS_CAMERA_SENSITIVITIES``
+(colour-science ships 'Nikon 5100 (NPL)' and 'Sigma SDMerill (NPL)', measured
+by the National Physical Laboratory) or from a CSV file of rows
+``wavelength_nm, r, g, b``.
+
+Several exposures under different lights are stacked into one *channel
+matrix* ``K`` of shape ``(L, 3 n_lights)`` so that ``rho = R @ K`` for any
+number of lights (:func:`channel_matrix`); two lights give the six channels
+of the two-exposure estimator.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from processing.spectral.spectra import SpectralGrid, resample
+
+__all__ = [
+    "DEFAULT_CAMERA",
+    "CameraResponseError",
+    "camera_names",
+    "camera_sensitivities",
+    "channel_matrix",
+    "camera_rgb",
+]
+
+#: Default reference camera (a key of ``colour.MSDS_CAMERA_SENSITIVITIES``).
+DEFAULT_CAMERA = "Nikon 5100 (NPL)"
+
+
+
+class CameraResponseError(ValueError):
+    """A camera, light or spectrum given to the camera model is not valid; the message names it."""
+
+
+def camera_names() -> list[str]:
+    """Names of the cameras with measured sensitivities in colour-science.
+
+    Examples
+    --------
+    >>> "Nikon 5100 (NPL)" in camera_names()
+    True
+    """
+    import colour
+
+    return sorted(colour.MSDS_CAMERA_SENSITIVITIES.keys())
+
+
+def _read_sensitivity_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    from processing.spectral.tables import read_wavelength_table
+
+    table = read_wavelength_table(
+        path, what="camera sensitivity", error=CameraResponseError, columns=4, layout="'wavelength_nm, r, g, b'",
+        check=lambda col, v: None if v >= 0 else f"a sensitivity must be >= 0, got {v:g}")
+    return table.wavelengths, table.values
+
+
+@functools.lru_cache(maxsize=16)
+def _named(name: str, start: float, stop: float, step: float) -> NDArray[np.float64]:
+    import colour
+
+    try:
+        msds = colour.MSDS_CAMERA_SENSITIVITIES[name]
+    except KeyError:
+        raise CameraResponseError(
+            f"unknown camera sensitivities {name!r}; choose one of: {', '.join(camera_names())} "
+            "or give a CSV file 'wavelength_nm, r, g, b'"
+        ) from None
+    wl = np.asarray(msds.wavelengths, dtype=np.float64)
+    values = np.asarray(msds.values, dtype=np.float64)
+    return _on_grid(name, wl, values, SpectralGrid(start, stop, step))
+
+
+def _on_grid(label: str, wl: NDArray[np.float64], values: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
+    lo, hi = float(wl[0]), float(wl[-1])
+    if grid.start < lo or grid.stop > hi:
+        raise CameraResponseError(
+            f"camera sensitivities {label!r} cover {lo:g}-{hi:g} nm; the spectral grid "
+            f"{grid.start:g}-{grid.stop:g} nm must lie inside"
+        )
+    out = resample(wl, values.T, grid).T
+    if not np.all(out.max(axis=0) > 0):
+        raise CameraResponseError(f"camera sensitivities {label!r}: a channel is zero over the whole grid")
+    out.setflags(write=False)
+    return out
+
+
+def camera_sensitivities(grid: SpectralGrid, camera: "str | os.PathLike[str]" = DEFAULT_CAMERA) -> NDArray[np.float64]:
+    """Spectral sensitivities ``(L, 3)`` (R, G, B) of a camera on ``grid``, linearly interpolated.
+
+    Parameters
+    ----------
+    grid
+        Wavelength grid; must lie inside the range the sensitivities cover.
+    camera
+        A name of :func:`camera_names`, or a CSV file path (``.csv``) of rows
+        ``wavelength_nm, r, g, b`` (one header line allowed, '#' comments).
+
+    Returns
+    -------
+    ndarray
+        Read-only float64 array ``(grid.size, 3)`` (relative units).
+
+    Examples
+    --------
+    >>> s = camera_sensitivities(SpectralGrid(400, 700, 10))
+    >>> s.shape, int(np.argmax(s[:, 1]) * 10 + 400) in range(510, 560)
+    ((31, 3), True)
+    """
+    if not isinstance(grid, SpectralGrid):
+        raise CameraResponseError(f"grid must be a processing.spectral.spectra.SpectralGrid, got {type(grid).__name__}")
+    if isinstance(camera, os.PathLike) or (isinstance(camera, str) and camera.lower().endswith(".csv")):
+        path = Path(camera)
+        wl, values = _read_sensitivity_csv(path)
+        return _on_grid(str(path), wl, values, grid)
+    if not isinstance(camera, str):
+        raise CameraResponseError(f"camera must be a name or a CSV path, got {type(camera).__name__}")
+    return _named(camera, grid.start, grid.stop, grid.step)
+
+
+def _checked_sensitivities(sensitivities: ArrayLike, grid: SpectralGrid) -> NDArray[np.float64]:
+    s = np.asarray(sensitivities, dtype=np.float64)
+    if s.ndim != 2 or s.shape[0] != grid.size or s.shape[1] < 1:
+        raise CameraResponseError(
+            f"sensitivities must be (L, channels) with L = {grid.size} wavelengths of the grid, got shape {s.shape}"
+        )
+    if not np.all(np.isfinite(s)) or np.any(s < 0):
+        raise CameraResponseError("sensitivities must be finite and >= 0")
+    return s
+
+
+def channel_matrix(
+    sensitivities: ArrayLike, lights: "ArrayLike | Sequence[ArrayLike]", grid: SpectralGrid
+) -> NDArray[np.float64]:
+    """The matrix ``K (L, c n)`` with camera response ``rho = R @ K`` for reflectances R ``(..., L)``.
+
+    ``K[:, k c + j] = E_k(lambda) s_j(lambda) step`` for light k and channel j:
+    one exposure per light, the channels of each exposure side by side.
+
+    Parameters
+    ----------
+    sensitivities
+        ``(L, c)`` camera sensitivities on ``grid``.
+    lights
+        One light ``(L,)`` or several ``(n, L)`` (relative spectral power, >= 0).
+    grid
+        The wavelength grid.
+
+    Examples
+    --------
+    >>> g = SpectralGrid(400, 700, 100)
+    >>> channel_matrix(np.ones((4, 3)), [np.ones(4), 2 * np.ones(4)], g).shape
+    (4, 6)
+    """
+    s = _checked_sensitivities(sensitivities, grid)
+    e = np.asarray(lights, dtype=np.float64)
+    if e.ndim == 1:
+        e = e[None, :]
+    if e.ndim != 2 or e.shape[1] != grid.size or e.shape[0] < 1:
+        raise CameraResponseError(
+            f"lights must be (L,) or (n, L) with L = {grid.size} wavelengths of the grid, got shape {e.shape}"
+        )
+    if not np.all(np.isfinite(e)) or np.any(e < 0) or np.any(e.max(axis=1) <= 0):
+        raise CameraResponseError("each light spectrum must be finite, >= 0 and not all zero")
+    return np.concatenate([s * (ek * grid.step)[:, None] for ek in e], axis=1)
+
+
+def camera_rgb(
+    reflectance: ArrayLike,
+    light: "ArrayLike | Sequence[ArrayLike]",
+    sensitivities: ArrayLike,
+    grid: SpectralGrid,
+) -> NDArray[np.float64]:
+    """Linear camera response ``(..., c n)`` of reflectances ``(..., L)`` under one or more lights.
+
+    Parameters
+    ----------
+    reflectance
+        Spectral reflectance (or any non-negative spectral factor) on ``grid``.
+    light
+        ``(L,)`` light, or ``(n, L)`` for n exposures (channels concatenated).
+    sensitivities
+        ``(L, c)`` camera sensitivities on ``grid``.
+    grid
+        The wavelength grid.
+
+    Examples
+    --------
+    >>> from processing.spectral.spectra import light_spectrum
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> s = camera_sensitivities(g)
+    >>> white = camera_rgb(np.ones(g.size), light_spectrum("D65", g), s, g)
+    >>> grey = camera_rgb(np.full(g.size, 0.2), light_spectrum("D65", g), s, g)
+    >>> np.allclose(grey, 0.2 * white)
+    True
+    """
+    k = channel_matrix(sensitivities, light, grid)
+    r = np.asarray(reflectance, dtype=np.float64)
+    if r.ndim == 0 or r.shape[-1] != grid.size:
+        raise CameraResponseError(
+            f"reflectance must have the {grid.size} wavelengths of the grid on its last axis, got shape {r.shape}"
+        )
+    if r.size == 0:
+        raise CameraResponseError("reflectance is empty")
+    if not np.all(np.isfinite(r)) or np.any(r < 0):
+        raise CameraResponseError("reflectance must be finite and >= 0")
+    return r @ k

@@ -1,0 +1,396 @@
+"""Fit the cloth model to RAW frames of a swatch on the turntable (robust least squares).
+
+The measurement (``kogei cloth fit``): a flat swatch on the table, camera and
+light fixed (:mod:`processing.cloth.swatch_geometry`), one RAW frame per table
+angle and a colour chart frame.  Turning the table turns the yarn under a
+fixed light and view, which is what the anisotropic lobes of Yasuda et al.
+respond to.  A capture may repeat the turn with the lamp moved (passes, each
+with its own light direction,
+:meth:`processing.cloth.swatch_geometry.SwatchGeometry.for_pass`): one light leaves
+the weights of a broad-lobed cloth such as cotton correlated (docs/cloth.md
+gives the Fisher information), a second separates them.
+
+Units.  The chart frame's patches have known reflectances rho (the
+ColorChecker of the set-up, spectra from colour-science) and radiance
+``rho E / pi``; a least-squares gain per channel maps RAW values to camera
+responses ``sum_lambda L(lambda) s_c(lambda)`` of radiance L under the
+light's relative spectrum E (:func:`processing.camera.response.camera_rgb`).
+The model predicts the same quantity for the swatch,
+``sum f(lambda) cos_i E s_c`` with f the cloth BRDF, per photosite; a
+binned RAW pixel (2 x 2 photosites) takes each channel from its own
+photosites of the colour filter array, and so does the prediction, so the
+comparison needs no demosaicing.
+
+Parameters fitted: the ellipsoid axes a_t <= a_b (both yarns alike), the
+specular, internal and diffuse weights, and the dye as an sRGB colour
+(:meth:`processing.cloth.model.Dye.from_srgb`; the dye's absorption
+spectrum then follows from the camera's spectral sensitivities).  Held at
+the yarn preset's values: the layer count and rounding, the fibre index,
+the scattering and the warp fraction (``fixed``).  The layer count is
+chosen by :func:`choose_layers`, which fits each candidate and keeps the
+lowest cost; on simulated swatches the true count wins, but its neighbours
+come close (the count is weakly determined by the angular data, and the
+costs of all candidates are reported so the user sees by how much).  The
+residual is scaled by a noise model (1 % of the pixel's value plus 0.2 % of
+the swatch mean) and minimised with the soft-L1 loss
+(``scipy.optimize.least_squares``), which down-weights outliers such as
+clipped or dusty pixels.  Uncertainties: the square roots of the diagonal of
+``s^2 (J^T J)^-1`` at the solution, s^2 the mean squared scaled residual.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from processing.cloth.swatch_geometry import SwatchGeometry, swatch_samples
+
+__all__ = [
+    "FIT_PARAMETERS",
+    "ClothFitError",
+    "SwatchMeasurement",
+    "ClothFit",
+    "chart_gains",
+    "grid_chart_means",
+    "fit_material",
+    "predict_rgb",
+    "fit_swatch",
+    "LAYER_CANDIDATES",
+    "choose_layers",
+]
+
+#: Layer counts :func:`choose_layers` tries by default.
+LAYER_CANDIDATES = (1, 2, 3, 4, 6, 8)
+
+FIT_PARAMETERS = ("a_t", "a_b", "specular", "internal", "diffuse", "dye_r", "dye_g", "dye_b")
+_LOWER = np.array([2e-3, 2e-3, 0.0, 0.0, 0.0, 0.02, 0.02, 0.02])
+_UPPER = np.array([3.0, 3.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+_CFA_OFFSETS = ((0, 0), (1, 0), (0, 1), (1, 1))      # (dx, dy) of the 2 x 2 cell in row order
+
+
+class ClothFitError(ValueError):
+    """The swatch data cannot be fitted (too few pixels or frames, a bad chart); the message says why."""
+
+
+@dataclass(frozen=True)
+class SwatchMeasurement:
+    """Camera responses of swatch pixels over table angles.
+
+    Attributes
+    ----------
+    angles_deg
+        ``(A,)`` table angles.
+    pixels
+        ``(P, 2)`` binned pixel (column, row); binned pixel (x, y) covers
+        photosites (2x .. 2x+1, 2y .. 2y+1).
+    rgb
+        ``(A, P, 3)`` camera responses (RAW divided by the chart gains).
+    cfa_pattern
+        The 2 x 2 colour filter cell in row order, e.g. ``"RGGB"``.
+    passes
+        ``(A,)`` the pass (1-based) of each frame, i.e. which light of the set-up
+        lit it (:meth:`processing.cloth.swatch_geometry.SwatchGeometry.for_pass`);
+        default all 1.
+    """
+
+    angles_deg: NDArray[np.float64]
+    pixels: NDArray[np.int64]
+    rgb: NDArray[np.float64]
+    cfa_pattern: str = "RGGB"
+    passes: NDArray[np.int64] | None = None
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.angles_deg, dtype=np.float64).reshape(-1)
+        px = np.asarray(self.pixels, dtype=np.int64).reshape(-1, 2)
+        rgb = np.asarray(self.rgb, dtype=np.float64)
+        if rgb.shape != (a.size, px.shape[0], 3):
+            raise ClothFitError(f"rgb must have shape (angles {a.size}, pixels {px.shape[0]}, 3), got {rgb.shape}")
+        cfa = str(self.cfa_pattern).upper()
+        if len(cfa) != 4 or set(cfa) != {"R", "G", "B"}:
+            raise ClothFitError(f"cfa_pattern must be a 2 x 2 cell such as 'RGGB', got {self.cfa_pattern!r}")
+        passes = np.ones(a.size, np.int64) if self.passes is None else np.asarray(self.passes).reshape(-1)
+        if passes.shape != a.shape or not np.issubdtype(passes.dtype, np.integer) or np.any(passes < 1):
+            raise ClothFitError(f"passes must hold one pass number >= 1 per angle ({a.size}), got {self.passes!r}")
+        object.__setattr__(self, "passes", passes.astype(np.int64))
+        object.__setattr__(self, "angles_deg", a)
+        object.__setattr__(self, "pixels", px)
+        object.__setattr__(self, "rgb", rgb)
+        object.__setattr__(self, "cfa_pattern", cfa)
+
+
+@dataclass(frozen=True)
+class ClothFit:
+    """The fitted parameters and how well they explain the data.
+
+    Attributes
+    ----------
+    parameters
+        Fitted values by name (:data:`FIT_PARAMETERS`).
+    sigma
+        One-standard-deviation uncertainties by name.
+    fixed
+        The parameters held at the yarn preset's values.
+    spec
+        A material spec string of the fit (``kogei render --material ...``).
+    residual_rms
+        RMS of (predicted - measured) camera responses.
+    relative_residual
+        ``residual_rms`` over the mean measured response.
+    predicted
+        ``(A, P, 3)`` the model's responses at the measured pixels and angles.
+    cost
+        Final value of the robust cost.
+    """
+
+    parameters: dict[str, float]
+    sigma: dict[str, float]
+    fixed: dict[str, Any]
+    spec: str
+    residual_rms: float
+    relative_residual: float
+    predicted: NDArray[np.float64] = field(repr=False)
+    cost: float = 0.0
+
+
+def grid_chart_means(rgb: ArrayLike, rows: int = 4, columns: int = 6, inset: float = 0.3) -> NDArray[np.float64]:
+    """Mean RGB ``(rows * columns, 3)`` of the patches of a chart filling the frame in a grid.
+
+    Each patch is averaged over the middle ``1 - 2 inset`` of its cell (the
+    station's ``grid`` chart layout; patches in reading order).
+
+    Examples
+    --------
+    >>> img = np.repeat(np.arange(24.0).reshape(4, 6)[:, :, None], 3, axis=2).repeat(10, 0).repeat(10, 1)
+    >>> grid_chart_means(img)[:3, 0].tolist()
+    [0.0, 1.0, 2.0]
+    """
+    a = np.asarray(rgb, dtype=np.float64)
+    h, w = a.shape[:2]
+    out = np.empty((rows * columns, a.shape[2]))
+    for r in range(rows):
+        for c in range(columns):
+            y0, y1 = int(round((r + inset) * h / rows)), int(round((r + 1 - inset) * h / rows))
+            x0, x1 = int(round((c + inset) * w / columns)), int(round((c + 1 - inset) * w / columns))
+            out[r * columns + c] = a[y0:max(y1, y0 + 1), x0:max(x1, x0 + 1)].reshape(-1, a.shape[2]).mean(axis=0)
+    return out
+
+
+def _spectral_setup(geometry: SwatchGeometry, step: float):
+    from processing.camera.response import camera_sensitivities
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
+
+    grid = SpectralGrid(400.0, 700.0, step)
+    return grid, light_spectrum(geometry.light, grid), camera_sensitivities(grid, geometry.camera)
+
+
+def chart_gains(chart_means: ArrayLike, geometry: SwatchGeometry, step: float = 10.0) -> NDArray[np.float64]:
+    """Per-channel gains ``(3,)``: RAW means of the chart patches over their predicted camera responses.
+
+    Parameters
+    ----------
+    chart_means
+        ``(24, 3)`` RAW means of the patches in reading order.
+    geometry
+        Gives the chart, the light and the camera sensitivities.
+    step
+        Wavelength step (nm) of the prediction.
+
+    Raises
+    ------
+    ClothFitError
+        Non-finite or non-positive gains (a dark, clipped or missing chart).
+    """
+    import colour
+
+    from processing.camera.response import camera_rgb
+    from processing.spectral.spectra import resample
+
+    grid, e, sens = _spectral_setup(geometry, step)
+    try:
+        sds = colour.SDS_COLOURCHECKERS[geometry.chart]
+    except KeyError:
+        raise ClothFitError(f"unknown chart {geometry.chart!r} in the swatch geometry") from None
+    refl = np.stack([resample(sd.wavelengths, sd.values, grid) for sd in sds.values()])
+    pred = camera_rgb(refl / math.pi, e, sens, grid)
+    meas = np.asarray(chart_means, dtype=np.float64)
+    if meas.shape != pred.shape:
+        raise ClothFitError(f"chart means must have shape {pred.shape}, got {meas.shape}")
+    gains = np.sum(meas * pred, axis=0) / np.sum(pred * pred, axis=0)
+    if not np.all(np.isfinite(gains)) or np.any(gains <= 0):
+        raise ClothFitError(f"the chart frame gives no usable gains ({gains}); is the chart in the first frame?")
+    return gains
+
+
+def fit_material(values: ArrayLike, fixed: dict[str, Any]):
+    """The cloth material of fitted values (order of :data:`FIT_PARAMETERS`) and the fixed parameters."""
+    from processing.cloth.presets import build_cloth
+
+    v = np.asarray(values, dtype=np.float64).copy()
+    # weights summing above 1 are scaled back to 1 (the fit penalises the excess separately)
+    v[2:5] /= max(1.0, float(np.sum(v[2:5])))
+    rgb = tuple(float(x) for x in np.clip(v[5:8], 0.0, 1.0))
+    params = dict(fixed)
+    params.update(a_t=float(v[0]), a_b=float(v[1]), weft_a_t=float(v[0]), weft_a_b=float(v[1]),
+                  specular=float(v[2]), internal=float(v[3]), diffuse=float(v[4]), warp_colour=rgb, weft_colour=rgb)
+    return build_cloth("swatch-fit", params)
+
+
+def predict_rgb(material, geometry: SwatchGeometry, angles_deg: ArrayLike, pixels: ArrayLike,
+                cfa_pattern: str = "RGGB", step: float = 10.0, passes: ArrayLike | None = None) -> NDArray[np.float64]:
+    """Camera responses ``(A, P, 3)`` of ``material`` at binned pixels over table angles.
+
+    Each channel is the mean over the photosites of that colour in the
+    pixel's 2 x 2 cell, as a ``bin2x2`` RAW decode forms it.  ``passes``
+    (``(A,)``, 1-based) picks the light of each frame (default: pass 1).
+    """
+    a = np.asarray(angles_deg, dtype=np.float64).reshape(-1)
+    if passes is not None:
+        p = np.asarray(passes, dtype=np.int64).reshape(-1)
+        if p.shape != a.shape:
+            raise ClothFitError(f"passes must hold one pass number per angle ({a.size}), got shape {p.shape}")
+        if np.any(p != 1):
+            px = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+            out = np.empty((a.size, px.shape[0], 3))
+            for k in np.unique(p):
+                try:
+                    g = geometry.for_pass(int(k))
+                except ValueError as exc:
+                    raise ClothFitError(str(exc)) from None
+                out[p == k] = predict_rgb(material, g, a[p == k], px, cfa_pattern, step)
+            return out
+    from processing.camera.response import camera_rgb
+    from processing.materials.lobes import material_brdf
+
+    grid, e, sens = _spectral_setup(geometry, step)
+    px = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    i = (2 * px[:, 0][:, None] + np.array([o[0] for o in _CFA_OFFSETS])[None, :]).ravel()
+    j = (2 * px[:, 1][:, None] + np.array([o[1] for o in _CFA_OFFSETS])[None, :]).ravel()
+    s = swatch_samples(geometry, a, i, j)
+    f = material_brdf(material, s.cos_i, s.cos_o, s.cos_h, s.cos_d, grid.wavelengths, s.tangential)
+    resp = camera_rgb(f * s.cos_i[..., None], e, sens, grid).reshape(a.size, px.shape[0], 4, 3)
+    out = np.empty((a.size, px.shape[0], 3))
+    for c, name in enumerate("RGB"):
+        sites = [k for k, ch in enumerate(cfa_pattern.upper()) if ch == name]
+        out[..., c] = resp[:, :, sites, c].mean(axis=2)
+    return out
+
+
+def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn: str = "silk",
+               layers: int | None = None, start: ArrayLike | None = None, step: float = 10.0,
+               max_evaluations: int = 400) -> ClothFit:
+    """Fit the cloth model to ``measurement`` by robust least squares.
+
+    Parameters
+    ----------
+    measurement
+        Camera responses of swatch pixels (:class:`SwatchMeasurement`).
+    geometry
+        The set-up.
+    yarn
+        Cloth preset whose non-fitted parameters are held (silk, cotton, satin).
+    layers
+        Internal layer count to hold (default: the preset's).
+    start
+        Initial values in the order of :data:`FIT_PARAMETERS` (default: the
+        preset's axes and weights and a mid-grey dye).
+    step
+        Wavelength step (nm) of the model.
+    max_evaluations
+        Bound on model evaluations.
+
+    Returns
+    -------
+    ClothFit
+
+    Raises
+    ------
+    ClothFitError
+        Fewer than 3 angles or 8 pixels, or non-finite data.
+    """
+    from scipy.optimize import least_squares
+
+    from processing.cloth.presets import CLOTH_PRESETS
+
+    if yarn not in CLOTH_PRESETS:
+        raise ClothFitError(f"unknown yarn preset {yarn!r}; use one of {', '.join(CLOTH_PRESETS)}")
+    if measurement.angles_deg.size < 3 or measurement.pixels.shape[0] < 8:
+        raise ClothFitError(
+            f"a swatch fit needs at least 3 table angles and 8 swatch pixels, got {measurement.angles_deg.size} "
+            f"angles and {measurement.pixels.shape[0]} pixels"
+        )
+    if int(measurement.passes.max()) > geometry.passes:
+        raise ClothFitError(
+            f"the measurement has frames of pass {int(measurement.passes.max())} but the set-up gives "
+            f"{geometry.passes} light direction(s); add pass_light_directions to the swatch geometry"
+        )
+    meas = measurement.rgb
+    if not np.all(np.isfinite(meas)):
+        raise ClothFitError("the swatch responses contain NaN or infinite values")
+    if not float(np.mean(meas)) > 0:
+        raise ClothFitError("the swatch frames are black (mean response <= 0): check the exposure and the light")
+    preset = dict(CLOTH_PRESETS[yarn])
+    fixed = {k: preset[k] for k in ("warp_kind", "weft_kind", "warp_fraction", "layers", "rounding", "n", "scattering")}
+    fixed["weft_kind"] = fixed["warp_kind"]
+    if layers is not None:
+        fixed["layers"] = int(layers)
+    x0 = (np.asarray(start, dtype=np.float64) if start is not None else
+          np.array([preset["a_t"], preset["a_b"], 0.8 * preset["specular"], 0.8 * preset["internal"],
+                    0.8 * preset["diffuse"], 0.5, 0.5, 0.5]))
+    x0 = np.clip(x0, _LOWER + 1e-9, _UPPER - 1e-9)
+    scale = 0.01 * np.abs(meas) + 0.002 * float(np.mean(np.abs(meas)))
+
+    def residual(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        try:
+            pred = predict_rgb(fit_material(x, fixed), geometry, measurement.angles_deg, measurement.pixels,
+                               measurement.cfa_pattern, step, measurement.passes)
+        except ValueError:
+            return np.full(meas.size + 1, 1e3)
+        excess = max(0.0, float(np.sum(x[2:5])) - 1.0)     # energy: specular + internal + diffuse <= 1
+        return np.append(((pred - meas) / scale).ravel(), 1e3 * excess)
+
+    result = least_squares(residual, x0, bounds=(_LOWER, _UPPER), loss="soft_l1", f_scale=3.0,
+                           x_scale=np.array([0.05, 0.1, 0.05, 0.05, 0.05, 0.1, 0.1, 0.1]),
+                           max_nfev=max_evaluations, diff_step=1e-4)
+    x = result.x.copy()
+    if fixed["warp_fraction"] == 0.5 and x[0] > x[1]:
+        x[[0, 1]] = x[[1, 0]]                   # plain weave of equal yarns: the axes are an unordered pair
+    material = fit_material(x, fixed)
+    pred = predict_rgb(material, geometry, measurement.angles_deg, measurement.pixels, measurement.cfa_pattern, step,
+                       measurement.passes)
+    r = result.fun[:-1]
+    dof = max(r.size - x.size, 1)
+    jac = result.jac[:-1]
+    if fixed["warp_fraction"] == 0.5 and result.x[0] > result.x[1]:
+        jac = jac[:, [1, 0, 2, 3, 4, 5, 6, 7]]
+    try:
+        cov = np.linalg.pinv(jac.T @ jac) * float(np.sum(r * r) / dof)
+        sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        sig = np.full(x.size, np.nan)
+    rms = float(np.sqrt(np.mean((pred - meas) ** 2)))
+    hexa = "#" + "".join(f"{round(v * 255):02x}" for v in x[5:8])
+    spec = (f"{yarn}:a_t={x[0]:.4g},a_b={x[1]:.4g},weft_a_t={x[0]:.4g},weft_a_b={x[1]:.4g},"
+            f"specular={x[2]:.4g},internal={x[3]:.4g},diffuse={x[4]:.4g},layers={fixed['layers']},"
+            f"warp_colour={hexa},weft_colour={hexa},weft_kind={fixed['weft_kind']}")
+    return ClothFit(dict(zip(FIT_PARAMETERS, map(float, x))), dict(zip(FIT_PARAMETERS, map(float, sig))), fixed,
+                    spec, rms, rms / max(float(np.mean(np.abs(meas))), 1e-300), pred, float(result.cost))
+
+
+def choose_layers(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn: str = "silk",
+                  candidates: tuple[int, ...] = LAYER_CANDIDATES, step: float = 10.0) -> tuple[ClothFit, dict[int, float]]:
+    """Fit every layer count of ``candidates`` and return the fit of lowest robust cost and all costs.
+
+    Raises
+    ------
+    ClothFitError
+        No candidates, or a candidate outside 0..50.
+    """
+    if not candidates or any(not isinstance(k, (int, np.integer)) or not 0 <= k <= 50 for k in candidates):
+        raise ClothFitError(f"layer candidates must be integers in 0..50, got {candidates!r}")
+    fits = {int(k): fit_swatch(measurement, geometry, yarn=yarn, layers=int(k), step=step) for k in candidates}
+    best = min(fits, key=lambda k: fits[k].cost)
+    return fits[best], {k: f.cost for k, f in fits.items()}

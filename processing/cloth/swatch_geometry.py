@@ -1,0 +1,235 @@
+"""Geometry of a flat swatch on the turntable seen by a fixed camera under a fixed light.
+
+The measurement set-up of ``kogei cloth fit`` (Yasuda et al.'s model fitted
+to a real fabric): a flat square swatch lies on the table (its centre on the
+axis, warp along the table's x axis turned by ``warp_angle_deg``), the camera
+looks at the table centre from the room's -y side at ``camera_elevation_deg``
+and ``camera_distance_mm`` (pinhole, horizontal field of view ``fov_deg``,
+``width`` x ``height`` photosites), and a distant light shines from
+``light_direction`` (fixed in the room).  A capture of several passes may
+move the lamp between passes: ``pass_light_directions`` are the light
+directions of passes 2, 3, ... (:meth:`SwatchGeometry.for_pass`).  Turning the table by theta turns
+the warp by theta about the normal; the light, view and half vectors stay
+where they are.  Per photosite this module gives the four cosines and the
+tangent-frame components the anisotropic lobes need
+(:func:`processing.materials.lobes.material_brdf`).
+
+The pinhole is the one of the simulated station (:mod:`mocks.world`): ray
+through photosite (i, j) along ``fwd + x right + y up`` with
+``x = ((i + 0.5) / W * 2 - 1) tan(fov/2)`` and
+``y = (1 - (j + 0.5) / H * 2) tan(fov/2) H / W``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["SwatchGeometry", "SwatchSamples", "swatch_samples", "SwatchGeometryError"]
+
+
+class SwatchGeometryError(ValueError):
+    """A value of the swatch set-up is missing or not valid; the message names it."""
+
+
+@dataclass(frozen=True)
+class SwatchGeometry:
+    """The fixed set-up of a swatch measurement (lengths in mm, angles in degrees).
+
+    Examples
+    --------
+    >>> g = SwatchGeometry.from_dict({"width": 64, "height": 48, "swatch_mm": 60})
+    >>> g.width, g.camera_elevation_deg, SwatchGeometry.from_dict(g.to_dict()) == g
+    (64, 45.0, True)
+    """
+
+    width: int = 160
+    height: int = 120
+    camera_distance_mm: float = 260.0
+    camera_elevation_deg: float = 45.0
+    fov_deg: float = 25.0
+    light_direction: tuple[float, float, float] = (0.22, 0.6, 0.77)
+    light: str = "D65"
+    swatch_mm: float = 80.0
+    warp_angle_deg: float = 0.0
+    camera: str = "Nikon 5100 (NPL)"
+    chart: str = "ColorChecker N Ohta"
+    pass_light_directions: tuple[tuple[float, float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 2 or v % 2:
+                raise SwatchGeometryError(f"{name} must be an even number of photosites >= 2, got {v!r}")
+        for name, lo, hi in (("camera_distance_mm", 0.0, math.inf), ("camera_elevation_deg", 0.0, 89.0),
+                             ("fov_deg", 0.0, 180.0), ("swatch_mm", 0.0, math.inf)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and lo < v <= hi and v < math.inf):
+                raise SwatchGeometryError(f"{name} must be a number in ({lo:g}, {hi:g}], got {v!r}")
+        if not math.isfinite(self.warp_angle_deg):
+            raise SwatchGeometryError(f"warp_angle_deg must be finite, got {self.warp_angle_deg!r}")
+        d = np.asarray(self.light_direction, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or d[2] <= 0:
+            raise SwatchGeometryError(
+                f"light_direction must be three numbers toward the light with z > 0 (above the table), "
+                f"got {self.light_direction!r}"
+            )
+        object.__setattr__(self, "light_direction", tuple(float(v) for v in d / np.linalg.norm(d)))
+        lights = []
+        for k, item in enumerate(self.pass_light_directions, start=2):
+            try:
+                d = np.asarray(item, dtype=np.float64)
+            except (TypeError, ValueError):
+                d = np.zeros(0)
+            if d.shape != (3,) or not np.all(np.isfinite(d)) or d[2] <= 0:
+                raise SwatchGeometryError(
+                    f"pass_light_directions: the light of pass {k} must be three numbers toward the light with "
+                    f"z > 0 (above the table), got {item!r}"
+                )
+            lights.append(tuple(float(v) for v in d / np.linalg.norm(d)))
+        object.__setattr__(self, "pass_light_directions", tuple(lights))
+
+    @property
+    def passes(self) -> int:
+        """Number of light positions (passes) the set-up describes."""
+        return 1 + len(self.pass_light_directions)
+
+    def for_pass(self, pass_no: int) -> "SwatchGeometry":
+        """The one-light set-up of pass ``pass_no`` (1-based).
+
+        Examples
+        --------
+        >>> g = SwatchGeometry(pass_light_directions=((0.0, -0.6, 0.8),))
+        >>> g.passes, g.for_pass(2).light_direction, g.for_pass(1) == SwatchGeometry()
+        (2, (0.0, -0.6, 0.8), True)
+        """
+        if isinstance(pass_no, bool) or not isinstance(pass_no, (int, np.integer)) or not 1 <= pass_no <= self.passes:
+            raise SwatchGeometryError(
+                f"pass {pass_no!r} has no light direction: the set-up gives {self.passes} "
+                "(light_direction for pass 1, pass_light_directions for passes 2, 3, ...)"
+            )
+        light = self.light_direction if pass_no == 1 else self.pass_light_directions[pass_no - 2]
+        return replace(self, light_direction=light, pass_light_directions=())
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "SwatchGeometry":
+        """From a JSON mapping; unknown keys are refused by name."""
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise SwatchGeometryError(
+                f"unknown swatch geometry key(s) {', '.join(sorted(unknown))}; valid keys: {', '.join(sorted(known))}"
+            )
+        kw = dict(data)
+        if "light_direction" in kw:
+            kw["light_direction"] = tuple(kw["light_direction"])
+        if "pass_light_directions" in kw:
+            lights = kw["pass_light_directions"]
+            if not isinstance(lights, (list, tuple)):
+                raise SwatchGeometryError(f"pass_light_directions must be a list of directions, got {lights!r}")
+            kw["pass_light_directions"] = tuple(tuple(d) if isinstance(d, (list, tuple)) else d for d in lights)
+        try:
+            return cls(**kw)
+        except TypeError as exc:
+            raise SwatchGeometryError(f"swatch geometry: {exc}") from None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        out = asdict(self)
+        out["light_direction"] = list(self.light_direction)
+        out["pass_light_directions"] = [list(d) for d in self.pass_light_directions]
+        return out
+
+    def camera_frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Eye position and the forward, right and up unit vectors."""
+        el = math.radians(self.camera_elevation_deg)
+        eye = self.camera_distance_mm * np.array([0.0, -math.cos(el), math.sin(el)])
+        fwd = -eye / np.linalg.norm(eye)
+        right = np.cross(fwd, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        return eye, fwd, right, up
+
+    def rays(self, i: ArrayLike, j: ArrayLike) -> NDArray[np.float64]:
+        """Unit ray directions ``(..., 3)`` through photosites (column i, row j).
+
+        Examples
+        --------
+        >>> g = SwatchGeometry(width=2, height=2, camera_elevation_deg=60.0)
+        >>> r = g.rays([0, 1], [0, 0])
+        >>> bool(np.allclose(np.linalg.norm(r, axis=1), 1.0)), bool(r[0, 0] < 0 < r[1, 0])   # left, right
+        (True, True)
+        """
+        _, fwd, right, up = self.camera_frame()
+        half = math.tan(math.radians(self.fov_deg) / 2)
+        x = ((np.asarray(i, dtype=np.float64) + 0.5) / self.width * 2 - 1) * half
+        y = (1 - (np.asarray(j, dtype=np.float64) + 0.5) / self.height * 2) * half * self.height / self.width
+        d = fwd + x[..., None] * right + y[..., None] * up
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class SwatchSamples:
+    """Geometry of photosites on the swatch at table angles; arrays of shape ``(A, P)``.
+
+    Attributes
+    ----------
+    cos_i, cos_o, cos_h, cos_d
+        n.l, n.v, n.h, l.h.
+    tangential
+        ``(i_t, i_b, o_t, o_b)``: light and view along the warp t and across it.
+    inside
+        bool: the photosite sees the swatch (at least ``margin`` mm inside its edge).
+    """
+
+    cos_i: NDArray[np.float64]
+    cos_o: NDArray[np.float64]
+    cos_h: NDArray[np.float64]
+    cos_d: NDArray[np.float64]
+    tangential: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+    inside: NDArray[np.bool_]
+
+
+def swatch_samples(geometry: SwatchGeometry, angles_deg: ArrayLike, i: ArrayLike, j: ArrayLike,
+                   margin_mm: float = 0.0) -> SwatchSamples:
+    """Geometry of photosites ``(i, j)`` (``(P,)`` each) at table angles ``(A,)``.
+
+    Examples
+    --------
+    >>> g = SwatchGeometry(width=4, height=4)
+    >>> s = swatch_samples(g, [0.0, 90.0], [2], [2])
+    >>> bool(s.inside.all()), bool(np.allclose(s.cos_i, g.light_direction[2]))
+    (True, True)
+    """
+    a = np.radians(np.asarray(angles_deg, dtype=np.float64).reshape(-1, 1))
+    eye = geometry.camera_frame()[0]
+    d = geometry.rays(np.asarray(i).reshape(-1), np.asarray(j).reshape(-1))          # (P, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[:, 2] < 0, -eye[2] / d[:, 2], np.inf)
+    p = eye + d * np.where(np.isfinite(t), t, 0.0)[:, None]
+    # the point in the swatch's own frame: the table turned by -angle
+    c, s = np.cos(a), np.sin(a)
+    qx = c * p[:, 0] + s * p[:, 1]
+    qy = -s * p[:, 0] + c * p[:, 1]
+    half = geometry.swatch_mm / 2 - margin_mm
+    inside = (np.abs(qx) <= half) & (np.abs(qy) <= half) & np.isfinite(t)[None, :]
+    w = a + math.radians(geometry.warp_angle_deg)
+    tx, ty = np.cos(w), np.sin(w)                       # warp direction in the room, (A, 1)
+    bx, by = -ty, tx                                    # b = n x t with n = +z
+    lx, ly, lz = geometry.light_direction
+    ox, oy, oz = (-d[:, 0])[None, :], (-d[:, 1])[None, :], (-d[:, 2])[None, :]
+    hx, hy, hz = lx + ox, ly + oy, lz + oz
+    hn = np.sqrt(hx * hx + hy * hy + hz * hz)
+    cos_h = hz / hn
+    cos_d = (lx * hx + ly * hy + lz * hz) / hn
+    shape = inside.shape
+    full = np.ones(shape)
+    return SwatchSamples(
+        cos_i=lz * full, cos_o=oz * full, cos_h=cos_h * full, cos_d=cos_d * full,
+        tangential=(lx * tx + ly * ty + 0 * full, lx * bx + ly * by + 0 * full, ox * tx + oy * ty, ox * bx + oy * by),
+        inside=inside,
+    )

@@ -1,0 +1,411 @@
+"""Material identification by forward-modelling candidate materials into the camera, and alloy weights.
+
+Matsuda et al., section 4.2, eq. (11): a region's material is the known
+material whose colour signal is nearest to the measured one, ``argmin_j ||C_j - S||``,
+and alloy compositions follow eq. (3)-(4), ``C_alloy = sum_j w_j C_j``.
+The comparison here is made in camera space, not in a 3-vector basis (which
+cannot represent metal spectra well):
+
+* **Measurement geometry.**  A region is seen with the view along its
+  normal and the light at ``light_deg`` (default 30 degrees) from it, in one
+  plane.  Each candidate's signal is its BRDF at that geometry
+  (:func:`processing.materials.lobes.material_brdf`) times the light, through the
+  camera sensitivities (:mod:`processing.camera.response`); for a metal or an
+  alloy this is the Fresnel reflectance at the half-angle, for urushi the
+  pigment's diffuse colour plus the gloss of the binder.
+* **Unknown brightness.**  How bright a metal looks depends on its roughness
+  and the exact angles, which vary over an object, so each candidate gets a
+  free non-negative scale: only the direction of the camera vector (the
+  colour) is compared.  Metals of nearly flat reflectance (Ag, Al, Pt, Sn,
+  Zn, Pb, Fe) then differ by less than the noise from one view; when the
+  best and the runner-up are both such *neutral metals* (camera colour within
+  10 % of the light's: largest / smallest channel ratio <= 1.10) and their
+  likelihood ratio is below 20, the answer is "neutral metal", not a guess.
+* **Noise model.**  Each pixel's channel c has Gaussian noise of standard
+  deviation ``noise * rho_c`` (relative, 1 % = 0.01); a region of n pixels
+  has its mean's deviation divided by sqrt(n), plus an optional relative
+  ``model_error`` added in quadrature.  ``chi2_j = min_a sum_c ((rho_c - a
+  m_jc) / sigma_c)^2`` and the confidence is the posterior probability of
+  the best candidate under a uniform prior, ``exp(-chi2_j / 2)`` normalised
+  over the candidates.
+* **Calibration.**  The camera values must be in the model camera's units:
+  apply the chart transform (:func:`processing.camera.transfer.fit_chart_transform`)
+  first when the object camera is another camera.
+
+Alloy weights (:func:`estimate_alloy_weights`) are the non-negative,
+sum-to-one weights of the pure metals' responses that best explain the
+region (weighted non-negative least squares on ``a w_j``, then normalised),
+with a linearised standard deviation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import nnls
+
+from processing.camera.response import channel_matrix
+from processing.materials.lobes import material_brdf
+from processing.materials.presets import get_material
+from processing.materials.metal_model import ConductorFresnel
+from processing.spectral.spectra import SpectralGrid
+from processing.spectral.estimation.fit import SpectralEstimationError, checked_channels
+
+__all__ = [
+    "DEFAULT_CANDIDATES",
+    "NEUTRAL_METAL",
+    "CandidateSet",
+    "Identification",
+    "AlloyEstimate",
+    "candidate_set",
+    "identify_material",
+    "identify_regions",
+    "estimate_alloy_weights",
+]
+
+#: Candidates of the paper's object and the neutral metals that can be confused with silver.
+DEFAULT_CANDIDATES: tuple[str, ...] = (
+    "silver", "copper", "gold",
+    "nami-shibuichi", "shiro-shibuichi", "jo-shibuichi", "nami-shibuichi-uchi-sanbu", "nami-shibuichi-soto-sanbu",
+    "shakudo", "bronze", "urushi-black", "urushi-red",
+    "aluminium", "platinum", "tin", "zinc", "lead", "iron",
+)
+#: The answer when neutral metals cannot be told apart.
+NEUTRAL_METAL = "neutral metal"
+_NEUTRAL_RATIO = 1.10
+_AMBIGUOUS_LR = 20.0
+
+
+@dataclass(frozen=True)
+class CandidateSet:
+    """Candidate materials forward-modelled into the camera.
+
+    Attributes
+    ----------
+    names
+        Material names.
+    responses
+        ``(m, c)`` camera values of each candidate at the geometry.
+    neutral
+        ``(m,)`` True for metals whose colour is within 10 % of the light's.
+    light_deg
+        Angle of the light from the normal (degrees); the view is along it.
+    cos_d
+        Cosine of the angle between the light and the half vector.
+    """
+
+    names: tuple[str, ...]
+    responses: NDArray[np.float64]
+    neutral: NDArray[np.bool_]
+    light_deg: float
+    cos_d: float
+
+    @property
+    def channels(self) -> int:
+        """Camera channels c."""
+        return int(self.responses.shape[1])
+
+
+def _geometry(light_deg: float) -> tuple[float, float, float, float]:
+    if not (isinstance(light_deg, (int, float, np.floating)) and 0.0 <= float(light_deg) < 90.0):
+        raise SpectralEstimationError(f"light_deg must be an angle in [0, 90) degrees from the normal, got {light_deg!r}")
+    t = math.radians(float(light_deg))
+    cos_i, cos_o = math.cos(t), 1.0
+    cos_h = cos_d = math.cos(t / 2)     # half vector halfway between light and view
+    return cos_i, cos_o, cos_h, cos_d
+
+
+def candidate_set(
+    sensitivities: ArrayLike,
+    lights: ArrayLike,
+    grid: SpectralGrid,
+    *,
+    names: Sequence[str] = DEFAULT_CANDIDATES,
+    light_deg: float = 30.0,
+) -> CandidateSet:
+    """Forward-model material presets (:func:`processing.materials.presets.get_material`) into the camera.
+
+    Parameters
+    ----------
+    sensitivities
+        ``(L, 3)`` model-camera sensitivities.
+    lights
+        ``(L,)`` light, or ``(k, L)`` for k exposures under different lights.
+    grid
+        The wavelength grid.
+    names
+        Material specs (preset names, optionally with parameters).
+    light_deg
+        Angle of the light from the surface normal; the camera looks along the normal.
+
+    Examples
+    --------
+    >>> from processing.camera.response import camera_sensitivities
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> c = candidate_set(camera_sensitivities(g), np.ones(g.size), g, names=["gold", "silver"])
+    >>> c.responses.shape, c.neutral.tolist()
+    ((2, 3), [False, True])
+    """
+    if len(names) < 2:
+        raise SpectralEstimationError("identification needs at least two candidate materials")
+    k = channel_matrix(sensitivities, lights, grid)
+    cos_i, cos_o, cos_h, cos_d = _geometry(light_deg)
+    wl = grid.wavelengths
+    rows, neutral = [], []
+    white = np.ones(grid.size) @ k
+    for name in names:
+        try:
+            mat = get_material(name)
+        except ValueError as exc:
+            raise SpectralEstimationError(f"candidate material {name!r}: {exc}") from None
+        if any(lobe.kind == "anisotropic" for lobe in mat.lobes):
+            raise SpectralEstimationError(f"candidate {name!r} is a cloth (anisotropic); identification covers metals and lacquers")
+        signal = material_brdf(mat, cos_i, cos_o, cos_h, cos_d, wl) * (np.pi * cos_i)
+        resp = signal @ k
+        if not np.all(resp > 0):
+            raise SpectralEstimationError(f"candidate {name!r} gives no signal in some channel at light_deg={light_deg}")
+        rows.append(resp)
+        ratio = resp / white
+        neutral.append(mat.family in ("metal", "alloy") and float(ratio.max() / ratio.min()) <= _NEUTRAL_RATIO)
+    return CandidateSet(tuple(names), np.array(rows), np.array(neutral), float(light_deg), cos_d)
+
+
+@dataclass(frozen=True)
+class Identification:
+    """The material of one region.
+
+    Attributes
+    ----------
+    material
+        Best candidate, or ``"neutral metal"``.
+    confidence
+        Posterior probability of ``material`` under the noise model (for
+        "neutral metal": of the group).
+    runner_up
+        Second-best candidate (outside the group for "neutral metal").
+    likelihood_ratio
+        Likelihood of the best over the runner-up.
+    group
+        Candidates within the ambiguity (the neutral metals named), else ``(material,)``.
+    chi2
+        ``(m,)`` chi-square of every candidate, in :attr:`CandidateSet.names` order.
+    scale
+        Fitted brightness of the best candidate.
+    """
+
+    material: str
+    confidence: float
+    runner_up: str
+    likelihood_ratio: float
+    group: tuple[str, ...]
+    chi2: NDArray[np.float64]
+    scale: float
+
+
+def _region_sigma(mean: NDArray[np.float64], n: int, noise: float, model_error: float) -> NDArray[np.float64]:
+    rel = math.sqrt(noise**2 / n + model_error**2)
+    floor = 1e-6 * float(mean.max())      # a channel at exactly 0 keeps a finite weight
+    return np.maximum(rel * mean, max(floor, 1e-300))
+
+
+def _check_noise(noise: float, model_error: float) -> None:
+    for name, v in (("noise", noise), ("model_error", model_error)):
+        if not (isinstance(v, (int, float, np.floating)) and math.isfinite(v) and v >= 0):
+            raise SpectralEstimationError(f"{name} must be a relative level >= 0 (0.01 = 1 %), got {v!r}")
+    if noise == 0 and model_error == 0:
+        raise SpectralEstimationError("noise and model_error are both 0: the likelihood is undefined; give the noise level")
+
+
+def identify_material(
+    pixels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01, model_error: float = 0.0
+) -> Identification:
+    """Identify the material of one region from its pixels' camera values ``(n, c)`` (or one ``(c,)``).
+
+    Parameters
+    ----------
+    pixels
+        Linear camera values in the model camera's units (after the chart
+        transform), ``(n, c)`` with c the candidates' channels; finite, >= 0.
+    candidates
+        The forward-modelled candidates (:func:`candidate_set`).
+    noise
+        Relative noise of one pixel's channel (0.01 = 1 %).
+    model_error
+        Relative error of the forward model, added in quadrature to the
+        region mean's noise (0: the simulated case).
+
+    Returns
+    -------
+    Identification
+        Material (or "neutral metal"), posterior confidence, runner-up,
+        likelihood ratio, group, chi-square per candidate, brightness.
+
+    Examples
+    --------
+    >>> from processing.camera.response import camera_sensitivities
+    >>> from processing.spectral.spectra import light_spectrum
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> cands = candidate_set(camera_sensitivities(g), light_spectrum("D65", g), g)
+    >>> gold = cands.responses[cands.names.index("gold")]
+    >>> r = identify_material(np.tile(0.3 * gold, (50, 1)), cands)
+    >>> r.material, r.confidence > 0.99
+    ('gold', True)
+    """
+    _check_noise(noise, model_error)
+    px = np.asarray(checked_channels("region pixels", pixels, candidates.channels), dtype=np.float64)
+    px = px.reshape(-1, candidates.channels)
+    mean = px.mean(axis=0)
+    if not np.any(mean > 0):
+        raise SpectralEstimationError("the region is black in every channel; nothing to identify")
+    sigma = _region_sigma(mean, px.shape[0], noise, model_error)
+    w = 1.0 / sigma**2
+    m = candidates.responses
+    scale = np.maximum((m * w) @ mean / ((m * m) @ w), 0.0)
+    chi2 = (((mean[None, :] - scale[:, None] * m) ** 2) * w).sum(axis=1)
+    order = np.argsort(chi2)
+    best, second = int(order[0]), int(order[1])
+    loglik = -0.5 * (chi2 - chi2[best])
+    post = np.exp(loglik)
+    post /= post.sum()
+    lr = float(np.exp(min(0.5 * (chi2[second] - chi2[best]), 700.0)))
+    neutral = candidates.neutral
+    if neutral[best] and neutral[second] and lr < _AMBIGUOUS_LR:
+        group = [i for i in order if neutral[i] and 0.5 * (chi2[i] - chi2[best]) < math.log(_AMBIGUOUS_LR)]
+        outside = [i for i in order if i not in group]
+        runner = int(outside[0]) if outside else second
+        lr_group = float(np.exp(min(0.5 * (chi2[runner] - chi2[best]), 700.0)))
+        return Identification(
+            NEUTRAL_METAL, float(post[group].sum()), candidates.names[runner], lr_group,
+            tuple(candidates.names[i] for i in group), chi2, float(scale[best]),
+        )
+    return Identification(
+        candidates.names[best], float(post[best]), candidates.names[second], lr,
+        (candidates.names[best],), chi2, float(scale[best]),
+    )
+
+
+def identify_regions(
+    rgb: ArrayLike, labels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01, model_error: float = 0.0
+) -> dict[int, Identification]:
+    """Identify every labelled region (label > 0) of an image ``(H, W, c)``.
+
+    ``labels`` is an integer ``(H, W)`` image, 0 for pixels to leave out (the
+    mask); the result maps each label to its :class:`Identification`.
+
+    Examples
+    --------
+    >>> from processing.camera.response import camera_sensitivities
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> cands = candidate_set(camera_sensitivities(g), np.ones(g.size), g, names=["gold", "urushi-red"])
+    >>> img = np.stack([np.tile(cands.responses[0], (2, 1)), np.tile(cands.responses[1], (2, 1))])
+    >>> {k: v.material for k, v in identify_regions(img, np.array([[1, 1], [2, 2]]), cands).items()}
+    {1: 'gold', 2: 'urushi-red'}
+    """
+    img = checked_channels("rgb", rgb, candidates.channels)
+    lab = np.asarray(labels)
+    if img.ndim != 3 or lab.shape != img.shape[:2] or lab.dtype.kind not in "iu":
+        raise SpectralEstimationError(
+            f"rgb must be (H, W, c) and labels an integer (H, W) image of the same size, got {img.shape} and {lab.shape}"
+        )
+    flat = img.reshape(-1, img.shape[2])
+    lab = lab.ravel()
+    ids = np.unique(lab[lab > 0])
+    if ids.size == 0:
+        raise SpectralEstimationError("the label image has no region (every label is 0)")
+    order = np.argsort(lab, kind="stable")
+    bounds = np.searchsorted(lab[order], np.concatenate([ids, [ids[-1] + 1]]))
+    return {
+        int(r): identify_material(flat[order[bounds[i]:bounds[i + 1]]], candidates, noise=noise, model_error=model_error)
+        for i, r in enumerate(ids)
+    }
+
+
+@dataclass(frozen=True)
+class AlloyEstimate:
+    """Alloy composition from camera values.
+
+    Attributes
+    ----------
+    metals
+        Chemical symbols.
+    weights
+        ``(k,)`` non-negative weights summing to 1.
+    std
+        ``(k,)`` linearised standard deviation of the weights under the noise model.
+    residual
+        Weighted RMS residual (in noise standard deviations).
+    """
+
+    metals: tuple[str, ...]
+    weights: NDArray[np.float64]
+    std: NDArray[np.float64]
+    residual: float
+
+    def as_dict(self) -> dict[str, float]:
+        """Weights by symbol."""
+        return {m: float(w) for m, w in zip(self.metals, self.weights)}
+
+
+def estimate_alloy_weights(
+    pixels: ArrayLike,
+    sensitivities: ArrayLike,
+    lights: ArrayLike,
+    grid: SpectralGrid,
+    *,
+    metals: Sequence[str] = ("Ag", "Cu", "Au"),
+    light_deg: float = 30.0,
+    noise: float = 0.01,
+) -> AlloyEstimate:
+    """Weights of the alloy model ``C = sum_j w_j C_j`` (Matsuda eq. (3)-(4)) from a region's camera values.
+
+    The pure metals' Fresnel reflectances at the geometry's half-angle go
+    through the camera; ``rho ~= sum_j v_j r_j`` with ``v >= 0`` is solved by
+    weighted NNLS, and ``w = v / sum(v)`` (the brightness is free).  The
+    standard deviation propagates the noise model through the active set.
+
+    Examples
+    --------
+    >>> from processing.camera.response import camera_sensitivities, camera_rgb
+    >>> from processing.spectral.spectra import light_spectrum
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> s, e = camera_sensitivities(g), light_spectrum("D65", g)
+    >>> refl = ConductorFresnel({"Ag": 0.4, "Cu": 0.6}).reflectance(np.cos(np.radians(15)), g.wavelengths)
+    >>> est = estimate_alloy_weights(0.2 * camera_rgb(refl, e, s, g), s, e, g)
+    >>> {k: round(v, 3) for k, v in est.as_dict().items()}
+    {'Ag': 0.4, 'Cu': 0.6, 'Au': 0.0}
+    """
+    if noise is None or not (math.isfinite(noise) and noise > 0):
+        raise SpectralEstimationError(f"noise must be a relative level > 0, got {noise!r}")
+    k = channel_matrix(sensitivities, lights, grid)
+    px = np.asarray(checked_channels("region pixels", pixels, k.shape[1]), dtype=np.float64).reshape(-1, k.shape[1])
+    mean = px.mean(axis=0)
+    if not np.any(mean > 0):
+        raise SpectralEstimationError("the region is black in every channel; nothing to fit")
+    if len(metals) < 2:
+        raise SpectralEstimationError("an alloy needs at least two metals")
+    _, _, _, cos_d = _geometry(light_deg)
+    try:
+        refl = np.stack([ConductorFresnel({m: 1.0}).reflectance(cos_d, grid.wavelengths) for m in metals])
+    except ValueError as exc:
+        raise SpectralEstimationError(f"alloy metals {tuple(metals)}: {exc}") from None
+    r = refl @ k                                            # (k, c)
+    sigma = _region_sigma(mean, px.shape[0], noise, 0.0)
+    sw = 1.0 / sigma
+    v, _ = nnls((r * sw).T, mean * sw)
+    total = float(v.sum())
+    if total <= 0:
+        raise SpectralEstimationError("no non-negative mixture of the metals explains the region")
+    w = v / total
+    active = v > 0
+    ra = (r[active] * sw).T                                 # (c, a) weighted
+    dv_do = np.linalg.pinv(ra) * sw[None, :]                # (a, c): d v_active / d rho
+    jac_v = np.zeros((len(metals), r.shape[1]))
+    jac_v[active] = dv_do
+    jac_w = (np.eye(len(metals)) - w[:, None]) @ jac_v / total
+    cov = jac_w @ np.diag(sigma**2) @ jac_w.T
+    resid = (mean - v @ r) * sw
+    return AlloyEstimate(tuple(metals), w, np.sqrt(np.maximum(np.diag(cov), 0.0)), float(np.sqrt(np.mean(resid**2))))

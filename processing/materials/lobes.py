@@ -1,0 +1,217 @@
+"""A material as a sum of reflection lobes, each a wavelength-independent
+geometric factor times a spectral factor of one angle.
+
+This is the shape shared by the reflection models of Matsuda et al.:
+
+* metals, eq. (2): ``alpha * F(theta_d) D(h; sigma0) G / (4 cos_i cos_o)``
+  plus a mirror lobe ``beta * F * mirror(sigma1)``;
+* alloys, eq. (3)-(4): the same lobes with F replaced by the weighted sum
+  ``sum_j w_j F(eta_j)`` (the geometry is shared by all constituents);
+* dielectrics / lacquer, eq. (5): ``alpha * S(lambda) / pi`` (Lambert) plus a
+  gloss lobe with the real-index Fresnel term plus a mirror lobe.
+
+Because every spectral factor depends on wavelength and at most one angle
+(``cos_d``, the angle between light and half vector), a renderer can either
+evaluate it per pixel at every wavelength or tabulate its integral against a
+fixed light spectrum and the colour-matching functions once, over ``cos_d``
+(exact spectral result at RGB cost, DESIGN.md section 5).
+
+The colour signal of one light is ``sum_lobes weight * geometry * spectral *
+E(lambda) * cos_i`` (Matsuda et al., eq. (2)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from processing.cloth.anisotropic_microfacet import anisotropic_lobe, check_axes
+from processing.materials.microfacet import microfacet_lobe
+
+__all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter"]
+
+LobeKind = Literal["lambert", "microfacet", "anisotropic"]
+
+
+@runtime_checkable
+class SpectralFactor(Protocol):
+    """The wavelength-dependent factor of a lobe.
+
+    ``reflectance(cos_d, wavelengths)`` returns an array of shape
+    ``np.shape(cos_d) + (len(wavelengths),)`` with values in [0, 1].
+    ``angle_dependent`` is False when the factor ignores ``cos_d`` (a
+    pigment's diffuse reflectance), so a renderer needs no angular table.
+    """
+
+    angle_dependent: bool
+
+    def reflectance(self, cos_d: ArrayLike, wavelengths: ArrayLike) -> NDArray[np.float64]: ...
+
+
+@dataclass(frozen=True)
+class Lobe:
+    """One term of a reflection model.
+
+    Attributes
+    ----------
+    kind
+        ``"lambert"`` (geometry 1/pi), ``"microfacet"`` (Beckmann D, G) or
+        ``"anisotropic"`` (the yarn ellipsoid of Yasuda et al., eq. (1), as a
+        normalised distribution with Smith G:
+        :mod:`processing.cloth.anisotropic_microfacet`); an anisotropic lobe needs
+        the tangent-frame components of the light and view directions.
+    weight
+        Non-negative weight (alpha, beta or gamma of the paper's equations).
+    spectral
+        The spectral factor (Fresnel of a metal, alloy or dielectric, or a
+        pigment reflectance).
+    roughness
+        Beckmann RMS slope of a microfacet lobe; the ellipsoid semi-axis a_t
+        along the tangent t of an anisotropic lobe (ignored for Lambert).
+    roughness_b
+        The ellipsoid semi-axis a_b across the tangent (b = n x t) of an
+        anisotropic lobe (ignored otherwise).
+    shadowing
+        ``"smith"``, ``"torrance-sparrow"`` or ``"none"``.
+    mirror
+        True for the paper's mirror term: besides the light sources, the lobe
+        reflects the environment / other objects along the mirrored ray.
+    """
+
+    kind: LobeKind
+    weight: float
+    spectral: SpectralFactor
+    roughness: float = 0.0
+    shadowing: str = "smith"
+    mirror: bool = False
+    roughness_b: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("lambert", "microfacet", "anisotropic"):
+            raise ValueError(f"lobe kind {self.kind!r} is not 'lambert', 'microfacet' or 'anisotropic'")
+        if self.kind == "anisotropic":
+            check_axes(self.roughness, self.roughness_b, "anisotropic lobe")
+            if self.mirror:
+                raise ValueError("an anisotropic lobe cannot be a mirror lobe")
+        if not np.isfinite(self.weight) or self.weight < 0:
+            raise ValueError(f"lobe weight must be finite and >= 0, got {self.weight}")
+        if self.kind == "microfacet" and not (0.0 < self.roughness <= 1.0):
+            raise ValueError(
+                f"microfacet roughness (RMS slope) must be in (0, 1], got {self.roughness}"
+            )
+
+
+@dataclass(frozen=True)
+class Material:
+    """A named material: its lobes plus the parameters that built it.
+
+    ``parameters`` maps every model parameter name to its value, so a CLI can
+    list and override them (``gold:roughness=0.2``); ``family`` names the
+    builder (``"metal"``, ``"alloy"``, ``"dielectric"``).
+    """
+
+    name: str
+    lobes: tuple[Lobe, ...]
+    family: str = ""
+    description: str = ""
+    parameters: dict = field(default_factory=dict)
+
+    @property
+    def anisotropic(self) -> bool:
+        """True when a lobe needs a tangent frame (``kind == "anisotropic"``)."""
+        return any(lobe.kind == "anisotropic" for lobe in self.lobes)
+
+
+def checked_parameter(name: str, value: float, *, open_zero: bool = False, upper: float = 1.0) -> float:
+    """``value`` as a float in [0, upper] (or (0, upper] with ``open_zero``), else a ValueError naming it.
+
+    Examples
+    --------
+    >>> checked_parameter("gloss", "0.5")
+    0.5
+    >>> checked_parameter("roughness", 0, open_zero=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: roughness must be in (0, 1], got 0
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    ok = math.isfinite(v) and ((0.0 < v) if open_zero else (0.0 <= v)) and v <= upper
+    if not ok:
+        rng = f"(0, {upper:g}]" if open_zero else f"[0, {upper:g}]"
+        raise ValueError(f"{name} must be in {rng}, got {value!r}")
+    return v
+
+
+def lobe_geometry(
+    lobe: Lobe,
+    cos_i: ArrayLike,
+    cos_o: ArrayLike,
+    cos_h: ArrayLike,
+    cos_d: ArrayLike,
+    tangential: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike] | None = None,
+) -> NDArray[np.float64]:
+    """Wavelength-independent factor of ``lobe`` in 1/sr (without the weight).
+
+    ``tangential`` holds ``(i_t, i_b, o_t, o_b)``, the components of the unit
+    light and view directions along the tangent t and along b = n x t; only
+    anisotropic lobes use it, and they require it.
+
+    Examples
+    --------
+    >>> class Grey:
+    ...     angle_dependent = False
+    ...     def reflectance(self, cos_d, wl):
+    ...         return np.full(np.shape(cos_d) + (len(wl),), 0.5)
+    >>> lam = Lobe("lambert", 1.0, Grey())
+    >>> round(float(lobe_geometry(lam, 0.5, 0.5, 1.0, 0.8)), 5)   # 1/pi
+    0.31831
+    """
+    ci = np.asarray(cos_i, dtype=np.float64)
+    co = np.asarray(cos_o, dtype=np.float64)
+    if lobe.kind == "lambert":
+        shape = np.broadcast_shapes(ci.shape, co.shape)
+        return np.where((ci > 0) & (co > 0), 1.0 / np.pi, 0.0) * np.ones(shape)
+    if lobe.kind == "anisotropic":
+        if tangential is None:
+            raise ValueError(
+                "an anisotropic lobe needs the tangent-frame components (i_t, i_b, o_t, o_b) of the light and "
+                "view directions: pass tangential=..."
+            )
+        return anisotropic_lobe(ci, co, cos_h, cos_d, *tangential, lobe.roughness, lobe.roughness_b)
+    return microfacet_lobe(ci, co, cos_h, cos_d, lobe.roughness, lobe.shadowing)
+
+
+def material_brdf(
+    material: Material,
+    cos_i: ArrayLike,
+    cos_o: ArrayLike,
+    cos_h: ArrayLike,
+    cos_d: ArrayLike,
+    wavelengths: ArrayLike,
+    tangential: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike] | None = None,
+) -> NDArray[np.float64]:
+    """Spectral BRDF (1/sr) of ``material``: shape ``broadcast(cos...) + (L,)``.
+
+    ``tangential`` = ``(i_t, i_b, o_t, o_b)`` as for :func:`lobe_geometry`
+    (required when the material has anisotropic lobes).
+
+    The colour signal for a light of spectral irradiance E is
+    ``material_brdf(...) * E * cos_i``.
+    """
+    wl = np.asarray(wavelengths, dtype=np.float64)
+    shape = np.broadcast_shapes(*(np.shape(c) for c in (cos_i, cos_o, cos_h, cos_d)))
+    total = np.zeros(shape + (wl.size,))
+    cd = np.broadcast_to(np.asarray(cos_d, dtype=np.float64), shape)
+    for lobe in material.lobes:
+        if lobe.weight == 0.0:
+            continue
+        g = lobe_geometry(lobe, cos_i, cos_o, cos_h, cos_d, tangential)
+        total += lobe.weight * np.broadcast_to(g, shape)[..., None] * lobe.spectral.reflectance(cd, wl)
+    return total
