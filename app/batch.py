@@ -27,11 +27,12 @@ import os
 import time
 import traceback
 import uuid
+from collections.abc import Iterable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Protocol
+from typing import Any, Protocol
 
 from app.batch_steps import STEPS, BatchOptions, parse_steps, run_step, up_to_date
 from app.errors import UsageError
@@ -254,7 +255,7 @@ class _Display:
         self.running: dict[str, set[str]] = {s: set() for s in steps}
         self.counts: dict[str, dict[str, int]] = {s: {} for s in steps}
 
-    def __enter__(self) -> "_Display":
+    def __enter__(self) -> _Display:
         if self.enabled:
             self.progress.start()
         return self

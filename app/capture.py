@@ -43,9 +43,10 @@ import shutil
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -246,7 +247,7 @@ class CapturePlan:
                 "chart_frames": self.chart_frames}
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "CapturePlan":
+    def from_dict(cls, data: dict[str, Any]) -> CapturePlan:
         """Inverse of :meth:`to_dict`."""
         known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera", "chart_frames"}
         args = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in known}
@@ -305,7 +306,7 @@ class CaptureHooks:
     before_pass: Callable[[int, int], None] | None = None
     before_chart: Callable[[int, int], None] | None = None
     after_chart: Callable[[int], None] | None = None
-    progress: Callable[["CaptureProgress"], None] | None = None
+    progress: Callable[[CaptureProgress], None] | None = None
     message: Callable[[str], None] | None = None
     cancel: threading.Event | None = None
 
@@ -789,7 +790,7 @@ class _Runner:
                       file=info.path, sha256=info.sha256, bytes=info.bytes)
 
 
-def open_for_resume(root: str | Path) -> tuple[Any, "CapturePlan", dict[str, Any], dict[str, Any]]:
+def open_for_resume(root: str | Path) -> tuple[Any, CapturePlan, dict[str, Any], dict[str, Any]]:
     """Open an unfinished session to resume its capture: the open session, its plan, its settings
     and a copy of its device configuration (``UsageError`` for a bad or complete session).
 

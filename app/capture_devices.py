@@ -24,10 +24,11 @@ from __future__ import annotations
 import os
 import shlex
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
-from app.capture import CaptureDevices, Shooter
+from app.capture import CaptureDevices
 from app.errors import UsageError
 
 __all__ = [

@@ -36,9 +36,8 @@ def add_cloth_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_cloth(args: argparse.Namespace) -> int:
-    from processing.cloth.fit import ClothFitError, choose_layers, fit_swatch
-
     from app.cloth_fit_session import fit_figure, fit_report, load_swatch_session
+    from processing.cloth.fit import ClothFitError, choose_layers, fit_swatch
 
     layers = args.layers
     if layers is not None and layers != "auto":

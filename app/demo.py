@@ -101,9 +101,8 @@ def label_spheres(srgb8: np.ndarray, camera, names: list[str], title: str) -> np
 
 
 def _render(spec: SceneSpec, hawk_triangles: int):
-    from render.renderer import render
-
     from app.scene_build import build_job
+    from render.renderer import render
 
     job = build_job(spec, default_hawk_triangles=hawk_triangles)
     t0 = time.perf_counter()
@@ -112,8 +111,8 @@ def _render(spec: SceneSpec, hawk_triangles: int):
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    from processing.materials.presets import list_materials
     from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
+    from processing.materials.presets import list_materials
     from processing.spectral.display import xyz_to_srgb8
     from render.image_io import write_png, write_xyz_tiff
 

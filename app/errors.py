@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from processing.errors import InputError
+
 __all__ = ["UsageError"]
 
 
-class UsageError(ValueError):
+class UsageError(InputError):
     """Bad input from the user: the message names the file or parameter and what to do."""

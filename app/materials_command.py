@@ -26,8 +26,8 @@ def preset_srgb(spec: str, illuminant: str = "D65") -> tuple[int, int, int]:
     True
     """
     from processing.materials.albedo import directional_albedo
-    from processing.spectral.display import spectra_to_xyz, white_xyz, xyz_scale, xyz_to_srgb8
     from processing.materials.presets import get_material
+    from processing.spectral.display import spectra_to_xyz, white_xyz, xyz_scale, xyz_to_srgb8
     from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
 
     grid = REFERENCE_GRID

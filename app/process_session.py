@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -125,8 +126,8 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
     """
     from app.calibrate_command import install_calibration, load_calibration_source, session_calibration
     from app.session import Session, SessionError
-    from processing.geometry.registration import RegistrationError, merge_passes, register_passes
     from processing.geometry.mesh_ply import write_mesh_ply
+    from processing.geometry.registration import RegistrationError, merge_passes, register_passes
     from processing.geometry.surface import SurfaceError, reconstruct_surface
 
     note = message or (lambda text: None)

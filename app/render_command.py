@@ -51,12 +51,11 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
 
 
 def run_render(args: argparse.Namespace) -> int:
+    from app.scene_build import build_job
     from processing.materials.presets import MaterialError
     from render.errors import RenderInputError
     from render.image_io import write_png, write_xyz_tiff
     from render.renderer import render
-
-    from app.scene_build import build_job
 
     out = Path(args.out)
     if out.suffix.lower() != ".png":

@@ -18,15 +18,22 @@ import datetime as _dt
 import html
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from app.errors import UsageError
-from app.report_figures import (calibration_residuals_figure, coverage_figure, data_uri, holes_figure,
-                                pose_graph_figure, timing_figure)
+from app.report_figures import (
+    calibration_residuals_figure,
+    coverage_figure,
+    data_uri,
+    holes_figure,
+    pose_graph_figure,
+    timing_figure,
+)
 
 __all__ = ["Section", "build_report", "write_report", "report_sections", "REPORT_FILE"]
 
@@ -235,9 +242,11 @@ def _registration(ctx: _Context, rep: dict[str, Any] | None) -> Section:
 
 
 def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
-    from app.batch_steps import render_session_mesh
-    from PIL import Image
     import io
+
+    from PIL import Image
+
+    from app.batch_steps import render_session_mesh
 
     mesh = ctx.products.get("mesh")
     if not mesh or ctx.product_bytes(mesh) is None:
@@ -323,8 +332,9 @@ def _chart(ctx: _Context) -> Section:
         if blob is None or pre is None:
             continue
         chart = json.loads(blob)
-        from PIL import Image
         import io
+
+        from PIL import Image
 
         preview = np.asarray(Image.open(io.BytesIO(pre)).convert("RGB"))
         errs = chart.get("patch_errors") or {}
@@ -348,7 +358,7 @@ def _chart(ctx: _Context) -> Section:
 
 
 def _materials_doc(ctx: _Context) -> dict[str, Any] | None:
-    blob = ctx.product_bytes(((ctx.products.get("materials") or {}).get("report")))
+    blob = ctx.product_bytes((ctx.products.get("materials") or {}).get("report"))
     return None if blob is None else json.loads(blob)
 
 
@@ -400,8 +410,9 @@ def _materials(ctx: _Context) -> Section:
                  f"{largest['material']} ({largest['pixels']} pixels; used for the whole mesh in the renders)")])
     body += _table(["region", "material", "confidence", "runner-up", "chi2", "pixels", "frames", "alloy (Ag, Cu, Au)",
                     "note"], rows)
-    from PIL import Image
     import io
+
+    from PIL import Image
 
     figs = ""
     for cid, rec in sorted(((ctx.products.get("materials") or {}).get("maps") or {}).items()):

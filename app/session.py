@@ -58,6 +58,8 @@ from typing import Any
 
 import numpy as np
 
+from processing.errors import InputError
+
 __all__ = [
     "SCHEMA",
     "SCHEMA_VERSION",
@@ -82,7 +84,7 @@ LOCK = "session.lock"
 _STATUSES = ("new", "capturing", "interrupted", "complete", "failed")
 
 
-class SessionError(ValueError):
+class SessionError(InputError):
     """A session directory that cannot be created, opened or written; the message names it."""
 
 
@@ -101,7 +103,7 @@ class FileInfo:
 
 def utc_now() -> str:
     """The current UTC time as ISO 8601 with microseconds and a ``Z``."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -215,7 +217,7 @@ class Session:
     @classmethod
     def create(cls, root: str | os.PathLike[str], *, plan: dict[str, Any], object_info: dict[str, Any] | None = None,
                devices: dict[str, Any] | None = None, settings: dict[str, Any] | None = None,
-               sync_interval_s: float | None = None) -> "Session":
+               sync_interval_s: float | None = None) -> Session:
         """Create a new session directory (it must not exist, or be empty).
 
         Parameters
@@ -277,7 +279,7 @@ class Session:
         return manifest
 
     @classmethod
-    def open(cls, root: str | os.PathLike[str], *, sync_interval_s: float | None = None) -> "Session":
+    def open(cls, root: str | os.PathLike[str], *, sync_interval_s: float | None = None) -> Session:
         """Open an existing session for writing: lock it, replay its journal, checkpoint.
 
         Raises
@@ -311,7 +313,7 @@ class Session:
             os.close(self._lock_fd)
             self._lock_fd = -1
 
-    def __enter__(self) -> "Session":
+    def __enter__(self) -> Session:
         return self
 
     def __exit__(self, *exc: object) -> None:

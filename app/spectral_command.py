@@ -288,10 +288,14 @@ def estimate_spectral(
     """
     from processing.camera.response import CameraResponseError, camera_rgb, camera_sensitivities
     from processing.camera.transfer import fit_chart_transform
-    from processing.spectral.reflectance_database import ReflectanceDatabaseError, load_reflectances, without_near_duplicates
-    from processing.spectral.spectra import SpectralGrid, light_spectrum
     from processing.spectral.estimation.estimator import fit_estimator, spectral_image
     from processing.spectral.estimation.fit import SpectralEstimationError
+    from processing.spectral.reflectance_database import (
+        ReflectanceDatabaseError,
+        load_reflectances,
+        without_near_duplicates,
+    )
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
 
     if method not in METHODS:
         raise UsageError(f"--method {method!r}: choose one of {', '.join(METHODS)}")

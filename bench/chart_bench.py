@@ -42,10 +42,22 @@ def make_dng(path: Path) -> dict:
     """Write the 24-megapixel chart DNG; return the true outer corners and patch centres (sensor pixels)."""
     import cv2
 
-    from mocks.camera_sim import SensorModel, channel_signal, expose, white_balance_neutral, write_raw, RawFrame
-    from mocks.camera_sim import xyz_to_camera_matrix
-    from mocks.chart_scene import FRAME_REFLECTANCE, ChartPlacement, chart_corners, chart_homography
-    from mocks.chart_scene import chart_patch_reflectances
+    from mocks.camera_sim import (
+        RawFrame,
+        SensorModel,
+        channel_signal,
+        expose,
+        white_balance_neutral,
+        write_raw,
+        xyz_to_camera_matrix,
+    )
+    from mocks.chart_scene import (
+        FRAME_REFLECTANCE,
+        ChartPlacement,
+        chart_corners,
+        chart_homography,
+        chart_patch_reflectances,
+    )
     from mocks.world import BACKDROP_REFLECTANCE
     from processing.camera.chart_layout import chart_layout
     from processing.spectral.display import xyz_scale

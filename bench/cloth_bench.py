@@ -88,7 +88,7 @@ def section(results: dict | None = None) -> list[str]:
     lines = [
         "## Cloth (issue #6)",
         "",
-        f"`bench/cloth_bench.py`: the draped sheet of docs/cloth.md seen across the warp, one sun and a uniform",
+        "`bench/cloth_bench.py`: the draped sheet of docs/cloth.md seen across the warp, one sun and a uniform",
         f"sky, `standard` preset (4 samples per pixel, angular XYZ tables), {c['size'][0]} x {c['size'][1]}.",
         "Medians of 3 runs after a warm-up; `setup` includes the tables and the sky-light albedo tables of every",
         "lobe (an anisotropic lobe's albedo is integrated over the view azimuth, `processing.cloth.anisotropic_albedo`).",

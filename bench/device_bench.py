@@ -83,13 +83,13 @@ def measure_capture(steps: int = 400) -> dict[str, float]:
         (median cost of writing one profile into the session: atomic file +
         journal record), ``points`` per profile.
     """
+    import numpy as np
+
     from app.capture import CaptureHooks, CapturePlan, run_capture
     from app.capture_devices import build_devices
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World
-
-    import numpy as np
 
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)

@@ -96,9 +96,9 @@ def _accuracy_variants():
 
 
 def case_accuracy() -> dict:
+    from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
     from processing.spectral.display import delta_e00, white_xyz
     from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
-    from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
     from render.renderer import render
 
     tri = HAWK_PRESET_TRIANGLES["draft"]

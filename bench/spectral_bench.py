@@ -167,9 +167,8 @@ def measure_accuracy(seed: int = 0) -> dict:
 
 def measure_identification(seed: int = 0, trials: int = 200) -> dict:
     """Identification accuracy per material and the alloy Ag-fraction error (see the module text)."""
-    from processing.materials.alloys import ALLOY_COMPOSITIONS
     from processing.camera.response import camera_rgb
-    from processing.materials.lobes import material_brdf
+    from processing.materials.alloys import ALLOY_COMPOSITIONS
     from processing.materials.identification import (
         DEFAULT_CANDIDATES,
         NEUTRAL_METAL,
@@ -177,8 +176,9 @@ def measure_identification(seed: int = 0, trials: int = 200) -> dict:
         estimate_alloy_weights,
         identify_material,
     )
-    from processing.materials.presets import get_material
+    from processing.materials.lobes import material_brdf
     from processing.materials.metal_model import ConductorFresnel
+    from processing.materials.presets import get_material
 
     s = _setup()
     g, sens, e = s["grid"], s["sens"], s["d65"]

@@ -29,8 +29,16 @@ def main(argv: list[str] | None = None) -> None:
     import matplotlib.pyplot as plt
     from scipy.spatial import cKDTree
 
-    from bench.geometry_bench import (FULL, STATIONS, _transformed, calibrate_station, capture_session,
-                                      load_object, process_trial, session_clouds)
+    from bench.geometry_bench import (
+        FULL,
+        STATIONS,
+        _transformed,
+        calibrate_station,
+        capture_session,
+        load_object,
+        process_trial,
+        session_clouds,
+    )
     from processing.geometry.surface_distance import distance_to_mesh, sample_surface
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -41,8 +41,8 @@ import shutil
 import signal
 import subprocess
 import tempfile
+from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from drivers.camera_errors import (
     CameraBusyError,

@@ -38,9 +38,9 @@ import shutil
 import struct
 import tempfile
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
 
 from drivers.camera_errors import (
     CameraConfigError,

@@ -97,7 +97,7 @@ class WireLog:
 
     def record(self, label: str, direction: str, data: bytes) -> None:
         """Append one timestamped line (``direction`` is ``'>'`` or ``'<'``)."""
-        stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+        stamp = dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
         line = f"{stamp} {label} {direction} {escape_bytes(data)}\n"
         with self._lock:
             if self._fh is not None:

@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.camera.response import CameraResponseError
 from processing.camera.response import camera_sensitivities as _camera_sensitivities
+from processing.errors import InputError
 from processing.spectral.spectra import SpectralGrid, resample
 
 __all__ = [
@@ -65,7 +66,7 @@ SENSITIVITIES = "Nikon 5100 (NPL)"
 _CFA_INDEX = {"R": 0, "G": 1, "B": 2}
 
 
-class CameraSimError(ValueError):
+class CameraSimError(InputError):
     """An input of the camera simulation is not valid; the message names it."""
 
 

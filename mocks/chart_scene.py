@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from processing.camera.chart_layout import ChartLayout, chart_layout, reference_srgb8
+from processing.errors import InputError
 from processing.spectral.spectra import SpectralGrid, resample
 
 __all__ = [
@@ -59,7 +60,7 @@ FRAME_REFLECTANCE = 0.03
 VIEW_DISTANCE = 2.5
 
 
-class ChartSceneError(ValueError):
+class ChartSceneError(InputError):
     """A chart placement or layout input is not valid; the message names it."""
 
 

@@ -36,12 +36,14 @@ from __future__ import annotations
 import io
 import os
 import tempfile
+from collections.abc import Sequence
 from fractions import Fraction
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from processing.errors import InputError
 
 __all__ = [
     "CFA_COLOURS",
@@ -64,7 +66,7 @@ MIN_SIDE = 22
 _DEFAULT_MATRIX = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
-class DngWriteError(ValueError):
+class DngWriteError(InputError):
     """A parameter of :func:`write_dng` is not valid; the message names it."""
 
 

@@ -73,6 +73,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from mocks.faults import Faults
 from mocks.noise_seed import frame_seed, profile_seed, stable_seed
+from processing.errors import InputError
 
 __all__ = [
     "SimulatedStation",
@@ -133,7 +134,7 @@ class StationTimeout(StationError, TimeoutError):
     """No simulated station answered a control request in time."""
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(InputError):
     """A ``--faults`` item is not valid; the message names it and lists what is known."""
 
 
@@ -733,8 +734,8 @@ class SimulatedStation:
         """Move a laid-out chart partly out of the frame (on) or back to where it was (off)."""
         import dataclasses
 
-        from mocks.fake_gphoto2 import update_config
         from mocks.chart_scene import outside_placement
+        from mocks.fake_gphoto2 import update_config
 
         home = self.__dict__.setdefault("_chart_home", self.world.chart_placement)
         self.world.chart_placement = outside_placement(home) if on else home

@@ -53,7 +53,7 @@ class SwatchWorld(World):
     weave_angle_deg: float = 0.0
 
     @classmethod
-    def swatch(cls, cloth: str = "silk", swatch_mm: float = 80.0, **kwargs: Any) -> "SwatchWorld":
+    def swatch(cls, cloth: str = "silk", swatch_mm: float = 80.0, **kwargs: Any) -> SwatchWorld:
         """A swatch world; keyword arguments set :class:`World` fields (image size, light, camera...).
 
         Examples
@@ -79,7 +79,7 @@ class SwatchWorld(World):
                    mesh_source=f"swatch:{swatch_mm:g}", cloth=cloth, swatch_mm=float(swatch_mm), **kwargs)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "SwatchWorld":
+    def from_dict(cls, data: dict[str, Any]) -> SwatchWorld:
         """Rebuild a swatch world from :meth:`to_dict` (the fake gphoto2's configuration).
 
         Examples

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from processing.errors import InputError
 from processing.spectral.spectra import SpectralGrid, light_spectrum, resample
 
 __all__ = [
@@ -54,7 +55,7 @@ __all__ = [
 BACKDROP_REFLECTANCE = 0.05
 
 
-class WorldError(ValueError):
+class WorldError(InputError):
     """A parameter of the simulated world is not valid; the message names it."""
 
 
@@ -242,7 +243,7 @@ class World:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def hawk(cls, triangles: int = 4_000, materials: dict[str, str] | None = None, **kwargs: Any) -> "World":
+    def hawk(cls, triangles: int = 4_000, materials: dict[str, str] | None = None, **kwargs: Any) -> World:
         """The procedural hawk head with its default materials (nami-shibuichi, gold, urushi, copper).
 
         Examples
@@ -260,7 +261,7 @@ class World:
                    mesh_source=f"hawk:{triangles}", **kwargs)
 
     @classmethod
-    def calibration_sphere(cls, radius_mm: float = 25.0, offset_mm: float = 60.0, **kwargs: Any) -> "World":
+    def calibration_sphere(cls, radius_mm: float = 25.0, offset_mm: float = 60.0, **kwargs: Any) -> World:
         """A reference sphere for scanner calibration, resting on the table ``offset_mm`` from the axis.
 
         Examples
@@ -283,7 +284,7 @@ class World:
 
     @classmethod
     def from_mesh_file(cls, path: str | os.PathLike[str], material: str = "nami-shibuichi",
-                       **kwargs: Any) -> "World":
+                       **kwargs: Any) -> World:
         """Any mesh file :func:`render.meshio.load_mesh` reads, as one region of ``material``."""
         from render.meshio import load_mesh
 
@@ -292,13 +293,13 @@ class World:
                    {"object": material}, mesh_source=os.fspath(path), **kwargs)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "World":
+    def from_dict(cls, data: dict[str, Any]) -> World:
         """Rebuild a world from :meth:`to_dict` (the fake gphoto2's configuration).
 
         A mapping with a ``"swatch"`` entry is a :class:`mocks.swatch_world.SwatchWorld`.
         """
         if "swatch" in data:
-            from mocks.swatch_world import SwatchWorld      # imported here: it builds on this module
+            from mocks.swatch_world import SwatchWorld  # imported here: it builds on this module
 
             return SwatchWorld.from_dict(data)
         data = dict(data)

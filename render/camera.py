@@ -312,7 +312,7 @@ class Camera:
         direction: ArrayLike = DEFAULT_VIEW_DIRECTION,
         up: ArrayLike = (0.0, 0.0, 1.0),
         margin: float = 1.05,
-    ) -> "Camera":
+    ) -> Camera:
         """A camera that frames the box ``[bounds_min, bounds_max]``.
 
         The eye lies along ``direction`` (from the box centre toward the

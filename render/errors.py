@@ -13,10 +13,12 @@ True
 
 from __future__ import annotations
 
+from processing.errors import InputError
+
 __all__ = ["RenderInputError", "MeshError", "MeshWarning", "RenderCancelled"]
 
 
-class RenderInputError(ValueError):
+class RenderInputError(InputError):
     """Bad input to the renderer (scene, camera, settings); the message names the parameter."""
 
 

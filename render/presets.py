@@ -170,7 +170,7 @@ class RenderSettings:
             if not isinstance(getattr(self, flag), bool):
                 raise RenderInputError(f"render setting {flag} must be True or False, got {getattr(self, flag)!r}")
 
-    def replace(self, **changes: object) -> "RenderSettings":
+    def replace(self, **changes: object) -> RenderSettings:
         """A copy with some fields changed (validated again).
 
         Examples

@@ -43,8 +43,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -180,6 +180,7 @@ def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -
 
 def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends: bool = True) -> _Prepared:
     import open3d as o3d
+
     from processing.spectral.display import white_xyz, xyz_scale
 
     timings: dict[str, float] = {"primary_rays": 0.0, "shadow_rays": 0.0, "mirror_rays": 0.0}
@@ -380,7 +381,8 @@ MAX_TILE_SAMPLES = {True: 1 << 16, False: 1 << 14}
 
 def _tiles(camera: Camera, settings: RenderSettings) -> list[tuple[int, int, int, int]]:
     """Pixel blocks ``(x0, x1, y0, y1)``, row by row; the side is ``settings.tile_size``, reduced
-    so a tile holds at most ``MAX_TILE_SAMPLES`` samples."""
+    so a tile holds at most ``MAX_TILE_SAMPLES`` samples.
+    """
     budget = MAX_TILE_SAMPLES[settings.use_tables] // settings.samples_per_pixel
     size = max(1, min(settings.tile_size, math.isqrt(max(budget, 1))))
     return [

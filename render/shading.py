@@ -48,8 +48,9 @@ Approximations (stated, and measured in the tests):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -183,7 +184,7 @@ class Hits:
     def __len__(self) -> int:
         return int(self.cos_o.shape[0])
 
-    def take(self, idx: NDArray[np.intp]) -> "Hits":
+    def take(self, idx: NDArray[np.intp]) -> Hits:
         """The subset of hits ``idx``."""
         return Hits(
             _take(self.position, idx), _take(self.shading_normal, idx), _take(self.geometric_normal, idx),

@@ -34,8 +34,8 @@ Examples
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -116,7 +116,7 @@ class AngleTable:
         return self.size == 1
 
     @classmethod
-    def from_function(cls, fn: Callable[[NDArray[np.float64]], NDArray[np.float64]], size: int) -> "AngleTable":
+    def from_function(cls, fn: Callable[[NDArray[np.float64]], NDArray[np.float64]], size: int) -> AngleTable:
         """Tabulate ``fn(cos) -> (N, C)`` on ``size`` uniform nodes over [0, 1]."""
         nodes = np.linspace(0.0, 1.0, size)
         return cls(np.asarray(fn(nodes), dtype=np.float64).reshape(size, -1))
@@ -148,7 +148,7 @@ class AngleTable:
         """Interpolated values at ``cos`` (or at a precomputed ``index``), float32 ``(n, C)``."""
         return self.lookup_channels(cos, index).T
 
-    def __add__(self, other: "AngleTable") -> "AngleTable":
+    def __add__(self, other: AngleTable) -> AngleTable:
         if self.constant and other.constant or self.size == other.size:
             return AngleTable(self.values + other.values)
         if self.constant:
@@ -157,7 +157,7 @@ class AngleTable:
             return AngleTable(self.values + other.values)
         raise ValueError(f"cannot add tables of {self.size} and {other.size} nodes")
 
-    def scaled(self, factor: float) -> "AngleTable":
+    def scaled(self, factor: float) -> AngleTable:
         """The table times a constant."""
         return AngleTable(self.values * factor)
 

@@ -24,20 +24,28 @@ from typing import Any
 from PySide6.QtCore import QCoreApplication, QSettings, Qt
 from PySide6.QtGui import QAction, QKeySequence, QShortcut
 from PySide6.QtWidgets import (
-    QDockWidget, QHBoxLayout, QLabel, QMainWindow, QPlainTextEdit, QPushButton, QTabWidget, QVBoxLayout, QWidget,
+    QDockWidget,
+    QHBoxLayout,
+    QLabel,
+    QMainWindow,
+    QPlainTextEdit,
+    QPushButton,
+    QTabWidget,
+    QVBoxLayout,
+    QWidget,
 )
 
 from app.gui.camera_panel import CameraPanel
 from app.gui.capture_panel import CapturePanel
 from app.gui.devices_panel import SIMULATED_OBJECTS, DevicesPanel
+from app.gui.plots import FigureDrawer
 from app.gui.preview_panel import PreviewPanel
 from app.gui.processing_panel import ProcessingPanel
 from app.gui.session_panel import SessionPanel
 from app.gui.spectra_panel import SpectraPanel
 from app.gui.station_link import INSTRUMENTS, StationLink
-from app.gui.widgets import Banner
-from app.gui.plots import FigureDrawer
 from app.gui.warm_up import freeze_heap, warm_up
+from app.gui.widgets import Banner
 from app.gui.workers import Lane
 
 __all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "simulated_world"]
@@ -67,7 +75,7 @@ def _object_label(world: Any) -> str:
 
 
 class _LogHandler(logging.Handler):
-    def __init__(self, window: "MainWindow") -> None:
+    def __init__(self, window: MainWindow) -> None:
         super().__init__(logging.INFO)
         self.window = window
 

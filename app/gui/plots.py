@@ -25,7 +25,8 @@ import logging
 import multiprocessing as mp
 import threading
 import traceback
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal

@@ -45,16 +45,27 @@ Examples
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QPixmap
 from PySide6.QtWidgets import (
-    QComboBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton, QSizePolicy, QSpinBox,
-    QSplitter, QVBoxLayout, QWidget,
+    QComboBox,
+    QDoubleSpinBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QSizePolicy,
+    QSpinBox,
+    QSplitter,
+    QVBoxLayout,
+    QWidget,
 )
 
 from app.batch_materials import MODEL_ERROR
@@ -101,14 +112,14 @@ class SpectralScene:
 def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = "D65", method: str = "wiener",
                     chart: str = "classic24") -> SpectralScene:
     """Decode the frames, calibrate the estimator to the chart and forward-model the candidates."""
-    from processing.camera.response import camera_sensitivities
     from processing.camera.chart_detection import detect_chart
     from processing.camera.chart_sampling import check_patches, sample_patches
-    from processing.materials.identification import candidate_set
     from processing.camera.raw_decode import decode_raw, preview_srgb8
+    from processing.camera.response import camera_sensitivities
+    from processing.materials.identification import candidate_set
+    from processing.spectral.estimation.estimator import fit_estimator
     from processing.spectral.reflectance_database import load_reflectances
     from processing.spectral.spectra import SpectralGrid, light_spectrum
-    from processing.spectral.estimation.estimator import fit_estimator
 
     g = SpectralGrid(400, 700, 10)
     chart_raw = decode_raw(chart_frame, mode="bin2x2")
@@ -140,8 +151,8 @@ def _model_camera(scene: SpectralScene, rgb: np.ndarray) -> np.ndarray:
 
 def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
     """Reflectance around image pixel ``(x, y)`` with its uncertainty, the material and its model spectrum."""
-    from processing.materials.lobes import material_brdf
     from processing.materials.identification import identify_material
+    from processing.materials.lobes import material_brdf
     from processing.materials.presets import get_material
     from processing.spectral.estimation.estimator import region_spectra
 

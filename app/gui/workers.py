@@ -35,8 +35,9 @@ import multiprocessing as mp
 import queue
 import threading
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from PySide6.QtCore import QObject, QRunnable, QThreadPool, QTimer, Signal
 
@@ -194,7 +195,7 @@ class ProcessJob(QObject):
         self.done = False
         self.cancelled = False
 
-    def start(self) -> "ProcessJob":
+    def start(self) -> ProcessJob:
         self._proc.start()
         self._timer.start()
         return self

@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.camera.chart_layout import ChartLayout, chart_layout
 from processing.camera.raw_decode import RawImage, preview_srgb8
+from processing.errors import InputError
 
 __all__ = [
     "ChartDetection",
@@ -51,7 +52,7 @@ __all__ = [
 _CORNERS_HINT = "pass the chart's four outer corners as --chart-corners x1,y1,x2,y2,x3,y3,x4,y4"
 
 
-class ChartDetectionError(ValueError):
+class ChartDetectionError(InputError):
     """The chart cannot be located; the message says what to check."""
 
 

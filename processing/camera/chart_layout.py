@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from processing.errors import InputError
+
 __all__ = ["CHARTS", "ChartLayout", "ChartLayoutError", "chart_layout", "reference_srgb8", "reference_lab"]
 
 CHARTS = ("classic24", "sg140", "vinyl18")
@@ -48,7 +50,7 @@ _VINYL_NAMES = (
 )
 
 
-class ChartLayoutError(ValueError):
+class ChartLayoutError(InputError):
     """An unknown chart name or bad layout input; the message names the choices."""
 
 
@@ -119,7 +121,7 @@ def _uniform(n: int) -> tuple[tuple[float, float], ...]:
     return tuple((0.25 + 2.75 * i, 2.75 + 2.75 * i) for i in range(n))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def chart_layout(name: str) -> ChartLayout:
     """The layout of chart ``name`` (one of :data:`CHARTS`).
 
@@ -145,7 +147,7 @@ def chart_layout(name: str) -> ChartLayout:
 _MCC_TYPE = {"classic24": "MCC24", "sg140": "SG140", "vinyl18": "VINYL18"}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def reference_srgb8(name: str) -> NDArray[np.uint8]:
     """``cv2.mcc``'s reference colours of chart ``name``: ``(N, 3)`` 8-bit sRGB (R, G, B), reading order.
 
@@ -166,7 +168,7 @@ def reference_srgb8(name: str) -> NDArray[np.uint8]:
     return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def reference_lab(name: str) -> NDArray[np.float64]:
     """CIE L*a*b* (D65) of :func:`reference_srgb8`, ``(N, 3)``.
 

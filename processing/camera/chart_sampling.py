@@ -40,6 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from processing.camera.chart_detection import ChartDetection
 from processing.camera.chart_layout import chart_layout, reference_lab
 from processing.camera.raw_decode import RawImage
+from processing.errors import InputError
 
 __all__ = [
     "ChartCheck",
@@ -51,11 +52,11 @@ __all__ = [
 ]
 
 
-class ChartSamplingError(ValueError):
+class ChartSamplingError(InputError):
     """The patches cannot be sampled (too small, off the image, bad settings)."""
 
 
-class ChartRejectedError(ValueError):
+class ChartRejectedError(InputError):
     """The chart shot is unusable (clipped, uneven or mis-ordered); the message names the patches."""
 
 

@@ -39,8 +39,8 @@ from scipy.optimize import nnls
 
 from processing.camera.response import channel_matrix
 from processing.camera.transfer import ChartConditionError, condition_number
-from processing.spectral.spectra import SpectralGrid
 from processing.spectral.estimation.fit import SpectralEstimationError, checked_channels, checked_spectra
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["SensitivityFit", "estimate_sensitivities"]
 

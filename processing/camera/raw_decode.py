@@ -48,6 +48,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from processing.errors import InputError
+
 __all__ = [
     "DECODE_MODES",
     "RawDecodeError",
@@ -68,7 +70,7 @@ _DEAD_BLACK_MIN = 16
 _RAW_HINT = "give the camera's DNG/CR2/NEF/ARW"
 
 
-class RawDecodeError(ValueError):
+class RawDecodeError(InputError):
     """A RAW file cannot be decoded; the message names the file and what to do."""
 
 
@@ -529,7 +531,7 @@ _D65_XYZ = np.array([0.95047, 1.0, 1.08883])
 
 @functools.lru_cache(maxsize=1)
 def _srgb_lut() -> NDArray[np.uint8]:
-    """sRGB 8-bit code of each 16-bit linear value (IEC 61966-2-1 transfer curve)."""
+    """SRGB 8-bit code of each 16-bit linear value (IEC 61966-2-1 transfer curve)."""
     x = np.arange(65536, dtype=np.float64) / 65535.0
     v = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     lut = np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8)

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.spectral.spectra import SpectralGrid, resample
 
 __all__ = [
@@ -44,7 +45,7 @@ DEFAULT_CAMERA = "Nikon 5100 (NPL)"
 
 
 
-class CameraResponseError(ValueError):
+class CameraResponseError(InputError):
     """A camera, light or spectrum given to the camera model is not valid; the message names it."""
 
 
@@ -100,7 +101,7 @@ def _on_grid(label: str, wl: NDArray[np.float64], values: NDArray[np.float64], g
     return out
 
 
-def camera_sensitivities(grid: SpectralGrid, camera: "str | os.PathLike[str]" = DEFAULT_CAMERA) -> NDArray[np.float64]:
+def camera_sensitivities(grid: SpectralGrid, camera: str | os.PathLike[str] = DEFAULT_CAMERA) -> NDArray[np.float64]:
     """Spectral sensitivities ``(L, 3)`` (R, G, B) of a camera on ``grid``, linearly interpolated.
 
     Parameters
@@ -145,7 +146,7 @@ def _checked_sensitivities(sensitivities: ArrayLike, grid: SpectralGrid) -> NDAr
 
 
 def channel_matrix(
-    sensitivities: ArrayLike, lights: "ArrayLike | Sequence[ArrayLike]", grid: SpectralGrid
+    sensitivities: ArrayLike, lights: ArrayLike | Sequence[ArrayLike], grid: SpectralGrid
 ) -> NDArray[np.float64]:
     """The matrix ``K (L, c n)`` with camera response ``rho = R @ K`` for reflectances R ``(..., L)``.
 
@@ -182,7 +183,7 @@ def channel_matrix(
 
 def camera_rgb(
     reflectance: ArrayLike,
-    light: "ArrayLike | Sequence[ArrayLike]",
+    light: ArrayLike | Sequence[ArrayLike],
     sensitivities: ArrayLike,
     grid: SpectralGrid,
 ) -> NDArray[np.float64]:

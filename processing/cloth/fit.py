@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.cloth.swatch_geometry import SwatchGeometry, swatch_samples
+from processing.errors import InputError
 
 __all__ = [
     "FIT_PARAMETERS",
@@ -72,7 +73,7 @@ _UPPER = np.array([3.0, 3.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 _CFA_OFFSETS = ((0, 0), (1, 0), (0, 1), (1, 1))      # (dx, dy) of the 2 x 2 cell in row order
 
 
-class ClothFitError(ValueError):
+class ClothFitError(InputError):
     """The swatch data cannot be fitted (too few pixels or frames, a bad chart); the message says why."""
 
 

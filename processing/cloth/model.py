@@ -185,7 +185,7 @@ class Dye:
         object.__setattr__(self, "absorbance", c)
 
     @classmethod
-    def from_srgb(cls, colour_: str | tuple | list, scattering: float = 1.0) -> "Dye":
+    def from_srgb(cls, colour_: str | tuple | list, scattering: float = 1.0) -> Dye:
         """The dye whose Kubelka-Munk body reflectance has the sRGB colour ``colour_``.
 
         Parameters

@@ -29,10 +29,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
+
 __all__ = ["SwatchGeometry", "SwatchSamples", "swatch_samples", "SwatchGeometryError"]
 
 
-class SwatchGeometryError(ValueError):
+class SwatchGeometryError(InputError):
     """A value of the swatch set-up is missing or not valid; the message names it."""
 
 
@@ -98,7 +100,7 @@ class SwatchGeometry:
         """Number of light positions (passes) the set-up describes."""
         return 1 + len(self.pass_light_directions)
 
-    def for_pass(self, pass_no: int) -> "SwatchGeometry":
+    def for_pass(self, pass_no: int) -> SwatchGeometry:
         """The one-light set-up of pass ``pass_no`` (1-based).
 
         Examples
@@ -116,7 +118,7 @@ class SwatchGeometry:
         return replace(self, light_direction=light, pass_light_directions=())
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "SwatchGeometry":
+    def from_dict(cls, data: dict[str, Any]) -> SwatchGeometry:
         """From a JSON mapping; unknown keys are refused by name."""
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known

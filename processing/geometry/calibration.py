@@ -65,6 +65,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from processing.errors import InputError
+
 __all__ = [
     "CALIBRATION_SCHEMA",
     "CALIBRATION_SCHEMA_VERSION",
@@ -81,7 +83,7 @@ CALIBRATION_SCHEMA = "kogei.scanner_calibration"
 CALIBRATION_SCHEMA_VERSION = 1
 
 
-class CalibrationError(ValueError):
+class CalibrationError(InputError):
     """The scan cannot be calibrated (sphere not seen, wrong radius, no convergence); the message says why."""
 
 
@@ -533,7 +535,8 @@ def _refine(rot0: NDArray, o0: NDArray, rho0: float, h0: float, radius: float, f
 
 def _table_sample(x: NDArray, z: NDArray, mask: NDArray, most: int = 4000) -> NDArray[np.float64]:
     """(M, 2) sensor (x, z) of table points, an even subsample of at most ``most`` (the table fixes only
-    the height and tilt of the frame; more points cost time, not accuracy)."""
+    the height and tilt of the frame; more points cost time, not accuracy).
+    """
     pts = np.stack([x[mask], z[mask]], 1)
     step = max(1, -(-len(pts) // most))
     return pts[::step]

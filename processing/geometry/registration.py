@@ -62,6 +62,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from processing.errors import InputError
+
 __all__ = [
     "MIN_POINTS",
     "PRESETS",
@@ -83,7 +85,7 @@ __all__ = [
 ]
 
 
-class RegistrationError(ValueError):
+class RegistrationError(InputError):
     """Input that cannot be registered; the message names the cloud or parameter and what to do."""
 
 
@@ -452,7 +454,8 @@ def _rodrigues(w: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _rotation_angle_deg(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Angle (deg) of ``a^T b`` for stacks of rotations (broadcasting):
-    ``atan2(sin, cos)`` from its skew part and trace, accurate near 0 and 180 degrees."""
+    ``atan2(sin, cos)`` from its skew part and trace, accurate near 0 and 180 degrees.
+    """
     m = np.einsum("...ji,...jk->...ik", a, b)
     cos = (np.trace(m, axis1=-2, axis2=-1) - 1.0) / 2.0
     skew = np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1)
@@ -636,7 +639,8 @@ class _Level:
         leaves of two samplings of this surface with sample spacing ``spacing``
         (noise, relief between samples, normals).  The distance floor keeps a
         profile's own next point (much closer than the profiles are apart in
-        scan data) from making the estimate too small."""
+        scan data) from making the estimate too small.
+        """
         key = round(float(spacing), 9)
         if key not in self._roughness:
             k = min(9, len(self.points))
@@ -671,7 +675,8 @@ class _Cloud:
     def spacing(self) -> float:
         """Mean distance between samples on the surface (mm): ``1 / sqrt(density)``,
         from the distance ``d_8`` to the 8th nearest neighbour (``pi d_8^2`` holds
-        8 samples), which spans neighbouring profiles of unevenly sampled scans."""
+        8 samples), which spans neighbouring profiles of unevenly sampled scans.
+        """
         if self._spacing is None:
             every = max(1, len(self.points) // 2000)
             k = min(9, len(self.points))
@@ -682,7 +687,8 @@ class _Cloud:
     def level(self, voxel: float, fallback: bool = True) -> _Level:
         """The cloud downsampled on a ``voxel`` grid (mm), with unit normals; where the
         neighbourhood is too thin for a normal, the normal of a level twice as coarse
-        is used (``fallback``)."""
+        is used (``fallback``).
+        """
         key = (float(voxel), fallback)
         if key not in self.levels:
             coarser = None
@@ -859,7 +865,8 @@ def _batch_score(
     score_tau: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Truncated quadratic score of ``K`` poses (source -> target, approximate nearest
-    neighbours), with the per-point contributions ``(K, N)`` and matches ``(K, N)``."""
+    neighbours), with the per-point contributions ``(K, N)`` and matches ``(K, N)``.
+    """
     x = np.matmul(rot, src.T).transpose(0, 2, 1) + trans[:, None, :]
     idx = grid(x)
     diff = x - tgt[idx]
@@ -976,7 +983,8 @@ def _distinct(
 
 def _pyramid(preset: RegistrationPreset, scale: float, *clouds: _Cloud) -> tuple[float, ...]:
     """The ICP voxel sizes (mm) of a pair: the preset's fractions of ``scale``, but not
-    finer than the clouds' sample spacing (finer voxels only add noisy normals)."""
+    finer than the clouds' sample spacing (finer voxels only add noisy normals).
+    """
     floor = preset.min_voxel_spacing * max(c.spacing for c in clouds)
     out: list[float] = []
     for frac in preset.icp_voxels:
@@ -1051,7 +1059,8 @@ def _common_quality(
     ra: NDArray[np.float64], rb: NDArray[np.float64], tau_s: float
 ) -> tuple[float, float, int]:
     """Mean contribution of two poses over the points matched under both (the jointly
-    overlapping part, where partial views cannot favour either), and its size."""
+    overlapping part, where partial views cannot favour either), and its size.
+    """
     both = ~np.isnan(ra) & ~np.isnan(rb)
     n = int(both.sum())
     if n == 0:
@@ -1106,7 +1115,8 @@ def _expected_residual(src: _Cloud, tgt: _Cloud, voxel: float) -> float:
 
 def _score_scale(src: _Cloud, tgt: _Cloud, voxel: float, preset: RegistrationPreset) -> float:
     """Scale of the truncated quadratic score: three times the residual expected at the
-    right pose from the clouds' roughness, kept within [0.02, score_scale] voxels."""
+    right pose from the clouds' roughness, kept within [0.02, score_scale] voxels.
+    """
     expected = _expected_residual(src, tgt, voxel)
     return float(np.clip(3.0 * expected, 0.02 * voxel, preset.score_scale * voxel))
 
@@ -1203,7 +1213,8 @@ def _refine_distinct(
     hyps: Sequence[NDArray[np.float64]], levels: Sequence[float],
 ) -> list[NDArray[np.float64]]:
     """ICP of each hypothesis level by level (voxel sizes in mm), merging hypotheses
-    that meet in one basin."""
+    that meet in one basin.
+    """
     poses = list(hyps)
     centre = src.level(levels[0]).points.mean(axis=0)[None]
     for k, voxel in enumerate(levels):
@@ -1247,7 +1258,8 @@ def _margin(
     centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
 ) -> tuple[float, float]:
     """Margin of ``poses[best]`` over its distinct competitors, and the rotation to the
-    strongest one (see :func:`_competitor_margin`; both directions pooled)."""
+    strongest one (see :func:`_competitor_margin`; both directions pooled).
+    """
     b = scores[best]
     rb = np.concatenate(b.residuals)
     others = []
@@ -1264,7 +1276,8 @@ def _weak_axis(
     src: _Level, tgt: _Level, t: NDArray[np.float64], voxel: float, preset: RegistrationPreset
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | str | None:
     """The axis (direction, point) of a single weak rotation at ``t``, a reason if the
-    pose is undetermined in another way, or None if the fit is stable."""
+    pose is undetermined in another way, or None if the fit is stable.
+    """
     evals, evecs, c, length = _stability(src, tgt, t, preset.icp_distance * voxel)
     if evals[-1] <= 0:
         return "undetermined: no matched points to judge the fit"
@@ -1291,7 +1304,8 @@ def _axis_turns(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """``t`` turned about an axis (target frame) by ``steps`` even angles, and the same
     after a half turn about an axis across it (the shape upside down); returns the
-    rotations, translations and the rotation angle of each from ``t`` (deg)."""
+    rotations, translations and the rotation angle of each from ``t`` (deg).
+    """
     phi = 2.0 * np.pi * np.arange(steps) / steps
     turn = _rodrigues(phi[:, None] * axis[None, :])
     across = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -1307,7 +1321,8 @@ def _axis_sweep(
     voxel: float, preset: RegistrationPreset, rng: np.random.Generator, score_tau: float,
 ) -> list[NDArray[np.float64]]:
     """Distinct poses found by turning ``t`` about an axis (target frame) in even steps
-    and refining each by the batched ICP at ``voxel``."""
+    and refining each by the batched ICP at ``voxel``.
+    """
     s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
     rot, trans, _ = _axis_turns(t, axis, point, preset.sweep_steps)
     pts = _subsample(s_lvl.points, 4 * preset.search_points, rng)
@@ -1329,7 +1344,8 @@ def _sweep_margin(
 ) -> tuple[float, float]:
     """Quality margin of ``t`` over the same pose turned rigidly about a weak axis (no
     refinement, so that a continuous symmetry cannot slide the competitors back
-    onto ``t``), see :func:`_competitor_margin`."""
+    onto ``t``), see :func:`_competitor_margin`.
+    """
     s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
     rot, trans, deg = _axis_turns(t, axis, point, preset.sweep_steps)
     pts = _subsample(s_lvl.points, 4 * preset.search_points, rng)
@@ -1482,7 +1498,8 @@ def _turn_to_picks(
 ) -> NDArray[np.float64]:
     """``t`` turned about an axis (target frame) by the angle that best maps the picked
     source points onto the picked target points (closed form: the components
-    across the axis, ``phi = atan2(sum u . (p x q), sum p . q)``)."""
+    across the axis, ``phi = atan2(sum u . (p x q), sum p . q)``).
+    """
     p = transform_points(t, on_s) - point
     q = on_t - point
     p -= np.outer(p @ axis, axis)
@@ -1706,7 +1723,8 @@ def _pose_graph(
     clouds: Sequence[_Cloud], results: Sequence[PairResult], scale: float, preset: RegistrationPreset
 ) -> tuple[list[PassPose], PoseGraphConsistency | None]:
     """Spanning tree of the verified pairs (best score first) for initial poses, then
-    Open3D's global optimisation with the other verified pairs as loop closures."""
+    Open3D's global optimisation with the other verified pairs as loop closures.
+    """
     import open3d as o3d
 
     n = len(clouds)

@@ -123,7 +123,8 @@ class ScanPoints:
 
 def _runs(pts: NDArray, keep: NDArray, jump: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """First and last column of the run holding each kept point (runs break where consecutive kept points
-    of a profile are more than ``jump`` apart); (S, P) arrays, meaningful where ``keep``."""
+    of a profile are more than ``jump`` apart); (S, P) arrays, meaningful where ``keep``.
+    """
     s, p = keep.shape
     cols = np.arange(p)
     prev = np.maximum.accumulate(np.where(keep, cols, -1), axis=1)

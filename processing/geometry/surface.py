@@ -64,9 +64,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from processing.geometry.holes import HoleFit, hole_guide_points
-from processing.geometry.mesh_support import SupportReport, mesh_support
-from processing.geometry.mesh_topology import MeshTopology, mesh_topology, triangle_components
+from processing.errors import InputError
 from processing.geometry.fusion import (
     dominated_samples,
     fuse_points,
@@ -74,6 +72,9 @@ from processing.geometry.fusion import (
     point_spacing,
     validate_oriented_cloud,
 )
+from processing.geometry.holes import HoleFit, hole_guide_points
+from processing.geometry.mesh_support import SupportReport, mesh_support
+from processing.geometry.mesh_topology import MeshTopology, mesh_topology, triangle_components
 
 __all__ = [
     "SurfaceError",
@@ -99,7 +100,7 @@ _DOMINANCE_RADIUS = 2.0
 _LOW_SUPPORT_FACTOR = 1.5
 
 
-class SurfaceError(ValueError):
+class SurfaceError(InputError):
     """The cloud cannot be turned into a surface (bad input or a failed step)."""
 
 

@@ -50,7 +50,7 @@ class DistanceStats:
     n: int
 
     @classmethod
-    def of(cls, d: NDArray[np.float64]) -> "DistanceStats":
+    def of(cls, d: NDArray[np.float64]) -> DistanceStats:
         """Statistics of an array of distances."""
         if d.size == 0:
             return cls(float("nan"), float("nan"), float("nan"), float("nan"), 0)

@@ -17,7 +17,6 @@ rises steeply at its band edge near 600 nm).
 
 from __future__ import annotations
 
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 

@@ -69,7 +69,8 @@ def fresnel_conductor(cos_theta: ArrayLike, eta: ArrayLike) -> NDArray[np.float6
 def _difference_ratio(a: NDArray, b: NDArray) -> NDArray[np.complex128]:
     """(a - b) / (a + b), with both scaled by max(|a|, |b|) first: numpy's complex
     division overflows when a and b are denormal (cos_theta ~ 1e-320 with eta ~ 1).
-    The ratio is 0/0 (NaN) only where a = b = 0."""
+    The ratio is 0/0 (NaN) only where a = b = 0.
+    """
     scale = np.maximum(np.abs(a), np.abs(b))
     scale = np.where(scale > 0.0, scale, 1.0)
     # part by part: dividing a complex by a (denormal) real goes through its reciprocal

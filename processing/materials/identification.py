@@ -50,10 +50,10 @@ from scipy.optimize import nnls
 
 from processing.camera.response import channel_matrix
 from processing.materials.lobes import material_brdf
-from processing.materials.presets import get_material
 from processing.materials.metal_model import ConductorFresnel
-from processing.spectral.spectra import SpectralGrid
+from processing.materials.presets import get_material
 from processing.spectral.estimation.fit import SpectralEstimationError, checked_channels
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = [
     "DEFAULT_CANDIDATES",

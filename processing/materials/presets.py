@@ -23,8 +23,9 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
-from processing.materials.alloys import ALLOY_SOURCES, alloy_weights
 from processing.cloth.presets import CLOTH_PARAMETERS, CLOTH_PRESETS, CLOTH_SOURCES, build_cloth
+from processing.errors import InputError
+from processing.materials.alloys import ALLOY_SOURCES, alloy_weights
 from processing.materials.dielectric_model import (
     PigmentReflectance,
     dielectric_material,
@@ -46,7 +47,7 @@ __all__ = [
 ]
 
 
-class MaterialError(ValueError):
+class MaterialError(InputError):
     """A material spec names an unknown material or parameter, or a bad value."""
 
 

@@ -48,10 +48,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
+
 __all__ = ["Segmentation", "SegmentationError", "border_backdrop", "segment_regions"]
 
 
-class SegmentationError(ValueError):
+class SegmentationError(InputError):
     """The image or a parameter cannot be segmented; the message says which and why."""
 
 

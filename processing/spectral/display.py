@@ -290,7 +290,7 @@ def gamut_map(linear_rgb: ArrayLike, policy: str = "desaturate") -> NDArray[np.f
 
 
 def encode_srgb8(linear: ArrayLike) -> NDArray[np.uint8]:
-    """sRGB transfer curve (IEC 61966-2-1) and 8-bit quantisation.
+    """SRGB transfer curve (IEC 61966-2-1) and 8-bit quantisation.
 
     Values are clipped to [0, 1] first (use :func:`gamut_map` to choose how).
 

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.spectral.spectra import REFERENCE_GRID, SpectralGrid, resample
 
 __all__ = [
@@ -53,7 +54,7 @@ DUPLICATE_RMSE = 0.0125
 _MAX_REFLECTANCE = 1.5   # fluorescent or specular samples exceed 1 a little; more is a unit error
 
 
-class ReflectanceDatabaseError(ValueError):
+class ReflectanceDatabaseError(InputError):
     """A reflectance database or CSV file is not valid; the message names the file, line and column."""
 
 
@@ -119,7 +120,7 @@ def _builtin(name: str, start: float, stop: float, step: float) -> ReflectanceSe
     return ReflectanceSet(spectra, names, grid, source)
 
 
-def load_reflectances(name: "str | os.PathLike[str]", grid: SpectralGrid = REFERENCE_GRID) -> ReflectanceSet:
+def load_reflectances(name: str | os.PathLike[str], grid: SpectralGrid = REFERENCE_GRID) -> ReflectanceSet:
     """A built-in database (:func:`database_names`) or a CSV file, on ``grid``.
 
     Examples
@@ -139,7 +140,7 @@ def load_reflectances(name: "str | os.PathLike[str]", grid: SpectralGrid = REFER
     )
 
 
-def read_reflectance_csv(path: "str | os.PathLike[str]", grid: SpectralGrid = REFERENCE_GRID) -> ReflectanceSet:
+def read_reflectance_csv(path: str | os.PathLike[str], grid: SpectralGrid = REFERENCE_GRID) -> ReflectanceSet:
     """Read reflectances from a CSV file: ``wavelength_nm, r_1, r_2, ...`` one row per wavelength.
 
     An optional first line names the columns.  Errors name the line and

@@ -135,7 +135,8 @@ REFERENCE_GRID = SpectralGrid()
 
 def _interp_matrix(knots: NDArray[np.float64], x: NDArray[np.float64]) -> NDArray[np.float64]:
     """Matrix M (len(x), len(knots)) with ``M @ v`` the linear interpolant of
-    ``v`` (sampled at ``knots``) at ``x``, held constant outside the knots."""
+    ``v`` (sampled at ``knots``) at ``x``, held constant outside the knots.
+    """
     n = knots.size
     xc = np.clip(x, knots[0], knots[-1])
     idx = np.clip(np.searchsorted(knots, xc, side="right") - 1, 0, n - 2)
@@ -205,7 +206,7 @@ def _regular_step(wl: NDArray[np.float64]) -> float | None:
 def resample(
     wavelengths_src: ArrayLike,
     values: ArrayLike,
-    grid: "SpectralGrid | ArrayLike",
+    grid: SpectralGrid | ArrayLike,
     *,
     method: str = "interpolate",
 ) -> NDArray[np.float64]:
@@ -473,7 +474,7 @@ def _parse_light(spec: object) -> tuple[NDArray[np.float64], NDArray[np.float64]
     )
 
 
-def light_spectrum(spec: "str | float | os.PathLike[str]", grid: SpectralGrid = REFERENCE_GRID) -> NDArray[np.float64]:
+def light_spectrum(spec: str | float | os.PathLike[str], grid: SpectralGrid = REFERENCE_GRID) -> NDArray[np.float64]:
     """Relative spectral power of a light source on ``grid``.
 
     Parameters

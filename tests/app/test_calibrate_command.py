@@ -5,7 +5,6 @@ with its checksum; bad input gets one-line errors."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -11,8 +11,8 @@ import pytest
 
 from app.cli import main
 from app.demo_colour import colour_demo
-from processing.materials.alloys import alloy_weights
 from mocks.procedural_hawk import DEFAULT_MATERIALS, hawk_head
+from processing.materials.alloys import alloy_weights
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 

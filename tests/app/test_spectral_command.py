@@ -26,8 +26,8 @@ from hypothesis import strategies as st
 from app.cli import main
 from app.spectral_command import load_result
 from processing.spectral.display import spectra_to_xyz
-from processing.spectral.spectra import light_spectrum
 from processing.spectral.estimation.estimator import region_spectra
+from processing.spectral.spectra import light_spectrum
 from tests.spectral.spectral_shots import MATERIALS, board_dng, chart_dng, world, write_labels
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

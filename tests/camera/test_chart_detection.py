@@ -8,8 +8,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mocks.chart_scene import ChartPlacement, chart_corners
-from processing.camera.chart_layout import chart_layout
-from processing.camera.chart_sampling import check_patches, sample_patches
 from processing.camera.chart_detection import (
     ChartDetectionError,
     ChartNotFoundError,
@@ -18,6 +16,8 @@ from processing.camera.chart_detection import (
     detect_chart,
     parse_corners,
 )
+from processing.camera.chart_layout import chart_layout
+from processing.camera.chart_sampling import check_patches, sample_patches
 from processing.camera.raw_decode import decode_raw, preview_srgb8
 from tests.camera.chart_shots import chart_shot
 

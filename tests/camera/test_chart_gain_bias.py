@@ -16,8 +16,8 @@ import numpy as np
 
 from mocks.camera_sim import SensorModel, simulate_raw, write_raw
 from mocks.swatch_world import SwatchWorld
-from processing.cloth.fit import chart_gains, grid_chart_means
 from processing.camera.raw_decode import decode_raw
+from processing.cloth.fit import chart_gains, grid_chart_means
 from processing.cloth.swatch_geometry import SwatchGeometry
 
 COTTON = ("cotton:a_t=0.3,a_b=0.6,weft_a_t=0.3,weft_a_b=0.6,specular=0.08,internal=0.15,diffuse=0.7,"

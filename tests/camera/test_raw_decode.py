@@ -203,8 +203,8 @@ def test_missing_empty_and_folder(tmp_path):
 
 
 def test_images_that_are_not_raw(tmp_path):
-    from PIL import Image
     import tifffile
+    from PIL import Image
 
     img = Image.fromarray(np.zeros((32, 32, 3), np.uint8))
     img.save(tmp_path / "shot.jpg", format="JPEG")

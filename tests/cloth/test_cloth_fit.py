@@ -14,8 +14,8 @@ import pytest
 from app.cli import main
 from mocks.swatch_world import SwatchWorld
 from processing.cloth.fit import ClothFitError, SwatchMeasurement, chart_gains, fit_swatch, predict_rgb
-from processing.materials.presets import get_material
 from processing.cloth.swatch_geometry import SwatchGeometry, swatch_samples
+from processing.materials.presets import get_material
 
 TRUTH = {"a_t": 0.08, "a_b": 0.5, "specular": 0.25, "internal": 0.3, "diffuse": 0.4, "colour": "#3060a0"}
 TRUTH_SPEC = (f"silk:a_t={TRUTH['a_t']},a_b={TRUTH['a_b']},weft_a_t={TRUTH['a_t']},weft_a_b={TRUTH['a_b']},"

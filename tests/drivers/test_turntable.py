@@ -18,9 +18,9 @@ from drivers.errors import (
 from drivers.transport import SerialTransport
 from drivers.turntable import HORUS_BANNER, Turntable, move_time_s
 from mocks.faults import Faults
-from mocks.waiting import wait_until
 from mocks.horus_firmware import HorusFirmware
 from mocks.pty_link import PtyLink
+from mocks.waiting import wait_until
 
 STEP = 360.0 / 3200.0  # one motor step in degrees
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+
 def rz(a_rad):
     """Rotations about +Z, shape a.shape + (3, 3)."""
     c, s = np.cos(a_rad), np.sin(a_rad)

@@ -5,13 +5,11 @@ from __future__ import annotations
 
 import inspect
 import json
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
 
 from processing.geometry.calibration import (
     CalibrationError,
@@ -22,11 +20,8 @@ from processing.geometry.calibration import (
     profile_points_room,
 )
 
-
 # ---------------------------------------------------------------------------- closed-form scanner
-from tests.geometry.closed_form_scanner import rz, tilted_pose, gauge_fixed, Scan, scan, rotation_error_deg  # noqa: F401
-
-
+from tests.geometry.closed_form_scanner import Scan, gauge_fixed, rotation_error_deg, rz, scan, tilted_pose  # noqa: F401
 
 R_BALL = 12.7                     # a 1-inch reference ball, mm
 ANGLES = np.arange(180) * 2.0     # one revolution, 2 deg steps

@@ -3,22 +3,16 @@ through a deliberately non-ideal station; positions, normals, cropping, confiden
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
 
 from processing.geometry.calibration import ScannerCalibration, calibrate_sphere, ideal_sensor_to_room
 from processing.geometry.scan_points import ScanPoints, profiles_to_points
 
-
 # ---------------------------------------------------------------------------- closed-form scanner
-from tests.geometry.closed_form_scanner import rz, tilted_pose, gauge_fixed, Scan, scan, rotation_error_deg  # noqa: F401
-
-
+from tests.geometry.closed_form_scanner import Scan, gauge_fixed, rotation_error_deg, rz, scan, tilted_pose  # noqa: F401
 
 ANGLES = np.arange(180) * 2.0
 CYL = (10.0, -5.0, 30.0, 60.0)          # cx, cy, radius, height (mm), table frame

@@ -16,9 +16,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from mocks.procedural_hawk import hawk_head
 from processing.geometry.mesh_ply import write_mesh_ply
 from processing.geometry.mesh_topology import mesh_topology
-from mocks.procedural_hawk import hawk_head
 from processing.geometry.surface import (
     SURFACE_PRESETS,
     SurfaceError,

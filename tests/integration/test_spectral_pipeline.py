@@ -9,9 +9,9 @@ from processing.camera.response import camera_rgb, camera_sensitivities
 from processing.camera.transfer import fit_chart_transform
 from processing.materials.identification import candidate_set, identify_regions
 from processing.materials.metal_model import ConductorFresnel
+from processing.spectral.estimation.estimator import fit_estimator, region_spectra
 from processing.spectral.reflectance_database import load_reflectances, without_near_duplicates
 from processing.spectral.spectra import SpectralGrid, light_spectrum
-from processing.spectral.estimation.estimator import fit_estimator, region_spectra
 
 G = SpectralGrid(400, 700, 10)
 

@@ -15,9 +15,9 @@ import pytest
 
 from mocks.camera_sim import SensorModel, simulate_raw
 from mocks.swatch_world import SwatchWorld
+from processing.camera.raw_decode import decode_raw
 from processing.cloth.fit import chart_gains, grid_chart_means, predict_rgb
 from processing.materials.presets import get_material
-from processing.camera.raw_decode import decode_raw
 
 COTTON = ("cotton:a_t=0.3,a_b=0.6,weft_a_t=0.3,weft_a_b=0.6,specular=0.08,internal=0.15,diffuse=0.7,"
           "warp_colour=#c08040,weft_colour=#c08040")

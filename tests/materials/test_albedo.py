@@ -14,8 +14,8 @@ from scipy.special import erf
 from processing.materials.albedo import directional_albedo, lobe_albedo
 from processing.materials.dielectric_model import DielectricFresnel
 from processing.materials.lobes import Lobe, Material
-from processing.materials.presets import get_material, list_materials
 from processing.materials.metal_model import metal_material
+from processing.materials.presets import get_material, list_materials
 from processing.spectral.spectra import SpectralGrid
 
 WL = SpectralGrid(400, 700, 50).wavelengths

@@ -18,8 +18,8 @@ from processing.materials.dielectric_model import (
     urushi_black_reflectance,
     urushi_red_reflectance,
 )
-from processing.spectral.display import spectra_to_xyz, white_xyz, xyz_scale
 from processing.materials.lobes import SpectralFactor, material_brdf
+from processing.spectral.display import spectra_to_xyz, white_xyz, xyz_scale
 from processing.spectral.spectra import REFERENCE_GRID, SpectralGrid, light_spectrum
 
 WL = SpectralGrid(400, 700, 20).wavelengths

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from processing.materials.alloys import ALLOY_COMPOSITIONS
 from processing.camera.response import camera_rgb, camera_sensitivities
+from processing.materials.alloys import ALLOY_COMPOSITIONS
 from processing.materials.identification import (
     DEFAULT_CANDIDATES,
     NEUTRAL_METAL,
@@ -19,10 +19,10 @@ from processing.materials.identification import (
     identify_material,
     identify_regions,
 )
-from processing.materials.presets import get_material
 from processing.materials.metal_model import ConductorFresnel
-from processing.spectral.spectra import SpectralGrid, light_spectrum
+from processing.materials.presets import get_material
 from processing.spectral.estimation.fit import SpectralEstimationError
+from processing.spectral.spectra import SpectralGrid, light_spectrum
 
 G = SpectralGrid(400, 700, 10)
 SENS = camera_sensitivities(G)

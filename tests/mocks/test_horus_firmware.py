@@ -11,8 +11,8 @@ import pytest
 import serial
 
 from mocks.faults import Faults
-from mocks.waiting import wait_until
 from mocks.horus_firmware import BANNER, HorusFirmware, trapezoid_distance, trapezoid_time
+from mocks.waiting import wait_until
 
 
 class Port:

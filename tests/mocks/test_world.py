@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from mocks.world import BACKDROP_REFLECTANCE, World, WorldError, chart_reflectances
-from processing.spectral.display import spectra_to_xyz
 from processing.materials.lobes import material_brdf
 from processing.materials.presets import get_material
+from processing.spectral.display import spectra_to_xyz
 
 
 @pytest.fixture(scope="module")

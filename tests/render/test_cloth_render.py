@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from processing.spectral.display import spectra_to_xyz, xyz_scale
 from processing.materials.lobes import material_brdf
 from processing.materials.presets import get_material
+from processing.spectral.display import spectra_to_xyz, xyz_scale
 from processing.spectral.spectra import SpectralGrid, light_spectrum
 from render.camera import Camera
 from render.errors import RenderInputError

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings as hsettings, strategies as st
+from hypothesis import given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
-from processing.spectral.display import delta_e00
 from processing.materials.lobes import Lobe, Material
+from processing.spectral.display import delta_e00
 from render.camera import Camera
 from render.errors import RenderInputError
 from render.meshio import make_mesh

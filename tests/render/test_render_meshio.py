@@ -9,7 +9,9 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given, settings as hsettings, strategies as st
+from hypothesis import given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 from render.errors import MeshError, MeshWarning
 from render.meshio import face_normals, load_mesh, make_mesh, smooth_vertex_normals

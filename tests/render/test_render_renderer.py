@@ -15,9 +15,9 @@ import math
 import numpy as np
 import pytest
 
-from processing.spectral.display import delta_e00, spectra_to_xyz, white_xyz, xyz_scale
 from processing.materials.fresnel import fresnel_conductor
 from processing.materials.lobes import Lobe, Material
+from processing.spectral.display import delta_e00, spectra_to_xyz, white_xyz, xyz_scale
 from processing.spectral.spectra import SpectralGrid, light_spectrum
 from render.camera import Camera
 from render.errors import RenderCancelled, RenderInputError

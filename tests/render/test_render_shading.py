@@ -7,7 +7,9 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings as hsettings, strategies as st
+from hypothesis import given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 from processing.materials.lobes import Lobe, Material
 from processing.materials.microfacet import microfacet_lobe, smith_g1_beckmann

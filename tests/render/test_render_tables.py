@@ -10,13 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings as hsettings, strategies as st
+from hypothesis import given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 from processing.materials.albedo import directional_albedo
 from processing.materials.dielectric_model import DielectricFresnel, urushi_red_reflectance
-from processing.spectral.display import spectra_to_xyz, xyz_scale
-from processing.materials.presets import get_material
 from processing.materials.metal_model import ConductorFresnel
+from processing.materials.presets import get_material
+from processing.spectral.display import spectra_to_xyz, xyz_scale
 from processing.spectral.spectra import SpectralGrid, light_spectrum
 from render.shading import ALBEDO_GRAZING_COS, ALBEDO_TABLE_SIZE, _albedo_spectra
 from render.tables import AngleTable, spectral_factor_table, table_error, table_index

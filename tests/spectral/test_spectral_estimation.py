@@ -10,14 +10,19 @@ from hypothesis import strategies as st
 from processing.camera.from_chart import estimate_sensitivities
 from processing.camera.response import camera_rgb, camera_sensitivities, channel_matrix
 from processing.camera.transfer import ChartConditionError, fit_chart_transform
-from processing.spectral.reflectance_database import load_reflectances, without_near_duplicates
-from processing.spectral.spectra import SpectralGrid, light_spectrum
-from processing.spectral.estimation.estimator import fit_estimator, reflectance_from_weights, region_spectra, spectral_image
+from processing.spectral.estimation.estimator import (
+    fit_estimator,
+    reflectance_from_weights,
+    region_spectra,
+    spectral_image,
+)
 from processing.spectral.estimation.fit import SpectralEstimationError
 from processing.spectral.estimation.pca_matsuda import fit_paper
 from processing.spectral.estimation.root_polynomial_finlayson import fit_rootpoly
 from processing.spectral.estimation.two_light import fit_two_light
 from processing.spectral.estimation.wiener import fit_wiener
+from processing.spectral.reflectance_database import load_reflectances, without_near_duplicates
+from processing.spectral.spectra import SpectralGrid, light_spectrum
 
 G = SpectralGrid(400, 700, 10)
 WL = G.wavelengths

@@ -30,7 +30,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.camera.response import camera_rgb
 from processing.camera.transfer import MAX_CONDITION, fit_chart_transform
-from processing.spectral.spectra import SpectralGrid
 from processing.spectral.estimation.fit import (
     SpectralEstimationError,
     SpectralFit,
@@ -42,6 +41,7 @@ from processing.spectral.estimation.pca_matsuda import fit_paper
 from processing.spectral.estimation.root_polynomial_finlayson import fit_rootpoly
 from processing.spectral.estimation.two_light import fit_two_light
 from processing.spectral.estimation.wiener import fit_wiener
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = [
     "METHODS",

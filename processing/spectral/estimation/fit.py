@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from threadpoolctl import threadpool_limits
 
+from processing.errors import InputError
 from processing.spectral.spectra import SpectralGrid
 
 __all__ = [
@@ -50,7 +51,7 @@ _CHUNK_PIXELS = 1 << 15   # pixels per block: the features (up to 21 x 128 kB) s
 _SINGLE_THREAD_FROM = 1 << 16   # below this, setting the thread limit costs more than the product
 
 
-class SpectralEstimationError(ValueError):
+class SpectralEstimationError(InputError):
     """An input to spectral estimation is not valid; the message names it and what to do."""
 
 

@@ -20,8 +20,8 @@ from numpy.typing import ArrayLike
 
 from processing.camera.response import channel_matrix
 from processing.camera.transfer import condition_number
-from processing.spectral.spectra import SpectralGrid
 from processing.spectral.estimation.fit import SpectralEstimationError, SpectralFit, checked_spectra, pca_basis
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["fit_paper"]
 

@@ -28,7 +28,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.camera.response import channel_matrix
 from processing.camera.transfer import condition_number
-from processing.spectral.spectra import SpectralGrid
 from processing.spectral.estimation.fit import (
     SpectralEstimationError,
     SpectralFit,
@@ -36,6 +35,7 @@ from processing.spectral.estimation.fit import (
     expand_features,
     pca_basis,
 )
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["fit_rootpoly"]
 

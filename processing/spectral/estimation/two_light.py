@@ -21,10 +21,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from processing.spectral.spectra import SpectralGrid
 from processing.spectral.estimation.fit import SpectralEstimationError, SpectralFit
 from processing.spectral.estimation.root_polynomial_finlayson import fit_rootpoly
 from processing.spectral.estimation.wiener import fit_wiener
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["fit_two_light"]
 

@@ -34,8 +34,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.camera.response import channel_matrix
 from processing.camera.transfer import condition_number
-from processing.spectral.spectra import SpectralGrid
 from processing.spectral.estimation.fit import SpectralEstimationError, SpectralFit, checked_spectra
+from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["wiener_matrix", "fit_wiener", "cross_validated_noise"]
 

@@ -1,0 +1,214 @@
+"""Atomic file writes: a reader (or a crash) sees the old file or the new one, never a part.
+
+The data go to a temporary file in the target's folder, are flushed and
+(``durable=True``) ``fsync``-ed, and the temporary file is renamed over the
+target; the folder is then ``fsync``-ed so the rename itself survives a power
+cut.  A failure at any point removes the temporary file and leaves the target
+as it was.
+
+Examples
+--------
+>>> import tempfile, pathlib
+>>> p = atomic_write_json(pathlib.Path(tempfile.mkdtemp()) / "a" / "b.json", {"x": 1})
+>>> p.read_text()
+'{\\n  "x": 1\\n}\\n'
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+__all__ = ["fsync_dir", "atomic_path", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "sha256_file"]
+
+
+def fsync_dir(folder: str | os.PathLike[str]) -> None:
+    """``fsync`` a folder so a rename inside it is durable.
+
+    Parameters
+    ----------
+    folder
+        The folder.  Filesystems that refuse ``fsync`` on a folder are
+        tolerated: the rename is atomic all the same.
+    """
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike[str], *, durable: bool = True, make_parents: bool = True) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write by name; renamed over ``path`` when the block ends.
+
+    For writers that take a file name (Open3D, tifffile, Pillow).  If the
+    block raises, the temporary file is removed and ``path`` is untouched.
+
+    Parameters
+    ----------
+    path
+        The target file.
+    durable
+        ``fsync`` the written file and its folder.
+    make_parents
+        Create the target's folder if it is missing.
+
+    Yields
+    ------
+    Path
+        The temporary file's path (same folder and suffix as ``path``).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> target = pathlib.Path(tempfile.mkdtemp()) / "x.txt"
+    >>> with atomic_path(target) as tmp:
+    ...     _ = tmp.write_text("done")
+    >>> target.read_text()
+    'done'
+    """
+    target = Path(path)
+    parent = target.parent if str(target.parent) else Path(".")
+    if make_parents:
+        parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".tmp{target.suffix}", dir=parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        if durable:
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    if durable:
+        fsync_dir(parent)
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, *, durable: bool = True,
+                       make_parents: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically.
+
+    Parameters
+    ----------
+    path
+        The target file.
+    data
+        The bytes.
+    durable
+        ``fsync`` the file and its folder (survives a power cut, not only a
+        crash).
+    make_parents
+        Create the target's folder if it is missing.
+
+    Returns
+    -------
+    Path
+        The written file.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = atomic_write_bytes(pathlib.Path(tempfile.mkdtemp()) / "a" / "b.bin", b"xyz")
+    >>> p.read_bytes()
+    b'xyz'
+    """
+    target = Path(path)
+    parent = target.parent if str(target.parent) else Path(".")
+    if make_parents:
+        parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            if durable:
+                os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    if durable:
+        fsync_dir(parent)
+    return target
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, *, durable: bool = True,
+                      make_parents: bool = True) -> Path:
+    """Write UTF-8 ``text`` to ``path`` atomically (see :func:`atomic_write_bytes`).
+
+    Parameters
+    ----------
+    path
+        The target file.
+    text
+        The text.
+    durable
+        ``fsync`` the file and its folder.
+    make_parents
+        Create the target's folder if it is missing.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    return atomic_write_bytes(path, text.encode("utf-8"), durable=durable, make_parents=make_parents)
+
+
+def atomic_write_json(path: str | os.PathLike[str], obj: Any, *, durable: bool = True,
+                      make_parents: bool = True, indent: int | None = 2, sort_keys: bool = False) -> Path:
+    """Write ``obj`` as JSON (UTF-8, a final newline) to ``path`` atomically.
+
+    Parameters
+    ----------
+    path
+        The target file.
+    obj
+        A JSON-serialisable object; NaN and infinity are refused (they are
+        not JSON).
+    durable
+        ``fsync`` the file and its folder.
+    make_parents
+        Create the target's folder if it is missing.
+    indent, sort_keys
+        As for :func:`json.dumps`.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    text = json.dumps(obj, indent=indent, sort_keys=sort_keys, allow_nan=False, ensure_ascii=False) + "\n"
+    return atomic_write_text(path, text, durable=durable, make_parents=make_parents)
+
+
+def sha256_file(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of a file's contents, read in 1 MiB blocks.
+
+    Parameters
+    ----------
+    path
+        The file.
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+    """
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
