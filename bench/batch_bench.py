@@ -8,8 +8,8 @@ both sides:
 
 * ``batch-N``: ``kogei batch SESSIONS --workers N --quiet``;
 * ``direct``: one process calling the same library functions in a loop
-  (:func:`app.process_session.process_session`, the render step's two renders, and
-  :func:`app.report.build_report` written into the session) -- what the batch layer wraps;
+  (:func:`app.workflows.process_session.process_session`, the render step's two renders, and
+  :func:`app.report.html.build_report` written into the session) -- what the batch layer wraps;
 * ``up to date``: ``kogei batch`` again on processed sessions (every step skipped): the cost of
   checking the fingerprints.
 
@@ -39,9 +39,9 @@ PRESET = "draft"
 
 def build_sessions(root: Path, n: int) -> tuple[list[Path], Path]:
     """Capture ``n`` simulated hawk sessions and one calibration session into ``root``."""
-    from app.calibrate_command import calibrate_session
-    from app.capture import CaptureHooks, CapturePlan, run_capture
-    from app.capture_devices import build_devices
+    from app.cli.calibrate import calibrate_session
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
+    from app.capture.devices import build_devices
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World
@@ -72,9 +72,9 @@ def build_sessions(root: Path, n: int) -> tuple[list[Path], Path]:
 
 def direct(sessions: list[str], calibration: str) -> None:
     """The steps of the batch called directly, one session after another (the baseline)."""
-    from app.batch_steps import BatchOptions, render_session_mesh
-    from app.process_session import process_session
-    from app.report import write_report
+    from app.batch.steps import BatchOptions, render_session_mesh
+    from app.workflows.process_session import process_session
+    from app.report.html import write_report
 
     options = BatchOptions(preset=PRESET)
     for s in sessions:

@@ -25,7 +25,7 @@ REFERENCE_LAYERS = 50
 
 
 def _render(material: str, size, preset: str):
-    from app.cloth_scene import ACROSS_WARP, render_cloth
+    from app.workflows.cloth_scene import ACROSS_WARP, render_cloth
 
     t0 = time.perf_counter()
     result = render_cloth(material, size, preset, view=ACROSS_WARP)

@@ -5,7 +5,7 @@ instantly, so the wall time of :meth:`drivers.turntable.Turntable.step`
 (motor and laser re-assertion plus the move: four command round trips over a
 real pty) is the host's own cost.  Target: <= 5 ms per step.
 
-:func:`measure_capture` times a whole capture pass (``app.capture``) against
+:func:`measure_capture` times a whole capture pass (``app.capture.runner``) against
 the simulated station: per profile step the turntable step, the profile
 (trigger, frame, CRC), the atomic file write and the journal append, with
 the station's own ray casting measured separately and subtracted.
@@ -71,7 +71,7 @@ def measure_step_overhead(steps: int = 200, wire_log: bool = True) -> dict[str, 
 
 
 def measure_capture(steps: int = 400) -> dict[str, float]:
-    """Time one scan pass of ``steps`` profiles (camera off) through :func:`app.capture.run_capture`.
+    """Time one scan pass of ``steps`` profiles (camera off) through :func:`app.capture.runner.run_capture`.
 
     Returns
     -------
@@ -85,8 +85,8 @@ def measure_capture(steps: int = 400) -> dict[str, float]:
     """
     import numpy as np
 
-    from app.capture import CaptureHooks, CapturePlan, run_capture
-    from app.capture_devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
+    from app.capture.devices import build_devices
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World

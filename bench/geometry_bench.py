@@ -2,9 +2,9 @@
 
 Every profile is measured by the profiler emulator of :class:`mocks.station.SimulatedStation`
 and travels the way a real capture's does: the turntable and profiler firmware emulators on
-pseudo-terminals, the drivers, :func:`app.capture.run_capture` writing the session, then
-:func:`app.calibrate_command.calibrate_session` (the station geometry comes from a scan of a
-reference sphere, never from the truth) and :func:`app.process_session.process_session`
+pseudo-terminals, the drivers, :func:`app.capture.runner.run_capture` writing the session, then
+:func:`app.cli.calibrate.calibrate_session` (the station geometry comes from a scan of a
+reference sphere, never from the truth) and :func:`app.workflows.process_session.process_session`
 (``kogei process``).  Nothing of the truth is given to processing; it is used only to score:
 
 * the pose of pass ``p`` (object -> table frame of that pass) is ``Rz(theta_p) @ place(p)``,
@@ -393,8 +393,8 @@ def capture_session(world: Any, geometry: StationGeometry, root: Path, *, steps:
     dict
         Per pass, the true object -> table-frame transform ``Rz(theta_p) @ place(p)`` (4 x 4).
     """
-    from app.capture import CaptureHooks, CapturePlan, run_capture
-    from app.capture_devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
+    from app.capture.devices import build_devices
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import rotation_z
@@ -419,7 +419,7 @@ def capture_session(world: Any, geometry: StationGeometry, root: Path, *, steps:
 
 def calibrate_station(geometry: StationGeometry, root: Path, seed: int = 7) -> dict[str, Any]:
     """Scan the geometry's reference sphere, calibrate with ``kogei calibrate``, compare with the truth."""
-    from app.calibrate_command import calibrate_session, session_calibration
+    from app.cli.calibrate import calibrate_session, session_calibration
     from app.session import Session
     from mocks.world import World
     from processing.geometry.registration import pose_difference
@@ -436,8 +436,8 @@ def calibrate_station(geometry: StationGeometry, root: Path, seed: int = 7) -> d
 
 def session_clouds(session_dir: Path, calibration: str) -> list[dict[str, Any]]:
     """Per pass the cloud exactly as ``kogei process`` builds it (after installing the calibration)."""
-    from app.calibrate_command import install_calibration, load_calibration_source, session_calibration
-    from app.process_session import _pass_clouds
+    from app.cli.calibrate import install_calibration, load_calibration_source, session_calibration
+    from app.workflows.process_session import _pass_clouds
     from app.session import Session
 
     with Session.open(session_dir) as s:
@@ -550,7 +550,7 @@ def process_trial(session_dir: Path, calibration: str, clouds: list[dict[str, An
     ``clouds`` (:func:`session_clouds` of the same session) give the registered measured points;
     ``"_scene"`` holds what :func:`score_mesh` needs (:func:`run_object` scores the meshes).
     """
-    from app.process_session import process_session
+    from app.workflows.process_session import process_session
     from render.meshio import load_mesh
 
     times, report = [], None
@@ -635,7 +635,7 @@ def _preset_settings(preset: str) -> dict[str, Any]:
 
 def _same_profiles(a: Path, b: Path, passes: int) -> bool:
     """Whether two sessions hold bit-identical profiles and angles in their first ``passes`` passes."""
-    from app.capture import load_pass_profiles
+    from app.capture.runner import load_pass_profiles
 
     for p in range(1, passes + 1):
         pa, pb = load_pass_profiles(a, p), load_pass_profiles(b, p)

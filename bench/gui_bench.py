@@ -11,7 +11,7 @@ in the same process here) and the GUI thread's own CPU time between firings
 (the window's own work alone), and the *own stall*: the stall minus the
 time no CPU ran the process (run-queue waits and steal, see
 :mod:`app.gui.responsiveness`).  The capture's wall time is compared with the
-same plan through :func:`app.capture.run_capture` without the window (same
+same plan through :func:`app.capture.runner.run_capture` without the window (same
 station settings): the ratio is the window's overhead on the capture.
 
 Run ``python -m bench.gui_bench [--runs 3] [--steps 60] [--passes 3]``;
@@ -40,8 +40,8 @@ def _calibration(tmp: Path) -> Path:
 
 def library_capture_s(steps: int, passes: int, seed: int = 5) -> float:
     """Wall time of the same capture through the library alone (s)."""
-    from app.capture import CaptureHooks, CapturePlan, run_capture
-    from app.capture_devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
+    from app.capture.devices import build_devices
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World

@@ -22,8 +22,8 @@ ACCURACY_SIZE = (320, 240)
 
 def _hawk_job(size, preset, triangles, material=None, sky="none"):
     """The benchmark hawk: one sun; ``material`` replaces every region's default material."""
-    from app.scene_build import build_job
-    from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, SkySpec
+    from app.workflows.scene_build import build_job
+    from app.workflows.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, SkySpec
     from mocks.procedural_hawk import DEFAULT_MATERIALS
 
     obj = ObjectSpec(procedural="hawk", procedural_args={"triangles": triangles})

@@ -80,7 +80,7 @@ def devices_section() -> list[str]:
         "|---:|---:|---:|",
         f"| {r['steps']} | **{r['overhead_ms_per_step']:.2f}** | {r['p95_ms']:.2f} |",
         "",
-        "A whole capture pass (`kogei capture`'s engine, `app.capture.run_capture`) against the simulated",
+        "A whole capture pass (`kogei capture`'s engine, `app.capture.runner.run_capture`) against the simulated",
         f"station, camera off, {c['steps']} steps, {c['points']} points per profile: per step the turntable",
         "step, one profile (trigger, binary frame, CRC), the profile written atomically into the session and",
         "its journal record appended (`fsync` by group commit, docs/session-format.md).  The station computes",

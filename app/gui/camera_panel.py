@@ -5,8 +5,8 @@ A thin shell over :func:`processing.camera.raw_decode.decode_raw` (black level,
 white level and saturation from the file's own metadata),
 :func:`processing.camera.raw_decode.preview_srgb8` and
 :func:`processing.camera.chart_detection.detect_chart`.  Frames are shot with the
-camera of the Devices tab (:class:`app.capture_devices.Gphoto2Shooter` /
-:class:`app.capture_devices.HotFolderShooter`) into a folder of the window's
+camera of the Devices tab (:class:`app.capture.devices.Gphoto2Shooter` /
+:class:`app.capture.devices.HotFolderShooter`) into a folder of the window's
 own (test shots are not captures of the session); any RAW file, such as a
 session's chart frame, can be opened too.
 
@@ -160,7 +160,7 @@ class CameraPanel(Panel):
 
     # ------------------------------------------------------------ sources
     def shoot(self) -> None:
-        from app.capture_devices import Gphoto2Shooter, HotFolderShooter
+        from app.capture.devices import Gphoto2Shooter, HotFolderShooter
         from app.errors import UsageError
 
         cam = dict(self.link.camera)

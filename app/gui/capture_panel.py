@@ -1,7 +1,7 @@
 """Capture panel: turntable jog, laser, the scan plan, start / pause / abort with progress and ETA,
 the live profile plot, the growing point cloud and the "re-place the object" step between passes.
 
-A thin shell over :func:`app.capture.run_capture` (the engine ``kogei
+A thin shell over :func:`app.capture.runner.run_capture` (the engine ``kogei
 capture`` runs), on the instruments' lane of :class:`app.gui.station_link.StationLink`:
 
 * a new session is created with :meth:`app.session.Session.create` (plan,
@@ -79,7 +79,7 @@ def format_eta(seconds: float | None) -> str:
 
 def parse_angles(text: str) -> tuple[float, ...]:
     """Camera angles typed as degrees separated by commas (ValueError naming the field otherwise)."""
-    from app.capture import parse_camera_angles
+    from app.capture.runner import parse_camera_angles
 
     return parse_camera_angles(text)
 
@@ -293,7 +293,7 @@ class CapturePanel(Panel):
 
     # ------------------------------------------------------------ plan and session
     def plan(self) -> Any:
-        from app.capture import CapturePlan
+        from app.capture.runner import CapturePlan
 
         camera = self.link.camera.get("kind", "none") != "none"
         kind = self.kind.currentText()
@@ -310,7 +310,7 @@ class CapturePanel(Panel):
         self.chart.setChecked(bool(plan.get("chart", True)))
 
     def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
-        from app.capture import open_for_resume
+        from app.capture.runner import open_for_resume
         from app.errors import UsageError
         from app.session import Session, SessionError
 
@@ -353,8 +353,8 @@ class CapturePanel(Panel):
 
     # ------------------------------------------------------------ run
     def start_capture(self) -> None:
-        from app.capture import CaptureHooks, CaptureInterrupted, CaptureSettings, run_capture
-        from app.capture_devices import build_devices
+        from app.capture.devices import build_devices
+        from app.capture.runner import CaptureHooks, CaptureInterrupted, CaptureSettings, run_capture
         from app.errors import UsageError
 
         if self.job is not None and not self.job.done:
@@ -562,7 +562,7 @@ class CapturePanel(Panel):
             return None
         if self._cal_cache is not None and self._cal_cache[0] == src:
             return self._cal_cache[1]
-        from app.calibrate_command import load_calibration_source
+        from app.cli.calibrate import load_calibration_source
         from processing.geometry.calibration import ScannerCalibration
 
         try:

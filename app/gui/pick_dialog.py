@@ -4,7 +4,7 @@ The fallback of :func:`processing.geometry.registration.register_passes` (``pick
 three or more corresponding points per pair, Kabsch / Umeyama without scale,
 refined by ICP and verified).  Each pass's points come from its profiles and
 the scanner calibration (:func:`processing.geometry.scan_points.profiles_to_points`),
-as :func:`app.process_session.process_session` makes them; a click picks the
+as :func:`app.workflows.process_session.process_session` makes them; a click picks the
 nearest *measured* point within a few pixels of the click, so a pick is
 always a real 3-D point of the cloud, whichever projection is shown.  The
 two clouds are drawn in the window's drawing process
@@ -46,8 +46,8 @@ PICK_RADIUS_PX = 6.0
 
 def pass_points(root: Path, calibration: str | None, pass_no: int, max_points: int = 6000) -> np.ndarray:
     """The pass's points in its table frame (mm), evenly thinned to ``max_points``."""
-    from app.calibrate_command import load_calibration_source, session_calibration
-    from app.capture import load_pass_profiles
+    from app.capture.runner import load_pass_profiles
+    from app.cli.calibrate import load_calibration_source, session_calibration
     from app.errors import UsageError
     from app.session import Session
     from processing.geometry.calibration import ScannerCalibration

@@ -1,6 +1,6 @@
 """Preview panel: the renderer's image of the session's mesh with a chosen material, under a chosen light.
 
-A thin shell over :func:`app.scene_build.build_job` and
+A thin shell over :func:`app.workflows.scene_build.build_job` and
 :func:`render.renderer.render` (what ``kogei render`` runs).  Dragging the
 image orbits the camera about the mesh's centre; while dragging a small
 ``draft`` image is rendered (about 1/4 of the size), and once the mouse has
@@ -84,8 +84,8 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
     """
     import time
 
-    from app.scene_build import build_job
-    from app.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec
+    from app.workflows.scene_build import build_job
+    from app.workflows.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec
     from render.renderer import render
 
     lo, hi = bounds

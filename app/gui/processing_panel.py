@@ -1,8 +1,8 @@
 """Processing panel: scanner calibration, registration and meshing of the open session with progress and cancel,
 the residuals, and the manual 3-point registration when automatic registration fails.
 
-A thin shell over :func:`app.calibrate_command.calibrate_session` and
-:func:`app.process_session.process_session` (what ``kogei calibrate`` and
+A thin shell over :func:`app.cli.calibrate.calibrate_session` and
+:func:`app.workflows.process_session.process_session` (what ``kogei calibrate`` and
 ``kogei process`` run).  Processing runs in a separate process
 (:class:`app.gui.workers.ProcessJob`): registration and meshing hold the
 interpreter for long stretches, and *Cancel* can stop them at once; the
@@ -64,8 +64,8 @@ def pair_row(pair: dict[str, Any], names: list[str]) -> list[str]:
 
 def run_processing(session: str, preset: str, calibration: str | None, picks: dict | None = None, *,
                    message: Callable[[str], None]) -> dict[str, Any]:
-    """:func:`app.process_session.process_session` in a worker process (module-level: picklable)."""
-    from app.process_session import process_session
+    """:func:`app.workflows.process_session.process_session` in a worker process (module-level: picklable)."""
+    from app.workflows.process_session import process_session
 
     return process_session(session, preset=preset, calibration=calibration, message=message, picks=picks)
 
@@ -174,7 +174,7 @@ class ProcessingPanel(Panel):
         radius = float(self.radius.value())
 
         def work(ctx: JobContext) -> dict[str, Any]:
-            from app.calibrate_command import calibrate_session
+            from app.cli.calibrate import calibrate_session
 
             return calibrate_session(root, radius)
 

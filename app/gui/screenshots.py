@@ -26,9 +26,9 @@ __all__ = ["main", "take_screenshots"]
 
 
 def _calibration(tmp: Path) -> Path:
-    from app.calibrate_command import calibrate_session
-    from app.capture import CaptureHooks, CapturePlan, run_capture
-    from app.capture_devices import build_devices
+    from app.capture.devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
+    from app.cli.calibrate import calibrate_session
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World

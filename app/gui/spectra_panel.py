@@ -29,7 +29,7 @@ A composition of the colour pipeline's library calls (issue #5):
    colour of the frame's rim), and blocks left less than half full.
 
 Both identifications allow the candidates the same model error as the batch
-``materials`` step (:data:`app.batch_materials.MODEL_ERROR`, 2 %): the
+``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 2 %): the
 shibuichi alloys, shakudo and bronze differ by 0.005-0.02 in camera
 chromaticity, about what one block of a highlight varies by on polished
 metal, so a block map tells families apart (gold, copper-rich, silver-rich,
@@ -68,7 +68,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.batch_materials import MODEL_ERROR
+from app.batch.materials import MODEL_ERROR
 from app.gui.figures import empty_figure, spectrum_figure
 from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.session_panel import rgb_to_qimage

@@ -9,7 +9,7 @@ the profiler's ``GET,LAS``); a vanished port or a silent device turns its light
 red, raises a banner naming the device and the port, and is re-handshaken
 (:meth:`drivers.turntable.Turntable.reconnect`,
 :meth:`drivers.profiler.LaserProfiler.reconnect`) as soon as it answers again.
-During a capture :func:`app.capture.run_capture` owns the instruments and
+During a capture :func:`app.capture.runner.run_capture` owns the instruments and
 does its own recovery; its notes drive the same lights and banner
 (:meth:`StationLink.capture_note`).
 
@@ -115,7 +115,7 @@ class StationLink(QObject):
 
     # ------------------------------------------------------------ configuration
     def device_config(self) -> dict[str, Any]:
-        """The configuration :func:`app.capture_devices.build_devices` takes (ports, camera)."""
+        """The configuration :func:`app.capture.devices.build_devices` takes (ports, camera)."""
         config: dict[str, Any] = {}
         if self.ports.get("turntable"):
             config["turntable"] = {"port": self.ports["turntable"]}
@@ -142,7 +142,7 @@ class StationLink(QObject):
         self.state.emit(name, state, detail)
 
     def _build(self, name: str) -> Any:
-        from app.capture_devices import build_devices
+        from app.capture.devices import build_devices
 
         port = self.ports.get(name, "")
         if not port:

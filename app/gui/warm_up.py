@@ -38,8 +38,8 @@ import importlib
 __all__ = ["HEAVY_MODULES", "warm_up", "freeze_heap"]
 
 #: Modules the window's worker threads import on first use, in the order a session needs them.
-HEAVY_MODULES = ("colour", "open3d", "scipy.spatial", "app.capture", "app.capture_devices",
-                 "processing.geometry.scan_points", "render.renderer", "app.scene_build")
+HEAVY_MODULES = ("colour", "open3d", "scipy.spatial", "app.capture.runner", "app.capture.devices",
+                 "processing.geometry.scan_points", "render.renderer", "app.workflows.scene_build")
 
 
 @functools.cache

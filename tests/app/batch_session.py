@@ -12,9 +12,9 @@ import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
-from app.calibrate_command import calibrate_session
-from app.capture import CaptureHooks, CapturePlan, run_capture
-from app.capture_devices import build_devices
+from app.capture.devices import build_devices
+from app.capture.runner import CaptureHooks, CapturePlan, run_capture
+from app.cli.calibrate import calibrate_session
 from app.session import Session
 from mocks.station import SimulatedStation
 from mocks.world import World
@@ -56,7 +56,7 @@ def copy_session(src: Path, dst: Path) -> Path:
     return dst
 
 
-#: Head and beak of distinct materials, the light 15 deg from the camera (as in app.demo_colour) so that
+#: Head and beak of distinct materials, the light 15 deg from the camera (as in app.demo.colour) so that
 #: metal highlights face the camera: the materials step's test world.
 MATERIALS_WORLD = {"materials": {"head": "gold", "beak": "urushi-red"}, "light_direction": (0.2, -0.93, 0.45)}
 

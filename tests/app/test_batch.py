@@ -30,10 +30,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from app.batch import LOG_FILE, process_one, run_batch
-from app.batch_steps import STEPS, BatchOptions, fingerprint, parse_steps, step_inputs, up_to_date
+from app.batch.code_version import code_version, module_imports
+from app.batch.runner import LOG_FILE, process_one, run_batch
+from app.batch.steps import STEPS, BatchOptions, fingerprint, parse_steps, step_inputs, up_to_date
 from app.cli import main
-from app.code_version import code_version, module_imports
 from app.errors import UsageError
 from app.session import Session
 from tests.app.batch_session import built_sessions, copy_session
@@ -158,14 +158,14 @@ def test_fingerprint_follows_inputs_parameters_and_code(done, tmp_path, monkeypa
     edited["captures"]["p01/profiles"]["sha256"] = "0" * 64
     assert up_to_date(geometry, root, edited, options)[:2] == (False, "inputs changed")
     # other code: the modules' hash
-    monkeypatch.setattr("app.batch_steps.code_version", lambda modules: type("V", (), {"sha256": "x"})())
+    monkeypatch.setattr("app.batch.steps.code_version", lambda modules: type("V", (), {"sha256": "x"})())
     assert up_to_date(geometry, root, manifest, options)[:2] == (False, "code changed")
 
 
 def test_code_version_hashes_the_modules_a_step_imports():
-    v = code_version(("app.process_session",))
+    v = code_version(("app.workflows.process_session",))
     # process_session imports these (directly or through processing.geometry.surface); no driver, no GUI
-    for f in ("app/process_session.py", "processing/geometry/registration.py", "processing/geometry/surface.py",
+    for f in ("app/workflows/process_session.py", "processing/geometry/registration.py", "processing/geometry/surface.py",
               "processing/geometry/scan_points.py", "processing/geometry/holes.py"):
         assert f in v.files
     assert not any(f.startswith(("drivers/", "mocks/")) for f in v.files)
@@ -180,7 +180,7 @@ def test_code_version_hashes_the_modules_a_step_imports():
 
 
 def test_patch_errors_see_a_misordered_chart():
-    from app.batch_colour import patch_errors
+    from app.batch.colour import patch_errors
     from processing.camera.chart_layout import reference_lab
 
     lab = np.asarray(reference_lab("classic24"))
@@ -197,7 +197,7 @@ def test_patch_errors_see_a_misordered_chart():
 @settings(max_examples=40, deadline=None)
 @given(exponent=st.floats(-30, 30), seed=st.integers(0, 2**16))
 def test_patch_errors_do_not_depend_on_the_exposure_scale(exponent, seed):
-    from app.batch_colour import patch_errors
+    from app.batch.colour import patch_errors
     from processing.camera.chart_layout import reference_lab
 
     lab = np.asarray(reference_lab("classic24"))
@@ -224,7 +224,7 @@ def test_fingerprint_is_canonical():
 def test_worker_pool_isolates_failed_sessions(base, done, tmp_path):
     from rich.console import Console
 
-    from app.batch_command import summary_table
+    from app.cli.batch import summary_table
 
     src, options, _ = done
     ok = copy_session(src, tmp_path / "ok")
@@ -361,7 +361,7 @@ def test_a_session_given_twice_is_refused(done):
 def test_a_pass_with_several_chart_frames_is_calibrated_by_its_first(tmp_path):
     """Swatch passes open with several chart frames (pNN/chart/00 ...): the colour step decodes the first
     one only, names it in the product and says so in the log; the others leave the step up to date."""
-    from app.capture import CapturePlan
+    from app.capture.runner import CapturePlan
     from mocks.world import World
     from tests.app.batch_session import _capture
 

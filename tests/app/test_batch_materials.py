@@ -3,7 +3,7 @@
 The session is captured by the simulated station from a hawk whose head is gold and whose beak is red
 urushi (``tests.app.batch_session.MATERIALS_WORLD``); the world's own per-pixel region labels (rendered
 independently of the step) say which pixels of the material map belong to which true region.  The map's
-colour of a material is its sRGB under D65 (``app.materials_command.preset_srgb``).
+colour of a material is its sRGB under D65 (``app.cli.materials.preset_srgb``).
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from app.batch import process_one
-from app.batch_materials import largest_material, material_colour
-from app.batch_steps import BatchOptions
+from app.batch.materials import largest_material, material_colour
+from app.batch.runner import process_one
+from app.batch.steps import BatchOptions
 from app.session import Session
 from tests.app.batch_session import built_sessions, copy_session, materials_session, materials_world
 

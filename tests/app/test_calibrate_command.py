@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from app.calibrate_command import session_calibration
-from app.capture import CaptureHooks, CapturePlan, run_capture
-from app.capture_devices import build_devices
+from app.capture.devices import build_devices
+from app.capture.runner import CaptureHooks, CapturePlan, run_capture
 from app.cli import main
+from app.cli.calibrate import session_calibration
 from app.errors import UsageError
 from app.session import Session
 from mocks.station import SimulatedStation

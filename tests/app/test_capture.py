@@ -15,8 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.capture import CaptureHooks, CaptureInterrupted, CapturePlan, CaptureSettings, load_pass_profiles, run_capture
-from app.capture_devices import build_devices
+from app.capture.devices import build_devices
+from app.capture.runner import (
+    CaptureHooks,
+    CaptureInterrupted,
+    CapturePlan,
+    CaptureSettings,
+    load_pass_profiles,
+    run_capture,
+)
 from app.session import Session
 from mocks.station import SimulatedStation
 from mocks.world import World

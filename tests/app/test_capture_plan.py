@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from app.capture import CapturePlan
+from app.capture.runner import CapturePlan
 
 
 def test_scan_actions_are_unique_and_complete():

@@ -10,7 +10,7 @@ import cv2
 import pytest
 
 from app.cli import main
-from app.demo_colour import colour_demo
+from app.demo.colour import colour_demo
 from mocks.procedural_hawk import DEFAULT_MATERIALS, hawk_head
 from processing.materials.alloys import alloy_weights
 

@@ -17,8 +17,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from app.cli.mock import add_parser, capture_commands, main, run
 from app.errors import UsageError
-from app.mock_command import add_mock_parser, capture_commands, main, run_mock
 from drivers.profiler import LaserProfiler
 from drivers.transport import SerialTransport
 from drivers.turntable import Turntable
@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def parse(*argv):
     parser = argparse.ArgumentParser(prog="kogei")
-    add_mock_parser(parser.add_subparsers(dest="command", required=True))
+    add_parser(parser.add_subparsers(dest="command", required=True))
     return parser.parse_args(["mock", *argv])
 
 
@@ -51,7 +51,7 @@ def box_world():
 
 def run_cli(*argv, env=None, timeout=60):
     full_env = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
-    return subprocess.run([sys.executable, "-m", "app.mock_command", *argv], cwd=ROOT, env=full_env,
+    return subprocess.run([sys.executable, "-m", "app.cli.mock", *argv], cwd=ROOT, env=full_env,
                           capture_output=True, text=True, timeout=timeout)
 
 
@@ -97,7 +97,7 @@ def test_capture_command_lines_quote_paths():
 ])
 def test_bad_options_are_one_line_usage_errors(argv, words, tmp_path):
     with pytest.raises(UsageError) as info:
-        run_mock(parse(*argv, "--root", str(tmp_path / "r")))
+        run(parse(*argv, "--root", str(tmp_path / "r")))
     for w in words:
         assert w in str(info.value)
     assert "\n" not in str(info.value)
@@ -108,7 +108,7 @@ def test_triangles_with_a_mesh_file_is_an_error(tmp_path):
     mesh = tmp_path / "box.ply"
     o3d.io.write_triangle_mesh(str(mesh), o3d.geometry.TriangleMesh.create_box(10, 10, 10))
     with pytest.raises(UsageError, match="--triangles"):
-        run_mock(parse("--world", str(mesh), "--triangles", "2000"))
+        run(parse("--world", str(mesh), "--triangles", "2000"))
 
 
 def test_main_prints_one_line_and_exits_2(capsys):
@@ -193,7 +193,7 @@ def _ignore_sigint():
 
 def _start(argv, root, *, sigint_ignored=False):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "app.mock_command", *argv, "--root", str(root)], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli.mock", *argv, "--root", str(root)], cwd=ROOT,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=_ignore_sigint if sigint_ignored else None)
     lines = []
@@ -298,7 +298,7 @@ def test_run_mock_in_process_stops_on_sigterm_and_restores_handlers(tmp_path, ca
 
     killer = threading.Thread(target=stop_when_up, daemon=True)
     killer.start()
-    assert run_mock(parse("--world", str(mesh), "--time-scale", "0", "--root", str(root))) == 0
+    assert run(parse("--world", str(mesh), "--time-scale", "0", "--root", str(root))) == 0
     killer.join(5.0)
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
     out = capsys.readouterr().out

@@ -20,10 +20,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from app.calibrate_command import calibrate_session
-from app.capture import CaptureHooks, CaptureInterrupted, CapturePlan, run_capture
-from app.capture_devices import build_devices
+from app.capture.devices import build_devices
+from app.capture.runner import CaptureHooks, CaptureInterrupted, CapturePlan, run_capture
 from app.cli import main
+from app.cli.calibrate import calibrate_session
 from app.session import Session, sha256_file
 from mocks.station import SimulatedStation
 from mocks.world import World, rotation_z

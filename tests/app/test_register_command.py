@@ -1,4 +1,4 @@
-"""`kogei register` (app.register_command) end to end on files, with ground truth.
+"""`kogei register` (app.cli.register) end to end on files, with ground truth.
 
 Two or three passes of the procedural hawk in random placements (the ring scan
 of tests/geometry/test_registration.py) are written as PLY / PCD / XYZ files; the poses
@@ -15,14 +15,14 @@ import math
 import numpy as np
 import pytest
 
-from app.errors import UsageError
-from app.register_command import (
+from app.cli.register import (
     POSES_FORMAT,
-    add_register_parser,
+    add_parser,
     read_cloud,
     read_picks,
-    run_register,
+    run,
 )
+from app.errors import UsageError
 from mocks.procedural_hawk import hawk_head
 from processing.geometry.registration import pose_difference, transform_points
 from tests.geometry.test_registration import _placement, _scan
@@ -32,7 +32,7 @@ TOL_DEG, TOL_MM = 0.3, 0.3
 
 def _parse(*argv) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="kogei")
-    add_register_parser(parser.add_subparsers(dest="command"))
+    add_parser(parser.add_subparsers(dest="command"))
     return parser.parse_args(["register", *[str(a) for a in argv]])
 
 
@@ -60,7 +60,7 @@ def test_register_three_files_writes_true_poses_and_the_merged_cloud(tmp_path, p
     files = [_write(tmp_path / "a.ply", *scans[0]), _write(tmp_path / "b.pcd", *scans[1]),
              _write(tmp_path / "c.xyz", scans[2][0])]  # XYZ: no normals, estimated
     out, poses = tmp_path / "out" / "merged.ply", tmp_path / "out" / "poses.json"
-    code = run_register(_parse(*files, "--out", out, "--poses", poses, "--preset", "draft"))
+    code = run(_parse(*files, "--out", out, "--poses", poses, "--preset", "draft"))
     err = capsys.readouterr().err
     assert code == 0, err
     doc = json.loads(poses.read_text())
@@ -99,7 +99,7 @@ def test_an_input_that_fits_nowhere_is_left_out_and_reported(tmp_path, passes, c
     box_scan = _scan(bv, bt, _placement(bv, rng), rng, n_angles=90, n_points=160)
     files = [_write(tmp_path / "a.ply", *scans[0]), _write(tmp_path / "box.ply", *box_scan)]
     poses = tmp_path / "poses.json"
-    code = run_register(_parse(*files, "--poses", poses, "--preset", "draft", "--quiet"))
+    code = run(_parse(*files, "--poses", poses, "--preset", "draft", "--quiet"))
     err = capsys.readouterr().err
     assert code == 1
     doc = json.loads(poses.read_text())
@@ -117,7 +117,7 @@ def test_picks_file_registers_a_pair(tmp_path, passes):
     # given as [1, 0]: the points on input 1 first
     picks.write_text(json.dumps([{"pair": [1, 0], "points": [on_b.tolist(), transform_points(truth, on_b).tolist()]}]))
     poses = tmp_path / "poses.json"
-    assert run_register(_parse(*files, "--poses", poses, "--preset", "draft", "--picks", picks, "--quiet")) == 0
+    assert run(_parse(*files, "--poses", poses, "--preset", "draft", "--picks", picks, "--quiet")) == 0
     doc = json.loads(poses.read_text())
     assert doc["pairs"][0]["method"] == "picks"
     rot, disp = pose_difference(np.array(doc["inputs"][1]["matrix"]), truth, scans[1][0])
@@ -154,7 +154,7 @@ def test_bad_files_name_the_file(tmp_path, name, content, match):
         read_cloud(path)
     good = _write(tmp_path / "good.xyz", np.random.default_rng(0).normal(size=(50, 3)))
     with pytest.raises(UsageError, match=match):
-        run_register(_parse(good, path, "--poses", tmp_path / "p.json"))
+        run(_parse(good, path, "--poses", tmp_path / "p.json"))
 
 
 def test_degenerate_cloud_file_is_a_usage_error(tmp_path):
@@ -162,19 +162,19 @@ def test_degenerate_cloud_file_is_a_usage_error(tmp_path):
     flat = np.c_[np.random.default_rng(1).normal(size=(50, 2)), np.zeros(50)]
     bad = _write(tmp_path / "flat.xyz", flat)
     with pytest.raises(UsageError, match="flat.xyz: all points lie in one plane"):
-        run_register(_parse(good, bad, "--poses", tmp_path / "p.json"))
+        run(_parse(good, bad, "--poses", tmp_path / "p.json"))
 
 
 def test_bad_arguments(tmp_path):
     good = _write(tmp_path / "good.xyz", np.random.default_rng(0).normal(size=(50, 3)))
     with pytest.raises(UsageError, match="nothing to write"):
-        run_register(_parse(good, good))
+        run(_parse(good, good))
     with pytest.raises(UsageError, match="at least two"):
-        run_register(_parse(good, "--poses", tmp_path / "p.json"))
+        run(_parse(good, "--poses", tmp_path / "p.json"))
     with pytest.raises(UsageError, match=r"--out: .*merged\.obj must end in one of"):
-        run_register(_parse(good, good, "--out", tmp_path / "merged.obj"))
+        run(_parse(good, good, "--out", tmp_path / "merged.obj"))
     with pytest.raises(UsageError, match=r"--poses: .*poses\.txt must end in one of \.json"):
-        run_register(_parse(good, good, "--poses", tmp_path / "poses.txt"))
+        run(_parse(good, good, "--poses", tmp_path / "poses.txt"))
     with pytest.raises(SystemExit):
         _parse(good, good, "--preset", "fast")
 
@@ -208,7 +208,7 @@ def test_picks_file_missing_and_too_few_picks(tmp_path):
     picks = tmp_path / "picks.json"
     picks.write_text(json.dumps([{"pair": [0, 1], "points": [[[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [1, 0, 0]]]}]))
     with pytest.raises(UsageError, match="at least 3 picked point pairs"):
-        run_register(_parse(a, b, "--poses", tmp_path / "p.json", "--picks", picks))
+        run(_parse(a, b, "--poses", tmp_path / "p.json", "--picks", picks))
 
 
 def test_poses_json_has_no_nan(tmp_path, passes):
@@ -220,7 +220,7 @@ def test_poses_json_has_no_nan(tmp_path, passes):
     picks = tmp_path / "picks.json"
     picks.write_text(json.dumps([{"pair": [0, 1], "points": [transform_points(truth, on_b).tolist(), on_b.tolist()]}]))
     poses = tmp_path / "poses.json"
-    run_register(_parse(*files, "--poses", poses, "--preset", "draft", "--picks", picks, "--quiet"))
+    run(_parse(*files, "--poses", poses, "--preset", "draft", "--picks", picks, "--quiet"))
     text = poses.read_text()
     assert "NaN" not in text and "Infinity" not in text
     doc = json.loads(text)

@@ -20,10 +20,10 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from app.batch import process_one
-from app.batch_steps import BatchOptions
+from app.batch.runner import process_one
+from app.batch.steps import BatchOptions
 from app.cli import main
-from app.report import build_report, write_report
+from app.report.html import build_report, write_report
 from app.session import Session
 from tests.app.batch_session import built_sessions, copy_session
 

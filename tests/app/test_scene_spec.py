@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from app.errors import UsageError
-from app.scene_spec import load_scene_file, parse_light, parse_size, parse_vector
+from app.workflows.scene_spec import load_scene_file, parse_light, parse_size, parse_vector
 
 
 def test_parse_light_variants():

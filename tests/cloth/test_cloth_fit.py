@@ -123,7 +123,7 @@ def test_layer_count_is_chosen_by_the_lowest_cost():
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    from app.cloth_fit_session import capture_swatch_session
+    from app.workflows.cloth_fit import capture_swatch_session
 
     return capture_swatch_session(tmp_path_factory.mktemp("swatch") / "s", TRUTH_SPEC, steps=8, width=64, height=48)
 
@@ -160,7 +160,7 @@ def test_kogei_cloth_fit_recovers_the_swatch(session, tmp_path, capsys):
 
 
 def test_bad_sessions_are_refused_in_one_line(session, tmp_path, capsys):
-    from app.capture import CapturePlan
+    from app.capture.runner import CapturePlan
     from app.session import Session
 
     assert main(["cloth", "fit", str(tmp_path / "nowhere")]) == 2
@@ -182,7 +182,7 @@ def test_bad_sessions_are_refused_in_one_line(session, tmp_path, capsys):
 def test_demo_cloth_scene_writes_an_image(tmp_path):
     from PIL import Image
 
-    from app.cloth_scene import render_cloth_scene
+    from app.workflows.cloth_scene import render_cloth_scene
 
     path = render_cloth_scene(tmp_path, "draft", (32, 24))
     assert path.name == "cloth-tamamushi.png"
@@ -193,7 +193,7 @@ def test_swatch_capture_through_the_fake_gphoto2(session, tmp_path):
     # the fake gphoto2 rebuilds the swatch world from its configuration file: its frames must be the
     # swatch (not the station's default object), equal to the hot-folder frames up to sensor noise and to
     # the cloth model's prediction for the world's known parameters
-    from app.cloth_fit_session import capture_swatch_session, load_swatch_session
+    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
 
     shot = capture_swatch_session(tmp_path / "g", TRUTH_SPEC, steps=8, width=64, height=48, camera="gphoto2")
     via_gphoto2 = load_swatch_session(shot, max_pixels=64)
@@ -218,7 +218,7 @@ SECOND_LIGHT = (-0.22, -0.6, 0.77)        # the lamp moved to the camera's side 
 def test_swatch_capture_with_the_lamp_moved_between_passes(tmp_path):
     # two passes, each under its own light: the decoded responses of each pass are the world's cloth model
     # under that pass's light (and not under the other's), calibrated by that pass's chart frame
-    from app.cloth_fit_session import capture_swatch_session, load_swatch_session
+    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
 
     first = tuple(SwatchWorld.swatch("cotton", width=64, height=48).light_direction)
     shot = capture_swatch_session(tmp_path / "s", COTTON, steps=4, width=64, height=48, lights=[first, SECOND_LIGHT])
@@ -272,7 +272,7 @@ def test_swatch_pass_is_calibrated_by_several_chart_exposures(tmp_path):
     # the noise-free gain is the same in every channel (tests/integration/test_swatch_chain.py), so the calibrated
     # gains' channel-to-channel spread is their noise: a standard deviation of 0.10-0.18 % per channel from
     # one chart frame at 64 x 48, half that from four
-    from app.cloth_fit_session import capture_swatch_session, load_swatch_session
+    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
     from app.errors import UsageError
     from app.session import Session
 

@@ -3,7 +3,7 @@ reported, resumed after the cable returns, with the same data as a fault-free ru
 out while idle (banner, automatic re-handshake), readable errors, persistent settings, shortcuts.
 
 Ground truth: a fault-free capture of the same simulated station through the library
-(:func:`app.capture.run_capture`); the station's profiles are deterministic per seed, placement and
+(:func:`app.capture.runner.run_capture`); the station's profiles are deterministic per seed, placement and
 angle, so every profile the window's capture records must be identical to it.
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 
 from PySide6.QtCore import Qt
 
-from app.capture import load_pass_profiles
+from app.capture.runner import load_pass_profiles
 from app.session import Session
 from mocks.world import World
 from tests.gui.helpers import library_capture, make_window, same_profiles, station_window, wait_capture

@@ -32,7 +32,7 @@ def _binned(a: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
-    from app.cloth_fit_session import capture_swatch_session, load_swatch_session
+    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
     from app.session import Session
 
     world = SwatchWorld.swatch(COTTON, width=W, height=H)

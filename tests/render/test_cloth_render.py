@@ -147,7 +147,7 @@ def test_tamamushi_figure_flips_between_the_dye_colours():
     # from their sRGB colours through colour-science, not through the renderer)
     import colour
 
-    from app.cloth_scene import ACROSS_WARP, ALONG_WARP, render_cloth
+    from app.workflows.cloth_scene import ACROSS_WARP, ALONG_WARP, render_cloth
     from processing.cloth.presets import CLOTH_PRESETS
 
     def dye_hue(hexa):
@@ -169,7 +169,7 @@ def test_tamamushi_figure_flips_between_the_dye_colours():
 
 
 def test_cloth_scene_renders_with_sky_and_both_backends():
-    from app.cloth_scene import render_cloth
+    from app.workflows.cloth_scene import render_cloth
 
     ref = render_cloth("silk", (16, 12), "reference", divisions=16)
     std = render_cloth("silk", (16, 12), "standard", divisions=16)

@@ -1,0 +1,283 @@
+"""The ``materials`` step of ``kogei batch``: the object's regions and their identified materials per pass.
+
+docs/batch.md.  Matsuda et al., section 4: for each pass the chart frame, as
+located by the colour step (its corners in ``products/colour/pNN-chart.json``),
+calibrates the spectral estimator (``rootpoly``, the default of ``kogei
+spectral estimate``: :func:`app.cli.spectral.estimate_spectral`); every
+object RAW frame of the pass gives basis weights and chart-calibrated camera
+values with saturated and dead pixels masked.  The frames of a pass are
+pooled side by side, split into regions without ground truth
+(:func:`processing.materials.segmentation.segment_regions`: backdrop removed
+by its level and colour measured on the frame's border, lit pixels clustered
+by chromaticity), each cluster identified (:func:`app.cli.identify.
+identify_result`: eq. (11), (3)-(4)), and clusters whose identified material
+agrees merged and identified again as one region.
+
+Products: ``products/materials.json`` (per region: pixel count, frames,
+material, confidence, runner-up, chi-square, alloy weights with their
+standard deviations, mean reflectance with its uncertainty) and a material
+map PNG per object frame (``products/materials/pNN-frame_KK.png``, each
+pixel coloured by its region's material under D65, backdrop dark grey).
+
+The regions are found in the images only: without the camera's pose
+relative to the table (not recorded by a session) they are not mapped onto
+the mesh.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.errors import UsageError
+
+__all__ = ["materials_inputs", "materials_params", "materials_run", "largest_material", "material_colour",
+           "METHOD", "LIGHT_DEG", "MODEL_ERROR", "MATERIALS_FILE"]
+
+#: Spectral estimator (the best one-shot method in docs/BENCHMARKS.md, ``kogei spectral estimate``'s default).
+METHOD = "rootpoly"
+#: Light angle from the normal at which candidates are modelled (``kogei identify``'s default).
+LIGHT_DEG = 30.0
+#: Relative model error of the candidates: a region pools many pixels at varying angles (app.demo.colour).
+MODEL_ERROR = 0.02
+MATERIALS_FILE = "products/materials.json"
+MAPS_DIR = "products/materials"
+_BACKDROP_COLOUR = (40, 40, 40)
+_UNIDENTIFIED_COLOUR = (255, 0, 255)
+_RENDERABLE = ("metal", "alloy", "dielectric")
+
+
+def _frames_of_pass(manifest: dict[str, Any], number: int) -> list[tuple[str, dict[str, Any]]]:
+    return [(cid, rec) for cid, rec in sorted(manifest["captures"].items())
+            if rec.get("kind") == "frame" and rec.get("status") == "done" and int(rec.get("pass", 0)) == number]
+
+
+def materials_inputs(root: Path, manifest: dict[str, Any], options: Any) -> dict[str, str]:
+    inputs = {cid: rec.get("sha256", "") for cid, rec in sorted(manifest["captures"].items())
+              if rec.get("kind") == "frame"}
+    colour = (manifest.get("products") or {}).get("colour") or {}
+    for tag, files in sorted((colour.get("passes") or {}).items()):
+        inputs[f"colour/{tag}"] = (files.get("chart") or {}).get("sha256", "")
+    return inputs
+
+
+def materials_params(options: Any) -> dict[str, Any]:
+    return {"chart": options.chart, "method": METHOD, "light_deg": LIGHT_DEG, "model_error": MODEL_ERROR,
+            "mode": "bin2x2"}
+
+
+def material_colour(name: str | None) -> tuple[int, int, int]:
+    """8-bit sRGB of a material on the map: its colour under D65; grey for a neutral metal, magenta for none.
+
+    Examples
+    --------
+    >>> material_colour(None)
+    (255, 0, 255)
+    """
+    from app.cli.materials import preset_srgb
+    from processing.materials.identification import NEUTRAL_METAL
+
+    if name is None:
+        return _UNIDENTIFIED_COLOUR
+    if name == NEUTRAL_METAL:
+        return (190, 190, 198)
+    return tuple(int(v) for v in preset_srgb(name))
+
+
+def largest_material(regions: list[dict[str, Any]]) -> tuple[str, int] | None:
+    """The identified material covering most pixels over all regions (metals, alloys, lacquers), with its count.
+
+    Examples
+    --------
+    >>> largest_material([{"material": "gold", "pixels": 10}, {"material": "copper", "pixels": 6},
+    ...                   {"material": "copper", "pixels": 7}, {"material": None, "pixels": 50}])
+    ('copper', 13)
+    """
+    from processing.materials.identification import NEUTRAL_METAL
+    from processing.materials.presets import get_material
+
+    totals: dict[str, int] = {}
+    for reg in regions:
+        name = reg.get("material")
+        if name is None or name == NEUTRAL_METAL or get_material(name).family not in _RENDERABLE:
+            continue
+        totals[name] = totals.get(name, 0) + int(reg["pixels"])
+    if not totals:
+        return None
+    name = max(sorted(totals), key=lambda n: totals[n])
+    return name, totals[name]
+
+
+def _chart_record(root: Path, tag: str, files: dict[str, Any]) -> dict[str, Any]:
+    from app.session import sha256_file
+
+    rec = files.get("chart") or {}
+    path = root / rec.get("file", "")
+    if not path.is_file() or sha256_file(path) != rec.get("sha256"):
+        raise UsageError(f"session {root}: {rec.get('file', tag)} is missing or changed since the colour step "
+                         f"wrote it; run 'kogei batch {root} --steps colour' again")
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def _pooled(results: list[Any]) -> Any:
+    """One spectral result of a pass's frames side by side (their pixels pool per region)."""
+    from app.cli.spectral import SpectralResult
+
+    first = results[0]
+    return SpectralResult(
+        np.concatenate([r.weights for r in results], axis=1), first.basis, first.wavelengths,
+        np.concatenate([r.mask for r in results], axis=1), np.concatenate([r.camera for r in results], axis=1),
+        first.sensitivities, first.lights, first.method,
+        {**first.metadata, "chart_rmse": max(r.method_error for r in results)})
+
+
+def _relative_levels(result: Any) -> NDArray[np.float64]:
+    """Camera values over those of a white diffuser lit like the chart (1.0 = white)."""
+    from app.cli.identify import white_response
+
+    white = white_response(result)
+    return result.camera.astype(np.float64) / np.maximum(white, 1e-12)
+
+
+def _identify_merged(result: Any, labels: NDArray[np.int64]) -> tuple[NDArray[np.int64], list[Any], dict[int, int]]:
+    """Identify every cluster, merge clusters of the same material, identify the merged regions.
+
+    Returns the merged labels, their reports and how many clusters each merged region holds.
+    """
+    from app.cli.identify import identify_result
+
+    reports = identify_result(result, labels, light_deg=LIGHT_DEG, model_error=MODEL_ERROR)
+    groups: dict[Any, list[int]] = {}
+    for rep in reports:
+        # an unidentified cluster stays on its own; identified ones group by their material
+        key = rep.material if rep.material is not None else ("none", rep.label)
+        groups.setdefault(key, []).append(rep.label)
+    order = sorted(groups.values(), key=lambda g: -sum(int((labels == v).sum()) for v in g))
+    lut = np.zeros(int(labels.max()) + 1, np.int64)
+    for new, members in enumerate(order, start=1):
+        lut[members] = new
+    merged = lut[labels]
+    counts = {new: len(members) for new, members in enumerate(order, start=1)}
+    return merged, identify_result(result, merged, light_deg=LIGHT_DEG, model_error=MODEL_ERROR), counts
+
+
+def _png(rgb8: NDArray[np.uint8]) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(rgb8).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _pass_materials(root: Path, tag: str, chart: dict[str, Any], frames: list[tuple[str, dict[str, Any]]],
+                    options: Any, log: Callable[[str], None]) -> tuple[list[dict[str, Any]], dict[str, bytes], dict]:
+    from app.cli.spectral import estimate_spectral
+    from processing.materials.segmentation import SegmentationError, segment_regions
+
+    chart_path = root / chart["raw"]
+    corners = ",".join(f"{v:.3f}" for v in np.asarray(chart["corners"], dtype=np.float64).ravel())
+    results = []
+    for cid, rec in frames:
+        try:
+            results.append(estimate_spectral(root / rec["file"], chart_path, method=METHOD, chart_type=options.chart,
+                                             chart_corners=corners))
+        except UsageError as exc:
+            raise UsageError(f"{cid} ({rec['file']}): {exc}") from None
+    pooled = _pooled(results)
+    try:
+        seg = segment_regions(_relative_levels(pooled), pooled.mask)
+    except SegmentationError as exc:
+        raise UsageError(f"{tag}: {exc}") from None
+    widths = [r.mask.shape[1] for r in results]
+    edges = np.cumsum([0] + widths)
+    info = {"chart_rmse": pooled.method_error, "backdrop_level": seg.backdrop_rgb.tolist(),
+            "clusters": int(seg.labels.max()), "masked_pixels": int((~pooled.mask).sum())}
+    if seg.labels.max() == 0:
+        log(f"{tag}: no lit object pixel apart from the backdrop in {len(frames)} frame(s)")
+        merged, reports, counts = seg.labels, [], {}
+    else:
+        merged, reports, counts = _identify_merged(pooled, seg.labels)
+    from app.cli.identify import usable_regions
+
+    live = usable_regions(pooled, merged)
+    regions = []
+    colours = np.zeros((len(reports) + 1, 3), np.uint8)
+    for rep in reports:
+        cols = np.flatnonzero((live == rep.label).any(axis=0))
+        in_frames = [cid for (cid, _), a, b in zip(frames, edges[:-1], edges[1:]) if np.any((cols >= a) & (cols < b))]
+        colours[rep.label] = material_colour(rep.material)
+        regions.append({"region": f"{tag}-r{rep.label}", "pass": tag, "clusters": counts.get(rep.label, 1),
+                        "frames": in_frames, **{k: v for k, v in rep.as_dict().items() if k != "label"}})
+    maps = {}
+    for (cid, rec), a, b in zip(frames, edges[:-1], edges[1:]):
+        img = colours[np.where(live[:, a:b] > 0, live[:, a:b], 0)]
+        img[(live[:, a:b] == 0) & seg.backdrop[:, a:b]] = _BACKDROP_COLOUR
+        maps[cid] = _png(img)
+    return regions, maps, info
+
+
+def materials_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str, Any]:
+    from app.session import Session
+
+    manifest = Session.read(root)
+    charts = [cid for cid, rec in manifest["captures"].items() if rec.get("kind") == "chart" and
+              rec.get("status") == "done"]
+    if not charts:
+        raise UsageError(f"session {root} has no colour-chart frame, so its RAW frames cannot be calibrated and "
+                         "no material can be identified; capture with the camera on, the chart in the first frame "
+                         "of every pass")
+    colour = (manifest.get("products") or {}).get("colour")
+    if not colour or not colour.get("passes"):
+        raise UsageError(f"session {root}: the colour step has not run (its chart products calibrate the "
+                         f"materials step); run 'kogei batch {root} --steps colour,materials'")
+    if colour.get("chart") != options.chart:
+        raise UsageError(f"session {root}: the colour step read a {colour.get('chart')} chart, this run says "
+                         f"--chart {options.chart}; run the colour step with --chart {options.chart} first")
+    regions, maps, passes = [], {}, {}
+    for tag, files in sorted(colour["passes"].items()):
+        frames = _frames_of_pass(manifest, int(tag.lstrip("p")))
+        if not frames:
+            log(f"{tag}: no object RAW frame; skipped")
+            continue
+        chart = _chart_record(root, tag, files)
+        regs, pass_maps, info = _pass_materials(root, tag, chart, frames, options, log)
+        regions += regs
+        maps.update(pass_maps)
+        passes[tag] = {**info, "frames": [cid for cid, _ in frames]}
+        for reg in regs:
+            conf = "" if reg["confidence"] is None else f" ({reg['confidence']:.2f})"
+            log(f"{reg['region']}: {reg['material'] or 'not identified'}{conf}, {reg['pixels']} pixels")
+    if not maps:
+        raise UsageError(f"session {root} has no object RAW frame in a pass with a chart frame; capture with "
+                         "the camera on (--camera-angles)")
+    from app.cli.spectral import GRID
+    from processing.spectral.spectra import SpectralGrid
+
+    wavelengths = SpectralGrid(*GRID).wavelengths.tolist()
+    largest = largest_material(regions)
+    doc = {"format": "kogei-materials", "version": 1, "method": METHOD, "light_deg": LIGHT_DEG,
+           "model_error": MODEL_ERROR, "chart": options.chart, "wavelengths": wavelengths, "passes": passes,
+           "regions": regions,
+           "largest": None if largest is None else {"material": largest[0], "pixels": largest[1]}}
+    with Session.open(root) as session:
+        rep = session.write_file(MATERIALS_FILE, (json.dumps(doc, indent=1, allow_nan=False) + "\n").encode())
+        files = {}
+        for cid, png in maps.items():
+            info = session.write_file(f"{MAPS_DIR}/{cid.replace('/', '-')}.png", png)
+            files[cid] = {"file": info.path, "sha256": info.sha256, "bytes": info.bytes}
+        products = dict(session.manifest.get("products") or {})
+        products["materials"] = {"report": {"file": rep.path, "sha256": rep.sha256, "bytes": rep.bytes},
+                                 "maps": files, "largest": doc["largest"]}
+        session.update("products", products)
+    identified = sum(r["material"] is not None for r in regions)
+    log(f"materials: {identified} of {len(regions)} regions identified"
+        + (f", largest {largest[0]} ({largest[1]} pixels)" if largest else ""))
+    return {"products": ("materials",),
+            "summary": {"regions": len(regions), "identified": identified,
+                        "largest": None if largest is None else largest[0]}}

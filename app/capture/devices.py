@@ -1,0 +1,148 @@
+"""Instruments for a capture, built from a JSON-able configuration (stored in the session for ``--resume``).
+
+The configuration names ports and the camera, never live objects, so a
+resumed capture (another process, perhaps another day) rebuilds the same
+devices; ports may be overridden when the cable ended up elsewhere.
+
+Camera specifications (``--camera``)::
+
+    gphoto2                 the gphoto2 program on PATH
+    gphoto2:/path/to/gphoto2
+    hotfolder:/path/to/dir  a folder a tethering program fills
+    none                    no camera (profiles only, e.g. a calibration scan)
+
+Examples
+--------
+>>> parse_camera_spec("hotfolder:/data/hot")
+{'kind': 'hotfolder', 'folder': '/data/hot'}
+>>> parse_camera_spec("gphoto2")
+{'kind': 'gphoto2', 'executable': 'gphoto2'}
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import subprocess
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from app.capture.runner import CaptureDevices
+from app.errors import UsageError
+
+__all__ = [
+    "parse_camera_spec",
+    "run_hook_command",
+    "Gphoto2Shooter",
+    "HotFolderShooter",
+    "build_devices",
+]
+
+
+def parse_camera_spec(spec: str) -> dict[str, Any]:
+    """The camera part of a device configuration from a ``--camera`` value (see the module docstring)."""
+    text = (spec or "").strip()
+    if text == "none":
+        return {"kind": "none"}
+    if text == "gphoto2" or text.startswith("gphoto2:"):
+        exe = text.split(":", 1)[1] if ":" in text else "gphoto2"
+        if not exe:
+            raise UsageError("--camera gphoto2: give the program after the colon, e.g. gphoto2:/usr/bin/gphoto2")
+        return {"kind": "gphoto2", "executable": exe}
+    if text.startswith("hotfolder:"):
+        folder = text.split(":", 1)[1]
+        if not folder:
+            raise UsageError("--camera hotfolder: give the folder, e.g. hotfolder:/data/tether")
+        return {"kind": "hotfolder", "folder": folder}
+    raise UsageError(f"--camera {spec!r}: use gphoto2, gphoto2:PATH, hotfolder:DIR or none")
+
+
+def run_hook_command(command: str, what: str, env: dict[str, str], timeout_s: float = 600.0) -> None:
+    """Run a user hook (``--before-pass``, ``--shutter``) without a shell; raise RuntimeError if it fails."""
+    try:
+        argv = shlex.split(command)
+    except ValueError as exc:
+        raise RuntimeError(f"{what} command {command!r} cannot be parsed: {exc}") from None
+    if not argv:
+        raise RuntimeError(f"{what} command is empty")
+    try:
+        proc = subprocess.run(argv, env={**os.environ, **env}, capture_output=True, text=True, timeout=timeout_s,
+                              stdin=subprocess.DEVNULL)
+    except FileNotFoundError:
+        raise RuntimeError(f"{what} command {argv[0]!r} was not found; check the command line") from None
+    except subprocess.TimeoutExpired:
+        raise RuntimeError(f"{what} command {command!r} did not finish within {timeout_s:g} s") from None
+    if proc.returncode != 0:
+        out = (proc.stderr or proc.stdout).strip().splitlines()
+        raise RuntimeError(f"{what} command {command!r} failed with status {proc.returncode}: "
+                           f"{out[-1] if out else '(no output)'}")
+
+
+class Gphoto2Shooter:
+    """A :class:`app.capture.runner.Shooter` over :class:`drivers.camera_gphoto2.Gphoto2Camera`."""
+
+    def __init__(self, staging: Path, executable: str = "gphoto2", timeout_s: float = 60.0) -> None:
+        from drivers.camera_gphoto2 import Gphoto2Camera
+
+        self.camera = Gphoto2Camera(staging, executable=executable, timeout_s=timeout_s)
+
+    def shoot(self, name: str) -> Path:
+        return self.camera.capture(name)
+
+
+class HotFolderShooter:
+    """A :class:`app.capture.runner.Shooter` over :class:`drivers.camera_hotfolder.HotFolderCamera`.
+
+    ``shutter`` fires the camera (a tethering tool's command, a prompt);
+    None waits for whatever fires it (an intervalometer, the operator).
+    """
+
+    def __init__(self, staging: Path, folder: str, shutter: Callable[[], None] | None = None,
+                 stable_s: float = 1.0, timeout_s: float = 60.0) -> None:
+        from drivers.camera_hotfolder import HotFolderCamera
+
+        self.camera = HotFolderCamera(folder, staging, stable_s=stable_s, timeout_s=timeout_s,
+                                      poll_s=min(0.1, stable_s / 4))
+        self.shutter = shutter
+
+    def shoot(self, name: str) -> Path:
+        if self.shutter is not None:
+            self.shutter()
+        return self.camera.wait_for_new(name)
+
+
+def build_devices(config: dict[str, Any], session_root: Path,
+                  shutter: Callable[[], None] | None = None) -> CaptureDevices:
+    """Drivers (not yet connected) for a device configuration, wire-logged into the session.
+
+    ``config``: ``{"turntable": {"port", "steps_per_degree", "speed_deg_s"},
+    "profiler": {"port", "exposure_us"}, "camera": {"kind", ...}}``; a
+    missing entry means the plan does not use that device.
+    """
+    from drivers.profiler import LaserProfiler
+    from drivers.transport import SerialTransport, WireLog
+    from drivers.turntable import Turntable
+
+    wire = session_root / "wire"
+    devices = CaptureDevices()
+    tt = config.get("turntable")
+    if tt:
+        t = SerialTransport(tt["port"], 115200, wire_log=WireLog(wire / "turntable.log"), label="turntable",
+                            open=False)
+        devices.turntable = Turntable(t, steps_per_degree=float(tt.get("steps_per_degree", 3200.0 / 360.0)),
+                                      speed_deg_s=float(tt.get("speed_deg_s", 100.0)))
+    pr = config.get("profiler")
+    if pr:
+        t = SerialTransport(pr["port"], int(pr.get("baudrate", 921600)), wire_log=WireLog(wire / "profiler.log"),
+                            label="profiler", open=False)
+        devices.profiler = LaserProfiler(t, exposure_us=int(pr.get("exposure_us", 500)))
+    cam = config.get("camera") or {"kind": "none"}
+    if cam["kind"] == "gphoto2":
+        exe, timeout = cam.get("executable", "gphoto2"), float(cam.get("timeout_s", 60.0))
+        devices.camera = lambda staging: Gphoto2Shooter(staging, exe, timeout)
+    elif cam["kind"] == "hotfolder":
+        folder, stable, timeout = cam["folder"], float(cam.get("stable_s", 1.0)), float(cam.get("timeout_s", 60.0))
+        devices.camera = lambda staging: HotFolderShooter(staging, folder, shutter, stable, timeout)
+    devices.info = {"camera": cam}
+    return devices

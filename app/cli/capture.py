@@ -1,0 +1,299 @@
+"""``kogei capture``: a capture session from the command line (a thin shell over :mod:`app.capture.runner`).
+
+Exit status: 0 complete; 1 stopped by a device fault (the session is
+resumable, the message says what to fix); 2 bad input; 130 stopped with
+Ctrl-C (resumable too).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from app.errors import UsageError
+
+__all__ = ["add_parser", "run"]
+
+EXIT_INTERRUPTED = 1
+EXIT_CANCELLED = 130
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "capture",
+        help="capture a session: profiles over full revolutions plus RAW frames (resumable)",
+        description="Drive the turntable, the laser profiler and the camera into a new session folder, or "
+                    "continue an interrupted one with --resume.",
+    )
+    p.add_argument("--out", metavar="SESSION", help="new session folder")
+    p.add_argument("--resume", metavar="SESSION", help="continue an interrupted session (plan and devices are "
+                                                        "read from it; ports may be overridden)")
+    p.add_argument("--turntable", metavar="PORT", help="turntable serial port (path or pyserial URL)")
+    p.add_argument("--laser", metavar="PORT", help="laser profiler serial port")
+    p.add_argument("--camera", metavar="SPEC", help="gphoto2, gphoto2:PATH, hotfolder:DIR or none")
+    p.add_argument("--plan", choices=["scan", "swatch"], default="scan",
+                   help="scan: profiles + RAW frames (default); swatch: RAW frames at every step (cloth)")
+    p.add_argument("--steps", type=int, default=None, help="table positions per revolution (default 200)")
+    p.add_argument("--passes", type=int, default=None, help="placements of the object (default 3)")
+    p.add_argument("--camera-angles", default=None, metavar="DEG,DEG,...",
+                   help="table angles of the RAW frames of each scan pass (default 0,90,180,270)")
+    p.add_argument("--no-chart", action="store_true", help="do not shoot a colour-chart frame first in each pass")
+    p.add_argument("--object", default=None, metavar="NAME", help="object name for the session metadata")
+    p.add_argument("--notes", default=None, help="free text for the session metadata")
+    p.add_argument("--unattended", action="store_true",
+                   help="no prompts (a simulated or automated station); see --before-pass and --shutter")
+    p.add_argument("--before-pass", default=None, metavar="CMD",
+                   help="command run before each pass instead of the placement prompt (env KOGEI_PASS, "
+                        "KOGEI_PASSES, KOGEI_SESSION); e.g. 'kogei mock place --control DIR'")
+    p.add_argument("--shutter", default=None, metavar="CMD",
+                   help="command that fires the camera for a hot folder (env KOGEI_FRAME)")
+    p.add_argument("--steps-per-degree", type=float, default=None, help="turntable motor steps per degree")
+    p.add_argument("--speed", type=float, default=None, metavar="DEG_S", help="turntable speed (deg/s)")
+    p.add_argument("--exposure-us", type=int, default=None, help="laser profiler exposure (microseconds)")
+    p.add_argument("--camera-timeout", type=float, default=None, metavar="S", help="seconds per RAW frame")
+    p.add_argument("--hotfolder-stable", type=float, default=None, metavar="S",
+                   help="seconds a hot-folder file must keep its size before it is taken (default 1)")
+    p.add_argument("--reconnect-timeout", type=float, default=30.0, metavar="S",
+                   help="how long to wait for an unplugged device to come back (default 30)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _positive(name: str, value: float | None) -> None:
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise UsageError(f"{name} must be a positive number, got {value!r}")
+
+
+def _camera_angles(text: str | None) -> tuple[float, ...] | None:
+    from app.capture.runner import parse_camera_angles
+
+    if text is None:
+        return None
+    try:
+        return parse_camera_angles(text, "--camera-angles")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
+    from app.capture.devices import parse_camera_spec
+    from app.capture.runner import CapturePlan
+    from app.session import Session, SessionError
+
+    if not args.turntable:
+        raise UsageError("--turntable PORT is required (see 'kogei devices' for the ports)")
+    if args.camera is None:
+        raise UsageError("--camera is required: gphoto2, gphoto2:PATH, hotfolder:DIR or none")
+    camera = parse_camera_spec(args.camera)
+    if args.plan == "scan" and not args.laser:
+        raise UsageError("--laser PORT is required for a scan (the laser profiler's port)")
+    if args.plan == "swatch" and camera["kind"] == "none":
+        raise UsageError("a swatch capture takes only RAW frames: give --camera")
+    for name in ("speed", "steps_per_degree", "camera_timeout", "hotfolder_stable", "reconnect_timeout"):
+        _positive("--" + name.replace("_", "-"), getattr(args, name))
+    angles = _camera_angles(args.camera_angles)
+    kw: dict[str, Any] = {"kind": args.plan, "chart": not args.no_chart, "camera": camera["kind"] != "none"}
+    if args.steps is not None:
+        kw["steps"] = args.steps
+    if args.passes is not None:
+        kw["passes"] = args.passes
+    if angles is not None:
+        kw["camera_angles_deg"] = angles
+    if args.plan == "swatch" and args.passes is None:
+        kw["passes"] = 1
+    try:
+        plan = CapturePlan(**kw)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    if camera["kind"] == "gphoto2" and args.camera_timeout:
+        camera["timeout_s"] = args.camera_timeout
+    if camera["kind"] == "hotfolder":
+        if not Path(camera["folder"]).is_dir():
+            raise UsageError(f"--camera hotfolder:{camera['folder']}: the folder does not exist; create it and "
+                             "point the tethering program at it")
+        if args.hotfolder_stable:
+            camera["stable_s"] = args.hotfolder_stable
+        if args.camera_timeout:
+            camera["timeout_s"] = args.camera_timeout
+    config: dict[str, Any] = {"turntable": {"port": args.turntable}, "camera": camera}
+    if args.steps_per_degree:
+        config["turntable"]["steps_per_degree"] = args.steps_per_degree
+    if args.speed:
+        config["turntable"]["speed_deg_s"] = args.speed
+    if args.plan == "scan":
+        config["profiler"] = {"port": args.laser}
+        if args.exposure_us is not None:
+            config["profiler"]["exposure_us"] = args.exposure_us
+    settings = {"unattended": bool(args.unattended), "before_pass": args.before_pass, "shutter": args.shutter,
+                "device_config": config}
+    obj = {k: v for k, v in (("name", args.object), ("notes", args.notes)) if v}
+    try:
+        session = Session.create(args.out, plan=plan.to_dict(), object_info=obj, settings=settings,
+                                 devices={k: dict(v) for k, v in config.items()})
+    except SessionError as exc:
+        raise UsageError(str(exc)) from None
+    return session, plan, settings
+
+
+def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
+    from app.capture.devices import parse_camera_spec
+    from app.capture.runner import open_for_resume
+
+    session, plan, settings, config = open_for_resume(args.resume)
+    if args.turntable:
+        config.setdefault("turntable", {})["port"] = args.turntable
+    if args.laser:
+        config.setdefault("profiler", {})["port"] = args.laser
+    if args.camera:
+        config["camera"] = parse_camera_spec(args.camera)
+    for key in ("before_pass", "shutter"):
+        if getattr(args, key):
+            settings[key] = getattr(args, key)
+    if args.unattended:
+        settings["unattended"] = True
+    settings["device_config"] = config
+    session.update("settings", settings)
+    return session, plan, settings
+
+
+def _hooks(session: Any, plan: Any, settings: dict[str, Any], cancel: threading.Event, quiet: bool):
+    from app.capture.devices import run_hook_command
+    from app.capture.runner import CaptureHooks, CaptureInterrupted
+
+    unattended = bool(settings.get("unattended"))
+    env = {"KOGEI_SESSION": str(session.root), "KOGEI_PASSES": str(plan.passes)}
+
+    def before_pass(p: int, passes: int) -> None:
+        if settings.get("before_pass"):
+            try:
+                run_hook_command(settings["before_pass"], "--before-pass", {**env, "KOGEI_PASS": str(p)})
+            except RuntimeError as exc:
+                raise CaptureInterrupted(f"{exc}\nThe session {session.root} is intact; fix the command and run: "
+                                         f"kogei capture --resume {session.root}", session=session.root,
+                                         reason="error") from None
+            return
+        if unattended:
+            return
+        what = "place the object on the table" if p == 1 else "re-place the object in a new orientation"
+        if plan.kind == "swatch":         # a swatch stays put; a new pass moves the lamp (pass_light_directions)
+            what = ("lay the swatch flat on the table centre" if p == 1 else
+                    f"move the lamp to the light direction of pass {p} in swatch.json; leave the swatch as it lies")
+        chart = " and put the colour chart in view of the camera" if plan.camera and plan.chart else ""
+        answer = input(f"\nPass {p} of {passes}: {what}{chart}.\nPress Enter to start, or q and Enter to stop: ")
+        if answer.strip().lower().startswith("q"):
+            raise CaptureInterrupted(f"stopped before pass {p}; resume with: kogei capture --resume {session.root}",
+                                     session=session.root, reason="cancelled")
+
+    def after_chart(p: int) -> None:
+        if not unattended and not settings.get("before_pass"):
+            input("Chart frame taken. Remove the chart from the view, then press Enter: ")
+
+    def message(text: str) -> None:
+        if not quiet:
+            print(f"  note: {text}", file=sys.stderr)
+
+    return CaptureHooks(before_pass=before_pass, after_chart=after_chart, message=message, cancel=cancel)
+
+
+def _shutter(settings: dict[str, Any], session_root: Path):
+    from app.capture.devices import run_hook_command
+
+    cmd = settings.get("shutter")
+    if not cmd:
+        if settings.get("unattended"):
+            return None
+        return lambda: print("  fire the camera now (waiting for the frame in the hot folder)", file=sys.stderr)
+    return lambda: run_hook_command(cmd, "--shutter", {"KOGEI_SESSION": str(session_root)})
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.capture.devices import build_devices
+    from app.capture.runner import CaptureInterrupted, CaptureSettings, run_capture
+
+    if bool(args.out) == bool(args.resume):
+        raise UsageError("give either --out SESSION (a new session) or --resume SESSION")
+    if args.out and not args.unattended and not args.before_pass and not sys.stdin.isatty():
+        raise UsageError("standard input is not a terminal, so the placement prompts cannot be answered; "
+                         "use --unattended (with --before-pass CMD to place the object) or run in a terminal")
+    session, plan, settings = _new_session(args) if args.out else _open_session(args)
+    if not settings.get("unattended") and not settings.get("before_pass") and not sys.stdin.isatty():
+        session.close()
+        raise UsageError("standard input is not a terminal, so the placement prompts cannot be answered; "
+                         "resume with --unattended (and --before-pass CMD to place the object) or in a terminal")
+    cancel = threading.Event()
+
+    def on_signal(signum: int, frame: Any) -> None:
+        if cancel.is_set():
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            raise KeyboardInterrupt
+        cancel.set()
+        print("\nstopping after the current step (Ctrl-C again to stop at once)", file=sys.stderr)
+
+    old_int = signal.signal(signal.SIGINT, on_signal)
+    old_term = signal.signal(signal.SIGTERM, on_signal)
+    hooks = _hooks(session, plan, settings, cancel, args.quiet)
+    try:
+        devices = build_devices(settings["device_config"], session.root, _shutter(settings, session.root))
+        with _progress(args.quiet) as show:
+            hooks.progress = show
+            report = run_capture(session, plan, devices, hooks,
+                                 CaptureSettings(reconnect_timeout_s=args.reconnect_timeout))
+    except CaptureInterrupted as exc:
+        print(f"kogei capture: {exc}", file=sys.stderr)
+        return EXIT_CANCELLED if exc.reason == "cancelled" else EXIT_INTERRUPTED
+    except KeyboardInterrupt:
+        print(f"kogei capture: stopped; the session is resumable: kogei capture --resume {session.root}",
+              file=sys.stderr)
+        return EXIT_CANCELLED
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+        session.close()
+    print(f"session {report.session}: complete; {report.taken} captures taken, {report.skipped} already held, "
+          f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
+    return 0
+
+
+class _progress:
+    """A rich progress bar with ETA on a terminal; a line per 10% otherwise."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self._bar = None
+        self._task = None
+        self._last_decile = -1
+
+    def __enter__(self):
+        if not self.quiet and sys.stderr.isatty():
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self._bar = Progress(TextColumn("{task.description}"), BarColumn(),
+                                 TextColumn("{task.completed}/{task.total}"), TimeRemainingColumn(),
+                                 transient=False)
+            self._bar.__enter__()
+        return self.update
+
+    def update(self, p: Any) -> None:
+        if self.quiet:
+            return
+        if self._bar is not None:
+            if self._task is None:
+                self._task = self._bar.add_task("capture", total=p.total)
+            self._bar.update(self._task, completed=p.done, description=f"pass {p.pass_no}: {p.action}")
+            return
+        decile = int(10 * p.done / p.total)
+        if decile != self._last_decile or p.done == p.total:
+            self._last_decile = decile
+            eta = f", about {p.eta_s:.0f} s left" if p.eta_s is not None and p.done < p.total else ""
+            print(f"capture: {p.done}/{p.total} ({100 * p.done / p.total:.0f}%) pass {p.pass_no}{eta}",
+                  file=sys.stderr)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.__exit__(None, None, None)

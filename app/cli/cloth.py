@@ -1,0 +1,80 @@
+"""``kogei cloth fit SESSION``: fit Yasuda et al.'s cloth model to a swatch capture.
+
+Prints the fitted parameters with their uncertainties and the residual,
+writes ``cloth-fit.json`` and ``cloth-fit.png`` (measured vs fitted
+responses over table angle) into ``--out`` (default: ``SESSION/cloth-fit``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from app.errors import UsageError
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("cloth", help="woven cloth: fit the cloth model to a swatch capture")
+    csub = p.add_subparsers(dest="cloth_command", required=True, metavar="ACTION")
+    f = csub.add_parser("fit", help="fit the cloth model to a swatch session (kogei capture --plan swatch)")
+    f.add_argument("session", metavar="SESSION")
+    f.add_argument("--geometry", default=None, metavar="FILE.json",
+                   help="the set-up: camera pose, light direction, swatch size (default SESSION/swatch.json)")
+    f.add_argument("--yarn", default="silk", choices=["silk", "cotton", "satin"],
+                   help="preset whose layer count, rounding, fibre index and weave are held (default silk)")
+    f.add_argument("--layers", default=None, metavar="K|auto",
+                   help="internal layers to hold (default: the yarn's), or 'auto': fit 1, 2, 3, 4, 6 and 8 layers "
+                        "and keep the best")
+    f.add_argument("--pixels", type=int, default=160, metavar="N",
+                   help="swatch pixels fitted (spread over the swatch; default 160)")
+    f.add_argument("--out", default=None, metavar="DIR", help="where to write cloth-fit.json and cloth-fit.png")
+    f.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.workflows.cloth_fit import fit_figure, fit_report, load_swatch_session
+    from processing.cloth.fit import ClothFitError, choose_layers, fit_swatch
+
+    layers = args.layers
+    if layers is not None and layers != "auto":
+        try:
+            layers = int(layers)
+        except ValueError:
+            raise UsageError(f"--layers must be a whole number 0..50 or 'auto', got {args.layers!r}") from None
+        if not 0 <= layers <= 50:
+            raise UsageError(f"--layers must be 0..50 or 'auto', got {layers}")
+    session = Path(args.session)
+    if not session.is_dir():
+        raise UsageError(f"{session}: session folder not found")
+    if args.pixels < 8:
+        raise UsageError(f"--pixels must be at least 8, got {args.pixels}")
+    data = load_swatch_session(session, args.geometry, max_pixels=args.pixels)
+    costs = None
+    try:
+        if layers == "auto":
+            fit, costs = choose_layers(data.measurement, data.geometry, yarn=args.yarn)
+        else:
+            fit = fit_swatch(data.measurement, data.geometry, yarn=args.yarn, layers=layers)
+    except ClothFitError as exc:
+        raise UsageError(f"{session}: {exc}") from None
+    out = Path(args.out) if args.out else session / "cloth-fit"
+    out.mkdir(parents=True, exist_ok=True)
+    report = fit_report(data, fit)
+    if costs is not None:
+        report["layer_costs"] = {str(k): v for k, v in costs.items()}
+    (out / "cloth-fit.json").write_text(json.dumps(report, indent=2) + "\n")
+    figure = fit_figure(data, fit, out / "cloth-fit.png")
+    if not args.quiet:
+        print(f"{data.measurement.angles_deg.size} angles x {data.measurement.pixels.shape[0]} pixels")
+        for name, value in fit.parameters.items():
+            print(f"  {name:<9} {value:9.4f} +- {fit.sigma[name]:.4f}")
+        print(f"  layers    {fit.fixed['layers']:9d}" + ("  (held)" if costs is None else "  (lowest cost of "
+              + ", ".join(f"K={k}: {c:.4g}" for k, c in costs.items()) + ")"))
+        print(f"  residual rms {fit.residual_rms:.4g} ({100 * fit.relative_residual:.2f} % of the mean)")
+        print(f"  material: {fit.spec}")
+        print(f"wrote {out / 'cloth-fit.json'} and {figure}", file=sys.stderr)
+    return 0

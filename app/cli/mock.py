@@ -1,0 +1,302 @@
+"""``kogei mock``: run the simulated scan station, and ask it to re-place the object or shoot a frame.
+
+DESIGN.md section 3 ("Devices") and ``docs/simulator.md``.  Three actions:
+
+``kogei mock [--world hawk|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
+[--time-scale S] [--root DIR] [--seed N]``
+    Starts :class:`mocks.station.SimulatedStation`, prints its turntable
+    port, profiler port, gphoto2 shim, hot folder and control folder with
+    the ``kogei capture`` command lines that use them, writes the same as
+    ``station.json`` in the station's folder, and runs until Ctrl-C or
+    SIGTERM (then the ptys disappear).
+``kogei mock place [N] --control DIR``
+    Asks that station to put the object in placement ``N`` (default: the
+    ``KOGEI_PASS`` environment variable the capture command sets for its
+    before-pass hook); the next camera frame then shows the colour chart.
+``kogei mock shoot --control DIR``
+    Asks it to write one frame into its hot folder (a tethering program's
+    shutter).
+
+``place`` and ``shoot`` exit 0, or 2 with a one-line message.
+
+Examples
+--------
+>>> import argparse
+>>> parser = argparse.ArgumentParser(prog="kogei")
+>>> _ = add_parser(parser.add_subparsers(dest="command"))
+>>> args = parser.parse_args(["mock", "place", "2", "--control", "/tmp/st/control"])
+>>> args.mock_action, args.placement, args.control
+('place', 2, '/tmp/st/control')
+>>> parser.parse_args(["mock", "--seed", "3"]).mock_action is None
+True
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import signal
+import sys
+import tempfile
+import threading
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from app.errors import UsageError
+
+__all__ = ["add_parser", "run", "capture_commands", "PASS_ENV", "main"]
+
+#: Environment variable the capture command sets for its before-pass hook (the pass number).
+PASS_ENV = "KOGEI_PASS"
+EXIT_FAILED = 2
+
+
+def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``mock`` subcommand (with its ``place`` and ``shoot`` actions) to ``sub``."""
+    p = sub.add_parser(
+        "mock",
+        help="run the simulated scan station (turntable, profiler, camera, hot folder) until Ctrl-C",
+        description="Run the simulated scan station: a Horus turntable and a laser profiler on "
+                    "pseudo-terminals, a fake gphoto2 and a hot folder, all looking at one simulated object. "
+                    "'kogei mock place' and 'kogei mock shoot' talk to a running station.",
+    )
+    p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|MESH",
+                   help="the procedural hawk head (default), a calibration sphere of radius R mm (default 25) "
+                        "OFF mm from the axis (default 60), or a mesh file (PLY/OBJ/STL/glTF, millimetres)")
+    p.add_argument("--triangles", type=int, default=None, metavar="N",
+                   help="triangle count of the hawk mesh (default 4000)")
+    p.add_argument("--material", default=None, metavar="SPEC",
+                   help="material of every region, e.g. gold or nami-shibuichi:roughness=0.2 (see 'kogei materials'); "
+                        "default: the hawk's own materials, nami-shibuichi for a mesh file")
+    p.add_argument("--faults", action="append", default=[], metavar="SPEC",
+                   help="faults switched on at start, DEVICE.NAME=VALUE[,...], e.g. "
+                        "turntable.garbage_replies=3,profiler.corrupt_frames=2,camera.busy=1; repeatable")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="S",
+                   help="real seconds per simulated second of table motion (default 1; 0 = instant)")
+    p.add_argument("--root", default=None, metavar="DIR",
+                   help="folder for the ports, shim, hot folder and control folder (default: a temporary "
+                        "folder removed at exit)")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of placements and noise (default 0)")
+    actions = p.add_subparsers(dest="mock_action", metavar="ACTION", title="actions",
+                               description="without an action, run the station until Ctrl-C")
+    place = actions.add_parser("place", help="ask a running station to re-place the object",
+                               description="Put the object of a running 'kogei mock' station in placement N; "
+                                           "the next camera frame shows the colour chart.")
+    place.add_argument("placement", nargs="?", type=int, default=None, metavar="N",
+                       help=f"placement number >= 1 (default: the {PASS_ENV} environment variable)")
+    place.add_argument("--control", required=True, metavar="DIR", help="the station's control folder")
+    place.add_argument("--timeout", type=float, default=30.0, metavar="S", help="seconds to wait (default 30)")
+    shoot = actions.add_parser("shoot", help="ask a running station to shoot a frame into its hot folder",
+                               description="Have a running 'kogei mock' station write one frame into its hot "
+                                           "folder, as a tethering program does when the shutter fires.")
+    shoot.add_argument("--control", required=True, metavar="DIR", help="the station's control folder")
+    shoot.add_argument("--timeout", type=float, default=60.0, metavar="S", help="seconds to wait (default 60)")
+    return p
+
+
+def capture_commands(info: dict[str, Any], steps: int = 36, passes: int = 3,
+                     session: str = "kogei-session") -> dict[str, str]:
+    """The ``kogei capture`` command lines for a station's ``info()``: with gphoto2 and with the hot folder.
+
+    Examples
+    --------
+    >>> info = {"turntable": "/s/turntable", "profiler": "/s/profiler", "gphoto2": "/s/bin/gphoto2",
+    ...         "hotfolder": "/s/hot", "control": "/s/control"}
+    >>> print(capture_commands(info, 8, 2, "out")["gphoto2"])
+    kogei capture --turntable /s/turntable --laser /s/profiler --camera gphoto2:/s/bin/gphoto2 --steps 8 --passes 2 --out out --unattended --before-pass 'kogei mock place --control /s/control'
+    """
+    q = shlex.quote
+    place = f"kogei mock place --control {q(info['control'])}"
+    shoot = f"kogei mock shoot --control {q(info['control'])}"
+    common = f"--turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
+    tail = f"--steps {steps} --passes {passes} --out {q(session)} --unattended --before-pass {q(place)}"
+    return {
+        "gphoto2": f"kogei capture {common} --camera {q('gphoto2:' + info['gphoto2'])} {tail}",
+        "hotfolder": (f"kogei capture {common} --camera {q('hotfolder:' + info['hotfolder'])} "
+                      f"--shutter {q(shoot)} {tail}"),
+    }
+
+
+def _build_world(args: argparse.Namespace) -> Any:
+    from mocks.world import World, WorldError
+    from processing.materials.presets import MaterialError, get_material
+
+    if args.material is not None:
+        try:
+            get_material(args.material)
+        except MaterialError as exc:
+            raise UsageError(f"--material {args.material}: {exc}") from None
+    if args.triangles is not None and args.world != "hawk":
+        raise UsageError("--triangles sets the size of the procedural hawk; it does not apply to a mesh file")
+    try:
+        if args.world == "hawk":
+            n = 4_000 if args.triangles is None else args.triangles
+            if n < 500:
+                raise UsageError(f"--triangles must be at least 500, got {n}")
+            world = World.hawk(n)
+            if args.material is not None:
+                world.materials = {name: args.material for name in world.region_names}
+            return world
+        if args.world == "sphere" or args.world.startswith("sphere:"):
+            parts = args.world.split(":")[1:]
+            try:
+                radius = float(parts[0]) if parts and parts[0] else 25.0
+                offset = float(parts[1]) if len(parts) > 1 else 60.0
+            except ValueError:
+                raise UsageError(f"--world {args.world}: use sphere, sphere:RADIUS_MM or "
+                                 "sphere:RADIUS_MM:OFFSET_MM") from None
+            return World.calibration_sphere(radius, offset)
+        path = Path(args.world)
+        if not path.is_file():
+            raise UsageError(f"--world {args.world}: no such mesh file; give 'hawk' or the path of a "
+                             "PLY/OBJ/STL/glTF mesh in millimetres")
+        return World.from_mesh_file(path, args.material or "nami-shibuichi")
+    except (WorldError, ValueError) as exc:
+        if isinstance(exc, UsageError):
+            raise
+        raise UsageError(f"--world {args.world}: {exc}") from None
+
+
+def _print_block(info: dict[str, Any], faults: str) -> None:
+    cmds = capture_commands(info)
+    lines = [
+        (f"kogei simulated station: world {info['world']}, seed {info['seed']}, "
+         f"time scale {info['time_scale']:g}, faults {faults}"),
+        f"  turntable port   {info['turntable']}",
+        f"  profiler port    {info['profiler']}",
+        f"  gphoto2 shim     {info['gphoto2']}",
+        f"  hot folder       {info['hotfolder']}",
+        f"  control folder   {info['control']}",
+        f"  station file     {info['station_file']}",
+        "capture with the gphoto2 camera:",
+        f"  {cmds['gphoto2']}",
+        "capture with the hot folder:",
+        f"  {cmds['hotfolder']}",
+        "Ctrl-C stops the station.",
+    ]
+    print("\n".join(lines), flush=True)
+
+
+def _write_station_file(path: Path, info: dict[str, Any]) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=".station.", suffix=".tmp", dir=path.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        json.dump(info, fh, indent=1)
+    os.replace(tmp, path)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from mocks.station import (
+        FaultSpecError,
+        SimulatedStation,
+        format_faults,
+        parse_faults,
+    )
+
+    try:
+        faults = parse_faults(args.faults)
+    except FaultSpecError as exc:
+        raise UsageError(f"--faults: {exc}") from None
+    if not (args.time_scale >= 0 and args.time_scale < float("inf")):
+        raise UsageError(f"--time-scale must be >= 0 (0 = instant motion), got {args.time_scale!r}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if args.root is not None and Path(args.root).exists() and not Path(args.root).is_dir():
+        raise UsageError(f"--root {args.root} exists and is not a folder; give a folder (created if missing)")
+    world = _build_world(args)
+    station = SimulatedStation(world, root=args.root, seed=args.seed, time_scale=args.time_scale)
+    station.apply_faults(faults)
+    stop = threading.Event()
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = {}
+    if in_main:
+        # SIGINT too: a station started in the background by a script has SIGINT ignored by its shell,
+        # yet `kill -INT` must stop it as Ctrl-C does
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    station_file = station.root / "station.json"
+    try:
+        station.start()
+        info = {**station.info(), "station_file": str(station_file), "pid": os.getpid(),
+                "faults": format_faults(faults)}
+        info["capture"] = capture_commands(info)
+        _write_station_file(station_file, info)
+        _print_block(info, format_faults(faults))
+        try:
+            while not stop.wait(0.2):
+                pass
+        except KeyboardInterrupt:
+            pass
+    finally:
+        station.stop()
+        if station_file.exists():
+            station_file.unlink()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print("kogei mock: station stopped", flush=True)
+    return 0
+
+
+def _client(args: argparse.Namespace) -> int:
+    from mocks.station import StationError, request_place, request_shoot
+
+    try:
+        if args.mock_action == "place":
+            n = args.placement
+            if n is None:
+                raw = os.environ.get(PASS_ENV)
+                if raw is None or not raw.strip():
+                    raise UsageError(f"no placement number: give N (kogei mock place N --control DIR) or set "
+                                     f"{PASS_ENV}")
+                try:
+                    n = int(raw)
+                except ValueError:
+                    raise UsageError(f"{PASS_ENV}={raw!r} is not a placement number (an integer >= 1)") from None
+            if n < 1:
+                raise UsageError(f"placement must be an integer >= 1, got {n}")
+            answer = request_place(args.control, n, args.timeout)
+            print(f"kogei mock place: placement {answer['placement']}; the next frame shows the colour chart")
+        else:
+            answer = request_shoot(args.control, args.timeout)
+            print(f"kogei mock shoot: {answer['kind']} frame {answer['file']} at "
+                  f"{float(answer['table_angle_deg']):.4f} deg")
+    except (StationError, ValueError) as exc:
+        if isinstance(exc, UsageError):
+            raise
+        print(f"kogei mock {args.mock_action}: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``kogei mock`` (the station), ``kogei mock place`` or ``kogei mock shoot``; the exit status.
+
+    Raises
+    ------
+    UsageError
+        A bad option (unknown fault, missing mesh file, bad placement, ...).
+    """
+    if getattr(args, "mock_action", None) in ("place", "shoot"):
+        return _client(args)
+    return _serve(args)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m app.cli.mock ...``: the same as ``kogei mock ...``."""
+    parser = argparse.ArgumentParser(prog="kogei")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["mock", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return run(args)
+    except UsageError as exc:
+        print(f"kogei mock: error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print("kogei mock: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

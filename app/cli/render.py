@@ -1,0 +1,116 @@
+"""``kogei render``: one mesh with one material, or a TOML scene."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from app.errors import UsageError
+from app.workflows.scene_spec import (
+    CameraSpec,
+    ObjectSpec,
+    SceneSpec,
+    load_scene_file,
+    parse_light,
+    parse_size,
+    parse_vector,
+)
+
+__all__ = ["add_parser", "run", "spec_from_args"]
+
+
+def spec_from_args(args: argparse.Namespace) -> SceneSpec:
+    """Scene description from ``kogei render`` flags; flags override a scene file's values."""
+    src = Path(args.scene)
+    if src.suffix.lower() == ".toml":
+        spec = load_scene_file(src)
+        if args.material is not None:
+            for obj in spec.objects:
+                obj.material = args.material
+    else:
+        if not src.exists():
+            raise UsageError(f"{src}: mesh file not found")
+        spec = SceneSpec(objects=[ObjectSpec(mesh=src, material=args.material or "gold")])
+    if args.weave_angle is not None:
+        for obj in spec.objects:
+            obj.weave_angle_deg = args.weave_angle
+    if args.light:
+        spec.lights = [parse_light(text) for text in args.light]
+    if args.illuminant:
+        spec.illuminant = args.illuminant
+    if args.sky:
+        spec.sky.kind = args.sky
+    if args.size:
+        spec.size = parse_size(args.size)
+    if args.preset:
+        spec.preset = args.preset
+    cam = spec.camera
+    spec.camera = CameraSpec(
+        eye=parse_vector(args.eye, "--eye") if args.eye else cam.eye,
+        target=parse_vector(args.target, "--target") if args.target else cam.target,
+        up=parse_vector(args.up, "--up") if args.up else cam.up,
+        fov_deg=args.fov if args.fov is not None else cam.fov_deg,
+    )
+    if not (0.0 < spec.camera.fov_deg < 180.0):
+        raise UsageError(f"--fov: the field of view must be between 0 and 180 degrees, got {spec.camera.fov_deg}")
+    return spec
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Add ``kogei render`` to the subcommands."""
+    p = sub.add_parser(
+        "render",
+        help="render a mesh or a TOML scene spectrally to an sRGB PNG (and float XYZ TIFF)",
+        description="Render MESH (PLY/OBJ/STL/glTF) or a TOML scene file.",
+    )
+    p.add_argument("scene", metavar="MESH|SCENE.toml")
+    p.add_argument("--material", default=None,
+                   help="preset name with optional overrides, e.g. gold:roughness=0.2,mirror=0 "
+                        "(see 'kogei materials'); default gold")
+    p.add_argument("--light", action="append", default=[], metavar="SPEC",
+                   help="directional:DX,DY,DZ (toward the light) or point:X,Y,Z; optional @SPECTRUM "
+                        "and *INTENSITY; repeatable")
+    p.add_argument("--illuminant", default=None, help="D65, A, D50, F2, ..., a CCT such as 3200K, or a CSV file")
+    p.add_argument("--sky", default=None, choices=["uniform", "gradient", "none"],
+                   help="environment seen in mirror reflections (default gradient)")
+    p.add_argument("--eye", default=None, metavar="X,Y,Z")
+    p.add_argument("--target", default=None, metavar="X,Y,Z")
+    p.add_argument("--up", default=None, metavar="X,Y,Z")
+    p.add_argument("--fov", type=float, default=None, metavar="DEG", help="vertical field of view")
+    p.add_argument("--size", default=None, metavar="WxH", help="image size, default 800x600")
+    p.add_argument("--preset", default=None, choices=["draft", "standard", "reference"])
+    p.add_argument("--weave-angle", type=float, default=None, metavar="DEG",
+                   help="weave orientation for cloth materials")
+    p.add_argument("--out", required=True, metavar="IMG.png")
+    p.add_argument("--xyz", default=None, metavar="IMG.tiff", help="also write float32 CIE XYZ")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.workflows.scene_build import build_job
+    from processing.materials.presets import MaterialError
+    from render.errors import RenderInputError
+    from render.image_io import write_png, write_xyz_tiff
+    from render.renderer import render
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".png":
+        raise UsageError(f"--out: {out} must end in .png (the sRGB image); use --xyz for float XYZ")
+    try:
+        spec = spec_from_args(args)
+        job = build_job(spec)
+        t0 = time.perf_counter()
+        result = render(job.scene, job.camera, job.settings)
+        elapsed = time.perf_counter() - t0
+    except (RenderInputError, MaterialError) as exc:
+        raise UsageError(str(exc)) from None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_png(out, result.srgb8)
+    if args.xyz:
+        write_xyz_tiff(Path(args.xyz), result.xyz)
+    if not args.quiet:
+        w, h = spec.size
+        print(f"wrote {out} ({w}x{h}, preset {job.settings.name}, {elapsed:.2f} s)", file=sys.stderr)
+    return 0

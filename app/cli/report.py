@@ -1,0 +1,26 @@
+"""``kogei report``: the session's self-contained HTML report (a thin shell over :func:`app.report.html.write_report`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="one self-contained HTML report of everything a session holds",
+                       description="Write an HTML report (plots embedded) of the session: metadata, capture log, "
+                                   "calibration, registration, mesh, coverage, colour, materials, renders, timing.")
+    p.add_argument("session", metavar="SESSION")
+    p.add_argument("--out", default=None, metavar="FILE.html",
+                   help="where to write it (default: SESSION/products/report.html, recorded in the session)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.report.html import write_report
+
+    path = write_report(args.session, args.out)
+    print(f"report: {path}", file=sys.stderr)
+    print(path)
+    return 0

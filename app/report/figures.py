@@ -1,0 +1,245 @@
+"""The plots of the session report (``kogei report``): matplotlib figures returned as PNG bytes.
+
+Each function takes plain data read from the session (docs/report.md) and
+returns the PNG; :mod:`app.report.html` embeds it as a base64 data URI so the
+report is one self-contained file.  The Agg backend is used (no display).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["png_of", "calibration_residuals_figure", "pose_graph_figure", "coverage_figure", "holes_figure",
+           "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure", "region_spectra_figure",
+           "material_map_figure"]
+
+DPI = 100
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def png_of(fig: Any) -> bytes:
+    """Render a matplotlib figure to PNG bytes and close it."""
+    plt = _plt()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def data_uri(png: bytes) -> str:
+    """A ``data:image/png;base64,...`` URI of PNG bytes.
+
+    Examples
+    --------
+    >>> data_uri(b"\\x89PNG")[:30]
+    'data:image/png;base64,iVBORw=='
+    """
+    import base64
+
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def calibration_residuals_figure(step_indices: Sequence[int], step_rms_mm: Sequence[float], rms_mm: float) -> bytes:
+    """RMS distance of each used profile's points to the fitted sphere, against the profile's step."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.0, 2.6), constrained_layout=True)
+    ax.bar(np.asarray(step_indices), np.asarray(step_rms_mm) * 1000.0, width=0.8, color="#4a7ab5")
+    ax.axhline(rms_mm * 1000.0, color="#c0392b", lw=1, ls="--", label=f"overall RMS {rms_mm * 1000:.1f} um")
+    ax.set_xlabel("profile step of the sphere scan")
+    ax.set_ylabel("sphere residual RMS (um)")
+    ax.legend(loc="upper right", fontsize=8)
+    return png_of(fig)
+
+
+def pose_graph_figure(passes: Sequence[dict[str, Any]], pairs: Sequence[dict[str, Any]]) -> bytes:
+    """Passes as nodes on a circle; verified pairs solid green, rejected pairs dashed red, labelled with the RMS."""
+    plt = _plt()
+    n = len(passes)
+    fig, ax = plt.subplots(figsize=(4.2, 3.6), constrained_layout=True)
+    ang = np.pi / 2 - 2 * np.pi * np.arange(n) / max(n, 1)
+    xy = np.stack([np.cos(ang), np.sin(ang)], axis=1) if n > 1 else np.zeros((1, 2))
+    index = {int(p["pass"]): i for i, p in enumerate(passes)}
+    usable = [int(p["pass"]) for p in passes if "registered" in p]   # the passes that reached registration
+    for pr in pairs:
+        # pair indices count the passes that had usable clouds, in order
+        try:
+            a, b = index[usable[int(pr["source"])]], index[usable[int(pr["target"])]]
+        except (IndexError, KeyError):
+            continue
+        ok = bool(pr.get("verified"))
+        ax.plot(*xy[[a, b]].T, color="#2e8b57" if ok else "#c0392b", ls="-" if ok else "--", lw=2 if ok else 1.2)
+        mid = xy[[a, b]].mean(axis=0)
+        rmse = pr.get("rmse_mm")
+        if rmse is not None and math.isfinite(rmse):
+            ax.annotate(f"{rmse:.3f} mm", mid, fontsize=8, ha="center", va="center",
+                        bbox={"boxstyle": "round", "fc": "white", "ec": "none", "alpha": 0.8})
+    for p, (x, y) in zip(passes, xy):
+        reg = p.get("registered")
+        colour = "#2e8b57" if reg else ("#999999" if reg is None else "#c0392b")
+        ax.scatter([x], [y], s=700, color=colour, zorder=3)
+        ax.annotate(f"{p['pass']}", (x, y), color="white", ha="center", va="center", fontsize=12,
+                    fontweight="bold", zorder=4)
+    ax.set_xlim(-1.6, 1.6)
+    ax.set_ylim(-1.5, 1.5)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    ax.set_title("passes (green: registered) and pairs\n(solid: verified, dashed: rejected; RMS residual)",
+                 fontsize=9)
+    return png_of(fig)
+
+
+def coverage_figure(profiles: Sequence[dict[str, np.ndarray]]) -> bytes:
+    """Each pass's profiles as a range image (table angle down, point along the laser line across)."""
+    from app.demo.capture import profiles_figure
+
+    buf = io.BytesIO()
+    profiles_figure(list(profiles), buf)  # savefig accepts a file object
+    return buf.getvalue()
+
+
+def holes_figure(vertices: np.ndarray, holes: Sequence[dict[str, Any]], max_points: int = 20_000) -> bytes:
+    """The mesh's vertices from above and from the side, with the holes' centroids (marker area ~ hole area)."""
+    plt = _plt()
+    v = np.asarray(vertices, dtype=float)
+    if len(v) > max_points:
+        v = v[np.random.default_rng(0).choice(len(v), max_points, replace=False)]
+    fig, axes = plt.subplots(1, 2, figsize=(7.0, 3.2), constrained_layout=True)
+    for ax, (i, j, title) in zip(axes, [(0, 1, "from above (x, y)"), (0, 2, "from the side (x, z)")]):
+        ax.scatter(v[:, i], v[:, j], s=0.2, color="#888888", rasterized=True)
+        for h in holes:
+            c = h.get("centroid")
+            if c is None:
+                continue
+            filled = bool(h.get("closed"))
+            size = 30 + 4 * math.sqrt(max(float(h.get("area_mm2", 0.0)), 0.0))
+            ax.scatter([c[i]], [c[j]], s=size, facecolor="none", edgecolor="#2e8b57" if filled else "#c0392b",
+                       lw=2)
+        ax.set_aspect("equal")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("mm")
+    axes[0].set_ylabel("mm")
+    fig.suptitle("holes: green = filled and closed, red = left open", fontsize=9)
+    return png_of(fig)
+
+
+def timing_figure(rows: Sequence[tuple[str, float]]) -> bytes:
+    """Horizontal bars of seconds per step."""
+    plt = _plt()
+    labels = [r[0] for r in rows]
+    secs = [r[1] for r in rows]
+    fig, ax = plt.subplots(figsize=(6.0, 0.45 * len(rows) + 0.9), constrained_layout=True)
+    y = np.arange(len(rows))
+    ax.barh(y, secs, color="#4a7ab5")
+    ax.set_yticks(y, labels, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("seconds")
+    for yi, s in zip(y, secs):
+        ax.annotate(f"{s:.2f} s", (s, yi), xytext=(3, 0), textcoords="offset points", va="center", fontsize=8)
+    ax.set_xlim(0, max(secs + [1e-3]) * 1.25)
+    return png_of(fig)
+
+
+def chart_overlay_figure(preview: np.ndarray, chart: dict[str, Any]) -> bytes:
+    """The chart frame's preview with the detected outline and each patch's centre and CIEDE2000 error.
+
+    ``chart`` is a colour-step result (``products/colour/pNN-chart.json``): corners and centres are
+    sensor pixels, ``preview_scale`` sensor pixels per preview pixel.
+    """
+    plt = _plt()
+    scale = float(chart.get("preview_scale", 1))
+    h, w = preview.shape[:2]
+    fig, ax = plt.subplots(figsize=(6.4, 6.4 * h / w + 0.5), constrained_layout=True)
+    ax.imshow(preview)
+    corners = np.asarray(chart["corners"], dtype=float) / scale
+    ring = np.vstack([corners, corners[:1]])
+    ax.plot(ring[:, 0], ring[:, 1], color="#00e5ff", lw=1.5)
+    de = chart.get("patch_errors", {}).get("delta_e00") or [float("nan")] * len(chart["patches"])
+    for p, d in zip(chart["patches"], de):
+        x, y = np.asarray(p["centre"], dtype=float) / scale
+        ax.scatter([x], [y], s=18, color="#2ecc71" if p["usable"] else "#e74c3c", edgecolor="black", lw=0.5)
+        ax.annotate(f"{d:.1f}", (x, y), xytext=(0, 5), textcoords="offset points", ha="center", fontsize=6,
+                    color="white", bbox={"boxstyle": "round,pad=0.1", "fc": "black", "ec": "none", "alpha": 0.5})
+    ax.set_axis_off()
+    ax.set_title(f"{chart['chart']} found by {chart['method']} (confidence {chart['confidence']:.2f}); "
+                 "dots: green usable, red excluded; labels: dE00", fontsize=8)
+    return png_of(fig)
+
+
+def patch_error_figure(names: Sequence[str], delta_e: Sequence[float], usable: Sequence[bool]) -> bytes:
+    """CIEDE2000 of each patch after the chart's 3 x 3 colour fit (bars; excluded patches hatched)."""
+    plt = _plt()
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(7.0, 2.8), constrained_layout=True)
+    colours = ["#4a7ab5" if u else "#cccccc" for u in usable]
+    ax.bar(x, delta_e, color=colours, hatch=None)
+    ax.set_xticks(x, [str(n) for n in names], rotation=90, fontsize=6)
+    ax.set_ylabel("dE00 after 3x3 fit")
+    ax.set_title("patch errors (grey: excluded from the fit)", fontsize=9)
+    return png_of(fig)
+
+
+def region_spectra_figure(wavelengths: Sequence[float], regions: Sequence[dict[str, Any]], light_deg: float) -> bytes:
+    """Per identified region: estimated reflectance +- uncertainty against the material's model spectrum.
+
+    Both are divided by their mean over wavelength: a region's brightness follows gloss and angles, not the
+    material, so the shapes are compared (as in ``app.demo.colour``).
+    """
+    from app.demo.colour import model_spectrum
+    from processing.materials.identification import NEUTRAL_METAL
+
+    plt = _plt()
+    wl = np.asarray(wavelengths, dtype=np.float64)
+    n = len(regions)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False, constrained_layout=True)
+    cos_d = math.cos(math.radians(light_deg / 2))
+    for ax, reg in zip(axes.ravel(), regions):
+        est = np.asarray(reg["reflectance"], dtype=np.float64)
+        unc = np.asarray(reg["uncertainty"], dtype=np.float64)
+        scale = max(float(est.mean()), 1e-9)
+        ax.fill_between(wl, (est - unc) / scale, (est + unc) / scale, color="0.82", label="estimate +- uncertainty")
+        ax.plot(wl, est / scale, "k-", label="estimate")
+        if reg["material"] != NEUTRAL_METAL:
+            model = model_spectrum(reg["material"], wl, cos_d)
+            ax.plot(wl, model / max(float(model.mean()), 1e-9), "r--", label=f"{reg['material']} (model)")
+        ax.set_title(f"{reg['region']}: {reg['material']} ({reg['confidence']:.2f}), {reg['pixels']} px", fontsize=8)
+        ax.set_xlabel("wavelength (nm)", fontsize=7)
+        ax.set_ylabel("reflectance / its mean", fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=5, loc="upper left")
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    return png_of(fig)
+
+
+def material_map_figure(image: np.ndarray, regions: Sequence[dict[str, Any]]) -> bytes:
+    """A material map (RGB, one colour per material) with a key of the materials and their confidences."""
+    from app.batch.materials import material_colour
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 3.2), constrained_layout=True)
+    ax.imshow(image, interpolation="nearest")
+    ax.axis("off")
+    seen: dict[str, float] = {}
+    for reg in regions:
+        name = reg["material"] or "not identified"
+        seen[name] = max(seen.get(name, 0.0), reg["confidence"] or 0.0)
+    handles = [plt.Rectangle((0, 0), 1, 1, color=np.asarray(material_colour(None if n == "not identified" else n))
+                             / 255.0) for n in seen]
+    ax.legend(handles, [f"{n} ({c:.2f})" for n, c in seen.items()], fontsize=6, loc="center left",
+              bbox_to_anchor=(1.0, 0.5), title="material (confidence)", title_fontsize=7)
+    return png_of(fig)

@@ -1,0 +1,573 @@
+"""``kogei report``: one self-contained HTML file describing everything a session holds.
+
+docs/report.md.  The report reads the session without locking it
+(:meth:`app.session.Session.read`), checks every product it shows against the
+SHA-256 in the manifest, and draws its plots with matplotlib; images are
+embedded as base64 PNG data URIs, so the file can be mailed or archived
+alone.  Sections, in order: object and plan, capture log, scanner
+calibration, registration and pose graph, mesh views, coverage and filled
+holes, colour chart, spectra, materials, renders under D65 and A, timing.
+A section whose data the session does not hold says what is missing and
+which command produces it.
+"""
+
+from __future__ import annotations
+
+import collections
+import datetime as _dt
+import html
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.errors import UsageError
+from app.report.figures import (
+    calibration_residuals_figure,
+    coverage_figure,
+    data_uri,
+    holes_figure,
+    pose_graph_figure,
+    timing_figure,
+)
+
+__all__ = ["Section", "build_report", "write_report", "report_sections", "REPORT_FILE"]
+
+REPORT_FILE = "products/report.html"
+MESH_VIEW_MATERIAL = "aluminium:roughness=0.5,mirror=0,gloss=1"   # neutral grey: shows shape, not colour
+MESH_VIEWS = (("front", (0.0, -1.0, 0.35)), ("side", (1.0, 0.0, 0.35)), ("above", (0.05, -0.05, 1.0)))
+MESH_VIEW_SIZE = (240, 180)
+
+
+@dataclass
+class Section:
+    """One report section: a title, its HTML body, and whether the session had its data."""
+
+    key: str
+    title: str
+    body: str
+    has_data: bool
+
+
+def _e(value: Any) -> str:
+    return html.escape(str(value))
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) for v in value):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return ", ".join(f"{k}: {_fmt(v)}" for k, v in value.items())
+    return str(value)
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> str:
+    head = "".join(f"<th>{_e(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{_e(_fmt(c))}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _kv(pairs: list[tuple[str, Any]]) -> str:
+    rows = "".join(f"<tr><th>{_e(k)}</th><td>{_e(_fmt(v))}</td></tr>" for k, v in pairs)
+    return f"<table class='kv'>{rows}</table>"
+
+
+def _img(png: bytes, alt: str, caption: str = "") -> str:
+    cap = f"<figcaption>{_e(caption)}</figcaption>" if caption else ""
+    return f"<figure><img src='{data_uri(png)}' alt='{_e(alt)}'>{cap}</figure>"
+
+
+def _missing(what: str, command: str) -> str:
+    return (f"<p class='missing'><b>Not in this session:</b> {_e(what)}. "
+            f"Produced by: <code>{_e(command)}</code></p>")
+
+
+def _step_command(root: Path, step: str) -> str:
+    """The command that produces a step's products, or why this version cannot."""
+    from app.batch.steps import STEPS, UNAVAILABLE_STEPS
+
+    if step in STEPS:
+        return f"kogei batch {root} --steps {step}"
+    return f"kogei batch --steps {step} (not available: {UNAVAILABLE_STEPS[step]})"
+
+
+class _Context:
+    """The session as the sections read it: manifest, verified product files."""
+
+    def __init__(self, root: Path) -> None:
+        from app.session import Session, SessionError
+
+        self.root = root
+        try:
+            self.manifest = Session.read(root)
+        except SessionError as exc:
+            raise UsageError(str(exc)) from None
+        self.products: dict[str, Any] = dict(self.manifest.get("products") or {})
+        self.problems: list[str] = []
+
+    def product_bytes(self, rec: dict[str, Any] | None) -> bytes | None:
+        """The bytes of a product file if present and matching its checksum (else noted in ``problems``)."""
+        import hashlib
+
+        if not rec or "file" not in rec:
+            return None
+        path = self.root / rec["file"]
+        try:
+            blob = path.read_bytes()
+        except OSError:
+            self.problems.append(f"{rec['file']} is listed in the manifest but missing")
+            return None
+        if rec.get("sha256") and hashlib.sha256(blob).hexdigest() != rec["sha256"]:
+            self.problems.append(f"{rec['file']} does not match its checksum in the manifest (changed after it "
+                                 "was written); it is not shown")
+            return None
+        return blob
+
+    def process_report(self) -> dict[str, Any] | None:
+        blob = self.product_bytes(self.products.get("process_report"))
+        return None if blob is None else json.loads(blob)
+
+    def calibration(self) -> dict[str, Any] | None:
+        ref = self.manifest.get("calibration")
+        if not ref:
+            return None
+        blob = self.product_bytes({"file": ref["path"], "sha256": ref.get("sha256")})
+        return None if blob is None else json.loads(blob)
+
+
+# ---------------------------------------------------------------------------- sections
+def _object(ctx: _Context) -> Section:
+    m = ctx.manifest
+    obj = m.get("object") or {}
+    pairs = [(k, v) for k, v in obj.items()] or [("object", "no metadata given (kogei capture --object NAME)")]
+    pairs += [("session", str(ctx.root.resolve())), ("status", m.get("status")), ("created (UTC)", m.get("created_utc")),
+              ("updated (UTC)", m.get("updated_utc")), ("plan", m.get("plan"))]
+    dev = m.get("devices") or {}
+    for name, d in dev.items():
+        if isinstance(d, dict):
+            keep = {k: v for k, v in d.items() if k in ("firmware", "model", "serial_number", "kind", "port")}
+            pairs.append((f"device: {name}", keep or d))
+    return Section("object", "Object and plan", _kv(pairs), True)
+
+
+def _capture_log(ctx: _Context) -> Section:
+    m = ctx.manifest
+    caps = m.get("captures") or {}
+    if not caps:
+        return Section("capture", "Capture log", _missing("no captures", "kogei capture ... --out SESSION"), False)
+    per_pass: dict[int, collections.Counter] = collections.defaultdict(collections.Counter)
+    size = 0
+    for rec in caps.values():
+        per_pass[int(rec.get("pass", 0))][rec.get("kind", "?")] += 1
+        size += int(rec.get("bytes", 0))
+    kinds = sorted({k for c in per_pass.values() for k in c})
+    rows = [[f"pass {p}", (m.get("passes") or {}).get(str(p), {}).get("status", "")] + [c.get(k, 0) for k in kinds]
+            for p, c in sorted(per_pass.items())]
+    labels = {"chart": "chart frames", "frame": "RAW frames", "profile": "profiles", "profiles": "gathered profiles"}
+    history = m.get("history") or []
+    events = collections.Counter(h["event"] for h in history)
+    start = next((h["utc"] for h in history if h["event"] in ("started", "resumed")), None)
+    end = next((h["utc"] for h in reversed(history) if h["event"] in ("complete", "interrupted", "failed")), None)
+    body = _table(["pass", "status"] + [labels.get(k, k) for k in kinds], rows)
+    body += _kv([("files", f"{len(caps)} records, {size / 1e6:.1f} MB"),
+                 ("events", dict(sorted(events.items()))),
+                 ("first start -> last end (UTC)", f"{start} -> {end}")])
+    notable = [h for h in history if h["event"] not in ("created",)]
+    if notable:
+        shown = notable[-40:]
+        body += "<h3>History</h3>" + _table(["UTC", "event", "detail"], [[h["utc"], h["event"], h["detail"]]
+                                                                           for h in shown])
+        if len(notable) > len(shown):
+            body += f"<p>({len(notable) - len(shown)} earlier events not shown; see session.json)</p>"
+    wires = sorted((ctx.root / "wire").glob("*.log")) if (ctx.root / "wire").is_dir() else []
+    if wires:
+        body += _kv([(f"wire log {w.name}", f"{w.stat().st_size / 1e3:.0f} kB") for w in wires])
+    return Section("capture", "Capture log", body, True)
+
+
+def _calibration(ctx: _Context) -> Section:
+    cal = ctx.calibration()
+    root = ctx.root
+    if cal is None:
+        return Section("calibration", "Scanner calibration",
+                       _missing("no scanner calibration", f"kogei calibrate CAL_SESSION --sphere-radius MM; "
+                                f"kogei process {root} --calibration CAL_SESSION"), False)
+    body = _kv([("sphere residual RMS", f"{cal['rms_mm'] * 1000:.1f} um"), ("largest residual", f"{cal['max_mm'] * 1000:.1f} um"),
+                ("sphere radius given / fitted", f"{cal['sphere_radius_mm']:.3f} / {cal['fitted_radius_mm']:.3f} mm"),
+                ("table-top RMS", f"{cal.get('table_rms_mm', float('nan')) * 1000:.1f} um"),
+                ("profiles used", cal.get("n_profiles")), ("sphere / table points", f"{cal.get('n_sphere_points')} / "
+                                                                                    f"{cal.get('n_table_points')}"),
+                ("source", cal.get("source"))])
+    if cal.get("step_indices"):
+        body += _img(calibration_residuals_figure(cal["step_indices"], cal["step_rms_mm"], cal["rms_mm"]),
+                     "calibration residuals", "Residual of each sphere-scan profile used by the calibration.")
+    return Section("calibration", "Scanner calibration", body, True)
+
+
+def _registration(ctx: _Context, rep: dict[str, Any] | None) -> Section:
+    if rep is None:
+        return Section("registration", "Registration", _missing(
+            "no registration (the session has not been processed)",
+            f"kogei process {ctx.root} --calibration CAL_SESSION  (or kogei batch {ctx.root})"), False)
+    reg = rep["registration"]
+    passes = rep["passes"]
+    rows = [[p["pass"], p.get("points", ""), "yes" if p.get("registered") else "no", p.get("skipped", "")]
+            for p in passes]
+    body = _table(["pass", "points", "registered", "note"], rows)
+    pairs = reg.get("pairs") or []
+    # pair indices count the passes that reached registration, in order
+    reached = [p["pass"] for p in passes if "registered" in p]
+
+    def label(i: int) -> str:
+        return f"pass {reached[i]}" if 0 <= i < len(reached) else f"cloud {i}"
+
+    if pairs:
+        body += "<h3>Pairs</h3>" + _table(
+            ["pair", "verified", "RMS (mm)", "expected RMS (mm)", "overlap", "normal agreement", "method", "reason"],
+            [[f"{label(int(pr['source']))} -> {label(int(pr['target']))}", "yes" if pr.get("verified") else "no", pr.get("rmse_mm"),
+              pr.get("expected_rmse_mm"), pr.get("overlap"), pr.get("normal_agreement"), pr.get("method", ""),
+              pr.get("reason", "")] for pr in pairs])
+    cons = reg.get("consistency")
+    body += _kv([("all passes registered", reg.get("all_registered")),
+                 ("pose graph consistency", "n/a (fewer than three registered passes)" if cons is None else
+                  f"{cons['max_rotation_deg']:.4f} deg, {cons['max_displacement_mm']:.4f} mm")])
+    body += _img(pose_graph_figure(passes, pairs), "pose graph", "The pose graph of the passes.")
+    return Section("registration", "Registration and pose graph", body, True)
+
+
+def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
+    import io
+
+    from PIL import Image
+
+    from app.batch.steps import render_session_mesh
+
+    mesh = ctx.products.get("mesh")
+    if not mesh or ctx.product_bytes(mesh) is None:
+        return Section("mesh", "Mesh", _missing("no mesh", f"kogei process {ctx.root} (or kogei batch {ctx.root} "
+                                                "--steps geometry)"), False)
+    pairs = [("file", mesh["file"]), ("preset", mesh.get("preset"))]
+    if rep is not None and isinstance(rep.get("mesh"), dict):
+        m = rep["surface"].get("mesh", {}) if isinstance(rep.get("surface"), dict) else {}
+        pairs += [("vertices / triangles", f"{rep['mesh'].get('vertices')} / {rep['mesh'].get('triangles')}"),
+                  ("watertight", rep["mesh"].get("watertight")), ("boundary edges", m.get("boundary_edges")),
+                  ("components", m.get("components")), ("area", f"{m.get('area_mm2', float('nan')):.0f} mm2")]
+    views = []
+    for name, direction in MESH_VIEWS:
+        result = render_session_mesh(ctx.root, "D65", MESH_VIEW_SIZE, "draft", material=MESH_VIEW_MATERIAL,
+                                     direction=direction)
+        buf = io.BytesIO()
+        Image.fromarray(result.srgb8).save(buf, format="PNG")
+        views.append(_img(buf.getvalue(), f"mesh {name}", name))
+    body = _kv(pairs) + "<div class='row'>" + "".join(views) + "</div>"
+    return Section("mesh", "Mesh views", body, True)
+
+
+def _coverage(ctx: _Context, rep: dict[str, Any] | None) -> Section:
+    from app.capture.runner import load_pass_profiles
+    from app.session import SessionError
+
+    body = ""
+    profiles = []
+    plan = ctx.manifest.get("plan") or {}
+    for p in range(1, int(plan.get("passes", 0)) + 1):
+        if f"p{p:02d}/profiles" in (ctx.manifest.get("captures") or {}):
+            try:
+                profiles.append(load_pass_profiles(ctx.root, p))
+            except SessionError as exc:
+                ctx.problems.append(str(exc))
+    if profiles:
+        rows = [[i + 1, f"{100 * float(np.isfinite(pr['z_mm']).mean()):.1f} %", pr["z_mm"].shape[0]]
+                for i, pr in enumerate(profiles)]
+        body += _table(["pass", "valid returns", "profiles"], rows)
+        body += _img(coverage_figure(profiles), "coverage", "Range images of the passes (black: no return).")
+    else:
+        body += _missing("no gathered profiles", "kogei capture (a scan plan)")
+    if rep is None or not isinstance(rep.get("surface"), dict):
+        body += _missing("no hole report", f"kogei process {ctx.root}")
+        return Section("coverage", "Coverage and filled holes", body, bool(profiles))
+    holes = rep["surface"].get("holes") or {}
+    items = holes.get("items") or []
+    body += _kv([("holes found", holes.get("count", len(items))), ("filled", holes.get("filled")),
+                 ("total hole area", f"{holes.get('total_area_mm2', 0.0):.1f} mm2"),
+                 ("hole threshold", f"{holes.get('threshold_mm', float('nan')):.3f} mm")])
+    if items:
+        body += _table(["area (mm2)", "largest distance to data (mm)", "filled by", "closed"],
+                       [[h.get("area_mm2"), h.get("max_distance_mm"), h.get("filled_by"), h.get("closed")]
+                        for h in items[:30]])
+    mesh = ctx.products.get("mesh")
+    if mesh and ctx.product_bytes(mesh) is not None:
+        from render.meshio import load_mesh
+
+        v = load_mesh(ctx.root / mesh["file"]).vertices
+        body += _img(holes_figure(v, items), "holes", "Mesh vertices with the holes' centroids.")
+    return Section("coverage", "Coverage and filled holes", body, True)
+
+
+def _chart(ctx: _Context) -> Section:
+    from app.report.figures import chart_overlay_figure, patch_error_figure
+
+    charts = {cid: rec for cid, rec in (ctx.manifest.get("captures") or {}).items() if rec.get("kind") == "chart"}
+    cmd = _step_command(ctx.root, "colour")
+    if not charts:
+        return Section("chart", "Colour chart", _missing("no colour-chart frame was captured (plan without camera "
+                                                         "or chart)", "kogei capture --camera ... (chart first)"),
+                       False)
+    colour = ctx.products.get("colour")
+    if not colour:
+        body = _kv([("chart frames", ", ".join(sorted(charts)))])
+        body += _missing("chart detection and patch errors (the colour step has not run on this session)", cmd)
+        return Section("chart", "Colour chart", body, False)
+    body = ""
+    shown = False
+    for tag, files in sorted((colour.get("passes") or {}).items()):
+        blob = ctx.product_bytes(files.get("chart"))
+        pre = ctx.product_bytes(files.get("preview"))
+        if blob is None or pre is None:
+            continue
+        chart = json.loads(blob)
+        import io
+
+        from PIL import Image
+
+        preview = np.asarray(Image.open(io.BytesIO(pre)).convert("RGB"))
+        errs = chart.get("patch_errors") or {}
+        usable = [p["usable"] for p in chart["patches"]]
+        body += f"<h3>{_e(tag)}: {_e(chart['raw'])}</h3>"
+        body += _kv([("chart", chart["chart"]), ("found by", f"{chart['method']} (confidence {chart['confidence']:.2f}, "
+                                                             f"{chart['detect_seconds']:.2f} s)"),
+                     ("usable patches", f"{sum(usable)} of {len(usable)}"),
+                     ("patch error (dE00, 3x3 fit)", f"mean {errs.get('mean', float('nan')):.2f}, "
+                                                     f"max {errs.get('max', float('nan')):.2f}"),
+                     ("exposure", f"{chart.get('exposure_time')} s, ISO {chart.get('iso')}, f/{chart.get('f_number')}"),
+                     ("warnings", "; ".join(chart.get("warnings") or []) or "none")])
+        body += "<div class='row'>" + _img(chart_overlay_figure(preview, chart), f"chart overlay {tag}",
+                                           "Detected chart and patch centres on the frame.")
+        if errs.get("delta_e00"):
+            body += _img(patch_error_figure([p["name"] for p in chart["patches"]], errs["delta_e00"], usable),
+                         f"patch errors {tag}", "CIEDE2000 left by the least-squares 3 x 3 camera RGB -> XYZ fit.")
+        body += "</div>"
+        shown = True
+    return Section("chart", "Colour chart", body or _missing("intact chart products", cmd), shown)
+
+
+def _materials_doc(ctx: _Context) -> dict[str, Any] | None:
+    blob = ctx.product_bytes((ctx.products.get("materials") or {}).get("report"))
+    return None if blob is None else json.loads(blob)
+
+
+def _no_materials(ctx: _Context, what: str) -> str:
+    from app.batch.steps import DEFAULT_MATERIAL
+
+    return _missing(f"{what} (the materials step has not run on this session; the renders use the stated "
+                    f"default material {DEFAULT_MATERIAL})", _step_command(ctx.root, "materials"))
+
+
+def _spectra(ctx: _Context) -> Section:
+    from app.report.figures import region_spectra_figure
+
+    title = "Spectra with uncertainty vs model spectra"
+    doc = _materials_doc(ctx)
+    if doc is None:
+        return Section("spectra", title, _no_materials(
+            ctx, "estimated spectral reflectance of the object's regions with its uncertainty"), False)
+    shown = [r for r in doc["regions"] if r.get("material") and r.get("reflectance")]
+    if not shown:
+        return Section("spectra", title, "<p>No region was identified, so there is no spectrum to show.</p>", False)
+    body = _kv([("estimator", f"{doc['method']}, chart {doc['chart']}"),
+                ("candidates modelled at", f"{doc['light_deg']:.0f} deg from the normal")])
+    body += _img(region_spectra_figure(doc["wavelengths"], shown, doc["light_deg"]), "region spectra",
+                 "Per region: estimated reflectance (shape, mean 1) +- its uncertainty, and the identified "
+                 "material's model spectrum.")
+    return Section("spectra", title, body, True)
+
+
+def _materials(ctx: _Context) -> Section:
+    from app.report.figures import material_map_figure
+
+    title = "Material map and confidences"
+    doc = _materials_doc(ctx)
+    if doc is None:
+        return Section("materials", title, _no_materials(ctx, "identified materials and their confidences"), False)
+    rows = []
+    for r in doc["regions"]:
+        alloy = ""
+        if r.get("alloy_weights"):
+            alloy = ", ".join(f"{m} {100 * r['alloy_weights'][m]:.0f} +- {100 * r['alloy_std'][m]:.0f} %"
+                              for m in r["alloy_weights"])
+        rows.append([r["region"], r["material"] or "not identified",
+                     "" if r["confidence"] is None else f"{r['confidence']:.2f}", r.get("runner_up") or "",
+                     "" if r.get("chi2") is None else f"{r['chi2']:.1f}", r["pixels"], ", ".join(r["frames"]),
+                     alloy, r.get("note", "")])
+    largest = doc.get("largest")
+    body = _kv([("largest identified material", "none" if not largest else
+                 f"{largest['material']} ({largest['pixels']} pixels; used for the whole mesh in the renders)")])
+    body += _table(["region", "material", "confidence", "runner-up", "chi2", "pixels", "frames", "alloy (Ag, Cu, Au)",
+                    "note"], rows)
+    import io
+
+    from PIL import Image
+
+    figs = ""
+    for cid, rec in sorted(((ctx.products.get("materials") or {}).get("maps") or {}).items()):
+        blob = ctx.product_bytes(rec)
+        if blob is not None:
+            img = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
+            figs += _img(material_map_figure(img, doc["regions"]), f"material map {cid}",
+                         f"{cid}: each lit object pixel coloured by its region's material under D65; backdrop dark "
+                         "grey, unused pixels black.")
+    body += "<div class='row'>" + figs + "</div>"
+    return Section("materials", title, body, bool(figs))
+
+
+def _renders(ctx: _Context) -> Section:
+    rec = ctx.products.get("renders")
+    if not rec:
+        return Section("renders", "Renders under D65 and A", _missing(
+            "no renders", f"kogei batch {ctx.root} --steps render"), False)
+    figs = []
+    for ill, img in (rec.get("images") or {}).items():
+        blob = ctx.product_bytes(img)
+        if blob is not None:
+            figs.append(_img(blob, f"render under {ill}", f"illuminant {ill}"))
+    body = _kv([("material", f"{rec.get('material')} ({rec.get('material_source', '')})"),
+                ("size", f"{rec['size'][0]} x {rec['size'][1]}"), ("preset", rec.get("preset"))])
+    body += "<div class='row'>" + "".join(figs) + "</div>"
+    return Section("renders", "Renders under D65 and A", body, bool(figs))
+
+
+def _utc(text: str) -> _dt.datetime:
+    return _dt.datetime.strptime(text, "%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def _timing(ctx: _Context, rep: dict[str, Any] | None) -> Section:
+    rows: list[tuple[str, float]] = []
+    history = ctx.manifest.get("history") or []
+    start = next((h["utc"] for h in history if h["event"] == "started"), None)
+    end = next((h["utc"] for h in reversed(history) if h["event"] == "complete"), None)
+    if start and end:
+        rows.append(("capture (start -> complete)", (_utc(end) - _utc(start)).total_seconds()))
+    if rep is not None:
+        rows += [(f"geometry: {k}", float(v)) for k, v in (rep.get("timings_s") or {}).items()]
+    steps = ((ctx.manifest.get("batch") or {}).get("steps") or {})
+    table = [[name, rec.get("utc"), rec.get("seconds"), rec.get("fingerprint", "")[:12]] for name, rec in steps.items()]
+    rows += [(f"batch: {name}", float(rec.get("seconds", 0.0))) for name, rec in steps.items()]
+    if not rows:
+        return Section("timing", "Timing of every step", _missing("no step has run", f"kogei batch {ctx.root}"), False)
+    body = _img(timing_figure(rows), "timing", "Seconds per step.")
+    if table:
+        body += "<h3>Batch steps</h3>" + _table(["step", "last run (UTC)", "seconds", "fingerprint"], table)
+    return Section("timing", "Timing of every step", body, True)
+
+
+def report_sections(session_dir: str | os.PathLike[str]) -> list[Section]:
+    """The report's sections for a session (see the module docstring)."""
+    ctx = _Context(Path(session_dir))
+    try:
+        rep = ctx.process_report()
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        ctx.problems.append("products/process-report.json is not JSON")
+        rep = None
+    builders: list[tuple[str, str, Callable[[], Section]]] = [
+        ("object", "Object and plan", lambda: _object(ctx)),
+        ("capture", "Capture log", lambda: _capture_log(ctx)),
+        ("calibration", "Scanner calibration", lambda: _calibration(ctx)),
+        ("registration", "Registration and pose graph", lambda: _registration(ctx, rep)),
+        ("mesh", "Mesh views", lambda: _mesh(ctx, rep)),
+        ("coverage", "Coverage and filled holes", lambda: _coverage(ctx, rep)),
+        ("chart", "Colour chart", lambda: _chart(ctx)),
+        ("spectra", "Spectra with uncertainty vs model spectra", lambda: _spectra(ctx)),
+        ("materials", "Material map and confidences", lambda: _materials(ctx)),
+        ("renders", "Renders under D65 and A", lambda: _renders(ctx)),
+        ("timing", "Timing of every step", lambda: _timing(ctx, rep)),
+    ]
+    sections = []
+    for key, title, build in builders:
+        try:
+            sections.append(build())
+        except (ValueError, OSError, KeyError, TypeError, IndexError) as exc:
+            # a product the section cannot read (an older or damaged file) must not cost the whole report
+            text = f"{title}: the session's data could not be shown ({type(exc).__name__}: {exc})"
+            ctx.problems.append(text)
+            sections.append(Section(key, title, f"<p class='missing'><b>Could not be shown:</b> {_e(text)}</p>",
+                                    False))
+    if ctx.problems:
+        body = "<ul>" + "".join(f"<li>{_e(p)}</li>" for p in dict.fromkeys(ctx.problems)) + "</ul>"
+        sections.insert(0, Section("problems", "Problems found", body, True))
+    return sections
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:0 auto;max-width:1000px;padding:1em 1.5em;
+color:#222;line-height:1.4}
+h1{font-size:1.6em;margin-bottom:0.2em}h2{border-bottom:2px solid #ddd;padding-bottom:0.2em;margin-top:1.6em}
+h3{font-size:1em;margin-bottom:0.3em}table{border-collapse:collapse;margin:0.5em 0;font-size:0.85em}
+td,th{border:1px solid #ddd;padding:2px 6px;text-align:left;vertical-align:top}th{background:#f4f4f4}
+table.kv th{width:14em}figure{display:inline-block;margin:0.4em 0.8em 0.4em 0}figcaption{font-size:0.8em;color:#555}
+img{max-width:100%}.row{display:flex;flex-wrap:wrap;gap:0.5em}.missing{background:#fff8e1;border-left:4px solid #f0b400;
+padding:0.4em 0.8em}nav a{margin-right:0.8em;font-size:0.9em}code{background:#f4f4f4;padding:0 3px}
+"""
+
+
+def build_report(session_dir: str | os.PathLike[str]) -> str:
+    """The HTML text of the report of the session at ``session_dir``.
+
+    Raises
+    ------
+    UsageError
+        ``session_dir`` is not a readable session.
+    """
+    from app.session import utc_now
+
+    root = Path(session_dir)
+    sections = report_sections(root)
+    manifest = _Context(root).manifest
+    name = (manifest.get("object") or {}).get("name") or root.name
+    nav = "".join(f"<a href='#{s.key}'>{_e(s.title)}</a>" for s in sections)
+    parts = [f"<section id='{s.key}'><h2>{_e(s.title)}</h2>{s.body}</section>" for s in sections]
+    held = sum(s.has_data for s in sections)
+    return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<title>kogei report: {_e(name)}</title><style>{_CSS}</style></head><body>"
+            f"<h1>{_e(name)}</h1><p>kogei session report, written {_e(utc_now())} from <code>{_e(root.resolve())}"
+            f"</code>; {held} of {len(sections)} sections have data.</p><nav>{nav}</nav>"
+            + "".join(parts) + "</body></html>\n")
+
+
+def write_report(session_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None) -> Path:
+    """Write the report; returns its path.
+
+    Parameters
+    ----------
+    session_dir
+        The session.
+    out
+        The HTML file to write (atomically).  Default: ``products/report.html``
+        inside the session, recorded in its manifest's ``products`` with its
+        checksum (this needs the session's lock: not while a capture runs).
+    """
+    from app.session import Session, SessionError, atomic_write_bytes
+
+    root = Path(session_dir)
+    if out is not None and Path(out).suffix.lower() not in (".html", ".htm"):
+        raise UsageError(f"--out: {out} must end in .html")
+    text = build_report(root).encode("utf-8")
+    if out is not None:
+        try:
+            return atomic_write_bytes(Path(out), text)
+        except OSError as exc:
+            raise UsageError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
+    try:
+        with Session.open(root) as session:
+            info = session.write_file(REPORT_FILE, text)
+            products = dict(session.manifest.get("products") or {})
+            products["report"] = {"file": info.path, "sha256": info.sha256, "bytes": info.bytes}
+            session.update("products", products)
+    except SessionError as exc:
+        raise UsageError(f"{exc}; or write the report elsewhere with --out FILE.html") from None
+    return root / REPORT_FILE

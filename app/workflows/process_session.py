@@ -1,0 +1,228 @@
+"""``kogei process``: a captured session's profiles -> one registered, watertight mesh, with a report.
+
+Issue #4; DESIGN.md section 2.  The stages, each a plain library call:
+
+1. per complete pass: profiles + table angles + the session's scanner
+   calibration -> points, normals and confidences in that pass's table frame
+   (:func:`processing.geometry.scan_points.profiles_to_points`); an incomplete pass is
+   skipped and reported (resume the capture to include it);
+2. registration of the passes into pass 1's frame: global search, ICP, pose
+   graph, every pair verified (:func:`processing.geometry.registration.register_passes`);
+   a pass that cannot be registered is left out and reported, never merged
+   with a wrong pose;
+3. the merged, confidence-weighted cloud -> a watertight mesh with its holes
+   filled and reported (:mod:`processing.geometry.surface`);
+4. ``products/mesh.ply`` (binary PLY with vertex normals) and
+   ``products/process-report.json`` are written atomically into the session
+   and referenced, with checksums, from its manifest (``products``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.errors import UsageError
+
+__all__ = ["process_session", "PRESETS", "MIN_PASS_POINTS"]
+
+PRESETS = ("draft", "standard", "reference")
+#: A pass with fewer usable points than this is skipped (it cannot be registered reliably).
+MIN_PASS_POINTS = 500
+REPORT = "products/process-report.json"
+MESH = "products/mesh.ply"
+
+
+def _observed_range(z_mm: np.ndarray) -> tuple[float, float]:
+    """The pass's range of valid readings, widened 2% (the sensor's working range as used)."""
+    finite = z_mm[np.isfinite(z_mm)]
+    lo, hi = float(finite.min()), float(finite.max())
+    pad = 0.02 * max(hi - lo, 1.0)
+    return max(lo - pad, 0.0), hi + pad
+
+
+def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[[str], None]) -> list[dict[str, Any]]:
+    from app.capture.runner import load_pass_profiles
+    from app.session import SessionError
+    from processing.geometry.scan_points import profiles_to_points
+
+    plan = manifest["plan"]
+    out = []
+    for p in range(1, int(plan["passes"]) + 1):
+        entry: dict[str, Any] = {"pass": p}
+        if f"p{p:02d}/profiles" not in manifest["captures"]:
+            held = sum(1 for k, r in manifest["captures"].items()
+                       if r.get("kind") == "profile" and r.get("pass") == p)
+            entry["skipped"] = (f"incomplete: {held} of {plan['steps']} profiles captured; resume the capture "
+                                "to include this pass")
+            note(f"pass {p}: {entry['skipped']}")
+            out.append(entry)
+            continue
+        try:
+            prof = load_pass_profiles(root, p)
+        except SessionError as exc:
+            entry["skipped"] = f"{exc}; resume the capture to gather the pass's profiles again"
+            note(f"pass {p}: {entry['skipped']}")
+            out.append(entry)
+            continue
+        if not np.isfinite(prof["z_mm"]).any():
+            entry["skipped"] = "no valid point in any profile (laser off? object out of the sensor's range?)"
+            note(f"pass {p}: {entry['skipped']}")
+            out.append(entry)
+            continue
+        t = time.perf_counter()
+        sp = profiles_to_points(prof["x_mm"], prof["z_mm"], prof["angles_deg"], cal,
+                                range_mm=_observed_range(prof["z_mm"]))
+        keep = sp.confidence > 0
+        entry.update({"points_total": int(sp.n_total), "invalid": int(sp.n_invalid),
+                      "cropped_table": int(sp.n_cropped_table), "cropped_radius": int(sp.n_cropped_radius),
+                      "points": int(keep.sum()), "seconds": round(time.perf_counter() - t, 3)})
+        if keep.sum() < MIN_PASS_POINTS:
+            entry["skipped"] = f"only {int(keep.sum())} usable points (fewer than {MIN_PASS_POINTS})"
+            note(f"pass {p}: {entry['skipped']}")
+        else:
+            entry["cloud"] = (sp.points[keep], sp.normals[keep], sp.confidence[keep])
+            angle_uncertain = manifest["passes"].get(str(p), {}).get("angle_uncertain_deg")
+            if angle_uncertain:
+                entry["angle_uncertain_deg"] = angle_uncertain
+                note(f"pass {p}: the table angle may be off by up to {angle_uncertain:g} deg after an interrupted "
+                     "capture (kept; registration aligns the pass as a whole)")
+        out.append(entry)
+    return out
+
+
+def process_session(session_dir: str | Path, *, preset: str = "standard", calibration: str | Path | None = None,
+                    message: Callable[[str], None] | None = None,
+                    picks: dict[tuple[int, int], tuple[Any, Any]] | None = None) -> dict[str, Any]:
+    """Process a captured session into ``products/mesh.ply`` and ``products/process-report.json``.
+
+    Parameters
+    ----------
+    session_dir
+        A session captured with a ``scan`` plan.
+    preset
+        ``draft``, ``standard`` or ``reference`` (registration and surface
+        settings; docs/BENCHMARKS.md gives each one's time and error).
+    calibration
+        A calibrated session folder or a calibration JSON file to install
+        into the session first; default: the session's own.
+    message
+        Called with progress and warnings.
+    picks
+        Manual registration of pass pairs: ``{(a, b): (points_on_a, points_on_b)}``
+        with pass numbers ``a < b`` (1-based) and three or more corresponding
+        points (mm, each pass's table frame) picked on each
+        (:func:`processing.geometry.registration.register_passes`).
+
+    Returns
+    -------
+    dict
+        The report (also written to ``products/process-report.json``).
+    """
+    from app.cli.calibrate import install_calibration, load_calibration_source, session_calibration
+    from app.session import Session, SessionError
+    from processing.geometry.mesh_ply import write_mesh_ply
+    from processing.geometry.registration import RegistrationError, merge_passes, register_passes
+    from processing.geometry.surface import SurfaceError, reconstruct_surface
+
+    note = message or (lambda text: None)
+    if preset not in PRESETS:
+        raise UsageError(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+    root = Path(session_dir)
+    t_all = time.perf_counter()
+    try:
+        session = Session.open(root)
+    except SessionError as exc:
+        raise UsageError(str(exc)) from None
+    with session:
+        manifest = session.manifest
+        if manifest["plan"].get("kind") != "scan":
+            raise UsageError(f"session {root} is a {manifest['plan'].get('kind')!r} capture; only scan sessions "
+                             "have profiles to mesh")
+        if calibration is not None:
+            install_calibration(session, {**load_calibration_source(calibration),
+                                          "installed_from": str(Path(calibration).resolve())})
+        cal = session_calibration(root, manifest)
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        passes = _pass_clouds(root, manifest, cal, note)
+        timings["points"] = time.perf_counter() - t
+        usable = [e for e in passes if "cloud" in e]
+        if not usable:
+            raise UsageError(f"session {root}: no pass has usable points ({'; '.join(e.get('skipped', '') for e in passes)})")
+        names = [f"pass {e['pass']}" for e in usable]
+        note(f"registering {len(usable)} pass(es) ({', '.join(str(e['points']) for e in usable)} points)")
+        t = time.perf_counter()
+        try:
+            index_of = {e["pass"]: k for k, e in enumerate(usable)}
+            unknown = [pair for pair in (picks or {}) if pair[0] not in index_of or pair[1] not in index_of]
+            if unknown:
+                raise UsageError(f"session {root}: picks name passes without usable points: {unknown}")
+            reg = register_passes([e["cloud"][0] for e in usable], [e["cloud"][1] for e in usable],
+                                  preset=preset, names=names,
+                                  picks={(index_of[a], index_of[b]): v for (a, b), v in (picks or {}).items()})
+        except RegistrationError as exc:
+            raise UsageError(f"session {root}: registration: {exc}") from None
+        timings["registration"] = time.perf_counter() - t
+        for e, pose in zip(usable, reg.poses):
+            e["registered"] = bool(pose.registered)
+            e["pose"] = None if pose.transform is None else np.asarray(pose.transform).tolist()
+            if not pose.registered:
+                e["skipped"] = f"not registered: {pose.reason}"
+                note(f"pass {e['pass']}: {e['skipped']} (left out of the mesh; use the manual 3-point fallback)")
+        points, normals, index = merge_passes([e["cloud"][0] for e in usable], reg, [e["cloud"][1] for e in usable])
+        confidence = np.concatenate([e["cloud"][2] for e, pose in zip(usable, reg.poses) if pose.registered])
+        note(f"meshing {len(points)} points")
+        t = time.perf_counter()
+        try:
+            # the merged cloud is in pass 1's table frame: its cropped underside is closed on the table top
+            surf = reconstruct_surface(points, normals, confidence, preset=preset, table_z_mm=0.0)
+        except SurfaceError as exc:
+            raise UsageError(f"session {root}: surface: {exc}") from None
+        timings["surface"] = time.perf_counter() - t
+        tmp = root / ".incoming" / "mesh.ply"
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        write_mesh_ply(tmp, surf.vertices, surf.triangles, surf.vertex_normals)
+        mesh_info = session.adopt_file(tmp, MESH)
+        timings["total"] = time.perf_counter() - t_all
+        report = {
+            "session": str(root),
+            "preset": preset,
+            "calibration": manifest.get("calibration"),
+            "passes": [{k: v for k, v in e.items() if k != "cloud"} for e in passes],
+            "registration": {
+                "all_registered": reg.all_registered,
+                "pairs": [pr.as_dict() for pr in reg.pairs],
+                "consistency": None if reg.consistency is None else {
+                    "max_rotation_deg": reg.consistency.max_rotation_deg,
+                    "max_displacement_mm": reg.consistency.max_displacement_mm,
+                },
+                "seconds": reg.seconds,
+            },
+            "surface": surf.summary(),
+            "mesh": {"file": MESH, "sha256": mesh_info.sha256, "vertices": int(len(surf.vertices)),
+                     "triangles": int(len(surf.triangles)), "watertight": bool(surf.watertight)},
+            "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        }
+        blob = (json.dumps(report, indent=1, default=_json_default, allow_nan=False) + "\n").encode()
+        rep_info = session.write_file(REPORT, blob)
+        products = dict(manifest.get("products") or {})
+        products["mesh"] = {"file": MESH, "sha256": mesh_info.sha256, "bytes": mesh_info.bytes, "preset": preset}
+        products["process_report"] = {"file": REPORT, "sha256": rep_info.sha256, "bytes": rep_info.bytes}
+        session.update("products", products)
+        session.event("processed", f"{preset}: mesh {len(surf.triangles)} triangles, "
+                                   f"{sum(1 for e in passes if e.get('registered'))} of {len(passes)} passes")
+    return report
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON data")

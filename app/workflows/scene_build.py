@@ -1,0 +1,181 @@
+"""Turn a :class:`app.workflows.scene_spec.SceneSpec` into renderer objects.
+
+Procedural shapes (the hawk's head, spheres, planes) are built here from
+library calls, so the command line, the scene file and the demo share them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from app.errors import UsageError
+from app.workflows.scene_spec import ObjectSpec, SceneSpec
+
+__all__ = ["RenderJob", "build_job", "object_mesh", "rotation_matrix", "DEFAULT_LIGHT"]
+
+#: Key light used when none is given: above, to the left of and in front of a
+#: camera that looks along the default view direction.
+DEFAULT_LIGHT = (-0.4, -1.0, 1.2)
+
+
+@dataclass
+class RenderJob:
+    scene: object          # render.scene.Scene
+    camera: object         # render.camera.Camera
+    settings: object       # render.presets.RenderSettings
+
+
+def rotation_matrix(angles_deg: tuple[float, float, float]) -> NDArray[np.float64]:
+    """Rotation about x, then y, then z (degrees), as a 3x3 matrix.
+
+    Examples
+    --------
+    >>> np.round(rotation_matrix((0, 0, 90)) @ [1, 0, 0], 6).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    ax, ay, az = (math.radians(a) for a in angles_deg)
+    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _sphere_arrays(radius: float, triangles: int) -> tuple[NDArray, NDArray, NDArray]:
+    import open3d as o3d
+
+    # create_sphere(resolution r) has about 4 r^2 triangles.
+    resolution = max(8, int(round(math.sqrt(max(triangles, 200) / 4.0))))
+    mesh = o3d.geometry.TriangleMesh.create_sphere(radius=radius, resolution=resolution)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    t = np.asarray(mesh.triangles, dtype=np.int64)
+    return v, t, v / radius
+
+
+def _plane_arrays(size: float, divisions: int = 8) -> tuple[NDArray, NDArray, NDArray]:
+    n = divisions + 1
+    xs = np.linspace(-size / 2, size / 2, n)
+    gx, gy = np.meshgrid(xs, xs, indexing="ij")
+    v = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    t = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    normals = np.tile([0.0, 0.0, 1.0], (len(v), 1))
+    return v, t, normals
+
+
+def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
+    """Build the :class:`render.scene.SceneObject` of one object spec."""
+    from processing.materials.presets import MaterialError, get_material
+    from render.meshio import load_mesh, make_mesh
+    from render.scene import SceneObject
+
+    region_index = None
+    tangents = None
+    if obj.mesh is not None:
+        base = load_mesh(obj.mesh)
+        v, t, n = base.vertices, base.triangles, base.vertex_normals
+        name = str(obj.mesh)
+        materials = [obj.material]
+    else:
+        kind = (obj.procedural or "").lower()
+        args = obj.procedural_args
+        if kind == "hawk":
+            from mocks.procedural_hawk import DEFAULT_MATERIALS, hawk_head
+
+            hawk = hawk_head(int(args.get("triangles", default_hawk_triangles)))
+            v, t, n = hawk.vertices, hawk.triangles, hawk.vertex_normals
+            unknown = set(obj.region_materials) - set(hawk.region_names)
+            if unknown:
+                raise UsageError(
+                    f"hawk has no region(s) {', '.join(sorted(unknown))}; regions: {', '.join(hawk.region_names)}"
+                )
+            materials = [obj.region_materials.get(r, DEFAULT_MATERIALS.get(r, obj.material))
+                         for r in hawk.region_names]
+            region_index = hawk.region
+        elif kind == "sphere":
+            v, t, n = _sphere_arrays(float(args.get("radius", 1.0)), int(args.get("triangles", 20_000)))
+            materials = [obj.material]
+        elif kind == "plane":
+            v, t, n = _plane_arrays(float(args.get("size", 10.0)))
+            materials = [obj.material]
+        elif kind == "cloth":
+            from processing.cloth.draped import draped_cloth
+            from render.tangents import tangents_from_uvs
+
+            # the sheet has about 1.5 d^2 triangles for d divisions along x
+            sheet = draped_cloth(divisions=max(2, int(math.sqrt(float(args.get("triangles", 20_000)) / 1.5))))
+            v, t, n = sheet.vertices, sheet.triangles, sheet.normals
+            tangents = tangents_from_uvs(v, t, sheet.uvs, n)
+            materials = [obj.material]
+        else:
+            raise UsageError(f"unknown procedural object {obj.procedural!r}; use hawk, sphere, plane or cloth")
+        name = kind
+
+    rot = rotation_matrix(obj.rotate_deg)
+    if not (math.isfinite(obj.scale) and obj.scale > 0):
+        raise UsageError(f"object {name}: scale must be positive, got {obj.scale}")
+    v = (np.asarray(v) * obj.scale) @ rot.T + np.asarray(obj.translate)
+    n = np.asarray(n) @ rot.T
+    if tangents is not None:
+        tangents = tangents @ rot.T
+    try:
+        resolved = [get_material(m) for m in materials]
+    except MaterialError as exc:
+        raise UsageError(str(exc)) from None
+    mesh = make_mesh(v, t, n, source=name)
+    return SceneObject(mesh, resolved, material_index=region_index,
+                       material_index_on="triangle" if region_index is not None else None, name=name,
+                       tangents=tangents, weave_angle_deg=float(obj.weave_angle_deg or 0.0))
+
+
+def build_job(spec: SceneSpec, *, default_hawk_triangles: int = 250_000) -> RenderJob:
+    """Build scene, camera and settings; every bad value becomes a :class:`UsageError`."""
+    from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
+    from render.camera import Camera
+    from render.presets import get_preset
+    from render.scene import Light, Scene, Sky
+
+    try:
+        light_spectrum(spec.illuminant, REFERENCE_GRID)
+    except (ValueError, OSError) as exc:
+        raise UsageError(f"--illuminant: {exc}") from None
+    for light in spec.lights:
+        if light.spectrum:
+            try:
+                light_spectrum(light.spectrum, REFERENCE_GRID)
+            except (ValueError, OSError) as exc:
+                raise UsageError(f"light spectrum: {exc}") from None
+
+    objects = [object_mesh(o, default_hawk_triangles) for o in spec.objects]
+    lights_spec = spec.lights or []
+    lights = [Light(ls.kind, ls.vector, ls.spectrum or spec.illuminant, ls.intensity) for ls in lights_spec]
+    if not lights:
+        lights = [Light("directional", DEFAULT_LIGHT, spec.illuminant, 1.0)]
+    sky = Sky(kind=spec.sky.kind, zenith=spec.sky.zenith, horizon=spec.sky.horizon,
+              spectrum=spec.sky.spectrum or spec.illuminant)
+    scene = Scene(objects, lights, sky)
+
+    width, height = spec.size
+    cam = spec.camera
+    if cam.eye is None:
+        lo, hi = scene.bounds()
+        camera = Camera.framing(lo, hi, width, height, fov_deg=cam.fov_deg, up=cam.up)
+        if cam.target is not None:
+            camera = Camera(camera.eye, cam.target, cam.up, cam.fov_deg, width, height)
+    else:
+        if cam.target is None:
+            lo, hi = scene.bounds()
+            target = tuple(((np.asarray(lo) + np.asarray(hi)) / 2).tolist())
+        else:
+            target = cam.target
+        camera = Camera(cam.eye, target, cam.up, cam.fov_deg, width, height)
+    try:
+        settings = get_preset(spec.preset)
+    except (KeyError, ValueError) as exc:
+        raise UsageError(f"--preset: {exc}") from None
+    return RenderJob(scene, camera, settings)
