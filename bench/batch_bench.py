@@ -1,4 +1,4 @@
-"""``kogei batch`` throughput with 1 and 2 workers, and the batch layer's own cost (issue #8).
+"""``kogei batch`` throughput with 1 and 2 workers, and the batch layer's own cost.
 
 Simulated sessions (the station of ``kogei mock``: a small hawk, 2 placements x 60 profiles, one
 RAW frame and the chart per pass; each session its own seed) are processed from scratch with the
@@ -39,9 +39,9 @@ PRESET = "draft"
 
 def build_sessions(root: Path, n: int) -> tuple[list[Path], Path]:
     """Capture ``n`` simulated hawk sessions and one calibration session into ``root``."""
-    from app.cli.calibrate import calibrate_session
-    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.capture.devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
+    from app.cli.calibrate import calibrate_session
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World
@@ -73,8 +73,8 @@ def build_sessions(root: Path, n: int) -> tuple[list[Path], Path]:
 def direct(sessions: list[str], calibration: str) -> None:
     """The steps of the batch called directly, one session after another (the baseline)."""
     from app.batch.steps import BatchOptions, render_session_mesh
-    from app.workflows.process_session import process_session
     from app.report.html import write_report
+    from app.workflows.process_session import process_session
 
     options = BatchOptions(preset=PRESET)
     for s in sessions:
@@ -147,7 +147,7 @@ def section(results: dict) -> list[str]:
     r = results
     m, sph = r["median_s"], r["sessions_per_hour"]
     return [
-        "## Batch reprocessing (issue #8)",
+        "## Batch reprocessing",
         "",
         f"`bench/batch_bench.py`: {r['sessions']} simulated sessions (small hawk, 2 placements x 60 profiles, a RAW",
         f"frame and the chart per pass, each captured with its own seed), steps `{r['steps']}` at `{r['preset']}`,",

@@ -1,6 +1,6 @@
 """Host-side overhead per turntable step against the instant firmware emulator.
 
-Issue #3 benchmark: with ``time_scale=0`` the emulated table moves
+Benchmark: with ``time_scale=0`` the emulated table moves
 instantly, so the wall time of :meth:`drivers.turntable.Turntable.step`
 (motor and laser re-assertion plus the move: four command round trips over a
 real pty) is the host's own cost.  Target: <= 5 ms per step.
@@ -85,8 +85,8 @@ def measure_capture(steps: int = 400) -> dict[str, float]:
     """
     import numpy as np
 
-    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.capture.devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World

@@ -15,7 +15,7 @@ from bench.common import ROOT, machine_description, run_case_subprocess
 
 
 def render_section() -> list[str]:
-    lines = ["## Renderer (issue #2)", ""]
+    lines = ["## Renderer", ""]
     lines += [
         "### Speed: shading cost relative to bare ray casting",
         "",
@@ -64,13 +64,13 @@ def render_section() -> list[str]:
 
 
 def devices_section() -> list[str]:
-    """Host-side cost of one turntable step against the instant emulator (issue #3)."""
+    """Host-side cost of one turntable step against the instant emulator."""
     proc = subprocess.run([sys.executable, "-m", "bench.device_bench", "--steps", "400"], cwd=ROOT,
                           capture_output=True, text=True, timeout=600, check=True)
     r = json.loads(proc.stdout.strip().splitlines()[-1])
     c = r["capture"]
     return [
-        "## Devices (issue #3)",
+        "## Devices",
         "",
         "Host-side overhead of one `Turntable.step` (motor and laser re-asserted, absolute move: four",
         "command round trips over a real pseudo-terminal, wire log on) against the Horus firmware emulator",
@@ -130,7 +130,7 @@ def _more_placements(r: dict) -> str:
 
 
 def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
-    """Scan processing against the simulated station's ground truth (issue #4, ``bench.geometry_bench``).
+    """Scan processing against the simulated station's ground truth (``bench.geometry_bench``).
 
     ``results`` maps object names to ``python -m bench.geometry_bench --case NAME`` outputs; by
     default each case runs in its own process.
@@ -139,7 +139,7 @@ def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
         results = {n: run_case_subprocess("bench.geometry_bench", n, timeout=7200) for n in GEOMETRY_OBJECTS}
     done = {n: r for n, r in results.items() if "missing" not in r}
     lines = [
-        "## Scan processing (issue #4)",
+        "## Scan processing",
         "",
         "`bench/geometry_bench.py` against the simulated station's ground truth.  Every profile travels the way a",
         "real capture's does: the turntable and profiler firmware emulators on pseudo-terminals, the drivers, and",
@@ -182,7 +182,7 @@ def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
 
     names = list(done)
     head = "| figure (target) | " + " | ".join(GEOMETRY_TITLES.get(n, n) for n in names) + " |"
-    lines += ["", "### Against the issue's targets", "", head, "|---|" + "---|" * len(names)]
+    lines += ["", "### Against the targets", "", head, "|---|" + "---|" * len(names)]
     rows: list[tuple[str, list[str]]] = []
     cells = []
     for n in names:
@@ -339,21 +339,21 @@ def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
 
 
 def chart_section() -> list[str]:
-    """RAW decoding and chart detection on a 24-megapixel frame (issue #5, bench/chart_bench.py)."""
+    """RAW decoding and chart detection on a 24-megapixel frame (bench/chart_bench.py)."""
     from bench.chart_bench import section
 
     return section()
 
 
 def spectral_section() -> list[str]:
-    """Spectral estimation and material identification (issue #5, bench/spectral_bench.py)."""
+    """Spectral estimation and material identification (bench/spectral_bench.py)."""
     from bench.spectral_bench import collect, section
 
     return section(collect())
 
 
 def cloth_section() -> list[str]:
-    """Render cost of cloth vs metal and the internal layers' speed/accuracy (issue #6, bench/cloth_bench.py)."""
+    """Render cost of cloth vs metal and the internal layers' speed/accuracy (bench/cloth_bench.py)."""
     from bench.cloth_bench import section
 
     proc = subprocess.run([sys.executable, "-m", "bench.cloth_bench"], cwd=ROOT, capture_output=True, text=True,
@@ -362,7 +362,7 @@ def cloth_section() -> list[str]:
 
 
 def batch_section() -> list[str]:
-    """Batch reprocessing throughput and the batch layer's cost (issue #8, bench/batch_bench.py)."""
+    """Batch reprocessing throughput and the batch layer's cost (bench/batch_bench.py)."""
     from bench.batch_bench import section
 
     proc = subprocess.run([sys.executable, "-m", "bench.batch_bench"], cwd=ROOT, capture_output=True, text=True,
@@ -371,7 +371,7 @@ def batch_section() -> list[str]:
 
 
 def gui_section() -> list[str]:
-    """The capture station window's responsiveness and cost during a simulated session (issue #7, bench/gui_bench.py)."""
+    """The capture station window's responsiveness and cost during a simulated session (bench/gui_bench.py)."""
     from bench.gui_bench import section
 
     proc = subprocess.run([sys.executable, "-m", "bench.gui_bench"], cwd=ROOT, capture_output=True, text=True,

@@ -1,6 +1,6 @@
 """Serial port discovery: device path, USB VID:PID, serial number, description.
 
-DESIGN.md section 3 ("Devices"); the rows come from
+The rows come from
 :func:`serial.tools.list_ports.comports` (pyserial), and :func:`format_ports`
 is the table printed by ``kogei devices``.
 

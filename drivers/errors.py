@@ -1,6 +1,6 @@
 """Errors raised by the device drivers.
 
-DESIGN.md section 3 ("Devices"): every read has a deadline and every failure
+Every read has a deadline and every failure
 names the port or the command, so a capture session can tell a cable that was
 pulled (:class:`TransportClosed`, recover with ``reconnect()``) from a device
 that refused a command (:class:`DeviceError`) or stopped answering

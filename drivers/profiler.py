@@ -1,6 +1,6 @@
 """Driver for the laser line-profile sensor.
 
-DESIGN.md section 3 ("Devices") and ``docs/protocols.md`` ("Laser
+``docs/protocols.md`` ("Laser
 profiler").  ASCII command lines are answered by ``OK,<cmd>[,<values>]`` or
 ``ER,<cmd>,<code>``; profiles arrive as binary frames::
 

@@ -1,6 +1,6 @@
 """Serial byte transport with read deadlines and a wire log.
 
-DESIGN.md section 3 ("Devices"): a device driver takes a transport (as in
+A device driver takes a transport (as in
 pyserial, the link is swappable), every read has a deadline, binary protocols
 resynchronise on garbage, and both directions of the wire are logged into the
 session.  The port is opened with :func:`serial.serial_for_url`, so a device

@@ -1,6 +1,6 @@
 """Driver for the Horus turntable firmware (Ciclop scanner board).
 
-DESIGN.md section 3 ("Devices") and ``docs/protocols.md`` ("Turntable").
+``docs/protocols.md`` ("Turntable").
 The Horus firmware is GRBL-derived: 115200 8N1, CR/LF lines, banner
 ``Horus 0.2 ['$' for help]`` after a Ctrl-X reset, every command line
 answered by exactly one ``ok`` or ``error: <text>``, ``G1 X<x>`` an
