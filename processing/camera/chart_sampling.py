@@ -317,6 +317,21 @@ def check_patches(
     ChartRejectedError
         Too few usable patches (the message names each bad patch and what to
         do), or the chart is mis-ordered (rotated or mirrored).
+
+    Examples
+    --------
+    >>> from processing.camera.chart_layout import reference_srgb8
+    >>> rgb = (reference_srgb8("classic24") / 255.0) ** 2.2 + 0.01     # a camera that sees sRGB
+    >>> n = len(rgb)
+    >>> shot = PatchSamples("classic24", rgb, np.zeros((n, 3)), np.zeros(n), np.full(n, 100), np.zeros(n))
+    >>> bool(check_patches(shot).usable.all())
+    True
+    >>> upside_down = PatchSamples("classic24", rgb[::-1], shot.std, shot.clipped, shot.count, shot.nonuniformity)
+    >>> try:
+    ...     check_patches(upside_down)
+    ... except ChartRejectedError as exc:
+    ...     print("out of order" in str(exc))
+    True
     """
     layout = chart_layout(samples.chart)
     ref = reference_lab(samples.chart) if reference is None else np.asarray(reference, dtype=np.float64)
