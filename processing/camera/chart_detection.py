@@ -1,29 +1,22 @@
 """Colour-chart detection: where each patch of a ColorChecker Classic / Digital SG / vinyl chart lies.
 
-Detection runs OpenCV's ``cv2.mcc`` (Marrero Fernandez et al., "Fast and
-robust multiple ColorChecker detection using deep convolutional neural
-networks", Image and Vision Computing 81, 2019; its classical, network-free
-path) on the display-referred preview of :func:`processing.camera.raw_decode.
-preview_srgb8`, shrunk to at most ``max_side`` pixels for speed.  ``mcc``
-returns the chart's outer box (model -> image homography, orientation chosen
-by matching the patch colours in all eight rotations and flips, so patch 1 is
-the chart's first patch however the chart lies); its box is a few percent off
-in our tests, so the patch centres are then **refined** (on the shrunk
-preview when its patches are at least 40 pixels wide, else on the full-size
-one): each patch is segmented as the connected region of its own colour around
-the predicted centre, and a homography is fitted (RANSAC) from the layout's
-patch centres to the region centroids (Hartley & Zisserman, *Multiple
-View Geometry*, 2nd ed., algorithm 4.6).  ``confidence`` is the fraction of
-patches that agree with the fitted homography.
+:func:`detect_chart` runs OpenCV's ``cv2.mcc`` on the sRGB preview of
+:func:`processing.camera.raw_decode.preview_srgb8` and refines the patch
+centres by segmenting each patch and fitting a homography (RANSAC) to their
+centroids; :func:`chart_from_corners` is the manual fallback from the chart's
+four outer corners.  Coordinates are full-resolution sensor pixels with pixel
+centres at integers.  docs/colour-pipeline.md, "Detection", describes the
+steps and the failures.
 
-:func:`chart_from_corners` is the manual fallback: the four outer corners of
-the chart's frame (in the chart's own order: top-left, top-right,
-bottom-right, bottom-left as printed) give the homography of the known
-layout directly.
+References
+----------
+Marrero Fernandez, P. D., Guerrero-Pena, F. A., Ren, T. I., et al. (2019).
+Fast and robust multiple ColorChecker detection using deep convolutional
+neural networks. Image and Vision Computing 81 (arXiv:1810.08639).
 
-All coordinates are full-resolution sensor pixels with pixel centres at
-integers (OpenCV's convention); a binned image's coordinates are mapped by
-its scale (:meth:`processing.camera.raw_decode.RawImage.to_sensor`).
+Hartley, R., Zisserman, A. (2004). Multiple View Geometry in Computer Vision,
+2nd ed., Cambridge University Press, algorithm 4.6.
+doi:10.1017/CBO9780511811685
 """
 
 from __future__ import annotations
@@ -68,6 +61,11 @@ class ChartOutsideError(ChartDetectionError):
 class ChartDetection:
     """A located chart.
 
+    Parameters
+    ----------
+    chart, corners, homography, quads, centres, confidence, method, seconds, image_size, mcc_cost
+        The attributes below, in this order.
+
     Attributes
     ----------
     chart
@@ -107,11 +105,12 @@ class ChartDetection:
 
     @property
     def layout(self) -> ChartLayout:
-        """The chart's layout."""
+        """The chart's layout (:func:`processing.camera.chart_layout.chart_layout`)."""
         return chart_layout(self.chart)
 
 
 def _apply(h: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Points ``(..., 2)`` mapped by the homography ``h``."""
     p = np.asarray(pts, dtype=np.float64)
     flat = p.reshape(-1, 2)
     m = np.column_stack([flat, np.ones(len(flat))]) @ h.T
@@ -119,6 +118,7 @@ def _apply(h: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float
 
 
 def _homography(src: NDArray[np.float64], dst: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The homography taking four points ``src`` to ``dst``."""
     import cv2
 
     return cv2.getPerspectiveTransform(np.asarray(src, np.float32), np.asarray(dst, np.float32)).astype(np.float64)
@@ -126,6 +126,7 @@ def _homography(src: NDArray[np.float64], dst: NDArray[np.float64]) -> NDArray[n
 
 def _build(chart: str, h: NDArray[np.float64], confidence: float, method: str, seconds: float,
            image_size: tuple[int, int] | None, cost: float | None) -> ChartDetection:
+    """The detection of homography ``h`` (model units -> sensor pixels), refused if partly outside the image."""
     layout = chart_layout(chart)
     quads = _apply(h, layout.quads())
     centres = _apply(h, layout.centres())
@@ -136,6 +137,7 @@ def _build(chart: str, h: NDArray[np.float64], confidence: float, method: str, s
 
 
 def _check_inside(det: ChartDetection) -> None:
+    """Raise :class:`ChartOutsideError` naming the patches beyond the image, if any."""
     if det.image_size is None:
         return
     w, h = det.image_size
@@ -152,6 +154,21 @@ def _check_inside(det: ChartDetection) -> None:
 
 def parse_corners(text: str) -> NDArray[np.float64]:
     """``"x1,y1,x2,y2,x3,y3,x4,y4"`` -> ``(4, 2)`` float array.
+
+    Parameters
+    ----------
+    text
+        Eight numbers separated by commas or semicolons (sensor pixels).
+
+    Returns
+    -------
+    ndarray
+        ``(4, 2)`` float64 (x, y) corners.
+
+    Raises
+    ------
+    ChartDetectionError
+        Not numbers, or not eight of them.
 
     Examples
     --------
@@ -182,6 +199,20 @@ def chart_from_corners(corners: ArrayLike, chart: str = "classic24", *,
     image_size
         ``(width, height)`` of the sensor image, to reject a chart partly
         outside it.
+
+    Returns
+    -------
+    ChartDetection
+        Method ``"manual"``, confidence 1.
+
+    Raises
+    ------
+    ChartDetectionError
+        Not four finite points, or not a convex quadrilateral in order.
+    ChartOutsideError
+        A patch falls beyond ``image_size``.
+    ChartLayoutError
+        Unknown chart.
 
     Examples
     --------
@@ -220,43 +251,14 @@ def _refine(preview: NDArray[np.uint8], h_prev: NDArray[np.float64], layout: Cha
     """Refit the model -> preview homography on segmented patch centroids; returns it and the inlier fraction."""
     import cv2
 
-    ph, pw = preview.shape[:2]
     quads = _apply(h_prev, layout.quads())
     centres = layout.centres()
     found_model, found_image = [], []
     for k in range(layout.size):
-        q = quads[k]
-        c = q.mean(axis=0)
-        area = 0.5 * abs(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))
-        side = math.sqrt(area)
-        if side < 6:
-            continue
-        pad = 0.4 * side
-        x0, y0 = np.floor(q.min(axis=0) - pad).astype(int)
-        x1, y1 = np.ceil(q.max(axis=0) + pad).astype(int) + 1
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, pw), min(y1, ph)
-        cx, cy = int(round(c[0])) - x0, int(round(c[1])) - y0
-        if not (0 <= cx < x1 - x0 and 0 <= cy < y1 - y0):
-            continue
-        # Lab per window only: converting a whole 24-megapixel preview would cost more than mcc itself
-        win = cv2.cvtColor(np.ascontiguousarray(preview[y0:y1, x0:x1]), cv2.COLOR_RGB2Lab).astype(np.float32)
-        r = max(1, int(0.15 * side))
-        core = win[max(cy - r, 0):cy + r + 1, max(cx - r, 0):cx + r + 1].reshape(-1, 3)
-        ref = np.median(core, axis=0)
-        dist = np.linalg.norm(win - ref, axis=2)
-        tol = max(10.0, 4.0 * float(np.median(np.linalg.norm(core - ref, axis=1))))
-        mask = (dist < tol).astype(np.uint8)
-        n, cc, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=4)
-        lbl = cc[cy, cx]
-        if lbl == 0:
-            continue
-        ratio = stats[lbl, cv2.CC_STAT_AREA] / area
-        touches = (stats[lbl, cv2.CC_STAT_LEFT] == 0 or stats[lbl, cv2.CC_STAT_TOP] == 0
-                   or stats[lbl, cv2.CC_STAT_LEFT] + stats[lbl, cv2.CC_STAT_WIDTH] == x1 - x0
-                   or stats[lbl, cv2.CC_STAT_TOP] + stats[lbl, cv2.CC_STAT_HEIGHT] == y1 - y0)
-        if 0.7 < ratio < 1.3 and not touches:    # a patch-sized island: not merged with the frame or a neighbour
+        centroid = _patch_centroid(preview, quads[k])
+        if centroid is not None:
             found_model.append(centres[k])
-            found_image.append(cent[lbl] + [x0, y0])
+            found_image.append(centroid)
     if len(found_model) < 6:
         return h_prev, len(found_model) / layout.size
     src = np.asarray(found_model, np.float64)
@@ -266,6 +268,44 @@ def _refine(preview: NDArray[np.uint8], h_prev: NDArray[np.float64], layout: Cha
     if h_new is None:
         return h_prev, len(found_model) / layout.size
     return h_new / h_new[2, 2], float(inl.sum()) / layout.size
+
+
+def _patch_centroid(preview: NDArray[np.uint8], q: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """Centroid (x, y) of the region of the patch's own colour around the predicted patch ``q``, or None."""
+    import cv2
+
+    ph, pw = preview.shape[:2]
+    c = q.mean(axis=0)
+    area = 0.5 * abs(np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1]))
+    side = math.sqrt(area)
+    if side < 6:
+        return None
+    pad = 0.4 * side
+    x0, y0 = np.floor(q.min(axis=0) - pad).astype(int)
+    x1, y1 = np.ceil(q.max(axis=0) + pad).astype(int) + 1
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, pw), min(y1, ph)
+    cx, cy = int(round(c[0])) - x0, int(round(c[1])) - y0
+    if not (0 <= cx < x1 - x0 and 0 <= cy < y1 - y0):
+        return None
+    # Lab per window only: converting a whole 24-megapixel preview would cost more than mcc itself
+    win = cv2.cvtColor(np.ascontiguousarray(preview[y0:y1, x0:x1]), cv2.COLOR_RGB2Lab).astype(np.float32)
+    r = max(1, int(0.15 * side))
+    core = win[max(cy - r, 0):cy + r + 1, max(cx - r, 0):cx + r + 1].reshape(-1, 3)
+    ref = np.median(core, axis=0)
+    dist = np.linalg.norm(win - ref, axis=2)
+    tol = max(10.0, 4.0 * float(np.median(np.linalg.norm(core - ref, axis=1))))
+    mask = (dist < tol).astype(np.uint8)
+    n, cc, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=4)
+    lbl = cc[cy, cx]
+    if lbl == 0:
+        return None
+    ratio = stats[lbl, cv2.CC_STAT_AREA] / area
+    touches = (stats[lbl, cv2.CC_STAT_LEFT] == 0 or stats[lbl, cv2.CC_STAT_TOP] == 0
+               or stats[lbl, cv2.CC_STAT_LEFT] + stats[lbl, cv2.CC_STAT_WIDTH] == x1 - x0
+               or stats[lbl, cv2.CC_STAT_TOP] + stats[lbl, cv2.CC_STAT_HEIGHT] == y1 - y0)
+    if 0.7 < ratio < 1.3 and not touches:    # a patch-sized island: not merged with the frame or a neighbour
+        return cent[lbl] + [x0, y0]
+    return None
 
 
 def detect_chart(image: RawImage | NDArray[np.uint8], chart: str = "classic24", *, scale: int = 1,
@@ -288,6 +328,8 @@ def detect_chart(image: RawImage | NDArray[np.uint8], chart: str = "classic24", 
     Returns
     -------
     ChartDetection
+        Method ``"mcc"``; ``confidence`` is the fraction of patches that agree
+        with the refined homography.
 
     Raises
     ------
@@ -295,11 +337,40 @@ def detect_chart(image: RawImage | NDArray[np.uint8], chart: str = "classic24", 
         No chart found.
     ChartOutsideError
         The chart is partly outside the frame.
+    ChartDetectionError
+        An array that is not a uint8 ``(H, W, 3)`` preview of at least 16 px,
+        or a bad ``scale``.
+
+    References
+    ----------
+    Marrero Fernandez, P. D., Guerrero-Pena, F. A., Ren, T. I., et al.
+    (2019). Fast and robust multiple ColorChecker detection using deep
+    convolutional neural networks. Image and Vision Computing 81
+    (arXiv:1810.08639).
+
+    Hartley, R., Zisserman, A. (2004). Multiple View Geometry in Computer
+    Vision, 2nd ed., algorithm 4.6. doi:10.1017/CBO9780511811685
     """
     import cv2
 
     t0 = time.perf_counter()
     layout = chart_layout(chart)
+    preview, scale = _preview_of(image, scale)
+    ph, pw = preview.shape[:2]
+    shrink = min(1.0, max_side / max(ph, pw))
+    small = preview if shrink == 1.0 else cv2.resize(preview, (round(pw * shrink), round(ph * shrink)),
+                                                     interpolation=cv2.INTER_AREA)
+    best = _best_checker(small, chart, (pw * scale, ph * scale))
+    box_small = np.asarray(best.getBox(), dtype=np.float64).reshape(4, 2)
+    h_prev, confidence = _refined_homography(preview, small, box_small, layout, shrink)
+    to_sensor = np.array([[scale, 0, (scale - 1) / 2.0], [0, scale, (scale - 1) / 2.0], [0, 0, 1]])
+    h = to_sensor @ h_prev
+    return _build(chart, h / h[2, 2], confidence, "mcc", time.perf_counter() - t0, (pw * scale, ph * scale),
+                  float(best.getCost()))
+
+
+def _preview_of(image: RawImage | NDArray[np.uint8], scale: int) -> tuple[NDArray[np.uint8], int]:
+    """The uint8 RGB preview to search and its photosites per pixel (a RawImage's own preview and scale)."""
     if isinstance(image, RawImage):
         preview = preview_srgb8(image)
         scale = image.scale
@@ -312,21 +383,29 @@ def detect_chart(image: RawImage | NDArray[np.uint8], chart: str = "classic24", 
             )
         if not (isinstance(scale, (int, np.integer)) and scale >= 1):
             raise ChartDetectionError(f"scale must be a whole number of photosites per pixel >= 1, got {scale!r}")
-    ph, pw = preview.shape[:2]
-    shrink = min(1.0, max_side / max(ph, pw))
-    small = preview if shrink == 1.0 else cv2.resize(preview, (round(pw * shrink), round(ph * shrink)),
-                                                     interpolation=cv2.INTER_AREA)
+    return preview, scale
+
+
+def _best_checker(small: NDArray[np.uint8], chart: str, sensor_size: tuple[int, int]):
+    """``cv2.mcc``'s lowest-cost chart of type ``chart`` in ``small``; :class:`ChartNotFoundError` if none."""
+    import cv2
+
     det = cv2.mcc.CCheckerDetector_create()
     det.setColorChartType(getattr(cv2.mcc, _MCC_TYPE[chart]))
     found = det.process(np.ascontiguousarray(small[..., ::-1]), 1)
     checkers = det.getListColorChecker() if found else []
     if not checkers:
         raise ChartNotFoundError(
-            f"no {chart} chart found in the {pw * scale} x {ph * scale} image; check that the whole chart is in "
+            f"no {chart} chart found in the {sensor_size[0]} x {sensor_size[1]} image; check that the whole chart is in "
             f"view, lit evenly and not over- or under-exposed, or {_CORNERS_HINT}"
         )
-    best = min(checkers, key=lambda ch: ch.getCost())
-    box_small = np.asarray(best.getBox(), dtype=np.float64).reshape(4, 2)
+    return min(checkers, key=lambda ch: ch.getCost())
+
+
+def _refined_homography(preview: NDArray[np.uint8], small: NDArray[np.uint8], box_small: NDArray[np.float64],
+                        layout: ChartLayout, shrink: float) -> tuple[NDArray[np.float64], float]:
+    """Model -> preview homography from ``mcc``'s box, refined on the shrunk or the full preview, and its confidence."""
+    ph, pw = preview.shape[:2]
     h_small = _homography(layout.corners, box_small)
     # resize maps pixel centres by x_small = (x + 0.5) * f - 0.5, f the rounded size's own ratio per axis
     fx, fy = small.shape[1] / pw, small.shape[0] / ph
@@ -339,7 +418,4 @@ def detect_chart(image: RawImage | NDArray[np.uint8], chart: str = "classic24", 
         h_prev = small_to_prev @ h_small
     else:
         h_prev, confidence = _refine(preview, small_to_prev @ h_small, layout)
-    to_sensor = np.array([[scale, 0, (scale - 1) / 2.0], [0, scale, (scale - 1) / 2.0], [0, 0, 1]])
-    h = to_sensor @ h_prev
-    return _build(chart, h / h[2, 2], confidence, "mcc", time.perf_counter() - t0, (pw * scale, ph * scale),
-                  float(best.getCost()))
+    return h_prev, confidence

@@ -1,25 +1,17 @@
 """Geometry and reference colours of the colour charts the pipeline knows.
 
-The layouts are those of OpenCV's ``mcc`` module (``modules/mcc/src/
-dictionary.hpp``, the chart models of Marrero Fernandez et al., "Fast and
-robust multiple ColorChecker detection using deep convolutional neural
-networks", Image and Vision Computing 81, 2019), so a chart found by
-``cv2.mcc`` and a chart given by its four outer corners map to the same patch
-polygons.  Model units: one unit is 1/11 of a patch (a patch is 2.5 units with
-0.25-unit gaps and margins), i.e. about 16 mm on a ColorChecker Classic whose
-black frame is 16.75 x 11.25 units (about 275 x 185 mm).
+The layouts (``classic24``, ``sg140``, ``vinyl18``) are those of OpenCV's
+``mcc`` module, so a chart found by ``cv2.mcc`` and a chart given by its four
+outer corners map to the same patch polygons; model units are 1/11 of a patch
+(a patch is 2.5 units, gaps and margins 0.25).  The reference colours are
+``cv2.mcc``'s own 8-bit sRGB, used only for camera-independent orderings.
+docs/colour-pipeline.md, "Chart layouts", tabulates the charts.
 
-* ``classic24`` -- X-Rite ColorChecker Classic: 4 rows x 6 columns, reading
-  order dark skin ... black; neutral row 19-24 (white 9.5 ... black 2).
-* ``sg140`` -- ColorChecker Digital SG: 10 rows x 14 columns, row-major
-  along the long side as in ``cv2.mcc``.
-* ``vinyl18`` -- the 18-patch vinyl chart of ``cv2.mcc``: a tall neutral row
-  of six (white ... black) over two rows of six chromatic patches.
-
-Reference colours are ``cv2.mcc``'s own (``getRefColors``: 8-bit sRGB
-derived from the charts' CIE L*a*b* D50 values); the pipeline uses them only
-for camera-independent orderings (which neutral is lighter, which hue a
-chromatic patch has), never as colorimetric truth.
+References
+----------
+Marrero Fernandez, P. D., Guerrero-Pena, F. A., Ren, T. I., et al.
+(2019). Fast and robust multiple ColorChecker detection using deep
+convolutional neural networks. Image and Vision Computing 81 (arXiv:1810.08639).
 """
 
 from __future__ import annotations
@@ -34,6 +26,7 @@ from processing.errors import InputError
 
 __all__ = ["CHARTS", "ChartLayout", "ChartLayoutError", "chart_layout", "reference_srgb8", "reference_lab"]
 
+#: Names of the charts :func:`chart_layout` knows.
 CHARTS = ("classic24", "sg140", "vinyl18")
 
 _CLASSIC_NAMES = (
@@ -57,6 +50,11 @@ class ChartLayoutError(InputError):
 @dataclass(frozen=True)
 class ChartLayout:
     """A chart's patch grid in model units (x to the right along the long side, y down).
+
+    Parameters
+    ----------
+    name, rows, cols, width, height, col_edges, row_edges, names, mm_per_unit
+        The attributes below, in this order.
 
     Attributes
     ----------
@@ -97,6 +95,11 @@ class ChartLayout:
     def quads(self) -> NDArray[np.float64]:
         """Patch corners ``(N, 4, 2)`` (TL, TR, BR, BL) in reading order, model units.
 
+        Returns
+        -------
+        ndarray
+            ``(N, 4, 2)`` float64 (x, y) corners, N = :attr:`size`.
+
         Examples
         --------
         >>> chart_layout("classic24").quads()[0].tolist()
@@ -109,21 +112,56 @@ class ChartLayout:
         return out.reshape(-1, 4, 2)
 
     def centres(self) -> NDArray[np.float64]:
-        """Patch centres ``(N, 2)`` in model units."""
+        """Patch centres ``(N, 2)`` in model units.
+
+        Returns
+        -------
+        ndarray
+            ``(N, 2)`` float64 (x, y), reading order.
+        """
         return self.quads().mean(axis=1)
 
     def label(self, index: int) -> str:
-        """``"patch 19 (white 9.5)"``: the 1-based number printed on charts, and the name."""
+        """``"patch 19 (white 9.5)"``: the 1-based number printed on charts, and the name.
+
+        Parameters
+        ----------
+        index
+            0-based patch index in reading order.
+
+        Returns
+        -------
+        str
+            The patch as messages name it.
+        """
         return f"patch {index + 1} ({self.names[index]})"
 
 
 def _uniform(n: int) -> tuple[tuple[float, float], ...]:
+    """Edges of ``n`` patches of 2.5 units with 0.25-unit gaps and margins."""
     return tuple((0.25 + 2.75 * i, 2.75 + 2.75 * i) for i in range(n))
 
 
 @functools.cache
 def chart_layout(name: str) -> ChartLayout:
     """The layout of chart ``name`` (one of :data:`CHARTS`).
+
+    Parameters
+    ----------
+    name
+        ``"classic24"`` (X-Rite ColorChecker Classic, 4 x 6), ``"sg140"``
+        (ColorChecker Digital SG, 10 x 14) or ``"vinyl18"`` (the 18-patch
+        vinyl chart of ``cv2.mcc``).
+
+    Returns
+    -------
+    ChartLayout
+        The patch grid in model units.
+
+    Raises
+    ------
+    ChartLayoutError
+        Unknown chart.
 
     Examples
     --------
@@ -151,6 +189,24 @@ _MCC_TYPE = {"classic24": "MCC24", "sg140": "SG140", "vinyl18": "VINYL18"}
 def reference_srgb8(name: str) -> NDArray[np.uint8]:
     """``cv2.mcc``'s reference colours of chart ``name``: ``(N, 3)`` 8-bit sRGB (R, G, B), reading order.
 
+    The colours are ``getRefColors`` of ``cv2.mcc``: 8-bit sRGB derived from
+    the charts' CIE L*a*b* D50 values.
+
+    Parameters
+    ----------
+    name
+        One of :data:`CHARTS`.
+
+    Returns
+    -------
+    ndarray
+        ``(N, 3)`` read-only uint8.
+
+    Raises
+    ------
+    ChartLayoutError
+        Unknown chart.
+
     Examples
     --------
     >>> ref = reference_srgb8("classic24")
@@ -171,6 +227,26 @@ def reference_srgb8(name: str) -> NDArray[np.uint8]:
 @functools.cache
 def reference_lab(name: str) -> NDArray[np.float64]:
     """CIE L*a*b* (D65) of :func:`reference_srgb8`, ``(N, 3)``.
+
+    Parameters
+    ----------
+    name
+        One of :data:`CHARTS`.
+
+    Returns
+    -------
+    ndarray
+        ``(N, 3)`` read-only float64 L*, a*, b* (CIE 1931 2 degree observer,
+        D65 white).
+
+    Raises
+    ------
+    ChartLayoutError
+        Unknown chart.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry, 4th edition. doi:10.25039/TR.015.2018
 
     Examples
     --------

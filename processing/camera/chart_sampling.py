@@ -1,33 +1,22 @@
 """Sampling the linear RAW inside each chart patch, and the checks that reject an unusable chart.
 
-:func:`sample_patches` reads the linear camera RGB of a
-:class:`~processing.camera.raw_decode.RawImage` inside the central ``inset`` of each
-patch located by :mod:`processing.camera.chart_detection` (the patch's own model
-coordinates, so perspective is exact): per patch the trimmed mean (the
-``trim`` fraction cut from each end per channel, ASTM E2586 / scipy's
-``trim_mean``), the standard deviation, the clipped (saturated) fraction, the
-pixel count, and a **non-uniformity**: the spread of the four quadrant means
-relative to the mean, ``(max - min - 4.7 s / sqrt(n)) / mean`` of the channel
-that varies most (``s`` the pixel standard deviation, ``n`` the pixels of the
-smallest quadrant: the part of the range that sensor noise explains is
-removed; in demosaic mode ``n`` is a quarter of the pixels, the independent
-photosites of a channel), so non-uniformity measures glare and shadows rather than noise.
-
-:func:`check_patches` applies the checks of a chart shot before it is used
-for colour calibration (cf. ISO 17321-1:2012, section 4.5, on chart capture:
-even illumination, no clipping):
-
-* clipped: a patch with more than ``max_clipped`` of its pixels saturated;
-* non-uniform: non-uniformity above ``max_nonuniformity``;
-* mis-ordered: the chart's camera-independent orderings must hold -- the
-  neutral patches darken in the order of the reference chart's L*, and each
-  strongly chromatic patch has about the reference hue after balancing on the
-  neutrals (opponent axes ``R - G`` and ``(R + G)/2 - B``, which keep the hue
-  order of any RGB camera to within tens of degrees).  A chart rotated or
-  mirrored against its corners fails both.
-
-Patches are named as printed on the chart: 1-based, with their names
+:func:`sample_patches` gives per patch the trimmed mean, standard deviation,
+clipped fraction, live-pixel count and a noise-corrected non-uniformity of the
+linear camera RGB inside the central part of the patch; :func:`check_patches`
+rejects clipped, non-uniform and mis-ordered (rotated or mirrored) chart
+shots before colour calibration (cf. ISO 17321-1:2012, section 4.5).
+Patches are named as printed on the chart, 1-based with their names
 (``"patch 19 (white 9.5)"``); arrays are indexed from 0.
+docs/colour-pipeline.md, "Sampling and checks", gives the statistics and the
+thresholds.
+
+References
+----------
+ISO 17321-1:2012, Graphic technology and photography -- Colour
+characterisation of digital still cameras (DSCs) -- Part 1, section 4.5 (no DOI).
+
+Tippett, L. H. C. (1925). On the extreme individuals and the range of samples
+taken from a normal population. Biometrika 17(3-4), 364-387.
 """
 
 from __future__ import annotations
@@ -64,6 +53,11 @@ class ChartRejectedError(InputError):
 class PatchSamples:
     """Per-patch statistics of the linear camera RGB (units of saturation).
 
+    Parameters
+    ----------
+    chart, mean, std, clipped, count, nonuniformity, exposure_time, iso, f_number
+        The attributes below, in this order.
+
     Attributes
     ----------
     chart
@@ -79,7 +73,7 @@ class PatchSamples:
     nonuniformity
         ``(N,)`` largest noise-corrected ``(max - min) / mean`` of the four quadrant means.
     exposure_time, iso, f_number
-        From the RAW file.
+        From the RAW file (seconds, ISO speed, f-number; 0 when unknown).
     """
 
     chart: str
@@ -97,6 +91,11 @@ class PatchSamples:
 class ChartCheck:
     """Result of :func:`check_patches`.
 
+    Parameters
+    ----------
+    usable, warnings
+        The attributes below, in this order.
+
     Attributes
     ----------
     usable
@@ -110,6 +109,7 @@ class ChartCheck:
 
 
 def _trim_mean(values: NDArray[np.float64], trim: float) -> NDArray[np.float64]:
+    """Mean per column with the ``trim`` fraction cut from each end (scipy's ``trim_mean``)."""
     from scipy.stats import trim_mean
 
     return np.asarray(trim_mean(values, trim, axis=0), dtype=np.float64)
@@ -118,6 +118,14 @@ def _trim_mean(values: NDArray[np.float64], trim: float) -> NDArray[np.float64]:
 def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: float = 0.6,
                    trim: float = 0.1) -> PatchSamples:
     """Statistics of the linear RGB inside each patch.
+
+    The pixels sampled are those whose centre lies in the central ``inset``
+    of the patch side, in the patch's own model coordinates (so perspective
+    is exact).  The non-uniformity is ``(max - min - 4.7 s / sqrt(n)) / mean``
+    of the four quadrant means of the channel that varies most (``s`` the
+    pixel standard deviation, ``n`` the independent samples of the smallest
+    quadrant): the part of the range sensor noise explains is removed, so it
+    measures glare and shadows rather than noise.
 
     Parameters
     ----------
@@ -133,6 +141,7 @@ def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: flo
     Returns
     -------
     PatchSamples
+        One row per patch in reading order, with the frame's exposure metadata.
 
     Raises
     ------
@@ -151,18 +160,7 @@ def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: flo
     >>> s.mean[0].tolist(), float(s.clipped[0]), bool(s.count[0] > 50)
     ([0.5, 0.5, 0.5], 0.0, True)
     """
-    if not (0 < inset <= 1):
-        raise ChartSamplingError(f"inset must be in (0, 1] (fraction of the patch side sampled), got {inset!r}")
-    if not (0 <= trim < 0.5):
-        raise ChartSamplingError(f"trim must be in [0, 0.5) (fraction cut from each end), got {trim!r}")
-    h, w = raw_image.shape
-    sensor_size = (w * raw_image.scale, h * raw_image.scale)
-    if detection.image_size is not None and any(abs(a - b) > raw_image.scale
-                                                for a, b in zip(detection.image_size, sensor_size)):
-        raise ChartSamplingError(
-            f"the chart was located in a {detection.image_size[0]} x {detection.image_size[1]} image but "
-            f"{raw_image.path} is {sensor_size[0]} x {sensor_size[1]} photosites; detect the chart on this image"
-        )
+    _check_sampling(raw_image, detection, inset, trim)
     layout = detection.layout
     inv = np.linalg.inv(detection.homography)
     quads_img = raw_image.from_sensor(detection.quads)
@@ -174,22 +172,7 @@ def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: flo
     nonuni = np.zeros(n)
     rects = layout.quads()
     for k in range(n):
-        (mx0, my0), (mx1, my1) = rects[k][0], rects[k][2]
-        q = quads_img[k]
-        x0, y0 = np.floor(q.min(axis=0)).astype(int)
-        x1, y1 = np.ceil(q.max(axis=0)).astype(int) + 1
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
-        sel = np.zeros((0,), bool)
-        if x1 > x0 and y1 > y0:
-            ys, xs = np.mgrid[y0:y1, x0:x1]
-            sx, sy = raw_image.to_sensor(np.stack([xs.ravel(), ys.ravel()], axis=-1).astype(np.float64)).T
-            # the inverse homography written out: (N, 3) @ (3, 3) matmuls are slow on large windows
-            den = inv[2, 0] * sx + inv[2, 1] * sy + inv[2, 2]
-            u = (inv[0, 0] * sx + inv[0, 1] * sy + inv[0, 2]) / den
-            v = (inv[1, 0] * sx + inv[1, 1] * sy + inv[1, 2]) / den
-            s = (u - mx0) / (mx1 - mx0) - 0.5
-            t = (v - my0) / (my1 - my0) - 0.5
-            sel = (np.abs(s) < inset / 2) & (np.abs(t) < inset / 2)
+        (y0, y1, x0, x1), sel, s, t = _patch_pixels(raw_image, inv, rects[k], quads_img[k], inset)
         if sel.sum() < 4:
             raise ChartSamplingError(
                 f"{layout.label(k)} covers only {int(sel.sum())} pixels inside the image; move the camera closer "
@@ -206,27 +189,79 @@ def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: flo
         mean[k] = _trim_mean(vals, trim)
         std[k] = vals.std(axis=0, ddof=1)
         quadrant = ((s[sel] > 0).astype(int) * 2 + (t[sel] > 0))[live]
-        groups = [vals[quadrant == i] for i in range(4) if np.count_nonzero(quadrant == i) >= 2]
-        if len(groups) > 1:
-            qmeans = np.array([g.mean(axis=0) for g in groups])
-            # demosaiced pixels share photosites: a quadrant holds about a quarter as many independent
-            # samples of a channel as it has pixels (R and B sites are a quarter of the mosaic)
-            smallest = min(len(g) for g in groups) / (4.0 if raw_image.mode == "demosaic" else 1.0)
-            # the range of 4 normal means exceeds 4.7 standard errors with probability 0.5 % (the range's
-            # distribution: Tippett, Biometrika 17, 1925; 4.70 in a simulation of 4e6 draws), so noise
-            # alone rarely flags a patch
-            noise = 4.7 * std[k] / np.sqrt(max(smallest, 1.0))
-            spread = np.maximum(qmeans.max(axis=0) - qmeans.min(axis=0) - noise, 0.0)
-            nonuni[k] = float(np.max(spread / np.where(mean[k] > 0, mean[k], np.inf)))
+        nonuni[k] = _nonuniformity(vals, quadrant, mean[k], std[k], raw_image.mode)
     return PatchSamples(detection.chart, mean, std, clipped, count, nonuni, raw_image.exposure_time,
                         raw_image.iso, raw_image.f_number)
 
 
+def _check_sampling(raw_image: RawImage, detection: ChartDetection, inset: float, trim: float) -> None:
+    """Refuse settings out of range and a detection made on an image of another size."""
+    if not (0 < inset <= 1):
+        raise ChartSamplingError(f"inset must be in (0, 1] (fraction of the patch side sampled), got {inset!r}")
+    if not (0 <= trim < 0.5):
+        raise ChartSamplingError(f"trim must be in [0, 0.5) (fraction cut from each end), got {trim!r}")
+    h, w = raw_image.shape
+    sensor_size = (w * raw_image.scale, h * raw_image.scale)
+    if detection.image_size is not None and any(abs(a - b) > raw_image.scale
+                                                for a, b in zip(detection.image_size, sensor_size)):
+        raise ChartSamplingError(
+            f"the chart was located in a {detection.image_size[0]} x {detection.image_size[1]} image but "
+            f"{raw_image.path} is {sensor_size[0]} x {sensor_size[1]} photosites; detect the chart on this image"
+        )
+
+
+def _patch_pixels(
+    raw_image: RawImage, inv: NDArray[np.float64], rect: NDArray[np.float64], q: NDArray[np.float64], inset: float
+) -> tuple[tuple[int, int, int, int], NDArray[np.bool_], NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """The window ``(y0, y1, x0, x1)`` around patch ``q``, its pixels inside the inset, their patch coordinates.
+
+    The coordinates ``s``, ``t`` run from -0.5 to 0.5 across the patch (None for an empty window).
+    """
+    h, w = raw_image.shape
+    (mx0, my0), (mx1, my1) = rect[0], rect[2]
+    x0, y0 = np.floor(q.min(axis=0)).astype(int)
+    x1, y1 = np.ceil(q.max(axis=0)).astype(int) + 1
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    sel = np.zeros((0,), bool)
+    s = t = None
+    if x1 > x0 and y1 > y0:
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        sx, sy = raw_image.to_sensor(np.stack([xs.ravel(), ys.ravel()], axis=-1).astype(np.float64)).T
+        # the inverse homography written out: (N, 3) @ (3, 3) matmuls are slow on large windows
+        den = inv[2, 0] * sx + inv[2, 1] * sy + inv[2, 2]
+        u = (inv[0, 0] * sx + inv[0, 1] * sy + inv[0, 2]) / den
+        v = (inv[1, 0] * sx + inv[1, 1] * sy + inv[1, 2]) / den
+        s = (u - mx0) / (mx1 - mx0) - 0.5
+        t = (v - my0) / (my1 - my0) - 0.5
+        sel = (np.abs(s) < inset / 2) & (np.abs(t) < inset / 2)
+    return (y0, y1, x0, x1), sel, s, t
+
+
+def _nonuniformity(vals: NDArray[np.float64], quadrant: NDArray[np.int64], mean: NDArray[np.float64],
+                   std: NDArray[np.float64], mode: str) -> float:
+    """Largest noise-corrected spread of the quadrant means relative to the mean (0 with fewer than 2 quadrants)."""
+    groups = [vals[quadrant == i] for i in range(4) if np.count_nonzero(quadrant == i) >= 2]
+    if len(groups) <= 1:
+        return 0.0
+    qmeans = np.array([g.mean(axis=0) for g in groups])
+    # demosaiced pixels share photosites: a quadrant holds about a quarter as many independent
+    # samples of a channel as it has pixels (R and B sites are a quarter of the mosaic)
+    smallest = min(len(g) for g in groups) / (4.0 if mode == "demosaic" else 1.0)
+    # the range of 4 normal means exceeds 4.7 standard errors with probability 0.5 % (the range's
+    # distribution: Tippett, Biometrika 17, 1925; 4.70 in a simulation of 4e6 draws), so noise
+    # alone rarely flags a patch
+    noise = 4.7 * std / np.sqrt(max(smallest, 1.0))
+    spread = np.maximum(qmeans.max(axis=0) - qmeans.min(axis=0) - noise, 0.0)
+    return float(np.max(spread / np.where(mean > 0, mean, np.inf)))
+
+
 def _hue(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Hue angle in degrees of opponent coordinates ``a``, ``b``."""
     return np.degrees(np.arctan2(b, a))
 
 
 def _opponent(rgb: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Opponent axes ``R - G`` and ``(R + G) / 2 - B`` of ``(n, 3)`` colours."""
     return rgb[:, 0] - rgb[:, 1], 0.5 * (rgb[:, 0] + rgb[:, 1]) - rgb[:, 2]
 
 
@@ -242,6 +277,15 @@ def check_patches(
     hue_agreement: float = 0.7,
 ) -> ChartCheck:
     """Reject clipped, non-uniform and mis-ordered chart shots; say which patches are usable.
+
+    A patch is unusable when clipped, non-uniform or without signal in a
+    channel.  The chart is mis-ordered when its camera-independent orderings
+    fail: the neutral patches must darken in the order of the reference's
+    L*, and each strongly chromatic patch must have about the reference hue
+    after balancing on the neutrals (opponent axes ``R - G`` and
+    ``(R + G)/2 - B``, which keep the hue order of any RGB camera to within
+    tens of degrees).  A chart rotated or mirrored against its corners fails
+    both.
 
     Parameters
     ----------
@@ -266,12 +310,28 @@ def check_patches(
     Returns
     -------
     ChartCheck
+        Which patches are usable, and one warning per excluded patch.
 
     Raises
     ------
     ChartRejectedError
         Too few usable patches (the message names each bad patch and what to
         do), or the chart is mis-ordered (rotated or mirrored).
+
+    Examples
+    --------
+    >>> from processing.camera.chart_layout import reference_srgb8
+    >>> rgb = (reference_srgb8("classic24") / 255.0) ** 2.2 + 0.01     # a camera that sees sRGB
+    >>> n = len(rgb)
+    >>> shot = PatchSamples("classic24", rgb, np.zeros((n, 3)), np.zeros(n), np.full(n, 100), np.zeros(n))
+    >>> bool(check_patches(shot).usable.all())
+    True
+    >>> upside_down = PatchSamples("classic24", rgb[::-1], shot.std, shot.clipped, shot.count, shot.nonuniformity)
+    >>> try:
+    ...     check_patches(upside_down)
+    ... except ChartRejectedError as exc:
+    ...     print("out of order" in str(exc))
+    True
     """
     layout = chart_layout(samples.chart)
     ref = reference_lab(samples.chart) if reference is None else np.asarray(reference, dtype=np.float64)
@@ -310,6 +370,7 @@ def check_patches(
 
 def _check_order(layout, ref: NDArray[np.float64], mean: NDArray[np.float64], usable: NDArray[np.bool_],
                  neutral_concordance: float, hue_tolerance_deg: float, hue_agreement: float) -> None:
+    """Raise :class:`ChartRejectedError` when the neutrals or the chromatic hues are out of the reference order."""
     chroma = np.hypot(ref[:, 1], ref[:, 2])
     neutral = np.flatnonzero((chroma < 5) & usable & np.all(mean > 0, axis=1))
     hint = (f"the chart is rotated or mirrored against the corners given: list them starting at the chart's "

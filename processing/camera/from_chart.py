@@ -1,32 +1,25 @@
 """Camera spectral sensitivities estimated from a colour chart of known reflectances under a known light.
 
-When the object camera's sensitivities are not published, they can be
-estimated from the chart shot: patch j gives ``rho_jc = sum_l R_jl E_l s_cl
-step``, a linear system ``A s_c = rho_c`` with ``A = R diag(E) step`` of 24
-equations for L unknowns per channel.  It is under-determined and the
-reflectances of a chart span few dimensions, so the solution is regularised
-(Finlayson, Hordley & Hubel, "Recovering device sensitivities with quadratic
-programming", IS&T/SID CIC 1998; Jiang, Liu, Gu & Susstrunk, "What is the
-space of spectral sensitivity functions for digital color cameras?", WACV
-2013):
+Each channel solves ``min ||A s_c - rho_c||^2 + lambda ||D2 s_c||^2`` subject to
+``s_c >= 0``, with ``A = R diag(E) step`` the chart's light-weighted
+reflectances and ``D2`` the second difference (smoothness); lambda by
+generalised cross-validation or, when the patch noise is known, by Morozov's
+discrepancy principle.  docs/colour-pipeline.md, "Unknown camera", gives the
+method, the conditioning check and when to prefer it.
 
-``min ||A s_c - rho_c||^2 + lambda ||D2 s_c||^2  subject to  s_c >= 0``
+References
+----------
+Finlayson, G., Hordley, S., Hubel, P. M. (1998). Recovering device
+sensitivities with quadratic programming. IS&T/SID Color Imaging Conference
+(no DOI).
 
-with D2 the second difference (smoothness).  The weight lambda (relative to
-``trace(A^T A) / trace(D2^T D2)``) is chosen by generalised
-cross-validation of the unconstrained problem over 1e-8 .. 1, one weight for
-the three channels (Golub, Heath & Wahba, Technometrics 21, 1979), or, when
-the noise of the patch values is known, by Morozov's discrepancy principle
-(the largest weight whose relative residual stays within the noise); the
-non-negative problem is then solved with that weight
-(``scipy.optimize.nnls`` on the stacked system).
+Jiang, J., Liu, D., Gu, J., Susstrunk, S. (2013). What is the space of
+spectral sensitivity functions for digital color cameras? IEEE Workshop on
+Applications of Computer Vision (WACV), 168-179. doi:10.1109/WACV.2013.6475015
 
-Conditioning.  The number of colours the chart really holds is measured by
-``sigma_1 / sigma_3`` of ``A``: a trichromatic camera needs at least three
-independent spectra.  The 24-patch ColorChecker under D65 gives about 5, its
-six grey patches about 330: above ``max_condition`` (default 50) a
-:class:`~processing.camera.transfer.ChartConditionError` with the number is
-raised.
+Golub, G. H., Heath, M., Wahba, G. (1979). Generalized cross-validation as a
+method for choosing a good ridge parameter. Technometrics 21(2), 215-223.
+doi:10.1080/00401706.1979.10489751
 """
 
 from __future__ import annotations
@@ -39,7 +32,7 @@ from scipy.optimize import nnls
 
 from processing.camera.response import channel_matrix
 from processing.camera.transfer import ChartConditionError, condition_number
-from processing.spectral.estimation.fit import SpectralEstimationError, checked_channels, checked_spectra
+from processing.spectral.checks import SpectralEstimationError, checked_channels, checked_spectra
 from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["SensitivityFit", "estimate_sensitivities"]
@@ -52,6 +45,11 @@ _LAMBDAS = np.logspace(-8, 0, 33)
 @dataclass(frozen=True)
 class SensitivityFit:
     """Estimated camera sensitivities.
+
+    Parameters
+    ----------
+    sensitivities, condition, regularisation, residual
+        The attributes below, in this order.
 
     Attributes
     ----------
@@ -72,6 +70,7 @@ class SensitivityFit:
 
 
 def _second_difference(n: int) -> NDArray[np.float64]:
+    """The ``(n - 2, n)`` second-difference matrix."""
     d = np.zeros((n - 2, n))
     i = np.arange(n - 2)
     d[i, i], d[i, i + 1], d[i, i + 2] = 1.0, -2.0, 1.0
@@ -79,6 +78,7 @@ def _second_difference(n: int) -> NDArray[np.float64]:
 
 
 def _solve(a: NDArray[np.float64], d: NDArray[np.float64], rho: NDArray[np.float64], lam: float, unit: float) -> NDArray[np.float64]:
+    """Non-negative smooth sensitivities ``(L, c)``: NNLS on ``A`` stacked over ``sqrt(lam unit) D2``, per channel."""
     stacked = np.vstack([a, np.sqrt(lam * unit) * d])
     out = np.zeros((a.shape[1], rho.shape[1]))
     for c in range(rho.shape[1]):
@@ -149,7 +149,36 @@ def estimate_sensitivities(
         100 pixels at 1 % noise); when given, the weight follows the
         discrepancy principle, otherwise generalised cross-validation.
     max_condition
-        Largest accepted sigma_1 / sigma_3 of the chart system.
+        Largest accepted sigma_1 / sigma_3 of the chart system (the 24-patch
+        ColorChecker under D65 gives about 5, its six greys about 330).
+
+    Returns
+    -------
+    SensitivityFit
+        ``(L, c)`` sensitivities in units of the chart values per unit
+        reflectance, light and nm; the condition number, the weight and the
+        relative residual.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Bad chart values or reflectances, one row per patch not matched, a
+        negative regularisation or a noise that is not > 0.
+    ChartConditionError
+        The chart spans too few colours (condition number above
+        ``max_condition``).
+    CameraResponseError
+        Bad light.
+
+    References
+    ----------
+    Jiang, J., Liu, D., Gu, J., Susstrunk, S. (2013). What is the space of
+    spectral sensitivity functions for digital color cameras? IEEE WACV,
+    168-179. doi:10.1109/WACV.2013.6475015
+
+    Golub, G. H., Heath, M., Wahba, G. (1979). Generalized cross-validation
+    as a method for choosing a good ridge parameter. Technometrics 21(2),
+    215-223. doi:10.1080/00401706.1979.10489751
 
     Examples
     --------
@@ -184,6 +213,17 @@ def estimate_sensitivities(
         )
     d = _second_difference(grid.size)
     unit = float(np.trace(a.T @ a) / np.trace(d.T @ d))
+    lam = _chosen_lambda(a, d, rho, unit, regularisation, noise)
+    sens = _solve(a, d, rho, lam, unit)
+    chosen = [lam] * rho.shape[1]
+    scale = np.maximum(np.abs(rho), 1e-12 * max(float(np.abs(rho).max()), 1e-300))
+    residual = float(np.sqrt(np.mean(((a @ sens - rho) / scale) ** 2)))
+    return SensitivityFit(sens, cond, tuple(chosen), residual)
+
+
+def _chosen_lambda(a: NDArray[np.float64], d: NDArray[np.float64], rho: NDArray[np.float64], unit: float,
+                   regularisation: float | None, noise: float | None) -> float:
+    """The smoothness weight: the one given, else by the discrepancy principle with a noise, else by GCV."""
     if regularisation is not None:
         lam = float(regularisation)
         if not (np.isfinite(lam) and lam >= 0):
@@ -194,8 +234,4 @@ def estimate_sensitivities(
         lam = _discrepancy_lambda(a, d, rho, unit, float(noise))
     else:
         lam = _gcv_lambda(a, d, rho, unit)
-    sens = _solve(a, d, rho, lam, unit)
-    chosen = [lam] * rho.shape[1]
-    scale = np.maximum(np.abs(rho), 1e-12 * max(float(np.abs(rho).max()), 1e-300))
-    residual = float(np.sqrt(np.mean(((a @ sens - rho) / scale) ** 2)))
-    return SensitivityFit(sens, cond, tuple(chosen), residual)
+    return lam

@@ -1,41 +1,23 @@
 """RAW decoding: linear, un-white-balanced camera RGB from a Bayer RAW file (DNG/CR2/NEF/ARW).
 
-LibRaw (through ``rawpy``) parses the file and unpacks the mosaic; everything
-after that is done here, on the visible photosites, so that every number is
-traceable to the file's own metadata:
+LibRaw (through ``rawpy``) parses the file and unpacks the mosaic; the black
+level per CFA cell, the file's own white level, the saturated and dead
+photosite masks, 2 x 2 binning or bilinear demosaicking are done here, so
+that every number is traceable to the file's metadata.  :func:`preview_srgb8`
+makes a white-balanced sRGB preview for chart detection and display.
+docs/colour-pipeline.md, "Decoding", describes each choice.
 
-1. **Black level** per CFA cell (LibRaw's ``black_level_per_channel``, i.e.
-   ``black + cblack[c]``; DNG 1.4 ``BlackLevel`` with ``BlackLevelRepeatDim``)
-   is subtracted from each photosite.
-2. **White level** is the file's saturation value (LibRaw's
-   ``color.maximum``, DNG ``WhiteLevel``).  It is read from the metadata, never
-   estimated from the image: LibRaw's own processing lowers the maximum to the
-   brightest value found when ``adjust_maximum_thr > 0``, which would make a
-   dark frame's scale differ from a bright one's.  Values are scaled by
-   ``white - black`` so 1.0 is saturation.
-3. **Saturated** photosites are those at or above the white level; **dead**
-   photosites read 0 DN although the black level is above 16 DN (a working
-   photosite reads about the black level in the dark, read noise being a few
-   DN).  Dead photosites are left out of interpolation where another sample
-   of the same colour exists, and their pixels are masked.
-4. **Resolution** is a setting: ``"bin2x2"`` gives one RGB pixel per 2 x 2 CFA
-   cell (the two greens averaged), half the size and noise-averaged, which is
-   what chart sampling and spectral estimation need; ``"demosaic"`` gives full
-   resolution by bilinear interpolation (normalised convolution of each
-   colour's samples, Gunturk et al., "Demosaicking: color filter array
-   interpolation", IEEE Signal Processing Magazine 22(1), 2005, section
-   "Single-channel interpolation").  Our own bilinear interpolation is used
-   rather than LibRaw's ``postprocess`` because LibRaw's output is integer
-   (16 bit), clipped, scaled by a content-adjusted maximum and highlight-
-   processed; ours stays in float with the exact per-cell black level and a
-   saturation mask that follows which photosites contributed to each pixel.
+References
+----------
+Gunturk, B. K., Glotzbach, J., Altunbasak, Y., Schafer, R. W., Mersereau,
+R. M. (2005). Demosaicking: color filter array interpolation. IEEE Signal
+Processing Magazine 22(1), 44-54. doi:10.1109/MSP.2005.1407714
 
-No white balance is applied to :attr:`RawImage.rgb`; :func:`preview_srgb8`
-makes a white-balanced, exposure-normalised sRGB preview for chart detection
-and display.  The preview uses the DNG convention (Adobe DNG Specification
-1.4, chapter 6): balance by the as-shot neutral, then camera -> XYZ by the
-inverse ColorMatrix (with the neutral's white kept white), then XYZ -> sRGB
-(IEC 61966-2-1).
+Adobe Systems (2012). Digital Negative (DNG) Specification, version 1.4.0.0,
+chapter 6 (no DOI).
+
+IEC 61966-2-1:1999, Multimedia systems and equipment -- Colour measurement
+and management -- Default RGB colour space -- sRGB (no DOI).
 """
 
 from __future__ import annotations
@@ -49,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from processing.errors import InputError
+from processing.spectral.display import encode_srgb8
 
 __all__ = [
     "DECODE_MODES",
@@ -77,6 +60,13 @@ class RawDecodeError(InputError):
 @dataclass
 class RawImage:
     """Linear camera RGB of one RAW frame and its metadata.
+
+    Parameters
+    ----------
+    rgb, saturated, dead, black_levels, white_level, cfa_pattern, exposure_time, iso, f_number
+        The attributes below, in this order,
+    make, model, path, mode, scale, as_shot_neutral, xyz_to_camera
+        followed by these.
 
     Attributes
     ----------
@@ -139,11 +129,40 @@ class RawImage:
         return self.rgb.shape[0], self.rgb.shape[1]
 
     def to_sensor(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Image coordinates ``(..., 2)`` (x, y) -> full-resolution sensor coordinates."""
+        """Image coordinates ``(..., 2)`` (x, y) -> full-resolution sensor coordinates.
+
+        Parameters
+        ----------
+        xy
+            ``(..., 2)`` pixel coordinates of this image (pixel centres at integers).
+
+        Returns
+        -------
+        ndarray
+            ``(..., 2)`` float64 sensor photosite coordinates.
+
+        Examples
+        --------
+        >>> img = RawImage(np.zeros((2, 2, 3), np.float32), np.zeros((2, 2), bool), np.zeros((2, 2), bool),
+        ...                (0, 0, 0, 0), 1.0, "RGGB", 0.01, 100, 0, "", "", Path("x"), "bin2x2", 2)
+        >>> img.to_sensor(np.array([1.0, 0.0])).tolist()
+        [2.5, 0.5]
+        """
         return np.asarray(xy, dtype=np.float64) * self.scale + (self.scale - 1) / 2.0
 
     def from_sensor(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Full-resolution sensor coordinates ``(..., 2)`` -> this image's coordinates."""
+        """Full-resolution sensor coordinates ``(..., 2)`` -> this image's coordinates.
+
+        Parameters
+        ----------
+        xy
+            ``(..., 2)`` sensor photosite coordinates (centres at integers).
+
+        Returns
+        -------
+        ndarray
+            ``(..., 2)`` float64 pixel coordinates of this image.
+        """
         return (np.asarray(xy, dtype=np.float64) - (self.scale - 1) / 2.0) / self.scale
 
 
@@ -160,15 +179,24 @@ _MAGIC: tuple[tuple[bytes, int, str], ...] = (
 
 
 def sniff_format(head: bytes) -> str:
-    """Name the container of a file from its first bytes.
+    r"""Name the container of a file from its first bytes.
 
-    Returns one of ``"JPEG"``, ``"PNG"``, ``"GIF"``, ``"PDF"``, ``"ZIP"``,
-    ``"Photoshop"``, ``"WebP"``, ``"HEIF"``, ``"TIFF"`` (also DNG, NEF, ARW,
-    CR2), ``"ISOBMFF"`` (e.g. CR3) or ``"unknown"`` (e.g. RAF, ORF, RW2).
+    Parameters
+    ----------
+    head
+        The file's first bytes (16 are enough).
+
+    Returns
+    -------
+    str
+        One of ``"JPEG"``, ``"PNG"``, ``"GIF"``, ``"PDF"``, ``"ZIP"``,
+        ``"Photoshop"``, ``"WebP"``, ``"HEIF"``, ``"TIFF"`` (also DNG, NEF,
+        ARW, CR2), ``"ISOBMFF"`` (e.g. CR3) or ``"unknown"`` (e.g. RAF, ORF,
+        RW2).
 
     Examples
     --------
-    >>> sniff_format(b"\\xff\\xd8\\xff\\xe0\\x00\\x10JFIF"), sniff_format(b"II*\\x00\\x08\\x00\\x00\\x00")
+    >>> sniff_format(b"\xff\xd8\xff\xe0\x00\x10JFIF"), sniff_format(b"II*\x00\x08\x00\x00\x00")
     ('JPEG', 'TIFF')
     """
     for magic, offset, name in _MAGIC:
@@ -187,6 +215,7 @@ def sniff_format(head: bytes) -> str:
 
 
 def _open(path: Path):
+    """The file opened and unpacked by LibRaw, or a :class:`RawDecodeError` that says what the file is."""
     import rawpy
 
     if not path.exists():
@@ -205,7 +234,7 @@ def _open(path: Path):
         raise RawDecodeError(f"{path}: this is a {kind}, not a RAW file; {_RAW_HINT}")
     try:
         raw = rawpy.imread(os.fspath(path))
-        raw.raw_image_visible  # forces the unpack, where truncated data shows
+        _ = raw.raw_image_visible  # forces the unpack, where truncated data shows
     except rawpy.LibRawFileUnsupportedError:
         if kind == "TIFF":
             raise RawDecodeError(f"{path}: this is a TIFF image, not a RAW file; {_RAW_HINT}") from None
@@ -290,6 +319,7 @@ def _tiff_metadata(path: Path) -> dict[str, object]:
 
 
 def _tag_number(value) -> float:
+    """A TIFF tag's number: a rational ``(numerator, denominator)``, the first of a tuple, or the value."""
     if isinstance(value, tuple) and len(value) == 2:
         return value[0] / value[1]
     if isinstance(value, tuple):
@@ -335,9 +365,12 @@ def bin2x2(mosaic: NDArray[np.floating], colour_index: NDArray[np.int64], satura
 
     Returns
     -------
-    rgb, saturated, dead
-        ``(H/2, W/2, 3)`` float32 and ``(H/2, W/2)`` masks (any photosite of the cell).
-        A dead green is replaced by the cell's other green.
+    rgb : ndarray
+        ``(H/2, W/2, 3)`` float32 in the units of ``mosaic``; a dead green is
+        replaced by the cell's other green.
+    saturated, dead : ndarray
+        ``(H/2, W/2)`` masks: any photosite of the cell saturated; the red or
+        blue photosite, or both greens, dead.
 
     Examples
     --------
@@ -383,6 +416,32 @@ def bilinear_demosaic(mosaic: NDArray[np.floating], colour_index: NDArray[np.int
     ``conv(mask)`` is the same in every 2 x 2 cell and is computed once.  A
     pixel is saturated (dead) when a photosite inside its kernel support for
     any channel is.
+
+    Parameters
+    ----------
+    mosaic
+        ``(H, W)`` normalised photosite values, H and W even.
+    colour_index
+        Colour of each cell of the 2 x 2 CFA in row order (0 R, 1 G, 2 B).
+    saturated, dead
+        ``(H, W)`` photosite masks.
+
+    Returns
+    -------
+    rgb : ndarray
+        ``(H, W, 3)`` float32 in the units of ``mosaic``.
+    saturated : ndarray
+        ``(H, W)`` bool: a saturated photosite lies in the pixel's kernel support.
+    dead : ndarray
+        ``(H, W)`` bool: the pixel is a dead photosite, or every sample of a
+        channel in reach is dead.
+
+    References
+    ----------
+    Gunturk, B. K., Glotzbach, J., Altunbasak, Y., Schafer, R. W., Mersereau,
+    R. M. (2005). Demosaicking: color filter array interpolation. IEEE Signal
+    Processing Magazine 22(1), 44-54, "Single-channel interpolation".
+    doi:10.1109/MSP.2005.1407714
 
     Examples
     --------
@@ -450,6 +509,9 @@ def decode_raw(path: str | os.PathLike[str], *, mode: str = "bin2x2") -> RawImag
     Returns
     -------
     RawImage
+        ``rgb`` float32 with 1.0 = saturation, black subtracted per CFA cell,
+        not white balanced; the saturated and dead masks; the file's
+        metadata.
 
     Raises
     ------
@@ -473,38 +535,14 @@ def decode_raw(path: str | os.PathLike[str], *, mode: str = "bin2x2") -> RawImag
     raw = _open(p)
     try:
         letters, colour_index = _cfa_string(raw, p)
-        mosaic = np.asarray(raw.raw_image_visible)
-        h, w = mosaic.shape
-        if h < 2 or w < 2:
-            raise RawDecodeError(f"{p}: the raw image is only {w} x {h} photosites")
-        if h % 2 or w % 2:           # a whole number of CFA cells keeps the cell pattern and the binning aligned
-            mosaic = mosaic[: h - h % 2, : w - w % 2]
-        # LibRaw's per-colour black: index with the cell's colour index (0 R, 1 G, 2 B, 3 second G)
-        black_by_colour = np.asarray(raw.black_level_per_channel, dtype=np.float64)
-        cell_black = black_by_colour[colour_index]
-        white = float(raw.white_level)
-        if not np.all(white > cell_black):
-            raise RawDecodeError(
-                f"{p}: white level {white:g} DN is not above the black levels {cell_black.tolist()}; the file's "
-                "metadata is damaged"
-            )
+        mosaic, cell_black, white = _mosaic_levels(raw, p, colour_index)
         idx = np.where(colour_index == 3, 1, colour_index)
-        neutral = None
-        wb = np.asarray(raw.camera_whitebalance[:3], dtype=np.float64)
-        if np.all(np.isfinite(wb)) and np.all(wb > 0):
-            neutral = (1.0 / wb) / np.max(1.0 / wb)
-        libraw_cm = np.asarray(raw.rgb_xyz_matrix, dtype=np.float64)[:3]
-        other = raw.other
-        libraw_meta = {"exposure_time": float(other.shutter_speed), "iso": float(other.iso_speed),
-                       "f_number": float(other.aperture)}
+        neutral, libraw_cm, libraw_meta = _libraw_colour(raw)
+        # normalised before the file is closed: the mosaic is a view of LibRaw's buffer
         values, sat, dead = _normalised_mosaic(mosaic, cell_black, white, bool(cell_black.min() > _DEAD_BLACK_MIN))
     finally:
         raw.close()
-    tiff = _tiff_metadata(p)
-    meta = {k: float(tiff.get(k, v if np.isfinite(v) and v > 0 else 0.0)) for k, v in libraw_meta.items()}
-    cm = np.asarray(tiff.get("color_matrix", libraw_cm), dtype=np.float64)
-    xyz_to_cam = cm if np.all(np.isfinite(cm)) and abs(np.linalg.det(cm)) > 1e-12 else None
-    make, model = str(tiff.get("make", "")), str(tiff.get("model", ""))
+    meta, xyz_to_cam, make, model = _file_metadata(p, libraw_meta, libraw_cm)
     if mode == "bin2x2":
         rgb, s, d = bin2x2(values, idx, sat, dead)
         scale = 2
@@ -521,6 +559,51 @@ def decode_raw(path: str | os.PathLike[str], *, mode: str = "bin2x2") -> RawImag
     )
 
 
+def _mosaic_levels(raw, p: Path, colour_index: NDArray[np.int64]) -> tuple[NDArray, NDArray[np.float64], float]:
+    """The visible mosaic cut to whole CFA cells, the black level of each cell (DN) and the white level (DN)."""
+    mosaic = np.asarray(raw.raw_image_visible)
+    h, w = mosaic.shape
+    if h < 2 or w < 2:
+        raise RawDecodeError(f"{p}: the raw image is only {w} x {h} photosites")
+    if h % 2 or w % 2:           # a whole number of CFA cells keeps the cell pattern and the binning aligned
+        mosaic = mosaic[: h - h % 2, : w - w % 2]
+    # LibRaw's per-colour black: index with the cell's colour index (0 R, 1 G, 2 B, 3 second G)
+    black_by_colour = np.asarray(raw.black_level_per_channel, dtype=np.float64)
+    cell_black = black_by_colour[colour_index]
+    white = float(raw.white_level)
+    if not np.all(white > cell_black):
+        raise RawDecodeError(
+            f"{p}: white level {white:g} DN is not above the black levels {cell_black.tolist()}; the file's "
+            "metadata is damaged"
+        )
+    return mosaic, cell_black, white
+
+
+def _libraw_colour(raw) -> tuple[NDArray[np.float64] | None, NDArray[np.float64], dict[str, float]]:
+    """LibRaw's as-shot neutral (max 1, None if absent), its XYZ -> camera matrix and its exposure metadata."""
+    neutral = None
+    wb = np.asarray(raw.camera_whitebalance[:3], dtype=np.float64)
+    if np.all(np.isfinite(wb)) and np.all(wb > 0):
+        neutral = (1.0 / wb) / np.max(1.0 / wb)
+    libraw_cm = np.asarray(raw.rgb_xyz_matrix, dtype=np.float64)[:3]
+    other = raw.other
+    libraw_meta = {"exposure_time": float(other.shutter_speed), "iso": float(other.iso_speed),
+                   "f_number": float(other.aperture)}
+    return neutral, libraw_cm, libraw_meta
+
+
+def _file_metadata(
+    p: Path, libraw_meta: dict[str, float], libraw_cm: NDArray[np.float64]
+) -> tuple[dict[str, float], NDArray[np.float64] | None, str, str]:
+    """Exposure, XYZ -> camera matrix (None if unusable), make and model: the TIFF tags first, LibRaw's otherwise."""
+    tiff = _tiff_metadata(p)
+    meta = {k: float(tiff.get(k, v if np.isfinite(v) and v > 0 else 0.0)) for k, v in libraw_meta.items()}
+    cm = np.asarray(tiff.get("color_matrix", libraw_cm), dtype=np.float64)
+    xyz_to_cam = cm if np.all(np.isfinite(cm)) and abs(np.linalg.det(cm)) > 1e-12 else None
+    make, model = str(tiff.get("make", "")), str(tiff.get("model", ""))
+    return meta, xyz_to_cam, make, model
+
+
 # ---------------------------------------------------------------------------------------------- preview
 
 _XYZ_TO_SRGB = np.array([[3.2404542, -1.5371385, -0.4985314],
@@ -531,10 +614,8 @@ _D65_XYZ = np.array([0.95047, 1.0, 1.08883])
 
 @functools.lru_cache(maxsize=1)
 def _srgb_lut() -> NDArray[np.uint8]:
-    """SRGB 8-bit code of each 16-bit linear value (IEC 61966-2-1 transfer curve)."""
-    x = np.arange(65536, dtype=np.float64) / 65535.0
-    v = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    lut = np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8)
+    """SRGB 8-bit code of each 16-bit linear value: a cache of :func:`processing.spectral.display.encode_srgb8`."""
+    lut = encode_srgb8(np.arange(65536, dtype=np.float64) / 65535.0)
     lut.setflags(write=False)
     return lut
 
@@ -566,8 +647,37 @@ def preview_srgb8(raw: RawImage, *, percentile: float = 99.0, level: float = 0.9
 
     The as-shot neutral balances the image (grey world when the file has
     none); the camera colours go to sRGB through the file's ColorMatrix when
-    present; the exposure is scaled so the ``percentile`` of the luminance
-    lands at ``level``; saturated pixels are shown white.
+    present (the DNG convention: camera -> XYZ by the inverse ColorMatrix
+    with the neutral kept white, then XYZ -> sRGB); the exposure is scaled
+    so the ``percentile`` of the luminance lands at ``level``; the sRGB
+    transfer curve is :func:`processing.spectral.display.encode_srgb8`;
+    saturated pixels are shown white.
+
+    Parameters
+    ----------
+    raw
+        A decoded frame.
+    percentile
+        Percentile (0-100] of the luminance that sets the exposure.
+    level
+        Linear level (0, 1] that percentile is scaled to.
+
+    Returns
+    -------
+    ndarray
+        ``(H, W, 3)`` uint8 sRGB, the size of ``raw.rgb``.
+
+    Raises
+    ------
+    RawDecodeError
+        ``percentile`` or ``level`` out of range.
+
+    References
+    ----------
+    Adobe Systems (2012). Digital Negative (DNG) Specification, version
+    1.4.0.0, chapter 6 (no DOI).
+
+    IEC 61966-2-1:1999, default RGB colour space -- sRGB (no DOI).
 
     Examples
     --------

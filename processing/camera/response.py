@@ -1,21 +1,15 @@
 """Camera spectral sensitivities and the camera response to reflectance under a light.
 
-A camera channel c records ``rho_c = sum_lambda R(lambda) E(lambda) s_c(lambda)
-dlambda`` for a surface of reflectance R under light E (the linear signal
-model of EMVA Standard 1288, release 4.0, section 2).  The
-sum is over the samples of a :class:`~processing.spectral.spectra.SpectralGrid` with the
-weight ``step`` (trapezoid rule with the ends held, as in
-:func:`processing.spectral.spectra.resample`).
+A camera channel c records ``rho_c = sum_lambda R(lambda) E(lambda)
+s_c(lambda) step`` for a surface of reflectance R under light E (the linear
+signal model of EMVA Standard 1288); several exposures under different lights
+stack into one channel matrix ``K (L, 3 n_lights)`` with ``rho = R @ K``.
+Sensitivities come by name from colour-science or from a CSV file.
+docs/colour-pipeline.md, "The camera model", describes the sources.
 
-Sensitivities come by name from ``colour.MSDS_CAMERA_SENSITIVITIES``
-(colour-science ships 'Nikon 5100 (NPL)' and 'Sigma SDMerill (NPL)', measured
-by the National Physical Laboratory) or from a CSV file of rows
-``wavelength_nm, r, g, b``.
-
-Several exposures under different lights are stacked into one *channel
-matrix* ``K`` of shape ``(L, 3 n_lights)`` so that ``rho = R @ K`` for any
-number of lights (:func:`channel_matrix`); two lights give the six channels
-of the two-exposure estimator.
+References
+----------
+EMVA Standard 1288, release 4.0, section 2: the linear signal model (no DOI).
 """
 
 from __future__ import annotations
@@ -44,13 +38,20 @@ __all__ = [
 DEFAULT_CAMERA = "Nikon 5100 (NPL)"
 
 
-
 class CameraResponseError(InputError):
     """A camera, light or spectrum given to the camera model is not valid; the message names it."""
 
 
 def camera_names() -> list[str]:
     """Names of the cameras with measured sensitivities in colour-science.
+
+    colour-science ships 'Nikon 5100 (NPL)' and 'Sigma SDMerill (NPL)',
+    measured by the National Physical Laboratory.
+
+    Returns
+    -------
+    list of str
+        Keys of ``colour.MSDS_CAMERA_SENSITIVITIES``, sorted.
 
     Examples
     --------
@@ -63,6 +64,7 @@ def camera_names() -> list[str]:
 
 
 def _read_sensitivity_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Wavelengths (nm) and ``(N, 3)`` sensitivities of a CSV file ``wavelength_nm, r, g, b``."""
     from processing.spectral.tables import read_wavelength_table
 
     table = read_wavelength_table(
@@ -73,6 +75,7 @@ def _read_sensitivity_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.f
 
 @functools.lru_cache(maxsize=16)
 def _named(name: str, start: float, stop: float, step: float) -> NDArray[np.float64]:
+    """The colour-science sensitivities ``name`` on the grid ``(start, stop, step)``."""
     import colour
 
     try:
@@ -88,6 +91,7 @@ def _named(name: str, start: float, stop: float, step: float) -> NDArray[np.floa
 
 
 def _on_grid(label: str, wl: NDArray[np.float64], values: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
+    """Sensitivities resampled onto ``grid`` (read-only), refused if the grid leaves their range or a channel is 0."""
     lo, hi = float(wl[0]), float(wl[-1])
     if grid.start < lo or grid.stop > hi:
         raise CameraResponseError(
@@ -117,6 +121,13 @@ def camera_sensitivities(grid: SpectralGrid, camera: str | os.PathLike[str] = DE
     ndarray
         Read-only float64 array ``(grid.size, 3)`` (relative units).
 
+    Raises
+    ------
+    CameraResponseError
+        Not a SpectralGrid, an unknown camera name, a bad CSV file (the
+        message names the line and column), a grid outside the range of the
+        sensitivities, or a channel that is zero over the grid.
+
     Examples
     --------
     >>> s = camera_sensitivities(SpectralGrid(400, 700, 10))
@@ -135,6 +146,7 @@ def camera_sensitivities(grid: SpectralGrid, camera: str | os.PathLike[str] = DE
 
 
 def _checked_sensitivities(sensitivities: ArrayLike, grid: SpectralGrid) -> NDArray[np.float64]:
+    """Sensitivities as a finite, non-negative float64 ``(L, channels)`` array on ``grid``."""
     s = np.asarray(sensitivities, dtype=np.float64)
     if s.ndim != 2 or s.shape[0] != grid.size or s.shape[1] < 1:
         raise CameraResponseError(
@@ -156,11 +168,26 @@ def channel_matrix(
     Parameters
     ----------
     sensitivities
-        ``(L, c)`` camera sensitivities on ``grid``.
+        ``(L, c)`` camera sensitivities on ``grid`` (relative units, >= 0).
     lights
         One light ``(L,)`` or several ``(n, L)`` (relative spectral power, >= 0).
     grid
-        The wavelength grid.
+        The wavelength grid (``step`` in nm is the integration weight).
+
+    Returns
+    -------
+    ndarray
+        ``(L, c n)`` float64.
+
+    Raises
+    ------
+    CameraResponseError
+        Sensitivities or lights of the wrong shape, not finite, negative, or
+        a light that is zero everywhere.
+
+    References
+    ----------
+    EMVA Standard 1288, release 4.0, section 2 (no DOI).
 
     Examples
     --------
@@ -192,13 +219,27 @@ def camera_rgb(
     Parameters
     ----------
     reflectance
-        Spectral reflectance (or any non-negative spectral factor) on ``grid``.
+        Spectral reflectance (a fraction, or any non-negative spectral factor)
+        ``(..., L)`` on ``grid``.
     light
-        ``(L,)`` light, or ``(n, L)`` for n exposures (channels concatenated).
+        ``(L,)`` light (relative spectral power), or ``(n, L)`` for n
+        exposures (channels concatenated).
     sensitivities
-        ``(L, c)`` camera sensitivities on ``grid``.
+        ``(L, c)`` camera sensitivities on ``grid`` (relative units).
     grid
         The wavelength grid.
+
+    Returns
+    -------
+    ndarray
+        ``(..., c n)`` float64 linear camera values (units of the
+        sensitivities times the light times nm).
+
+    Raises
+    ------
+    CameraResponseError
+        Bad sensitivities or lights (:func:`channel_matrix`), or a
+        reflectance that is empty, off the grid, not finite or negative.
 
     Examples
     --------

@@ -1,24 +1,17 @@
 """Chart transform from the object camera into the model camera: M2 of Matsuda et al., eq. (9).
 
-The estimator is trained for a model camera (known sensitivities under a
-known light).  The object is shot by another camera, or the same camera at
-another exposure, together with a colour chart.  Matsuda et al. map that
-camera into the model camera by ``M2 = rho_O rho_T^+`` (eq. (9)), the
-least-squares 3 x 3 matrix between the chart patches as the reference (model)
-camera sees them, ``rho_O`` (3 x k), and as the object camera recorded them,
-``rho_T``; a pixel's weights are then ``w = M M2 rho_s`` (eq. (10)).  In the row-vector form of
-:mod:`processing.spectral.estimation.fit` this is ``rho_model ~= rho_object @ T`` with
-``T = pinv(rho_object) @ rho_model``.
+The least-squares 3 x 3 map between the chart patches as the object camera
+recorded them and as the model camera sees them, one block per exposure,
+``rho_model ~= rho_object @ T`` (the row form of ``M2 = rho_O rho_T^+``), with
+the condition number that says whether the patches fix it.
+docs/colour-pipeline.md, "Object camera -> model camera", gives the
+derivation and the thresholds.
 
-With several exposures (two lights) each exposure has its own 3 x 3 block
-and the transform is block-diagonal: exposures are not mixed.
-
-The fit is ill-conditioned when the usable patches do not span three
-independent colours, e.g. only the grey patches: the condition number
-``sigma_1 / sigma_3`` of the object camera's patch matrix (per exposure) is
-reported, and above ``max_condition`` (default 100; the 24-patch
-ColorChecker gives about 10, its six greys about 2000) a
-:class:`ChartConditionError` names it.
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of a
+craft object based on a light reflection model", IPSJ technical report
+(no DOI), section 4.1, eq. (9)-(10).
 """
 
 from __future__ import annotations
@@ -28,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.spectral.estimation.fit import SpectralEstimationError, checked_channels
+from processing.spectral.checks import SpectralEstimationError, checked_channels
 
 __all__ = ["ChartConditionError", "ChartTransform", "fit_chart_transform", "condition_number"]
 
@@ -37,7 +30,20 @@ MAX_CONDITION = 100.0
 
 
 class ChartConditionError(SpectralEstimationError):
-    """The chart patches do not constrain the fit (too few independent colours); the message gives the condition number."""
+    """The chart patches do not constrain the fit (too few independent colours); the message gives the condition number.
+
+    Parameters
+    ----------
+    message
+        What is wrong and what to do.
+    condition
+        The condition number found (inf when there are too few patches).
+
+    Attributes
+    ----------
+    condition
+        The condition number found.
+    """
 
     def __init__(self, message: str, condition: float) -> None:
         super().__init__(message)
@@ -47,6 +53,11 @@ class ChartConditionError(SpectralEstimationError):
 @dataclass(frozen=True)
 class ChartTransform:
     """A fitted chart transform.
+
+    Parameters
+    ----------
+    matrix, condition, residual
+        The attributes below, in this order.
 
     Attributes
     ----------
@@ -67,6 +78,18 @@ class ChartTransform:
 def condition_number(values: ArrayLike, rank: int = 3) -> float:
     """``sigma_1 / sigma_rank`` of a matrix (inf when it has fewer than ``rank`` independent rows).
 
+    Parameters
+    ----------
+    values
+        A 2-D matrix, e.g. ``(patches, 3)`` camera values.
+    rank
+        Which singular value divides the largest (1-based).
+
+    Returns
+    -------
+    float
+        The ratio, >= 1; inf when ``sigma_rank`` is 0 or below ``1e-15 sigma_1``.
+
     Examples
     --------
     >>> condition_number(np.eye(3))
@@ -85,14 +108,38 @@ def fit_chart_transform(
 ) -> ChartTransform:
     """Fit M2 from the chart patches: ``(n, c)`` object-camera values against the model camera's.
 
+    With several exposures (two lights) each has its own 3 x 3 block and the
+    transform is block-diagonal: exposures are not mixed.  The fit is refused
+    when the object camera's patch values of an exposure have a condition
+    number ``sigma_1 / sigma_3`` above ``max_condition`` (the 24-patch
+    ColorChecker gives about 10, its six greys about 2000).
+
     Parameters
     ----------
     object_rgb
-        Patch values recorded by the object camera, ``(n, c)``, c a multiple of 3.
+        Patch values recorded by the object camera, ``(n, c)``, c a multiple of 3
+        (linear, >= 0).
     model_rgb
         The same patches through the model camera, ``(n, c)``.
     max_condition
-        Largest accepted condition number (see the module text).
+        Largest accepted condition number.
+
+    Returns
+    -------
+    ChartTransform
+        The ``(c, c)`` row-form matrix, the worst condition number over the
+        exposures and the RMS relative residual.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Bad values, shapes that differ, or channels not a multiple of 3.
+    ChartConditionError
+        Fewer than 3 patches, or a condition number above ``max_condition``.
+
+    References
+    ----------
+    Matsuda et al., IPSJ technical report (no DOI), section 4.1, eq. (9).
 
     Examples
     --------

@@ -1,26 +1,20 @@
 """From spectra to display colour: XYZ, white normalisation, sRGB, gamut policy.
 
-Following DESIGN.md ("Display") and CIE 015:2018, section 7:
+``X, Y, Z = k sum_lambda C(lambda) xbar/ybar/zbar(lambda) step`` with the CIE
+1931 2 degree colour-matching functions of
+:func:`processing.spectral.spectra.cmfs` and k such that a perfect white
+Lambertian diffuser lit at normal incidence has Y = 1; its XYZ (the scene
+white) is adapted to the D65 white of sRGB, the sRGB matrix gives linear RGB,
+a stated gamut policy brings it into [0, 1] and the sRGB transfer curve
+encodes it.  docs/materials.md, "From spectra to the display" and
+"Out-of-gamut policy", describes each step.
 
-    X, Y, Z = k * sum_lambda C(lambda) xbar/ybar/zbar(lambda) d_lambda
+References
+----------
+CIE 015:2018 Colorimetry, 4th edition, section 7. doi:10.25039/TR.015.2018
 
-with the CIE 1931 2 degree colour-matching functions of
-:func:`processing.spectral.spectra.cmfs`, and k chosen so that a perfect white
-Lambertian diffuser, lit at normal incidence by the scene's light, has
-Y = 1.  Its XYZ is the scene white: chromatic adaptation (CAT02 or Bradford,
-via colour-science) maps it to the D65 white of sRGB (IEC 61966-2-1), then
-the sRGB matrix gives linear RGB.
-
-Out-of-gamut policy (:func:`gamut_map`, documented in docs/materials.md):
-
-* ``"desaturate"`` (default): a colour with a negative component is moved
-  along the straight line towards the grey of equal luminance
-  (Y = 0.2126 R + 0.7152 G + 0.0722 B) until its smallest component is 0;
-  hue and luminance are kept.  Colours with Y <= 0 become black.  Then
-  components above 1 are clipped, as a camera sensor clips highlights.
-* ``"clip"``: every component is clipped to [0, 1].
-
-Neither policy can produce NaN or a value outside [0, 1].
+IEC 61966-2-1:1999, Multimedia systems and equipment -- Colour measurement
+and management -- Default RGB colour space -- sRGB (no DOI).
 """
 
 from __future__ import annotations
@@ -46,7 +40,7 @@ __all__ = [
     "adaptation_methods",
 ]
 
-#: Out-of-gamut policies of :func:`gamut_map`.
+#: Out-of-gamut policies of :func:`gamut_map`: 'desaturate' (towards the grey of equal luminance) and 'clip'.
 GAMUT_POLICIES: tuple[str, ...] = ("desaturate", "clip")
 
 #: Luminance Y of the linear sRGB primaries (IEC 61966-2-1, rounded to 4 decimals).
@@ -54,6 +48,7 @@ SRGB_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 def _finite(name: str, a: ArrayLike) -> NDArray[np.floating]:
+    """``a`` as a floating array (float64 unless already floating), refused if not finite."""
     arr = np.asarray(a)
     if not np.issubdtype(arr.dtype, np.floating):
         arr = arr.astype(np.float64)
@@ -63,12 +58,14 @@ def _finite(name: str, a: ArrayLike) -> NDArray[np.floating]:
 
 
 def _check_grid(grid: object) -> SpectralGrid:
+    """``grid`` if it is a SpectralGrid."""
     if not isinstance(grid, SpectralGrid):
         raise ValueError(f"grid must be a processing.spectral.spectra.SpectralGrid, got {type(grid).__name__}")
     return grid
 
 
 def _out_dtype(arr: NDArray[np.floating]) -> type:
+    """float32 for float32 input, else float64."""
     return np.float32 if arr.dtype == np.float32 else np.float64
 
 
@@ -88,6 +85,15 @@ def spectra_to_xyz(spectra: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> N
         Shape ``(..., 3)``: X, Y, Z in units of ``spectra`` times nm
         (float32 for float32 input, else float64).
 
+    Raises
+    ------
+    ValueError
+        ``grid`` is not a SpectralGrid, ``spectra`` not finite or not on it.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry, 4th edition, section 7. doi:10.25039/TR.015.2018
+
     Examples
     --------
     >>> round(float(spectra_to_xyz(np.ones(61))[1]), 3)   # integral of ybar
@@ -105,6 +111,7 @@ def spectra_to_xyz(spectra: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> N
 
 
 def _check_light(light: ArrayLike, grid: SpectralGrid) -> NDArray[np.float64]:
+    """A finite, non-negative ``(L,)`` light on ``grid`` as float64."""
     _check_grid(grid)
     e = np.asarray(_finite("light", light), dtype=np.float64)
     if e.shape != (grid.size,):
@@ -120,6 +127,23 @@ def xyz_scale(light: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> float:
     A perfect white Lambertian diffuser (BRDF 1/pi) lit at normal incidence
     by ``light`` reflects radiance ``light / pi``; with this k it appears with
     Y = 1.  Multiply the XYZ of rendered radiance by k.
+
+    Parameters
+    ----------
+    light
+        ``(L,)`` spectral power of the light (any units, >= 0).
+    grid
+        The wavelength grid of ``light``.
+
+    Returns
+    -------
+    float
+        k, in inverse units of ``light`` times nm.
+
+    Raises
+    ------
+    ValueError
+        A bad grid or light, or a light with no luminance on the grid.
 
     Examples
     --------
@@ -139,6 +163,23 @@ def xyz_scale(light: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> float:
 def white_xyz(light: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> NDArray[np.float64]:
     """XYZ of the perfect white diffuser under ``light`` (Y = 1): the scene white.
 
+    Parameters
+    ----------
+    light
+        ``(L,)`` spectral power of the light (any units, >= 0).
+    grid
+        The wavelength grid of ``light``.
+
+    Returns
+    -------
+    ndarray
+        ``(3,)`` float64 X, Y, Z with Y = 1.
+
+    Raises
+    ------
+    ValueError
+        As :func:`xyz_scale`.
+
     Examples
     --------
     >>> from processing.spectral.spectra import light_spectrum
@@ -152,6 +193,7 @@ def white_xyz(light: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> NDArray[
 
 @functools.lru_cache(maxsize=1)
 def _srgb() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The XYZ -> linear sRGB matrix and the XYZ of the D65 white of sRGB."""
     import colour
 
     cs = colour.RGB_COLOURSPACES["sRGB"]
@@ -165,6 +207,7 @@ def _srgb() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
 
 @functools.lru_cache(maxsize=1)
 def _cat_names() -> dict[str, str]:
+    """colour-science's chromatic adaptation transforms by lower-case name."""
     import colour
 
     return {k.lower(): k for k in colour.CHROMATIC_ADAPTATION_TRANSFORMS}
@@ -172,6 +215,12 @@ def _cat_names() -> dict[str, str]:
 
 def adaptation_methods() -> list[str]:
     """Chromatic adaptation transforms accepted by :func:`xyz_to_linear_srgb`.
+
+    Returns
+    -------
+    list of str
+        Names of colour-science's ``CHROMATIC_ADAPTATION_TRANSFORMS``, sorted
+        (matched case-insensitively).
 
     Examples
     --------
@@ -182,6 +231,7 @@ def adaptation_methods() -> list[str]:
 
 
 def _check_white(source_white: ArrayLike) -> NDArray[np.float64]:
+    """A white's XYZ as three positive float64 values."""
     w = np.asarray(_finite("source_white", source_white), dtype=np.float64)
     if w.shape != (3,) or np.any(w <= 0):
         raise ValueError(
@@ -192,6 +242,7 @@ def _check_white(source_white: ArrayLike) -> NDArray[np.float64]:
 
 
 def _xyz_to_rgb_matrix(source_white: NDArray[np.float64], adapt: bool, method: str) -> NDArray[np.float64]:
+    """Scene XYZ -> linear sRGB, through the adaptation from ``source_white`` to D65 when ``adapt``."""
     m_rgb, d65 = _srgb()
     if not adapt:
         return m_rgb
@@ -234,6 +285,16 @@ def xyz_to_linear_srgb(
     ndarray
         Linear sRGB, shape ``(..., 3)``, unbounded (see :func:`gamut_map`).
 
+    Raises
+    ------
+    ValueError
+        ``xyz`` not finite or without X, Y, Z on the last axis, a bad
+        ``source_white``, or an unknown adaptation method.
+
+    References
+    ----------
+    IEC 61966-2-1:1999, default RGB colour space -- sRGB (no DOI).
+
     Examples
     --------
     >>> from processing.spectral.spectra import light_spectrum
@@ -264,7 +325,13 @@ def gamut_map(linear_rgb: ArrayLike, policy: str = "desaturate") -> NDArray[np.f
     Returns
     -------
     ndarray
-        Same shape, every value in [0, 1].
+        Same shape, every value in [0, 1] (float32 for float32 input, else
+        float64).
+
+    Raises
+    ------
+    ValueError
+        Values not finite, not ``(..., 3)``, or an unknown policy.
 
     Examples
     --------
@@ -294,6 +361,25 @@ def encode_srgb8(linear: ArrayLike) -> NDArray[np.uint8]:
 
     Values are clipped to [0, 1] first (use :func:`gamut_map` to choose how).
 
+    Parameters
+    ----------
+    linear
+        Linear sRGB values of any shape (1 = white).
+
+    Returns
+    -------
+    ndarray
+        uint8 codes of the same shape, rounded to nearest.
+
+    Raises
+    ------
+    ValueError
+        Values not finite.
+
+    References
+    ----------
+    IEC 61966-2-1:1999, default RGB colour space -- sRGB (no DOI).
+
     Examples
     --------
     >>> encode_srgb8([0.0, 0.18, 1.0]).tolist()
@@ -313,6 +399,27 @@ def xyz_to_srgb8(
     policy: str = "desaturate",
 ) -> NDArray[np.uint8]:
     """XYZ -> adapted linear sRGB -> gamut policy -> 8-bit sRGB.
+
+    Parameters
+    ----------
+    xyz
+        Shape ``(..., 3)``, scaled so the scene white has Y = 1.
+    source_white
+        XYZ of the scene white (:func:`white_xyz`).
+    adapt, method
+        As :func:`xyz_to_linear_srgb`.
+    policy
+        One of :data:`GAMUT_POLICIES` (:func:`gamut_map`).
+
+    Returns
+    -------
+    ndarray
+        ``(..., 3)`` uint8 sRGB.
+
+    Raises
+    ------
+    ValueError
+        As :func:`xyz_to_linear_srgb` and :func:`gamut_map`.
 
     Examples
     --------
@@ -340,6 +447,16 @@ def delta_e00(xyz_a: ArrayLike, xyz_b: ArrayLike, white: ArrayLike) -> NDArray[n
     -------
     ndarray
         Shape ``broadcast(...)`` (colour-science ``delta_E``, "CIE 2000").
+
+    Raises
+    ------
+    ValueError
+        Values not finite or without X, Y, Z on the last axis, or a bad white.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry, 4th edition (the CIEDE2000 formula).
+    doi:10.25039/TR.015.2018
 
     Examples
     --------

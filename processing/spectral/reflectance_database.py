@@ -1,26 +1,21 @@
 """Reflectance databases for spectral estimation: training spectra, the ColorChecker, user CSV files.
 
-Matsuda et al., section 4.1 (eq. (6)-(8)) learn a basis of reflectance spectra
-and a camera-to-weights map from a database of measured reflectances.  This
-module provides the databases on a :class:`~processing.spectral.spectra.SpectralGrid`:
+Matsuda et al., section 4.1 (eq. (6)-(8)) learn a basis and a camera-to-weights
+map from measured reflectances; this module gives the databases on a grid
+(``"training"``: the 190 RAW to ACES training reflectances; ``"colorchecker"``:
+N. Ohta's ColorChecker measurements; or a CSV file) and removes the training
+spectra that are re-measurements of a test set.  docs/colour-pipeline.md,
+"Reflectance databases", gives the sources and the near-duplicate threshold.
 
-* ``"training"``: the 190 reflectances that the Academy's RAW to ACES
-  utility trains its input transforms on (``colour.characterisation.
-  read_training_data_rawtoaces_v1``, 380-780 nm at 5 nm);
-* ``"colorchecker"``: the 24 patches of the ColorChecker, N. Ohta's
-  measurements (``colour.SDS_COLOURCHECKERS['ColorChecker N Ohta']``);
-* a user CSV file: first column wavelength in nm, one further column per
-  spectrum (reflectance in [0, 1.5], a header line of names allowed).
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of a
+craft object based on a light reflection model", IPSJ technical report
+(no DOI), section 4.1.
 
-Near-duplicates.  For a held-out test, training spectra that are the test
-spectra themselves (measured again) are removed: a training spectrum is a
-near-duplicate of a test set when its RMS difference to some test spectrum
-over the grid is below ``rmse`` (default 0.0125) or, when given, its
-goodness-of-fit coefficient (GFC, Hernandez-Andres et al., JOSA A 18, 2001,
-the cosine between the two spectra) is above ``gfc``.  On the 400-700 nm
-grid the 190 training spectra hold 13 within RMSE 0.0105 of a ColorChecker N
-Ohta patch and the next nearest is at 0.0151, so the default threshold
-separates re-measurements of the chart from merely similar colours.
+Hernandez-Andres, J., Romero, J., Nieves, J. L., Lee, R. L. (2001). Color and
+spectral analysis of daylight in southern Europe. JOSA A 18 (the goodness-of-fit
+coefficient).
 """
 
 from __future__ import annotations
@@ -62,6 +57,11 @@ class ReflectanceDatabaseError(InputError):
 class ReflectanceSet:
     """Reflectance spectra sampled on a grid.
 
+    Parameters
+    ----------
+    spectra, names, grid, source
+        The attributes below, in this order.
+
     Attributes
     ----------
     spectra
@@ -86,6 +86,13 @@ class ReflectanceSet:
 def database_names() -> list[str]:
     """Built-in databases.
 
+    Returns
+    -------
+    list of str
+        ``"colorchecker"`` (24 ColorChecker N Ohta patches) and
+        ``"training"`` (the 190 reflectances of the RAW to ACES utility,
+        ``colour.characterisation.read_training_data_rawtoaces_v1``).
+
     Examples
     --------
     >>> database_names()
@@ -96,6 +103,7 @@ def database_names() -> list[str]:
 
 @functools.lru_cache(maxsize=8)
 def _builtin(name: str, start: float, stop: float, step: float) -> ReflectanceSet:
+    """The built-in database ``name`` on the grid ``(start, stop, step)``, cached and read-only."""
     import colour
 
     grid = SpectralGrid(start, stop, step)
@@ -123,6 +131,25 @@ def _builtin(name: str, start: float, stop: float, step: float) -> ReflectanceSe
 def load_reflectances(name: str | os.PathLike[str], grid: SpectralGrid = REFERENCE_GRID) -> ReflectanceSet:
     """A built-in database (:func:`database_names`) or a CSV file, on ``grid``.
 
+    Parameters
+    ----------
+    name
+        A name of :func:`database_names` (case-insensitive) or a ``.csv`` path
+        (:func:`read_reflectance_csv`).
+    grid
+        The wavelength grid.
+
+    Returns
+    -------
+    ReflectanceSet
+        Reflectances (fractions) linearly interpolated onto ``grid``.
+
+    Raises
+    ------
+    ReflectanceDatabaseError
+        Not a SpectralGrid, an unknown name, a grid outside the database's
+        range, or a bad CSV file.
+
     Examples
     --------
     >>> cc = load_reflectances("colorchecker", SpectralGrid(400, 700, 10))
@@ -141,16 +168,37 @@ def load_reflectances(name: str | os.PathLike[str], grid: SpectralGrid = REFEREN
 
 
 def read_reflectance_csv(path: str | os.PathLike[str], grid: SpectralGrid = REFERENCE_GRID) -> ReflectanceSet:
-    """Read reflectances from a CSV file: ``wavelength_nm, r_1, r_2, ...`` one row per wavelength.
+    r"""Read reflectances from a CSV file: ``wavelength_nm, r_1, r_2, ...`` one row per wavelength.
 
     An optional first line names the columns.  Errors name the line and
     column of the first bad value.
+
+    Parameters
+    ----------
+    path
+        The CSV file (comma, semicolon, tab or space separated; ``#``
+        comments allowed).
+    grid
+        The wavelength grid; the file must cover it.
+
+    Returns
+    -------
+    ReflectanceSet
+        One spectrum per value column, named by the header or
+        ``<file stem><n>``.
+
+    Raises
+    ------
+    ReflectanceDatabaseError
+        Unreadable file, a bad field, a reflectance outside [0, 1.5] (percent
+        given for a fraction), wavelengths that do not increase or do not
+        cover the grid.
 
     Examples
     --------
     >>> import tempfile, pathlib
     >>> p = pathlib.Path(tempfile.mkdtemp()) / "mine.csv"
-    >>> _ = p.write_text("nm,tile,paper\\n400,0.1,0.8\\n700,0.3,0.9\\n")
+    >>> _ = p.write_text("nm,tile,paper\n400,0.1,0.8\n700,0.3,0.9\n")
     >>> s = read_reflectance_csv(p, SpectralGrid(400, 700, 150))
     >>> s.names, s.spectra.round(2).tolist()
     (('tile', 'paper'), [[0.1, 0.2, 0.3], [0.8, 0.85, 0.9]])
@@ -175,6 +223,7 @@ def read_reflectance_csv(path: str | os.PathLike[str], grid: SpectralGrid = REFE
 
 
 def _checked_spectra(name: str, a: ArrayLike) -> NDArray[np.float64]:
+    """Spectra as a finite, non-empty ``(n, L)`` float64 array."""
     s = np.asarray(a, dtype=np.float64)
     if s.ndim != 2 or s.shape[0] == 0 or s.shape[1] == 0:
         raise ReflectanceDatabaseError(f"{name} must be a non-empty (n, L) array of spectra, got shape {s.shape}")
@@ -196,6 +245,22 @@ def near_duplicates(
         RMS reflectance difference below which two spectra are the same sample.
     gfc
         Optional goodness-of-fit coefficient (cosine) above which they are.
+
+    Returns
+    -------
+    ndarray
+        ``(n,)`` bool, True for a near-duplicate.
+
+    Raises
+    ------
+    ReflectanceDatabaseError
+        Bad or mismatched spectra, a negative ``rmse`` or a ``gfc`` outside (0, 1].
+
+    References
+    ----------
+    Hernandez-Andres, J., Romero, J., Nieves, J. L., Lee, R. L. (2001). Color
+    and spectral analysis of daylight in southern Europe. JOSA A 18 (the
+    goodness-of-fit coefficient).
 
     Examples
     --------
@@ -224,6 +289,28 @@ def without_near_duplicates(
 ) -> ReflectanceSet:
     """``train`` less its near-duplicates of ``test`` (:func:`near_duplicates`).
 
+    On the 400-700 nm grid the 190 training spectra hold 13 within RMSE
+    0.0105 of a ColorChecker N Ohta patch and the next nearest is at 0.0151,
+    so the default threshold separates re-measurements of the chart from
+    merely similar colours.
+
+    Parameters
+    ----------
+    train, test
+        Reflectance sets on the same grid.
+    rmse, gfc
+        Thresholds of :func:`near_duplicates`.
+
+    Returns
+    -------
+    ReflectanceSet
+        The training spectra kept, with a source that says how many were removed.
+
+    Raises
+    ------
+    ReflectanceDatabaseError
+        Sets on different grids, or every training spectrum removed.
+
     Examples
     --------
     >>> g = SpectralGrid(400, 700, 10)
@@ -246,6 +333,21 @@ def without_near_duplicates(
 
 def combine(*sets: ReflectanceSet) -> ReflectanceSet:
     """Concatenate reflectance sets on the same grid (e.g. a built-in database plus a user CSV).
+
+    Parameters
+    ----------
+    *sets
+        One or more reflectance sets on the same grid.
+
+    Returns
+    -------
+    ReflectanceSet
+        Their spectra and names in order; the sources joined by ``" + "``.
+
+    Raises
+    ------
+    ReflectanceDatabaseError
+        No set, or sets on different grids.
 
     Examples
     --------

@@ -1,34 +1,19 @@
 """Wavelength grids, colour-matching functions, light spectra and resampling.
 
-The colour signal of Matsuda et al., eq. (2) is a function of wavelength that
-is integrated against the CIE 1931 2 degree colour-matching functions
-(CIE 015:2018, tabulated at 1 nm in colour-science).  This module fixes how
-spectra are sampled:
+A :class:`SpectralGrid` fixes how spectra are sampled (400-700 nm at 5 nm,
+:data:`REFERENCE_GRID`, is the reference); a sampled spectrum is read as the
+piecewise-linear function through its samples, held constant beyond the
+ends; :func:`cmfs` integrates that function against the 1-nm CIE 1931 2 degree
+tables, :func:`resample` brings user spectra onto a grid (hat averages for
+lamps) and :func:`light_spectrum` gives CIE illuminants, Planckian and
+daylight sources or measured CSV spectra.  docs/materials.md, "From spectra
+to the display", gives the sampling rules and their accuracy.
 
-* a :class:`SpectralGrid` is a regular set of wavelengths; 400-700 nm at 5 nm
-  (61 samples, :data:`REFERENCE_GRID`) is the reference and coarser grids are
-  a speed setting;
-* a sampled spectrum is read as the piecewise-linear function through its
-  samples, held constant beyond the first and last sample (the default
-  extrapolation of colour-science);
-* :func:`cmfs` returns, for each grid sample, the integral of the 1-nm
-  colour-matching functions against that sample's "hat" basis function,
-  divided by the step, so ``sum(C * cmfs(grid)) * step`` integrates the
-  piecewise-linear spectrum against the 1-nm tables, including the tails
-  360 nm - start and stop - 830 nm;
-* :func:`resample` brings a user spectrum onto a grid: linear interpolation
-  for smooth spectra (reflectances), and for light sources the average of
-  the source under each sample's hat when the source is finer than the grid
-  (so the narrow lines of a fluorescent lamp are not point-sampled on a
-  20-nm grid).  Measured on the 24 ColorChecker spectra against the 1-nm
-  integration of colour-science, after adaptation to D65 (the displayed
-  colour), CIEDE2000 <= 0.1 at 5 nm, <= 0.25 at 10 nm and <= 1 at 20 nm
-  under D65, A and F2 (docs/materials.md gives the unadapted figures).
-
-Light sources (:func:`light_spectrum`) come from the CIE illuminant tables of
-colour-science, Planck's law (CIE 015:2018, eq. 1, c2 = 1.4388e-2 m K) below
-4000 K, the CIE daylight locus (CIE 015:2018, section 4.1) from 4000 K, or a
-CSV file of measured (nm, value) pairs.
+References
+----------
+CIE 015:2018 Colorimetry, 4th edition. doi:10.25039/TR.015.2018
+(colour-matching functions; Planck's law, eq. 1; the daylight locus,
+section 4.1).
 """
 
 from __future__ import annotations
@@ -78,6 +63,12 @@ class SpectralGrid:
         the CIE colour-matching functions), ``start < stop``.
     step
         Spacing in nm (> 0), dividing ``stop - start`` exactly.
+
+    Raises
+    ------
+    ValueError
+        A bound or step that is not a finite number, a range outside
+        360-830 nm or empty, or a step that does not divide it.
 
     Examples
     --------
@@ -134,8 +125,9 @@ REFERENCE_GRID = SpectralGrid()
 
 
 def _interp_matrix(knots: NDArray[np.float64], x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Matrix M (len(x), len(knots)) with ``M @ v`` the linear interpolant of
-    ``v`` (sampled at ``knots``) at ``x``, held constant outside the knots.
+    """Matrix M (len(x), len(knots)) with ``M @ v`` the linear interpolant of ``v`` at ``x``.
+
+    ``v`` is sampled at ``knots``; the interpolant is held constant outside them.
     """
     n = knots.size
     xc = np.clip(x, knots[0], knots[-1])
@@ -151,10 +143,9 @@ def _interp_matrix(knots: NDArray[np.float64], x: NDArray[np.float64]) -> NDArra
 def _hat_average_matrix(
     src: NDArray[np.float64], centres: NDArray[np.float64], half_width: float
 ) -> NDArray[np.float64]:
-    """Matrix W (len(centres), len(src)): row i averages the piecewise-linear
-    source under a hat centred on ``centres[i]``.
+    """Matrix W (len(centres), len(src)): row i averages the source under a hat centred on ``centres[i]``.
 
-    The hat's half width is ``half_width``, narrowed near the ends of the
+    The source is piecewise linear.  The hat's half width is ``half_width``, narrowed near the ends of the
     source so that it stays symmetric (a linear spectrum is then reproduced
     exactly; a centre on the boundary is point-sampled).  Both factors are
     piecewise linear, so Simpson's rule on the union of their knots
@@ -174,6 +165,7 @@ def _hat_average_matrix(
     w_mids = 4.0 * widths / 6.0
 
     def hats(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Each centre's hat at ``x``: ``(len(centres), len(x))``."""
         return np.clip(1.0 - np.abs(x[None, :] - centres[:, None]) / h[:, None], 0.0, None)
 
     raw = (hats(knots) * w_knots) @ _interp_matrix(src, knots) + (hats(mids) * w_mids) @ _interp_matrix(
@@ -186,6 +178,7 @@ def _hat_average_matrix(
 
 
 def _as_wavelengths(name: str, wavelengths: ArrayLike) -> NDArray[np.float64]:
+    """Wavelengths as a finite, strictly increasing 1-D float64 array."""
     wl = np.asarray(wavelengths, dtype=np.float64)
     if wl.ndim != 1 or wl.size < 1:
         raise ValueError(f"{name} must be a 1-D array of wavelengths in nm, got shape {wl.shape}")
@@ -197,6 +190,7 @@ def _as_wavelengths(name: str, wavelengths: ArrayLike) -> NDArray[np.float64]:
 
 
 def _regular_step(wl: NDArray[np.float64]) -> float | None:
+    """The common step of regular wavelengths, or None."""
     if wl.size < 2:
         return None
     d = np.diff(wl)
@@ -236,6 +230,12 @@ def resample(
     -------
     ndarray
         Shape ``(..., L)``, float64.
+
+    Raises
+    ------
+    ValueError
+        An unknown method, bad wavelengths, values not matching them or not
+        finite, or a grid outside the source range.
 
     Examples
     --------
@@ -280,6 +280,7 @@ def resample(
 
 @functools.lru_cache(maxsize=1)
 def _cmfs_1nm() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The 1-nm CIE 1931 2 degree tables of colour-science: wavelengths and ``(N, 3)`` values (read-only)."""
     import colour
 
     table = colour.MSDS_CMFS[_CMFS_NAME]
@@ -292,6 +293,7 @@ def _cmfs_1nm() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
 
 @functools.lru_cache(maxsize=64)
 def _cmfs_cached(start: float, stop: float, step: float) -> NDArray[np.float64]:
+    """:func:`cmfs` of the grid ``(start, stop, step)``, cached."""
     grid = SpectralGrid(start, stop, step)
     wl_1nm, cmf_1nm = _cmfs_1nm()
     # phi_i(lambda_j): the hat of sample i at each 1-nm wavelength, held
@@ -322,6 +324,15 @@ def cmfs(grid: SpectralGrid = REFERENCE_GRID) -> NDArray[np.float64]:
     -------
     ndarray
         Shape ``(L, 3)``: xbar, ybar, zbar (read-only).
+
+    Raises
+    ------
+    ValueError
+        ``grid`` is not a SpectralGrid.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry, 4th edition. doi:10.25039/TR.015.2018
 
     Examples
     --------
@@ -357,6 +368,12 @@ def _illuminant_table() -> dict[str, str]:
 def illuminant_names() -> list[str]:
     """Illuminant names accepted by :func:`light_spectrum` (case-insensitive).
 
+    Returns
+    -------
+    list of str
+        colour-science's illuminant keys plus the CIE names F1 ... F12 of the
+        fluorescent lamps, sorted.
+
     Examples
     --------
     >>> {"A", "D65", "F2"} <= set(illuminant_names())
@@ -370,6 +387,7 @@ def illuminant_names() -> list[str]:
 
 
 def _illuminant_source(key: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Wavelengths (nm) and values of colour-science's illuminant ``key``."""
     import colour
 
     sd = colour.SDS_ILLUMINANTS[key]
@@ -377,6 +395,7 @@ def _illuminant_source(key: str) -> tuple[NDArray[np.float64], NDArray[np.float6
 
 
 def _cct_source(kelvin: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Wavelengths (nm) and values of a Planckian (below 4000 K) or CIE daylight source at ``kelvin``."""
     lo, hi = _CCT_RANGE
     if not (math.isfinite(kelvin) and lo <= kelvin <= hi):
         raise ValueError(
@@ -400,6 +419,7 @@ _SPLIT = re.compile(r"[,;\s]+")
 
 
 def _read_spectrum_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Wavelengths (nm) and values of a CSV light spectrum; errors name the line."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
@@ -445,6 +465,7 @@ def _read_spectrum_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.floa
 
 
 def _parse_light(spec: object) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:
+    """Wavelengths (nm), values and a label of a light given by name, temperature or CSV path."""
     if isinstance(spec, bool):
         raise ValueError(f"light spec must be a name, a temperature or a CSV path, got {spec!r}")
     if isinstance(spec, (int, float, np.integer, np.floating)):
@@ -497,6 +518,18 @@ def light_spectrum(spec: str | float | os.PathLike[str], grid: SpectralGrid = RE
         Shape ``(L,)``, normalised to 1 at 560 nm (or at the sample nearest
         to it).  A measured spectrum with no power there is normalised to its
         maximum instead.
+
+    Raises
+    ------
+    ValueError
+        An unknown name, a temperature outside 1000-25000 K, a missing or
+        bad CSV file (the message names the line), a spectrum that does not
+        cover the grid or has no power on it.
+
+    References
+    ----------
+    CIE 015:2018 Colorimetry, 4th edition, eq. 1 (Planck's law, c2 =
+    1.4388e-2 m K) and section 4.1 (daylight). doi:10.25039/TR.015.2018
 
     Examples
     --------

@@ -1,4 +1,4 @@
-"""Reading a table of values against wavelength from a CSV file, with errors that name the line.
+r"""Reading a table of values against wavelength from a CSV file, with errors that name the line.
 
 Users bring their own spectral data as plain text (a camera's sensitivities, a set of
 reflectances): one row per wavelength, the wavelength in nm first, then one column per curve,
@@ -10,7 +10,7 @@ Examples
 --------
 >>> import tempfile, pathlib
 >>> p = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
->>> _ = p.write_text("nm,a,b\\n400,0.1,0.2\\n# a comment\\n700,0.3,0.4\\n")
+>>> _ = p.write_text("nm,a,b\n400,0.1,0.2\n# a comment\n700,0.3,0.4\n")
 >>> t = read_wavelength_table(p, what="test")
 >>> t.header, t.wavelengths.tolist(), t.values.tolist()
 (('a', 'b'), [400.0, 700.0], [[0.1, 0.2], [0.3, 0.4]])
@@ -35,6 +35,11 @@ _SPLIT = re.compile(r"[,;\s]+")
 @dataclass(frozen=True)
 class WavelengthTable:
     """The rows of a wavelength table.
+
+    Parameters
+    ----------
+    wavelengths, values, header
+        The attributes below, in this order.
 
     Attributes
     ----------
@@ -77,6 +82,11 @@ def read_wavelength_table(
         The expected row, for messages, e.g. ``"'wavelength_nm, r, g, b'"``.
     check
         Called with the 1-based column (>= 2) and each value; a returned text is the fault.
+
+    Returns
+    -------
+    WavelengthTable
+        The wavelengths (nm), the ``(N, C)`` values and the header's names.
 
     Raises
     ------

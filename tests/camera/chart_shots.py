@@ -34,6 +34,10 @@ class Shot:
         return np.array([[xs[lab == k].mean(), ys[lab == k].mean()] for k in range(n)])
 
 
+#: The simulated sensor of a chart shot unless one is given (frozen, so one instance serves every call).
+_DEFAULT_SENSOR = SensorModel()
+
+
 def chart_world(layout: str = "classic24", width: int = 600, height: int = 400, **kwargs) -> World:
     v, t = _PLATE
     return World(v, t, np.zeros(1, np.int64), ("plate",), {"plate": "urushi-black"}, chart_layout=layout,
@@ -41,7 +45,7 @@ def chart_world(layout: str = "classic24", width: int = 600, height: int = 400, 
 
 
 def chart_shot(tmp_path: Path, layout: str = "classic24", *, name: str = "chart.dng", seed: int = 1,
-               exposure_boost: float = 1.0, sensor: SensorModel = SensorModel(), radiance_fn=None,
+               exposure_boost: float = 1.0, sensor: SensorModel = _DEFAULT_SENSOR, radiance_fn=None,
                **world_kwargs) -> Shot:
     world = chart_world(layout, **world_kwargs)
     frame = world.frame("chart")

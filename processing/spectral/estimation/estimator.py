@@ -1,28 +1,24 @@
-"""Spectral estimation, front door: choose a method, calibrate it to the chart, spectra per region.
+"""Spectral estimation by method name, calibrated to the chart; spectral images and region spectra.
 
-Matsuda et al., section 4.1, eq. (6)-(10), and the better estimators after it.
-:func:`fit_estimator` selects among
+:func:`fit_estimator` fits one of :data:`METHODS` (Matsuda et al., section 4.1,
+eq. (6)-(10), and the better estimators after it) and, given the chart shot
+with the object, composes it with the chart transform M2 (eq. (9),
+:mod:`processing.camera.transfer`); :func:`spectral_image` applies it to an
+image; :func:`region_spectra` gives each region's mean spectrum with its
+uncertainty.  docs/colour-pipeline.md, "Estimators" and "Regions", describes
+the methods and the uncertainty.
 
-* ``paper``: PCA p = 3 and the 3 x 3 M (:mod:`processing.spectral.estimation.pca_matsuda`);
-* ``wiener``: Wiener / Tikhonov with known sensitivities (:mod:`processing.spectral.estimation.wiener`);
-* ``rootpoly``: root-polynomial regression onto 8 PCA weights (:mod:`processing.spectral.estimation.root_polynomial_finlayson`);
-* ``more-basis``: linear regression onto 8 PCA weights with ridge regularisation;
-* ``twolight``: two exposures under two lights, six channels (:mod:`processing.spectral.estimation.two_light`);
-
-and, when the chart shot with the object is given, composes it with the
-chart transform M2 (eq. (9), :mod:`processing.camera.transfer`), so the
-object camera's linear values go straight to basis weights.
-
-Per region (:func:`region_spectra`) the mean spectrum comes with an
-uncertainty: the standard deviation over the region's pixels and the
-method's error on held-out spectra, added in quadrature (the first says how
-uniform the region is, the second how far any single estimate may be from
-the truth; docs/BENCHMARKS.md gives the held-out errors per method).
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of a
+craft object based on a light reflection model", IPSJ technical report
+(no DOI), section 4.1, eq. (6)-(10).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -38,7 +34,7 @@ from processing.spectral.estimation.fit import (
     with_transform,
 )
 from processing.spectral.estimation.pca_matsuda import fit_paper
-from processing.spectral.estimation.root_polynomial_finlayson import fit_rootpoly
+from processing.spectral.estimation.root_polynomial_finlayson import fit_more_basis, fit_rootpoly
 from processing.spectral.estimation.two_light import fit_two_light
 from processing.spectral.estimation.wiener import fit_wiener
 from processing.spectral.spectra import SpectralGrid
@@ -55,8 +51,20 @@ __all__ = [
 
 _BLOCK = 1 << 20   # pixels per float64 block in region statistics
 
-#: Methods of :func:`fit_estimator`.
-METHODS = ("paper", "wiener", "rootpoly", "more-basis", "twolight")
+#: The fit of each method of :func:`fit_estimator`, by name, in the order the command line lists them:
+#: 'paper' (PCA p = 3 and the 3 x 3 M), 'wiener' (Wiener / Tikhonov with known sensitivities),
+#: 'rootpoly' (root-polynomial regression onto 8 PCA weights), 'more-basis' (linear regression onto
+#: 8 PCA weights with ridge) and 'twolight' (two exposures under two lights, six channels).
+METHODS: dict[str, Callable[..., SpectralFit]] = {
+    "paper": fit_paper,
+    "wiener": fit_wiener,
+    "rootpoly": fit_rootpoly,
+    "more-basis": fit_more_basis,
+    "twolight": fit_two_light,
+}
+
+#: Basis size of each method when ``p`` is not given (Wiener has one vector per channel, always).
+_DEFAULT_P = {"paper": 3, "rootpoly": 8, "more-basis": 8, "twolight": 10}
 
 
 def fit_estimator(
@@ -84,11 +92,11 @@ def fit_estimator(
         ``(L, 3)`` model-camera sensitivities (known, or from
         :func:`processing.camera.from_chart.estimate_sensitivities`).
     lights
-        ``(L,)`` light of the shot; ``(2, L)`` for 'twolight'.
+        ``(L,)`` light of the shot (relative spectral power); ``(2, L)`` for 'twolight'.
     grid
         The wavelength grid.
     noise
-        Relative noise level of the camera values (0.01 = 1 %).
+        Relative noise level of the camera values (0.01 = 1 %); not used by 'paper'.
     p
         Basis size (defaults: paper 3, rootpoly and more-basis 8, twolight 10;
         Wiener always uses as many as there are channels).
@@ -104,6 +112,23 @@ def fit_estimator(
     SpectralFit
         With ``condition['chart']`` and ``details['chart_residual']`` when calibrated.
 
+    Raises
+    ------
+    SpectralEstimationError
+        Unknown method; lights of the wrong shape for the method; ``p`` with
+        'wiener'; only one of ``chart_rgb`` and ``chart_reflectance``; chart
+        values that do not match the reflectances; the method's own input
+        errors.
+    ChartConditionError
+        The chart patches do not fix the transform (a
+        :class:`SpectralEstimationError`).
+    CameraResponseError
+        Bad sensitivities, lights or chart reflectances.
+
+    References
+    ----------
+    Matsuda et al., IPSJ technical report (no DOI), section 4.1, eq. (6)-(10).
+
     Examples
     --------
     >>> from processing.spectral.reflectance_database import load_reflectances
@@ -117,32 +142,52 @@ def fit_estimator(
     """
     if method not in METHODS:
         raise SpectralEstimationError(f"unknown spectral estimation method {method!r}; choose one of {', '.join(METHODS)}")
-    e = np.asarray(lights, dtype=np.float64)
-    if method == "twolight":
-        if e.ndim != 2 or e.shape[0] != 2:
-            raise SpectralEstimationError(f"'twolight' needs two lights (2, L), got shape {e.shape}")
-    elif e.ndim != 1:
-        raise SpectralEstimationError(f"method {method!r} takes one light (L,), got shape {e.shape}; use 'twolight' for two")
-    if method == "paper":
-        fit = fit_paper(database, sensitivities, e, grid, p=p or 3)
-    elif method == "wiener":
-        if p is not None:
-            raise SpectralEstimationError("the Wiener estimate has as many basis vectors as channels; do not give p")
-        fit = fit_wiener(database, sensitivities, e, grid, noise=noise)
-    elif method == "rootpoly":
-        fit = fit_rootpoly(database, sensitivities, e, grid, p=p or 8, degree=2, noise=noise)
-    elif method == "more-basis":
-        fit = fit_rootpoly(database, sensitivities, e, grid, p=p or 8, degree=1, noise=noise)
-    else:
-        fit = fit_two_light(database, sensitivities, e, grid, p=p or 10, noise=noise)
+    e = _checked_lights(method, lights)
+    fit = METHODS[method](database, sensitivities, e, grid, **_options(method, noise, p))
     if chart_rgb is None:
         if chart_reflectance is not None:
             raise SpectralEstimationError("chart_reflectance was given without chart_rgb")
         return fit
     if chart_reflectance is None:
         raise SpectralEstimationError("chart_rgb needs chart_reflectance: the patches' reflectances on the grid")
+    return _calibrated(fit, e, sensitivities, grid, chart_rgb, chart_reflectance, max_condition)
+
+
+def _checked_lights(method: str, lights: ArrayLike) -> NDArray[np.float64]:
+    """The lights as float64: two ``(2, L)`` for 'twolight', one ``(L,)`` for every other method."""
+    e = np.asarray(lights, dtype=np.float64)
+    if method == "twolight":
+        if e.ndim != 2 or e.shape[0] != 2:
+            raise SpectralEstimationError(f"'twolight' needs two lights (2, L), got shape {e.shape}")
+    elif e.ndim != 1:
+        raise SpectralEstimationError(f"method {method!r} takes one light (L,), got shape {e.shape}; use 'twolight' for two")
+    return e
+
+
+def _options(method: str, noise: float, p: int | None) -> dict[str, float | int]:
+    """The keyword arguments of the method's fit for :func:`fit_estimator`'s ``noise`` and ``p``."""
+    if method == "wiener":
+        if p is not None:
+            raise SpectralEstimationError("the Wiener estimate has as many basis vectors as channels; do not give p")
+        return {"noise": noise}
+    options: dict[str, float | int] = {"p": p or _DEFAULT_P[method]}
+    if method != "paper":          # the paper's least-squares M has no noise model
+        options["noise"] = noise
+    return options
+
+
+def _calibrated(
+    fit: SpectralFit,
+    lights: NDArray[np.float64],
+    sensitivities: ArrayLike,
+    grid: SpectralGrid,
+    chart_rgb: ArrayLike,
+    chart_reflectance: ArrayLike,
+    max_condition: float,
+) -> SpectralFit:
+    """``fit`` after the chart transform from the object camera's patch values to the model camera's."""
     refl = checked_spectra("chart_reflectance", chart_reflectance, grid)
-    model = camera_rgb(refl, e, sensitivities, grid)
+    model = camera_rgb(refl, lights, sensitivities, grid)
     obj = checked_channels("chart_rgb", chart_rgb, fit.channels)
     if obj.ndim != 2 or obj.shape[0] != refl.shape[0]:
         raise SpectralEstimationError(
@@ -159,14 +204,19 @@ def fit_estimator(
 
 @dataclass(frozen=True)
 class SpectralImage:
-    """An image as basis weights: the issue's output, never (H, W, L) spectra.
+    """An image as basis weights, never ``(H, W, L)`` spectra.
+
+    Parameters
+    ----------
+    weights, basis, grid, mask, method
+        The attributes below.
 
     Attributes
     ----------
     weights
         ``(H, W, p)`` float32 basis weights; 0 where ``mask`` is False.
     basis
-        ``(L, p)`` basis spectra.
+        ``(L, p)`` basis spectra (reflectance per unit weight).
     grid
         Wavelength grid of the basis.
     mask
@@ -188,6 +238,26 @@ def spectral_image(fit: SpectralFit, rgb: ArrayLike, mask: ArrayLike | None = No
 
     Masked pixels may hold anything (NaN from a decoder, clipped values);
     they get zero weights.  Unmasked pixels must be finite and >= 0.
+
+    Parameters
+    ----------
+    fit
+        The (calibrated) estimator.
+    rgb
+        ``(H, W, c)`` linear camera values of the object camera.
+    mask
+        ``(H, W)`` boolean, True where a pixel is estimated; None: every pixel.
+
+    Returns
+    -------
+    SpectralImage
+        Weights ``(H, W, p)`` float32, the basis, grid, mask and method.
+
+    Raises
+    ------
+    SpectralEstimationError
+        ``rgb`` not ``(H, W, c)``, a mask of another shape or not boolean, a
+        mask excluding every pixel, or bad unmasked values.
 
     Examples
     --------
@@ -221,6 +291,28 @@ def reflectance_from_weights(weights: ArrayLike, basis: ArrayLike) -> NDArray[np
 
     Meant for regions, patches and single pixels; images stay as weights.
 
+    Parameters
+    ----------
+    weights
+        ``(..., p)`` basis weights.
+    basis
+        ``(L, p)`` basis spectra.
+
+    Returns
+    -------
+    ndarray
+        ``(..., L)`` float64 reflectance.
+
+    Raises
+    ------
+    SpectralEstimationError
+        A basis that is not a finite ``(L, p)`` array, weights of another
+        ``p``, empty, NaN or infinite weights.
+
+    References
+    ----------
+    Matsuda et al., IPSJ technical report (no DOI), section 4.1, eq. (7).
+
     Examples
     --------
     >>> reflectance_from_weights([[1.0, 2.0]], [[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]).tolist()
@@ -240,6 +332,11 @@ def reflectance_from_weights(weights: ArrayLike, basis: ArrayLike) -> NDArray[np
 @dataclass(frozen=True)
 class RegionSpectra:
     """Mean reflectance per region with its spread and uncertainty.
+
+    Parameters
+    ----------
+    labels, count, mean, std, uncertainty, mean_weights
+        The attributes below.
 
     Attributes
     ----------
@@ -270,6 +367,12 @@ def region_spectra(
 ) -> RegionSpectra:
     """Mean spectrum, pixel spread and uncertainty of each labelled region.
 
+    The spread is the standard deviation of the pixels' reflectance per
+    wavelength, ``sqrt(diag(B C B^T))`` with ``C`` the covariance of the
+    region's weights; the uncertainty adds the method's held-out error in
+    quadrature (the first says how uniform the region is, the second how far
+    any single estimate may be from the truth).
+
     Parameters
     ----------
     weights
@@ -281,6 +384,18 @@ def region_spectra(
     method_error
         RMS reflectance error of the method on held-out spectra (>= 0).
 
+    Returns
+    -------
+    RegionSpectra
+        One row per label > 0 present, in increasing label order.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Weights not float ``(H, W, p)`` for the basis, labels not an integer
+        image of the same size, negative labels, no region, NaN or infinite
+        weights, a negative or non-finite ``method_error``.
+
     Examples
     --------
     >>> w = np.zeros((2, 2, 1)); w[0] = 1.0; w[1] = 3.0
@@ -291,6 +406,30 @@ def region_spectra(
     b = np.asarray(basis, dtype=np.float64)
     w = np.asarray(weights)                      # float32 images stay float32; sums are float64
     lab = np.asarray(labels)
+    _check_region_inputs(w, lab, b, method_error)
+    lab = lab.ravel()
+    if lab.dtype.kind == "i" and np.any(lab < 0):
+        raise SpectralEstimationError("labels must be >= 0 (0 = background)")
+    pos = np.flatnonzero(lab > 0)
+    if pos.size == 0:
+        raise SpectralEstimationError("the label image has no region (every label is 0)")
+    present, idx = _region_index(lab[pos].astype(np.int64))
+    count = np.bincount(idx, minlength=present.size)
+    mean_w, cov = _region_moments(w.reshape(-1, w.shape[2]), pos, idx, count)
+    var = np.einsum("lp,kpq,lq->kl", b, cov, b)
+    std = np.sqrt(np.maximum(var, 0.0))
+    return RegionSpectra(
+        labels=present,
+        count=count.astype(np.int64),
+        mean=mean_w @ b.T,
+        std=std,
+        uncertainty=np.sqrt(std**2 + float(method_error) ** 2),
+        mean_weights=mean_w,
+    )
+
+
+def _check_region_inputs(w: NDArray, lab: NDArray, b: NDArray[np.float64], method_error: float) -> None:
+    """Refuse weights, labels and a method error :func:`region_spectra` cannot use."""
     if w.ndim != 3 or b.ndim != 2 or w.shape[2] != b.shape[1] or w.dtype.kind != "f":
         raise SpectralEstimationError(
             f"weights must be float (H, W, p) with p = {b.shape[1] if b.ndim == 2 else '?'} basis vectors, "
@@ -302,13 +441,10 @@ def region_spectra(
         raise SpectralEstimationError("weights contain NaN or infinite values")
     if not (isinstance(method_error, (int, float, np.floating)) and math.isfinite(method_error) and method_error >= 0):
         raise SpectralEstimationError(f"method_error must be an RMS reflectance >= 0, got {method_error!r}")
-    lab = lab.ravel()
-    if lab.dtype.kind == "i" and np.any(lab < 0):
-        raise SpectralEstimationError("labels must be >= 0 (0 = background)")
-    pos = np.flatnonzero(lab > 0)
-    if pos.size == 0:
-        raise SpectralEstimationError("the label image has no region (every label is 0)")
-    lab_in = lab[pos].astype(np.int64)
+
+
+def _region_index(lab_in: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The labels present, increasing, and each pixel's index among them."""
     top = int(lab_in.max())
     if top < (1 << 24):                       # small labels: a lookup table instead of a sort
         present = np.flatnonzero(np.bincount(lab_in, minlength=top + 1))
@@ -317,14 +453,19 @@ def region_spectra(
         idx = lut[lab_in]
     else:
         present, idx = np.unique(lab_in, return_inverse=True)
-    k, p = present.size, w.shape[2]
-    count = np.bincount(idx, minlength=k)
+    return present, idx
+
+
+def _region_moments(
+    wflat: NDArray, pos: NDArray[np.int64], idx: NDArray[np.int64], count: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean ``(k, p)`` and covariance ``(k, p, p)`` of the weights of each region, in float64."""
+    k, p = count.size, wflat.shape[1]
     # pixels grouped by region (radix sort for fewer than 65536 regions), then per region the sum and
     # the sum of outer products about the region's first pixel, in float64 blocks (no (n, p) float64 copy)
     order = np.argsort(idx.astype(np.uint16) if k < (1 << 16) else idx, kind="stable")
     rows = pos[order]
     bounds = np.concatenate([[0], np.cumsum(count)])
-    wflat = w.reshape(-1, p)
     mean_w = np.zeros((k, p))
     cov = np.zeros((k, p, p))
     for r in range(k):
@@ -337,13 +478,4 @@ def region_spectra(
         m = s1 / count[r]
         mean_w[r] = m + ref
         cov[r] = s2 / count[r] - np.outer(m, m)
-    var = np.einsum("lp,kpq,lq->kl", b, cov, b)
-    std = np.sqrt(np.maximum(var, 0.0))
-    return RegionSpectra(
-        labels=present,
-        count=count.astype(np.int64),
-        mean=mean_w @ b.T,
-        std=std,
-        uncertainty=np.sqrt(std**2 + float(method_error) ** 2),
-        mean_weights=mean_w,
-    )
+    return mean_w, cov

@@ -1,24 +1,27 @@
-"""The fitted spectral estimator shared by every method, and its per-pixel application.
+"""The fitted spectral estimator shared by every method, and the least-squares pieces the methods share.
 
-Matsuda et al., section 4.1, eq. (6)-(10): a reflectance is written in a basis,
-``s(lambda) = sum_i w_i b_i(lambda)`` (eq. (7)), and the weights follow from
-the camera response by a matrix, ``w = M M2 rho`` (eq. (8)-(10)).  Every
-estimator of this package (the paper's PCA, Wiener, root-polynomial, two
-lights) ends in the same form, held by :class:`SpectralFit`:
+Every estimator of :mod:`processing.spectral.estimation` ends in the form
+``w = phi(rho T) A`` of :class:`SpectralFit` (camera channels ``rho``, an
+optional chart transform ``T``, a feature expansion ``phi`` and the fitted map
+``A`` to the weights of a basis ``B (L, p)``; Matsuda et al., section 4.1,
+eq. (6)-(10)); docs/colour-pipeline.md, "The common form of the estimators",
+derives it.  This module holds that result type, its per-pixel application,
+the uncentred PCA basis and the root-polynomial features (Finlayson,
+Mackiewicz & Hurlbert 2015), and re-exports the input checks of
+:mod:`processing.spectral.checks`.
 
-``w = phi(rho T) A``
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of a
+craft object based on a light reflection model", IPSJ technical report
+(no DOI), section 4.1.
 
-with ``rho`` the camera channels as a row vector, ``T`` an optional chart
-transform into the model camera (eq. (9), :mod:`processing.camera.transfer`),
-``phi`` the feature expansion (identity, or the root-polynomial terms of
-Finlayson et al. 2015) and ``A`` the fitted map to the weights of the basis
-``B (L, p)``.  For linear features ``T`` is folded into ``A``, so a whole
-image is one matrix product.  Images become ``(H, W, p)`` weights, never
-``(H, W, L)`` spectra.
+Finlayson, G. D., Mackiewicz, M., Hurlbert, A. (2015). Color correction using
+root-polynomial regression. IEEE Transactions on Image Processing 24(5),
+1460-1470. doi:10.1109/TIP.2015.2405336
 
-Principal components here are of the second-moment matrix (no mean removed),
-as in Maloney's linear models of surface reflectance (JOSA A 3, 1986), so the
-estimate is linear in the camera response and scales with exposure.
+Maloney, L. T. (1986). Evaluation of linear models of surface spectral
+reflectance with small numbers of parameters. JOSA A 3(10), 1673-1683.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from threadpoolctl import threadpool_limits
 
-from processing.errors import InputError
+from processing.spectral.checks import SpectralEstimationError, checked_channels, checked_spectra
 from processing.spectral.spectra import SpectralGrid
 
 __all__ = [
@@ -51,64 +54,31 @@ _CHUNK_PIXELS = 1 << 15   # pixels per block: the features (up to 21 x 128 kB) s
 _SINGLE_THREAD_FROM = 1 << 16   # below this, setting the thread limit costs more than the product
 
 
-class SpectralEstimationError(InputError):
-    """An input to spectral estimation is not valid; the message names it and what to do."""
-
-
-def checked_channels(
-    name: str, rgb: ArrayLike, channels: int | None = None, *, check_values: bool = True
-) -> NDArray[np.floating]:
-    """Validate camera channels ``(..., c)``: non-empty, finite, >= 0, ``c == channels`` when given.
-
-    ``check_values=False`` checks only type and shape (the values are then
-    checked block by block by the caller).
-
-    Examples
-    --------
-    >>> checked_channels("rgb", [[0.1, 0.2, 0.3]], 3).shape
-    (1, 3)
-    """
-    a = np.asarray(rgb)
-    if a.dtype.kind not in "fiu":
-        raise SpectralEstimationError(f"{name} must be a numeric array, got dtype {a.dtype}")
-    if a.ndim == 0 or a.size == 0:
-        raise SpectralEstimationError(f"{name} is empty (shape {a.shape}); give camera values (..., channels)")
-    if channels is not None and a.shape[-1] != channels:
-        raise SpectralEstimationError(
-            f"{name} must have {channels} channels on its last axis, got shape {a.shape}"
-        )
-    if check_values and a.dtype.kind in "fi":
-        if a.dtype.kind == "f" and not np.isfinite(a).all():
-            raise SpectralEstimationError(f"{name} contains NaN or infinite values; mask those pixels first")
-        if (a < 0).any():
-            raise SpectralEstimationError(
-                f"{name} has negative values (min {float(a.min()):.3g}); clip the black-subtracted image at 0"
-            )
-    return a
-
-
-def checked_spectra(name: str, spectra: ArrayLike, grid: SpectralGrid | None = None) -> NDArray[np.float64]:
-    """Validate spectra ``(n, L)``: non-empty, finite, on ``grid`` when given.
-
-    Examples
-    --------
-    >>> checked_spectra("s", [[0.1, 0.2]]).shape
-    (1, 2)
-    """
-    s = np.asarray(spectra, dtype=np.float64)
-    if s.ndim != 2 or s.shape[0] == 0 or s.shape[1] == 0:
-        raise SpectralEstimationError(f"{name} must be a non-empty (n, L) array of spectra, got shape {s.shape}")
-    if grid is not None and s.shape[1] != grid.size:
-        raise SpectralEstimationError(f"{name} has {s.shape[1]} wavelengths, the grid {grid.size}")
-    if not np.isfinite(s).all():
-        raise SpectralEstimationError(f"{name} contains NaN or infinite values")
-    return s
-
-
 def pca_basis(spectra: ArrayLike, p: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The first ``p`` principal directions ``(L, p)`` of spectra and their singular values.
 
-    Uncentred (second-moment) PCA; the first vector is made positive.
+    Uncentred (second-moment) PCA, as in Maloney (1986): no mean is removed,
+    so an estimate in this basis is linear in the camera response and scales
+    with exposure.  The first vector is made positive.
+
+    Parameters
+    ----------
+    spectra
+        ``(n, L)`` spectra (reflectance, a fraction).
+    p
+        Number of directions, ``1 <= p <= min(n, L)``.
+
+    Returns
+    -------
+    basis : ndarray
+        ``(L, p)`` orthonormal columns, float64.
+    singular_values : ndarray
+        ``(min(n, L),)`` every singular value of ``spectra``, descending.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Bad spectra (:func:`checked_spectra`) or ``p`` out of range.
 
     Examples
     --------
@@ -129,7 +99,25 @@ def pca_basis(spectra: ArrayLike, p: int) -> tuple[NDArray[np.float64], NDArray[
 
 
 def feature_names(channels: int, expansion: str) -> list[str]:
-    """Names of the features of ``expansion`` for ``channels`` inputs ('linear', 'rootpoly2', 'rootpoly3').
+    """Names of the features of ``expansion`` for ``channels`` inputs.
+
+    Parameters
+    ----------
+    channels
+        Number of camera channels c.
+    expansion
+        ``'linear'``, ``'rootpoly2'`` or ``'rootpoly3'``.
+
+    Returns
+    -------
+    list of str
+        ``'c0'`` ... for the channels, ``'sqrt(c0*c1)'`` / ``'cbrt(c0*c1*c2)'``
+        for the root terms, in the order of :func:`expand_features`.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Unknown expansion.
 
     Examples
     --------
@@ -140,6 +128,7 @@ def feature_names(channels: int, expansion: str) -> list[str]:
 
 
 def _terms(channels: int, expansion: str) -> list[tuple[str, tuple[int, ...]]]:
+    """Name and channel indices of each feature of ``expansion``."""
     if expansion not in ("linear", "rootpoly2", "rootpoly3"):
         raise SpectralEstimationError(f"unknown feature expansion {expansion!r}; use linear, rootpoly2 or rootpoly3")
     degree = {"linear": 1, "rootpoly2": 2, "rootpoly3": 3}[expansion]
@@ -183,10 +172,35 @@ def _expand_leading(xt: NDArray[np.floating], expansion: str) -> NDArray[np.floa
 
 
 def expand_features(rgb: NDArray[np.floating], expansion: str) -> NDArray[np.floating]:
-    """Root-polynomial features (Finlayson, Mackiewicz, Hurlbert, IEEE TIP 24(5), 2015).
+    """Root-polynomial features of camera channels.
 
-    Each term is a product of d channels raised to 1/d, so every feature
-    scales linearly with exposure.
+    Each term is a product of d channels raised to 1/d (Finlayson et al.
+    2015), so every feature scales linearly with exposure.
+
+    Parameters
+    ----------
+    rgb
+        Camera channels ``(..., c)``, >= 0.
+    expansion
+        ``'linear'`` (the channels themselves), ``'rootpoly2'`` or
+        ``'rootpoly3'`` (terms of :func:`feature_names`).
+
+    Returns
+    -------
+    ndarray
+        ``(..., f)`` features, the dtype of ``rgb``; ``rgb`` itself for
+        ``'linear'``.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Unknown expansion.
+
+    References
+    ----------
+    Finlayson, G. D., Mackiewicz, M., Hurlbert, A. (2015). Color correction
+    using root-polynomial regression. IEEE Transactions on Image Processing
+    24(5), 1460-1470. doi:10.1109/TIP.2015.2405336
 
     Examples
     --------
@@ -201,7 +215,12 @@ def expand_features(rgb: NDArray[np.floating], expansion: str) -> NDArray[np.flo
 
 @dataclass(frozen=True)
 class SpectralFit:
-    """A fitted estimator from camera channels to basis weights.
+    """A fitted estimator from camera channels to basis weights: ``w = phi(rho T) @ matrix``.
+
+    Parameters
+    ----------
+    method, basis, matrix, grid, channels, expansion, transform, training_rmse, condition, details
+        The attributes below.
 
     Attributes
     ----------
@@ -256,6 +275,22 @@ class SpectralFit:
         Done in blocks of 2^15 pixels, each one matrix product (plus the
         root-polynomial terms), in float32.
 
+        Parameters
+        ----------
+        rgb
+            Linear camera values ``(..., c)`` in the units the estimator was
+            fitted in (finite, >= 0).
+
+        Returns
+        -------
+        ndarray
+            ``(..., p)`` float32 weights of :attr:`basis`.
+
+        Raises
+        ------
+        SpectralEstimationError
+            Wrong number of channels, empty, NaN, infinite or negative values.
+
         Examples
         --------
         >>> fit = SpectralFit("demo", np.eye(3), np.eye(3), SpectralGrid(400, 700, 150), 3)
@@ -284,6 +319,21 @@ class SpectralFit:
     def estimate_spectra(self, rgb: ArrayLike) -> NDArray[np.float64]:
         """Reflectance spectra ``(..., L)`` of a few camera values (for charts and regions, not images).
 
+        Parameters
+        ----------
+        rgb
+            Linear camera values ``(..., c)`` (finite, >= 0).
+
+        Returns
+        -------
+        ndarray
+            ``(..., L)`` float64 reflectance on :attr:`grid`.
+
+        Raises
+        ------
+        SpectralEstimationError
+            As :meth:`estimate_weights`.
+
         Examples
         --------
         >>> fit = SpectralFit("demo", np.eye(3), np.eye(3), SpectralGrid(400, 700, 150), 3)
@@ -295,6 +345,7 @@ class SpectralFit:
 
 @contextlib.contextmanager
 def _no_limit() -> Iterator[None]:
+    """A context that changes nothing (no thread limit for small products)."""
     yield
 
 
@@ -302,6 +353,25 @@ def with_transform(fit: SpectralFit, transform: ArrayLike) -> SpectralFit:
     """The estimator applied after a ``(c, c)`` chart transform (row form ``rho T``).
 
     For linear features the transform is folded into the matrix.
+
+    Parameters
+    ----------
+    fit
+        A fitted estimator.
+    transform
+        ``(c, c)`` map from the object camera's channels to the model
+        camera's (:func:`processing.camera.transfer.fit_chart_transform`);
+        it acts before any transform ``fit`` already has.
+
+    Returns
+    -------
+    SpectralFit
+        A copy of ``fit`` with the transform folded in or attached.
+
+    Raises
+    ------
+    SpectralEstimationError
+        ``transform`` is not a finite ``(c, c)`` matrix.
 
     Examples
     --------

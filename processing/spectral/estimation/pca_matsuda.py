@@ -1,16 +1,15 @@
 """The paper's spectral estimator: PCA basis with p = 3 and a 3 x 3 camera-to-weights matrix.
 
-Matsuda et al., section 4.1, eq. (6)-(10): the reflectances of a database are
-written in their first p = 3 principal components ``B (L, 3)`` (eq. (6)-(7)),
-``w = B^T s``; the database's reference-camera values ``rho = K^T s`` are
-regressed on the weights by least squares, ``w = M rho`` (eq. (8)),
-and a pixel's reflectance is ``s = B M rho``.  The object camera
-enters through the chart transform M2 (eq. (9)-(10), :mod:`processing.camera.transfer`).
+Matsuda et al., section 4.1, eq. (6)-(10): the database's reflectances in their
+first principal components ``B``, the camera values regressed onto the
+weights by least squares, ``w = M rho`` (eq. (8)); docs/colour-pipeline.md,
+"The paper's estimator", gives the derivation.
 
-When every database spectrum lies in the span of the three basis vectors
-the mapping from camera values to weights is exactly linear, and the
-estimate reproduces the database spectra exactly (the closed-form case the
-tests check).
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of a
+craft object based on a light reflection model", IPSJ technical report
+(no DOI), section 4.1, eq. (6)-(10).
 """
 
 from __future__ import annotations
@@ -36,6 +35,12 @@ def fit_paper(
 ) -> SpectralFit:
     """Fit the paper's estimator on database reflectances ``(n, L)``.
 
+    The weights are ``w = B^T s`` in the uncentred PCA basis ``B (L, p)`` of
+    the database, and ``M`` is the least-squares map from the database's
+    camera values ``rho = s K`` to them (eq. (8)), so a pixel's reflectance is
+    ``s = B M rho``.  When every database spectrum lies in the span of the
+    basis the estimate reproduces the database exactly.
+
     Parameters
     ----------
     database
@@ -54,6 +59,18 @@ def fit_paper(
     SpectralFit
         Method 'paper', linear features; ``condition['camera']`` is
         sigma_1 / sigma_c of the database's camera values.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Bad database, fewer spectra than ``max(p, c)``, bad ``p``, or camera
+        values of rank below c.
+    CameraResponseError
+        Bad sensitivities or light (:func:`processing.camera.response.channel_matrix`).
+
+    References
+    ----------
+    Matsuda et al., IPSJ technical report (no DOI), section 4.1, eq. (6)-(8).
 
     Examples
     --------

@@ -1,22 +1,18 @@
 """Root-polynomial regression from camera values to the weights of a larger PCA basis.
 
-Finlayson, Mackiewicz & Hurlbert, "Color correction using root-polynomial
-regression", IEEE TIP 24(5), 2015: the camera values are expanded into terms
-``rho_i``, ``(rho_i rho_j)^(1/2)``, ``(rho_i rho_j rho_k)^(1/3)`` ...,
-each of degree one in the exposure, and a linear map of the terms is fitted by
-least squares.  Here the target is the weights of the database's first ``p``
-principal components (``p`` = 8 by default, more than the paper's 3), so the
-regression is from terms to weights, and ridge (Tikhonov) regularisation
-keeps the extra basis vectors from fitting noise.
+The camera values are expanded into root-polynomial terms, each of degree one
+in the exposure (Finlayson, Mackiewicz & Hurlbert 2015), and a ridge-regularised
+linear map from the terms to the weights of the database's first ``p``
+principal components is fitted on noisy copies of the training values;
+``degree=1`` is plain linear regression onto the larger basis
+(:func:`fit_more_basis`).  docs/colour-pipeline.md, "Root-polynomial
+regression", gives the training and regularisation in full.
 
-Regularisation.  The training camera values get noise of the stated relative
-level (five noisy copies of the database, seeded), and the ridge weight is
-chosen by five-fold cross-validation of the spectral RMSE over 1e-8 .. 1 (in
-units of the mean squared feature).  With ``degree=1`` this is linear
-regression onto a larger basis ("more basis vectors with regularisation").
-
-Because every term scales with exposure and the map is linear, scaling the
-camera values scales the weights by the same factor (tested).
+References
+----------
+Finlayson, G. D., Mackiewicz, M., Hurlbert, A. (2015). Color correction using
+root-polynomial regression. IEEE Transactions on Image Processing 24(5),
+1460-1470. doi:10.1109/TIP.2015.2405336
 """
 
 from __future__ import annotations
@@ -37,13 +33,14 @@ from processing.spectral.estimation.fit import (
 )
 from processing.spectral.spectra import SpectralGrid
 
-__all__ = ["fit_rootpoly"]
+__all__ = ["fit_rootpoly", "fit_more_basis"]
 
 _RIDGE = np.logspace(-8, 0, 17)
 _COPIES = 5
 
 
 def _ridge(x: NDArray[np.float64], y: NDArray[np.float64], lam: float) -> NDArray[np.float64]:
+    """Ridge solution of ``x a = y`` with weight ``lam`` in units of the mean squared feature."""
     scale = float(np.mean(x * x))
     f = x.shape[1]
     return np.linalg.solve(x.T @ x + lam * scale * x.shape[0] * np.eye(f), x.T @ y)
@@ -64,14 +61,20 @@ def fit_rootpoly(
 ) -> SpectralFit:
     """Fit root-polynomial regression onto ``p`` PCA weights.
 
+    The training camera values get noise of the stated relative level (five
+    noisy copies of the database, seeded; one clean copy when ``noise`` is 0)
+    and the ridge weight is chosen by five-fold cross-validation of the
+    spectral RMSE over 1e-8 .. 1 (in units of the mean squared feature).
+    Scaling the camera values scales the weights by the same factor.
+
     Parameters
     ----------
     database
         Training reflectances ``(n, L)`` on ``grid``.
     sensitivities
-        ``(L, 3)`` camera sensitivities.
+        ``(L, 3)`` camera sensitivities (relative units).
     lights
-        ``(L,)`` light or ``(k, L)`` for k exposures.
+        ``(L,)`` light (relative spectral power) or ``(k, L)`` for k exposures.
     grid
         The wavelength grid.
     p
@@ -81,11 +84,34 @@ def fit_rootpoly(
     noise
         Relative noise added to the training camera values (0.01 = 1 %).
     ridge
-        Ridge weight; None: five-fold cross-validation.
+        Ridge weight (relative to the mean squared feature); None: five-fold
+        cross-validation.
     seed
         Seed of the training noise and folds.
     method
         Name recorded in the result (default 'rootpoly', or 'more-basis' for degree 1).
+
+    Returns
+    -------
+    SpectralFit
+        Expansion 'linear', 'rootpoly2' or 'rootpoly3'; ``details`` holds
+        ``noise``, ``degree``, ``ridge`` and ``cross_validated`` (1 when the
+        ridge weight was chosen); ``condition`` the features' and the camera
+        values' condition numbers.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Bad database, degree, noise, ``p`` or ridge weight, or fewer training
+        values than root-polynomial terms.
+    CameraResponseError
+        Bad sensitivities or lights.
+
+    References
+    ----------
+    Finlayson, G. D., Mackiewicz, M., Hurlbert, A. (2015). Color correction
+    using root-polynomial regression. IEEE Transactions on Image Processing
+    24(5), 1460-1470. doi:10.1109/TIP.2015.2405336
 
     Examples
     --------
@@ -109,10 +135,7 @@ def fit_rootpoly(
     basis, _ = pca_basis(db, p)
     rng = np.random.default_rng(seed)
     rho = db @ k
-    copies = 1 if noise == 0 else _COPIES
-    rho_train = np.concatenate([rho * (1.0 + noise * rng.standard_normal(rho.shape)) for _ in range(copies)])
-    rho_train = np.maximum(rho_train, 0.0)
-    target_spectra = np.tile(db, (copies, 1))
+    rho_train, target_spectra, copies = _noisy_training_set(db, rho, noise, rng)
     x = expand_features(rho_train, expansion)
     y = target_spectra @ basis
     if x.shape[0] <= x.shape[1]:
@@ -121,15 +144,7 @@ def fit_rootpoly(
         )
     details: dict[str, float] = {"noise": float(noise), "degree": float(degree)}
     if ridge is None:
-        groups = np.tile(np.arange(db.shape[0]), copies)
-        fold_of = rng.permutation(db.shape[0]) % 5
-        errors = np.zeros(_RIDGE.size)
-        for f in range(5):
-            test = fold_of[groups] == f
-            for j, lam in enumerate(_RIDGE):
-                a = _ridge(x[~test], y[~test], lam)
-                errors[j] += np.sum((x[test] @ a @ basis.T - target_spectra[test]) ** 2)
-        ridge = float(_RIDGE[int(np.argmin(errors))])
+        ridge = _cross_validated_ridge(x, y, basis, target_spectra, db.shape[0], copies, rng)
         details["cross_validated"] = 1.0
     if not (math.isfinite(ridge) and ridge >= 0):
         raise SpectralEstimationError(f"ridge must be >= 0, got {ridge!r}")
@@ -143,3 +158,79 @@ def fit_rootpoly(
         condition={"features": condition_number(x, rank=x.shape[1]), "camera": condition_number(rho, rank=c)},
         details=details,
     )
+
+
+def _noisy_training_set(
+    db: NDArray[np.float64], rho: NDArray[np.float64], noise: float, rng: np.random.Generator
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    """Camera values with relative noise (five copies; one when noise is 0), their spectra, and the copies."""
+    copies = 1 if noise == 0 else _COPIES
+    rho_train = np.concatenate([rho * (1.0 + noise * rng.standard_normal(rho.shape)) for _ in range(copies)])
+    rho_train = np.maximum(rho_train, 0.0)
+    target_spectra = np.tile(db, (copies, 1))
+    return rho_train, target_spectra, copies
+
+
+def _cross_validated_ridge(
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
+    basis: NDArray[np.float64],
+    target_spectra: NDArray[np.float64],
+    n: int,
+    copies: int,
+    rng: np.random.Generator,
+) -> float:
+    """The ridge weight of :data:`_RIDGE` with the least five-fold spectral error (copies of a spectrum share a fold)."""
+    groups = np.tile(np.arange(n), copies)
+    fold_of = rng.permutation(n) % 5
+    errors = np.zeros(_RIDGE.size)
+    for f in range(5):
+        test = fold_of[groups] == f
+        for j, lam in enumerate(_RIDGE):
+            a = _ridge(x[~test], y[~test], lam)
+            errors[j] += np.sum((x[test] @ a @ basis.T - target_spectra[test]) ** 2)
+    return float(_RIDGE[int(np.argmin(errors))])
+
+
+def fit_more_basis(
+    database: ArrayLike,
+    sensitivities: ArrayLike,
+    lights: ArrayLike,
+    grid: SpectralGrid,
+    *,
+    p: int = 8,
+    noise: float = 0.01,
+    ridge: float | None = None,
+    seed: int = 0,
+) -> SpectralFit:
+    """Fit linear regression onto ``p`` PCA weights with ridge: :func:`fit_rootpoly` of degree 1.
+
+    More basis vectors than the paper's three, kept from fitting noise by the
+    ridge weight; the method 'more-basis' of
+    :func:`processing.spectral.estimation.estimator.fit_estimator`.
+
+    Parameters
+    ----------
+    database, sensitivities, lights, grid, p, noise, ridge, seed
+        As :func:`fit_rootpoly`.
+
+    Returns
+    -------
+    SpectralFit
+        Method 'more-basis', linear features.
+
+    Raises
+    ------
+    SpectralEstimationError, CameraResponseError
+        As :func:`fit_rootpoly`.
+
+    Examples
+    --------
+    >>> from processing.spectral.reflectance_database import load_reflectances
+    >>> from processing.camera.response import camera_sensitivities
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> fit = fit_more_basis(load_reflectances("training", g).spectra, camera_sensitivities(g), np.ones(g.size), g)
+    >>> fit.method, fit.expansion, fit.p
+    ('more-basis', 'linear', 8)
+    """
+    return fit_rootpoly(database, sensitivities, lights, grid, p=p, degree=1, noise=noise, ridge=ridge, seed=seed)

@@ -1,19 +1,21 @@
 """Two exposures under two lights: six camera channels for spectral estimation.
 
-A trichromatic camera confuses metamers: reflectances that differ but give
-the same three values under one light.  A second exposure of the same view
-under a light of another spectral power distribution (e.g. daylight D65 and
-incandescent A) gives three more channels, ``rho = s [E_1 S, E_2 S]``, that
-separate most such pairs (Shen, Cai, Shao & Xin, "Reflectance reconstruction
-for multispectral imaging by adaptive Wiener estimation", Optics Express 15,
-2007, use the same idea with filters; Matsuda et al. section 5 name more
-channels as the way past p = 3).
+A second exposure of the same view under a light of another spectral power
+distribution (e.g. D65 and A) gives three more channels,
+``rho = s [E_1 S, E_2 S]``, that separate most metamers of one light; the six
+channels go through root-polynomial regression (default) or Wiener
+estimation.  docs/colour-pipeline.md, "Two lights", says why and what the
+shots need.
 
-The six channels go through the same estimators as one exposure: root-
-polynomial regression onto a ten-vector PCA basis (default; see
-:mod:`processing.spectral.estimation.root_polynomial_finlayson`) or Wiener (:mod:`processing.spectral.estimation.wiener`).
-The two exposures must be registered pixel to pixel (a fixed camera on a
-tripod) and each exposure's chart transform is fitted separately.
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of a
+craft object based on a light reflection model", IPSJ technical report
+(no DOI), section 5 (more channels as the way past p = 3).
+
+Shen, H.-L., Cai, P.-Q., Shao, S.-J., Xin, J. H. (2007). Reflectance
+reconstruction for multispectral imaging by adaptive Wiener estimation.
+Optics Express 15.
 """
 
 from __future__ import annotations
@@ -46,10 +48,10 @@ def fit_two_light(
     database
         Training reflectances ``(n, L)``.
     sensitivities
-        ``(L, 3)`` camera sensitivities.
+        ``(L, 3)`` camera sensitivities (relative units).
     lights
-        ``(2, L)``: the two lights, in the order of the channels (first
-        exposure's R, G, B, then the second's).
+        ``(2, L)`` (relative spectral power): the two lights, in the order
+        of the channels (first exposure's R, G, B, then the second's).
     grid
         The wavelength grid.
     estimator
@@ -57,7 +59,26 @@ def fit_two_light(
     p
         Basis size for 'rootpoly'.
     noise
-        Relative noise level of each channel.
+        Relative noise level of each channel (0.01 = 1 %).
+
+    Returns
+    -------
+    SpectralFit
+        Method 'twolight', ``channels == 6``.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Lights not ``(2, L)``, two lights of the same spectrum (up to scale),
+        an unknown ``estimator``, or the estimator's own input errors.
+    CameraResponseError
+        Bad sensitivities or lights.
+
+    References
+    ----------
+    Finlayson, G. D., Mackiewicz, M., Hurlbert, A. (2015). Color correction
+    using root-polynomial regression. IEEE Transactions on Image Processing
+    24(5), 1460-1470. doi:10.1109/TIP.2015.2405336
 
     Examples
     --------

@@ -1,28 +1,20 @@
 """Wiener (linear minimum mean-square error) spectral estimation with known sensitivities and light.
 
-For camera values ``rho = s K + n`` (row vectors; ``K (L, c)`` the channel
-matrix of :func:`processing.camera.response.channel_matrix`) with a prior
-second-moment matrix ``R = E[s^T s]`` of reflectances and noise covariance
-``N``, the linear estimator of least mean-square error is (Pratt & Mancill,
-Applied Optics 15, 1976; Shimano, IEEE TIP 15(7), 2006)
+``s_hat = rho (K^T R K + N)^-1 K^T R`` for camera values ``rho = s K + n``,
+the prior second moments ``R`` of the database's reflectances and the noise
+covariance ``N`` (Pratt & Mancill 1976); the noise level is given or chosen by
+cross-validation as Shimano (2006) recommends when it is not measured.
+docs/colour-pipeline.md, "Wiener estimation", states the model and its choices.
 
-``s_hat = rho (K^T R K + N)^-1 K^T R``.
+References
+----------
+Pratt, W. K., Mancill, C. E. (1976). Spectral estimation techniques for the
+spectral calibration of a color image scanner. Applied Optics 15(1), 73-75.
+doi:10.1364/AO.15.000073
 
-``R`` is the database's ``S^T S / n``; with the database mean removed and
-added back this is the MMSE estimate under a Gaussian prior, and without it
-(used here, so the estimate stays linear and scales with exposure) the best
-linear estimate for the second moments of the data.
-
-Noise.  ``noise`` is the relative noise level: ``N = noise^2 diag(K^T R K)``,
-the average covariance of a noise proportional to each channel's signal (1 %
-noise: 0.01).  With ``noise=None`` the level is chosen by five-fold
-cross-validation on the database over 1e-4 .. 1 (spectral RMSE of held-out
-spectra with the candidate level's noise added), as Shimano recommends when
-the noise is not measured.
-
-The estimate lies in the c-dimensional span of the rows of the Wiener
-matrix, so the basis is an orthonormal basis of that span: c weights per
-pixel represent the estimate exactly.
+Shimano, N. (2006). Recovery of spectral reflectances of objects being imaged
+without prior knowledge. IEEE Transactions on Image Processing 15(7),
+1848-1856.
 """
 
 from __future__ import annotations
@@ -47,6 +39,26 @@ def wiener_matrix(
 ) -> NDArray[np.float64]:
     """The Wiener matrix ``G (c, L)``: ``s_hat = rho @ G = rho (K^T R K + N)^-1 K^T R``.
 
+    Parameters
+    ----------
+    second_moment
+        ``(L, L)`` prior second-moment matrix ``R`` of the reflectances.
+    k
+        ``(L, c)`` channel matrix ``K`` (:func:`processing.camera.response.channel_matrix`).
+    noise_covariance
+        ``(c, c)`` noise covariance ``N`` in squared camera units.
+
+    Returns
+    -------
+    ndarray
+        ``(c, L)`` float64: the estimate of a row of camera values is ``rho @ G``.
+
+    References
+    ----------
+    Pratt, W. K., Mancill, C. E. (1976). Spectral estimation techniques for
+    the spectral calibration of a color image scanner. Applied Optics 15(1),
+    73-75. doi:10.1364/AO.15.000073
+
     Examples
     --------
     >>> r = np.eye(2); k = np.array([[1.0], [0.0]])
@@ -59,6 +71,7 @@ def wiener_matrix(
 
 
 def _noise_cov(second_moment: NDArray[np.float64], k: NDArray[np.float64], noise: float) -> NDArray[np.float64]:
+    """The covariance ``noise^2 diag(K^T R K)`` of a noise proportional to each channel's mean signal."""
     return noise**2 * np.diag(np.diag(k.T @ second_moment @ k))
 
 
@@ -66,7 +79,35 @@ def cross_validated_noise(database: NDArray[np.float64], k: NDArray[np.float64],
     """Relative noise level (regularisation) that minimises the held-out spectral RMSE.
 
     Each fold's camera values get noise of the candidate level (seeded), so
-    the choice reflects the level at which the data are trusted.
+    the choice reflects the level at which the data are trusted.  The
+    candidates are 17 levels from 1e-4 to 1, evenly spaced in log.
+
+    Parameters
+    ----------
+    database
+        ``(n, L)`` training reflectances, ``n >= folds``.
+    k
+        ``(L, c)`` channel matrix.
+    folds
+        Number of cross-validation folds.
+    seed
+        Seed of the fold assignment and of the noise.
+
+    Returns
+    -------
+    float
+        The chosen relative noise level (0.01 = 1 %).
+
+    Raises
+    ------
+    SpectralEstimationError
+        Fewer spectra than folds.
+
+    References
+    ----------
+    Shimano, N. (2006). Recovery of spectral reflectances of objects being
+    imaged without prior knowledge. IEEE Transactions on Image Processing
+    15(7), 1848-1856.
 
     Examples
     --------
@@ -107,30 +148,60 @@ def fit_wiener(
 ) -> SpectralFit:
     """Fit the Wiener estimator.
 
+    The estimate lies in the c-dimensional span of the rows of the Wiener
+    matrix, so the basis is an orthonormal basis of that span and c weights
+    per pixel represent the estimate exactly.
+
     Parameters
     ----------
     database
         Training reflectances ``(n, L)``: the prior is ``S^T S / n``.  None
         when ``second_moment`` is given.
     sensitivities
-        ``(L, 3)`` camera sensitivities on ``grid``.
+        ``(L, 3)`` camera sensitivities on ``grid`` (relative units).
     lights
-        ``(L,)`` light, or ``(k, L)`` for k exposures (3 k channels).
+        ``(L,)`` light (relative spectral power), or ``(k, L)`` for k
+        exposures (3 k channels).
     grid
         The wavelength grid.
     noise
-        Relative noise level (0.01 = 1 %); None: chosen by cross-validation.
+        Relative noise level (0.01 = 1 %): ``N = noise^2 diag(K^T R K)``;
+        None: chosen by :func:`cross_validated_noise`.
     second_moment
         ``(L, L)`` prior second-moment matrix instead of a database.
     noise_covariance
-        ``(c, c)`` absolute noise covariance, overriding ``noise``.
+        ``(c, c)`` absolute noise covariance (squared camera units),
+        overriding ``noise``.
     method
         Name recorded in the result.
 
     Returns
     -------
     SpectralFit
-        ``p = c`` basis vectors; ``details['noise']`` is the level used.
+        ``p = c`` basis vectors; ``details['noise']`` is the level used
+        (absent with ``noise_covariance``), ``details['cross_validated']`` 1
+        when it was chosen by cross-validation; ``training_rmse`` NaN
+        without a database.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Neither a database nor a second moment; a second moment that is not a
+        finite symmetric ``(L, L)`` matrix; a noise covariance that is not
+        positive semi-definite ``(c, c)``; a negative or non-finite noise;
+        cross-validation without a database; a singular Wiener system.
+    CameraResponseError
+        Bad sensitivities or lights.
+
+    References
+    ----------
+    Pratt, W. K., Mancill, C. E. (1976). Spectral estimation techniques for
+    the spectral calibration of a color image scanner. Applied Optics 15(1),
+    73-75. doi:10.1364/AO.15.000073
+
+    Shimano, N. (2006). Recovery of spectral reflectances of objects being
+    imaged without prior knowledge. IEEE Transactions on Image Processing
+    15(7), 1848-1856.
 
     Examples
     --------
@@ -141,6 +212,25 @@ def fit_wiener(
     """
     k = channel_matrix(sensitivities, lights, grid)
     c = k.shape[1]
+    r, db = _prior(database, second_moment, grid)
+    nc, details = _noise_covariance(noise_covariance, noise, r, k, db)
+    system = k.T @ r @ k + nc
+    cond = _checked_condition(system)
+    g = np.linalg.solve(system, k.T @ r)                    # (c, L)
+    q, matrix = _span_basis(g)
+    rmse = math.nan
+    if db is not None:
+        rmse = float(np.sqrt(np.mean((db @ k @ g - db) ** 2)))
+    return SpectralFit(
+        method, q, matrix, grid, c, training_rmse=rmse,
+        condition={"system": cond, "camera": condition_number(k, rank=c)}, details=details,
+    )
+
+
+def _prior(
+    database: ArrayLike | None, second_moment: ArrayLike | None, grid: SpectralGrid
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """The checked prior second moments ``R (L, L)`` and the checked database (None without one)."""
     db = None
     if second_moment is not None:
         r = np.asarray(second_moment, dtype=np.float64)
@@ -155,6 +245,18 @@ def fit_wiener(
             raise SpectralEstimationError("give a database of reflectances or a second_moment matrix")
         db = checked_spectra("database", database, grid)
         r = db.T @ db / db.shape[0]
+    return r, db
+
+
+def _noise_covariance(
+    noise_covariance: ArrayLike | None,
+    noise: float | None,
+    r: NDArray[np.float64],
+    k: NDArray[np.float64],
+    db: NDArray[np.float64] | None,
+) -> tuple[NDArray[np.float64], dict[str, float]]:
+    """The checked noise covariance ``N (c, c)`` (given, or of the relative level) and the details to record."""
+    c = k.shape[1]
     details: dict[str, float] = {}
     if noise_covariance is not None:
         nc = np.asarray(noise_covariance, dtype=np.float64)
@@ -170,22 +272,24 @@ def fit_wiener(
             raise SpectralEstimationError(f"noise must be a relative level >= 0 (0.01 = 1 %), got {noise!r}")
         details["noise"] = float(noise)
         nc = _noise_cov(r, k, float(noise))
-    system = k.T @ r @ k + nc
+    return nc, details
+
+
+def _checked_condition(system: NDArray[np.float64]) -> float:
+    """The condition number of the Wiener system ``K^T R K + N``; refused above 1e14."""
     cond = float(np.linalg.cond(system))
     if not math.isfinite(cond) or cond > 1e14:
         raise SpectralEstimationError(
             f"the Wiener system is singular (condition number {cond:.3g}); the prior gives no signal in some channel "
             "or the channels are dependent: add noise > 0 or check the sensitivities and lights"
         )
-    g = np.linalg.solve(system, k.T @ r)                    # (c, L)
+    return cond
+
+
+def _span_basis(g: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """An orthonormal basis ``Q (L, c)`` of the span of the Wiener matrix's rows and the map ``G Q (c, c)`` onto it."""
     q, _ = np.linalg.qr(g.T)                                 # orthonormal basis of the estimate's span
     if q[:, 0].sum() < 0:
         q[:, 0] *= -1
     matrix = g @ q                                           # (c, c): w = rho @ matrix
-    rmse = math.nan
-    if db is not None:
-        rmse = float(np.sqrt(np.mean((db @ k @ g - db) ** 2)))
-    return SpectralFit(
-        method, q, matrix, grid, c, training_rmse=rmse,
-        condition={"system": cond, "camera": condition_number(k, rank=c)}, details=details,
-    )
+    return q, matrix
