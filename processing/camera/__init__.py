@@ -17,10 +17,10 @@ transfer
 from_chart
     Smooth non-negative sensitivities estimated from a chart of known reflectances.
 
-The function :func:`chart_layout` takes the name of its module as an attribute
-of this package; import the module's other names with
-``from processing.camera.chart_layout import ...``.  docs/colour-pipeline.md
-describes the whole pipeline.
+The function ``chart_layout`` shares its module's name, so this front door
+does not export it (the package attribute stays the module); use
+``from processing.camera.chart_layout import chart_layout``.
+docs/colour-pipeline.md describes the whole pipeline.
 
 References
 ----------
@@ -54,7 +54,6 @@ from processing.camera.chart_layout import (
     CHARTS,
     ChartLayout,
     ChartLayoutError,
-    chart_layout,
     reference_lab,
     reference_srgb8,
 )
@@ -101,7 +100,6 @@ __all__ = [
     "CHARTS",
     "ChartLayout",
     "ChartLayoutError",
-    "chart_layout",
     "reference_srgb8",
     "reference_lab",
     # chart_detection

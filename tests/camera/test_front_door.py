@@ -5,7 +5,6 @@ from __future__ import annotations
 import importlib
 
 import processing.camera as camera
-from processing.camera import chart_layout as chart_layout_function
 
 
 def test_the_front_door_exports_each_name_of_its_modules():
@@ -16,5 +15,7 @@ def test_the_front_door_exports_each_name_of_its_modules():
             assert getattr(importlib.import_module(home), name) is obj
 
 
-def test_chart_layout_is_the_function():
-    assert chart_layout_function("classic24").size == 24
+def test_the_chart_layout_attribute_stays_the_module():
+    import processing.camera.chart_layout as module
+
+    assert camera.chart_layout is module and module.chart_layout("classic24").size == 24
