@@ -212,13 +212,7 @@ class SceneObject:
         mats = _resolve_materials(self.materials, name)
         object.__setattr__(self, "materials", mats)
         if self.tangents is not None:
-            tan = np.asarray(self.tangents, dtype=np.float64)
-            if tan.shape != (self.mesh.n_vertices, 3) or not np.all(np.isfinite(tan)):
-                raise RenderInputError(
-                    f"object {name!r}: tangents must be a finite ({self.mesh.n_vertices}, 3) array, one direction "
-                    f"per vertex, got shape {tan.shape}"
-                )
-            object.__setattr__(self, "tangents", tan)
+            object.__setattr__(self, "tangents", _checked_tangents(self.tangents, self.mesh, name))
         if not math.isfinite(float(self.weave_angle_deg)):
             raise RenderInputError(f"object {name!r}: weave_angle_deg must be finite, got {self.weave_angle_deg!r}")
         idx, on = self.material_index, self.material_index_on
@@ -233,38 +227,56 @@ class SceneObject:
             object.__setattr__(self, "material_index", None)
             object.__setattr__(self, "material_index_on", None)
             return
-        arr = np.asarray(idx)
-        if arr.dtype.kind not in "iu" or arr.ndim != 1:
-            raise RenderInputError(
-                f"object {name!r}: material_index must be a 1-D integer array, got dtype {arr.dtype} "
-                f"shape {arr.shape}"
-            )
-        arr = arr.astype(np.int64)
-        nv, nt = self.mesh.n_vertices, self.mesh.n_triangles
-        if on is None:
-            if arr.size == nt and arr.size != nv:
-                on = "triangle"
-            elif arr.size == nv and arr.size != nt:
-                on = "vertex"
-            elif arr.size == nt:
-                raise RenderInputError(
-                    f"object {name!r}: the mesh has as many vertices as triangles; say "
-                    "material_index_on='triangle' or 'vertex'"
-                )
-        expected = {"triangle": nt, "vertex": nv}.get(on)
-        if expected is None or arr.size != expected:
-            raise RenderInputError(
-                f"object {name!r}: material_index has {arr.size} entries; expected one per triangle ({nt}) "
-                f"or one per vertex ({nv})"
-                + (f" (material_index_on={on!r})" if on else "")
-            )
-        if arr.size and (arr.min() < 0 or arr.max() >= len(mats)):
-            raise RenderInputError(
-                f"object {name!r}: material_index values must be in 0..{len(mats) - 1} "
-                f"(it has {len(mats)} materials), found {int(arr.min())}..{int(arr.max())}"
-            )
+        arr, on = _checked_material_index(idx, on, self.mesh, len(mats), name)
         object.__setattr__(self, "material_index", arr)
         object.__setattr__(self, "material_index_on", on)
+
+
+def _checked_tangents(tangents: ArrayLike, mesh: Mesh, name: str) -> NDArray[np.float64]:
+    """Per-vertex yarn directions as a finite float64 ``(V, 3)`` array."""
+    tan = np.asarray(tangents, dtype=np.float64)
+    if tan.shape != (mesh.n_vertices, 3) or not np.all(np.isfinite(tan)):
+        raise RenderInputError(
+            f"object {name!r}: tangents must be a finite ({mesh.n_vertices}, 3) array, one direction "
+            f"per vertex, got shape {tan.shape}"
+        )
+    return tan
+
+
+def _checked_material_index(idx: ArrayLike, on: str | None, mesh: Mesh, n_materials: int,
+                            name: str) -> tuple[NDArray[np.int64], str]:
+    """An object's material numbers per triangle or per vertex, and which of the two (inferred from the length)."""
+    arr = np.asarray(idx)
+    if arr.dtype.kind not in "iu" or arr.ndim != 1:
+        raise RenderInputError(
+            f"object {name!r}: material_index must be a 1-D integer array, got dtype {arr.dtype} "
+            f"shape {arr.shape}"
+        )
+    arr = arr.astype(np.int64)
+    nv, nt = mesh.n_vertices, mesh.n_triangles
+    if on is None:
+        if arr.size == nt and arr.size != nv:
+            on = "triangle"
+        elif arr.size == nv and arr.size != nt:
+            on = "vertex"
+        elif arr.size == nt:
+            raise RenderInputError(
+                f"object {name!r}: the mesh has as many vertices as triangles; say "
+                "material_index_on='triangle' or 'vertex'"
+            )
+    expected = {"triangle": nt, "vertex": nv}.get(on)
+    if expected is None or arr.size != expected:
+        raise RenderInputError(
+            f"object {name!r}: material_index has {arr.size} entries; expected one per triangle ({nt}) "
+            f"or one per vertex ({nv})"
+            + (f" (material_index_on={on!r})" if on else "")
+        )
+    if arr.size and (arr.min() < 0 or arr.max() >= n_materials):
+        raise RenderInputError(
+            f"object {name!r}: material_index values must be in 0..{n_materials - 1} "
+            f"(it has {n_materials} materials), found {int(arr.min())}..{int(arr.max())}"
+        )
+    return arr, on
 
 
 @dataclass(frozen=True)
