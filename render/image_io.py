@@ -57,6 +57,12 @@ def write_png(path: str | os.PathLike[str], srgb8: ArrayLike, alpha: ArrayLike |
     -------
     Path
         The written file.
+
+    Raises
+    ------
+    RenderInputError
+        A bad image or alpha array, a directory as target, or a missing
+        output folder.
     """
     img = np.asarray(srgb8)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] not in (3, 4) or 0 in img.shape:
@@ -98,6 +104,12 @@ def write_xyz_tiff(path: str | os.PathLike[str], xyz: ArrayLike) -> Path:
     Path
         The written file.
 
+    Raises
+    ------
+    RenderInputError
+        Not a non-empty finite ``(H, W, 3)`` array, a directory as target,
+        or a missing output folder.
+
     Examples
     --------
     >>> import tempfile, pathlib
@@ -127,7 +139,23 @@ def write_xyz_tiff(path: str | os.PathLike[str], xyz: ArrayLike) -> Path:
 
 
 def read_xyz_tiff(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read back a file of :func:`write_xyz_tiff` as float32 ``(H, W, 3)``."""
+    """Read back a file of :func:`write_xyz_tiff` as float32 ``(H, W, 3)``.
+
+    Parameters
+    ----------
+    path
+        A TIFF written by :func:`write_xyz_tiff`.
+
+    Returns
+    -------
+    ndarray
+        float32 ``(H, W, 3)`` CIE XYZ as stored.
+
+    Raises
+    ------
+    RenderInputError
+        The file does not hold 3-sample pixels.
+    """
     import tifffile
 
     arr = tifffile.imread(path)

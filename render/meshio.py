@@ -14,6 +14,11 @@ times its unit normal, so summing cross products weights faces by area).
 STL stores only facet normals and repeats each vertex per facet, so STL
 vertices are merged by position and smooth normals are computed.
 
+References
+----------
+Max, N. (1999), "Weights for computing vertex normals from facet normals",
+Journal of Graphics Tools 4(2), 1-6 (DOI not verified).
+
 Examples
 --------
 >>> v = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]
@@ -100,7 +105,13 @@ class Mesh:
         return int(self.triangles.shape[0])
 
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Axis-aligned bounds ``(min, max)`` of the vertices used by triangles."""
+        """Axis-aligned bounds ``(min, max)`` of the vertices used by triangles.
+
+        Returns
+        -------
+        tuple of ndarray
+            Two ``(3,)`` copies: the lowest and highest coordinates.
+        """
         if self._bounds is None:
             used = np.zeros(self.vertices.shape[0], dtype=bool)
             used[self.triangles.ravel()] = True
@@ -113,7 +124,20 @@ class Mesh:
 def face_normals(vertices: ArrayLike, triangles: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
     """Normals of the triangles, right-handed with the vertex order.
 
-    With ``unit=False`` the length is twice the triangle's area.
+    Parameters
+    ----------
+    vertices
+        ``(V, 3)`` positions.
+    triangles
+        ``(T, 3)`` vertex indices.
+    unit
+        Normalise to unit length (zero for a zero-area triangle); False
+        keeps the cross product, whose length is twice the triangle's area.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(T, 3)``.
 
     Examples
     --------
@@ -215,6 +239,11 @@ def make_mesh(
         (required when V == T).
     source
         Name used in messages (the file path when loading).
+
+    Returns
+    -------
+    Mesh
+        Without zero-area triangles, with unit vertex normals.
 
     Raises
     ------
@@ -375,6 +404,7 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
     Returns
     -------
     Mesh
+        As :func:`make_mesh` builds it, ``source`` the file path.
 
     Raises
     ------

@@ -124,7 +124,13 @@ class RenderResult:
     refined: NDArray[np.bool_] | None = None
 
     def rgba8(self) -> NDArray[np.uint8]:
-        """``(H, W, 4)`` sRGB with alpha: coverage when the sky is off, opaque otherwise."""
+        """``(H, W, 4)`` sRGB with alpha: coverage when the sky is off, opaque otherwise.
+
+        Returns
+        -------
+        ndarray
+            uint8 ``(H, W, 4)``.
+        """
         alpha = np.round(self.mask * 255.0).astype(np.uint8) if not self.sky_visible else np.full(
             self.mask.shape, 255, np.uint8
         )
@@ -536,9 +542,8 @@ def pixels_to_refine(
 ) -> NDArray[np.bool_]:
     """Which pixels' base samples disagree (adaptive anti-aliasing, Mitchell 1987).
 
-    Mitchell, "Generating antialiased images at low sampling densities",
-    SIGGRAPH 1987: sample sparsely, then sample more where the samples of a
-    pixel differ.  A pixel is refined when its samples see different
+    Sample sparsely, then sample more where the samples of a pixel differ
+    (Mitchell 1987).  A pixel is refined when its samples see different
     surfaces (``key``: object and material number, -1 for a miss, so hit vs
     miss counts) or their colours spread by more than ``threshold`` CIELAB
     lightness units: ``116 (max - min)`` of ``f(X/Xw)``, ``f(Y/Yw)`` or
@@ -563,6 +568,13 @@ def pixels_to_refine(
     -------
     ndarray
         bool ``(n / samples,)``.
+
+    References
+    ----------
+    Mitchell, D. P. (1987), "Generating antialiased images at low sampling
+    densities", SIGGRAPH '87, 65-72, doi:10.1145/37402.37410.
+    CIE 015:2018 Colorimetry, eq. 8.7 (the CIELAB function f),
+    doi:10.25039/TR.015.2018.
 
     Examples
     --------
@@ -671,6 +683,7 @@ def render(
     Returns
     -------
     RenderResult
+        The image (XYZ, sRGB, coverage), timings and counts.
 
     Raises
     ------
@@ -858,6 +871,13 @@ def cast_rays_baseline(
     Returns
     -------
     BaselineTiming
+        Seconds of the build and of each kind of cast, and the ray counts.
+
+    Raises
+    ------
+    RenderInputError
+        Bad arguments, or ``refined`` missing or of the wrong shape with
+        adaptive anti-aliasing.
 
     Examples
     --------

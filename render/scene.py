@@ -27,6 +27,12 @@ objects' reflection models (materials of :mod:`processing.materials.presets`).
 :func:`check_point_lights` finds point lights enclosed by a closed mesh
 (every ray from the light hits the back of a surface) and reports them.
 
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of
+a craft object based on a light reflection model", IPSJ technical report
+(no DOI).
+
 Examples
 --------
 >>> Sky("gradient", zenith=0.2, horizon=0.6).radiance_scale([[0, 0, 1], [1, 0, 0]]).tolist()
@@ -76,6 +82,12 @@ def resolve_spectrum(spec: SpectrumLike, grid: SpectralGrid, what: str = "spectr
         Target grid.
     what
         Name of the parameter for error messages.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(L,)`` relative power on ``grid`` (1 at the grid's
+        wavelength nearest 560 nm, or at its peak when that is 0).
 
     Raises
     ------
@@ -296,6 +308,12 @@ class Light:
         Directional: irradiance scale on a surface facing the light.  Point:
         radiant intensity scale; irradiance ``intensity / r^2``.
 
+    Raises
+    ------
+    RenderInputError
+        An unknown kind, a vector that is not three finite numbers (or
+        zero for a directional light), a negative or non-finite intensity.
+
     Examples
     --------
     >>> Light("directional", (0, 0, 2)).vector
@@ -335,6 +353,18 @@ def hemisphere_mean_clamped_cosine(cos_normal_up: ArrayLike) -> NDArray[np.float
     ``= 2 / (3 pi) * ((pi - g) cos g + sin g)`` with ``g`` the angle between n
     and up (the overlap integral of two clamped cosines).
 
+    Parameters
+    ----------
+    cos_normal_up
+        ``cos g``, the cosine of the angle between the normal and up (any
+        shape; clipped to [-1, 1]).
+
+    Returns
+    -------
+    ndarray
+        float64, the shape of ``cos_normal_up``: 2/3 facing up, 0 facing
+        down.
+
     Examples
     --------
     >>> [round(float(x), 4) for x in hemisphere_mean_clamped_cosine([1.0, 0.0, -1.0])]
@@ -361,6 +391,12 @@ class Sky:
         Relative spectrum; None takes the key (first) light's spectrum.
     up
         The zenith direction.
+
+    Raises
+    ------
+    RenderInputError
+        An unknown kind, a negative or non-finite scale, a zero or
+        non-finite up vector.
     """
 
     kind: str = "none"
@@ -393,7 +429,18 @@ class Sky:
         return self.kind == "none" or (self.zenith == 0.0 and (self.kind == "uniform" or self.horizon == 0.0))
 
     def radiance_scale(self, directions: ArrayLike) -> NDArray[np.float64]:
-        """Scale ``s(d)`` for unit directions ``(..., 3)``; shape ``(...)``."""
+        """Scale ``s(d)`` of the sky radiance along unit directions.
+
+        Parameters
+        ----------
+        directions
+            ``(..., 3)`` unit directions.
+
+        Returns
+        -------
+        ndarray
+            ``(...)`` scales (relative to the key light's irradiance / pi).
+        """
         d = np.asarray(directions)
         shape = d.shape[:-1]
         if self.kind == "none":
@@ -408,6 +455,16 @@ class Sky:
 
         Equal to the radiance a white Lambertian surface reflects (divided by
         the spectral part), ignoring occlusion by the scene.
+
+        Parameters
+        ----------
+        normals
+            ``(..., 3)`` unit normals.
+
+        Returns
+        -------
+        ndarray
+            ``(...)`` mean scales.
         """
         n = np.asarray(normals)
         shape = n.shape[:-1]
@@ -422,6 +479,16 @@ class Sky:
 @dataclass(frozen=True, eq=False)
 class Scene:
     """Objects, lights (the first is the key light of the normalisation) and a sky.
+
+    Parameters
+    ----------
+    objects
+        One :class:`SceneObject` or a sequence of them (stored as a tuple).
+    lights
+        One :class:`Light` or a sequence of them (stored as a tuple); the
+        first sets the exposure.
+    sky
+        The environment (default: none, black).
 
     Raises
     ------
@@ -463,7 +530,13 @@ class Scene:
         object.__setattr__(self, "lights", lights)
 
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Axis-aligned bounds ``(min, max)`` of all objects."""
+        """Axis-aligned bounds ``(min, max)`` of all objects.
+
+        Returns
+        -------
+        tuple of ndarray
+            The lowest and highest ``(3,)`` coordinates (scene units).
+        """
         lows, highs = zip(*(o.mesh.bounds() for o in self.objects))
         return np.min(lows, axis=0), np.max(highs, axis=0)
 
