@@ -49,7 +49,6 @@ import json
 import os
 import re
 import sys
-import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -253,21 +252,20 @@ def install(directory: str | os.PathLike[str], config: str | os.PathLike[str]) -
         "from mocks.fake_gphoto2 import main\n"
         f"sys.exit(main(sys.argv[1:], default_config={str(Path(config).resolve())!r}))\n"
     )
+    from processing.common.files import atomic_path
+
     shim = folder / "gphoto2"
-    tmp = folder / ".gphoto2.tmp"
-    tmp.write_text(text, encoding="utf-8")
-    tmp.chmod(0o755)
-    os.replace(tmp, shim)
+    with atomic_path(shim, durable=False) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+        tmp.chmod(0o755)
     return shim
 
 
 def _atomic_json(path: Path, data: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    """Write ``data`` as JSON to ``path`` through a temporary file, ``fsync`` and a rename."""
+    from processing.common.files import atomic_write_text  # here: --version and --auto-detect stay quick
+
+    atomic_write_text(path, json.dumps(data, indent=1), make_parents=False)
 
 
 def _state_path(config: Path) -> Path:
@@ -284,12 +282,14 @@ def cache_mesh(config_path: str | os.PathLike[str], world: Any, source: str | No
     """
     import numpy as np
 
+    from processing.common.files import atomic_path
+
     cache = Path(config_path).with_name(Path(config_path).name + ".mesh.npz")
     label = str(source if source is not None else world.mesh_source)
-    tmp = cache.with_name(f".{cache.name}.{os.getpid()}.npz")
-    np.savez(tmp, source=label, vertices=world.vertices, triangles=world.triangles, region=world.region,
-             names=np.array(world.region_names), materials=np.array([world.materials[n] for n in world.region_names]))
-    os.replace(tmp, cache)
+    with atomic_path(cache, durable=False) as tmp:    # a .npz name, so np.savez adds no suffix
+        np.savez(tmp, source=label, vertices=world.vertices, triangles=world.triangles, region=world.region,
+                 names=np.array(world.region_names),
+                 materials=np.array([world.materials[n] for n in world.region_names]))
     return cache
 
 
