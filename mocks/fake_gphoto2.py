@@ -332,7 +332,32 @@ def _error(message: str, code: int = 1) -> int:
 
 def main(argv: Sequence[str] | None = None, default_config: str | None = None) -> int:
     """Run the fake with command-line ``argv``; returns the exit status."""
-    args = list(sys.argv[1:] if argv is None else argv)
+    parsed = _parse_args(list(sys.argv[1:] if argv is None else argv))
+    if isinstance(parsed, int):
+        return parsed
+    pattern, capture, detect = parsed
+    config_path = os.environ.get(CONFIG_ENV) or default_config
+    if not config_path or not Path(config_path).is_file():
+        sys.stderr.write(f"fake gphoto2: configuration {config_path!r} not found; set {CONFIG_ENV}\n")
+        return 2
+    config = read_config(config_path)
+    faults = config["faults"]
+    if detect:
+        print("Model                          Port\n----------------------------------------------------------")
+        if not faults["no_camera"]:
+            print("Nikon DSC D5100 (PTP mode)     usb:001,004")
+        return 0
+    if not capture:
+        sys.stderr.write("gphoto2: nothing to do; use --capture-image-and-download\n")
+        return 1
+    failed = _camera_faults(config_path, faults)
+    if failed is not None:
+        return failed
+    return _capture(config_path, config, pattern)
+
+
+def _parse_args(args: list[str]) -> tuple[str, bool, bool] | int:
+    """``(pattern, capture, detect)`` of the command line, or the exit status when it ends the run (--version)."""
     pattern = "%f.%C"
     capture = detect = False
     i = 0
@@ -359,20 +384,11 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
                              "--filename, --port, --auto-detect, --version)\n")
             return 1
         i += 1
-    config_path = os.environ.get(CONFIG_ENV) or default_config
-    if not config_path or not Path(config_path).is_file():
-        sys.stderr.write(f"fake gphoto2: configuration {config_path!r} not found; set {CONFIG_ENV}\n")
-        return 2
-    config = read_config(config_path)
-    faults = config["faults"]
-    if detect:
-        print("Model                          Port\n----------------------------------------------------------")
-        if not faults["no_camera"]:
-            print("Nikon DSC D5100 (PTP mode)     usb:001,004")
-        return 0
-    if not capture:
-        sys.stderr.write("gphoto2: nothing to do; use --capture-image-and-download\n")
-        return 1
+    return pattern, capture, detect
+
+
+def _camera_faults(config_path: str, faults: dict[str, Any]) -> int | None:
+    """The exit status of a capture a fault switch makes fail (None: go on; ``slow_s`` only waits)."""
     if faults["no_camera"]:
         return _error(": No camera found.")
     if int(faults["busy"]) > 0:
@@ -383,7 +399,12 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
         time.sleep(float(faults["slow_s"]))
     if int(faults["exit_code"]) != 0:
         return _error(" (-1: 'Unspecified error')", int(faults["exit_code"]))
+    return None
 
+
+def _capture(config_path: str, config: dict[str, Any], pattern: str) -> int:
+    """Count the capture, render the frame and write it under ``pattern`` as gphoto2 reports it."""
+    faults = config["faults"]
     state_path = _state_path(Path(config_path))
     count = int(json.loads(state_path.read_text())["count"]) if state_path.exists() else 0
     number = count + 1
