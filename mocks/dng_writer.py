@@ -28,14 +28,14 @@ ISOSpeedRatings        34855  ISO
 
 The file is written with :mod:`tifffile` (``extratags``) to a temporary file
 in the destination's folder, flushed, ``fsync``-ed and renamed over the
-destination, so a reader never sees a partial DNG.
+destination (:func:`processing.common.files.atomic_path`), so a reader never
+sees a partial DNG.
 """
 
 from __future__ import annotations
 
 import io
 import os
-import tempfile
 from collections.abc import Sequence
 from fractions import Fraction
 from pathlib import Path
@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.common.files import atomic_path
 from processing.errors import InputError
 
 __all__ = [
@@ -307,16 +308,7 @@ def write_dng(
     target = Path(path)
     if not target.parent.is_dir():
         raise FileNotFoundError(f"write_dng: the folder {target.parent} does not exist; create it first")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
-    try:
-        os.fchmod(fd, 0o644)
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(target, make_parents=False) as tmp:
+        os.chmod(tmp, 0o644)
+        tmp.write_bytes(data)
     return target

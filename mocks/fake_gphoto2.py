@@ -49,7 +49,6 @@ import json
 import os
 import re
 import sys
-import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -253,21 +252,20 @@ def install(directory: str | os.PathLike[str], config: str | os.PathLike[str]) -
         "from mocks.fake_gphoto2 import main\n"
         f"sys.exit(main(sys.argv[1:], default_config={str(Path(config).resolve())!r}))\n"
     )
+    from processing.common.files import atomic_path
+
     shim = folder / "gphoto2"
-    tmp = folder / ".gphoto2.tmp"
-    tmp.write_text(text, encoding="utf-8")
-    tmp.chmod(0o755)
-    os.replace(tmp, shim)
+    with atomic_path(shim, durable=False) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+        tmp.chmod(0o755)
     return shim
 
 
 def _atomic_json(path: Path, data: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        json.dump(data, fh, indent=1)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    """Write ``data`` as JSON to ``path`` through a temporary file, ``fsync`` and a rename."""
+    from processing.common.files import atomic_write_text  # here: --version and --auto-detect stay quick
+
+    atomic_write_text(path, json.dumps(data, indent=1), make_parents=False)
 
 
 def _state_path(config: Path) -> Path:
@@ -284,12 +282,14 @@ def cache_mesh(config_path: str | os.PathLike[str], world: Any, source: str | No
     """
     import numpy as np
 
+    from processing.common.files import atomic_path
+
     cache = Path(config_path).with_name(Path(config_path).name + ".mesh.npz")
     label = str(source if source is not None else world.mesh_source)
-    tmp = cache.with_name(f".{cache.name}.{os.getpid()}.npz")
-    np.savez(tmp, source=label, vertices=world.vertices, triangles=world.triangles, region=world.region,
-             names=np.array(world.region_names), materials=np.array([world.materials[n] for n in world.region_names]))
-    os.replace(tmp, cache)
+    with atomic_path(cache, durable=False) as tmp:    # a .npz name, so np.savez adds no suffix
+        np.savez(tmp, source=label, vertices=world.vertices, triangles=world.triangles, region=world.region,
+                 names=np.array(world.region_names),
+                 materials=np.array([world.materials[n] for n in world.region_names]))
     return cache
 
 
@@ -332,7 +332,32 @@ def _error(message: str, code: int = 1) -> int:
 
 def main(argv: Sequence[str] | None = None, default_config: str | None = None) -> int:
     """Run the fake with command-line ``argv``; returns the exit status."""
-    args = list(sys.argv[1:] if argv is None else argv)
+    parsed = _parse_args(list(sys.argv[1:] if argv is None else argv))
+    if isinstance(parsed, int):
+        return parsed
+    pattern, capture, detect = parsed
+    config_path = os.environ.get(CONFIG_ENV) or default_config
+    if not config_path or not Path(config_path).is_file():
+        sys.stderr.write(f"fake gphoto2: configuration {config_path!r} not found; set {CONFIG_ENV}\n")
+        return 2
+    config = read_config(config_path)
+    faults = config["faults"]
+    if detect:
+        print("Model                          Port\n----------------------------------------------------------")
+        if not faults["no_camera"]:
+            print("Nikon DSC D5100 (PTP mode)     usb:001,004")
+        return 0
+    if not capture:
+        sys.stderr.write("gphoto2: nothing to do; use --capture-image-and-download\n")
+        return 1
+    failed = _camera_faults(config_path, faults)
+    if failed is not None:
+        return failed
+    return _capture(config_path, config, pattern)
+
+
+def _parse_args(args: list[str]) -> tuple[str, bool, bool] | int:
+    """``(pattern, capture, detect)`` of the command line, or the exit status when it ends the run (--version)."""
     pattern = "%f.%C"
     capture = detect = False
     i = 0
@@ -359,20 +384,11 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
                              "--filename, --port, --auto-detect, --version)\n")
             return 1
         i += 1
-    config_path = os.environ.get(CONFIG_ENV) or default_config
-    if not config_path or not Path(config_path).is_file():
-        sys.stderr.write(f"fake gphoto2: configuration {config_path!r} not found; set {CONFIG_ENV}\n")
-        return 2
-    config = read_config(config_path)
-    faults = config["faults"]
-    if detect:
-        print("Model                          Port\n----------------------------------------------------------")
-        if not faults["no_camera"]:
-            print("Nikon DSC D5100 (PTP mode)     usb:001,004")
-        return 0
-    if not capture:
-        sys.stderr.write("gphoto2: nothing to do; use --capture-image-and-download\n")
-        return 1
+    return pattern, capture, detect
+
+
+def _camera_faults(config_path: str, faults: dict[str, Any]) -> int | None:
+    """The exit status of a capture a fault switch makes fail (None: go on; ``slow_s`` only waits)."""
     if faults["no_camera"]:
         return _error(": No camera found.")
     if int(faults["busy"]) > 0:
@@ -383,7 +399,12 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
         time.sleep(float(faults["slow_s"]))
     if int(faults["exit_code"]) != 0:
         return _error(" (-1: 'Unspecified error')", int(faults["exit_code"]))
+    return None
 
+
+def _capture(config_path: str, config: dict[str, Any], pattern: str) -> int:
+    """Count the capture, render the frame and write it under ``pattern`` as gphoto2 reports it."""
+    faults = config["faults"]
     state_path = _state_path(Path(config_path))
     count = int(json.loads(state_path.read_text())["count"]) if state_path.exists() else 0
     number = count + 1

@@ -1,7 +1,6 @@
 """Emulator of the Horus turntable firmware on a pseudo-terminal pair.
 
-DESIGN.md section 3 ("Devices") and ``docs/protocols.md`` ("Turntable"):
-the Horus firmware (GRBL 0.9 derived, the Ciclop scanner's board) at
+``docs/protocols.md`` ("Turntable (Horus firmware)"): the Horus firmware (GRBL 0.9 derived, the Ciclop scanner's board) at
 115200 8N1, CR/LF lines.  After a reset (Ctrl-X, 0x18) it prints the banner
 ``Horus 0.2 ['$' for help]``; every command line is answered by exactly one
 ``ok`` or ``error: <text>``; ``G1 X<x>`` is an absolute move whose ``ok``

@@ -63,6 +63,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import sparse
 
+from processing.common.rotation import rotation_z
+
 __all__ = [
     "HAWK_PRESET_TRIANGLES",
     "REGION_NAMES",
@@ -270,11 +272,10 @@ def _ellipsoid(x: NDArray, y: NDArray, z: NDArray, centre: NDArray, radii: NDArr
 
 
 def _rotation_zy(yaw: float, pitch: float) -> NDArray:
-    cz, sz = np.cos(yaw), np.sin(yaw)
+    """Rotation by ``pitch`` about y, then by ``yaw`` about z (radians): ``Rz(yaw) @ Ry(pitch)``."""
     cy, sy = np.cos(pitch), np.sin(pitch)
-    rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
     ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    return rz @ ry
+    return rotation_z(yaw) @ ry
 
 
 def _cross(a: NDArray, b: NDArray) -> NDArray:

@@ -1,7 +1,6 @@
 """Emulator of the laser line-profile sensor on a pseudo-terminal pair.
 
-DESIGN.md section 3 ("Devices") and ``docs/protocols.md`` ("Laser
-profiler"): ASCII command lines answered by ``OK,<cmd>[,...]`` or
+``docs/protocols.md`` ("Laser profiler"): ASCII command lines answered by ``OK,<cmd>[,...]`` or
 ``ER,<cmd>,<code>``, profiles as binary ``KPRF`` frames (little-endian
 header with length, sequence counter and timestamp, int32 micrometre points,
 ``INT32_MIN`` for invalid points, CRC-32 of everything before it), a ring

@@ -1,7 +1,7 @@
 """A pseudo-terminal pair standing in for a USB serial cable.
 
-DESIGN.md section 3 ("Devices"): the emulators sit on the master side of a
-pty pair, and the driver opens the slave side (``/dev/pts/N``) through
+The device emulators (docs/simulator.md) sit on the master side of a pty
+pair, and the driver opens the slave side (``/dev/pts/N``) through
 pyserial exactly as it opens a real port.  Unplugging closes both ends (the
 driver's reads and writes fail as with a pulled cable); plugging in again
 creates a *new* pair whose number may differ.  So that a driver can find the

@@ -1,26 +1,15 @@
 """The simulated scan station: one world, a turntable, a laser profiler, a camera and a hot folder.
 
-DESIGN.md section 3 ("Devices") and ``docs/simulator.md``.
 :class:`SimulatedStation` owns one :class:`mocks.world.World` and serves, on
 pseudo-terminal pairs, the Horus turntable (:class:`mocks.horus_firmware.HorusFirmware`)
 and the line-profile sensor (:class:`mocks.profiler_firmware.ProfilerFirmware`),
 plus a fake ``gphoto2`` (:mod:`mocks.fake_gphoto2`) and a hot folder
-(:class:`mocks.hotfolder_writer.HotFolderWriter`), all looking at that world:
+(:class:`mocks.hotfolder_writer.HotFolderWriter`), all looking at that world.
+docs/simulator.md describes it; in short:
 
-* **Geometry.**  Room frame: the table axis is ``+Z`` through the origin and
-  the table top (a disc of ``table_radius_mm``, part of the ray-cast scene)
-  is at ``z = 0``.  A point ``p_obj`` of the object is at
-  ``Rz(angle) @ pose @ p_obj`` in the room, ``angle`` the turntable's
-  physical angle (counter-clockwise seen from above), ``pose`` the
-  placement's object -> table transform.  The sensor pose
-  :attr:`SimulatedStation.sensor_to_room` has columns ``X_s`` (along the
-  laser line), ``Y_s``, ``Z_s`` (the range direction) and the emitter as
-  translation; a profile point ``(x_mm, z_mm)`` is at
-  ``origin_s + x_mm X_s + z_mm Z_s``.  The default
-  (:func:`station_sensor_to_room`) looks at the table axis from 260 mm, its
-  emitter 120 mm above the table, tilted 20 deg down, with a 40 deg fan: the
-  procedural hawk is seen whole, top to bottom, in any placement, and so is
-  the table top in front of it.
+* **Geometry** (:mod:`mocks.station_geometry`): the table axis is the room's
+  ``+Z``; the object is at ``Rz(angle) @ pose`` and the profiler at
+  :attr:`SimulatedStation.sensor_to_room`.
 * **Wiring.**  The profiler's laser line is powered through the Horus
   board's laser output ``T1``: while ``T1`` is off (never switched on,
   switched off by ``M70 T1``, a reset, an unplugged board, or the firmware's
@@ -31,16 +20,23 @@ plus a fake ``gphoto2`` (:mod:`mocks.fake_gphoto2`) and a hot folder
   fault is identical to the one a fault-free run gets.
 * **Placements.**  :meth:`SimulatedStation.place` ``(n)``: placement 1 is the
   world's base pose resting on the table; placement ``n >= 2`` a
-  pseudo-random rest pose (:func:`placement_pose`).  A new placement puts the
-  colour chart in view for the next camera frame (gphoto2 or hot folder);
-  later frames show the object at the current table angle.
+  pseudo-random rest pose (:func:`mocks.station_geometry.placement_pose`).  A
+  new placement puts the colour chart in view for the next camera frame
+  (gphoto2 or hot folder); later frames show the object at the current table
+  angle.
 * **Cameras in step.**  The turntable calls back when a move has finished,
   before its ``ok``; the station then writes the angle into the fake
   gphoto2's configuration, so a capture after the ``ok`` sees the new angle.
-* **Control folder.**  Another process (the capture command's hooks) asks
-  for ``place`` and ``shoot`` through request files in
-  :attr:`SimulatedStation.control_dir`; :func:`request_place` and
+* **Control folder** (:mod:`mocks.station_requests`).  Another process (the
+  capture command's hooks) asks for ``place`` and ``shoot`` through request
+  files in :attr:`SimulatedStation.control_dir`; :func:`request_place` and
   :func:`request_shoot` are the client side.
+* **Faults** (:mod:`mocks.faults`): :meth:`SimulatedStation.apply_faults`
+  takes what :func:`parse_faults` reads from ``kogei mock --faults``.
+
+The names of those modules that callers import from here
+(:data:`FAULT_NAMES`, :func:`parse_faults`, :func:`placement_pose`,
+:func:`request_place`, :class:`StationError` ...) are re-exported.
 
 Examples
 --------
@@ -53,27 +49,23 @@ Examples
 from __future__ import annotations
 
 import dataclasses
-import json
-import logging
 import math
 import os
 import re
 import shutil
 import tempfile
 import threading
-import time
-import uuid
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from mocks.faults import Faults
-from mocks.noise_seed import frame_seed, profile_seed, stable_seed
-from processing.errors import InputError
+from mocks.faults import FAULT_NAMES, Faults, FaultSpecError, HotFolderFaults, format_faults, parse_faults
+from mocks.noise_seed import frame_seed, profile_seed
+from mocks.station_geometry import placement_pose, rest_on_table, station_sensor_to_room, table_disc
+from mocks.station_requests import StationError, StationTimeout, request_place, request_shoot, serve_requests
 
 __all__ = [
     "SimulatedStation",
@@ -92,329 +84,25 @@ __all__ = [
     "request_shoot",
 ]
 
-_log = logging.getLogger(__name__)
-
-#: Faults ``kogei mock --faults`` knows, per device, with the kind of value each takes.
-FAULT_NAMES: dict[str, dict[str, str]] = {
-    "turntable": {
-        "garbage_replies": "count", "drop_replies": "count", "reply_delay_s": "seconds",
-        "reset_on_command": "count", "unplug_on_command": "count", "replug_after_s": "seconds",
-        "alarm_on_move": "text", "mute": "switch", "laser_watchdog_after_moves": "count",
-    },
-    "profiler": {
-        "garbage_replies": "count", "drop_replies": "count", "reply_delay_s": "seconds",
-        "reset_on_command": "count", "unplug_on_command": "count", "replug_after_s": "seconds",
-        "mute": "switch", "corrupt_frames": "count", "drop_frames": "count", "garbage_frames": "count",
-    },
-    "camera": {
-        "no_camera": "switch", "busy": "count", "slow_s": "seconds", "exit_code": "exit code",
-        "no_output": "switch", "saturate": "switch",
-    },
-    "hotfolder": {"partial": "count", "saturate": "count"},
-    "world": {"chart_present": "switch", "chart_outside": "switch"},
-}
-
-_KIND_HELP = {
-    "count": "a whole number >= 0",
-    "seconds": "a number of seconds >= 0",
-    "switch": "1/0, true/false, on/off or yes/no",
-    "text": "some text",
-    "exit code": "a whole number 0..255",
-}
-_TRUE = {"1", "true", "yes", "on"}
-_FALSE = {"0", "false", "no", "off"}
-_REQUEST = re.compile(r"^request-([A-Za-z0-9_.-]{1,80})\.json$")
-
-
-class StationError(RuntimeError):
-    """The simulated station cannot do what was asked; the message says what to do."""
-
-
-class StationTimeout(StationError, TimeoutError):
-    """No simulated station answered a control request in time."""
-
-
-class FaultSpecError(InputError):
-    """A ``--faults`` item is not valid; the message names it and lists what is known."""
-
-
-@dataclass
-class HotFolderFaults:
-    """Run-time switchable faults of the simulated tethering program (all off by default).
-
-    Attributes
-    ----------
-    partial
-        Number of next shots that leave a truncated file in the hot folder
-        (a download cut short); such a shot does not use up the chart frame.
-    saturate
-        Number of next shots over-exposed (bright pixels at the white level).
-
-    Examples
-    --------
-    >>> f = HotFolderFaults(partial=1)
-    >>> f.take("partial"), f.take("partial")
-    (True, False)
-    """
-
-    partial: int = 0
-    saturate: int = 0
-    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
-
-    def take(self, name: str) -> bool:
-        """Consume one unit of the counter ``name``; True if one was left."""
-        with self._lock:
-            n = int(getattr(self, name))
-            if n > 0:
-                setattr(self, name, n - 1)
-                return True
-            return False
-
-
-# ------------------------------------------------------------------ geometry
-def station_sensor_to_room(standoff_mm: float = 260.0, height_mm: float = 120.0,
-                           tilt_deg: float = 20.0) -> NDArray[np.float64]:
-    """The station's sensor pose (sensor -> room, 4 x 4, mm): looking at the table axis, tilted down.
-
-    The laser plane is the vertical plane ``y = 0`` through the table axis.
-    Columns: ``X_s = (-sin b, 0, cos b)`` (along the laser line, upward),
-    ``Y_s = (0, 1, 0)`` (toward the triangulation camera),
-    ``Z_s = (-cos b, 0, -sin b)`` (the range direction: toward the axis,
-    ``b = tilt_deg`` below the horizontal); translation: the emitter at
-    ``(standoff_mm, 0, height_mm)``.  ``tilt_deg = 0`` is
-    :func:`mocks.profiler_firmware.default_sensor_to_room`.
-
-    Parameters
-    ----------
-    standoff_mm
-        Horizontal distance of the emitter from the table axis (mm, > 0).
-    height_mm
-        Height of the emitter above the table top (mm).
-    tilt_deg
-        Downward tilt of the range direction (degrees, in (-90, 90)).
-
-    Examples
-    --------
-    >>> m = station_sensor_to_room(260.0, 120.0, 0.0)
-    >>> (m[:3, 2] + 0.0).tolist(), m[:3, 3].tolist()
-    ([-1.0, 0.0, 0.0], [260.0, 0.0, 120.0])
-    """
-    if not (math.isfinite(standoff_mm) and standoff_mm > 0):
-        raise ValueError(f"standoff_mm must be a positive distance (mm), got {standoff_mm!r}")
-    if not math.isfinite(height_mm):
-        raise ValueError(f"height_mm must be finite (mm), got {height_mm!r}")
-    if not (math.isfinite(tilt_deg) and -90 < tilt_deg < 90):
-        raise ValueError(f"tilt_deg must be in (-90, 90) degrees, got {tilt_deg!r}")
-    b = math.radians(tilt_deg)
-    m = np.eye(4)
-    m[:3, 0] = (-math.sin(b), 0.0, math.cos(b))
-    m[:3, 1] = (0.0, 1.0, 0.0)
-    m[:3, 2] = (-math.cos(b), 0.0, -math.sin(b))
-    m[:3, 3] = (float(standoff_mm), 0.0, float(height_mm))
-    return m
-
-
-def table_disc(radius_mm: float = 100.0, segments: int = 128) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """The table top: a disc of ``radius_mm`` at ``z = 0`` centred on the axis, as a triangle fan.
-
-    Examples
-    --------
-    >>> v, t = table_disc(100.0, 8)
-    >>> v.shape, t.shape, float(abs(v[:, 2]).max()), float(np.hypot(v[1:, 0], v[1:, 1]).min())
-    ((9, 3), (8, 3), 0.0, 100.0)
-    """
-    if not (math.isfinite(radius_mm) and radius_mm > 0):
-        raise ValueError(f"table_radius_mm must be a positive radius (mm), got {radius_mm!r}")
-    if not isinstance(segments, int) or segments < 3:
-        raise ValueError(f"segments must be an integer >= 3, got {segments!r}")
-    phi = np.linspace(0.0, 2 * math.pi, segments, endpoint=False)
-    ring = np.stack([radius_mm * np.cos(phi), radius_mm * np.sin(phi), np.zeros(segments)], axis=1)
-    v = np.vstack([np.zeros((1, 3)), ring])
-    i = np.arange(segments)
-    t = np.stack([np.zeros(segments, np.int64), 1 + i, 1 + (i + 1) % segments], axis=1)
-    return v, t
-
-
-def _rotation_about(axis: NDArray[np.float64], angle_rad: float) -> NDArray[np.float64]:
-    """3 x 3 rotation by ``angle_rad`` about the unit vector ``axis`` (Rodrigues' formula)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + math.sin(angle_rad) * k + (1.0 - math.cos(angle_rad)) * (k @ k)
-
-
-def rest_on_table(vertices: ArrayLike, pose: ArrayLike) -> NDArray[np.float64]:
-    """``pose`` shifted along z so the transformed mesh's lowest vertex is at ``z = 0``.
-
-    Examples
-    --------
-    >>> m = np.eye(4); m[2, 3] = 7.0
-    >>> float(rest_on_table([[0, 0, -2.0], [1, 1, 3.0]], m)[2, 3])
-    2.0
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    out = np.array(pose, dtype=np.float64)
-    z = v @ out[2, :3] + out[2, 3]
-    out[2, 3] -= z.min()
-    return out
-
-
-def placement_pose(vertices: ArrayLike, base_pose: ArrayLike, seed: int, placement: int,
-                   *, offset_mm: float = 5.0) -> NDArray[np.float64]:
-    """The object -> table pose (4 x 4, mm) of placement number ``placement``.
-
-    Placement 1 is ``base_pose`` lowered or raised to rest on the table
-    (lowest vertex at ``z = 0``).  Placement ``n >= 2`` draws, from a
-    generator seeded by ``(seed, n)``: a tilt of 20-90 deg about a horizontal
-    axis of uniform azimuth, then a turn of 0-360 deg about ``z``, applied
-    after ``base_pose``; the result is translated so the mesh rests on the
-    table (lowest vertex at ``z = 0``) with the centre of its bounding box
-    within ``offset_mm`` of the table axis.
-
-    Parameters
-    ----------
-    vertices
-        (V, 3) mesh vertices, object frame (mm).
-    base_pose
-        The object's base pose on the table (4 x 4).
-    seed
-        Station seed (integer >= 0).
-    placement
-        Placement number (>= 1).
-    offset_mm
-        Largest distance of the bounding-box centre from the axis (mm).
-
-    Examples
-    --------
-    >>> v = np.array([[-1, -1, 0], [1, 1, 2.0]])
-    >>> p = placement_pose(v, np.eye(4), 0, 2)
-    >>> bool(np.allclose(p[:3, :3].T @ p[:3, :3], np.eye(3))), float(round((v @ p[:3, :3].T + p[:3, 3])[:, 2].min(), 9))
-    (True, 0.0)
-    """
-    if not isinstance(placement, (int, np.integer)) or isinstance(placement, bool) or placement < 1:
-        raise ValueError(f"placement must be an integer >= 1, got {placement!r}")
-    v = np.asarray(vertices, dtype=np.float64)
-    base = np.asarray(base_pose, dtype=np.float64)
-    if placement == 1:
-        return rest_on_table(v, base)
-    rng = np.random.default_rng(stable_seed("placement", int(seed), int(placement)))
-    tilt = math.radians(rng.uniform(20.0, 90.0))
-    azimuth = rng.uniform(0.0, 2 * math.pi)
-    turn = rng.uniform(0.0, 2 * math.pi)
-    offset_r = offset_mm * math.sqrt(rng.uniform())
-    offset_a = rng.uniform(0.0, 2 * math.pi)
-    axis = np.array([math.cos(azimuth), math.sin(azimuth), 0.0])
-    rot = _rotation_about(np.array([0.0, 0.0, 1.0]), turn) @ _rotation_about(axis, tilt)
-    pose = np.eye(4)
-    pose[:3, :3] = rot @ base[:3, :3]
-    pose[:3, 3] = rot @ base[:3, 3]
-    p = v @ pose[:3, :3].T + pose[:3, 3]
-    centre = 0.5 * (p.min(axis=0) + p.max(axis=0))
-    pose[0, 3] += offset_r * math.cos(offset_a) - centre[0]
-    pose[1, 3] += offset_r * math.sin(offset_a) - centre[1]
-    pose[2, 3] -= p[:, 2].min()
-    return pose
-
-
-# ------------------------------------------------------------------ fault syntax
-def _fault_value(item: str, device: str, name: str, text: str) -> Any:
-    kind = FAULT_NAMES[device][name]
-    low = text.strip().lower()
-    bad = FaultSpecError(f"fault {item!r}: {device}.{name} takes {_KIND_HELP[kind]}, got {text.strip()!r}")
-    if kind == "switch":
-        if low in _TRUE:
-            return True
-        if low in _FALSE:
-            return False
-        raise bad
-    if kind in ("count", "exit code"):
-        if not re.fullmatch(r"\+?\d+", low):
-            raise bad
-        n = int(low)
-        if kind == "exit code" and n > 255:
-            raise bad
-        return n
-    if kind == "seconds":
-        try:
-            x = float(low)
-        except ValueError:
-            raise bad from None
-        if not (math.isfinite(x) and x >= 0):
-            raise bad
-        return x
-    if not text.strip():
-        raise bad
-    return text.strip()
-
-
-def parse_faults(spec: str | Sequence[str]) -> dict[str, dict[str, Any]]:
-    """Parse ``DEVICE.NAME=VALUE[,DEVICE.NAME=VALUE...]`` into ``{device: {name: value}}``.
-
-    Devices and names are those of :data:`FAULT_NAMES`; values are counts,
-    seconds, switches (1/0, true/false, on/off, yes/no) or text by name.  A
-    sequence of specs (a repeated ``--faults``) is read as one.
-
-    Raises
-    ------
-    FaultSpecError
-        One line naming the bad item and listing what is known.
-
-    Examples
-    --------
-    >>> parse_faults("turntable.garbage_replies=3,camera.busy=1,turntable.replug_after_s=1.5")
-    {'turntable': {'garbage_replies': 3, 'replug_after_s': 1.5}, 'camera': {'busy': 1}}
-    >>> parse_faults("turntable.garbage=3")
-    Traceback (most recent call last):
-    ...
-    mocks.station.FaultSpecError: fault 'turntable.garbage=3': unknown turntable fault 'garbage'; known: garbage_replies, drop_replies, reply_delay_s, reset_on_command, unplug_on_command, replug_after_s, alarm_on_move, mute, laser_watchdog_after_moves
-    """
-    items: list[str] = []
-    for part in ([spec] if isinstance(spec, str) else list(spec)):
-        items.extend(i.strip() for i in str(part).split(","))
-    out: dict[str, dict[str, Any]] = {}
-    for item in items:
-        if not item:
-            continue
-        key, eq, value = item.partition("=")
-        device, dot, name = key.strip().partition(".")
-        if not eq or not dot:
-            raise FaultSpecError(f"fault {item!r}: write DEVICE.NAME=VALUE, e.g. turntable.garbage_replies=3; "
-                                 f"devices: {', '.join(FAULT_NAMES)}")
-        if device not in FAULT_NAMES:
-            raise FaultSpecError(f"fault {item!r}: unknown device {device!r}; known: {', '.join(FAULT_NAMES)}")
-        if name not in FAULT_NAMES[device]:
-            raise FaultSpecError(f"fault {item!r}: unknown {device} fault {name!r}; "
-                                 f"known: {', '.join(FAULT_NAMES[device])}")
-        out.setdefault(device, {})[name] = _fault_value(item, device, name, value)
-    return out
-
-
-def format_faults(faults: Mapping[str, Mapping[str, Any]]) -> str:
-    """The inverse of :func:`parse_faults` (for messages); ``"none"`` when empty.
-
-    Examples
-    --------
-    >>> format_faults({"camera": {"busy": 1, "no_camera": True}})
-    'camera.busy=1,camera.no_camera=1'
-    """
-    parts = [f"{d}.{n}={int(v) if isinstance(v, bool) else v}" for d, names in faults.items()
-             for n, v in names.items()]
-    return ",".join(parts) or "none"
-
-
-# ------------------------------------------------------------------ files
-def _atomic_json(path: Path, data: Mapping[str, Any]) -> None:
-    """Write ``data`` to ``path`` through a hidden temporary file and a rename."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
 
 # ------------------------------------------------------------------ the station
+def _check_settings(seed: Any, time_scale: Any, exposure_s: Any, poll_s: Any, laser_watchdog_s: Any,
+                    hotfolder_chunks: Any, hotfolder_interval_s: Any) -> None:
+    """Refuse station settings out of range (``ValueError`` naming the parameter)."""
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if not (isinstance(time_scale, (int, float)) and math.isfinite(time_scale) and time_scale >= 0):
+        raise ValueError(f"time_scale must be >= 0 real seconds per simulated second (0 = instant motion), "
+                         f"got {time_scale!r}")
+    for name, v in (("exposure_s", exposure_s), ("poll_s", poll_s), ("laser_watchdog_s", laser_watchdog_s)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
+    if not isinstance(hotfolder_chunks, int) or hotfolder_chunks < 1:
+        raise ValueError(f"hotfolder_chunks must be an integer >= 1, got {hotfolder_chunks!r}")
+    if not (math.isfinite(hotfolder_interval_s) and hotfolder_interval_s >= 0):
+        raise ValueError(f"hotfolder_interval_s must be >= 0 seconds, got {hotfolder_interval_s!r}")
+
+
 class SimulatedStation:
     """A turntable, a profiler, a gphoto2 camera and a hot folder, all looking at one world.
 
@@ -483,18 +171,7 @@ class SimulatedStation:
         from mocks.profiler_firmware import check_sensor_pose
         from mocks.world import World
 
-        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-            raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
-        if not (isinstance(time_scale, (int, float)) and math.isfinite(time_scale) and time_scale >= 0):
-            raise ValueError(f"time_scale must be >= 0 real seconds per simulated second (0 = instant motion), "
-                             f"got {time_scale!r}")
-        for name, v in (("exposure_s", exposure_s), ("poll_s", poll_s), ("laser_watchdog_s", laser_watchdog_s)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number of seconds, got {v!r}")
-        if not isinstance(hotfolder_chunks, int) or hotfolder_chunks < 1:
-            raise ValueError(f"hotfolder_chunks must be an integer >= 1, got {hotfolder_chunks!r}")
-        if not (math.isfinite(hotfolder_interval_s) and hotfolder_interval_s >= 0):
-            raise ValueError(f"hotfolder_interval_s must be >= 0 seconds, got {hotfolder_interval_s!r}")
+        _check_settings(seed, time_scale, exposure_s, poll_s, laser_watchdog_s, hotfolder_chunks, hotfolder_interval_s)
         self.world = World.hawk() if world is None else world
         if not isinstance(self.world, World):
             raise ValueError(f"world must be a mocks.world.World, got {type(self.world).__name__}")
@@ -883,124 +560,18 @@ class SimulatedStation:
 
     # ----------------------------------------------------------- control folder
     def _serve_control(self) -> None:
-        while not self._stop_event.wait(self.poll_s):
-            try:
-                names = sorted(os.listdir(self.control_dir))
-            except FileNotFoundError:
-                continue
-            for name in names:
-                m = _REQUEST.match(name)
-                if m and not self._stop_event.is_set():
-                    self._handle(self.control_dir / name, m.group(1))
+        """The control thread: answer the request files of :attr:`control_dir` until :meth:`stop`."""
+        serve_requests(self.control_dir, self._stop_event, self.poll_s, self._perform)
 
-    def _handle(self, request: Path, rid: str) -> None:
-        try:
-            text = request.read_text(encoding="utf-8")
-            request.unlink()
-        except FileNotFoundError:
-            return  # taken back by its client (timed out)
-        answer: dict[str, Any]
-        try:
-            payload = json.loads(text)
-            if not isinstance(payload, dict):
-                raise StationError("a request must be a JSON object with an 'action'")
-            action = payload.get("action")
-            if action == "place":
-                n = payload.get("placement")
-                if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-                    raise StationError(f"'placement' must be an integer >= 1, got {n!r}")
-                pose = self.place(n)
-                answer = {"ok": True, "action": "place", "placement": n, "pose": pose.tolist()}
-            elif action == "shoot":
-                answer = {"ok": True, "action": "shoot", **self._shoot()}
-            else:
-                raise StationError(f"unknown action {action!r}; known: place, shoot")
-        except json.JSONDecodeError as exc:
-            answer = {"ok": False, "error": f"request {request.name} is not valid JSON: {exc}"}
-        except Exception as exc:  # the control thread answers every request and keeps serving
-            _log.warning("control request %s failed: %s", request.name, exc)
-            answer = {"ok": False, "error": str(exc) or type(exc).__name__}
-        try:
-            _atomic_json(self.control_dir / f"done-{rid}.json", answer)
-        except OSError as exc:
-            _log.warning("cannot answer control request %s: %s", request.name, exc)
-
-
-# ------------------------------------------------------------------ control client
-def _request(control_dir: str | os.PathLike[str], payload: dict[str, Any], timeout_s: float,
-             poll_s: float = 0.01) -> dict[str, Any]:
-    folder = Path(control_dir)
-    if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
-        raise ValueError(f"timeout_s must be a positive number of seconds, got {timeout_s!r}")
-    if not folder.is_dir():
-        raise StationError(f"no simulated station control folder {folder}: start `kogei mock` and pass the "
-                           "control folder it prints")
-    rid = f"{os.getpid()}-{uuid.uuid4().hex[:12]}"
-    request = folder / f"request-{rid}.json"
-    done = folder / f"done-{rid}.json"
-    _atomic_json(request, payload)
-    end = time.monotonic() + timeout_s
-    while True:
-        try:
-            text = done.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            if time.monotonic() >= end:
-                break
-            time.sleep(poll_s)
-            continue
-        done.unlink(missing_ok=True)
-        answer = json.loads(text)
-        if not answer.get("ok"):
-            raise StationError(f"the simulated station at {folder} could not {payload['action']}: "
-                               f"{answer.get('error', 'no reason given')}")
-        return answer
-    try:
-        request.unlink()
-        unclaimed = True
-    except FileNotFoundError:
-        unclaimed = False
-    if unclaimed:
-        raise StationTimeout(f"no simulated station answered in {folder} within {timeout_s:g} s: start "
-                             "`kogei mock` (it prints its control folder) or check the --control folder")
-    raise StationTimeout(f"the simulated station at {folder} took the {payload['action']} request but did not "
-                         f"finish within {timeout_s:g} s; raise the timeout")
-
-
-def request_place(control_dir: str | os.PathLike[str], placement: int, timeout_s: float = 10.0) -> dict[str, Any]:
-    """Ask the station watching ``control_dir`` to put the object in placement ``placement``.
-
-    Returns
-    -------
-    dict
-        The station's answer: ``{"ok": True, "action": "place", "placement": n, "pose": [[...]]}``.
-
-    Raises
-    ------
-    StationTimeout
-        No station answered within ``timeout_s`` (the message names the
-        folder and says to start ``kogei mock``).
-    StationError
-        The folder does not exist or the station refused (the message gives
-        its reason).
-    """
-    if not isinstance(placement, int) or isinstance(placement, bool) or placement < 1:
-        raise ValueError(f"placement must be an integer >= 1, got {placement!r}")
-    return _request(control_dir, {"action": "place", "placement": placement}, timeout_s)
-
-
-def request_shoot(control_dir: str | os.PathLike[str], timeout_s: float = 60.0) -> dict[str, Any]:
-    """Ask the station watching ``control_dir`` to shoot a frame into its hot folder.
-
-    Returns
-    -------
-    dict
-        ``{"ok": True, "action": "shoot", "file": path, "kind": "chart"|"object",
-        "table_angle_deg": a, "placement": n, "partial": bool}`` once the file
-        is written.
-
-    Raises
-    ------
-    StationTimeout, StationError
-        As :func:`request_place`.
-    """
-    return _request(control_dir, {"action": "shoot"}, timeout_s)
+    def _perform(self, payload: dict[str, Any]) -> dict[str, Any]:
+        """Carry out one control request (``place`` or ``shoot``) and return the answer."""
+        action = payload.get("action")
+        if action == "place":
+            n = payload.get("placement")
+            if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+                raise StationError(f"'placement' must be an integer >= 1, got {n!r}")
+            pose = self.place(n)
+            return {"ok": True, "action": "place", "placement": n, "pose": pose.tolist()}
+        if action == "shoot":
+            return {"ok": True, "action": "shoot", **self._shoot()}
+        raise StationError(f"unknown action {action!r}; known: place, shoot")

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from processing.common.rotation import rotation_z_deg
 from processing.errors import InputError
 from processing.spectral.spectra import SpectralGrid, light_spectrum, resample
 
@@ -67,10 +68,8 @@ def rotation_z(angle_deg: float) -> NDArray[np.float64]:
     >>> np.round(rotation_z(90) @ [1, 0, 0, 1], 12).tolist()
     [0.0, 1.0, 0.0, 1.0]
     """
-    a = math.radians(float(angle_deg))
-    c, s = math.cos(a), math.sin(a)
     m = np.eye(4)
-    m[:2, :2] = [[c, -s], [s, c]]
+    m[:3, :3] = rotation_z_deg(angle_deg)
     return m
 
 
@@ -225,7 +224,7 @@ class World:
             raise WorldError(f"fov_deg must be in (0, 170) degrees, got {self.fov_deg!r}")
         if not self.camera_distance_mm > 0:
             raise WorldError(f"camera_distance_mm must be > 0, got {self.camera_distance_mm!r}")
-        self.grid  # validates spectral_step
+        _ = self.grid  # validates spectral_step
         from mocks.chart_scene import ChartPlacement, ChartSceneError
 
         if self.chart_layout not in ("grid", "classic24", "sg140", "vinyl18"):

@@ -12,6 +12,13 @@ rotated ordered grid (for four samples the rotated-grid supersampling
 pattern, Akenine-Moeller et al., "Real-Time Rendering", 4th ed., section
 5.4.2), deterministic, with no two samples sharing a pixel row or column.
 
+References
+----------
+Cook, R. L. (1986), "Stochastic sampling in computer graphics", ACM
+Transactions on Graphics 5(1), 51-72 (DOI not verified).
+Akenine-Moeller, T., Haines, E., Hoffman, N. et al. (2018), "Real-Time
+Rendering", 4th ed., CRC Press, section 5.4.2 (a book, no DOI).
+
 Examples
 --------
 >>> cam = Camera(eye=(0, -5, 0), target=(0, 0, 0), up=(0, 0, 1), fov_deg=40, width=4, height=3)
@@ -121,6 +128,12 @@ class Camera:
     def basis(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Orthonormal camera frame ``(right, up, forward)``.
 
+        Returns
+        -------
+        tuple of ndarray
+            Three unit ``(3,)`` vectors: image right, image up, viewing
+            direction (right-handed: ``right x forward = up``).
+
         Examples
         --------
         >>> cam = Camera((0, -5, 0), (0, 0, 0), (0, 0, 1), 40, 4, 3)
@@ -143,6 +156,16 @@ class Camera:
         """Image coordinates (x, y) in pixels of world ``points`` (..., 3).
 
         Pixel centres are at half-integers; points behind the camera get NaN.
+
+        Parameters
+        ----------
+        points
+            ``(..., 3)`` positions (scene units).
+
+        Returns
+        -------
+        ndarray
+            ``(..., 2)`` column and row in pixels (row 0 at the top).
 
         Examples
         --------
@@ -176,6 +199,29 @@ class Camera:
         anti-aliases near-horizontal and near-vertical edges better than the
         strata centres, and the pattern's mean is the pixel centre, so
         linearly varying shading is averaged exactly.
+
+        Parameters
+        ----------
+        n_pixels
+            Number of pixels.
+        samples
+            Samples per pixel (a whole number >= 1).
+        rng
+            Generator of the jitter (needed when ``jitter`` and ``samples > 1``).
+        jitter
+            Random positions within the strata (True) or the rotated
+            ordered grid (False).
+
+        Returns
+        -------
+        ndarray
+            float32 ``(n_pixels, samples, 2)``, in pixel units.
+
+        Raises
+        ------
+        RenderInputError
+            ``samples`` is not a whole number >= 1, or a jittered pattern
+            has no ``rng``.
 
         Examples
         --------
@@ -220,7 +266,12 @@ class Camera:
     ) -> NDArray[np.float32]:
         """Primary rays of the pixel block ``[x0, x1) x [y0, y1)``.
 
-        ``samples``, ``rng`` and ``jitter`` as in :meth:`sample_offsets`.
+        Parameters
+        ----------
+        x0, x1, y0, y1
+            The block's columns ``[x0, x1)`` and rows ``[y0, y1)`` (pixels).
+        samples, rng, jitter
+            As in :meth:`sample_offsets`.
 
         Returns
         -------
@@ -255,6 +306,25 @@ class Camera:
 
         The same rays as :meth:`rays` gives for those pixels (bit for bit
         without jitter), ordered by pixel, then sample.
+
+        Parameters
+        ----------
+        xs, ys
+            Columns and rows of the pixels (same length).
+        samples, rng, jitter
+            As in :meth:`sample_offsets`.
+
+        Returns
+        -------
+        ndarray
+            float32 ``(len(xs) * samples, 6)`` rows ``(ox, oy, oz, dx, dy, dz)``
+            with unit directions.
+
+        Raises
+        ------
+        RenderInputError
+            ``xs`` and ``ys`` differ in length, or a pixel is outside the
+            image.
 
         Examples
         --------
@@ -318,6 +388,32 @@ class Camera:
         The eye lies along ``direction`` (from the box centre toward the
         camera) at the distance where the box's bounding sphere, enlarged by
         ``margin``, just fits the narrower field of view.
+
+        Parameters
+        ----------
+        bounds_min, bounds_max
+            Corners of the box (scene units).
+        width, height
+            Image size in pixels.
+        fov_deg
+            Vertical field of view in degrees.
+        direction
+            Direction from the box centre toward the eye (any length).
+        up
+            Approximate up direction of the image.
+        margin
+            Factor (> 0) on the bounding sphere's radius.
+
+        Returns
+        -------
+        Camera
+            Looking at the box centre.
+
+        Raises
+        ------
+        RenderInputError
+            Inverted or single-point bounds, a zero direction, a margin
+            <= 0, or camera parameters :class:`Camera` refuses.
 
         Examples
         --------

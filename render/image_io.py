@@ -1,9 +1,8 @@
 """Writing rendered images: 8-bit sRGB PNG and float32 XYZ TIFF, atomically.
 
 Each file is first written to a temporary file in the target directory and
-then moved over the target with :func:`os.replace`, so a reader (or a crash)
-never sees a half-written image (DESIGN.md section 2: every file is written
-atomically).
+then renamed over the target (:func:`processing.common.files.atomic_path`),
+so a reader (or a crash) never sees a half-written image.
 
 Examples
 --------
@@ -16,7 +15,6 @@ Examples
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -24,30 +22,23 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
+from processing.common.files import atomic_path
 from render.errors import RenderInputError
 
 __all__ = ["write_png", "write_xyz_tiff", "read_xyz_tiff"]
 
 
 @contextmanager
-def _atomic(path: str | os.PathLike[str]) -> Iterator[str]:
+def _atomic(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary file beside ``path``, renamed over it at the end; the target's folder must exist."""
     target = Path(path)
     if target.is_dir():
         raise RenderInputError(f"output path '{target}' is a directory; give a file name")
     parent = target.parent if str(target.parent) else Path(".")
     if not parent.is_dir():
         raise RenderInputError(f"output directory '{parent}' does not exist; create it first")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
-    os.close(fd)
-    try:
+    with atomic_path(target, make_parents=False) as tmp:
         yield tmp
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def write_png(path: str | os.PathLike[str], srgb8: ArrayLike, alpha: ArrayLike | None = None) -> Path:
@@ -66,6 +57,12 @@ def write_png(path: str | os.PathLike[str], srgb8: ArrayLike, alpha: ArrayLike |
     -------
     Path
         The written file.
+
+    Raises
+    ------
+    RenderInputError
+        A bad image or alpha array, a directory as target, or a missing
+        output folder.
     """
     img = np.asarray(srgb8)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] not in (3, 4) or 0 in img.shape:
@@ -107,6 +104,12 @@ def write_xyz_tiff(path: str | os.PathLike[str], xyz: ArrayLike) -> Path:
     Path
         The written file.
 
+    Raises
+    ------
+    RenderInputError
+        Not a non-empty finite ``(H, W, 3)`` array, a directory as target,
+        or a missing output folder.
+
     Examples
     --------
     >>> import tempfile, pathlib
@@ -136,7 +139,23 @@ def write_xyz_tiff(path: str | os.PathLike[str], xyz: ArrayLike) -> Path:
 
 
 def read_xyz_tiff(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read back a file of :func:`write_xyz_tiff` as float32 ``(H, W, 3)``."""
+    """Read back a file of :func:`write_xyz_tiff` as float32 ``(H, W, 3)``.
+
+    Parameters
+    ----------
+    path
+        A TIFF written by :func:`write_xyz_tiff`.
+
+    Returns
+    -------
+    ndarray
+        float32 ``(H, W, 3)`` CIE XYZ as stored.
+
+    Raises
+    ------
+    RenderInputError
+        The file does not hold 3-sample pixels.
+    """
     import tifffile
 
     arr = tifffile.imread(path)

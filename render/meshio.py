@@ -14,6 +14,11 @@ times its unit normal, so summing cross products weights faces by area).
 STL stores only facet normals and repeats each vertex per facet, so STL
 vertices are merged by position and smooth normals are computed.
 
+References
+----------
+Max, N. (1999), "Weights for computing vertex normals from facet normals",
+Journal of Graphics Tools 4(2), 1-6 (DOI not verified).
+
 Examples
 --------
 >>> v = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]
@@ -100,7 +105,13 @@ class Mesh:
         return int(self.triangles.shape[0])
 
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Axis-aligned bounds ``(min, max)`` of the vertices used by triangles."""
+        """Axis-aligned bounds ``(min, max)`` of the vertices used by triangles.
+
+        Returns
+        -------
+        tuple of ndarray
+            Two ``(3,)`` copies: the lowest and highest coordinates.
+        """
         if self._bounds is None:
             used = np.zeros(self.vertices.shape[0], dtype=bool)
             used[self.triangles.ravel()] = True
@@ -113,7 +124,20 @@ class Mesh:
 def face_normals(vertices: ArrayLike, triangles: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
     """Normals of the triangles, right-handed with the vertex order.
 
-    With ``unit=False`` the length is twice the triangle's area.
+    Parameters
+    ----------
+    vertices
+        ``(V, 3)`` positions.
+    triangles
+        ``(T, 3)`` vertex indices.
+    unit
+        Normalise to unit length (zero for a zero-area triangle); False
+        keeps the cross product, whose length is twice the triangle's area.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(T, 3)``.
 
     Examples
     --------
@@ -216,6 +240,11 @@ def make_mesh(
     source
         Name used in messages (the file path when loading).
 
+    Returns
+    -------
+    Mesh
+        Without zero-area triangles, with unit vertex normals.
+
     Raises
     ------
     MeshError
@@ -228,6 +257,25 @@ def make_mesh(
         When zero-area triangles were dropped (counted in
         ``Mesh.dropped_triangles``) or normals were recomputed.
     """
+    v, t = _checked_arrays(vertices, triangles, source)
+    mat, on = _checked_material_index(material_index, material_index_on, v.shape[0], t.shape[0], source)
+    t, mat, dropped = _drop_degenerate(v, t, mat, on, source)
+    normals, computed = _vertex_normals(vertex_normals, v, t, source)
+    return Mesh(
+        vertices=v,
+        triangles=t,
+        vertex_normals=normals,
+        material_index=mat,
+        material_index_on=on if mat is not None else None,
+        source=source,
+        dropped_triangles=dropped,
+        normals_computed=computed,
+    )
+
+
+def _checked_arrays(vertices: ArrayLike, triangles: ArrayLike,
+                    source: str) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Vertices ``(V, 3)`` and triangles ``(T, 3)``, refused when empty, non-finite or out of range."""
     v = np.asarray(vertices, dtype=np.float64) if np.size(vertices) else np.zeros((0, 3))
     if v.ndim != 2 or v.shape[1] != 3:
         raise MeshError(f"{source}: vertices must have shape (V, 3), got {np.shape(vertices)}")
@@ -254,40 +302,46 @@ def make_mesh(
             f"{source}: triangle {bad_tri} uses vertex index {t[bad_tri].tolist()} outside 0..{v.shape[0] - 1} "
             "(the file's face list does not match its vertex list)"
         )
+    return v, t
 
-    # material index: per vertex or per triangle
-    mat = None
+
+def _checked_material_index(material_index: ArrayLike | None, material_index_on: str | None, n_vertices: int,
+                            n_triangles: int, source: str) -> tuple[NDArray[np.int64] | None, str | None]:
+    """The material index per vertex or per triangle and which of the two it is (None, None: no index)."""
+    if material_index is None:
+        return None, None
     on = material_index_on
-    if material_index is not None:
-        mat = _as_index_array(material_index, "material_index", source).ravel()
-        if on is None:
-            if mat.size == v.shape[0] and mat.size != t.shape[0]:
-                on = "vertex"
-            elif mat.size == t.shape[0] and mat.size != v.shape[0]:
-                on = "triangle"
-            elif mat.size == v.shape[0]:
-                raise MeshError(
-                    f"{source}: material_index has {mat.size} entries and the mesh has as many vertices as "
-                    "triangles; say material_index_on='vertex' or 'triangle'"
-                )
-            else:
-                raise MeshError(
-                    f"{source}: material_index has {mat.size} entries; expected one per vertex "
-                    f"({v.shape[0]}) or one per triangle ({t.shape[0]})"
-                )
-        expected = {"vertex": v.shape[0], "triangle": t.shape[0]}.get(on)
-        if expected is None:
-            raise MeshError(f"{source}: material_index_on must be 'vertex' or 'triangle', got {on!r}")
-        if mat.size != expected:
+    mat = _as_index_array(material_index, "material_index", source).ravel()
+    if on is None:
+        if mat.size == n_vertices and mat.size != n_triangles:
+            on = "vertex"
+        elif mat.size == n_triangles and mat.size != n_vertices:
+            on = "triangle"
+        elif mat.size == n_vertices:
             raise MeshError(
-                f"{source}: material_index has {mat.size} entries but material_index_on={on!r} needs {expected}"
+                f"{source}: material_index has {mat.size} entries and the mesh has as many vertices as "
+                "triangles; say material_index_on='vertex' or 'triangle'"
             )
-        if mat.size and mat.min() < 0:
-            raise MeshError(f"{source}: material_index must be >= 0, found {int(mat.min())}")
-    elif on is not None:
-        on = None
+        else:
+            raise MeshError(
+                f"{source}: material_index has {mat.size} entries; expected one per vertex "
+                f"({n_vertices}) or one per triangle ({n_triangles})"
+            )
+    expected = {"vertex": n_vertices, "triangle": n_triangles}.get(on)
+    if expected is None:
+        raise MeshError(f"{source}: material_index_on must be 'vertex' or 'triangle', got {on!r}")
+    if mat.size != expected:
+        raise MeshError(
+            f"{source}: material_index has {mat.size} entries but material_index_on={on!r} needs {expected}"
+        )
+    if mat.size and mat.min() < 0:
+        raise MeshError(f"{source}: material_index must be >= 0, found {int(mat.min())}")
+    return mat, on
 
-    # degenerate triangles
+
+def _drop_degenerate(v: NDArray[np.float64], t: NDArray[np.int64], mat: NDArray[np.int64] | None, on: str | None,
+                     source: str) -> tuple[NDArray[np.int64], NDArray[np.int64] | None, int]:
+    """Triangles and material index without the zero-area triangles (warned about), and how many were dropped."""
     e0 = v[t[:, 1]] - v[t[:, 0]]
     e1 = v[t[:, 2]] - v[t[:, 0]]
     e2 = v[t[:, 2]] - v[t[:, 1]]
@@ -307,43 +361,33 @@ def make_mesh(
         warnings.warn(
             f"{source}: dropped {dropped} zero-area triangles of {dropped + t.shape[0]}",
             MeshWarning,
-            stacklevel=2,
+            stacklevel=3,   # the caller of make_mesh
         )
+    return t, mat, dropped
 
-    computed = False
+
+def _vertex_normals(vertex_normals: ArrayLike | None, v: NDArray[np.float64], t: NDArray[np.int64],
+                    source: str) -> tuple[NDArray[np.float64], bool]:
+    """Unit vertex normals (the given ones, or computed when absent or unusable) and whether they were computed."""
     if vertex_normals is None:
-        normals = smooth_vertex_normals(v, t)
-        computed = True
-    else:
-        n = np.asarray(vertex_normals, dtype=np.float64)
-        if n.shape != v.shape:
-            raise MeshError(f"{source}: vertex_normals must have shape {v.shape}, got {n.shape}")
-        length = np.linalg.norm(n, axis=1)
-        used = np.zeros(v.shape[0], dtype=bool)
-        used[t.ravel()] = True
-        bad = used & ~(np.isfinite(length) & (length > 0))
-        if np.any(bad):
-            warnings.warn(
-                f"{source}: {int(bad.sum())} vertex normals are zero or non-finite; "
-                "recomputing all normals from the faces",
-                MeshWarning,
-                stacklevel=2,
-            )
-            normals = smooth_vertex_normals(v, t)
-            computed = True
-        else:
-            safe = np.where(length > 0, length, 1.0)
-            normals = np.where(np.isfinite(n), n, 0.0) / np.where(np.isfinite(safe), safe, 1.0)[:, None]
-    return Mesh(
-        vertices=v,
-        triangles=t,
-        vertex_normals=normals,
-        material_index=mat,
-        material_index_on=on if mat is not None else None,
-        source=source,
-        dropped_triangles=dropped,
-        normals_computed=computed,
-    )
+        return smooth_vertex_normals(v, t), True
+    n = np.asarray(vertex_normals, dtype=np.float64)
+    if n.shape != v.shape:
+        raise MeshError(f"{source}: vertex_normals must have shape {v.shape}, got {n.shape}")
+    length = np.linalg.norm(n, axis=1)
+    used = np.zeros(v.shape[0], dtype=bool)
+    used[t.ravel()] = True
+    bad = used & ~(np.isfinite(length) & (length > 0))
+    if np.any(bad):
+        warnings.warn(
+            f"{source}: {int(bad.sum())} vertex normals are zero or non-finite; "
+            "recomputing all normals from the faces",
+            MeshWarning,
+            stacklevel=3,   # the caller of make_mesh
+        )
+        return smooth_vertex_normals(v, t), True
+    safe = np.where(length > 0, length, 1.0)
+    return np.where(np.isfinite(n), n, 0.0) / np.where(np.isfinite(safe), safe, 1.0)[:, None], False
 
 
 def load_mesh(path: str | os.PathLike[str]) -> Mesh:
@@ -360,6 +404,7 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
     Returns
     -------
     Mesh
+        As :func:`make_mesh` builds it, ``source`` the file path.
 
     Raises
     ------

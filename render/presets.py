@@ -1,7 +1,7 @@
 """Render settings and the named speed / accuracy presets.
 
-DESIGN.md section 5: every expensive knob has a named preset whose cost and
-error are measured.  The knobs of the renderer are the spectral sampling,
+Every expensive knob has a named preset whose cost and error are measured
+(docs/rendering.md, "Presets and what each knob costs").  The knobs of the renderer are the spectral sampling,
 the anti-aliasing samples per pixel, the mirror bounce and its rays, the
 angular tables and the shadow rays:
 
@@ -173,6 +173,21 @@ class RenderSettings:
     def replace(self, **changes: object) -> RenderSettings:
         """A copy with some fields changed (validated again).
 
+        Parameters
+        ----------
+        **changes
+            Field names and their new values.
+
+        Returns
+        -------
+        RenderSettings
+            The new settings.
+
+        Raises
+        ------
+        RenderInputError
+            An unknown field or a bad value.
+
         Examples
         --------
         >>> PRESETS["standard"].replace(samples_per_pixel=9).samples_per_pixel
@@ -202,7 +217,23 @@ PRESETS: dict[str, RenderSettings] = {
 
 
 def get_preset(name: str) -> RenderSettings:
-    """The preset called ``name`` (``draft``, ``standard`` or ``reference``)."""
+    """The preset called ``name`` (``draft``, ``standard`` or ``reference``).
+
+    Parameters
+    ----------
+    name
+        The preset's name.
+
+    Returns
+    -------
+    RenderSettings
+        The preset (shared; use :meth:`RenderSettings.replace` to change it).
+
+    Raises
+    ------
+    RenderInputError
+        Naming the presets when ``name`` is none of them.
+    """
     try:
         return PRESETS[name]
     except (KeyError, TypeError):

@@ -1,27 +1,18 @@
 """Render a scene: Open3D ray casting plus NumPy spectral shading, tile by tile.
 
-Pipeline per tile of pixels (DESIGN.md sections 4-5):
-
-1. primary rays through one sample per stratum of each pixel (ordered grid
-   or stratified jitter, :mod:`render.camera`), cast with ``open3d.t.geometry.RaycastingScene.cast_rays`` (one geometry
-   per object; geometry ids map hits back to objects);
-2. per hit: position, the smooth shading normal interpolated from the vertex
-   normals with the barycentric ``primitive_uvs`` (u, v weight vertices 1
-   and 2, vertex 0 gets 1 - u - v), the face normal, both turned toward the
-   viewer, and the material (per triangle, or per vertex: the vertex with the
-   largest barycentric weight);
-3. shading (:mod:`render.shading`): shadow rays toward each light, sky light,
-   mirrored rays with one bounce, evaluated per wavelength (reference) or
-   through angular XYZ tables (standard, draft);
-4. adaptive anti-aliasing (``settings.adaptive_samples``): the pixels whose
-   base samples disagree (:func:`pixels_to_refine`: different surfaces, hit
-   and miss, or a colour spread above ``adaptive_threshold`` L* units) are
-   rendered again, all at once per tile, with ``adaptive_samples`` samples;
-5. the samples of each pixel are averaged; XYZ are normalised so that a white
-   Lambertian surface facing the first light has Y = 1 (for a point light,
-   at the distance from the light to the centre of the scene's bounds), and
-   converted to 8-bit sRGB with chromatic adaptation from the first light's
-   white (:func:`processing.spectral.display.xyz_to_srgb8`).
+Per tile of pixels: primary rays through one sample per stratum of each
+pixel (:mod:`render.camera`), cast with Open3D's ``RaycastingScene`` (one
+geometry per object); per hit the position, the smooth shading normal
+interpolated from the vertex normals with the barycentric ``primitive_uvs``
+(u, v weight vertices 1 and 2, vertex 0 gets 1 - u - v), the face normal,
+both turned toward the viewer, and the material (per triangle, or per vertex:
+the vertex with the largest barycentric weight); shading
+(:mod:`render.shading`); adaptive anti-aliasing of the pixels whose samples
+disagree (:func:`pixels_to_refine`); the mean of each pixel's samples,
+normalised so that a white Lambertian surface facing the first light has
+Y = 1 and converted to 8-bit sRGB.  docs/rendering.md describes the
+pipeline, the exposure and the anti-aliasing ("Pipeline", "Exposure and
+normalisation", "Adaptive anti-aliasing").
 
 Pixels no object covers show the sky along the camera ray (black when the
 sky is ``"none"``); ``RenderResult.mask`` holds the fraction of each pixel's
@@ -32,15 +23,22 @@ exist at a time (at most ``MAX_TILE_SAMPLES`` samples, float32 in the table
 path), besides the image buffers, the per-triangle vertex normals (36 bytes
 per triangle) and the ray tracer's acceleration structure.  Measured peak
 resident memory for 1024 x 1024 pixels of a 1M-triangle mesh at the
-``standard`` preset: about 0.6 GB (docs/rendering.md).
+``standard`` preset: about 0.6 GB.
 
 Open3D builds its acceleration structure (BVH) on the first query; the
 renderer triggers it with a one-ray cast and reports it as
 ``timings["bvh_build"]``, apart from the per-ray casting.
+
+References
+----------
+Mitchell, D. P. (1987), "Generating antialiased images at low sampling
+densities", SIGGRAPH '87, Computer Graphics 21(4), 65-72,
+doi:10.1145/37402.37410.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -53,10 +51,11 @@ from processing.spectral.spectra import SpectralGrid
 from render.camera import Camera
 from render.errors import RenderCancelled, RenderInputError
 from render.presets import PRESETS, RenderSettings
-from render.scene import Scene, check_point_lights, resolve_spectrum
+from render.scene import Scene, Sky, check_point_lights, resolve_spectrum
 from render.shading import (
     Hits,
     LightPlan,
+    MaterialPlan,
     ShadingContext,
     SpectralBackend,
     TableBackend,
@@ -125,7 +124,13 @@ class RenderResult:
     refined: NDArray[np.bool_] | None = None
 
     def rgba8(self) -> NDArray[np.uint8]:
-        """``(H, W, 4)`` sRGB with alpha: coverage when the sky is off, opaque otherwise."""
+        """``(H, W, 4)`` sRGB with alpha: coverage when the sky is off, opaque otherwise.
+
+        Returns
+        -------
+        ndarray
+            uint8 ``(H, W, 4)``.
+        """
         alpha = np.round(self.mask * 255.0).astype(np.uint8) if not self.sky_visible else np.full(
             self.mask.shape, 255, np.uint8
         )
@@ -147,9 +152,10 @@ def _vertex_tangents(obj) -> NDArray[np.float64]:
     return t
 
 
-
 @dataclass(eq=False)
 class _Prepared:
+    """What every tile of a render shares: ray tracer, colour normalisation, triangle arrays, shading context."""
+
     raycaster: object
     grid: SpectralGrid
     k: float
@@ -164,7 +170,31 @@ class _Prepared:
     n_materials: int
 
 
+@dataclass(eq=False)
+class _Triangles:
+    """Per-triangle arrays of all objects, concatenated in object order (global triangle numbers)."""
+
+    tri_offset: NDArray[np.int64]                   # first global triangle of each object
+    n_triangles: int
+    normals: NDArray[np.float32]                    # (9, T): vertex normals of each triangle's corners
+    tangents: NDArray[np.float32] | None            # (9, T) corner yarn directions, None: all isotropic
+    corner_material: NDArray[np.int32] | None       # (T, 3) global material per corner, None: all 0
+    triangle_material: NDArray[np.int32] | None     # (T,) when no object is indexed per vertex
+    single_object: bool
+
+
+@dataclass(eq=False)
+class _Lighting:
+    """The lights scaled to the key light's exposure, the XYZ normalisation and the sky radiance."""
+
+    lights: tuple[LightPlan, ...]
+    k: float
+    white: NDArray[np.float64]
+    sky_radiance: NDArray[np.float64]
+
+
 def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -> RenderSettings:
+    """The settings to use (None: the ``standard`` preset), after checking the argument types."""
     if not isinstance(scene, Scene):
         raise RenderInputError(f"scene must be a render.scene.Scene, got {type(scene).__name__}")
     if not isinstance(camera, Camera):
@@ -179,14 +209,44 @@ def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -
 
 
 def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends: bool = True) -> _Prepared:
+    """Build the ray tracer, the triangle arrays, the lights and the shading context of a render."""
     import open3d as o3d
-
-    from processing.spectral.display import white_xyz, xyz_scale
 
     timings: dict[str, float] = {"primary_rays": 0.0, "shadow_rays": 0.0, "mirror_rays": 0.0}
     t0 = time.perf_counter()
     raycaster = o3d.t.geometry.RaycastingScene()
-    # global material numbering (the same Material object shared by objects gets one number)
+    materials, per_object_map = _number_materials(scene)
+    triangles = _add_objects(raycaster, scene, materials, per_object_map)
+    lo, hi = scene.bounds()
+    offset = _ray_offset(lo, hi, camera)
+    grid = SpectralGrid(400.0, 700.0, settings.spectral_step)
+    lighting = _lighting(scene, grid, lo, hi)
+    plans = tuple(plan_material(m) for m in materials)
+    backend = _backend(settings, grid, lighting, scene.sky, plans) if backends else None
+    tracer = _Tracer(raycaster, timings)
+    ctx = ShadingContext(
+        lights=lighting.lights,
+        sky=scene.sky,
+        plans=plans,
+        offset=offset,
+        shadows=settings.shadows,
+        mirror_bounces=settings.mirror_bounces,
+        mirror_rays=settings.mirror_rays,
+        cast=tracer.cast,
+        occluded=tracer.occluded,
+        make_hits=functools.partial(_make_hits, triangles),
+    )
+    timings["setup"] = time.perf_counter() - t0
+    timings["bvh_build"] = _build_acceleration(raycaster, camera)
+    check_point_lights(scene, raycaster)
+    return _Prepared(
+        raycaster, grid, lighting.k, lighting.white, triangles.tri_offset, triangles.normals,
+        triangles.corner_material, ctx, backend, timings, triangles.n_triangles, len(materials),
+    )
+
+
+def _number_materials(scene: Scene) -> tuple[list, list[NDArray[np.int32]]]:
+    """Global material numbers (a Material shared by objects gets one) and each object's local -> global map."""
     materials: list = []
     number: dict[int, int] = {}
     per_object_map: list[NDArray[np.int32]] = []
@@ -198,6 +258,13 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
                 materials.append(m)
             ids.append(number[id(m)])
         per_object_map.append(np.asarray(ids, dtype=np.int32))
+    return materials, per_object_map
+
+
+def _add_objects(raycaster, scene: Scene, materials: list, per_object_map: list[NDArray[np.int32]]) -> _Triangles:
+    """Add every object's triangles to the ray tracer (geometry id = object index) and gather their arrays."""
+    import open3d as o3d
+
     several = len(materials) > 1
     anisotropic = any(m.anisotropic for m in materials)
     offsets = [0]
@@ -217,13 +284,7 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
         if anisotropic:
             tangents.append(_vertex_tangents(obj).astype(np.float32)[mesh.triangles].reshape(-1, 9).T)
         if several:
-            table = per_object_map[i]
-            if obj.material_index is None:
-                corners.append(np.full((mesh.n_triangles, 3), table[0], dtype=np.int32))
-            elif obj.material_index_on == "triangle":
-                corners.append(np.repeat(table[obj.material_index][:, None], 3, axis=1))
-            else:
-                corners.append(table[obj.material_index][mesh.triangles])
+            corners.append(_corner_materials(obj, per_object_map[i]))
     tri_normals = np.ascontiguousarray(normals[0] if len(normals) == 1 else np.concatenate(normals, axis=1))
     tri_tangents = None
     if anisotropic:
@@ -233,22 +294,37 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
     triangle_material = None
     if corner_material is not None and not per_vertex:
         triangle_material = np.ascontiguousarray(corner_material[:, 0])   # the three corners agree
+    return _Triangles(np.asarray(offsets[:-1], dtype=np.int64), int(offsets[-1]), tri_normals, tri_tangents,
+                      corner_material, triangle_material, len(scene.objects) == 1)
 
-    lo, hi = scene.bounds()
+
+def _corner_materials(obj, table: NDArray[np.int32]) -> NDArray[np.int32]:
+    """Global material number of each corner of an object's triangles ``(T, 3)``."""
+    mesh = obj.mesh
+    if obj.material_index is None:
+        return np.full((mesh.n_triangles, 3), table[0], dtype=np.int32)
+    if obj.material_index_on == "triangle":
+        return np.repeat(table[obj.material_index][:, None], 3, axis=1)
+    return table[obj.material_index][mesh.triangles]
+
+
+def _ray_offset(lo: NDArray[np.float64], hi: NDArray[np.float64], camera: Camera) -> float:
+    """How far secondary rays start off the surface (scene units)."""
     diag = float(np.linalg.norm(hi - lo))
     # Secondary rays start this far off the surface: 1e-4 of the scene's size, plus ~16 float32
     # ulps of the largest coordinate or camera distance involved in computing hit points.
     magnitude = max(float(np.max(np.abs(np.concatenate([lo, hi])))),
                     float(np.linalg.norm(np.asarray(camera.eye) - 0.5 * (lo + hi))))
-    offset = 1e-4 * diag + 2e-6 * magnitude
+    return 1e-4 * diag + 2e-6 * magnitude
 
-    # spectra and the normalisation
-    grid = SpectralGrid(400.0, 700.0, settings.spectral_step)
-    spectra = [resolve_spectrum(light.spectrum, grid, f"light {i} spectrum") for i, light in enumerate(scene.lights)]
+
+def _key_irradiance(scene: Scene, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> float:
+    """Irradiance scale of the first light at the centre of the scene's bounds (it sets the exposure)."""
     key = scene.lights[0]
     if key.kind == "directional":
         key_irradiance = key.intensity
     else:
+        diag = float(np.linalg.norm(hi - lo))
         centre = 0.5 * (lo + hi)
         d2 = float(np.sum((np.asarray(key.vector) - centre) ** 2))
         if d2 <= (1e-9 * max(diag, 1e-300)) ** 2:
@@ -261,6 +337,15 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
         raise RenderInputError(
             "light 0 has intensity 0; the first light sets the exposure and must have intensity > 0"
         )
+    return key_irradiance
+
+
+def _lighting(scene: Scene, grid: SpectralGrid, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> _Lighting:
+    """Light spectra relative to the key light's irradiance, the XYZ normalisation k, the white and the sky."""
+    from processing.spectral.display import white_xyz, xyz_scale
+
+    spectra = [resolve_spectrum(light.spectrum, grid, f"light {i} spectrum") for i, light in enumerate(scene.lights)]
+    key_irradiance = _key_irradiance(scene, lo, hi)
     k = xyz_scale(spectra[0], grid)
     white = white_xyz(spectra[0], grid)
     lights = tuple(
@@ -269,96 +354,120 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
     )
     sky = scene.sky
     sky_spec = resolve_spectrum(sky.spectrum, grid, "sky spectrum") if sky.spectrum is not None else spectra[0]
-    sky_radiance = sky_spec / math.pi
-    plans = tuple(plan_material(m) for m in materials)
-    backend: SpectralBackend | TableBackend | None = None
-    if backends:
-        spectral = SpectralBackend(grid, k, lights, sky, sky_radiance, plans)
-        backend = spectral
-        if settings.use_tables:
-            backend = TableBackend(grid, k, lights, sky, sky_radiance, plans, settings.table_size, spectral)
+    return _Lighting(lights, k, white, sky_spec / math.pi)
 
-    tri_offset = np.asarray(offsets[:-1], dtype=np.int64)
-    single_object = len(scene.objects) == 1
 
-    def cast(rays: NDArray[np.float32]) -> dict[str, NDArray]:
+def _backend(settings: RenderSettings, grid: SpectralGrid, lighting: _Lighting, sky: Sky,
+             plans: tuple[MaterialPlan, ...]) -> SpectralBackend | TableBackend:
+    """The colour backend of the settings: angular tables, or per-sample spectra."""
+    spectral = SpectralBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans)
+    if settings.use_tables:
+        return TableBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans,
+                            settings.table_size, spectral)
+    return spectral
+
+
+class _Tracer:
+    """Open3D casts for shading, timed into ``timings`` (mirror rays and shadow rays)."""
+
+    def __init__(self, raycaster, timings: dict[str, float]) -> None:
+        self.raycaster = raycaster
+        self.timings = timings
+
+    def cast(self, rays: NDArray[np.float32]) -> dict[str, NDArray]:
+        """``cast_rays`` of mirrored rays, as NumPy arrays."""
+        import open3d as o3d
+
         t = time.perf_counter()
-        ans = raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        ans = self.raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays))
         out = {name: value.numpy() for name, value in ans.items()}
-        timings["mirror_rays"] += time.perf_counter() - t
+        self.timings["mirror_rays"] += time.perf_counter() - t
         return out
 
-    def occluded(rays: NDArray[np.float32], tfar: float) -> NDArray[np.bool_]:
+    def occluded(self, rays: NDArray[np.float32], tfar: float) -> NDArray[np.bool_]:
+        """``test_occlusions`` of shadow rays up to ``tfar``."""
+        import open3d as o3d
+
         t = time.perf_counter()
-        ans = raycaster.test_occlusions(o3d.core.Tensor.from_numpy(rays), tnear=0.0, tfar=tfar).numpy()
-        timings["shadow_rays"] += time.perf_counter() - t
+        ans = self.raycaster.test_occlusions(o3d.core.Tensor.from_numpy(rays), tnear=0.0, tfar=tfar).numpy()
+        self.timings["shadow_rays"] += time.perf_counter() - t
         return ans
 
-    def make_hits(rays: NDArray[np.float32], answer: dict[str, NDArray], rows: NDArray[np.intp]) -> Hits:
-        ray = np.ascontiguousarray(np.take(rays, rows, axis=0).T)          # (6, m)
-        d = ray[3:]
-        position = ray[:3]
-        position += d * np.take(answer["t_hit"], rows)
-        prim = np.take(answer["primitive_ids"], rows).astype(np.int64)
-        if not single_object:
-            prim += tri_offset[np.take(answer["geometry_ids"], rows).astype(np.int64)]
-        uv = np.ascontiguousarray(np.take(answer["primitive_uvs"], rows, axis=0).T)
-        u, v = uv[0], uv[1]
-        w0 = _F32(1.0) - u - v
-        corner = np.take(tri_normals, prim, axis=1)                           # (9, m)
-        ns = corner[0:3] * w0
-        ns += corner[3:6] * u
-        ns += corner[6:9] * v
-        ng = np.ascontiguousarray(np.take(answer["primitive_normals"], rows, axis=0).T)
-        # turn the face normal toward the viewer, then the shading normal to the face normal's side
-        ng *= np.where(dot3(ng, d) > 0, _F32(-1.0), _F32(1.0))
-        sign = np.where(dot3(ns, ng) < 0, _F32(-1.0), _F32(1.0))
-        ns *= sign / np.sqrt(np.maximum(dot3(ns, ns), _F32(1e-30)))
-        view = np.negative(d)
-        cos_o = dot3(ns, view)
-        low = np.flatnonzero(cos_o < _F32(1e-3))
-        if low.size:
-            # silhouettes of coarse meshes: bend the shading normal until it faces the viewer
-            vl = view[:, low]
-            bent = ns[:, low] + (_F32(1e-3) - cos_o[low]) * vl
-            bent *= _F32(1.0) / np.sqrt(dot3(bent, bent))
-            ns[:, low] = bent
-            cos_o[low] = np.maximum(dot3(bent, vl), _F32(1e-4))
-        tangent = None
-        if tri_tangents is not None:
-            # interpolated like the normals, then made orthogonal to the (final) shading normal
-            tc = np.take(tri_tangents, prim, axis=1)
-            tangent = tc[0:3] * w0
-            tangent += tc[3:6] * u
-            tangent += tc[6:9] * v
-            tangent -= ns * dot3(ns, tangent)
-            length = np.sqrt(dot3(tangent, tangent))
-            tangent *= _F32(1.0) / np.maximum(length, _F32(1e-30))
-            weak = np.flatnonzero(length < _F32(1e-4))
-            if weak.size:
-                tangent[:, weak] = orthonormal_basis(np.ascontiguousarray(ns[:, weak]))[0]
-        if corner_material is None:
-            material = np.zeros(rows.size, dtype=np.int32)
-        elif triangle_material is not None:
-            material = np.take(triangle_material, prim)
-        else:
-            nearest = np.argmax(np.stack([w0, u, v]), axis=0)
-            material = corner_material[prim, nearest]
-        return Hits(position, ns, ng, view, cos_o, material, tangent)
 
-    ctx = ShadingContext(
-        lights=lights,
-        sky=sky,
-        plans=plans,
-        offset=offset,
-        shadows=settings.shadows,
-        mirror_bounces=settings.mirror_bounces,
-        mirror_rays=settings.mirror_rays,
-        cast=cast,
-        occluded=occluded,
-        make_hits=make_hits,
-    )
-    timings["setup"] = time.perf_counter() - t0
+def _make_hits(tri: _Triangles, rays: NDArray[np.float32], answer: dict[str, NDArray],
+               rows: NDArray[np.intp]) -> Hits:
+    """The :class:`Hits` of the rows ``rows`` of a cast answer: position, normals toward the viewer, material."""
+    ray = np.ascontiguousarray(np.take(rays, rows, axis=0).T)          # (6, m)
+    d = ray[3:]
+    position = ray[:3]
+    position += d * np.take(answer["t_hit"], rows)
+    prim = np.take(answer["primitive_ids"], rows).astype(np.int64)
+    if not tri.single_object:
+        prim += tri.tri_offset[np.take(answer["geometry_ids"], rows).astype(np.int64)]
+    uv = np.ascontiguousarray(np.take(answer["primitive_uvs"], rows, axis=0).T)
+    u, v = uv[0], uv[1]
+    w0 = _F32(1.0) - u - v
+    corner = np.take(tri.normals, prim, axis=1)                           # (9, m)
+    ns = corner[0:3] * w0
+    ns += corner[3:6] * u
+    ns += corner[6:9] * v
+    ng = np.ascontiguousarray(np.take(answer["primitive_normals"], rows, axis=0).T)
+    # turn the face normal toward the viewer, then the shading normal to the face normal's side
+    ng *= np.where(dot3(ng, d) > 0, _F32(-1.0), _F32(1.0))
+    sign = np.where(dot3(ns, ng) < 0, _F32(-1.0), _F32(1.0))
+    ns *= sign / np.sqrt(np.maximum(dot3(ns, ns), _F32(1e-30)))
+    view = np.negative(d)
+    cos_o = _bend_silhouettes(ns, view)
+    tangent = None if tri.tangents is None else _hit_tangents(tri.tangents, prim, w0, u, v, ns)
+    return Hits(position, ns, ng, view, cos_o, _hit_materials(tri, prim, w0, u, v), tangent)
+
+
+def _bend_silhouettes(ns: NDArray[np.float32], view: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``cos_o`` of the shading normals ``ns`` (bent in place to face the viewer at silhouettes of coarse meshes)."""
+    cos_o = dot3(ns, view)
+    low = np.flatnonzero(cos_o < _F32(1e-3))
+    if low.size:
+        # silhouettes of coarse meshes: bend the shading normal until it faces the viewer
+        vl = view[:, low]
+        bent = ns[:, low] + (_F32(1e-3) - cos_o[low]) * vl
+        bent *= _F32(1.0) / np.sqrt(dot3(bent, bent))
+        ns[:, low] = bent
+        cos_o[low] = np.maximum(dot3(bent, vl), _F32(1e-4))
+    return cos_o
+
+
+def _hit_tangents(tri_tangents: NDArray[np.float32], prim: NDArray[np.int64], w0: NDArray[np.float32],
+                  u: NDArray[np.float32], v: NDArray[np.float32], ns: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Unit yarn directions ``(3, m)`` of the hits, orthogonal to the (final) shading normals ``ns``."""
+    # interpolated like the normals, then made orthogonal to the (final) shading normal
+    tc = np.take(tri_tangents, prim, axis=1)
+    tangent = tc[0:3] * w0
+    tangent += tc[3:6] * u
+    tangent += tc[6:9] * v
+    tangent -= ns * dot3(ns, tangent)
+    length = np.sqrt(dot3(tangent, tangent))
+    tangent *= _F32(1.0) / np.maximum(length, _F32(1e-30))
+    weak = np.flatnonzero(length < _F32(1e-4))
+    if weak.size:
+        tangent[:, weak] = orthonormal_basis(np.ascontiguousarray(ns[:, weak]))[0]
+    return tangent
+
+
+def _hit_materials(tri: _Triangles, prim: NDArray[np.int64], w0: NDArray[np.float32], u: NDArray[np.float32],
+                   v: NDArray[np.float32]) -> NDArray[np.int32]:
+    """Global material number of each hit: its triangle's, or that of the corner with the largest weight."""
+    if tri.corner_material is None:
+        return np.zeros(prim.size, dtype=np.int32)
+    if tri.triangle_material is not None:
+        return np.take(tri.triangle_material, prim)
+    nearest = np.argmax(np.stack([w0, u, v]), axis=0)
+    return tri.corner_material[prim, nearest]
+
+
+def _build_acceleration(raycaster, camera: Camera) -> float:
+    """Seconds Open3D takes to build its acceleration structure, triggered by a one-ray cast."""
+    import open3d as o3d
+
     # Open3D builds its acceleration structure lazily on the first query: trigger it with one ray
     # so that its cost is reported apart from the per-ray casting.
     t = time.perf_counter()
@@ -366,12 +475,7 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
     probe[0, :3] = np.asarray(camera.eye, dtype=np.float32)
     probe[0, 3:] = camera.basis()[2].astype(np.float32)
     raycaster.cast_rays(o3d.core.Tensor.from_numpy(probe))
-    timings["bvh_build"] = time.perf_counter() - t
-    check_point_lights(scene, raycaster)
-    return _Prepared(
-        raycaster, grid, k, white, tri_offset, tri_normals, corner_material, ctx, backend, timings,
-        int(offsets[-1]), len(materials),
-    )
+    return time.perf_counter() - t
 
 
 #: Most samples in one tile: 65536 with tables (float32 XYZ), 16384 with
@@ -380,9 +484,7 @@ MAX_TILE_SAMPLES = {True: 1 << 16, False: 1 << 14}
 
 
 def _tiles(camera: Camera, settings: RenderSettings) -> list[tuple[int, int, int, int]]:
-    """Pixel blocks ``(x0, x1, y0, y1)``, row by row; the side is ``settings.tile_size``, reduced
-    so a tile holds at most ``MAX_TILE_SAMPLES`` samples.
-    """
+    """Pixel blocks ``(x0, x1, y0, y1)``, row by row; side ``tile_size``, less if it exceeds ``MAX_TILE_SAMPLES``."""
     budget = MAX_TILE_SAMPLES[settings.use_tables] // settings.samples_per_pixel
     size = max(1, min(settings.tile_size, math.isqrt(max(budget, 1))))
     return [
@@ -440,9 +542,8 @@ def pixels_to_refine(
 ) -> NDArray[np.bool_]:
     """Which pixels' base samples disagree (adaptive anti-aliasing, Mitchell 1987).
 
-    Mitchell, "Generating antialiased images at low sampling densities",
-    SIGGRAPH 1987: sample sparsely, then sample more where the samples of a
-    pixel differ.  A pixel is refined when its samples see different
+    Sample sparsely, then sample more where the samples of a pixel differ
+    (Mitchell 1987).  A pixel is refined when its samples see different
     surfaces (``key``: object and material number, -1 for a miss, so hit vs
     miss counts) or their colours spread by more than ``threshold`` CIELAB
     lightness units: ``116 (max - min)`` of ``f(X/Xw)``, ``f(Y/Yw)`` or
@@ -467,6 +568,13 @@ def pixels_to_refine(
     -------
     ndarray
         bool ``(n / samples,)``.
+
+    References
+    ----------
+    Mitchell, D. P. (1987), "Generating antialiased images at low sampling
+    densities", SIGGRAPH '87, 65-72, doi:10.1145/37402.37410.
+    CIE 015:2018 Colorimetry, eq. 8.7 (the CIELAB function f),
+    doi:10.25039/TR.015.2018.
 
     Examples
     --------
@@ -575,6 +683,7 @@ def render(
     Returns
     -------
     RenderResult
+        The image (XYZ, sRGB, coverage), timings and counts.
 
     Raises
     ------
@@ -599,14 +708,11 @@ def render(
     >>> round(float(result.xyz[..., 1].mean()), 4), int(result.srgb8.min())
     (1.0, 255)
     """
-    from processing.spectral.display import xyz_to_srgb8
-
     settings = _check_args(scene, camera, settings)
     t_start = time.perf_counter()
     prep = _prepare(scene, camera, settings)
     ctx = prep.ctx
-    width, height, spp = camera.width, camera.height, settings.samples_per_pixel
-    extra = settings.adaptive_samples
+    width, height = camera.width, camera.height
     xyz = np.zeros((height, width, 3), dtype=_F32)
     mask = np.zeros((height, width), dtype=_F32)
     refined = np.zeros((height, width), dtype=bool)
@@ -617,24 +723,11 @@ def render(
     for number, (x0, x1, y0, y1) in enumerate(tiles):
         if cancel is not None and cancel():
             raise RenderCancelled(f"render cancelled after {number} of {len(tiles)} tiles")
-        rng_base, rng_refine, rng_shade = _tile_rngs(settings, number)
-        rays = camera.rays(x0, x1, y0, y1, spp, rng_base, settings.jitter)
-        sample_xyz, hit, key = _shade_samples(prep, rays, rng_shade, settings)
-        primary_total += rays.shape[0]
-        hits_total += int(np.count_nonzero(hit))
+        pixel, cover, todo, n_primary, n_hits = _render_tile(prep, camera, settings, number, (x0, x1, y0, y1))
+        primary_total += n_primary
+        hits_total += n_hits
         ny, nx = y1 - y0, x1 - x0
-        pixel = _pixel_mean(sample_xyz, spp)
-        cover = _pixel_fraction(hit, spp)
-        if extra:
-            todo = np.flatnonzero(pixels_to_refine(sample_xyz, key, spp, prep.white, settings.adaptive_threshold))
-            for part in _refine_chunks(todo.size, extra, settings.use_tables):
-                idx = todo[part]
-                more = camera.pixel_rays(x0 + idx % nx, y0 + idx // nx, extra, rng_refine, settings.jitter)
-                more_xyz, more_hit, _ = _shade_samples(prep, more, rng_shade, settings)
-                primary_total += more.shape[0]
-                hits_total += int(np.count_nonzero(more_hit))
-                pixel[idx] = _pixel_mean(more_xyz, extra)
-                cover[idx] = _pixel_fraction(more_hit, extra)
+        if todo is not None:
             refined[y0 + todo // nx, x0 + todo % nx] = True
         xyz[y0:y1, x0:x1] = pixel.reshape(ny, nx, 3)
         mask[y0:y1, x0:x1] = cover.reshape(ny, nx)
@@ -643,32 +736,75 @@ def render(
     t_display = time.perf_counter()
     timings = prep.timings
     timings["shading"] = (t_display - t_loop) - timings["primary_rays"] - timings["shadow_rays"] - timings["mirror_rays"]
-    if ctx.sky.is_black:
-        # uncovered pixels are exactly black: convert only the covered ones
-        covered = mask > 0
-        srgb8 = np.zeros((height, width, 3), dtype=np.uint8)
-        if np.any(covered):
-            srgb8[covered] = xyz_to_srgb8(xyz[covered], prep.white)
-    else:
-        srgb8 = xyz_to_srgb8(xyz, prep.white)
+    srgb8 = _display(xyz, mask, prep.white, ctx.sky.is_black)
     t_end = time.perf_counter()
     timings["display"] = t_end - t_display
     timings["total"] = t_end - t_start
+    stats = _render_stats(prep, scene, refined, primary_total, hits_total, len(tiles))
+    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not ctx.sky.is_black, refined)
+
+
+def _render_tile(
+    prep: _Prepared, camera: Camera, settings: RenderSettings, number: int, tile: tuple[int, int, int, int]
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.intp] | None, int, int]:
+    """Pixel XYZ and coverage of tile ``number``, the refined pixels (None: no refinement), rays and hits cast."""
+    x0, x1, y0, y1 = tile
+    spp, extra = settings.samples_per_pixel, settings.adaptive_samples
+    rng_base, rng_refine, rng_shade = _tile_rngs(settings, number)
+    rays = camera.rays(x0, x1, y0, y1, spp, rng_base, settings.jitter)
+    sample_xyz, hit, key = _shade_samples(prep, rays, rng_shade, settings)
+    primary_total = rays.shape[0]
+    hits_total = int(np.count_nonzero(hit))
+    nx = x1 - x0
+    pixel = _pixel_mean(sample_xyz, spp)
+    cover = _pixel_fraction(hit, spp)
+    if not extra:
+        return pixel, cover, None, primary_total, hits_total
+    todo = np.flatnonzero(pixels_to_refine(sample_xyz, key, spp, prep.white, settings.adaptive_threshold))
+    for part in _refine_chunks(todo.size, extra, settings.use_tables):
+        idx = todo[part]
+        more = camera.pixel_rays(x0 + idx % nx, y0 + idx // nx, extra, rng_refine, settings.jitter)
+        more_xyz, more_hit, _ = _shade_samples(prep, more, rng_shade, settings)
+        primary_total += more.shape[0]
+        hits_total += int(np.count_nonzero(more_hit))
+        pixel[idx] = _pixel_mean(more_xyz, extra)
+        cover[idx] = _pixel_fraction(more_hit, extra)
+    return pixel, cover, todo, primary_total, hits_total
+
+
+def _display(xyz: NDArray[np.float32], mask: NDArray[np.float32], white: NDArray[np.float64],
+             sky_is_black: bool) -> NDArray[np.uint8]:
+    """8-bit sRGB of the image (uncovered pixels exactly black under a black sky)."""
+    from processing.spectral.display import xyz_to_srgb8
+
+    if sky_is_black:
+        # uncovered pixels are exactly black: convert only the covered ones
+        covered = mask > 0
+        srgb8 = np.zeros(mask.shape + (3,), dtype=np.uint8)
+        if np.any(covered):
+            srgb8[covered] = xyz_to_srgb8(xyz[covered], white)
+        return srgb8
+    return xyz_to_srgb8(xyz, white)
+
+
+def _render_stats(prep: _Prepared, scene: Scene, refined: NDArray[np.bool_], primary_total: int, hits_total: int,
+                  n_tiles: int) -> dict[str, float]:
+    """The counts of :attr:`RenderResult.stats`."""
+    ctx = prep.ctx
     n_refined = int(np.count_nonzero(refined))
-    stats = {
+    return {
         "primary_rays": primary_total,
         "hits": hits_total,
         "shadow_rays": ctx.stats.get("shadow_rays", 0),
         "mirror_rays": ctx.stats.get("mirror_rays", 0),
         "secondary_hits": ctx.stats.get("secondary_hits", 0),
         "refined_pixels": n_refined,
-        "refined_fraction": n_refined / (width * height),
+        "refined_fraction": n_refined / refined.size,
         "triangles": prep.n_triangles,
         "objects": len(scene.objects),
-        "tiles": len(tiles),
+        "tiles": n_tiles,
         "wavelengths": prep.grid.size,
     }
-    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not ctx.sky.is_black, refined)
 
 
 @dataclass(frozen=True)
@@ -735,6 +871,13 @@ def cast_rays_baseline(
     Returns
     -------
     BaselineTiming
+        Seconds of the build and of each kind of cast, and the ray counts.
+
+    Raises
+    ------
+    RenderInputError
+        Bad arguments, or ``refined`` missing or of the wrong shape with
+        adaptive anti-aliasing.
 
     Examples
     --------
@@ -751,17 +894,7 @@ def cast_rays_baseline(
     settings = _check_args(scene, camera, settings)
     extra = settings.adaptive_samples
     if extra:
-        if refined is None:
-            raise RenderInputError(
-                "cast_rays_baseline: with adaptive anti-aliasing (adaptive_samples > 0) pass refined=, the "
-                "RenderResult.refined of the render to compare with, so the same rays are cast"
-            )
-        refined = np.asarray(refined)
-        if refined.shape != (camera.height, camera.width) or refined.dtype != np.bool_:
-            raise RenderInputError(
-                f"cast_rays_baseline: refined must be a bool array of shape ({camera.height}, {camera.width}) "
-                f"(RenderResult.refined), got {refined.dtype} {refined.shape}"
-            )
+        refined = _checked_refined(refined, camera)
     prep = _prepare(scene, camera, settings, backends=False)
     ctx = prep.ctx
     spp = settings.samples_per_pixel
@@ -791,3 +924,19 @@ def cast_rays_baseline(
     t = prep.timings
     return BaselineTiming(t["bvh_build"], t["primary_rays"], t["shadow_rays"], count,
                           int(ctx.stats.get("shadow_rays", 0)))
+
+
+def _checked_refined(refined: NDArray[np.bool_] | None, camera: Camera) -> NDArray[np.bool_]:
+    """``refined`` as a bool ``(H, W)`` array; refused when missing or of another shape or type."""
+    if refined is None:
+        raise RenderInputError(
+            "cast_rays_baseline: with adaptive anti-aliasing (adaptive_samples > 0) pass refined=, the "
+            "RenderResult.refined of the render to compare with, so the same rays are cast"
+        )
+    refined = np.asarray(refined)
+    if refined.shape != (camera.height, camera.width) or refined.dtype != np.bool_:
+        raise RenderInputError(
+            f"cast_rays_baseline: refined must be a bool array of shape ({camera.height}, {camera.width}) "
+            f"(RenderResult.refined), got {refined.dtype} {refined.shape}"
+        )
+    return refined

@@ -27,6 +27,12 @@ objects' reflection models (materials of :mod:`processing.materials.presets`).
 :func:`check_point_lights` finds point lights enclosed by a closed mesh
 (every ray from the light hits the back of a surface) and reports them.
 
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of
+a craft object based on a light reflection model", IPSJ technical report
+(no DOI).
+
 Examples
 --------
 >>> Sky("gradient", zenith=0.2, horizon=0.6).radiance_scale([[0, 0, 1], [1, 0, 0]]).tolist()
@@ -76,6 +82,12 @@ def resolve_spectrum(spec: SpectrumLike, grid: SpectralGrid, what: str = "spectr
         Target grid.
     what
         Name of the parameter for error messages.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(L,)`` relative power on ``grid`` (1 at the grid's
+        wavelength nearest 560 nm, or at its peak when that is 0).
 
     Raises
     ------
@@ -212,13 +224,7 @@ class SceneObject:
         mats = _resolve_materials(self.materials, name)
         object.__setattr__(self, "materials", mats)
         if self.tangents is not None:
-            tan = np.asarray(self.tangents, dtype=np.float64)
-            if tan.shape != (self.mesh.n_vertices, 3) or not np.all(np.isfinite(tan)):
-                raise RenderInputError(
-                    f"object {name!r}: tangents must be a finite ({self.mesh.n_vertices}, 3) array, one direction "
-                    f"per vertex, got shape {tan.shape}"
-                )
-            object.__setattr__(self, "tangents", tan)
+            object.__setattr__(self, "tangents", _checked_tangents(self.tangents, self.mesh, name))
         if not math.isfinite(float(self.weave_angle_deg)):
             raise RenderInputError(f"object {name!r}: weave_angle_deg must be finite, got {self.weave_angle_deg!r}")
         idx, on = self.material_index, self.material_index_on
@@ -233,38 +239,56 @@ class SceneObject:
             object.__setattr__(self, "material_index", None)
             object.__setattr__(self, "material_index_on", None)
             return
-        arr = np.asarray(idx)
-        if arr.dtype.kind not in "iu" or arr.ndim != 1:
-            raise RenderInputError(
-                f"object {name!r}: material_index must be a 1-D integer array, got dtype {arr.dtype} "
-                f"shape {arr.shape}"
-            )
-        arr = arr.astype(np.int64)
-        nv, nt = self.mesh.n_vertices, self.mesh.n_triangles
-        if on is None:
-            if arr.size == nt and arr.size != nv:
-                on = "triangle"
-            elif arr.size == nv and arr.size != nt:
-                on = "vertex"
-            elif arr.size == nt:
-                raise RenderInputError(
-                    f"object {name!r}: the mesh has as many vertices as triangles; say "
-                    "material_index_on='triangle' or 'vertex'"
-                )
-        expected = {"triangle": nt, "vertex": nv}.get(on)
-        if expected is None or arr.size != expected:
-            raise RenderInputError(
-                f"object {name!r}: material_index has {arr.size} entries; expected one per triangle ({nt}) "
-                f"or one per vertex ({nv})"
-                + (f" (material_index_on={on!r})" if on else "")
-            )
-        if arr.size and (arr.min() < 0 or arr.max() >= len(mats)):
-            raise RenderInputError(
-                f"object {name!r}: material_index values must be in 0..{len(mats) - 1} "
-                f"(it has {len(mats)} materials), found {int(arr.min())}..{int(arr.max())}"
-            )
+        arr, on = _checked_material_index(idx, on, self.mesh, len(mats), name)
         object.__setattr__(self, "material_index", arr)
         object.__setattr__(self, "material_index_on", on)
+
+
+def _checked_tangents(tangents: ArrayLike, mesh: Mesh, name: str) -> NDArray[np.float64]:
+    """Per-vertex yarn directions as a finite float64 ``(V, 3)`` array."""
+    tan = np.asarray(tangents, dtype=np.float64)
+    if tan.shape != (mesh.n_vertices, 3) or not np.all(np.isfinite(tan)):
+        raise RenderInputError(
+            f"object {name!r}: tangents must be a finite ({mesh.n_vertices}, 3) array, one direction "
+            f"per vertex, got shape {tan.shape}"
+        )
+    return tan
+
+
+def _checked_material_index(idx: ArrayLike, on: str | None, mesh: Mesh, n_materials: int,
+                            name: str) -> tuple[NDArray[np.int64], str]:
+    """An object's material numbers per triangle or per vertex, and which of the two (inferred from the length)."""
+    arr = np.asarray(idx)
+    if arr.dtype.kind not in "iu" or arr.ndim != 1:
+        raise RenderInputError(
+            f"object {name!r}: material_index must be a 1-D integer array, got dtype {arr.dtype} "
+            f"shape {arr.shape}"
+        )
+    arr = arr.astype(np.int64)
+    nv, nt = mesh.n_vertices, mesh.n_triangles
+    if on is None:
+        if arr.size == nt and arr.size != nv:
+            on = "triangle"
+        elif arr.size == nv and arr.size != nt:
+            on = "vertex"
+        elif arr.size == nt:
+            raise RenderInputError(
+                f"object {name!r}: the mesh has as many vertices as triangles; say "
+                "material_index_on='triangle' or 'vertex'"
+            )
+    expected = {"triangle": nt, "vertex": nv}.get(on)
+    if expected is None or arr.size != expected:
+        raise RenderInputError(
+            f"object {name!r}: material_index has {arr.size} entries; expected one per triangle ({nt}) "
+            f"or one per vertex ({nv})"
+            + (f" (material_index_on={on!r})" if on else "")
+        )
+    if arr.size and (arr.min() < 0 or arr.max() >= n_materials):
+        raise RenderInputError(
+            f"object {name!r}: material_index values must be in 0..{n_materials - 1} "
+            f"(it has {n_materials} materials), found {int(arr.min())}..{int(arr.max())}"
+        )
+    return arr, on
 
 
 @dataclass(frozen=True)
@@ -283,6 +307,12 @@ class Light:
     intensity
         Directional: irradiance scale on a surface facing the light.  Point:
         radiant intensity scale; irradiance ``intensity / r^2``.
+
+    Raises
+    ------
+    RenderInputError
+        An unknown kind, a vector that is not three finite numbers (or
+        zero for a directional light), a negative or non-finite intensity.
 
     Examples
     --------
@@ -323,6 +353,18 @@ def hemisphere_mean_clamped_cosine(cos_normal_up: ArrayLike) -> NDArray[np.float
     ``= 2 / (3 pi) * ((pi - g) cos g + sin g)`` with ``g`` the angle between n
     and up (the overlap integral of two clamped cosines).
 
+    Parameters
+    ----------
+    cos_normal_up
+        ``cos g``, the cosine of the angle between the normal and up (any
+        shape; clipped to [-1, 1]).
+
+    Returns
+    -------
+    ndarray
+        float64, the shape of ``cos_normal_up``: 2/3 facing up, 0 facing
+        down.
+
     Examples
     --------
     >>> [round(float(x), 4) for x in hemisphere_mean_clamped_cosine([1.0, 0.0, -1.0])]
@@ -349,6 +391,12 @@ class Sky:
         Relative spectrum; None takes the key (first) light's spectrum.
     up
         The zenith direction.
+
+    Raises
+    ------
+    RenderInputError
+        An unknown kind, a negative or non-finite scale, a zero or
+        non-finite up vector.
     """
 
     kind: str = "none"
@@ -381,7 +429,18 @@ class Sky:
         return self.kind == "none" or (self.zenith == 0.0 and (self.kind == "uniform" or self.horizon == 0.0))
 
     def radiance_scale(self, directions: ArrayLike) -> NDArray[np.float64]:
-        """Scale ``s(d)`` for unit directions ``(..., 3)``; shape ``(...)``."""
+        """Scale ``s(d)`` of the sky radiance along unit directions.
+
+        Parameters
+        ----------
+        directions
+            ``(..., 3)`` unit directions.
+
+        Returns
+        -------
+        ndarray
+            ``(...)`` scales (relative to the key light's irradiance / pi).
+        """
         d = np.asarray(directions)
         shape = d.shape[:-1]
         if self.kind == "none":
@@ -396,6 +455,16 @@ class Sky:
 
         Equal to the radiance a white Lambertian surface reflects (divided by
         the spectral part), ignoring occlusion by the scene.
+
+        Parameters
+        ----------
+        normals
+            ``(..., 3)`` unit normals.
+
+        Returns
+        -------
+        ndarray
+            ``(...)`` mean scales.
         """
         n = np.asarray(normals)
         shape = n.shape[:-1]
@@ -410,6 +479,16 @@ class Sky:
 @dataclass(frozen=True, eq=False)
 class Scene:
     """Objects, lights (the first is the key light of the normalisation) and a sky.
+
+    Parameters
+    ----------
+    objects
+        One :class:`SceneObject` or a sequence of them (stored as a tuple).
+    lights
+        One :class:`Light` or a sequence of them (stored as a tuple); the
+        first sets the exposure.
+    sky
+        The environment (default: none, black).
 
     Raises
     ------
@@ -451,7 +530,13 @@ class Scene:
         object.__setattr__(self, "lights", lights)
 
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Axis-aligned bounds ``(min, max)`` of all objects."""
+        """Axis-aligned bounds ``(min, max)`` of all objects.
+
+        Returns
+        -------
+        tuple of ndarray
+            The lowest and highest ``(3,)`` coordinates (scene units).
+        """
         lows, highs = zip(*(o.mesh.bounds() for o in self.objects))
         return np.min(lows, axis=0), np.max(highs, axis=0)
 

@@ -43,6 +43,19 @@ Approximations (stated, and measured in the tests):
   object's spectrum is formed per wavelength for those rays.
 * **Lights** are points and directions (no area lights), so they are not
   seen in mirrors except through the mirror lobe's own (narrow) D term.
+
+docs/rendering.md ("Sky light approximation") says the same for users.
+
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of
+a craft object based on a light reflection model", IPSJ technical report
+(no DOI).
+Cook, R. L., Torrance, K. E. (1982), "A reflectance model for computer
+graphics", ACM TOG 1(1), 7-24, doi:10.1145/357290.357293.
+Walter, B., Marschner, S. R., Li, H., Torrance, K. E. (2007), "Microfacet
+models for refraction through rough surfaces", EGSR 2007, 195-206,
+doi:10.2312/EGWR/EGSR07/195-206.
 """
 
 from __future__ import annotations
@@ -108,6 +121,16 @@ ALBEDO_GRAZING_COS = 1e-4
 def dot3(a: NDArray[np.float32], b: NDArray[np.float32]) -> NDArray[np.float32]:
     """Dot products of ``(3, m)`` vector arrays (either may be one ``(3,)`` vector).
 
+    Parameters
+    ----------
+    a, b
+        ``(3, m)`` or ``(3,)`` arrays.
+
+    Returns
+    -------
+    ndarray
+        ``(m,)`` (a 0-d array when both are single vectors).
+
     Examples
     --------
     >>> dot3(np.array([[1.0, 0.0], [0.0, 2.0], [0.0, 0.0]]), np.array([1.0, 1.0, 0.0])).tolist()
@@ -127,6 +150,16 @@ def dot3(a: NDArray[np.float32], b: NDArray[np.float32]) -> NDArray[np.float32]:
 
 def cross3(a: NDArray[np.float32], b: NDArray[np.float32]) -> NDArray[np.float32]:
     """Cross products of ``(3, m)`` vector arrays.
+
+    Parameters
+    ----------
+    a, b
+        ``(3, m)`` arrays.
+
+    Returns
+    -------
+    ndarray
+        ``(3, m)``, ``a x b``.
 
     Examples
     --------
@@ -185,7 +218,18 @@ class Hits:
         return int(self.cos_o.shape[0])
 
     def take(self, idx: NDArray[np.intp]) -> Hits:
-        """The subset of hits ``idx``."""
+        """The subset of hits ``idx``.
+
+        Parameters
+        ----------
+        idx
+            Indices of the hits to keep.
+
+        Returns
+        -------
+        Hits
+            Copies of those columns.
+        """
         return Hits(
             _take(self.position, idx), _take(self.shading_normal, idx), _take(self.geometric_normal, idx),
             _take(self.view, idx), _take(self.cos_o, idx), _take(self.material, idx),
@@ -202,6 +246,24 @@ def smith_g1(cos_v: NDArray[np.float32], roughness: float) -> NDArray[np.float32
     end needs no cancellation: ``Lambda = (exp(-a^2)/(a sqrt(pi)) - erfc(a)) / 2``
     with ``a = cot(theta) / sigma``; it is evaluated only where
     ``a < 4`` (elsewhere 1 - G1 < 1e-8).
+
+    Parameters
+    ----------
+    cos_v
+        Cosines of the direction with the surface normal (clipped to [0, 1]).
+    roughness
+        Beckmann roughness sigma (RMS slope).
+
+    Returns
+    -------
+    ndarray
+        float32, the shape of ``cos_v``: masking in [0, 1].
+
+    References
+    ----------
+    Smith, B. (1967), "Geometrical shadowing of a random rough surface",
+    IEEE Trans. Antennas Propag. 15(5), 668-671, doi:10.1109/TAP.1967.1138991.
+    Walter, B. et al. (2007), doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------
@@ -235,6 +297,37 @@ def microfacet_geometry(
 
     The float32 counterpart of :func:`processing.materials.microfacet.microfacet_lobe`
     used by the table path.  Zero where either cosine is <= 0.
+
+    Parameters
+    ----------
+    cos_i, cos_o
+        Cosines of the light and view directions with the normal.
+    cos_h
+        Cosine of the half vector with the normal.
+    cos_d
+        Cosine of the half vector with the light (or view) direction.
+    roughness
+        Beckmann roughness sigma.
+    shadowing
+        ``"smith"``, ``"torrance-sparrow"`` (``"v-cavity"``) or ``"none"``.
+
+    Returns
+    -------
+    ndarray
+        float32, the shape of the cosines, in 1/sr.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``shadowing``.
+
+    References
+    ----------
+    Cook, R. L., Torrance, K. E. (1982), doi:10.1145/357290.357293.
+    Torrance, K. E., Sparrow, E. M. (1967), "Theory for off-specular
+    reflection from roughened surfaces", JOSA 57(9), 1105-1114,
+    doi:10.1364/JOSA.57.001105.
+    Walter, B. et al. (2007), doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------
@@ -278,8 +371,24 @@ def _mirror_g(lobe: Lobe, ci: NDArray[np.float32], co: NDArray[np.float32], ch: 
 def orthonormal_basis(n: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Two unit tangents completing unit normals ``n`` (3, m) to right-handed frames.
 
-    Branchless construction of Duff et al., "Building an orthonormal basis,
-    revisited", JCGT 6(1), 2017.
+    Branchless construction of Duff et al. (2017).
+
+    Parameters
+    ----------
+    n
+        ``(3, m)`` unit normals.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(t, b)``, two ``(3, m)`` unit vectors with ``(t, b, n)``
+        right-handed and orthonormal.
+
+    References
+    ----------
+    Duff, T., Burgess, J., Christensen, P., Hery, C., Kensler, A., Liani, M.,
+    Villemin, R. (2017), "Building an orthonormal basis, revisited", Journal
+    of Computer Graphics Techniques 6(1), 1-8 (the journal has no DOIs).
 
     Examples
     --------
@@ -303,6 +412,24 @@ def sample_beckmann_normals(
 
     Beckmann: ``tan^2 theta_h = -sigma^2 ln(1 - u1)``, ``phi = 2 pi u2``
     (Walter et al. 2007, eq. (28)).
+
+    Parameters
+    ----------
+    normals
+        ``(3, m)`` unit normals.
+    roughness
+        Beckmann roughness sigma.
+    rng
+        Generator of the two uniform numbers per normal.
+
+    Returns
+    -------
+    ndarray
+        float32 ``(3, m)`` unit microfacet normals.
+
+    References
+    ----------
+    Walter, B. et al. (2007), doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------
@@ -329,7 +456,19 @@ def sample_beckmann_normals(
 class LobeGroup:
     """Lobes sharing one geometric factor (kind, roughness(es), shadowing); their spectral factors add.
 
-    ``roughness_b`` is the second ellipsoid axis of an anisotropic group.
+    Attributes
+    ----------
+    kind
+        ``"lambert"``, ``"microfacet"`` or ``"anisotropic"``.
+    roughness
+        Beckmann roughness sigma (0 for Lambert; for an anisotropic group
+        the ellipsoid's semi-axis along the yarn).
+    shadowing
+        The microfacet shadowing term (``""`` for Lambert).
+    members
+        ``(weight, spectral factor)`` of each lobe of the group.
+    roughness_b
+        The ellipsoid's semi-axis across the yarn (anisotropic groups).
     """
 
     kind: str
@@ -341,7 +480,19 @@ class LobeGroup:
 
 @dataclass(frozen=True)
 class MaterialPlan:
-    """What a material needs: lobe groups for the lights, mirror lobes, sky-lit lobes."""
+    """What a material needs: lobe groups for the lights, mirror lobes, sky-lit lobes.
+
+    Attributes
+    ----------
+    material
+        The material.
+    groups
+        Its lobes grouped by geometric factor (direct light).
+    mirrors
+        Its mirror lobes (reflect the environment).
+    sky_lobes
+        Its other lobes (lit by the sky through their albedo).
+    """
 
     material: Material
     groups: tuple[LobeGroup, ...]
@@ -361,6 +512,16 @@ def plan_material(material: Material) -> MaterialPlan:
     light through their D term and reflect the environment; the other lobes
     get sky light through their albedo.  A Lambert lobe flagged ``mirror``
     is treated as a plain Lambert lobe.
+
+    Parameters
+    ----------
+    material
+        The material.
+
+    Returns
+    -------
+    MaterialPlan
+        Its lobe groups, mirror lobes and sky-lit lobes.
     """
     groups: dict[tuple[str, float, str, float], list[tuple[float, Any]]] = {}
     mirrors: list[Lobe] = []
@@ -391,8 +552,15 @@ def plan_material(material: Material) -> MaterialPlan:
 class LightPlan:
     """A light prepared for shading.
 
-    ``spectrum`` is ``E(lambda)`` on the grid times the light's intensity
-    relative to the key light's normalising irradiance.
+    Attributes
+    ----------
+    kind
+        ``"directional"`` or ``"point"``.
+    vector
+        ``(3,)`` unit direction toward the light, or its position.
+    spectrum
+        ``E(lambda)`` on the grid times the light's intensity relative to
+        the key light's normalising irradiance, ``(L,)``.
     """
 
     kind: str
@@ -426,6 +594,24 @@ class SpectralBackend:
     sample; sky light on non-mirror lobes reads the directional albedo
     spectra from a table over cos_o (``ALBEDO_TABLE_SIZE`` nodes, the same
     quadrature as the table path).
+
+    Parameters
+    ----------
+    grid
+        Wavelength grid of the spectra (nm).
+    k
+        XYZ normalisation of the key light (a white Lambertian facing it
+        has Y = 1).
+    lights
+        The prepared lights.
+    sky
+        The sky (black: no albedo tables).
+    sky_radiance
+        Sky radiance spectrum per unit scale, ``(L,)``.
+    plans
+        One :class:`MaterialPlan` per global material number.
+    albedo_size
+        Nodes of the directional-albedo tables over cos_o.
     """
 
     def __init__(
@@ -458,12 +644,33 @@ class SpectralBackend:
             self.albedo.append(AngleTable(total * sky_radiance))
 
     def zeros(self, n: int) -> NDArray[np.float64]:
-        """A black colour array for ``n`` samples, ``(n, L)``."""
+        """A black colour array for ``n`` samples.
+
+        Parameters
+        ----------
+        n
+            Number of samples.
+
+        Returns
+        -------
+        ndarray
+            float64 zeros ``(n, L)``.
+        """
         return np.zeros((n, self.channels))
 
     @staticmethod
     def add(out: NDArray[np.float64], idx: NDArray[np.intp] | None, term: NDArray[np.float64]) -> None:
-        """``out[idx] += term`` (all rows when ``idx`` is None)."""
+        """``out[idx] += term`` (all rows when ``idx`` is None).
+
+        Parameters
+        ----------
+        out
+            Colours ``(n, L)``, changed in place.
+        idx
+            Rows to add to, or None for all.
+        term
+            Colours ``(len(idx), L)``.
+        """
         if idx is None:
             out += term
         else:
@@ -471,11 +678,26 @@ class SpectralBackend:
 
     def direct(self, mat: int, light: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, scale: Vec,
                tangential: tuple[Vec, Vec, Vec, Vec] | None = None) -> NDArray[np.float64]:
-        """Radiance from light ``light``: ``material_brdf * E * cos_i * scale``, ``(n, L)``.
+        """Radiance from light ``light``: ``material_brdf * E * cos_i * scale``.
 
-        ``ci, co, ch, cd`` are cos_i, cos_o, cos_h, cos_d; ``scale`` the
-        irradiance scale (falloff and visibility); ``tangential`` the
-        tangent-frame components (i_t, i_b, o_t, o_b) for anisotropic lobes.
+        Parameters
+        ----------
+        mat
+            Global material number.
+        light
+            Light number.
+        ci, co, ch, cd
+            cos_i, cos_o, cos_h, cos_d of the samples, ``(n,)``.
+        scale
+            Irradiance scale (falloff and visibility), ``(n,)``.
+        tangential
+            Tangent-frame components (i_t, i_b, o_t, o_b) for anisotropic
+            lobes.
+
+        Returns
+        -------
+        ndarray
+            float64 spectral radiance ``(n, L)``.
         """
         if tangential is not None:
             tangential = tuple(np.asarray(x, np.float64) for x in tangential)
@@ -485,44 +707,142 @@ class SpectralBackend:
         return f
 
     def has_sky_diffuse(self, mat: int) -> bool:
-        """True when material ``mat`` has non-mirror lobes and the sky is not black."""
+        """True when material ``mat`` has non-mirror lobes and the sky is not black.
+
+        Parameters
+        ----------
+        mat
+            Global material number.
+
+        Returns
+        -------
+        bool
+            Whether :meth:`sky_diffuse` adds anything.
+        """
         return self.albedo[mat] is not None
 
     def sky_diffuse(self, mat: int, cos_o: Vec, factor: Vec) -> NDArray[np.float64]:
-        """Sky light of the non-mirror lobes: albedo(cos_o) * sky spectrum * ``factor``."""
+        """Sky light of the non-mirror lobes: albedo(cos_o) * sky spectrum * ``factor``.
+
+        Parameters
+        ----------
+        mat
+            Global material number.
+        cos_o
+            ``(n,)`` cosines of the view direction.
+        factor
+            ``(n,)`` mean sky scale over each hemisphere.
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
         out = self.albedo[mat].lookup(cos_o).astype(np.float64)
         out *= np.asarray(factor, np.float64)[:, None]
         return out
 
     def mirror_factor(self, mat: int, j: int, cos_d: Vec) -> NDArray[np.float64]:
-        """Spectral factor ``S(cos_d, lambda)`` of mirror lobe ``j``, ``(n, L)``."""
+        """Spectral factor ``S(cos_d, lambda)`` of mirror lobe ``j``.
+
+        Parameters
+        ----------
+        mat
+            Global material number.
+        j
+            Mirror lobe number within the material's plan.
+        cos_d
+            ``(n,)`` cosines of the half vector with the view direction.
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
         lobe = self.plans[mat].mirrors[j]
         return np.asarray(lobe.spectral.reflectance(np.asarray(cos_d, np.float64), self.wavelengths),
                           dtype=np.float64)
 
     def mirror_sky(self, mat: int, j: int, cos_d: Vec, factor: Vec) -> NDArray[np.float64]:
-        """Sky seen in mirror lobe ``j``: ``S(cos_d) * sky spectrum * factor``."""
+        """Sky seen in mirror lobe ``j``: ``S(cos_d) * sky spectrum * factor``.
+
+        Parameters
+        ----------
+        mat, j, cos_d
+            As in :meth:`mirror_factor`.
+        factor
+            ``(n,)`` sky scale along the mirrored rays times the ray weights.
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
         out = self.mirror_factor(mat, j, cos_d) * self.sky_radiance
         out *= np.asarray(factor, np.float64)[:, None]
         return out
 
     def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Spectra ``(n, L)`` as colours of this backend (the same)."""
+        """Spectra ``(n, L)`` as colours of this backend (the same).
+
+        Parameters
+        ----------
+        spectra
+            ``(n, L)`` spectral radiance.
+
+        Returns
+        -------
+        ndarray
+            ``spectra`` itself.
+        """
         return spectra
 
     def background(self, factor: Vec) -> NDArray[np.float64]:
-        """Sky radiance of scale ``factor`` (per sample)."""
+        """Sky radiance of scale ``factor`` (per sample).
+
+        Parameters
+        ----------
+        factor
+            ``(n,)`` sky scales.
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
         return np.asarray(factor, np.float64)[:, None] * self.sky_radiance
 
     def to_xyz(self, colour: NDArray[np.float64]) -> NDArray[np.float32]:
-        """XYZ ``(n, 3)``."""
+        """XYZ of the colours, normalised by ``k``.
+
+        Parameters
+        ----------
+        colour
+            ``(n, L)`` spectral radiance.
+
+        Returns
+        -------
+        ndarray
+            float32 ``(n, 3)``.
+        """
         from processing.spectral.display import spectra_to_xyz
 
         return (self.k * spectra_to_xyz(colour, self.grid)).astype(_F32)
 
 
 class TableBackend:
-    """Colours are XYZ, channel-major ``(3, n)`` float32, from per-(material, light) angular tables."""
+    """Colours are XYZ, channel-major ``(3, n)`` float32, from per-(material, light) angular tables.
+
+    Parameters
+    ----------
+    grid, k, lights, sky, sky_radiance, plans
+        As for :class:`SpectralBackend`.
+    size
+        Nodes of the angular tables over cos_d.
+    spectral
+        The spectral backend of the same scene, for mirror reflections of
+        other objects (formed per wavelength) and the sky's albedo spectra.
+    """
 
     def __init__(
         self,
@@ -568,12 +888,33 @@ class TableBackend:
         self.background_xyz = (k * spectra_to_xyz(sky_radiance, grid)).astype(_F32)
 
     def zeros(self, n: int) -> NDArray[np.float32]:
-        """A black colour array for ``n`` samples, ``(3, n)``."""
+        """A black colour array for ``n`` samples.
+
+        Parameters
+        ----------
+        n
+            Number of samples.
+
+        Returns
+        -------
+        ndarray
+            float32 zeros ``(3, n)``.
+        """
         return np.zeros((3, n), dtype=_F32)
 
     @staticmethod
     def add(out: NDArray[np.float32], idx: NDArray[np.intp] | None, term: NDArray[np.float32]) -> None:
-        """``out[:, idx] += term`` (all columns when ``idx`` is None), one channel at a time."""
+        """``out[:, idx] += term`` (all columns when ``idx`` is None), one channel at a time.
+
+        Parameters
+        ----------
+        out
+            Colours ``(3, n)``, changed in place.
+        idx
+            Columns to add to, or None for all.
+        term
+            Colours ``(3, len(idx))``.
+        """
         if idx is None:
             out += term
         else:
@@ -587,6 +928,21 @@ class TableBackend:
 
         Anisotropic groups (no cut-off: the ellipsoid distribution has long
         tails) use ``tangential`` = (i_t, i_b, o_t, o_b).
+
+        Parameters
+        ----------
+        mat, light, ci, co, ch, cd, scale, tangential
+            As for :meth:`SpectralBackend.direct`.
+
+        Returns
+        -------
+        ndarray
+            float32 XYZ ``(3, n)``.
+
+        Raises
+        ------
+        ValueError
+            An anisotropic lobe without ``tangential``.
         """
         plan = self.plans[mat]
         tables = self.light_tables[mat][light]
@@ -632,33 +988,110 @@ class TableBackend:
         return out
 
     def has_sky_diffuse(self, mat: int) -> bool:
-        """True when material ``mat`` has non-mirror lobes and the sky is not black."""
+        """True when material ``mat`` has non-mirror lobes and the sky is not black.
+
+        Parameters
+        ----------
+        mat
+            Global material number.
+
+        Returns
+        -------
+        bool
+            Whether :meth:`sky_diffuse` adds anything.
+        """
         return self.sky_tables[mat] is not None
 
     def sky_diffuse(self, mat: int, cos_o: Vec, factor: Vec) -> NDArray[np.float32]:
-        """Sky light of the non-mirror lobes from the albedo table, times ``factor``."""
+        """Sky light of the non-mirror lobes from the albedo table, times ``factor``.
+
+        Parameters
+        ----------
+        mat, cos_o, factor
+            As for :meth:`SpectralBackend.sky_diffuse`.
+
+        Returns
+        -------
+        ndarray
+            float32 XYZ ``(3, n)``.
+        """
         term = self.sky_tables[mat].lookup_channels(cos_o)
         return term * np.asarray(factor, _F32)
 
     def mirror_factor(self, mat: int, j: int, cos_d: Vec) -> NDArray[np.float64]:
-        """Spectral factor of mirror lobe ``j`` (per wavelength, for products with reflected spectra)."""
+        """Spectral factor of mirror lobe ``j`` (per wavelength, for products with reflected spectra).
+
+        Parameters
+        ----------
+        mat, j, cos_d
+            As for :meth:`SpectralBackend.mirror_factor`.
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
         return self.spectral.mirror_factor(mat, j, cos_d)
 
     def mirror_sky(self, mat: int, j: int, cos_d: Vec, factor: Vec) -> NDArray[np.float32]:
-        """Sky seen in mirror lobe ``j`` from its sky table, times ``factor``."""
+        """Sky seen in mirror lobe ``j`` from its sky table, times ``factor``.
+
+        Parameters
+        ----------
+        mat, j, cos_d, factor
+            As for :meth:`SpectralBackend.mirror_sky`.
+
+        Returns
+        -------
+        ndarray
+            float32 XYZ ``(3, n)``.
+        """
         term = self.mirror_tables[mat][j].lookup_channels(cos_d)
         return term * np.asarray(factor, _F32)
 
     def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float32]:
-        """XYZ ``(3, n)`` of radiance spectra ``(n, L)``."""
+        """XYZ of radiance spectra.
+
+        Parameters
+        ----------
+        spectra
+            ``(n, L)`` spectral radiance.
+
+        Returns
+        -------
+        ndarray
+            float32 ``(3, n)``.
+        """
         return np.ascontiguousarray(self.spectral.to_xyz(spectra).T)
 
     def background(self, factor: Vec) -> NDArray[np.float32]:
-        """XYZ of the sky radiance of scale ``factor``."""
+        """XYZ of the sky radiance of scale ``factor``.
+
+        Parameters
+        ----------
+        factor
+            ``(n,)`` sky scales.
+
+        Returns
+        -------
+        ndarray
+            float32 ``(3, n)``.
+        """
         return self.background_xyz[:, None] * np.asarray(factor, _F32)
 
     def to_xyz(self, colour: NDArray[np.float32]) -> NDArray[np.float32]:
-        """XYZ ``(n, 3)`` (a transposed view)."""
+        """XYZ rows of the colours.
+
+        Parameters
+        ----------
+        colour
+            ``(3, n)`` XYZ.
+
+        Returns
+        -------
+        ndarray
+            ``(n, 3)``, a transposed view.
+        """
         return colour.T
 
 
@@ -667,10 +1100,33 @@ class TableBackend:
 class ShadingContext:
     """Everything shading needs besides the hits: lights, sky, materials, ray tracer.
 
-    ``cast(rays)`` returns Open3D's ``cast_rays`` answer as NumPy arrays;
-    ``occluded(rays, tfar)`` returns ``test_occlusions``; ``make_hits(rays,
-    answer, rows)`` turns the hit rows of an answer into :class:`Hits`.
     Rays are float32 ``(n, 6)`` rows (origin, direction).
+
+    Attributes
+    ----------
+    lights
+        The prepared lights (the first is the key light).
+    sky
+        The environment.
+    plans
+        One :class:`MaterialPlan` per global material number.
+    offset
+        Distance secondary rays start off the surface (scene units).
+    shadows
+        Cast shadow rays.
+    mirror_bounces
+        Mirror bounces (0 or 1).
+    mirror_rays
+        Jittered rays per rough mirror sample (0: the ideal direction).
+    cast
+        ``cast(rays)``: Open3D's ``cast_rays`` answer as NumPy arrays.
+    occluded
+        ``occluded(rays, tfar)``: ``test_occlusions``.
+    make_hits
+        ``make_hits(rays, answer, rows)``: the hit rows of an answer as
+        :class:`Hits`.
+    stats
+        Counts of shadow rays, mirror rays and secondary hits.
     """
 
     lights: tuple[LightPlan, ...]
@@ -686,6 +1142,15 @@ class ShadingContext:
     stats: dict[str, float] = field(default_factory=dict)
 
     def count(self, key: str, value: float) -> None:
+        """Add ``value`` to the count ``key`` of :attr:`stats`.
+
+        Parameters
+        ----------
+        key
+            Name of the count.
+        value
+            Amount to add.
+        """
         self.stats[key] = self.stats.get(key, 0) + value
 
 
@@ -710,11 +1175,25 @@ def light_samples(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
     """Direction to light ``index``, cos_i and the irradiance scale per hit.
 
-    Returns ``(l, cos_i, scale)``: ``l`` is ``(3,)`` for a directional light
-    and ``(3, m)`` for a point light; ``scale`` includes the inverse-square
-    falloff and the shadow-ray visibility (0 when unlit or shadowed).  Shadow
-    rays start on the light's side of the face, offset along the geometric
-    normal; a point light's ray stops just short of it.
+    Shadow rays start on the light's side of the face, offset along the
+    geometric normal; a point light's ray stops just short of it.
+
+    Parameters
+    ----------
+    ctx
+        The shading context (its ``occluded`` casts the shadow rays).
+    hits
+        The surface samples.
+    index
+        Light number.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(l, cos_i, scale)``: ``l`` is ``(3,)`` for a directional light
+        and ``(3, m)`` for a point light; ``cos_i`` ``(m,)``; ``scale``
+        ``(m,)`` includes the inverse-square falloff and the shadow-ray
+        visibility (0 when unlit or shadowed).
     """
     light = ctx.lights[index]
     m = len(hits)
@@ -770,6 +1249,16 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
         Mirror bounces left (0: mirror lobes see the unoccluded sky).
     rng
         Generator for the rough-mirror jitter.
+
+    Returns
+    -------
+    ndarray
+        The radiance of every hit: spectra ``(m, L)`` or XYZ ``(3, m)``.
+
+    Raises
+    ------
+    ValueError
+        An anisotropic material whose hits carry no tangents.
     """
     m = len(hits)
     out = backend.zeros(m)

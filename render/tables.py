@@ -1,6 +1,6 @@
 """Angular XYZ tables: a lobe's spectral integral, once per (material, light).
 
-DESIGN.md section 5: with fixed light spectra, the spectral part of a lobe
+With fixed light spectra, the spectral part of a lobe
 (Matsuda et al., eq. (2)-(5): a Fresnel reflectance of theta_d, an alloy
 mixture of them, or a pigment reflectance) can be integrated against the
 light spectrum E and the CIE colour-matching functions once, as a function
@@ -23,7 +23,16 @@ grazing) and the critical angle of n < 1 without absorption (not a surface
 seen from air).
 
 The same construction tabulates a lobe's directional albedo against the sky
-spectrum over cos(theta_o) (sky light for non-mirror lobes).
+spectrum over cos(theta_o) (sky light for non-mirror lobes).  docs/rendering.md
+("The table method") gives the measured accuracy.
+
+References
+----------
+Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of
+a craft object based on a light reflection model", IPSJ technical report
+(no DOI).
+CIE 015:2018 Colorimetry (the colour-matching functions),
+doi:10.25039/TR.015.2018.
 
 Examples
 --------
@@ -55,7 +64,15 @@ __all__ = [
 
 @dataclass(frozen=True)
 class TableIndex:
-    """Row and fraction of a set of cosines on an ``N``-node table (shared by all tables of that size)."""
+    """Row and fraction of a set of cosines on an ``N``-node table (shared by all tables of that size).
+
+    Attributes
+    ----------
+    row
+        ``(n,)`` lower node of each cosine, in ``0 .. N - 2``.
+    frac
+        ``(n,)`` float32 position between that node and the next, in [0, 1].
+    """
 
     row: NDArray[np.intp]
     frac: NDArray[np.float32]
@@ -63,6 +80,18 @@ class TableIndex:
 
 def table_index(cos: ArrayLike, size: int) -> TableIndex:
     """Locate ``cos`` (clipped to [0, 1]) on ``size`` uniform nodes.
+
+    Parameters
+    ----------
+    cos
+        Cosines, any shape (float32).
+    size
+        Number of nodes N (>= 2).
+
+    Returns
+    -------
+    TableIndex
+        Rows and fractions, the shape of ``cos``.
 
     Examples
     --------
@@ -117,14 +146,37 @@ class AngleTable:
 
     @classmethod
     def from_function(cls, fn: Callable[[NDArray[np.float64]], NDArray[np.float64]], size: int) -> AngleTable:
-        """Tabulate ``fn(cos) -> (N, C)`` on ``size`` uniform nodes over [0, 1]."""
+        """Tabulate ``fn(cos) -> (N, C)`` on ``size`` uniform nodes over [0, 1].
+
+        Parameters
+        ----------
+        fn
+            Function of the ``(N,)`` node cosines returning ``(N, C)``.
+        size
+            Number of nodes N.
+
+        Returns
+        -------
+        AngleTable
+            The table.
+        """
         nodes = np.linspace(0.0, 1.0, size)
         return cls(np.asarray(fn(nodes), dtype=np.float64).reshape(size, -1))
 
     def lookup_channels(self, cos: ArrayLike | None = None, index: TableIndex | None = None) -> NDArray[np.float32]:
-        """Interpolated values, channel-major float32 ``(C, n)`` (a new, writable array).
+        """Interpolated values, channel-major (a new, writable array).
 
-        Give the cosines ``cos`` or a precomputed ``index`` of this table's size.
+        Parameters
+        ----------
+        cos
+            Cosines (flattened); or None with ``index``.
+        index
+            A precomputed :func:`table_index` of this table's size.
+
+        Returns
+        -------
+        ndarray
+            float32 ``(C, n)``.
         """
         c = self.channels
         if index is None:
@@ -145,7 +197,18 @@ class AngleTable:
         return out
 
     def lookup(self, cos: ArrayLike | None = None, index: TableIndex | None = None) -> NDArray[np.float32]:
-        """Interpolated values at ``cos`` (or at a precomputed ``index``), float32 ``(n, C)``."""
+        """Interpolated values at ``cos`` (or at a precomputed ``index``).
+
+        Parameters
+        ----------
+        cos, index
+            As for :meth:`lookup_channels`.
+
+        Returns
+        -------
+        ndarray
+            float32 ``(n, C)``.
+        """
         return self.lookup_channels(cos, index).T
 
     def __add__(self, other: AngleTable) -> AngleTable:
@@ -158,7 +221,18 @@ class AngleTable:
         raise ValueError(f"cannot add tables of {self.size} and {other.size} nodes")
 
     def scaled(self, factor: float) -> AngleTable:
-        """The table times a constant."""
+        """The table times a constant.
+
+        Parameters
+        ----------
+        factor
+            The constant.
+
+        Returns
+        -------
+        AngleTable
+            A new table.
+        """
         return AngleTable(self.values * factor)
 
 
@@ -231,7 +305,23 @@ def albedo_table(
 ) -> AngleTable:
     """Tabulate ``scale * XYZ(albedo(cos_o, lambda) * sky(lambda))`` over cos_o.
 
-    ``albedo(nodes) -> (N, L)`` is a directional albedo on ``grid``.
+    Parameters
+    ----------
+    albedo
+        ``albedo(nodes) -> (N, L)``, a directional albedo on ``grid``.
+    sky
+        Sky spectrum on ``grid``, ``(L,)``.
+    grid
+        Wavelength grid.
+    scale
+        The renderer's XYZ normalisation k.
+    size
+        Nodes N over cos_o in [0, 1].
+
+    Returns
+    -------
+    AngleTable
+        ``(N, 3)``.
 
     Examples
     --------
@@ -252,7 +342,20 @@ def table_error(
 ) -> tuple[float, float]:
     """Largest absolute and relative (to the table's largest value) interpolation error.
 
-    Evaluated at ``n_test`` cosines midway between and on the nodes.
+    Parameters
+    ----------
+    table
+        The table.
+    exact
+        The tabulated function, ``exact(cos) -> (n, C)``.
+    n_test
+        Number of test cosines, uniform over [0, 1] (on and between the
+        nodes when ``n_test - 1`` is a multiple of ``2 (N - 1)``).
+
+    Returns
+    -------
+    tuple of float
+        Largest absolute error, and that error over the largest ``|exact|``.
 
     Examples
     --------

@@ -19,6 +19,13 @@ normal):
 
 :func:`rotate_tangents` turns the frames about the normals by the weave
 angle (0 vs 45 degrees in Yasuda et al., Fig. 16).
+
+References
+----------
+Yasuda, T., Yokoi, S., Toriwaki, J., Inagaki, K. (1992), "A shading model
+for cloth objects", IEEE CG&A 12(6), 15-24, doi:10.1109/38.163621.
+Lengyel, E. (2012), "Mathematics for 3D Game Programming and Computer
+Graphics", 3rd ed., Course Technology (a book, no DOI).
 """
 
 from __future__ import annotations
@@ -70,6 +77,25 @@ def tangents_from_direction(normals: ArrayLike, direction: ArrayLike = DEFAULT_W
     ``fallback`` (default: the coordinate axis least aligned with
     ``direction``) is projected instead.
 
+    Parameters
+    ----------
+    normals
+        ``(V, 3)`` vertex normals (normalised here).
+    direction
+        The warp direction, a non-zero 3-vector.
+    fallback
+        The direction used where ``direction`` is along the normal.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(V, 3)`` unit tangents.
+
+    Raises
+    ------
+    RenderInputError
+        Bad normals or a zero or non-finite direction.
+
     Examples
     --------
     >>> tangents_from_direction([[0, 0, 1], [0, -1, 1]], (1, 0, 0)).round(6).tolist()
@@ -100,6 +126,23 @@ def tangents_from_field(normals: ArrayLike, field: ArrayLike) -> NDArray[np.floa
     Vertices whose field vector is zero or normal to the surface get the
     projected global :data:`DEFAULT_WARP_DIRECTION`.
 
+    Parameters
+    ----------
+    normals
+        ``(V, 3)`` vertex normals (normalised here).
+    field
+        ``(V, 3)`` directions, any length.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(V, 3)`` unit tangents.
+
+    Raises
+    ------
+    RenderInputError
+        Bad normals, or a field of another shape or with non-finite values.
+
     Examples
     --------
     >>> tangents_from_field([[0, 0, 1], [0, 0, 1]], [[0, 2, 1], [0, 0, 3]]).round(6).tolist()
@@ -128,6 +171,27 @@ def tangents_from_uvs(vertices: ArrayLike, triangles: ArrayLike, uvs: ArrayLike,
     (through the unnormalised solution), summed per vertex and projected
     onto the vertex's tangent plane.  Vertices without a usable UV gradient
     get the projected global :data:`DEFAULT_WARP_DIRECTION`.
+
+    Parameters
+    ----------
+    vertices
+        ``(V, 3)`` positions.
+    triangles
+        ``(T, 3)`` vertex indices.
+    uvs
+        ``(V, 2)`` texture coordinates.
+    normals
+        ``(V, 3)`` vertex normals.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(V, 3)`` unit tangents.
+
+    Raises
+    ------
+    RenderInputError
+        Arrays of mismatched shapes or with non-finite values.
 
     Examples
     --------
@@ -161,6 +225,25 @@ def tangents_from_uvs(vertices: ArrayLike, triangles: ArrayLike, uvs: ArrayLike,
 
 def rotate_tangents(tangents: ArrayLike, normals: ArrayLike, angle_deg: float) -> NDArray[np.float64]:
     """Tangents turned about the normals by ``angle_deg`` (toward b = n x t).
+
+    Parameters
+    ----------
+    tangents
+        ``(V, 3)`` unit tangents orthogonal to the normals.
+    normals
+        ``(V, 3)`` vertex normals (normalised here).
+    angle_deg
+        The weave angle in degrees.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(V, 3)``.
+
+    Raises
+    ------
+    RenderInputError
+        A non-finite angle or bad normals.
 
     Examples
     --------

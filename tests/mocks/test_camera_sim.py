@@ -117,7 +117,6 @@ def test_sensitivities_follow_colour_science():
 
 def test_color_matrix_maps_white_and_fits_the_chart():
     m = xyz_to_camera_matrix(GRID)
-    e = light_spectrum("D65", GRID)
     wp = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
     xyz_w = colour.xy_to_XYZ(wp)
     cam_w = m @ xyz_w

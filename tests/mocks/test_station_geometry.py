@@ -11,23 +11,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mocks.faults import FAULT_NAMES, FaultSpecError, HotFolderFaults, format_faults, parse_faults
 from mocks.noise_seed import angle_key, frame_seed, profile_seed
 from mocks.profiler_firmware import (
     RaycastSource,
     check_sensor_pose,
     default_sensor_to_room,
 )
-from mocks.station import (
-    FAULT_NAMES,
-    FaultSpecError,
-    SimulatedStation,
-    format_faults,
-    parse_faults,
-    placement_pose,
-    rest_on_table,
-    station_sensor_to_room,
-    table_disc,
-)
+from mocks.station import SimulatedStation
+from mocks.station_geometry import placement_pose, rest_on_table, station_sensor_to_room, table_disc
+from mocks.station_requests import StationError
 from mocks.world import World, rotation_z
 
 
@@ -280,7 +273,6 @@ def test_fault_spec_errors_name_the_item(text, words):
 def test_every_listed_fault_exists_on_its_device():
     from mocks.fake_gphoto2 import DEFAULT_FAULTS
     from mocks.faults import Faults
-    from mocks.station import HotFolderFaults
 
     for name in (*FAULT_NAMES["turntable"], *FAULT_NAMES["profiler"]):
         assert hasattr(Faults(), name)
@@ -300,9 +292,19 @@ def test_bad_station_parameters(kw, msg, tmp_path):
         SimulatedStation(box_world(), root=tmp_path / "st", **kw)
 
 
-def test_station_before_start_has_ground_truth_but_no_devices(tmp_path):
-    from mocks.station import StationError
+def test_station_reexports_the_names_of_its_parts():
+    import mocks.faults
+    import mocks.station
+    import mocks.station_geometry
+    import mocks.station_requests
 
+    for module in (mocks.faults, mocks.station_geometry, mocks.station_requests):
+        for name in set(module.__all__) & set(mocks.station.__all__):
+            assert getattr(mocks.station, name) is getattr(module, name)
+    assert set(mocks.station.__all__) <= set(dir(mocks.station))
+
+
+def test_station_before_start_has_ground_truth_but_no_devices(tmp_path):
     st_ = SimulatedStation(box_world(), root=tmp_path / "st", seed=4)
     assert st_.placement == 1 and _is_rigid(st_.pose)
     assert st_.turntable_path == tmp_path / "st" / "turntable"
