@@ -1,4 +1,4 @@
-"""Cost of the colour-pipeline front end on a 24-megapixel RAW: decoding and chart detection (issue #5).
+"""Cost of the colour-pipeline front end on a 24-megapixel RAW: decoding and chart detection.
 
 A 6000 x 4000 RGGB DNG (14 bit) of a ColorChecker Classic lying tilted and turned on the grey
 backdrop is simulated once: the layout of :mod:`processing.camera.chart_layout` is drawn in model units,
@@ -134,8 +134,8 @@ def case_detect(dng: Path, centres: list) -> dict:
     out = {"case": "detect"}
     for mode in ("bin2x2", "demosaic"):
         img = decode_raw(dng, mode=mode)
-        prev_med, _, prev = _median(lambda: preview_srgb8(img))
-        det_med, det_times, det = _median(lambda: detect_chart(prev, "classic24", scale=img.scale))
+        prev_med, _, prev = _median(lambda img=img: preview_srgb8(img))
+        det_med, det_times, det = _median(lambda img=img, prev=prev: detect_chart(prev, "classic24", scale=img.scale))
         err = np.linalg.norm(det.centres - truth, axis=1)
         out[mode] = {"preview_size": [prev.shape[1], prev.shape[0]], "preview_s": prev_med, "detect_s": det_med,
                      "detect_times_s": det_times, "confidence": det.confidence,
@@ -171,7 +171,7 @@ def section(results: dict | None = None) -> list[str]:
     r = results or run_all()
     b, d, det = r["decode-bin2x2"], r["decode-demosaic"], r["detect"]
     lines = [
-        "## RAW decoding and chart detection (issue #5)",
+        "## RAW decoding and chart detection",
         "",
         f"A simulated {r['size'][0]} x {r['size'][1]} (24 MP) RGGB 14-bit DNG ({r['file_mb']:.0f} MB) of a",
         "ColorChecker Classic tilted and turned on the backdrop (`bench/chart_bench.py`).  Each case runs in a",

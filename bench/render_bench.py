@@ -1,4 +1,4 @@
-"""Renderer benchmarks (issue #2): speed ratio to bare ray casting, and the
+"""Renderer benchmarks: speed ratio to bare ray casting, and the
 accuracy/time of each preset and spectral sampling against the reference render.
 
 Run through ``bench/run.py``; each case runs in its own process

@@ -1,4 +1,4 @@
-"""Spectral estimation and material identification (issue #5): held-out accuracy, identification, speed.
+"""Spectral estimation and material identification: held-out accuracy, identification, speed.
 
 Held-out evaluation (the issue's protocol): the estimators are trained on
 the 190 RAW to ACES training reflectances less their near-duplicates of the
@@ -249,7 +249,7 @@ def measure_speed(height: int = 4000, width: int = 6000, repeats: int = 5) -> di
     for name in ("paper", "rootpoly"):
         fit = fit_estimator(name, s["train"], s["sens"], s["d65"], g, noise=NOISE)
         fit.estimate_weights(img[:64])                       # warm-up
-        med, times = median_time(lambda: fit.estimate_weights(img), repeats)
+        med, times = median_time(lambda fit=fit, img=img: fit.estimate_weights(img), repeats)
         out["methods"].append({"method": name, "p": fit.p, "seconds": med, "times": times})
     del img
     img6 = np.random.default_rng(1).uniform(0.0, 1.0, (height, width, 6)).astype(np.float32)
@@ -273,7 +273,7 @@ def section(results: dict) -> list[str]:
     acc, ident, speed = results["accuracy"], results["identification"], results["speed"]
     t = TARGETS
     lines = [
-        "## Spectral estimation and material identification (issue #5)",
+        "## Spectral estimation and material identification",
         "",
         f"`bench/spectral_bench.py`.  Run on: {results['machine']}.",
         "",
