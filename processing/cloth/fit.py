@@ -41,6 +41,7 @@ clipped or dusty pixels.  Uncertainties: the square roots of the diagonal of
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -312,12 +313,30 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
     ClothFitError
         Fewer than 3 angles or 8 pixels, or non-finite data.
     """
-    from scipy.optimize import least_squares
-
     from processing.cloth.presets import CLOTH_PRESETS
 
-    if yarn not in CLOTH_PRESETS:
-        raise ClothFitError(f"unknown yarn preset {yarn!r}; use one of {', '.join(CLOTH_PRESETS)}")
+    _check_measurement(measurement, geometry, yarn, CLOTH_PRESETS)
+    fixed, x0 = _fixed_and_start(dict(CLOTH_PRESETS[yarn]), layers, start)
+    result = _robust_fit(measurement, geometry, fixed, x0, step, max_evaluations)
+    x = result.x.copy()
+    if fixed["warp_fraction"] == 0.5 and x[0] > x[1]:
+        x[[0, 1]] = x[[1, 0]]                   # plain weave of equal yarns: the axes are an unordered pair
+    material = fit_material(x, fixed)
+    meas = measurement.rgb
+    pred = predict_rgb(material, geometry, measurement.angles_deg, measurement.pixels, measurement.cfa_pattern, step,
+                       measurement.passes)
+    sig = _parameter_sigma(result, fixed)
+    rms = float(np.sqrt(np.mean((pred - meas) ** 2)))
+    return ClothFit(dict(zip(FIT_PARAMETERS, map(float, x))), dict(zip(FIT_PARAMETERS, map(float, sig))), fixed,
+                    _fit_spec(yarn, x, fixed), rms, rms / max(float(np.mean(np.abs(meas))), 1e-300), pred,
+                    float(result.cost))
+
+
+def _check_measurement(measurement: SwatchMeasurement, geometry: SwatchGeometry, yarn: str,
+                       presets: Mapping[str, Any]) -> None:
+    """Refuse an unknown yarn, too few angles or pixels, unknown passes and non-finite or black data."""
+    if yarn not in presets:
+        raise ClothFitError(f"unknown yarn preset {yarn!r}; use one of {', '.join(presets)}")
     if measurement.angles_deg.size < 3 or measurement.pixels.shape[0] < 8:
         raise ClothFitError(
             f"a swatch fit needs at least 3 table angles and 8 swatch pixels, got {measurement.angles_deg.size} "
@@ -333,7 +352,11 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
         raise ClothFitError("the swatch responses contain NaN or infinite values")
     if not float(np.mean(meas)) > 0:
         raise ClothFitError("the swatch frames are black (mean response <= 0): check the exposure and the light")
-    preset = dict(CLOTH_PRESETS[yarn])
+
+
+def _fixed_and_start(preset: dict[str, Any], layers: int | None,
+                     start: ArrayLike | None) -> tuple[dict[str, Any], NDArray[np.float64]]:
+    """The parameters held at the preset's values, and the start vector inside the bounds."""
     fixed = {k: preset[k] for k in ("warp_kind", "weft_kind", "warp_fraction", "layers", "rounding", "n", "scattering")}
     fixed["weft_kind"] = fixed["warp_kind"]
     if layers is not None:
@@ -342,6 +365,15 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
           np.array([preset["a_t"], preset["a_b"], 0.8 * preset["specular"], 0.8 * preset["internal"],
                     0.8 * preset["diffuse"], 0.5, 0.5, 0.5]))
     x0 = np.clip(x0, _LOWER + 1e-9, _UPPER - 1e-9)
+    return fixed, x0
+
+
+def _robust_fit(measurement: SwatchMeasurement, geometry: SwatchGeometry, fixed: dict[str, Any],
+                x0: NDArray[np.float64], step: float, max_evaluations: int) -> Any:
+    """``scipy.optimize.least_squares`` (soft-L1) of the scaled residuals plus the energy penalty."""
+    from scipy.optimize import least_squares
+
+    meas = measurement.rgb
     scale = 0.01 * np.abs(meas) + 0.002 * float(np.mean(np.abs(meas)))
 
     def residual(x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -353,32 +385,31 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
         excess = max(0.0, float(np.sum(x[2:5])) - 1.0)     # energy: specular + internal + diffuse <= 1
         return np.append(((pred - meas) / scale).ravel(), 1e3 * excess)
 
-    result = least_squares(residual, x0, bounds=(_LOWER, _UPPER), loss="soft_l1", f_scale=3.0,
-                           x_scale=np.array([0.05, 0.1, 0.05, 0.05, 0.05, 0.1, 0.1, 0.1]),
-                           max_nfev=max_evaluations, diff_step=1e-4)
-    x = result.x.copy()
-    if fixed["warp_fraction"] == 0.5 and x[0] > x[1]:
-        x[[0, 1]] = x[[1, 0]]                   # plain weave of equal yarns: the axes are an unordered pair
-    material = fit_material(x, fixed)
-    pred = predict_rgb(material, geometry, measurement.angles_deg, measurement.pixels, measurement.cfa_pattern, step,
-                       measurement.passes)
+    return least_squares(residual, x0, bounds=(_LOWER, _UPPER), loss="soft_l1", f_scale=3.0,
+                         x_scale=np.array([0.05, 0.1, 0.05, 0.05, 0.05, 0.1, 0.1, 0.1]),
+                         max_nfev=max_evaluations, diff_step=1e-4)
+
+
+def _parameter_sigma(result: Any, fixed: dict[str, Any]) -> NDArray[np.float64]:
+    """One-sigma uncertainties: the diagonal of ``s^2 (J^T J)^-1``, in the order of the reported values."""
     r = result.fun[:-1]
-    dof = max(r.size - x.size, 1)
+    dof = max(r.size - result.x.size, 1)
     jac = result.jac[:-1]
     if fixed["warp_fraction"] == 0.5 and result.x[0] > result.x[1]:
         jac = jac[:, [1, 0, 2, 3, 4, 5, 6, 7]]
     try:
         cov = np.linalg.pinv(jac.T @ jac) * float(np.sum(r * r) / dof)
-        sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        return np.sqrt(np.clip(np.diag(cov), 0.0, None))
     except np.linalg.LinAlgError:
-        sig = np.full(x.size, np.nan)
-    rms = float(np.sqrt(np.mean((pred - meas) ** 2)))
+        return np.full(result.x.size, np.nan)
+
+
+def _fit_spec(yarn: str, x: NDArray[np.float64], fixed: dict[str, Any]) -> str:
+    """The material spec string of fitted values ``x``."""
     hexa = "#" + "".join(f"{round(v * 255):02x}" for v in x[5:8])
-    spec = (f"{yarn}:a_t={x[0]:.4g},a_b={x[1]:.4g},weft_a_t={x[0]:.4g},weft_a_b={x[1]:.4g},"
+    return (f"{yarn}:a_t={x[0]:.4g},a_b={x[1]:.4g},weft_a_t={x[0]:.4g},weft_a_b={x[1]:.4g},"
             f"specular={x[2]:.4g},internal={x[3]:.4g},diffuse={x[4]:.4g},layers={fixed['layers']},"
             f"warp_colour={hexa},weft_colour={hexa},weft_kind={fixed['weft_kind']}")
-    return ClothFit(dict(zip(FIT_PARAMETERS, map(float, x))), dict(zip(FIT_PARAMETERS, map(float, sig))), fixed,
-                    spec, rms, rms / max(float(np.mean(np.abs(meas))), 1e-300), pred, float(result.cost))
 
 
 def choose_layers(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn: str = "silk",

@@ -65,22 +65,37 @@ def _geometry_nodes(
     co = cos_o[:, None, None]
     cphi, sphi = np.cos(phi)[None, None, :], np.sin(phi)[None, None, :]
     if lobe.kind == "lambert":
-        u = 0.5 * (x + 1.0)  # u = cos^2(theta_i) in [0, 1]
-        wu = 0.5 * wx
-        ci = np.sqrt(u)[None, :, None]
-        si = np.sqrt(1.0 - u)[None, :, None]
-        hx, hy, hz = si * cphi + sin_o, si * sphi, ci + co
-        norm = np.sqrt(hx * hx + hy * hy + hz * hz)
-        safe = np.where(norm > 0, norm, 1.0)
-        cos_h = np.where(norm > 0, hz / safe, 1.0)
-        cos_d = np.where(norm > 0, (si * cphi * hx + si * sphi * hy + ci * hz) / safe, 0.0)
-        weights = (0.5 * wu)[None, :, None] * w_phi * np.ones_like(cphi)
-        # f cos_i d omega = f (du dphi / 2); f is the BRDF, so weights carry no cos_i.
-        cos_i = np.broadcast_to(ci, np.broadcast_shapes(ci.shape, co.shape, cphi.shape))
-        return cos_i, np.broadcast_to(cos_h, cos_i.shape), np.broadcast_to(cos_d, cos_i.shape), (
-            np.broadcast_to(weights, cos_i.shape) * 1.0
-        )
-    sigma = lobe.roughness
+        return _incident_nodes(x, wx, w_phi, sin_o, co, cphi, sphi)
+    return _half_vector_nodes(lobe.roughness, x, wx, w_phi, sin_o, co, cphi)
+
+
+def _incident_nodes(
+    x: NDArray[np.float64], wx: NDArray[np.float64], w_phi: float, sin_o: NDArray[np.float64],
+    co: NDArray[np.float64], cphi: NDArray[np.float64], sphi: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], ...]:
+    """Nodes of a Lambert lobe: Gauss-Legendre in u = cos^2(theta_i), midpoint rule in phi."""
+    u = 0.5 * (x + 1.0)  # u = cos^2(theta_i) in [0, 1]
+    wu = 0.5 * wx
+    ci = np.sqrt(u)[None, :, None]
+    si = np.sqrt(1.0 - u)[None, :, None]
+    hx, hy, hz = si * cphi + sin_o, si * sphi, ci + co
+    norm = np.sqrt(hx * hx + hy * hy + hz * hz)
+    safe = np.where(norm > 0, norm, 1.0)
+    cos_h = np.where(norm > 0, hz / safe, 1.0)
+    cos_d = np.where(norm > 0, (si * cphi * hx + si * sphi * hy + ci * hz) / safe, 0.0)
+    weights = (0.5 * wu)[None, :, None] * w_phi * np.ones_like(cphi)
+    # f cos_i d omega = f (du dphi / 2); f is the BRDF, so weights carry no cos_i.
+    cos_i = np.broadcast_to(ci, np.broadcast_shapes(ci.shape, co.shape, cphi.shape))
+    return cos_i, np.broadcast_to(cos_h, cos_i.shape), np.broadcast_to(cos_d, cos_i.shape), (
+        np.broadcast_to(weights, cos_i.shape) * 1.0
+    )
+
+
+def _half_vector_nodes(
+    sigma: float, x: NDArray[np.float64], wx: NDArray[np.float64], w_phi: float, sin_o: NDArray[np.float64],
+    co: NDArray[np.float64], cphi: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], ...]:
+    """Nodes of a microfacet lobe of RMS slope ``sigma``: over the half vector, up to the horizon cut."""
     # omega_i = 2 (o.h) h - o is above the horizon exactly for theta_h below
     # theta_cut(phi_h), where cos(2 theta) cos_o + sin(2 theta) cos(phi) sin_o = 0;
     # integrating up to it keeps the integrand smooth on the whole domain.

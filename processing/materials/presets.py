@@ -249,7 +249,60 @@ def _ranges(preset: _Preset) -> dict[str, tuple[float, float, bool]]:
     return _RANGES
 
 
+def _metal_fraction(name: str, canon: str, text: str) -> float:
+    """The metal fraction ``text`` of an override as a float >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        hint = "a metal fraction must be a number >= 0"
+        raise MaterialError(f"{name}: {canon}={text!r} is not a number; {hint}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise MaterialError(
+            f"{name}: {canon}={text} is not valid; a metal fraction must be >= 0 "
+            "(fractions or percent, normalised to sum 1)"
+        )
+    return value
+
+
+def _parameter_value(name: str, preset: _Preset, canon: str, text: str) -> Any:
+    """The value of the model parameter ``canon`` given as ``text``, checked against its range."""
+    if preset.family == "cloth" and CLOTH_PARAMETERS[canon][3] is None:
+        return text        # yarn kinds and colours: checked by the builder
+    if canon == "shadowing":
+        if text.lower() not in SHADOWING_MODELS:
+            raise MaterialError(
+                f"{name}: shadowing={text!r} is not valid; use one of: {', '.join(SHADOWING_MODELS)}"
+            )
+        return text.lower()
+    try:
+        value = float(text)
+    except ValueError:
+        lo, hi, open_low = _ranges(preset)[canon]
+        hint = f"valid range is {'(' if open_low else '['}{lo:g}, {hi:g}]"
+        raise MaterialError(f"{name}: {canon}={text!r} is not a number; {hint}") from None
+    lo, hi, open_low = _ranges(preset)[canon]
+    ok = math.isfinite(value) and (value > lo if open_low else value >= lo) and value <= hi
+    if not ok:
+        rng = f"({lo:g}, {hi:g}]" if open_low else f"[{lo:g}, {hi:g}]"
+        raise MaterialError(f"{name}: {canon}={text} is out of range; valid range is {rng}")
+    return value
+
+
+def _check_energy(name: str, preset: _Preset, params: dict[str, Any]) -> None:
+    """Refuse lobe weights whose sum exceeds 1 (energy conservation)."""
+    energy_keys = {"dielectric": ("diffuse", "gloss", "mirror"), "cloth": ("specular", "internal", "diffuse")}.get(
+        preset.family, ("gloss", "mirror"))
+    total = sum(float(params[k]) for k in energy_keys)
+    if total > 1.0 + 1e-12:
+        terms = " + ".join(f"{k}={params[k]:g}" for k in energy_keys)
+        raise MaterialError(
+            f"{name}: {terms} = {total:g} exceeds 1 (energy conservation); valid range of the sum "
+            f"is [0, 1], e.g. lower {energy_keys[-1]}"
+        )
+
+
 def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] | None]:
+    """Preset name, preset, parameter values and composition override of ``spec``, all checked."""
     name, raw = parse_material_spec(spec)
     preset = _PRESETS[name]
     valid = _valid_keys(preset)
@@ -262,51 +315,14 @@ def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] 
             raise MaterialError(
                 f"{name}: unknown parameter {key!r}; valid parameters: {', '.join(valid)}"
             )
-        if preset.family == "cloth" and CLOTH_PARAMETERS[canon][3] is None:
-            params[canon] = text        # yarn kinds and colours: checked by the builder
-            continue
-        if canon == "shadowing":
-            if text.lower() not in SHADOWING_MODELS:
-                raise MaterialError(
-                    f"{name}: shadowing={text!r} is not valid; use one of: {', '.join(SHADOWING_MODELS)}"
-                )
-            params[canon] = text.lower()
-            continue
-        try:
-            value = float(text)
-        except ValueError:
-            if canon in METALS:
-                hint = "a metal fraction must be a number >= 0"
-            else:
-                lo, hi, open_low = _ranges(preset)[canon]
-                hint = f"valid range is {'(' if open_low else '['}{lo:g}, {hi:g}]"
-            raise MaterialError(f"{name}: {canon}={text!r} is not a number; {hint}") from None
         if canon in METALS:
-            if not (math.isfinite(value) and value >= 0):
-                raise MaterialError(
-                    f"{name}: {canon}={text} is not valid; a metal fraction must be >= 0 "
-                    "(fractions or percent, normalised to sum 1)"
-                )
             composition = {} if composition is None else composition
-            composition[canon] = value
+            composition[canon] = _metal_fraction(name, canon, text)
             continue
-        lo, hi, open_low = _ranges(preset)[canon]
-        ok = math.isfinite(value) and (value > lo if open_low else value >= lo) and value <= hi
-        if not ok:
-            rng = f"({lo:g}, {hi:g}]" if open_low else f"[{lo:g}, {hi:g}]"
-            raise MaterialError(f"{name}: {canon}={text} is out of range; valid range is {rng}")
-        params[canon] = value
+        params[canon] = _parameter_value(name, preset, canon, text)
     if composition is not None and sum(composition.values()) <= 0:
         raise MaterialError(f"{name}: the metal fractions sum to 0; give at least one positive fraction")
-    energy_keys = {"dielectric": ("diffuse", "gloss", "mirror"), "cloth": ("specular", "internal", "diffuse")}.get(
-        preset.family, ("gloss", "mirror"))
-    total = sum(float(params[k]) for k in energy_keys)
-    if total > 1.0 + 1e-12:
-        terms = " + ".join(f"{k}={params[k]:g}" for k in energy_keys)
-        raise MaterialError(
-            f"{name}: {terms} = {total:g} exceeds 1 (energy conservation); valid range of the sum "
-            f"is [0, 1], e.g. lower {energy_keys[-1]}"
-        )
+    _check_energy(name, preset, params)
     return name, preset, params, composition
 
 
