@@ -1,28 +1,17 @@
 """Directional albedo of a material: the hemispherical integral of BRDF * cos_i.
 
-    a(omega_o, lambda) = integral over the upper hemisphere of
-                         f(omega_i, omega_o, lambda) cos(theta_i) d omega_i
+    a(omega_o, lambda) = integral f(omega_i, omega_o, lambda) cos(theta_i) d omega_i
 
-Energy conservation requires a <= 1 at every viewing direction.  The
-renderer also uses a(cos_o) for sky (uniform environment) lighting tables.
+Energy conservation requires a <= 1 at every viewing direction; the
+renderer also uses a(cos_o) for sky lighting tables.  Lambert lobes are
+integrated over the incident hemisphere, microfacet lobes over the half
+vector (so the narrow peak of D is resolved at any roughness);
+docs/materials.md, section "Directional albedo", gives the quadrature.
 
-Quadrature, per lobe (Pharr, Jakob & Humphreys, "Physically Based
-Rendering", 3rd ed., section 14.1 for the half-vector change of variables):
-
-* Lambert lobes are integrated over the incident hemisphere with
-  Gauss-Legendre nodes in u = cos^2(theta_i) (cosine-weighted: d omega cos
-  = du dphi / 2) and the midpoint rule in phi;
-* microfacet lobes are integrated over the half vector h, with
-  d omega_i = 4 (omega_o . h) d omega_h and omega_i the mirror of omega_o
-  about h, so the narrow peak of D is resolved at any roughness:
-  theta_h = arctan(sigma s) with Gauss-Legendre nodes in s over [0, s_max],
-  where s_max is 6.5 (the Beckmann factor exp(-s^2) is below 5e-19 beyond)
-  or less where omega_i reaches the horizon (so the quadrature never
-  straddles the horizon cut), and the midpoint rule in phi_h.
-
-The integrand is the generic lobe (:func:`processing.materials.lobes.lobe_geometry`
-times the lobe's spectral factor); the integrand is symmetric about the plane
-of incidence, so phi runs over [0, pi] and is doubled.
+References
+----------
+.. [1] Pharr, Jakob, Humphreys, "Physically Based Rendering", 3rd ed.,
+   section 14.1 (book, no DOI).
 """
 
 from __future__ import annotations
@@ -130,9 +119,30 @@ def lobe_albedo(
     n_theta: int = 48,
     n_phi: int = 48,
 ) -> NDArray[np.float64]:
-    """Directional albedo of one lobe, including its weight.
+    """Directional albedo of one isotropic lobe, including its weight.
 
-    Parameters and result as in :func:`directional_albedo`.
+    Parameters
+    ----------
+    lobe
+        A Lambert or microfacet lobe.
+    cos_o
+        Cosines of the viewing angle in [0, 1], any shape.
+    wavelengths
+        1-D wavelengths in nm, L of them.
+    n_theta, n_phi
+        Quadrature nodes in the polar and azimuthal directions (>= 4).
+
+    Returns
+    -------
+    ndarray
+        Shape ``shape(cos_o) + (L,)``: the fraction of incident energy the
+        lobe reflects.
+
+    Raises
+    ------
+    ValueError
+        Node counts below 4, ``cos_o`` outside [0, 1] or non-finite, or
+        wavelengths that are not a non-empty 1-D array.
 
     Examples
     --------
@@ -212,6 +222,11 @@ def directional_albedo(
     ndarray
         Shape ``shape(cos_o) + (L,)``: the fraction of incident energy
         reflected (<= 1 for an energy-conserving material).
+
+    Raises
+    ------
+    ValueError
+        Not a Material or Lobe, or bad arguments as for :func:`lobe_albedo`.
 
     Examples
     --------

@@ -1,18 +1,27 @@
-"""The registry of material presets: metals, alloys and lacquers of Meiji metalwork.
+"""The registry of material presets: metals, alloys, lacquers and cloths, built from spec strings.
 
 The object of Matsuda et al. ("Twelve Hawks", Suzuki Chokichi, 1893) is
 bronze inlaid with gold, silver, shakudo and oborogin (shibuichi), with an
-urushi-lacquered beak; these presets cover it and a few more metals.  Each
-preset is a model of :mod:`processing.materials.metal_model` (eq. 2-4) or
-:mod:`processing.materials.dielectric_model` (eq. 5) with named parameters, which a
-spec string can override::
+urushi-lacquered beak; these presets cover it, a few more metals and the
+cloths of Yasuda et al.  A spec string names a preset and overrides its
+parameters::
 
     gold
     gold:roughness=0.2,gloss=1,mirror=0,shadowing=smith
     bronze:Cu=0.9,Sn=0.1
-    urushi-red:n=1.52,mirror=0.2
+    urushi-red:n=1.52,mirror=0.1
 
-Parameters, their defaults and sources are listed in docs/materials.md.
+Parameters, their defaults and sources are listed in docs/materials.md,
+sections "Using a preset", "Parameters" and "Presets".
+
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI).
+.. [2] Yasuda, Yokoi, Toriwaki, Inagaki, "A shading model for cloth
+   objects", IEEE Computer Graphics and Applications 12(6), 15-24 (1992),
+   doi:10.1109/38.163621.
 """
 
 from __future__ import annotations
@@ -48,7 +57,11 @@ __all__ = [
 
 
 class MaterialError(InputError):
-    """A material spec names an unknown material or parameter, or a bad value."""
+    """A material spec names an unknown material or parameter, or a bad value.
+
+    An :class:`processing.errors.InputError` (a ``ValueError``); the message
+    lists the valid names, the valid parameters or the valid range.
+    """
 
 
 @dataclass(frozen=True)
@@ -175,6 +188,11 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
 def list_materials() -> list[str]:
     """Names of all presets, in registry order.
 
+    Returns
+    -------
+    list of str
+        Metals, alloys, lacquers, then cloths.
+
     Examples
     --------
     >>> list_materials()[:3]
@@ -185,6 +203,21 @@ def list_materials() -> list[str]:
 
 def preset_source(name: str) -> str:
     """Source of a preset's optical data or composition.
+
+    Parameters
+    ----------
+    name
+        A preset name (case, spaces and underscores ignored).
+
+    Returns
+    -------
+    str
+        The citation or description of the source.
+
+    Raises
+    ------
+    MaterialError
+        Unknown preset (the message lists the valid names).
 
     Examples
     --------
@@ -211,7 +244,23 @@ def _valid_keys(preset: _Preset) -> list[str]:
 def parse_material_spec(spec: str) -> tuple[str, dict[str, str]]:
     """Split ``"name:key=value,..."`` into the preset name and raw overrides.
 
-    Parameter names keep the spelling given; values stay strings.
+    Parameters
+    ----------
+    spec
+        ``"name"`` or ``"name:key=value,key=value"``.
+
+    Returns
+    -------
+    name : str
+        The canonical preset name.
+    overrides : dict of str to str
+        Parameter names as spelt in the spec, values as strings (unchecked).
+
+    Raises
+    ------
+    MaterialError
+        An empty spec, an unknown preset, an item that is not ``key=value``,
+        or a parameter given twice.
 
     Examples
     --------
@@ -350,6 +399,12 @@ def get_material(spec: str) -> Material:
         parameter (lists the valid parameters) or a value out of range
         (states the range).
 
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (2)-(5) (no DOI).
+    .. [2] Yasuda, Yokoi, Toriwaki, Inagaki, IEEE CG&A 12(6), 15-24 (1992),
+       doi:10.1109/38.163621.
+
     Examples
     --------
     >>> m = get_material("gold:roughness=0.2,gloss=1,mirror=0")
@@ -384,6 +439,11 @@ def material_parameters(name: str) -> dict[str, ParameterInfo]:
     dict
         Parameter name -> :class:`ParameterInfo`; the same keys as
         ``get_material(name).parameters``.
+
+    Raises
+    ------
+    MaterialError
+        As :func:`get_material`.
 
     Examples
     --------

@@ -1,43 +1,18 @@
 """An object's pixels split into candidate material regions without ground truth.
 
 Matsuda et al., section 4.2, identify one material per region; this module
-provides the regions when no label image exists (docs/batch.md, "materials"):
+provides the regions when no label image exists: the booth backdrop is
+measured on the frame's border ring and removed, dark pixels are dropped,
+and the lit object pixels are clustered by the chromaticity of a small
+window around each.  docs/materials.md, section "Regions without ground
+truth", gives the steps and their limits; docs/batch.md, section "The
+materials step", how the batch pipeline uses them.
 
-1. **Levels.** The input is the chart-calibrated camera RGB divided by the
-   camera RGB of a white diffuser lit like the chart (``rel``: 1.0 = white).
-2. **Backdrop.** The object sits in the middle of the frame on a uniform
-   booth backdrop, so the frame's border ring shows the backdrop.  Its median
-   level and chromaticity are measured there; pixels within a factor
-   ``backdrop_factor`` of that level *and* within ``backdrop_chroma`` of its
-   chromaticity are backdrop.
-3. **Lit pixels.** Of the rest, pixels masked in the RAW (saturated, dead) or
-   whose brightest channel is below ``min_level`` of the white are dropped: a
-   glossy metal away from its highlights is black and carries noise, not
-   colour.
-4. **Clusters.** The remaining pixels are clustered by k-means on the
-   chromaticity ``rgb / sum(rgb)`` of the summed RGB of the lit pixels in a
-   small window around each (a mirror highlight may light a single photosite
-   of a colour-filter cell, so one pixel's own colour can be one channel) (brightness left out: across a metal region
-   it follows the angle to the highlight, the colour hardly).  The caller then
-   identifies each cluster and merges clusters whose identification agrees.
-
-Limits: an object region whose colour and brightness match the backdrop's
-is taken for backdrop; regions of one chromaticity but different materials
-(a grey alloy next to silver) fall into one cluster; regions with no lit
-pixel are not seen at all; the border ring must show only backdrop; within
-``smooth`` pixels of a boundary between two lit regions the window mixes
-their colours, so those pixels may fall into either cluster (or a third).
-
-Examples
---------
->>> rel = np.full((20, 20, 3), 0.05)
->>> rel[5:15, 5:10] = (0.6, 0.4, 0.1)        # a gold-like patch
->>> rel[5:15, 12:17] = (0.1, 0.2, 0.5)       # a blue patch, two pixels apart
->>> seg = segment_regions(rel, np.ones((20, 20), bool), clusters=2)
->>> sorted(np.bincount(seg.labels.ravel()).tolist())
-[50, 50, 300]
->>> int(seg.backdrop.sum())
-300
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI), section 4.2.
 """
 
 from __future__ import annotations
@@ -91,6 +66,16 @@ def border_backdrop(rel: ArrayLike, mask: ArrayLike, border: float = 0.06) -> ND
     border
         Width of the ring as a fraction of the shorter side (at least one pixel).
 
+    Returns
+    -------
+    ndarray
+        ``(3,)`` median level per channel (1.0 = white diffuser).
+
+    Raises
+    ------
+    SegmentationError
+        The ring holds no usable (unmasked, finite) pixel.
+
     Examples
     --------
     >>> rel = np.full((10, 10, 3), 0.05); rel[3:7, 3:7] = 0.8
@@ -113,7 +98,13 @@ def border_backdrop(rel: ArrayLike, mask: ArrayLike, border: float = 0.06) -> ND
 def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_level: float = 0.005,
                     backdrop_factor: float = 1.6, backdrop_chroma: float = 0.06, min_pixels: int = 8,
                     border: float = 0.06, smooth: int = 2, seed: int = 0) -> Segmentation:
-    """Backdrop removed, lit object pixels clustered by chromaticity (module text).
+    """Backdrop removed, lit object pixels clustered by chromaticity.
+
+    The backdrop is measured on the frame's border ring; pixels near its
+    level and chromaticity are backdrop.  Of the rest, masked pixels and
+    pixels darker than ``min_level`` are dropped, and the lit pixels are
+    clustered by k-means on the chromaticity of the summed RGB in a small
+    window around each (docs/materials.md, "Regions without ground truth").
 
     Parameters
     ----------
@@ -141,6 +132,25 @@ def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_l
     Returns
     -------
     Segmentation
+        Labels (1 the largest cluster, 0 not a lit object pixel), backdrop
+        mask, backdrop level and cluster chromaticities.
+
+    Raises
+    ------
+    SegmentationError
+        Mismatched shapes, a parameter out of range, or a border ring
+        without usable pixels.
+
+    Examples
+    --------
+    >>> rel = np.full((20, 20, 3), 0.05)
+    >>> rel[5:15, 5:10] = (0.6, 0.4, 0.1)        # a gold-like patch
+    >>> rel[5:15, 12:17] = (0.1, 0.2, 0.5)       # a blue patch, two pixels apart
+    >>> seg = segment_regions(rel, np.ones((20, 20), bool), clusters=2)
+    >>> sorted(np.bincount(seg.labels.ravel()).tolist())
+    [50, 50, 300]
+    >>> int(seg.backdrop.sum())
+    300
     """
     x = np.asarray(rel, dtype=np.float64)
     m = np.asarray(mask, dtype=bool)
