@@ -26,8 +26,11 @@ from typing import Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.cloth.anisotropic_microfacet import anisotropic_lobe, check_axes
 from processing.materials.microfacet import microfacet_lobe
+
+# processing.cloth.anisotropic_microfacet is imported where it is used: its package's
+# front door imports cloth modules that need this module, so a module-level import
+# here would make ``import processing.materials`` circular.
 
 __all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter"]
 
@@ -121,6 +124,8 @@ class Lobe:
         if self.kind not in ("lambert", "microfacet", "anisotropic"):
             raise ValueError(f"lobe kind {self.kind!r} is not 'lambert', 'microfacet' or 'anisotropic'")
         if self.kind == "anisotropic":
+            from processing.cloth.anisotropic_microfacet import check_axes
+
             check_axes(self.roughness, self.roughness_b, "anisotropic lobe")
             if self.mirror:
                 raise ValueError("an anisotropic lobe cannot be a mirror lobe")
@@ -264,6 +269,8 @@ def lobe_geometry(
         shape = np.broadcast_shapes(ci.shape, co.shape)
         return np.where((ci > 0) & (co > 0), 1.0 / np.pi, 0.0) * np.ones(shape)
     if lobe.kind == "anisotropic":
+        from processing.cloth.anisotropic_microfacet import anisotropic_lobe
+
         if tangential is None:
             raise ValueError(
                 "an anisotropic lobe needs the tangent-frame components (i_t, i_b, o_t, o_b) of the light and "
