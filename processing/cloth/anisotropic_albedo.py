@@ -3,24 +3,18 @@
     a(omega_o, lambda) = integral f(omega_i, omega_o, lambda) cos(theta_i) d omega_i
 
 For an anisotropic lobe it depends on the azimuth of the view relative to
-the yarn as well as on its elevation.  Quadrature over the half vector
-(Pharr, Jakob & Humphreys, "Physically Based Rendering", 3rd ed., 14.1):
-with ``d omega_i = 4 (o.h) d omega_h``,
+the yarn as well as on its elevation.  The quadrature runs over the half
+vector in the scaled slopes of the ellipsoid distribution, where its
+measure is uniform, so it resolves the lobe at any axes (1e-4 to 1e2);
+docs/cloth.md, section "Albedo of an anisotropic lobe", gives it.
 
-    a = integral F(o.h) G2 (o.h) / (cos_o cos_h) * D(h) cos_h d omega_h.
-
-The measure ``D(h) cos_h d omega_h`` of the ellipsoid distribution
-(anisotropic Trowbridge-Reitz) is, in slopes scaled by the axes
-(u, v) = (-h_t / (a_t h_n), -h_b / (a_b h_n)), the radial density
-``1 / (pi (1 + r^2)^2) du dv``; with ``q = r^2 / (1 + r^2)`` it is uniform,
-``dq dphi / (2 pi)`` on [0, 1) x [0, 2 pi) (Heitz 2014, section 5).  So
-Gauss-Legendre nodes in q and the midpoint rule in phi resolve the lobe at
-any axes (1e-4 to 1e2).  Lambert lobes contribute their weight times their
-reflectance (1 at every incidence, 0 exactly at grazing).
-
-The angle-dependent spectral factors are evaluated on a fine table in
-cos_d and interpolated (each node's weight split between its two table
-neighbours), as in :mod:`processing.materials.albedo`.
+References
+----------
+.. [1] Heitz, "Understanding the masking-shadowing function in
+   microfacet-based BRDFs", Journal of Computer Graphics Techniques 3(2),
+   48-107 (2014), section 5.
+.. [2] Pharr, Jakob, Humphreys, "Physically Based Rendering", 3rd ed.,
+   section 14.1 (book, no DOI).
 """
 
 from __future__ import annotations
@@ -39,6 +33,7 @@ _TABLE_NODES = 2049
 
 
 def _nodes(n_q: int, n_phi: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Gauss-Legendre nodes and weights in q on [0, 1) and midpoint azimuths on [0, 2 pi)."""
     x, w = np.polynomial.legendre.leggauss(n_q)
     q = 0.5 * (x + 1.0)
     wq = 0.5 * w
@@ -90,6 +85,7 @@ def _lobe_cd_weights(lobe: Lobe, wo: NDArray[np.float64], n_q: int, n_phi: int) 
 
 
 def _directions(cos_o: ArrayLike, phi_o: ArrayLike) -> NDArray[np.float64]:
+    """``(N, 3)`` unit view directions in the frame (t, b, n) from their elevation cosines and azimuths."""
     c = np.asarray(cos_o, dtype=np.float64).reshape(-1)
     p = np.broadcast_to(np.asarray(phi_o, dtype=np.float64).reshape(-1), c.shape) if np.ndim(phi_o) else np.full(
         c.shape, float(phi_o))
@@ -115,9 +111,21 @@ def anisotropic_lobe_albedo(
     phi_o
         View azimuth from the tangent t (radians), scalar or one per cos_o.
     wavelengths
-        nm.
+        Wavelengths in nm, L of them.
     n_q, n_phi
         Quadrature nodes (>= 4).
+
+    Returns
+    -------
+    ndarray
+        ``(N, L)``: the fraction of incident energy the lobe reflects (its
+        weight not applied).
+
+    Raises
+    ------
+    ValueError
+        A lobe that is not anisotropic, node counts below 4, ``cos_o``
+        outside [0, 1] or a non-finite ``phi_o``.
 
     Examples
     --------
@@ -142,7 +150,34 @@ def material_albedo(
     material: Material, cos_o: ArrayLike, phi_o: ArrayLike, wavelengths: ArrayLike, *, n_q: int = 64,
     n_phi: int = 96
 ) -> NDArray[np.float64]:
-    """Directional albedo ``(N, L)`` of a material of Lambert and anisotropic lobes (weights included).
+    """Directional albedo of a material of Lambert and anisotropic lobes (weights included).
+
+    Isotropic microfacet lobes, if any, go through
+    :func:`processing.materials.albedo.directional_albedo`.
+
+    Parameters
+    ----------
+    material
+        The material (a cloth, typically).
+    cos_o
+        Cosines of the view elevation, in [0, 1], N of them.
+    phi_o
+        View azimuth from the tangent t (radians), scalar or one per cos_o.
+    wavelengths
+        Wavelengths in nm, L of them.
+    n_q, n_phi
+        Quadrature nodes of the anisotropic lobes (>= 4).
+
+    Returns
+    -------
+    ndarray
+        ``(N, L)``: the fraction of incident energy reflected (<= 1 for an
+        energy-conserving material).
+
+    Raises
+    ------
+    ValueError
+        Bad directions or node counts, as for :func:`anisotropic_lobe_albedo`.
 
     Examples
     --------
@@ -174,12 +209,35 @@ def material_albedo(
 
 def azimuth_mean_albedo(lobe: Lobe, cos_o: ArrayLike, wavelengths: ArrayLike, *, n_azimuth: int = 4,
                         n_q: int = 16, n_phi: int = 24) -> NDArray[np.float64]:
-    """Albedo ``(N, L)`` of an anisotropic lobe averaged over the view azimuth (without its weight).
+    """Albedo of an anisotropic lobe averaged over the view azimuth (without its weight).
 
     Used for sky light, which the renderer tabulates over cos_o only.  The
     azimuths are spread over [0, pi/2) (the lobe is symmetric about t and b).
     The default nodes agree with 16 azimuths and 64 x 96 nodes to 1e-3 of
     the white for the silk preset (most at grazing view).
+
+    Parameters
+    ----------
+    lobe
+        A lobe of kind ``"anisotropic"``.
+    cos_o
+        Cosines of the view elevation, in [0, 1], N of them.
+    wavelengths
+        Wavelengths in nm, L of them.
+    n_azimuth
+        View azimuths averaged.
+    n_q, n_phi
+        Quadrature nodes (>= 4).
+
+    Returns
+    -------
+    ndarray
+        ``(N, L)``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`anisotropic_lobe_albedo`.
 
     Examples
     --------

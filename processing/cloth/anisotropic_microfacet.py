@@ -1,36 +1,30 @@
-"""The yarn ellipsoid as a normalised anisotropic microfacet lobe.
+"""The yarn ellipsoid of Yasuda et al. as a normalised anisotropic microfacet lobe.
 
 Yasuda et al., section 3.1, eq. (1): the fraction of fibre-surface facets
 facing the half vector h is the distance ``A(h)`` from the centre of an
-ellipsoid to its surface along h.  With t the yarn direction, b = n x t and
-the ellipsoid's semi-axes (a_t, a_b, 1)::
+ellipsoid (semi-axes a_t along the yarn t, a_b across it, 1 along the
+normal) to its surface along h.  ``A`` is not a distribution of normals;
+its fourth power, normalised, ``D(h) = A(h)^4 / (pi a_t a_b)``, is (the
+anisotropic Trowbridge-Reitz distribution), and with its closed-form Smith
+masking the lobe ``D G2 / (4 cos_i cos_o)`` reflects at most what arrives.
+docs/cloth.md, section "The ellipsoid as a microfacet lobe", gives the
+derivation.  Vectors are given by their components in the local frame
+(t, b, n); the functions work in the dtype of their inputs (float32 in the
+renderer's table path, float64 elsewhere).
 
-    A(h) = 1 / sqrt((h.t / a_t)^2 + (h.b / a_b)^2 + (h.n)^2)
-
-Fibres run along t, so facet normals spread little along t (a_t small) and
-widely across it (a_b large).  ``A`` itself is not a distribution of normals
-(its integral depends on the axes), so it cannot keep the directional albedo
-below 1.  Its fourth power, normalised,
-
-    D(h) = A(h)^4 / (pi a_t a_b)
-
-has the same ellipsoidal iso-contours, the same peak along n and the same
-axes, and *is* a distribution: it is the anisotropic Trowbridge-Reitz (GGX)
-distribution, the normal distribution of an ellipsoidal microsurface
-(Trowbridge & Reitz, JOSA 65(5), 1975; Heitz, "Understanding the
-Masking-Shadowing Function in Microfacet-Based BRDFs", JCGT 3(2), 2014,
-eq. (85)), with ``integral D(h) (h.n) d omega_h = 1``.  Its Smith masking has
-the closed form of Heitz (2014), eq. (86), so the lobe
-
-    f = D(h) G2(i, o) / (4 cos_i cos_o)
-
-(height-correlated G2 = 1 / (1 + Lambda(i) + Lambda(o))) has a directional
-albedo of at most 1 for every incidence and every pair of axes.
-
-Vectors are given by their components in the local frame (t, b, n); the
-half vector is ``(i + o) / (2 cos_d)``, so only the tangential components of
-i and o and the four cosines are needed.  The functions work in the dtype of
-their inputs (float32 in the renderer's table path, float64 elsewhere).
+References
+----------
+.. [1] Yasuda, Yokoi, Toriwaki, Inagaki, "A shading model for cloth
+   objects", IEEE Computer Graphics and Applications 12(6), 15-24 (1992),
+   doi:10.1109/38.163621.
+.. [2] Trowbridge & Reitz, "Average irregularity representation of a
+   rough surface for ray reflection", JOSA 65(5), 531-536 (1975).
+.. [3] Heitz, "Understanding the masking-shadowing function in
+   microfacet-based BRDFs", Journal of Computer Graphics Techniques 3(2),
+   48-107 (2014).
+.. [4] Smith, "Geometrical shadowing of a random rough surface", IEEE
+   Transactions on Antennas and Propagation 15(5), 668-671 (1967),
+   doi:10.1109/TAP.1967.1138991.
 """
 
 from __future__ import annotations
@@ -55,7 +49,24 @@ AXIS_RANGE = (1e-4, 1e2)
 
 
 def check_axes(a_t: float, a_b: float, what: str = "ellipsoid") -> tuple[float, float]:
-    """Both semi-axes as floats in ``AXIS_RANGE``, else a ValueError naming them.
+    """Both semi-axes as floats in ``AXIS_RANGE``.
+
+    Parameters
+    ----------
+    a_t, a_b
+        Semi-axes along and across the yarn (numbers or numeric strings).
+    what
+        What the axes belong to, for the message.
+
+    Returns
+    -------
+    tuple of float
+        ``(a_t, a_b)``.
+
+    Raises
+    ------
+    ValueError
+        An axis that is not a number in ``AXIS_RANGE`` (the message names it).
 
     Examples
     --------
@@ -79,7 +90,25 @@ def check_axes(a_t: float, a_b: float, what: str = "ellipsoid") -> tuple[float, 
 
 
 def ellipsoid_distance(h_t: ArrayLike, h_b: ArrayLike, h_n: ArrayLike, a_t: float, a_b: float) -> NDArray:
-    """Yasuda et al. eq. (1): distance A(h) from the centre to the ellipsoid along unit h.
+    """Distance A(h) from the centre to the ellipsoid along unit h (Yasuda et al., eq. (1)).
+
+    ``A(h) = 1 / sqrt((h.t / a_t)^2 + (h.b / a_b)^2 + (h.n)^2)``.
+
+    Parameters
+    ----------
+    h_t, h_b, h_n
+        Components of the unit vector h along t, b and n.
+    a_t, a_b
+        Semi-axes along t and b (the normal axis is 1).
+
+    Returns
+    -------
+    ndarray
+        A(h), in units of the normal semi-axis.
+
+    References
+    ----------
+    .. [1] Yasuda et al. (1992), eq. (1), doi:10.1109/38.163621.
 
     Examples
     --------
@@ -94,7 +123,27 @@ def ellipsoid_distance(h_t: ArrayLike, h_b: ArrayLike, h_n: ArrayLike, a_t: floa
 
 
 def ellipsoid_ndf(h_t: ArrayLike, h_b: ArrayLike, h_n: ArrayLike, a_t: float, a_b: float) -> NDArray:
-    """Normalised facet distribution ``D(h) = A(h)^4 / (pi a_t a_b)`` in 1/sr (0 where h.n <= 0).
+    """Normalised facet distribution ``D(h) = A(h)^4 / (pi a_t a_b)``.
+
+    The anisotropic Trowbridge-Reitz (GGX) distribution, with
+    ``integral D(h) (h.n) d omega_h = 1``.
+
+    Parameters
+    ----------
+    h_t, h_b, h_n
+        Components of the unit half vector along t, b and n.
+    a_t, a_b
+        Semi-axes along t and b (the normal axis is 1).
+
+    Returns
+    -------
+    ndarray
+        D in 1/sr; 0 where h.n <= 0.  At least float32.
+
+    References
+    ----------
+    .. [1] Yasuda et al. (1992), eq. (1), doi:10.1109/38.163621.
+    .. [2] Heitz (2014), eq. (85) (no DOI).
 
     Examples
     --------
@@ -114,11 +163,27 @@ def ellipsoid_ndf(h_t: ArrayLike, h_b: ArrayLike, h_n: ArrayLike, a_t: float, a_
 
 
 def smith_lambda(w_t: ArrayLike, w_b: ArrayLike, w_n: ArrayLike, a_t: float, a_b: float) -> NDArray:
-    """Smith Lambda of the ellipsoid distribution for direction w (Heitz 2014, eq. (86)).
+    """Smith Lambda of the ellipsoid distribution for direction w.
 
     ``Lambda = (sqrt(1 + x) - 1) / 2`` with ``x = (a_t^2 w_t^2 + a_b^2 w_b^2) / w_n^2``,
-    written as ``x / (2 (1 + sqrt(1 + x)))`` (no cancellation for small x);
-    infinite at and below the horizon.
+    written as ``x / (2 (1 + sqrt(1 + x)))`` (no cancellation for small x).
+
+    Parameters
+    ----------
+    w_t, w_b, w_n
+        Components of the unit direction along t, b and n.
+    a_t, a_b
+        Semi-axes along t and b.
+
+    Returns
+    -------
+    ndarray
+        Lambda >= 0; infinite at and below the horizon.
+
+    References
+    ----------
+    .. [1] Heitz (2014), eq. (86) (no DOI).
+    .. [2] Smith (1967), doi:10.1109/TAP.1967.1138991.
 
     Examples
     --------
@@ -161,7 +226,13 @@ def anisotropic_lobe(
     Returns
     -------
     ndarray
-        Zero where either cosine is <= 0; finite everywhere.
+        The factor in 1/sr (height-correlated G2 = 1 / (1 + Lambda(i) +
+        Lambda(o))); zero where either cosine is <= 0; finite everywhere.
+
+    References
+    ----------
+    .. [1] Yasuda et al. (1992), eq. (1), doi:10.1109/38.163621.
+    .. [2] Heitz (2014), eq. (85)-(86) (no DOI).
 
     Examples
     --------

@@ -1,16 +1,17 @@
 """A draped cloth surface: a sheet with sinusoidal folds, with UVs along warp and weft.
 
 Yasuda et al., section 5: "the shape of the cloth is a simple wrinkle
-expressed with trigonometric functions" (Fig. 15-18).  The sheet lies in the
-x-y plane (warp along x at weave angle 0), its height
-
-    z(x, y) = A sin(2 pi x / P) * (0.6 + 0.4 cos(pi y / W)) + a sin(2 pi (x + 0.5 y) / p)
-
-is a set of folds running across the warp (period P, amplitude A) fading
-toward the side edges, with a finer secondary wrinkle.  Normals are the
-analytic ones of the height field; u follows x and v follows y (the warp
-and weft of the fabric before draping), so :func:`render.tangents.tangents_from_uvs`
+expressed with trigonometric functions".  The sheet lies in the x-y plane
+with folds across the warp (x) fading toward the side edges and a finer
+secondary wrinkle; docs/cloth.md, section "Rendering", gives the height
+field.  u follows x and v follows y, so :func:`render.tangents.tangents_from_uvs`
 gives the warp direction along the surface.
+
+References
+----------
+.. [1] Yasuda, Yokoi, Toriwaki, Inagaki, "A shading model for cloth
+   objects", IEEE Computer Graphics and Applications 12(6), 15-24 (1992),
+   doi:10.1109/38.163621.
 """
 
 from __future__ import annotations
@@ -57,7 +58,21 @@ def draped_cloth(width: float = 4.0, depth: float = 3.0, divisions: int = 96, fo
     divisions
         Quads along x (>= 2); along y in proportion.
     fold_amplitude, fold_period, wrinkle_amplitude, wrinkle_period
-        A, P, a, p of the height field (amplitudes >= 0, periods > 0).
+        A, P, a, p of the height field
+        ``z = A sin(2 pi x / P) (0.6 + 0.4 cos(pi y / W)) + a sin(2 pi (x + 0.5 y) / p)``
+        with W = ``depth`` (amplitudes >= 0, periods > 0; same length unit as
+        width and depth).
+
+    Returns
+    -------
+    DrapedCloth
+        Vertices, counter-clockwise triangles, analytic unit normals and UVs.
+
+    Raises
+    ------
+    ValueError
+        A non-positive size or period, a negative amplitude, or fewer than 2
+        divisions.
 
     Examples
     --------

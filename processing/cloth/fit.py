@@ -1,46 +1,26 @@
 """Fit the cloth model to RAW frames of a swatch on the turntable (robust least squares).
 
-The measurement (``kogei cloth fit``): a flat swatch on the table, camera and
-light fixed (:mod:`processing.cloth.swatch_geometry`), one RAW frame per table
-angle and a colour chart frame.  Turning the table turns the yarn under a
-fixed light and view, which is what the anisotropic lobes of Yasuda et al.
-respond to.  A capture may repeat the turn with the lamp moved (passes, each
-with its own light direction,
-:meth:`processing.cloth.swatch_geometry.SwatchGeometry.for_pass`): one light leaves
-the weights of a broad-lobed cloth such as cotton correlated (docs/cloth.md
-gives the Fisher information), a second separates them.
+The measurement of ``kogei cloth fit``: a flat swatch on the table, camera
+and light fixed (:mod:`processing.cloth.swatch_geometry`), one RAW frame per
+table angle and a colour chart frame; turning the table turns the yarn under
+a fixed light and view, which is what the anisotropic lobes respond to.  A
+chart gives per-channel gains to camera responses; the model predicts the
+same responses per photosite; the ellipsoid axes, the three weights and the
+dye (as an sRGB colour) are fitted with a soft-L1 loss.  docs/cloth.md,
+section "Measuring a swatch", gives the units, the noise model, the
+uncertainties and the accuracy.
 
-Units.  The chart frame's patches have known reflectances rho (the
-ColorChecker of the set-up, spectra from colour-science) and radiance
-``rho E / pi``; a least-squares gain per channel maps RAW values to camera
-responses ``sum_lambda L(lambda) s_c(lambda)`` of radiance L under the
-light's relative spectrum E (:func:`processing.camera.response.camera_rgb`).
-The model predicts the same quantity for the swatch,
-``sum f(lambda) cos_i E s_c`` with f the cloth BRDF, per photosite; a
-binned RAW pixel (2 x 2 photosites) takes each channel from its own
-photosites of the colour filter array, and so does the prediction, so the
-comparison needs no demosaicing.
-
-Parameters fitted: the ellipsoid axes a_t <= a_b (both yarns alike), the
-specular, internal and diffuse weights, and the dye as an sRGB colour
-(:meth:`processing.cloth.model.Dye.from_srgb`; the dye's absorption
-spectrum then follows from the camera's spectral sensitivities).  Held at
-the yarn preset's values: the layer count and rounding, the fibre index,
-the scattering and the warp fraction (``fixed``).  The layer count is
-chosen by :func:`choose_layers`, which fits each candidate and keeps the
-lowest cost; on simulated swatches the true count wins, but its neighbours
-come close (the count is weakly determined by the angular data, and the
-costs of all candidates are reported so the user sees by how much).  The
-residual is scaled by a noise model (1 % of the pixel's value plus 0.2 % of
-the swatch mean) and minimised with the soft-L1 loss
-(``scipy.optimize.least_squares``), which down-weights outliers such as
-clipped or dusty pixels.  Uncertainties: the square roots of the diagonal of
-``s^2 (J^T J)^-1`` at the solution, s^2 the mean squared scaled residual.
+References
+----------
+.. [1] Yasuda, Yokoi, Toriwaki, Inagaki, "A shading model for cloth
+   objects", IEEE Computer Graphics and Applications 12(6), 15-24 (1992),
+   doi:10.1109/38.163621.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -67,6 +47,7 @@ __all__ = [
 #: Layer counts :func:`choose_layers` tries by default.
 LAYER_CANDIDATES = (1, 2, 3, 4, 6, 8)
 
+#: Names of the fitted parameters, in the order of the fit's vector.
 FIT_PARAMETERS = ("a_t", "a_b", "specular", "internal", "diffuse", "dye_r", "dye_g", "dye_b")
 _LOWER = np.array([2e-3, 2e-3, 0.0, 0.0, 0.0, 0.02, 0.02, 0.02])
 _UPPER = np.array([3.0, 3.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
@@ -96,6 +77,12 @@ class SwatchMeasurement:
         ``(A,)`` the pass (1-based) of each frame, i.e. which light of the set-up
         lit it (:meth:`processing.cloth.swatch_geometry.SwatchGeometry.for_pass`);
         default all 1.
+
+    Raises
+    ------
+    ClothFitError
+        Shapes that do not match, a CFA pattern that is not a 2 x 2 cell of
+        R, G and B, or pass numbers that are not integers >= 1 per angle.
     """
 
     angles_deg: NDArray[np.float64]
@@ -158,10 +145,24 @@ class ClothFit:
 
 
 def grid_chart_means(rgb: ArrayLike, rows: int = 4, columns: int = 6, inset: float = 0.3) -> NDArray[np.float64]:
-    """Mean RGB ``(rows * columns, 3)`` of the patches of a chart filling the frame in a grid.
+    """Mean RGB of the patches of a chart filling the frame in a grid.
 
     Each patch is averaged over the middle ``1 - 2 inset`` of its cell (the
     station's ``grid`` chart layout; patches in reading order).
+
+    Parameters
+    ----------
+    rgb
+        ``(H, W, c)`` image of the chart.
+    rows, columns
+        Patches down and across.
+    inset
+        Fraction of a cell left out on each side.
+
+    Returns
+    -------
+    ndarray
+        ``(rows * columns, c)`` means, patches in reading order.
 
     Examples
     --------
@@ -189,7 +190,11 @@ def _spectral_setup(geometry: SwatchGeometry, step: float):
 
 
 def chart_gains(chart_means: ArrayLike, geometry: SwatchGeometry, step: float = 10.0) -> NDArray[np.float64]:
-    """Per-channel gains ``(3,)``: RAW means of the chart patches over their predicted camera responses.
+    """Per-channel gains: RAW means of the chart patches over their predicted camera responses.
+
+    The patches' radiance is ``rho E / pi`` with rho the chart's reflectance
+    spectra (colour-science) and E the light's relative spectrum; the gain is
+    the least-squares ratio per channel.
 
     Parameters
     ----------
@@ -200,10 +205,16 @@ def chart_gains(chart_means: ArrayLike, geometry: SwatchGeometry, step: float = 
     step
         Wavelength step (nm) of the prediction.
 
+    Returns
+    -------
+    ndarray
+        ``(3,)`` gains, RAW units per unit camera response.
+
     Raises
     ------
     ClothFitError
-        Non-finite or non-positive gains (a dark, clipped or missing chart).
+        An unknown chart, chart means of the wrong shape, or non-finite or
+        non-positive gains (a dark, clipped or missing chart).
     """
     import colour
 
@@ -227,7 +238,26 @@ def chart_gains(chart_means: ArrayLike, geometry: SwatchGeometry, step: float = 
 
 
 def fit_material(values: ArrayLike, fixed: dict[str, Any]):
-    """The cloth material of fitted values (order of :data:`FIT_PARAMETERS`) and the fixed parameters."""
+    """The cloth material of fitted values and the fixed parameters.
+
+    Parameters
+    ----------
+    values
+        Values in the order of :data:`FIT_PARAMETERS`; weights summing above
+        1 are scaled back to 1 and the dye colour is clipped to [0, 1].
+    fixed
+        The parameters held at the yarn preset's values (:attr:`ClothFit.fixed`).
+
+    Returns
+    -------
+    Material
+        The cloth, named ``"swatch-fit"``, warp and weft alike.
+
+    Raises
+    ------
+    ValueError
+        Values the cloth builder refuses.
+    """
     from processing.cloth.presets import build_cloth
 
     v = np.asarray(values, dtype=np.float64).copy()
@@ -242,11 +272,40 @@ def fit_material(values: ArrayLike, fixed: dict[str, Any]):
 
 def predict_rgb(material, geometry: SwatchGeometry, angles_deg: ArrayLike, pixels: ArrayLike,
                 cfa_pattern: str = "RGGB", step: float = 10.0, passes: ArrayLike | None = None) -> NDArray[np.float64]:
-    """Camera responses ``(A, P, 3)`` of ``material`` at binned pixels over table angles.
+    """Camera responses of ``material`` at binned pixels over table angles.
 
     Each channel is the mean over the photosites of that colour in the
-    pixel's 2 x 2 cell, as a ``bin2x2`` RAW decode forms it.  ``passes``
-    (``(A,)``, 1-based) picks the light of each frame (default: pass 1).
+    pixel's 2 x 2 cell, as a ``bin2x2`` RAW decode forms it: per photosite
+    ``sum f(lambda) cos_i E s_c`` with f the BRDF.
+
+    Parameters
+    ----------
+    material
+        The material (a cloth, or any material with a tangent frame).
+    geometry
+        The set-up.
+    angles_deg
+        ``(A,)`` table angles in degrees.
+    pixels
+        ``(P, 2)`` binned pixels (column, row).
+    cfa_pattern
+        The 2 x 2 colour filter cell in row order.
+    step
+        Wavelength step (nm) of the prediction.
+    passes
+        ``(A,)`` the pass (1-based) of each frame, which picks its light
+        (default: pass 1 for all).
+
+    Returns
+    -------
+    ndarray
+        ``(A, P, 3)`` camera responses, in the units of
+        :func:`processing.camera.response.camera_rgb`.
+
+    Raises
+    ------
+    ClothFitError
+        ``passes`` not one per angle, or a pass the set-up has no light for.
     """
     a = np.asarray(angles_deg, dtype=np.float64).reshape(-1)
     if passes is not None:
@@ -306,18 +365,43 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
     Returns
     -------
     ClothFit
+        Fitted values, one-sigma uncertainties, held parameters, a material
+        spec, residuals and the predicted responses.
 
     Raises
     ------
     ClothFitError
-        Fewer than 3 angles or 8 pixels, or non-finite data.
-    """
-    from scipy.optimize import least_squares
+        An unknown yarn, fewer than 3 angles or 8 pixels, frames of a pass
+        the set-up has no light for, non-finite data, or black frames.
 
+    References
+    ----------
+    .. [1] Yasuda et al. (1992), doi:10.1109/38.163621.
+    """
     from processing.cloth.presets import CLOTH_PRESETS
 
-    if yarn not in CLOTH_PRESETS:
-        raise ClothFitError(f"unknown yarn preset {yarn!r}; use one of {', '.join(CLOTH_PRESETS)}")
+    _check_measurement(measurement, geometry, yarn, CLOTH_PRESETS)
+    fixed, x0 = _fixed_and_start(dict(CLOTH_PRESETS[yarn]), layers, start)
+    result = _robust_fit(measurement, geometry, fixed, x0, step, max_evaluations)
+    x = result.x.copy()
+    if fixed["warp_fraction"] == 0.5 and x[0] > x[1]:
+        x[[0, 1]] = x[[1, 0]]                   # plain weave of equal yarns: the axes are an unordered pair
+    material = fit_material(x, fixed)
+    meas = measurement.rgb
+    pred = predict_rgb(material, geometry, measurement.angles_deg, measurement.pixels, measurement.cfa_pattern, step,
+                       measurement.passes)
+    sig = _parameter_sigma(result, fixed)
+    rms = float(np.sqrt(np.mean((pred - meas) ** 2)))
+    return ClothFit(dict(zip(FIT_PARAMETERS, map(float, x))), dict(zip(FIT_PARAMETERS, map(float, sig))), fixed,
+                    _fit_spec(yarn, x, fixed), rms, rms / max(float(np.mean(np.abs(meas))), 1e-300), pred,
+                    float(result.cost))
+
+
+def _check_measurement(measurement: SwatchMeasurement, geometry: SwatchGeometry, yarn: str,
+                       presets: Mapping[str, Any]) -> None:
+    """Refuse an unknown yarn, too few angles or pixels, unknown passes and non-finite or black data."""
+    if yarn not in presets:
+        raise ClothFitError(f"unknown yarn preset {yarn!r}; use one of {', '.join(presets)}")
     if measurement.angles_deg.size < 3 or measurement.pixels.shape[0] < 8:
         raise ClothFitError(
             f"a swatch fit needs at least 3 table angles and 8 swatch pixels, got {measurement.angles_deg.size} "
@@ -333,7 +417,11 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
         raise ClothFitError("the swatch responses contain NaN or infinite values")
     if not float(np.mean(meas)) > 0:
         raise ClothFitError("the swatch frames are black (mean response <= 0): check the exposure and the light")
-    preset = dict(CLOTH_PRESETS[yarn])
+
+
+def _fixed_and_start(preset: dict[str, Any], layers: int | None,
+                     start: ArrayLike | None) -> tuple[dict[str, Any], NDArray[np.float64]]:
+    """The parameters held at the preset's values, and the start vector inside the bounds."""
     fixed = {k: preset[k] for k in ("warp_kind", "weft_kind", "warp_fraction", "layers", "rounding", "n", "scattering")}
     fixed["weft_kind"] = fixed["warp_kind"]
     if layers is not None:
@@ -342,6 +430,15 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
           np.array([preset["a_t"], preset["a_b"], 0.8 * preset["specular"], 0.8 * preset["internal"],
                     0.8 * preset["diffuse"], 0.5, 0.5, 0.5]))
     x0 = np.clip(x0, _LOWER + 1e-9, _UPPER - 1e-9)
+    return fixed, x0
+
+
+def _robust_fit(measurement: SwatchMeasurement, geometry: SwatchGeometry, fixed: dict[str, Any],
+                x0: NDArray[np.float64], step: float, max_evaluations: int) -> Any:
+    """``scipy.optimize.least_squares`` (soft-L1) of the scaled residuals plus the energy penalty."""
+    from scipy.optimize import least_squares
+
+    meas = measurement.rgb
     scale = 0.01 * np.abs(meas) + 0.002 * float(np.mean(np.abs(meas)))
 
     def residual(x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -353,42 +450,55 @@ def fit_swatch(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn
         excess = max(0.0, float(np.sum(x[2:5])) - 1.0)     # energy: specular + internal + diffuse <= 1
         return np.append(((pred - meas) / scale).ravel(), 1e3 * excess)
 
-    result = least_squares(residual, x0, bounds=(_LOWER, _UPPER), loss="soft_l1", f_scale=3.0,
-                           x_scale=np.array([0.05, 0.1, 0.05, 0.05, 0.05, 0.1, 0.1, 0.1]),
-                           max_nfev=max_evaluations, diff_step=1e-4)
-    x = result.x.copy()
-    if fixed["warp_fraction"] == 0.5 and x[0] > x[1]:
-        x[[0, 1]] = x[[1, 0]]                   # plain weave of equal yarns: the axes are an unordered pair
-    material = fit_material(x, fixed)
-    pred = predict_rgb(material, geometry, measurement.angles_deg, measurement.pixels, measurement.cfa_pattern, step,
-                       measurement.passes)
+    return least_squares(residual, x0, bounds=(_LOWER, _UPPER), loss="soft_l1", f_scale=3.0,
+                         x_scale=np.array([0.05, 0.1, 0.05, 0.05, 0.05, 0.1, 0.1, 0.1]),
+                         max_nfev=max_evaluations, diff_step=1e-4)
+
+
+def _parameter_sigma(result: Any, fixed: dict[str, Any]) -> NDArray[np.float64]:
+    """One-sigma uncertainties: the diagonal of ``s^2 (J^T J)^-1``, in the order of the reported values."""
     r = result.fun[:-1]
-    dof = max(r.size - x.size, 1)
+    dof = max(r.size - result.x.size, 1)
     jac = result.jac[:-1]
     if fixed["warp_fraction"] == 0.5 and result.x[0] > result.x[1]:
         jac = jac[:, [1, 0, 2, 3, 4, 5, 6, 7]]
     try:
         cov = np.linalg.pinv(jac.T @ jac) * float(np.sum(r * r) / dof)
-        sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        return np.sqrt(np.clip(np.diag(cov), 0.0, None))
     except np.linalg.LinAlgError:
-        sig = np.full(x.size, np.nan)
-    rms = float(np.sqrt(np.mean((pred - meas) ** 2)))
+        return np.full(result.x.size, np.nan)
+
+
+def _fit_spec(yarn: str, x: NDArray[np.float64], fixed: dict[str, Any]) -> str:
+    """The material spec string of fitted values ``x``."""
     hexa = "#" + "".join(f"{round(v * 255):02x}" for v in x[5:8])
-    spec = (f"{yarn}:a_t={x[0]:.4g},a_b={x[1]:.4g},weft_a_t={x[0]:.4g},weft_a_b={x[1]:.4g},"
-            f"specular={x[2]:.4g},internal={x[3]:.4g},diffuse={x[4]:.4g},layers={fixed['layers']},"
-            f"warp_colour={hexa},weft_colour={hexa},weft_kind={fixed['weft_kind']}")
-    return ClothFit(dict(zip(FIT_PARAMETERS, map(float, x))), dict(zip(FIT_PARAMETERS, map(float, sig))), fixed,
-                    spec, rms, rms / max(float(np.mean(np.abs(meas))), 1e-300), pred, float(result.cost))
+    return (f"{yarn}:a_t={x[0]:.4g},a_b={x[1]:.4g},weft_a_t={x[0]:.4g},weft_a_b={x[1]:.4g},"
+           f"specular={x[2]:.4g},internal={x[3]:.4g},diffuse={x[4]:.4g},layers={fixed['layers']},"
+           f"warp_colour={hexa},weft_colour={hexa},weft_kind={fixed['weft_kind']}")
 
 
 def choose_layers(measurement: SwatchMeasurement, geometry: SwatchGeometry, *, yarn: str = "silk",
                   candidates: tuple[int, ...] = LAYER_CANDIDATES, step: float = 10.0) -> tuple[ClothFit, dict[int, float]]:
-    """Fit every layer count of ``candidates`` and return the fit of lowest robust cost and all costs.
+    """Fit every layer count of ``candidates`` and keep the fit of lowest robust cost.
+
+    Parameters
+    ----------
+    measurement, geometry, yarn, step
+        As for :func:`fit_swatch`.
+    candidates
+        Layer counts to try, each in 0..50.
+
+    Returns
+    -------
+    fit : ClothFit
+        The fit of lowest robust cost.
+    costs : dict of int to float
+        The final robust cost of every candidate.
 
     Raises
     ------
     ClothFitError
-        No candidates, or a candidate outside 0..50.
+        No candidates, a candidate outside 0..50, or an error of :func:`fit_swatch`.
     """
     if not candidates or any(not isinstance(k, (int, np.integer)) or not 0 <= k <= 50 for k in candidates):
         raise ClothFitError(f"layer candidates must be integers in 0..50, got {candidates!r}")

@@ -1,26 +1,17 @@
-"""Cloth presets of Yasuda et al., section 4-5: silk, cotton, tamamushi (shot silk), satin.
+"""Cloth presets after Yasuda et al.: silk, cotton, tamamushi (shot silk), satin.
 
-* **silk**: filament yarn (untwisted, an elongated ellipsoid, a_t << a_b),
-  plain weave 1:1, strong specular and internal terms (Fig. 17, bottom);
-* **cotton**: spun yarn (twisted staple fibres: a round ellipsoid), plain
-  weave, mostly diffuse (Fig. 17, top);
-* **tamamushi** (shot silk, Fig. 18): filament warp of one colour, spun weft
-  of another: the cloth looks like the weft's colour except near the warp's
-  anisotropic highlight, where the warp's colour takes over.  The yarns differ
-  in how they return their dyed light: the filament warp's parallel
-  transparent fibres send it into the internal lobe (weights 0.05 / 0.9 /
-  0.05), whose layers stay elongated with depth (rounding 0.15); the spun
-  weft's twisted staple fibres scatter it (0.04 / 0.16 / 0.8, a rounder
-  ellipsoid).  Seen across the warp the warp's lobe outshines the weft's
-  diffuse light several times over; seen along it the warp's narrow axis
-  leaves the weft's colour alone;
-* **satin**: a warp-faced weave (warp_fraction 0.8) of filament yarn (the
-  paper names satin as future work; it is the same model with another ratio).
+Silk and satin are filament yarns (elongated ellipsoids), cotton a spun yarn
+(a rounder one), tamamushi a filament warp and a spun weft of two colours;
+satin is a warp-faced weave.  The parameters (names as in
+:func:`processing.cloth.model.cloth_material`) are chosen to give the looks
+of the paper's figures; they are not measured values.  docs/cloth.md,
+section "Presets", lists them and explains the tamamushi weights.
 
-The parameters (names as in :func:`processing.cloth.model.cloth_material`)
-are chosen to give the looks of the paper's figures; they are not measured
-values.  Colours are sRGB hex strings converted to dye absorption spectra
-(:meth:`processing.cloth.model.Dye.from_srgb`).
+References
+----------
+.. [1] Yasuda, Yokoi, Toriwaki, Inagaki, "A shading model for cloth
+   objects", IEEE Computer Graphics and Applications 12(6), 15-24 (1992),
+   doi:10.1109/38.163621.
 """
 
 from __future__ import annotations
@@ -39,6 +30,7 @@ _SILK = {"a_t": 0.05, "a_b": 0.45, "weft_a_t": 0.05, "weft_a_b": 0.45, "warp_kin
          "warp_colour": "#a01830", "weft_colour": "#a01830",
          "weft_specular": "warp", "weft_internal": "warp", "weft_diffuse": "warp"}
 
+#: Preset name -> every cloth parameter's default value (colours as sRGB hex strings).
 CLOTH_PRESETS: MappingProxyType[str, dict[str, Any]] = MappingProxyType({
     "silk": dict(_SILK),
     "cotton": dict(_SILK, a_t=0.35, a_b=0.55, weft_a_t=0.35, weft_a_b=0.55, warp_kind="spun", weft_kind="spun",
@@ -50,6 +42,7 @@ CLOTH_PRESETS: MappingProxyType[str, dict[str, Any]] = MappingProxyType({
                   internal=0.35, diffuse=0.35, warp_colour="#d8c8a0", weft_colour="#d8c8a0"),
 })
 
+#: Preset name -> where its look comes from in Yasuda et al.
 CLOTH_SOURCES: MappingProxyType[str, str] = MappingProxyType({
     "silk": "Yasuda et al. sec. 4: filament yarn, plain weave (Fig. 17)",
     "cotton": "Yasuda et al. sec. 4: spun yarn, plain weave (Fig. 17)",
@@ -101,7 +94,34 @@ def _weft_weights(params: dict[str, Any]) -> tuple[float, float, float] | None:
 
 
 def build_cloth(name: str, params: dict[str, Any], description: str = "") -> Material:
-    """The cloth material of checked parameter values ``params`` (all keys of a preset).
+    """The cloth material of checked parameter values.
+
+    Parameters
+    ----------
+    name
+        Material name.
+    params
+        Every key of a preset (:data:`CLOTH_PRESETS`); numbers already range
+        checked, colours as sRGB (hex or three numbers), weft weights as
+        numbers or ``"warp"``.
+    description
+        Free text.
+
+    Returns
+    -------
+    Material
+        Built by :func:`processing.cloth.model.cloth_material`, with
+        ``parameters`` holding ``params``.
+
+    Raises
+    ------
+    ValueError
+        A bad colour, yarn kind, weft weight or layer count, or values the
+        cloth builder refuses.
+
+    References
+    ----------
+    .. [1] Yasuda et al. (1992), doi:10.1109/38.163621.
 
     Examples
     --------

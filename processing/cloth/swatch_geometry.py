@@ -1,23 +1,14 @@
 """Geometry of a flat swatch on the turntable seen by a fixed camera under a fixed light.
 
-The measurement set-up of ``kogei cloth fit`` (Yasuda et al.'s model fitted
-to a real fabric): a flat square swatch lies on the table (its centre on the
-axis, warp along the table's x axis turned by ``warp_angle_deg``), the camera
-looks at the table centre from the room's -y side at ``camera_elevation_deg``
-and ``camera_distance_mm`` (pinhole, horizontal field of view ``fov_deg``,
-``width`` x ``height`` photosites), and a distant light shines from
-``light_direction`` (fixed in the room).  A capture of several passes may
-move the lamp between passes: ``pass_light_directions`` are the light
-directions of passes 2, 3, ... (:meth:`SwatchGeometry.for_pass`).  Turning the table by theta turns
-the warp by theta about the normal; the light, view and half vectors stay
-where they are.  Per photosite this module gives the four cosines and the
-tangent-frame components the anisotropic lobes need
-(:func:`processing.materials.lobes.material_brdf`).
-
-The pinhole is the one of the simulated station (:mod:`mocks.world`): ray
-through photosite (i, j) along ``fwd + x right + y up`` with
-``x = ((i + 0.5) / W * 2 - 1) tan(fov/2)`` and
-``y = (1 - (j + 0.5) / H * 2) tan(fov/2) H / W``.
+The set-up of ``kogei cloth fit``: a flat square swatch on the table, the
+camera looking at the table centre from the room's -y side (a pinhole, the
+one of the simulated station), a distant light fixed in the room (one per
+pass).  Turning the table by theta turns the warp by theta about the
+normal; the light, view and half vectors stay where they are.  Per
+photosite this module gives the four cosines and the tangent-frame
+components the anisotropic lobes need
+(:func:`processing.materials.lobes.material_brdf`).  docs/cloth.md, section
+"The swatch set-up", defines the frame and the pinhole.
 """
 
 from __future__ import annotations
@@ -41,6 +32,36 @@ class SwatchGeometryError(InputError):
 @dataclass(frozen=True)
 class SwatchGeometry:
     """The fixed set-up of a swatch measurement (lengths in mm, angles in degrees).
+
+    Attributes
+    ----------
+    width, height
+        Photosites of the camera (even numbers).
+    camera_distance_mm
+        Distance of the camera from the table centre.
+    camera_elevation_deg
+        Elevation of the camera above the table plane, in (0, 89].
+    fov_deg
+        Horizontal field of view.
+    light_direction
+        Unit vector toward the distant light of pass 1, in the room (z up).
+    light
+        Illuminant of the light (a spec of :func:`processing.spectral.spectra.light_spectrum`).
+    swatch_mm
+        Side of the square swatch.
+    warp_angle_deg
+        Angle of the warp from the table's x axis at table angle 0.
+    camera
+        Camera sensitivities (a name of :func:`processing.camera.response.camera_sensitivities`).
+    chart
+        Colour chart of colour-science's ``SDS_COLOURCHECKERS``.
+    pass_light_directions
+        Light directions of passes 2, 3, ...
+
+    Raises
+    ------
+    SwatchGeometryError
+        A value missing or out of range (the message names it).
 
     Examples
     --------
@@ -97,11 +118,33 @@ class SwatchGeometry:
 
     @property
     def passes(self) -> int:
-        """Number of light positions (passes) the set-up describes."""
+        """Number of light positions (passes) the set-up describes.
+
+        Returns
+        -------
+        int
+            1 + the number of ``pass_light_directions``.
+        """
         return 1 + len(self.pass_light_directions)
 
     def for_pass(self, pass_no: int) -> SwatchGeometry:
-        """The one-light set-up of pass ``pass_no`` (1-based).
+        """The one-light set-up of pass ``pass_no``.
+
+        Parameters
+        ----------
+        pass_no
+            Pass number, 1-based.
+
+        Returns
+        -------
+        SwatchGeometry
+            The same set-up with that pass's light as ``light_direction`` and
+            no further passes.
+
+        Raises
+        ------
+        SwatchGeometryError
+            A pass the set-up has no light for.
 
         Examples
         --------
@@ -119,7 +162,23 @@ class SwatchGeometry:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SwatchGeometry:
-        """From a JSON mapping; unknown keys are refused by name."""
+        """The set-up of a JSON mapping.
+
+        Parameters
+        ----------
+        data
+            Field name -> value; missing fields take their defaults.
+
+        Returns
+        -------
+        SwatchGeometry
+            The set-up.
+
+        Raises
+        ------
+        SwatchGeometryError
+            Unknown keys (named), or a value that is not valid.
+        """
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
@@ -140,14 +199,28 @@ class SwatchGeometry:
             raise SwatchGeometryError(f"swatch geometry: {exc}") from None
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON form."""
+        """JSON form, the inverse of :meth:`from_dict`.
+
+        Returns
+        -------
+        dict
+            Field name -> value, directions as lists.
+        """
         out = asdict(self)
         out["light_direction"] = list(self.light_direction)
         out["pass_light_directions"] = [list(d) for d in self.pass_light_directions]
         return out
 
     def camera_frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Eye position and the forward, right and up unit vectors."""
+        """Eye position and the camera's unit axes.
+
+        Returns
+        -------
+        eye : ndarray
+            ``(3,)`` position of the pinhole in mm, table centre at the origin.
+        forward, right, up : ndarray
+            ``(3,)`` unit vectors.
+        """
         el = math.radians(self.camera_elevation_deg)
         eye = self.camera_distance_mm * np.array([0.0, -math.cos(el), math.sin(el)])
         fwd = -eye / np.linalg.norm(eye)
@@ -157,7 +230,17 @@ class SwatchGeometry:
         return eye, fwd, right, up
 
     def rays(self, i: ArrayLike, j: ArrayLike) -> NDArray[np.float64]:
-        """Unit ray directions ``(..., 3)`` through photosites (column i, row j).
+        """Unit ray directions through photosites.
+
+        Parameters
+        ----------
+        i, j
+            Column and row of each photosite, broadcast together.
+
+        Returns
+        -------
+        ndarray
+            ``(..., 3)`` unit directions in the room frame.
 
         Examples
         --------
@@ -198,7 +281,23 @@ class SwatchSamples:
 
 def swatch_samples(geometry: SwatchGeometry, angles_deg: ArrayLike, i: ArrayLike, j: ArrayLike,
                    margin_mm: float = 0.0) -> SwatchSamples:
-    """Geometry of photosites ``(i, j)`` (``(P,)`` each) at table angles ``(A,)``.
+    """Geometry of photosites on the swatch at table angles.
+
+    Parameters
+    ----------
+    geometry
+        The set-up.
+    angles_deg
+        ``(A,)`` table angles in degrees.
+    i, j
+        ``(P,)`` column and row of each photosite.
+    margin_mm
+        Photosites within this distance of the swatch's edge count as outside.
+
+    Returns
+    -------
+    SwatchSamples
+        Cosines, tangent-frame components and the inside mask, shape ``(A, P)``.
 
     Examples
     --------

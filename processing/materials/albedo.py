@@ -1,28 +1,17 @@
 """Directional albedo of a material: the hemispherical integral of BRDF * cos_i.
 
-    a(omega_o, lambda) = integral over the upper hemisphere of
-                         f(omega_i, omega_o, lambda) cos(theta_i) d omega_i
+    a(omega_o, lambda) = integral f(omega_i, omega_o, lambda) cos(theta_i) d omega_i
 
-Energy conservation requires a <= 1 at every viewing direction.  The
-renderer also uses a(cos_o) for sky (uniform environment) lighting tables.
+Energy conservation requires a <= 1 at every viewing direction; the
+renderer also uses a(cos_o) for sky lighting tables.  Lambert lobes are
+integrated over the incident hemisphere, microfacet lobes over the half
+vector (so the narrow peak of D is resolved at any roughness);
+docs/materials.md, section "Directional albedo", gives the quadrature.
 
-Quadrature, per lobe (Pharr, Jakob & Humphreys, "Physically Based
-Rendering", 3rd ed., section 14.1 for the half-vector change of variables):
-
-* Lambert lobes are integrated over the incident hemisphere with
-  Gauss-Legendre nodes in u = cos^2(theta_i) (cosine-weighted: d omega cos
-  = du dphi / 2) and the midpoint rule in phi;
-* microfacet lobes are integrated over the half vector h, with
-  d omega_i = 4 (omega_o . h) d omega_h and omega_i the mirror of omega_o
-  about h, so the narrow peak of D is resolved at any roughness:
-  theta_h = arctan(sigma s) with Gauss-Legendre nodes in s over [0, s_max],
-  where s_max is 6.5 (the Beckmann factor exp(-s^2) is below 5e-19 beyond)
-  or less where omega_i reaches the horizon (so the quadrature never
-  straddles the horizon cut), and the midpoint rule in phi_h.
-
-The integrand is the generic lobe (:func:`processing.materials.lobes.lobe_geometry`
-times the lobe's spectral factor); the integrand is symmetric about the plane
-of incidence, so phi runs over [0, pi] and is doubled.
+References
+----------
+.. [1] Pharr, Jakob, Humphreys, "Physically Based Rendering", 3rd ed.,
+   section 14.1 (book, no DOI).
 """
 
 from __future__ import annotations
@@ -65,22 +54,37 @@ def _geometry_nodes(
     co = cos_o[:, None, None]
     cphi, sphi = np.cos(phi)[None, None, :], np.sin(phi)[None, None, :]
     if lobe.kind == "lambert":
-        u = 0.5 * (x + 1.0)  # u = cos^2(theta_i) in [0, 1]
-        wu = 0.5 * wx
-        ci = np.sqrt(u)[None, :, None]
-        si = np.sqrt(1.0 - u)[None, :, None]
-        hx, hy, hz = si * cphi + sin_o, si * sphi, ci + co
-        norm = np.sqrt(hx * hx + hy * hy + hz * hz)
-        safe = np.where(norm > 0, norm, 1.0)
-        cos_h = np.where(norm > 0, hz / safe, 1.0)
-        cos_d = np.where(norm > 0, (si * cphi * hx + si * sphi * hy + ci * hz) / safe, 0.0)
-        weights = (0.5 * wu)[None, :, None] * w_phi * np.ones_like(cphi)
-        # f cos_i d omega = f (du dphi / 2); f is the BRDF, so weights carry no cos_i.
-        cos_i = np.broadcast_to(ci, np.broadcast_shapes(ci.shape, co.shape, cphi.shape))
-        return cos_i, np.broadcast_to(cos_h, cos_i.shape), np.broadcast_to(cos_d, cos_i.shape), (
-            np.broadcast_to(weights, cos_i.shape) * 1.0
-        )
-    sigma = lobe.roughness
+        return _incident_nodes(x, wx, w_phi, sin_o, co, cphi, sphi)
+    return _half_vector_nodes(lobe.roughness, x, wx, w_phi, sin_o, co, cphi)
+
+
+def _incident_nodes(
+    x: NDArray[np.float64], wx: NDArray[np.float64], w_phi: float, sin_o: NDArray[np.float64],
+    co: NDArray[np.float64], cphi: NDArray[np.float64], sphi: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], ...]:
+    """Nodes of a Lambert lobe: Gauss-Legendre in u = cos^2(theta_i), midpoint rule in phi."""
+    u = 0.5 * (x + 1.0)  # u = cos^2(theta_i) in [0, 1]
+    wu = 0.5 * wx
+    ci = np.sqrt(u)[None, :, None]
+    si = np.sqrt(1.0 - u)[None, :, None]
+    hx, hy, hz = si * cphi + sin_o, si * sphi, ci + co
+    norm = np.sqrt(hx * hx + hy * hy + hz * hz)
+    safe = np.where(norm > 0, norm, 1.0)
+    cos_h = np.where(norm > 0, hz / safe, 1.0)
+    cos_d = np.where(norm > 0, (si * cphi * hx + si * sphi * hy + ci * hz) / safe, 0.0)
+    weights = (0.5 * wu)[None, :, None] * w_phi * np.ones_like(cphi)
+    # f cos_i d omega = f (du dphi / 2); f is the BRDF, so weights carry no cos_i.
+    cos_i = np.broadcast_to(ci, np.broadcast_shapes(ci.shape, co.shape, cphi.shape))
+    return cos_i, np.broadcast_to(cos_h, cos_i.shape), np.broadcast_to(cos_d, cos_i.shape), (
+        np.broadcast_to(weights, cos_i.shape) * 1.0
+    )
+
+
+def _half_vector_nodes(
+    sigma: float, x: NDArray[np.float64], wx: NDArray[np.float64], w_phi: float, sin_o: NDArray[np.float64],
+    co: NDArray[np.float64], cphi: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], ...]:
+    """Nodes of a microfacet lobe of RMS slope ``sigma``: over the half vector, up to the horizon cut."""
     # omega_i = 2 (o.h) h - o is above the horizon exactly for theta_h below
     # theta_cut(phi_h), where cos(2 theta) cos_o + sin(2 theta) cos(phi) sin_o = 0;
     # integrating up to it keeps the integrand smooth on the whole domain.
@@ -115,9 +119,30 @@ def lobe_albedo(
     n_theta: int = 48,
     n_phi: int = 48,
 ) -> NDArray[np.float64]:
-    """Directional albedo of one lobe, including its weight.
+    """Directional albedo of one isotropic lobe, including its weight.
 
-    Parameters and result as in :func:`directional_albedo`.
+    Parameters
+    ----------
+    lobe
+        A Lambert or microfacet lobe.
+    cos_o
+        Cosines of the viewing angle in [0, 1], any shape.
+    wavelengths
+        1-D wavelengths in nm, L of them.
+    n_theta, n_phi
+        Quadrature nodes in the polar and azimuthal directions (>= 4).
+
+    Returns
+    -------
+    ndarray
+        Shape ``shape(cos_o) + (L,)``: the fraction of incident energy the
+        lobe reflects.
+
+    Raises
+    ------
+    ValueError
+        Node counts below 4, ``cos_o`` outside [0, 1] or non-finite, or
+        wavelengths that are not a non-empty 1-D array.
 
     Examples
     --------
@@ -197,6 +222,11 @@ def directional_albedo(
     ndarray
         Shape ``shape(cos_o) + (L,)``: the fraction of incident energy
         reflected (<= 1 for an energy-conserving material).
+
+    Raises
+    ------
+    ValueError
+        Not a Material or Lobe, or bad arguments as for :func:`lobe_albedo`.
 
     Examples
     --------

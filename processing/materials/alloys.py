@@ -1,24 +1,20 @@
-"""Compositions of the alloys of Japanese metalwork: Matsuda et al., eq. (3)-(4).
+"""Compositions of the alloys of Japanese metalwork and their materials (Matsuda et al., eq. (3)-(4)).
 
-The colour signal of an alloy is the weighted sum of the colour signals of its
-constituent metals, C_alloy = sum_j w_j C(n_j, k_j) with sum_j w_j = 1
-(Matsuda et al., eq. (3)); for nami-shibuichi, eq. (4) reads
-0.250 C(Ag) + 0.749 C(Cu) + 0.001 C(Au).
+The colour signal of an alloy is the weighted sum of the colour signals of
+its constituent metals, C_alloy = sum_j w_j C(n_j, k_j) with sum_j w_j = 1.
+The compositions (the five shibuichi grades of Matsuda et al., Table 1;
+shakudo after Oguchi 1983; tin bronze after Scott 1991) and the limits of
+the model (no patina) are in docs/materials.md, section "Presets".
 
-Compositions (percent by mass):
-
-* the five oborogin (shibuichi, Ag-Cu-Au) grades of Matsuda et al., Table 1;
-* shakudo, copper with about 4 % gold: H. Oguchi, "Japanese shakudo: its
-  history, properties and production from gold-containing alloys", Gold
-  Bulletin 16(4), 125-132 (1983), which reports gold contents of about
-  1-10 %, most often 3-5 %;
-* bronze, the classic tin bronze Cu 88 / Sn 12: D. A. Scott, "Metallography
-  and Microstructure of Ancient and Historic Metals", Getty Conservation
-  Institute (1991).
-
-The model describes the bare polished alloy; the dark patinas for which
-shakudo and shibuichi are prized (niiro treatment) are a surface layer that
-this model does not include.
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI), eq. (3)-(4) and Table 1.
+.. [2] Oguchi, "Japanese shakudo: its history, properties and production
+   from gold-containing alloys", Gold Bulletin 16(4), 125-132 (1983).
+.. [3] Scott, "Metallography and Microstructure of Ancient and Historic
+   Metals", Getty Conservation Institute (1991).
 """
 
 from __future__ import annotations
@@ -67,6 +63,11 @@ ALLOY_SOURCES: MappingProxyType[str, str] = MappingProxyType(
 def alloy_names() -> list[str]:
     """Names of the alloys in :data:`ALLOY_COMPOSITIONS`.
 
+    Returns
+    -------
+    list of str
+        The alloy names, in table order.
+
     Examples
     --------
     >>> "shakudo" in alloy_names()
@@ -98,6 +99,11 @@ def alloy_weights(name: str) -> dict[str, float]:
     dict
         Chemical symbol -> weight.
 
+    Raises
+    ------
+    ValueError
+        Not a string, or an unknown alloy (the message lists the known ones).
+
     Examples
     --------
     >>> alloy_weights("nami-shibuichi")
@@ -119,6 +125,20 @@ def alloy_material(name: str, composition: dict[str, float] | None = None, **par
     **params
         gloss, mirror, roughness, mirror_roughness, shadowing, description:
         passed to :func:`processing.materials.metal_model.metal_material`.
+
+    Returns
+    -------
+    Material
+        Family ``"alloy"`` (``"metal"`` for a one-metal composition).
+
+    Raises
+    ------
+    ValueError
+        An unknown alloy, a bad composition or a parameter out of range.
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (2)-(4) (no DOI).
 
     Examples
     --------

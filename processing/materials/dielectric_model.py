@@ -1,18 +1,20 @@
 """Reflection model of inhomogeneous dielectrics (lacquer): Matsuda et al., eq. (5).
 
-    C(lambda) = alpha cos_i S(lambda) E(lambda)                [diffuse]
+    C(lambda) = alpha cos_i S(lambda) E(lambda)                              [diffuse]
               + beta F(n, theta_d) D(h; sigma0) G / (4 cos_i cos_o) E cos_i   [gloss]
-              + gamma F(n, theta_d) mirror(sigma1) E cos_i          [mirror]
+              + gamma F(n, theta_d) mirror(sigma1) E cos_i                    [mirror]
 
-The body colour S(lambda) comes from the pigment and is independent of angle;
-the surface terms use the Fresnel reflectance of the real index n of the
-binder (urushi: about 1.5), so highlights have the colour of the light.
+The body colour S(lambda) of the pigment is independent of angle; the
+surface terms use the Fresnel reflectance of the real index n of the binder
+(urushi: about 1.5), so highlights have the colour of the light.  The two
+urushi pigment spectra are parametric curves; docs/materials.md, section
+"Lacquer pigment spectra", gives their shapes and sources.
 
-Two pigment spectra are provided, smooth parametric curves shaped after
-published reflectance measurements (sources in docs/materials.md): black
-urushi (kuro-urushi: iron- or carbon-blackened lacquer, a few percent,
-nearly flat) and red urushi (shu-urushi: vermilion, HgS, whose reflectance
-rises steeply at its band edge near 600 nm).
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI), eq. (5).
 """
 
 from __future__ import annotations
@@ -53,6 +55,13 @@ class DielectricFresnel:
         Wavelengths in nm of a dispersive index (then linearly interpolated);
         ``None`` for a constant index.
 
+    Raises
+    ------
+    ValueError
+        A non-finite or non-positive index, an array of indices without
+        wavelengths, or wavelengths that are not strictly increasing or do
+        not match the indices.
+
     Examples
     --------
     >>> f = DielectricFresnel(1.5)
@@ -91,7 +100,23 @@ class DielectricFresnel:
         return float(self._n) if self._wl is None else None
 
     def index(self, wavelengths: ArrayLike) -> NDArray[np.float64]:
-        """Refractive index at ``wavelengths`` (nm), shape ``(L,)``."""
+        """Refractive index at ``wavelengths``.
+
+        Parameters
+        ----------
+        wavelengths
+            Wavelengths in nm, L of them (flattened).
+
+        Returns
+        -------
+        ndarray
+            Shape ``(L,)``.
+
+        Raises
+        ------
+        ValueError
+            Wavelengths outside the range of a dispersive index.
+        """
         wl = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
         if self._wl is None:
             return np.full(wl.shape, float(self._n))
@@ -103,7 +128,25 @@ class DielectricFresnel:
         return np.interp(wl, self._wl, self._n)
 
     def reflectance(self, cos_d: ArrayLike, wavelengths: ArrayLike) -> NDArray[np.float64]:
-        """Fresnel reflectance, shape ``shape(cos_d) + (L,)``, in [0, 1]."""
+        """Fresnel reflectance F(n, cos_d).
+
+        Parameters
+        ----------
+        cos_d
+            Cosine of the angle between the light and the half vector.
+        wavelengths
+            1-D wavelengths in nm, L of them.
+
+        Returns
+        -------
+        ndarray
+            Shape ``shape(cos_d) + (L,)``, in [0, 1].
+
+        Raises
+        ------
+        ValueError
+            Wavelengths that are not 1-D.
+        """
         wl = np.asarray(wavelengths, dtype=np.float64)
         if wl.ndim != 1:
             raise ValueError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
@@ -127,6 +170,12 @@ class PigmentReflectance:
     values
         Reflectance factors in [0, 1] at those wavelengths; linearly
         interpolated onto any grid inside their range.
+
+    Raises
+    ------
+    ValueError
+        Mismatched or too short arrays, wavelengths not strictly increasing,
+        or values outside [0, 1].
 
     Examples
     --------
@@ -159,7 +208,23 @@ class PigmentReflectance:
         return f"PigmentReflectance({self.wavelengths[0]:g}-{self.wavelengths[-1]:g} nm, {self.wavelengths.size} samples)"
 
     def on(self, wavelengths: ArrayLike) -> NDArray[np.float64]:
-        """S(lambda) at ``wavelengths`` (nm), shape ``(L,)``, cached (read-only)."""
+        """S(lambda) at ``wavelengths``, cached.
+
+        Parameters
+        ----------
+        wavelengths
+            Wavelengths in nm, L of them (flattened), inside the table's range.
+
+        Returns
+        -------
+        ndarray
+            Shape ``(L,)``, read-only.
+
+        Raises
+        ------
+        ValueError
+            Wavelengths the table cannot be resampled onto.
+        """
         wl = np.ascontiguousarray(np.asarray(wavelengths, dtype=np.float64).reshape(-1))
         key = wl.tobytes()
         s = self._cache.get(key)
@@ -175,7 +240,25 @@ class PigmentReflectance:
         return s
 
     def reflectance(self, cos_d: ArrayLike, wavelengths: ArrayLike) -> NDArray[np.float64]:
-        """S(lambda) broadcast to ``shape(cos_d) + (L,)`` (a read-only view)."""
+        """S(lambda), independent of ``cos_d``.
+
+        Parameters
+        ----------
+        cos_d
+            Cosine of the angle between the light and the half vector (only its shape is used).
+        wavelengths
+            1-D wavelengths in nm, L of them.
+
+        Returns
+        -------
+        ndarray
+            S broadcast to ``shape(cos_d) + (L,)`` (a read-only view).
+
+        Raises
+        ------
+        ValueError
+            Wavelengths that are not 1-D.
+        """
         wl = np.asarray(wavelengths, dtype=np.float64)
         if wl.ndim != 1:
             raise ValueError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
@@ -193,7 +276,13 @@ def urushi_black_reflectance() -> PigmentReflectance:
     """Body reflectance of black urushi (kuro-urushi), 360-830 nm.
 
     A nearly flat, very low reflectance rising from 1.0 % in the blue to
-    2.0 % in the near infrared (the brownish tint of the urushiol binder).
+    2.0 % in the near infrared (the brownish tint of the urushiol binder);
+    a parametric curve, not a measurement (docs/materials.md).
+
+    Returns
+    -------
+    PigmentReflectance
+        Sampled every 5 nm.
 
     Examples
     --------
@@ -209,7 +298,13 @@ def urushi_red_reflectance() -> PigmentReflectance:
     """Body reflectance of red urushi (shu-urushi, vermilion HgS), 360-830 nm.
 
     About 5 % below 560 nm and a steep rise at the band edge of vermilion
-    (inflection at 600 nm, 10-90 % over about 60 nm) to about 55 %.
+    (inflection at 600 nm, 10-90 % over about 60 nm) to about 55 %; a
+    parametric curve, not a measurement (docs/materials.md).
+
+    Returns
+    -------
+    PigmentReflectance
+        Sampled every 5 nm.
 
     Examples
     --------
@@ -260,6 +355,18 @@ def dielectric_material(
     -------
     Material
         Lobes ``(lambert, gloss, mirror)``, family ``"dielectric"``.
+
+    Raises
+    ------
+    ValueError
+        A reflectance that is not a :class:`PigmentReflectance`, a parameter
+        out of range, an unknown shadowing model, or weights summing above 1.
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (5) (no DOI).
+    .. [2] Walter, Marschner, Li, Torrance, "Microfacet models for refraction
+       through rough surfaces", EGSR 2007, doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------

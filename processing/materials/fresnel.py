@@ -1,13 +1,18 @@
-"""Unpolarised Fresnel reflectance for conductors (complex index) and dielectrics.
+"""Unpolarised Fresnel reflectance of conductors (complex index) and dielectrics.
 
 Matsuda et al., eq. (1)-(2): the specular colour of a metal is the Fresnel
 reflectance of its complex refractive index eta = n + i k, averaged over the
-s and p polarisations, F = (|r_s|^2 + |r_p|^2) / 2.
+s and p polarisations, F = (|r_s|^2 + |r_p|^2) / 2.  The complex form is
+evaluated directly in complex arithmetic, which stays finite at grazing
+incidence (F = 1 exactly at cos(theta) = 0).
 
-The complex form is evaluated directly in complex arithmetic (no real-valued
-rearrangement with square roots of differences), which stays finite at
-grazing incidence: at cos(theta) = 0 both amplitude ratios have modulus 1 and
-F = 1 exactly.
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI).
+.. [2] Cook & Torrance, "A reflectance model for computer graphics", ACM
+   Transactions on Graphics 1(1), 7-24 (1982), doi:10.1145/357290.357293.
 """
 
 from __future__ import annotations
@@ -28,12 +33,22 @@ def fresnel_conductor(cos_theta: ArrayLike, eta: ArrayLike) -> NDArray[np.float6
     eta
         Complex relative refractive index n + i k (n >= 0, k >= 0, eta != 0),
         broadcast against ``cos_theta``; a real value gives the dielectric
-        result.  Bad values raise ValueError.
+        result.
 
     Returns
     -------
     ndarray
         Reflectance in [0, 1], shape ``broadcast(cos_theta, eta)``.
+
+    Raises
+    ------
+    ValueError
+        Non-finite ``cos_theta`` or ``eta``, a negative n or k, or eta = 0.
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (1) (no DOI).
+    .. [2] Cook & Torrance (1982), doi:10.1145/357290.357293.
 
     Examples
     --------
@@ -67,9 +82,11 @@ def fresnel_conductor(cos_theta: ArrayLike, eta: ArrayLike) -> NDArray[np.float6
 
 
 def _difference_ratio(a: NDArray, b: NDArray) -> NDArray[np.complex128]:
-    """(a - b) / (a + b), with both scaled by max(|a|, |b|) first: numpy's complex
-    division overflows when a and b are denormal (cos_theta ~ 1e-320 with eta ~ 1).
-    The ratio is 0/0 (NaN) only where a = b = 0.
+    """(a - b) / (a + b), with both scaled by max(|a|, |b|) first.
+
+    numpy's complex division overflows when a and b are denormal
+    (cos_theta ~ 1e-320 with eta ~ 1).  The ratio is 0/0 (NaN) only where
+    a = b = 0.
     """
     scale = np.maximum(np.abs(a), np.abs(b))
     scale = np.where(scale > 0.0, scale, 1.0)
@@ -103,6 +120,11 @@ def fresnel_dielectric(cos_theta: ArrayLike, n: ArrayLike) -> NDArray[np.float64
     -------
     ndarray
         Reflectance in [0, 1], shape ``broadcast(cos_theta, n)``.
+
+    Raises
+    ------
+    ValueError
+        Non-finite ``cos_theta`` or ``n``, or n <= 0.
 
     Examples
     --------

@@ -1,41 +1,19 @@
 """Material identification by forward-modelling candidate materials into the camera, and alloy weights.
 
 Matsuda et al., section 4.2, eq. (11): a region's material is the known
-material whose colour signal is nearest to the measured one, ``argmin_j ||C_j - S||``,
-and alloy compositions follow eq. (3)-(4), ``C_alloy = sum_j w_j C_j``.
-The comparison here is made in camera space, not in a 3-vector basis (which
-cannot represent metal spectra well):
+material whose colour signal is nearest to the measured one, and alloy
+compositions follow eq. (3)-(4), ``C_alloy = sum_j w_j C_j``.  Here the
+comparison is made in camera space with a free brightness per candidate and
+a relative Gaussian noise model; neutral metals that one view cannot tell
+apart are reported as "neutral metal".  docs/materials.md, section
+"Identifying a material", states the geometry, the noise model and the
+calibration the camera values need.
 
-* **Measurement geometry.**  A region is seen with the view along its
-  normal and the light at ``light_deg`` (default 30 degrees) from it, in one
-  plane.  Each candidate's signal is its BRDF at that geometry
-  (:func:`processing.materials.lobes.material_brdf`) times the light, through the
-  camera sensitivities (:mod:`processing.camera.response`); for a metal or an
-  alloy this is the Fresnel reflectance at the half-angle, for urushi the
-  pigment's diffuse colour plus the gloss of the binder.
-* **Unknown brightness.**  How bright a metal looks depends on its roughness
-  and the exact angles, which vary over an object, so each candidate gets a
-  free non-negative scale: only the direction of the camera vector (the
-  colour) is compared.  Metals of nearly flat reflectance (Ag, Al, Pt, Sn,
-  Zn, Pb, Fe) then differ by less than the noise from one view; when the
-  best and the runner-up are both such *neutral metals* (camera colour within
-  10 % of the light's: largest / smallest channel ratio <= 1.10) and their
-  likelihood ratio is below 20, the answer is "neutral metal", not a guess.
-* **Noise model.**  Each pixel's channel c has Gaussian noise of standard
-  deviation ``noise * rho_c`` (relative, 1 % = 0.01); a region of n pixels
-  has its mean's deviation divided by sqrt(n), plus an optional relative
-  ``model_error`` added in quadrature.  ``chi2_j = min_a sum_c ((rho_c - a
-  m_jc) / sigma_c)^2`` and the confidence is the posterior probability of
-  the best candidate under a uniform prior, ``exp(-chi2_j / 2)`` normalised
-  over the candidates.
-* **Calibration.**  The camera values must be in the model camera's units:
-  apply the chart transform (:func:`processing.camera.transfer.fit_chart_transform`)
-  first when the object camera is another camera.
-
-Alloy weights (:func:`estimate_alloy_weights`) are the non-negative,
-sum-to-one weights of the pure metals' responses that best explain the
-region (weighted non-negative least squares on ``a w_j``, then normalised),
-with a linearised standard deviation.
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI), section 4.2, eq. (3)-(4) and (11).
 """
 
 from __future__ import annotations
@@ -140,7 +118,23 @@ def candidate_set(
     names
         Material specs (preset names, optionally with parameters).
     light_deg
-        Angle of the light from the surface normal; the camera looks along the normal.
+        Angle of the light from the surface normal, in [0, 90); the camera
+        looks along the normal.
+
+    Returns
+    -------
+    CandidateSet
+        The candidates' camera responses and which of them are neutral metals.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Fewer than two candidates, a bad spec or a cloth candidate, a
+        candidate without signal in some channel, or a bad ``light_deg``.
+
+    References
+    ----------
+    .. [1] Matsuda et al., section 4.2 (no DOI).
 
     Examples
     --------
@@ -244,6 +238,16 @@ def identify_material(
         Material (or "neutral metal"), posterior confidence, runner-up,
         likelihood ratio, group, chi-square per candidate, brightness.
 
+    Raises
+    ------
+    SpectralEstimationError
+        Bad noise levels, pixels of the wrong shape or non-finite, or a
+        region black in every channel.
+
+    References
+    ----------
+    .. [1] Matsuda et al., section 4.2, eq. (11) (no DOI).
+
     Examples
     --------
     >>> from processing.camera.response import camera_sensitivities
@@ -291,10 +295,29 @@ def identify_material(
 def identify_regions(
     rgb: ArrayLike, labels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01, model_error: float = 0.0
 ) -> dict[int, Identification]:
-    """Identify every labelled region (label > 0) of an image ``(H, W, c)``.
+    """Identify every labelled region (label > 0) of an image.
 
-    ``labels`` is an integer ``(H, W)`` image, 0 for pixels to leave out (the
-    mask); the result maps each label to its :class:`Identification`.
+    Parameters
+    ----------
+    rgb
+        ``(H, W, c)`` linear camera values, as for :func:`identify_material`.
+    labels
+        Integer ``(H, W)`` image, 0 for pixels to leave out (the mask).
+    candidates
+        The forward-modelled candidates (:func:`candidate_set`).
+    noise, model_error
+        As for :func:`identify_material`.
+
+    Returns
+    -------
+    dict
+        Label -> :class:`Identification`.
+
+    Raises
+    ------
+    SpectralEstimationError
+        Mismatched shapes, a non-integer label image, no region, or an error
+        of :func:`identify_material`.
 
     Examples
     --------
@@ -346,7 +369,13 @@ class AlloyEstimate:
     residual: float
 
     def as_dict(self) -> dict[str, float]:
-        """Weights by symbol."""
+        """Weights by symbol.
+
+        Returns
+        -------
+        dict
+            Chemical symbol -> weight.
+        """
         return {m: float(w) for m, w in zip(self.metals, self.weights)}
 
 
@@ -360,12 +389,44 @@ def estimate_alloy_weights(
     light_deg: float = 30.0,
     noise: float = 0.01,
 ) -> AlloyEstimate:
-    """Weights of the alloy model ``C = sum_j w_j C_j`` (Matsuda eq. (3)-(4)) from a region's camera values.
+    """Weights of the alloy model ``C = sum_j w_j C_j`` from a region's camera values.
 
     The pure metals' Fresnel reflectances at the geometry's half-angle go
     through the camera; ``rho ~= sum_j v_j r_j`` with ``v >= 0`` is solved by
     weighted NNLS, and ``w = v / sum(v)`` (the brightness is free).  The
     standard deviation propagates the noise model through the active set.
+
+    Parameters
+    ----------
+    pixels
+        ``(n, c)`` (or ``(c,)``) linear camera values of the region.
+    sensitivities
+        ``(L, c)`` model-camera sensitivities.
+    lights
+        ``(L,)`` light, or ``(k, L)`` for k exposures.
+    grid
+        The wavelength grid.
+    metals
+        Chemical symbols of the constituents (at least two).
+    light_deg
+        Angle of the light from the normal, in [0, 90); the view is along it.
+    noise
+        Relative noise of one pixel's channel (> 0; 0.01 = 1 %).
+
+    Returns
+    -------
+    AlloyEstimate
+        Weights summing to 1, their standard deviations and the residual.
+
+    Raises
+    ------
+    SpectralEstimationError
+        A bad noise level or ``light_deg``, bad pixels, a black region, fewer
+        than two metals, an unknown metal, or no non-negative mixture.
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (3)-(4) (no DOI).
 
     Examples
     --------

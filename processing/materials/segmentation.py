@@ -1,43 +1,18 @@
 """An object's pixels split into candidate material regions without ground truth.
 
 Matsuda et al., section 4.2, identify one material per region; this module
-provides the regions when no label image exists (docs/batch.md, "materials"):
+provides the regions when no label image exists: the booth backdrop is
+measured on the frame's border ring and removed, dark pixels are dropped,
+and the lit object pixels are clustered by the chromaticity of a small
+window around each.  docs/materials.md, section "Regions without ground
+truth", gives the steps and their limits; docs/batch.md, section "The
+materials step", how the batch pipeline uses them.
 
-1. **Levels.** The input is the chart-calibrated camera RGB divided by the
-   camera RGB of a white diffuser lit like the chart (``rel``: 1.0 = white).
-2. **Backdrop.** The object sits in the middle of the frame on a uniform
-   booth backdrop, so the frame's border ring shows the backdrop.  Its median
-   level and chromaticity are measured there; pixels within a factor
-   ``backdrop_factor`` of that level *and* within ``backdrop_chroma`` of its
-   chromaticity are backdrop.
-3. **Lit pixels.** Of the rest, pixels masked in the RAW (saturated, dead) or
-   whose brightest channel is below ``min_level`` of the white are dropped: a
-   glossy metal away from its highlights is black and carries noise, not
-   colour.
-4. **Clusters.** The remaining pixels are clustered by k-means on the
-   chromaticity ``rgb / sum(rgb)`` of the summed RGB of the lit pixels in a
-   small window around each (a mirror highlight may light a single photosite
-   of a colour-filter cell, so one pixel's own colour can be one channel) (brightness left out: across a metal region
-   it follows the angle to the highlight, the colour hardly).  The caller then
-   identifies each cluster and merges clusters whose identification agrees.
-
-Limits: an object region whose colour and brightness match the backdrop's
-is taken for backdrop; regions of one chromaticity but different materials
-(a grey alloy next to silver) fall into one cluster; regions with no lit
-pixel are not seen at all; the border ring must show only backdrop; within
-``smooth`` pixels of a boundary between two lit regions the window mixes
-their colours, so those pixels may fall into either cluster (or a third).
-
-Examples
---------
->>> rel = np.full((20, 20, 3), 0.05)
->>> rel[5:15, 5:10] = (0.6, 0.4, 0.1)        # a gold-like patch
->>> rel[5:15, 12:17] = (0.1, 0.2, 0.5)       # a blue patch, two pixels apart
->>> seg = segment_regions(rel, np.ones((20, 20), bool), clusters=2)
->>> sorted(np.bincount(seg.labels.ravel()).tolist())
-[50, 50, 300]
->>> int(seg.backdrop.sum())
-300
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG
+   reproduction of a craft object based on a light reflection model", IPSJ
+   technical report (no DOI), section 4.2.
 """
 
 from __future__ import annotations
@@ -91,6 +66,16 @@ def border_backdrop(rel: ArrayLike, mask: ArrayLike, border: float = 0.06) -> ND
     border
         Width of the ring as a fraction of the shorter side (at least one pixel).
 
+    Returns
+    -------
+    ndarray
+        ``(3,)`` median level per channel (1.0 = white diffuser).
+
+    Raises
+    ------
+    SegmentationError
+        The ring holds no usable (unmasked, finite) pixel.
+
     Examples
     --------
     >>> rel = np.full((10, 10, 3), 0.05); rel[3:7, 3:7] = 0.8
@@ -113,7 +98,13 @@ def border_backdrop(rel: ArrayLike, mask: ArrayLike, border: float = 0.06) -> ND
 def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_level: float = 0.005,
                     backdrop_factor: float = 1.6, backdrop_chroma: float = 0.06, min_pixels: int = 8,
                     border: float = 0.06, smooth: int = 2, seed: int = 0) -> Segmentation:
-    """Backdrop removed, lit object pixels clustered by chromaticity (module text).
+    """Backdrop removed, lit object pixels clustered by chromaticity.
+
+    The backdrop is measured on the frame's border ring; pixels near its
+    level and chromaticity are backdrop.  Of the rest, masked pixels and
+    pixels darker than ``min_level`` are dropped, and the lit pixels are
+    clustered by k-means on the chromaticity of the summed RGB in a small
+    window around each (docs/materials.md, "Regions without ground truth").
 
     Parameters
     ----------
@@ -141,12 +132,57 @@ def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_l
     Returns
     -------
     Segmentation
-    """
-    from scipy.cluster.vq import kmeans2
-    from scipy.ndimage import binary_dilation, uniform_filter
+        Labels (1 the largest cluster, 0 not a lit object pixel), backdrop
+        mask, backdrop level and cluster chromaticities.
 
+    Raises
+    ------
+    SegmentationError
+        Mismatched shapes, a parameter out of range, or a border ring
+        without usable pixels.
+
+    Examples
+    --------
+    >>> rel = np.full((20, 20, 3), 0.05)
+    >>> rel[5:15, 5:10] = (0.6, 0.4, 0.1)        # a gold-like patch
+    >>> rel[5:15, 12:17] = (0.1, 0.2, 0.5)       # a blue patch, two pixels apart
+    >>> seg = segment_regions(rel, np.ones((20, 20), bool), clusters=2)
+    >>> sorted(np.bincount(seg.labels.ravel()).tolist())
+    [50, 50, 300]
+    >>> int(seg.backdrop.sum())
+    300
+    """
     x = np.asarray(rel, dtype=np.float64)
     m = np.asarray(mask, dtype=bool)
+    _check_arguments(x, m, clusters, min_level, backdrop_factor, backdrop_chroma, min_pixels)
+    m = m & np.isfinite(x).all(axis=2)
+    x = np.where(m[..., None], np.maximum(x, 0.0), 0.0)
+    back = border_backdrop(x, m, border)
+    backdrop = _backdrop_mask(x, m, back, backdrop_factor, backdrop_chroma)
+    lit = m & ~backdrop & (x.max(axis=2) >= min_level)
+    labels = np.zeros(m.shape, np.int64)
+    n = int(lit.sum())
+    k = min(clusters, n // min_pixels)
+    if k < 1:
+        return Segmentation(labels, backdrop, back, np.zeros((0, 3)))
+    feats = _window_chromaticity(x, lit, smooth)
+    # k-means++ draws seeds in proportion to squared distances: fewer distinct colours than clusters
+    # would leave all distances 0 (no seed to draw), so k never exceeds the distinct colours
+    k = min(k, len(np.unique(np.round(feats, 6), axis=0)))
+    idx = _cluster_indices(feats, k, n, seed)
+    counts = np.bincount(idx, minlength=k)
+    order = [c for c in np.argsort(-counts, kind="stable") if counts[c] >= min_pixels]
+    lut = np.zeros(k, np.int64)
+    for new, old in enumerate(order, start=1):
+        lut[old] = new
+    labels[lit] = lut[idx]
+    centres = np.array([feats[idx == old].mean(axis=0) for old in order]).reshape(-1, 3)
+    return Segmentation(labels, backdrop, back, centres)
+
+
+def _check_arguments(x: NDArray[np.float64], m: NDArray[np.bool_], clusters: int, min_level: float,
+                     backdrop_factor: float, backdrop_chroma: float, min_pixels: int) -> None:
+    """Refuse mismatched shapes and parameters out of range."""
     if x.ndim != 3 or x.shape[2] != 3 or m.shape != x.shape[:2]:
         raise SegmentationError(f"rel must be (H, W, 3) and mask (H, W); got {x.shape} and {m.shape}")
     if not (isinstance(clusters, int) and 1 <= clusters <= 64):
@@ -154,9 +190,13 @@ def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_l
     if not (0 < min_level < 1 and backdrop_factor > 1 and 0 < backdrop_chroma < 1 and min_pixels >= 1):
         raise SegmentationError("min_level must be in (0, 1), backdrop_factor > 1, backdrop_chroma in (0, 1), "
                                 f"min_pixels >= 1; got {min_level}, {backdrop_factor}, {backdrop_chroma}, {min_pixels}")
-    m = m & np.isfinite(x).all(axis=2)
-    x = np.where(m[..., None], np.maximum(x, 0.0), 0.0)
-    back = border_backdrop(x, m, border)
+
+
+def _backdrop_mask(x: NDArray[np.float64], m: NDArray[np.bool_], back: NDArray[np.float64],
+                   backdrop_factor: float, backdrop_chroma: float) -> NDArray[np.bool_]:
+    """Pixels near the backdrop's level and chromaticity, plus the silhouette ring no brighter than it."""
+    from scipy.ndimage import binary_dilation
+
     total = x.sum(axis=2)
     chroma = x / np.maximum(total, 1e-12)[..., None]
     level = total / 3.0
@@ -168,34 +208,30 @@ def segment_regions(rel: ArrayLike, mask: ArrayLike, *, clusters: int = 6, min_l
     # a binned cell on the silhouette mixes backdrop photosites with the object's (one channel from each):
     # the ring next to the backdrop, no brighter than the backdrop, goes with it
     backdrop |= m & binary_dilation(backdrop) & (level <= b_level)
-    lit = m & ~backdrop & (x.max(axis=2) >= min_level)
-    labels = np.zeros(m.shape, np.int64)
-    n = int(lit.sum())
-    k = min(clusters, n // min_pixels)
-    if k < 1:
-        return Segmentation(labels, backdrop, back, np.zeros((0, 3)))
+    return backdrop
+
+
+def _window_chromaticity(x: NDArray[np.float64], lit: NDArray[np.bool_], smooth: int) -> NDArray[np.float64]:
+    """``(n, 3)`` chromaticity of the summed RGB of the lit pixels in the window around each lit pixel."""
+    from scipy.ndimage import uniform_filter
+
     # a mirror's highlight may light one photosite of a CFA cell: per-pixel chromaticity is then one
     # channel only; the sum over a small window of lit pixels (as identification sums a region) is not
     window = 2 * smooth + 1
     local = np.stack([uniform_filter(np.where(lit, x[..., c], 0.0), size=window, mode="constant")
                       for c in range(3)], axis=2)
-    feats = (local / np.maximum(local.sum(axis=2), 1e-12)[..., None])[lit]
-    # k-means++ draws seeds in proportion to squared distances: fewer distinct colours than clusters
-    # would leave all distances 0 (no seed to draw), so k never exceeds the distinct colours
-    k = min(k, len(np.unique(np.round(feats, 6), axis=0)))
+    return (local / np.maximum(local.sum(axis=2), 1e-12)[..., None])[lit]
+
+
+def _cluster_indices(feats: NDArray[np.float64], k: int, n: int, seed: int) -> NDArray[np.int64]:
+    """k-means cluster index of each of the ``n`` features (all 0 when ``k == 1``)."""
+    from scipy.cluster.vq import kmeans2
+
     if k == 1:
-        idx = np.zeros(n, np.int64)
-    else:
-        # k-means++ seeding, a fixed seed: the same frame always gives the same regions
-        with warnings.catch_warnings():
-            # an empty cluster is harmless: it is dropped below like any cluster under min_pixels
-            warnings.filterwarnings("ignore", "One of the clusters is empty", UserWarning)
-            _, idx = kmeans2(feats, k, minit="++", seed=np.random.default_rng(seed))
-    counts = np.bincount(idx, minlength=k)
-    order = [c for c in np.argsort(-counts, kind="stable") if counts[c] >= min_pixels]
-    lut = np.zeros(k, np.int64)
-    for new, old in enumerate(order, start=1):
-        lut[old] = new
-    labels[lit] = lut[idx]
-    centres = np.array([feats[idx == old].mean(axis=0) for old in order]).reshape(-1, 3)
-    return Segmentation(labels, backdrop, back, centres)
+        return np.zeros(n, np.int64)
+    # k-means++ seeding, a fixed seed: the same frame always gives the same regions
+    with warnings.catch_warnings():
+        # an empty cluster is harmless: it is dropped below like any cluster under min_pixels
+        warnings.filterwarnings("ignore", "One of the clusters is empty", UserWarning)
+        _, idx = kmeans2(feats, k, minit="++", seed=np.random.default_rng(seed))
+    return idx

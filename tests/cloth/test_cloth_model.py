@@ -48,7 +48,8 @@ def test_ellipsoid_distance_is_the_distance_to_the_ellipsoid():
         h /= np.linalg.norm(h)
         a_t, a_b = rng.uniform(0.05, 2.0, 2)
         # the point s h lies on x^2/a_t^2 + y^2/a_b^2 + z^2 = 1: solved by root finding
-        s = optimize.brentq(lambda s: (s * h[0] / a_t) ** 2 + (s * h[1] / a_b) ** 2 + (s * h[2]) ** 2 - 1, 0, 1e3)
+        s = optimize.brentq(lambda s, h=h, a_t=a_t, a_b=a_b: (s * h[0] / a_t) ** 2 + (s * h[1] / a_b) ** 2
+                            + (s * h[2]) ** 2 - 1, 0, 1e3)
         assert float(ellipsoid_distance(*h, a_t, a_b)) == pytest.approx(s, rel=1e-9)
         assert float(ellipsoid_ndf(*h, a_t, a_b)) == pytest.approx(s ** 4 / (math.pi * a_t * a_b), rel=1e-9)
 
