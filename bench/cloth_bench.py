@@ -1,4 +1,4 @@
-"""Cloth benchmarks (issue #6): render cost of cloth against metal at the same size, and the
+"""Cloth benchmarks: render cost of cloth against metal at the same size, and the
 speed/accuracy of the internal layer count K (1, 3, 10, 30) against K = 50.
 
 ``python -m bench.cloth_bench`` runs both cases and prints one JSON line;
@@ -86,7 +86,7 @@ def section(results: dict | None = None) -> list[str]:
     r = results or run_all()
     c, k = r["cost"], r["layers"]
     lines = [
-        "## Cloth (issue #6)",
+        "## Cloth",
         "",
         "`bench/cloth_bench.py`: the draped sheet of docs/cloth.md seen across the warp, one sun and a uniform",
         f"sky, `standard` preset (4 samples per pixel, angular XYZ tables), {c['size'][0]} x {c['size'][1]}.",
