@@ -185,7 +185,8 @@ class ScannerCalibration:
     ----------
     sensor_to_room
         (4, 4) rigid transform from the profiler's sensor frame to the room
-        frame (mm), in the gauge of the module docstring.
+        frame (mm), in the gauge of docs/processing.md, section
+        "Calibration fit" (sensor origin in the room's XZ plane, positive X).
     sphere_radius_mm
         Radius of the reference sphere (as given).
     sphere_center_mm
