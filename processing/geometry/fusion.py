@@ -22,6 +22,13 @@ whose confidence is well below the best confidence of the samples around
 them facing the same way: where a better measurement of the same surface
 exists, the poor one is left out; where none exists, it is kept.
 
+References
+----------
+.. [1] Curless, B., Levoy, M. (1996). A volumetric method for building
+   complex models from range images. SIGGRAPH 1996.
+.. [2] Kazhdan, M., Hoppe, H. (2013). Screened Poisson surface
+   reconstruction. ACM TOG 32(3), 29. doi:10.1145/2487228.2487237
+
 Examples
 --------
 >>> pts = [[0.01, 0.0, 0.0], [0.03, 0.0, 0.0], [5.0, 0.0, 0.0]]
@@ -85,6 +92,7 @@ class FusedCloud:
 
 
 def _as_float_array(value: ArrayLike, name: str) -> NDArray[np.float64]:
+    """``value`` as a float64 array; a ValueError naming ``name`` if it holds no numbers."""
     try:
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -114,6 +122,7 @@ def validate_oriented_cloud(
     Returns
     -------
     points, unit normals, confidence
+        float64 ``(N, 3)`` (mm), ``(N, 3)`` and ``(N,)``.
 
     Raises
     ------
@@ -189,6 +198,27 @@ def point_spacing(points: ArrayLike, *, tree: cKDTree | None = None, sample: int
     Estimated on a random subset of ``sample`` query points (all neighbours
     are searched in the full cloud).
 
+    Parameters
+    ----------
+    points
+        ``(N, 3)`` positions (mm), N >= 2.
+    tree
+        Optional ``cKDTree`` of the points.
+    sample
+        Largest number of query points.
+    seed
+        Seed of the random subset.
+
+    Returns
+    -------
+    float
+        The median nearest-neighbour distance (mm).
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 points.
+
     Examples
     --------
     >>> g = np.stack(np.meshgrid(np.arange(20.0), np.arange(20.0), [0.0]), -1).reshape(-1, 3) * 0.5
@@ -218,6 +248,29 @@ def noise_level(
     degrees of freedom, and the median of a chi-square lies below its mean).
     Noise comparable to the spacing reads lower still (the nearest neighbours
     in 3-D favour similar heights).  Estimated around ``sample`` random points.
+
+    Parameters
+    ----------
+    points
+        ``(N, 3)`` positions (mm), N >= ``k``.
+    tree
+        Optional ``cKDTree`` of the points.
+    k
+        Neighbours per plane fit.
+    sample
+        Number of random points around which the planes are fitted.
+    seed
+        Seed of the random points.
+
+    Returns
+    -------
+    float
+        The median RMS distance to the planes (mm).
+
+    Raises
+    ------
+    ValueError
+        Fewer than ``k`` points.
 
     Examples
     --------
@@ -273,6 +326,11 @@ def dominated_samples(
     ndarray of bool
         ``(N,)``, True for dominated samples.
 
+    Raises
+    ------
+    ValueError
+        ``ratio`` outside [0, 1], ``radius_mm`` not a positive finite distance.
+
     Examples
     --------
     >>> p = [[0, 0, 0], [0.1, 0, 0], [5, 0, 0]]
@@ -327,6 +385,7 @@ def fuse_points(
     Returns
     -------
     FusedCloud
+        One sample per voxel and facing, with its confidence and count.
 
     Raises
     ------

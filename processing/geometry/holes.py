@@ -1,50 +1,27 @@
-"""Smooth completion of holes: a smooth height field fitted around each hole.
+"""Smooth completion of holes: a smooth height field fitted around each hole, sampled as guide points.
 
 Matsuda et al. (section 2) complete the parts a scan missed by fitting a
 smooth surface (NURBS patches) to the measured data around each hole.  Here
 each hole of a mesh (a connected unsupported region, see
-:mod:`processing.geometry.mesh_support`) is completed the same way:
+:mod:`processing.geometry.mesh_support`) gets a direction from its border, a
+ring of data around it, a sphere plus thin-plate spline (or a spline, or the
+plane of the border data, or the table plane) fitted to the ring, and guide
+points on that surface inside the border; added to the data, they make a
+second screened Poisson reconstruction close every hole along the fitted
+surface.  See docs/processing.md, section "Hole filling".
 
-1. **Direction.**  The hole's border is the set of directed edges of
-   supported triangles that adjoin the hole, oriented as in those triangles.
-   A closed surface oriented outward goes around a hole clockwise seen from
-   outside, so the border's vector area ``A = 1/2 sum v_a x v_b`` points
-   inward: the hole's outward direction is ``N = -A / |A|``.  Projected
-   along ``N`` the border encloses the largest area of any projection, so
-   the plane through the border's centroid normal to ``N`` is the domain of
-   a height field ``h(u, v)``.
-2. **Ring.**  The data within ``ring_factor`` times the border's diameter of
-   the border, and any data inside the border, whose normals face ``N``
-   (within 75 degrees) are the samples.
-3. **Surface.**  Two smooth height fields are fitted to the ring:
-   a least-squares sphere (one branch of it; the algebraic fit of Kasa 1976)
-   plus a thin-plate spline of the residual, and a thin-plate spline alone
-   (Duchon 1977; ``scipy``'s ``RBFInterpolator``, linear polynomial part,
-   light smoothing for the range noise).  The spline minimises the bending
-   energy ``int h_uu^2 + 2 h_uv^2 + h_vv^2``, so it continues the ring's
-   slope and curvature across the hole; the sphere carries curvature over
-   wide holes where a spline alone flattens (a 26 mm hole in a 40 mm
-   sphere: mean error 0.04 mm with the sphere, 0.36 mm without).  A fit
-   whose RMS residual on the ring exceeds ``2.5 noise + 0.1 spacing`` is
-   rejected; of two acceptable fits the one that predicts each quarter of
-   the ring from the other three best is kept (for holes wider than 8
-   support thresholds).  When neither is acceptable -- the ring is no
-   height field, as the walls around a flat cut such as the underside of
-   an object standing on the table -- the least-squares plane through the
-   data at the border closes the hole (the minimal assumption).  When the
-   plane the object stands on is known, a hole facing it from just above
-   is closed on it, whatever the ring says: the underside rests on the
-   table, and a fill must not pass below it.
-4. **Guide points.**  The plane is sampled on a square grid (1.5 point
-   spacings); the samples inside the projected border (even-odd crossing
-   rule, vectorised per grid row) are lifted onto ``h`` and get the normals
-   of ``h``; samples within the support threshold of the data are dropped
-   (so a fit never doubles measured surface, even where a few samples lie
-   inside the hole: two layers a fraction of a millimetre apart would give
-   the Poisson surface a spurious tunnel).
-
-The returned guide points, added to the data, make a second screened
-Poisson reconstruction close every hole along the fitted surface.
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura. CG
+   reproduction of a craft object based on a light reflection model. IPSJ
+   technical report.
+.. [2] Kasa, I. (1976). A circle fitting procedure and its error analysis.
+   IEEE Trans. Instrum. Meas. 25(1), 8-14.
+.. [3] Pratt, V. (1987). Direct least-squares fitting of algebraic surfaces.
+   SIGGRAPH 1987. doi:10.1145/37402.37420
+.. [4] Duchon, J. (1977). Splines minimizing rotation-invariant semi-norms
+   in Sobolev spaces. Constructive Theory of Functions of Several Variables,
+   Lecture Notes in Mathematics 571.
 
 Examples
 --------
@@ -56,20 +33,18 @@ Examples
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import RBFInterpolator
 from scipy.spatial import cKDTree
 
+from processing.geometry.height_fields import _MIN_RING, _choose_ring_model, _fit, _Floor, _Plane, _rms, _SphereSpline
 from processing.geometry.mesh_support import SupportReport
 from processing.geometry.mesh_topology import edge_twins
 
 __all__ = ["HoleFit", "HoleGuides", "hole_guide_points", "inside_polygon"]
 
-#: Fewest ring samples for a fit to the ring (else the plane through the border data).
-_MIN_RING = 12
 #: Ring samples must face the hole's direction within this angle.
 _RING_MAX_ANGLE_DEG = 75.0
 #: Largest number of guide-grid samples per hole (the grid is coarsened beyond).
@@ -82,8 +57,6 @@ _FLOOR_SNAP_MM = 2.0
 _KEEP_OFF = 1.0
 #: Guide grid step in point spacings.
 _GUIDE_STEP = 1.5
-#: Spline smoothing per fitted sample (scipy ``RBFInterpolator`` units, mm).
-_SMOOTHING = 1e-3
 
 
 @dataclass(frozen=True)
@@ -185,6 +158,7 @@ def inside_polygon(query: ArrayLike, edges: ArrayLike) -> NDArray[np.bool_]:
 
 
 def _basis(normal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Two unit vectors completing ``normal`` to a right-handed orthonormal frame."""
     helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
     e1 = np.cross(normal, helper)
     e1 /= np.linalg.norm(e1)
@@ -211,117 +185,6 @@ def _border_edges(triangles: NDArray[np.int64], report: SupportReport) -> tuple[
     return np.stack([a[rows_a], b[rows_a]], axis=1), np.concatenate(holes)
 
 
-class _SphereSpline:
-    """Height field: one branch of a least-squares sphere plus a spline of the residual."""
-
-    def __init__(self, samples: NDArray[np.float64], smoothing: float) -> None:
-        x = samples
-        design = np.column_stack([2.0 * x, np.ones(x.shape[0])])
-        sol, *_ = np.linalg.lstsq(design, np.einsum("ij,ij->i", x, x), rcond=None)
-        self.centre = sol[:3]
-        r2 = sol[3] + self.centre @ self.centre
-        self.radius = float(np.sqrt(r2)) if r2 > 0 else float("nan")
-        self.sign = 1.0 if np.median(x[:, 2] - self.centre[2]) >= 0 else -1.0
-        base = self.base(x[:, :2])
-        self.valid = bool(np.all(np.isfinite(base)))
-        self.spline = (
-            RBFInterpolator(x[:, :2], x[:, 2] - base, kernel="thin_plate_spline", degree=1, smoothing=smoothing)
-            if self.valid
-            else None
-        )
-
-    def base(self, uv: NDArray[np.float64]) -> NDArray[np.float64]:
-        q = self.radius**2 - np.einsum("ij,ij->i", uv - self.centre[:2], uv - self.centre[:2])
-        out = np.full(uv.shape[0], np.nan)
-        ok = q >= 0
-        out[ok] = self.centre[2] + self.sign * np.sqrt(q[ok])
-        return out
-
-    def __call__(self, uv: NDArray[np.float64]) -> NDArray[np.float64]:
-        assert self.spline is not None
-        return self.base(uv) + self.spline(uv)
-
-
-class _Plane:
-    """Least-squares plane ``h = a + b u + c v`` (the border of a hole ringed by walls)."""
-
-    def __init__(self, samples: NDArray[np.float64]) -> None:
-        design = np.column_stack([np.ones(samples.shape[0]), samples[:, 0], samples[:, 1]])
-        self.coef, *_ = np.linalg.lstsq(design, samples[:, 2], rcond=None)
-
-    def __call__(self, uv: NDArray[np.float64]) -> NDArray[np.float64]:
-        return self.coef[0] + uv @ self.coef[1:]
-
-
-class _Floor:
-    """The plane z = z0 (world) as a height field over a hole's local frame."""
-
-    def __init__(self, z0_local: float, e1: NDArray, e2: NDArray, normal: NDArray) -> None:
-        self.z0, self.a, self.b, self.c = z0_local, float(e1[2]), float(e2[2]), float(normal[2])
-
-    def __call__(self, uv: NDArray[np.float64]) -> NDArray[np.float64]:
-        return (self.z0 - uv[:, 0] * self.a - uv[:, 1] * self.b) / self.c
-
-
-def _plain_spline(samples: NDArray[np.float64], smoothing: float) -> RBFInterpolator:
-    return RBFInterpolator(samples[:, :2], samples[:, 2], kernel="thin_plate_spline", degree=1, smoothing=smoothing)
-
-
-def _fit(kind: str, samples: NDArray[np.float64]) -> Any:
-    smoothing = _SMOOTHING * samples.shape[0]
-    if kind == "sphere":
-        model = _SphereSpline(samples, smoothing)
-        return model if model.valid else None
-    return _plain_spline(samples, smoothing)
-
-
-def _rms(model: Any, samples: NDArray[np.float64]) -> float:
-    r = model(samples[:, :2]) - samples[:, 2]
-    return float(np.sqrt(np.mean(r * r))) if np.all(np.isfinite(r)) else float("inf")
-
-
-def _sector_cv(kind: str, samples: NDArray[np.float64]) -> float:
-    """RMS error predicting each quarter of the ring from the other three."""
-    angle = np.arctan2(samples[:, 1] - samples[:, 1].mean(), samples[:, 0] - samples[:, 0].mean())
-    sector = np.minimum(((angle + np.pi) / (0.5 * np.pi)).astype(np.int64), 3)
-    err = []
-    for k in range(4):
-        test = sector == k
-        if test.sum() < 3 or (~test).sum() < _MIN_RING:
-            continue
-        model = _fit(kind, samples[~test])
-        if model is None:
-            return float("inf")
-        r = model(samples[test, :2]) - samples[test, 2]
-        if not np.all(np.isfinite(r)):
-            return float("inf")
-        err.append(r * r)
-    return float(np.sqrt(np.mean(np.concatenate(err)))) if err else float("inf")
-
-
-def _choose_ring_model(samples: NDArray[np.float64], tolerance: float, cross_validate: bool) -> tuple[Any, str, float]:
-    """Best of sphere + spline and plain spline on the ring, or (None, reason, rms)."""
-    fitted = []
-    worst = 0.0
-    for kind in ("sphere", "spline"):
-        try:
-            model = _fit(kind, samples)
-        except (np.linalg.LinAlgError, ValueError):
-            model = None
-        if model is None:
-            continue
-        rms = _rms(model, samples)
-        worst = max(worst, rms)
-        if rms <= tolerance:
-            fitted.append((model, kind, rms))
-    if not fitted:
-        return None, f"no smooth height field fits the ring (RMS {worst:.3g} mm > {tolerance:.3g} mm)", worst
-    if len(fitted) > 1 and cross_validate:
-        scores = [_sector_cv(kind, samples) for _, kind, _ in fitted]
-        return fitted[int(np.argmin(scores))]
-    return fitted[0]
-
-
 def hole_guide_points(
     vertices: ArrayLike,
     triangles: ArrayLike,
@@ -338,6 +201,12 @@ def hole_guide_points(
     seed: int = 0,
 ) -> HoleGuides:
     """Guide points on a smooth surface fitted around every hole.
+
+    Per hole: its outward direction from the border's vector area, the data
+    in a ring around it, the best smooth height field fitted to the ring (or
+    the plane of the border data, or the table plane under an underside),
+    sampled on a grid inside the projected border; see docs/processing.md,
+    section "Hole filling".
 
     Parameters
     ----------
@@ -372,6 +241,21 @@ def hole_guide_points(
     Returns
     -------
     HoleGuides
+        The guide points (mm) with their normals and holes, and one
+        :class:`HoleFit` per hole.
+
+    Raises
+    ------
+    ValueError
+        ``spacing_mm`` not a positive finite distance, ``noise_mm`` negative
+        or not finite, ``floor_z_mm`` not finite.
+
+    References
+    ----------
+    .. [1] Pratt, V. (1987). Direct least-squares fitting of algebraic
+       surfaces. SIGGRAPH 1987. doi:10.1145/37402.37420
+    .. [2] Duchon, J. (1977). Splines minimizing rotation-invariant
+       semi-norms in Sobolev spaces. Lecture Notes in Mathematics 571.
     """
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
@@ -385,117 +269,215 @@ def hole_guide_points(
         raise ValueError(f"floor_z_mm must be a finite height (mm) or None, got {floor_z_mm!r}")
     if tree is None:
         tree = cKDTree(dp)
-    tolerance = 2.5 * float(noise_mm) + 0.1 * float(spacing_mm)
+    opt = _Options(threshold_mm=report.threshold_mm, tolerance_mm=2.5 * float(noise_mm) + 0.1 * float(spacing_mm),
+                   spacing_mm=spacing_mm, ring_factor=ring_factor, max_fit_samples=max_fit_samples,
+                   floor_z_mm=floor_z_mm)
     rng = np.random.default_rng(seed)
     if report.n_holes:
         edges, edge_hole = _border_edges(t, report)
     else:
         edges, edge_hole = np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
-    cos_ring = np.cos(np.radians(_RING_MAX_ANGLE_DEG))
     out_p, out_n, out_h, fits = [], [], [], []
     for h in range(report.n_holes):
-        e = edges[edge_hole == h]
-        none = np.zeros(3)
-        if e.shape[0] < 3:
-            fits.append(HoleFit(h, False, "no border with the data (an isolated region)", 0, 0, 0.0, none))
-            continue
-        va, vb = v[e[:, 0]], v[e[:, 1]]
-        area_vec = 0.5 * np.cross(va, vb).sum(axis=0)
-        border_len = float(np.linalg.norm(vb - va, axis=1).sum())
-        amag = float(np.linalg.norm(area_vec))
-        if amag <= 1e-6 * border_len**2:
-            fits.append(HoleFit(h, False, "the border encloses no area in any direction", 0, 0, 0.0, none))
-            continue
-        normal = -area_vec / amag
-        e1, e2 = _basis(normal)
-        loop = np.unique(e.reshape(-1))
-        origin = v[loop].mean(axis=0)
-        frame = np.stack([e1, e2, normal])
-        loop_uv = (v[loop] - origin) @ frame[:2].T
-        seg = np.stack([(va - origin) @ frame[:2].T, (vb - origin) @ frame[:2].T], axis=1)
-        lo, hi = loop_uv.min(axis=0), loop_uv.max(axis=0)
-        diameter = float(np.hypot(*(hi - lo)))
-        radius = max(ring_factor * diameter, 3.0 * report.threshold_mm)
-        # data within `radius` of the border, facing the hole's direction
-        box = (dp >= v[loop].min(axis=0) - radius).all(axis=1) & (dp <= v[loop].max(axis=0) + radius).all(axis=1)
-        near = np.flatnonzero(box)
-        near = near[(dn[near] @ normal) > cos_ring]
-        if near.size:
-            # ... and the data inside the hole, if any (sparse samples the fit must honour)
-            gap, _ = cKDTree(v[loop]).query(dp[near], distance_upper_bound=radius, workers=-1)
-            inside = inside_polygon((dp[near] - origin) @ frame[:2].T, seg)
-            near = near[np.isfinite(gap) | inside]
-        ring = near
-        model, how, rms, n_fit = None, "", 0.0, 0
-        if ring.size >= _MIN_RING:
-            if ring.size > max_fit_samples:
-                ring = ring[rng.choice(ring.size, max_fit_samples, replace=False)]
-            samples = (dp[ring] - origin) @ frame.T
-            model, how, rms = _choose_ring_model(samples, tolerance, diameter >= 8.0 * report.threshold_mm)
-            n_fit = int(samples.shape[0])
-        reject = how if model is None and how else ""
-        # the data at the border (nearest samples of the border vertices)
-        _, rim = tree.query(v[loop], workers=-1)
-        rim = np.unique(rim)
-        rim_z = float(np.median(dp[rim, 2]))
-        if (
-            floor_z_mm is not None
-            and normal[2] < -np.cos(np.radians(_FLOOR_MAX_ANGLE_DEG))
-            and abs(rim_z - floor_z_mm) <= _FLOOR_SNAP_MM
-        ):
-            # the underside of an object resting on the table
-            model = _Floor(float(floor_z_mm) - origin[2], e1, e2, normal)
-            how, rms, n_fit = "table plane", rim_z - float(floor_z_mm), int(rim.size)
-        elif model is None:
-            samples = (dp[rim] - origin) @ frame.T
-            n_fit = int(samples.shape[0])
-            if n_fit < 3:
-                fits.append(HoleFit(h, False, "fewer than 3 samples around the hole", 0, n_fit, 0.0, normal))
-                continue
-            model = _Plane(samples)
-            how, rms = "border", _rms(model, samples)
-            if reject:
-                how = f"border ({reject})"
-        step = _GUIDE_STEP * float(spacing_mm)
-        n_cells = float(np.prod(np.ceil((hi - lo) / step) + 1))
-        if n_cells > _MAX_GRID:
-            step *= float(np.sqrt(n_cells / _MAX_GRID))
-        gu = np.arange(lo[0], hi[0] + step, step)
-        gv = np.arange(lo[1], hi[1] + step, step)
-        grid = np.stack(np.meshgrid(gu, gv, indexing="xy"), axis=-1).reshape(-1, 2)
-        grid = grid[inside_polygon(grid, seg)]
-        if grid.shape[0] == 0:
-            fits.append(HoleFit(h, False, "the hole is narrower than the point spacing", 0, n_fit, rms, normal))
-            continue
-        d = 0.5 * step
-        hh = model(grid)
-        du = (model(grid + [d, 0.0]) - model(grid - [d, 0.0])) / (2 * d)
-        dv = (model(grid + [0.0, d]) - model(grid - [0.0, d])) / (2 * d)
-        if isinstance(model, _SphereSpline) and not (
-            np.all(np.isfinite(hh)) and np.all(np.isfinite(du)) and np.all(np.isfinite(dv))
-        ):
-            model = _fit("spline", samples)
-            how, rms = "spline", _rms(model, samples)
-            hh = model(grid)
-            du = (model(grid + [d, 0.0]) - model(grid - [d, 0.0])) / (2 * d)
-            dv = (model(grid + [0.0, d]) - model(grid - [0.0, d])) / (2 * d)
-        if not np.all(np.isfinite(hh)) or np.abs(hh).max() > 2.0 * diameter + 10.0 * report.threshold_mm:
-            fits.append(HoleFit(h, False, "the fitted surface runs away from the border", 0, n_fit, rms, normal))
-            continue
-        pts = origin + grid[:, :1] * e1 + grid[:, 1:] * e2 + hh[:, None] * normal
-        nrm = normal - du[:, None] * e1 - dv[:, None] * e2
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        if floor_z_mm is not None:  # nothing below the table
-            above = pts[:, 2] >= floor_z_mm - 1e-9
-            pts, nrm = pts[above], nrm[above]
-        dist, _ = tree.query(pts, distance_upper_bound=_KEEP_OFF * report.threshold_mm, workers=-1)
-        off = ~np.isfinite(dist)
-        pts, nrm = pts[off], nrm[off]
-        fits.append(HoleFit(h, bool(pts.shape[0]), how if pts.shape[0] else "the fit lies on the data",
-                            int(pts.shape[0]), n_fit, rms, normal))
-        out_p.append(pts)
-        out_n.append(nrm)
-        out_h.append(np.full(pts.shape[0], h, np.int64))
+        fit, pts, nrm = _guide_hole(h, edges[edge_hole == h], v, dp, dn, tree, rng, opt)
+        fits.append(fit)
+        if pts is not None and nrm is not None:
+            out_p.append(pts)
+            out_n.append(nrm)
+            out_h.append(np.full(pts.shape[0], h, np.int64))
     if out_p:
         return HoleGuides(np.concatenate(out_p), np.concatenate(out_n), np.concatenate(out_h), tuple(fits))
     return HoleGuides(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), tuple(fits))
+
+
+@dataclass(frozen=True)
+class _Options:
+    """Settings of :func:`hole_guide_points` shared by every hole (lengths in mm)."""
+
+    threshold_mm: float
+    tolerance_mm: float
+    spacing_mm: float
+    ring_factor: float
+    max_fit_samples: int
+    floor_z_mm: float | None
+
+
+@dataclass(frozen=True)
+class _HoleFrame:
+    """A hole's outward direction, its local frame and its border projected on the frame's plane."""
+
+    normal: NDArray[np.float64]
+    e1: NDArray[np.float64]
+    e2: NDArray[np.float64]
+    loop: NDArray[np.int64]
+    origin: NDArray[np.float64]
+    frame: NDArray[np.float64]
+    seg: NDArray[np.float64]
+    lo: NDArray[np.float64]
+    hi: NDArray[np.float64]
+    diameter: float
+    radius: float
+
+
+class _Fit(NamedTuple):
+    """A height field over a hole's frame, what it is, its RMS residual (mm), and the samples it was fitted to."""
+
+    model: Any
+    how: str
+    rms: float
+    n_fit: int
+    samples: NDArray[np.float64] | None
+
+
+def _guide_hole(h: int, e: NDArray[np.int64], v: NDArray[np.float64], dp: NDArray[np.float64],
+                dn: NDArray[np.float64], tree: cKDTree, rng: np.random.Generator, opt: _Options
+                ) -> tuple[HoleFit, NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """Guide points and normals of one hole with border edges ``e``, or None and why it was not fitted."""
+    none = np.zeros(3)
+    if e.shape[0] < 3:
+        return HoleFit(h, False, "no border with the data (an isolated region)", 0, 0, 0.0, none), None, None
+    fr = _hole_frame(e, v, opt)
+    if fr is None:
+        return HoleFit(h, False, "the border encloses no area in any direction", 0, 0, 0.0, none), None, None
+    fit = _fit_border(fr, v, dp, tree, _fit_ring(fr, v, dp, dn, rng, opt), opt)
+    if fit.model is None:
+        return HoleFit(h, False, "fewer than 3 samples around the hole", 0, fit.n_fit, 0.0, fr.normal), None, None
+    grid, step = _guide_grid(fr, opt.spacing_mm)
+    if grid.shape[0] == 0:
+        return (HoleFit(h, False, "the hole is narrower than the point spacing", 0, fit.n_fit, fit.rms, fr.normal),
+                None, None)
+    fit, hh, du, dv = _heights(fit, grid, step)
+    if not np.all(np.isfinite(hh)) or np.abs(hh).max() > 2.0 * fr.diameter + 10.0 * opt.threshold_mm:
+        return (HoleFit(h, False, "the fitted surface runs away from the border", 0, fit.n_fit, fit.rms, fr.normal),
+                None, None)
+    pts, nrm = _lift(fr, grid, hh, du, dv, tree, opt)
+    return (HoleFit(h, bool(pts.shape[0]), fit.how if pts.shape[0] else "the fit lies on the data",
+                    int(pts.shape[0]), fit.n_fit, fit.rms, fr.normal), pts, nrm)
+
+
+def _hole_frame(e: NDArray[np.int64], v: NDArray[np.float64], opt: _Options) -> _HoleFrame | None:
+    """The hole's direction ``N = -A / |A|`` from its border's vector area, and its frame; None if ``A`` vanishes."""
+    va, vb = v[e[:, 0]], v[e[:, 1]]
+    area_vec = 0.5 * np.cross(va, vb).sum(axis=0)
+    border_len = float(np.linalg.norm(vb - va, axis=1).sum())
+    amag = float(np.linalg.norm(area_vec))
+    if amag <= 1e-6 * border_len**2:
+        return None
+    normal = -area_vec / amag
+    e1, e2 = _basis(normal)
+    loop = np.unique(e.reshape(-1))
+    origin = v[loop].mean(axis=0)
+    frame = np.stack([e1, e2, normal])
+    loop_uv = (v[loop] - origin) @ frame[:2].T
+    seg = np.stack([(va - origin) @ frame[:2].T, (vb - origin) @ frame[:2].T], axis=1)
+    lo, hi = loop_uv.min(axis=0), loop_uv.max(axis=0)
+    diameter = float(np.hypot(*(hi - lo)))
+    radius = max(opt.ring_factor * diameter, 3.0 * opt.threshold_mm)
+    return _HoleFrame(normal=normal, e1=e1, e2=e2, loop=loop, origin=origin, frame=frame, seg=seg, lo=lo, hi=hi,
+                      diameter=diameter, radius=radius)
+
+
+def _ring_samples(fr: _HoleFrame, v: NDArray[np.float64], dp: NDArray[np.float64],
+                  dn: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Indices of the data within the ring radius of the border (or inside it) whose normals face the hole."""
+    cos_ring = np.cos(np.radians(_RING_MAX_ANGLE_DEG))
+    box = ((dp >= v[fr.loop].min(axis=0) - fr.radius).all(axis=1)
+           & (dp <= v[fr.loop].max(axis=0) + fr.radius).all(axis=1))
+    near = np.flatnonzero(box)
+    near = near[(dn[near] @ fr.normal) > cos_ring]
+    if near.size:
+        # ... and the data inside the hole, if any (sparse samples the fit must honour)
+        gap, _ = cKDTree(v[fr.loop]).query(dp[near], distance_upper_bound=fr.radius, workers=-1)
+        inside = inside_polygon((dp[near] - fr.origin) @ fr.frame[:2].T, fr.seg)
+        near = near[np.isfinite(gap) | inside]
+    return near
+
+
+def _fit_ring(fr: _HoleFrame, v: NDArray[np.float64], dp: NDArray[np.float64], dn: NDArray[np.float64],
+              rng: np.random.Generator, opt: _Options) -> _Fit:
+    """The best smooth height field fitted to the ring (no model, and why, when none fits)."""
+    ring = _ring_samples(fr, v, dp, dn)
+    model, how, rms, n_fit, samples = None, "", 0.0, 0, None
+    if ring.size >= _MIN_RING:
+        if ring.size > opt.max_fit_samples:
+            ring = ring[rng.choice(ring.size, opt.max_fit_samples, replace=False)]
+        samples = (dp[ring] - fr.origin) @ fr.frame.T
+        model, how, rms = _choose_ring_model(samples, opt.tolerance_mm, fr.diameter >= 8.0 * opt.threshold_mm)
+        n_fit = int(samples.shape[0])
+    return _Fit(model, how, rms, n_fit, samples)
+
+
+def _fit_border(fr: _HoleFrame, v: NDArray[np.float64], dp: NDArray[np.float64], tree: cKDTree, fit: _Fit,
+                opt: _Options) -> _Fit:
+    """The table plane under a downward hole resting on it, else the ring fit, else the plane of the border data."""
+    model, how, rms, n_fit, samples = fit
+    reject = how if model is None and how else ""
+    # the data at the border (nearest samples of the border vertices)
+    _, rim = tree.query(v[fr.loop], workers=-1)
+    rim = np.unique(rim)
+    rim_z = float(np.median(dp[rim, 2]))
+    floor_z_mm = opt.floor_z_mm
+    if (
+        floor_z_mm is not None
+        and fr.normal[2] < -np.cos(np.radians(_FLOOR_MAX_ANGLE_DEG))
+        and abs(rim_z - floor_z_mm) <= _FLOOR_SNAP_MM
+    ):
+        # the underside of an object resting on the table
+        model = _Floor(float(floor_z_mm) - fr.origin[2], fr.e1, fr.e2, fr.normal)
+        how, rms, n_fit = "table plane", rim_z - float(floor_z_mm), int(rim.size)
+    elif model is None:
+        samples = (dp[rim] - fr.origin) @ fr.frame.T
+        n_fit = int(samples.shape[0])
+        if n_fit < 3:
+            return _Fit(None, how, rms, n_fit, samples)
+        model = _Plane(samples)
+        how, rms = "border", _rms(model, samples)
+        if reject:
+            how = f"border ({reject})"
+    return _Fit(model, how, rms, n_fit, samples)
+
+
+def _guide_grid(fr: _HoleFrame, spacing_mm: float) -> tuple[NDArray[np.float64], float]:
+    """The square grid (1.5 spacings, coarser for huge holes) inside the projected border, and its step (mm)."""
+    step = _GUIDE_STEP * float(spacing_mm)
+    n_cells = float(np.prod(np.ceil((fr.hi - fr.lo) / step) + 1))
+    if n_cells > _MAX_GRID:
+        step *= float(np.sqrt(n_cells / _MAX_GRID))
+    gu = np.arange(fr.lo[0], fr.hi[0] + step, step)
+    gv = np.arange(fr.lo[1], fr.hi[1] + step, step)
+    grid = np.stack(np.meshgrid(gu, gv, indexing="xy"), axis=-1).reshape(-1, 2)
+    return grid[inside_polygon(grid, fr.seg)], step
+
+
+def _heights(fit: _Fit, grid: NDArray[np.float64], step: float
+             ) -> tuple[_Fit, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Heights and slopes of the fit on the grid; a sphere branch that leaves the grid is replaced by a spline."""
+    model, how, rms, n_fit, samples = fit
+    d = 0.5 * step
+    hh = model(grid)
+    du = (model(grid + [d, 0.0]) - model(grid - [d, 0.0])) / (2 * d)
+    dv = (model(grid + [0.0, d]) - model(grid - [0.0, d])) / (2 * d)
+    if isinstance(model, _SphereSpline) and not (
+        np.all(np.isfinite(hh)) and np.all(np.isfinite(du)) and np.all(np.isfinite(dv))
+    ):
+        assert samples is not None
+        model = _fit("spline", samples)
+        how, rms = "spline", _rms(model, samples)
+        hh = model(grid)
+        du = (model(grid + [d, 0.0]) - model(grid - [d, 0.0])) / (2 * d)
+        dv = (model(grid + [0.0, d]) - model(grid - [0.0, d])) / (2 * d)
+    return _Fit(model, how, rms, n_fit, samples), hh, du, dv
+
+
+def _lift(fr: _HoleFrame, grid: NDArray[np.float64], hh: NDArray[np.float64], du: NDArray[np.float64],
+          dv: NDArray[np.float64], tree: cKDTree, opt: _Options) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Grid points lifted onto the fit with its normals, less those below the floor or on the data."""
+    pts = fr.origin + grid[:, :1] * fr.e1 + grid[:, 1:] * fr.e2 + hh[:, None] * fr.normal
+    nrm = fr.normal - du[:, None] * fr.e1 - dv[:, None] * fr.e2
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    if opt.floor_z_mm is not None:  # nothing below the table
+        above = pts[:, 2] >= opt.floor_z_mm - 1e-9
+        pts, nrm = pts[above], nrm[above]
+    dist, _ = tree.query(pts, distance_upper_bound=_KEEP_OFF * opt.threshold_mm, workers=-1)
+    off = ~np.isfinite(dist)
+    return pts[off], nrm[off]

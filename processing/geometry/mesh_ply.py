@@ -4,8 +4,14 @@ The format is the Stanford polygon file format (Turk 1994, "The PLY Polygon
 File Format"): an ASCII header, then ``binary_little_endian`` vertex records
 ``x y z nx ny nz`` (float32) and face records ``uchar count, int index x 3``.
 This is what Open3D, MeshLab and Blender read; ``render.meshio.load_mesh``
-reads it back.  The file is written to a temporary name in the same folder
-and renamed into place, so a crash never leaves a truncated mesh behind.
+reads it back.  The file is written atomically
+(:func:`processing.common.files.atomic_write_bytes`: a temporary file in the
+same folder, renamed into place), so a crash never leaves a truncated mesh
+behind.
+
+References
+----------
+.. [1] Turk, G. (1994). The PLY polygon file format.
 
 Examples
 --------
@@ -21,11 +27,12 @@ True
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+from processing.common.files import atomic_write_bytes
 
 __all__ = ["write_mesh_ply"]
 
@@ -107,16 +114,4 @@ def write_mesh_ply(
     header += [f"element face {t.shape[0]}", "property list uchar int vertex_indices", "end_header"]
     data = ("\n".join(header) + "\n").encode("ascii") + vrec.tobytes() + frec.tobytes()
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, p)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    atomic_write_bytes(p, data, make_parents=False)

@@ -24,6 +24,13 @@ the threshold is grown over the vertices farther than a lower threshold
 (about one spacing) connected to it, and its area is measured there: about
 the area of the gap in the data.
 
+References
+----------
+.. [1] Curless, B., Levoy, M. (1996). A volumetric method for building
+   complex models from range images. SIGGRAPH 1996.
+.. [2] Canny, J. (1986). A computational approach to edge detection. IEEE
+   TPAMI 8(6), 679-698.
+
 Examples
 --------
 >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
@@ -128,6 +135,18 @@ class SupportReport:
 def triangle_areas(vertices: ArrayLike, triangles: ArrayLike) -> NDArray[np.float64]:
     """Areas of the triangles.
 
+    Parameters
+    ----------
+    vertices
+        ``(V, 3)`` positions (mm).
+    triangles
+        ``(T, 3)`` vertex indices.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(T,)`` areas (mm^2).
+
     Examples
     --------
     >>> triangle_areas([[0, 0, 0], [2, 0, 0], [0, 3, 0]], [[0, 1, 2]]).tolist()
@@ -213,12 +232,33 @@ def mesh_support(
     Returns
     -------
     SupportReport
+        Vertex distances, unsupported triangles and the holes.
 
     Raises
     ------
     ValueError
         Bad shapes, no data, a non-positive threshold.
     """
+    v, t, tree, low = _checked_input(vertices, triangles, data_points, threshold_mm, tree, low_threshold_mm)
+    dist, exact_far = _vertex_distances(tree, v, float(threshold_mm))
+    far_count, unsupported, comp, n_comp = _unsupported_regions(t, dist, low, threshold_mm)
+    area = triangle_areas(v, t) if t.size else np.zeros(0)
+    labels, holes = _holes(v, t, area, far_count, unsupported, comp, n_comp, exact_far, min_hole_area_mm2)
+    return SupportReport(
+        threshold_mm=float(threshold_mm),
+        low_threshold_mm=low,
+        vertex_distance=dist,
+        unsupported=unsupported,
+        hole_label=labels,
+        holes=tuple(holes),
+        mesh_area_mm2=float(area.sum()),
+    )
+
+
+def _checked_input(vertices: ArrayLike, triangles: ArrayLike, data_points: ArrayLike | None, threshold_mm: float,
+                   tree: cKDTree | None, low_threshold_mm: float | None
+                   ) -> tuple[NDArray[np.float64], NDArray[np.int64], cKDTree, float]:
+    """The mesh as arrays, a k-d tree of the data and the low threshold (mm), after checking them."""
     if not (np.isfinite(threshold_mm) and threshold_mm > 0):
         raise ValueError(f"threshold_mm must be a finite distance > 0 (mm), got {threshold_mm!r}")
     v = np.asarray(vertices, dtype=np.float64)
@@ -235,11 +275,19 @@ def mesh_support(
     low = float(threshold_mm) if low_threshold_mm is None else float(low_threshold_mm)
     if not (np.isfinite(low) and 0 < low <= threshold_mm):
         raise ValueError(f"low_threshold_mm must be in (0, threshold_mm={threshold_mm}], got {low_threshold_mm!r}")
-    dist, exact_far = _vertex_distances(tree, v, float(threshold_mm))
+    return v, t, tree, low
+
+
+def _unsupported_regions(t: NDArray[np.int64], dist: NDArray[np.float64], low: float, threshold_mm: float
+                         ) -> tuple[NDArray[np.int64], NDArray[np.bool_], NDArray[np.int64], int]:
+    """Vertices beyond ``low`` per triangle, the unsupported triangles, their region labels and count.
+
+    Regions of triangles with a vertex beyond ``low`` are kept when they
+    hold a vertex beyond the (high) threshold.
+    """
     far_v = dist > low
     far_count = far_v[t].sum(axis=1) if t.size else np.zeros(0, np.int64)
     candidate = far_count > 0
-    area = triangle_areas(v, t) if t.size else np.zeros(0)
     n_comp, comp = triangle_components(t, candidate) if t.size else (0, np.zeros(0, np.int64))
     if n_comp:
         # keep the grown regions that hold a vertex beyond the (high) threshold
@@ -252,6 +300,13 @@ def mesh_support(
         n_comp = int(dense.max()) + 1 if dense.size else 0
     else:
         unsupported = candidate
+    return far_count, unsupported, comp, n_comp
+
+
+def _holes(v: NDArray[np.float64], t: NDArray[np.int64], area: NDArray[np.float64], far_count: NDArray[np.int64],
+           unsupported: NDArray[np.bool_], comp: NDArray[np.int64], n_comp: int, exact_far: Any,
+           min_hole_area_mm2: float) -> tuple[NDArray[np.int64], list[Hole]]:
+    """The regions at least ``min_hole_area_mm2`` large as holes, largest first, and each triangle's hole."""
     labels = np.full(t.shape[0], -1, np.int64)
     holes: list[Hole] = []
     if n_comp:
@@ -278,12 +333,4 @@ def mesh_support(
                     triangles=tris,
                 )
             )
-    return SupportReport(
-        threshold_mm=float(threshold_mm),
-        low_threshold_mm=low,
-        vertex_distance=dist,
-        unsupported=unsupported,
-        hole_label=labels,
-        holes=tuple(holes),
-        mesh_area_mm2=float(area.sum()),
-    )
+    return labels, holes

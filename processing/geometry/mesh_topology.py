@@ -21,6 +21,11 @@ grouped by one sort; triangle components and the fans around vertices are
 connected components (``scipy.sparse.csgraph``) of graphs built from the
 pairs of twin edges (about a second for 2.5 million triangles).
 
+References
+----------
+.. [1] Botsch, M., Kobbelt, L., Pauly, M., Alliez, P., Levy, B. (2010).
+   Polygon Mesh Processing. A K Peters.
+
 Examples
 --------
 >>> tetra = [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]
@@ -109,6 +114,7 @@ class MeshTopology:
 
 
 def _as_triangles(triangles: ArrayLike) -> NDArray[np.int64]:
+    """Checked int64 ``(T, 3)`` triangles (``(0, 3)`` when empty)."""
     t = np.asarray(triangles)
     if t.size == 0:
         return np.zeros((0, 3), np.int64)
@@ -182,6 +188,11 @@ def edge_twins(triangles: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int6
     count
         ``(E,)`` number of directed edges (triangles) per undirected edge.
 
+    Raises
+    ------
+    ValueError
+        Triangles that are not a ``(T, 3)`` array of non-negative integers.
+
     Examples
     --------
     >>> edge_id, count = edge_twins([[0, 1, 2], [2, 1, 3]])
@@ -194,6 +205,21 @@ def edge_twins(triangles: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int6
 
 def boundary_edges(triangles: ArrayLike) -> NDArray[np.int64]:
     """Directed boundary edges ``(B, 2)``, oriented as in their triangle.
+
+    Parameters
+    ----------
+    triangles
+        ``(T, 3)`` vertex indices.
+
+    Returns
+    -------
+    ndarray
+        int64 ``(B, 2)`` vertex pairs of the edges used by one triangle only.
+
+    Raises
+    ------
+    ValueError
+        Triangles that are not a ``(T, 3)`` array of non-negative integers.
 
     Examples
     --------
@@ -240,6 +266,12 @@ def triangle_components(triangles: ArrayLike, mask: ArrayLike | None = None) -> 
         Number of components.
     labels
         ``(T,)`` component of every triangle (0..n-1), -1 outside ``mask``.
+
+    Raises
+    ------
+    ValueError
+        Triangles that are not a ``(T, 3)`` array of non-negative integers,
+        a mask of another length.
 
     Examples
     --------
@@ -293,6 +325,12 @@ def mesh_topology(triangles: ArrayLike) -> MeshTopology:
     Returns
     -------
     MeshTopology
+        The counts, and whether the mesh is watertight.
+
+    Raises
+    ------
+    ValueError
+        Triangles that are not a ``(T, 3)`` array of non-negative integers.
 
     Examples
     --------

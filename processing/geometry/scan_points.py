@@ -1,46 +1,18 @@
-"""Point cloud of one scan pass: laser profiles + table angles + calibration ->
-points, normals and confidences in the table frame.
+"""Point cloud of one scan pass: laser profiles, table angles and calibration -> oriented, weighted points.
 
-Issue #4 ("Point clouds per pass"); DESIGN.md section 2 (``processing.scan``).
-Conventions of :mod:`processing.geometry.calibration`: a profile point ``(x, z)`` is
-at ``p = o + x X_s + z Z_s`` in the room, and a room point measured at table
-angle ``a`` is at ``Rz(-a) p`` in the table frame (the frame that turns with
-the object, equal to the room at angle 0).
+Conventions of :mod:`processing.geometry.calibration`: a profile point
+``(x, z)`` is at ``p = o + x X_s + z Z_s`` in the room, and a room point
+measured at table angle ``a`` is at ``Rz(-a) p`` in the table frame (the
+frame that turns with the object, equal to the room at angle 0).  The table
+top is cropped, normals come from principal component analysis over a patch
+of the scan grid, turned toward the sensor, and each point gets a confidence
+from its incidence angle and its place in the sensor's range; see
+docs/processing.md, section "Points per pass".
 
-Method
-------
-* **Cropping.**  Points within ``table_tolerance_mm`` of the table top
-  (room ``z = 0``) or below it, and points farther than ``max_radius_mm``
-  from the table axis, are dropped before anything else.
-* **Normals** by principal component analysis of a neighbourhood on the
-  scan grid (Hoppe et al. 1992, "Surface reconstruction from unorganized
-  points", with the neighbours taken from the profile structure): the
-  neighbours of point ``(i, j)`` (step ``i``, point ``j`` of the profile) are
-  the points ``(i + di, j + dj)``, ``|di| <= k_s``, ``|dj| <= k_p``.  The
-  half-widths default to a span of ``normal_span_mm`` both across and along
-  the profiles, so the neighbourhood is a patch, not a line, although laser
-  scans sample far more densely along the profile than across it.  Depth
-  discontinuities are kept apart: a profile is cut into runs wherever two
-  consecutive points are more than ``max_jump_mm`` apart and the window stays
-  inside the run of its row; a neighbouring row takes part only if its point
-  in the same column is within ``|di| * max_jump_mm``.  The window moments
-  come from cumulative sums along the profiles, so the cost does not grow
-  with ``k_p``.  The normal, the eigenvector of the smallest eigenvalue of
-  the neighbourhood covariance, is turned toward the sensor origin as seen
-  from the table frame at that step's angle, ``Rz(-a) o``.  Steps are
-  neighbours in their stored order (and the last step neighbours the first
-  when the angles close a revolution).
-* **Confidence** ``c = cos(theta_i) * (1 - u^2)``: ``theta_i`` the angle
-  between the normal and the direction to the sensor origin (range noise
-  along the surface normal grows as ``1 / cos``, and a grazing surface
-  spreads the laser line), ``u = (z - z_mid) / (half width)`` the range's
-  position in the sensor's working range ``range_mm`` (its centre is in
-  focus and best triangulated; both ends 0).  Points whose neighbourhood is
-  degenerate (fewer than 3 neighbours or all on a line) get the direction to
-  the sensor as normal, ``normal_estimated = False`` and confidence 0.
-
-Everything is vectorised over all steps at once: the only Python loop runs
-over the ``2 k_s + 1`` row offsets of the neighbourhood.
+References
+----------
+.. [1] Hoppe, H., DeRose, T., Duchamp, T., McDonald, J., Stuetzle, W.
+   (1992). Surface reconstruction from unorganized points. SIGGRAPH 1992.
 """
 
 from __future__ import annotations
@@ -55,6 +27,9 @@ from numpy.typing import ArrayLike, NDArray
 from processing.geometry.calibration import ScannerCalibration, check_sensor_to_room
 
 __all__ = ["ScanPoints", "profiles_to_points"]
+
+#: Index pairs ``(i, j)``, ``i <= j``, of the six distinct entries of a 3 x 3 covariance.
+_PAIRS = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
 
 
 @dataclass(frozen=True)
@@ -107,6 +82,11 @@ class ScanPoints:
     def as_open3d(self) -> Any:
         """An ``open3d.geometry.PointCloud`` with the points and normals (confidence is not carried).
 
+        Returns
+        -------
+        open3d.geometry.PointCloud
+            The points (mm) with their normals.
+
         Examples
         --------
         >>> sp = ScanPoints(np.zeros((1, 3)), np.array([[0.0, 0, 1]]), np.ones(1), np.zeros(1, int),
@@ -122,8 +102,10 @@ class ScanPoints:
 
 
 def _runs(pts: NDArray, keep: NDArray, jump: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """First and last column of the run holding each kept point (runs break where consecutive kept points
-    of a profile are more than ``jump`` apart); (S, P) arrays, meaningful where ``keep``.
+    """First and last column of the run holding each kept point; (S, P) arrays, meaningful where ``keep``.
+
+    Runs break where consecutive kept points of a profile are more than
+    ``jump`` apart.
     """
     s, p = keep.shape
     cols = np.arange(p)
@@ -202,6 +184,8 @@ def profiles_to_points(
     Returns
     -------
     ScanPoints
+        Points, normals and confidences in the table frame (mm), with their
+        step and column and the counts of cropped points.
 
     Raises
     ------
@@ -225,6 +209,43 @@ def profiles_to_points(
     >>> round(float(sp.confidence[10]), 4)     # centre ray: cos(0.5 deg) * (1 - 0.5^2) at range 150 of (100, 300)
     0.75
     """
+    x, z, a, m, (near, far) = _check_inputs(x_mm, z_mm, angles_deg, calibration, table_tolerance_mm, max_radius_mm,
+                                            range_mm, normal_span_mm, normal_window, max_jump_mm)
+    s, p = x.shape
+    valid = np.isfinite(x) & np.isfinite(z)
+    n_total, n_invalid = s * p, int((~valid).sum())
+    if not valid.any():
+        raise ValueError(f"the profiles have no valid point (all {n_total} x_mm/z_mm values are NaN); "
+                         "check that the laser saw the object")
+    xv, zv = np.where(valid, x, 0.0), np.where(valid, z, 0.0)
+    pts, origins = _table_frame(xv, zv, a, m)
+    keep, n_table, n_radius, n_kept = _crop(pts, valid, table_tolerance_mm, max_radius_mm)
+    ks, kp, jump, wrap = _neighbourhood(pts, keep, a, normal_window, normal_span_mm, max_jump_mm)
+    normals, estimated = _grid_normals(pts, keep, ks, kp, jump, wrap)
+    normals, conf = _orient_and_weigh(normals, estimated, pts, origins, zv, near, far)
+    rows, cols = np.nonzero(keep)
+    return ScanPoints(
+        points=pts[keep],
+        normals=normals[keep],
+        confidence=conf[keep],
+        step=rows.astype(np.int64),
+        column=cols.astype(np.int64),
+        normal_estimated=estimated[keep],
+        sensor_origins=origins,
+        n_total=n_total,
+        n_invalid=n_invalid,
+        n_cropped_table=n_table,
+        n_cropped_radius=n_radius,
+        n_kept=n_kept,
+    )
+
+
+def _check_inputs(x_mm: ArrayLike, z_mm: ArrayLike, angles_deg: ArrayLike,
+                  calibration: ScannerCalibration | ArrayLike, table_tolerance_mm: float,
+                  max_radius_mm: float | None, range_mm: tuple[float, float], normal_span_mm: float,
+                  normal_window: tuple[int, int] | None, max_jump_mm: float | None
+                  ) -> tuple[NDArray, NDArray, NDArray, NDArray, tuple[float, float]]:
+    """The profiles, angles and ``sensor_to_room`` as float arrays and the range, after checking every option."""
     x = np.asarray(x_mm, dtype=np.float64)
     z = np.asarray(z_mm, dtype=np.float64)
     a = np.asarray(angles_deg, dtype=np.float64)
@@ -259,16 +280,12 @@ def profiles_to_points(
                              f"0 <= k_points <= 200, not both 0; got {normal_window!r}")
     if max_jump_mm is not None and not (math.isfinite(max_jump_mm) and max_jump_mm > 0):
         raise ValueError(f"max_jump_mm must be a positive distance (mm) or None, got {max_jump_mm!r}")
+    return x, z, a, m, (near, far)
 
-    s, p = x.shape
-    valid = np.isfinite(x) & np.isfinite(z)
-    n_total, n_invalid = s * p, int((~valid).sum())
-    if not valid.any():
-        raise ValueError(f"the profiles have no valid point (all {n_total} x_mm/z_mm values are NaN); "
-                         "check that the laser saw the object")
-    xv, zv = np.where(valid, x, 0.0), np.where(valid, z, 0.0)
 
-    # room -> table frame: Rz(-a)
+def _table_frame(xv: NDArray, zv: NDArray, a: NDArray, m: NDArray) -> tuple[NDArray, NDArray]:
+    """(S, P, 3) profile points and (S, 3) sensor origins in the table frame: room -> table is ``Rz(-a)``."""
+    s = xv.shape[0]
     ar = np.radians(a)
     c, sn = np.cos(ar), np.sin(ar)
     room = xv[..., None] * m[:3, 0] + zv[..., None] * m[:3, 2] + m[:3, 3]          # (S, P, 3)
@@ -276,8 +293,12 @@ def profiles_to_points(
                     -sn[:, None] * room[..., 0] + c[:, None] * room[..., 1], room[..., 2]], -1)
     o = m[:3, 3]
     origins = np.stack([c * o[0] + sn * o[1], -sn * o[0] + c * o[1], np.full(s, o[2])], -1)  # (S, 3)
+    return pts, origins
 
-    # cropping
+
+def _crop(pts: NDArray, valid: NDArray, table_tolerance_mm: float, max_radius_mm: float | None
+          ) -> tuple[NDArray[np.bool_], int, int, int]:
+    """The points kept above the table top and within ``max_radius_mm`` of the axis, and the counts cropped."""
     table = valid & (pts[..., 2] < table_tolerance_mm)
     outside = np.zeros_like(valid)
     if max_radius_mm is not None:
@@ -288,8 +309,13 @@ def profiles_to_points(
         raise ValueError(f"all {int(valid.sum())} valid points were cropped ({n_table} as table top within "
                          f"table_tolerance_mm={table_tolerance_mm:g} of z = 0 or below it, {n_radius} outside "
                          f"max_radius_mm={max_radius_mm}); check the calibration and the crop settings")
+    return keep, n_table, n_radius, n_kept
 
-    # neighbourhood size
+
+def _neighbourhood(pts: NDArray, keep: NDArray, a: NDArray, normal_window: tuple[int, int] | None,
+                   normal_span_mm: float, max_jump_mm: float | None) -> tuple[int, int, float, bool]:
+    """Half-widths ``(k_s, k_p)`` of the normal window, the jump that breaks runs (mm), and whether steps wrap."""
+    s = pts.shape[0]
     d_s = _median_spacing(pts, keep, 0)
     d_p = _median_spacing(pts, keep, 1)
     if normal_window is None:
@@ -297,6 +323,8 @@ def profiles_to_points(
         kp = 0 if d_p <= 0 else int(np.clip(round(normal_span_mm / d_p), 1, 100))
         if ks + kp == 0:
             ks = kp = 1
+    else:
+        ks, kp = normal_window
     jump = max(1.0, 4.0 * max(d_s, d_p)) if max_jump_mm is None else float(max_jump_mm)
     wrap = False
     if s >= 3:
@@ -304,11 +332,22 @@ def profiles_to_points(
         closing = abs((a[0] - a[-1] + 180.0) % 360.0 - 180.0)
         med = float(np.median(steps))
         wrap = med > 0 and closing <= 1.5 * med and 2 * ks < s
+    return ks, kp, jump, wrap
 
-    # window moments from cumulative sums along each profile (coordinates relative to the centroid)
+
+def _grid_normals(pts: NDArray, keep: NDArray, ks: int, kp: int, jump: float, wrap: bool
+                  ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """(S, P, 3) unoriented PCA normals over the scan-grid windows, and where the window spans a surface."""
+    return _pca_normals(_window_moments(pts, keep, ks, kp, jump, wrap), keep)
+
+
+def _window_moments(pts: NDArray, keep: NDArray, ks: int, kp: int, jump: float, wrap: bool) -> NDArray[np.float64]:
+    """(S, P, 10) count, first and second moments of every window, from cumulative sums along the profiles."""
+    s, p = keep.shape
+    # coordinates relative to the centroid
     centroid = pts[keep].mean(axis=0)
     q = np.where(keep[..., None], pts - centroid, 0.0)
-    iu = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
+    iu = _PAIRS
     f = np.concatenate([keep[..., None].astype(np.float64), q, q[..., iu[0]] * q[..., iu[1]]], axis=-1)  # (S, P, 10)
     csum = np.concatenate([np.zeros((s, 1, 10)), np.cumsum(f, axis=1)], axis=1)                          # (S, P+1, 10)
     start, end = _runs(pts, keep, jump)
@@ -328,6 +367,13 @@ def profiles_to_points(
         lo = np.maximum(cols - kp, start[rr, cols])
         hi = np.minimum(cols + kp, end[rr, cols]) + 1
         mom += np.where(other[..., None], csum[rr, hi] - csum[rr, lo], 0.0)
+    return mom
+
+
+def _pca_normals(mom: NDArray[np.float64], keep: NDArray) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Normals (eigenvector of the smallest eigenvalue of each window's covariance) and where they are defined."""
+    s, p = keep.shape
+    iu = _PAIRS
     cnt = mom[..., 0]
     kk = keep & (cnt >= 3)
     n_nb = cnt[kk][:, None]
@@ -342,8 +388,12 @@ def profiles_to_points(
     estimated = np.zeros((s, p), dtype=bool)
     normals[kk] = v[:, :, 0]
     estimated[kk] = flat
+    return normals, estimated
 
-    # orientation toward the sensor, confidence
+
+def _orient_and_weigh(normals: NDArray, estimated: NDArray, pts: NDArray, origins: NDArray, zv: NDArray,
+                      near: float, far: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Normals turned toward the sensor (its direction where none was estimated) and the confidences."""
     to_sensor = origins[:, None, :] - pts
     dist = np.linalg.norm(to_sensor, axis=-1)
     to_sensor = to_sensor / np.where(dist > 0, dist, 1.0)[..., None]
@@ -354,19 +404,4 @@ def profiles_to_points(
     half, mid = (far - near) / 2.0, (far + near) / 2.0
     u = (zv - mid) / half
     conf = np.where(estimated, cos_i * np.clip(1.0 - u * u, 0.0, 1.0), 0.0)
-
-    rows, cols = np.nonzero(keep)
-    return ScanPoints(
-        points=pts[keep],
-        normals=normals[keep],
-        confidence=conf[keep],
-        step=rows.astype(np.int64),
-        column=cols.astype(np.int64),
-        normal_estimated=estimated[keep],
-        sensor_origins=origins,
-        n_total=n_total,
-        n_invalid=n_invalid,
-        n_cropped_table=n_table,
-        n_cropped_radius=n_radius,
-        n_kept=n_kept,
-    )
+    return normals, conf

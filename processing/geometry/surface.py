@@ -1,47 +1,29 @@
-"""The surface stage: a merged, oriented, confidence-weighted cloud -> one
-watertight mesh with its holes filled and reported.
+"""The surface stage: a merged, oriented, confidence-weighted cloud -> one watertight mesh, holes filled.
 
 Matsuda et al. (section 2) merge laser scans taken from several directions
 into one shape and complete the parts no scan saw by fitting smooth
-surfaces.  This module does the same automatically and measurably:
+surfaces.  :func:`reconstruct_surface` does the same automatically and
+measurably: it checks the cloud, fuses overlapping samples
+(:mod:`processing.geometry.fusion`), finds the holes of a coarse screened
+Poisson surface (:mod:`processing.geometry.mesh_support`), fits each with a
+smooth surface (:mod:`processing.geometry.holes`), reconstructs the final
+screened Poisson surface on data and guide points, removes unsupported
+pieces, optionally decimates, and reports the topology
+(:mod:`processing.geometry.mesh_topology`) and the filled holes.  The steps
+and the measured accuracy of the presets are in docs/processing.md, section
+"Surface reconstruction".
 
-1. **Check** the cloud (shapes, NaN, missing normals, too few points, all
-   points collinear or coplanar) and measure its point spacing ``s`` (median
-   nearest-neighbour distance).
-2. **Fuse** overlapping samples per voxel with confidence weights
-   (:mod:`processing.geometry.fusion`; Curless & Levoy 1996).
-3. **Find the holes**: a coarse screened Poisson surface (Kazhdan & Hoppe
-   2013, Open3D's implementation) is compared with the data
-   (:mod:`processing.geometry.mesh_support`): its regions farther than the support
-   threshold ``support_factor * s`` from every sample are holes.  Open3D's
-   solver uses Neumann boundary conditions, so Poisson alone does not close
-   a large hole: the surface runs out of the hole to the bounding cube and
-   the mesh is open there.
-4. **Fit each hole** with a smooth surface, as the paper does: a sphere plus
-   thin-plate spline height field fitted to the data around the hole
-   (:mod:`processing.geometry.holes`), sampled as guide points.
-5. **Reconstruct**: screened Poisson on data + guide points at the preset's
-   depth.  The guide points close every hole along its fitted surface, so
-   the result is closed without trimming the filled regions away; what is
-   trimmed is only what lies outside the data *and* the fits: components
-   of the mesh that no sample supports (Poisson's floating blobs).
-6. **Check and report**: optional quadric decimation (Garland & Heckbert
-   1997) to a target triangle count (the undecimated mesh is kept if the
-   decimation broke the two-manifold), topology
-   (:mod:`processing.geometry.mesh_topology`: closed, oriented, manifold =
-   watertight), area-weighted vertex normals,
-   and the holes of the final mesh against the measured data: count, areas,
-   largest distance, and whether the spline fit or Poisson alone filled
-   each.
-
-Presets trade speed for accuracy (:data:`SURFACE_PRESETS`).  Measured with
-``python -m bench.surface_sweep`` on the procedural hawk (about 67 x 40 x 74
-mm, 11 400 mm^2) sampled with 200 000 points, 0.05 mm noise and two patches
-cut out (8 and 5 mm radius): the mean distance to the truth is 0.019-0.020
-mm both ways at depths 8 to 11 (the noise floor: the octree stops refining
-where fewer than 1.5 samples fall in a cell, so depths above 9 add time, not
-detail), the filled patches have a median error of 0.075 mm; the whole
-stage took 9 s at depth 8 and 19-36 s at depths 9-11 on two cores.
+References
+----------
+.. [1] Kazhdan, M., Hoppe, H. (2013). Screened Poisson surface
+   reconstruction. ACM TOG 32(3), 29. doi:10.1145/2487228.2487237
+.. [2] Curless, B., Levoy, M. (1996). A volumetric method for building
+   complex models from range images. SIGGRAPH 1996.
+.. [3] Garland, M., Heckbert, P. S. (1997). Surface simplification using
+   quadric error metrics. SIGGRAPH 1997.
+.. [4] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura. CG
+   reproduction of a craft object based on a light reflection model. IPSJ
+   technical report.
 
 Examples
 --------
@@ -57,7 +39,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -75,6 +57,13 @@ from processing.geometry.fusion import (
 from processing.geometry.holes import HoleFit, hole_guide_points
 from processing.geometry.mesh_support import SupportReport, mesh_support
 from processing.geometry.mesh_topology import MeshTopology, mesh_topology, triangle_components
+from processing.geometry.surface_types import (
+    SURFACE_PRESETS,
+    FilledHole,
+    SurfacePreset,
+    SurfaceResult,
+    SurfaceTimings,
+)
 
 __all__ = [
     "SurfaceError",
@@ -104,258 +93,20 @@ class SurfaceError(InputError):
     """The cloud cannot be turned into a surface (bad input or a failed step)."""
 
 
-@dataclass(frozen=True)
-class SurfacePreset:
-    """Speed / accuracy settings of :func:`reconstruct_surface`.
-
-    Attributes
-    ----------
-    name
-        Preset name.
-    depth
-        Octree depth of the final screened Poisson solve (cells of
-        ``1.1 * extent / 2**depth``; the octree also stops refining where
-        fewer than ``samples_per_node`` samples fall in a cell).
-    samples_per_node
-        Poisson's minimum samples per octree node (more smooths noise more).
-    fuse_voxel_factor
-        Fusion voxel as a multiple of the point spacing (0: no fusion).
-    support_factor
-        Support threshold as a multiple of the (fused) point spacing: mesh
-        farther than this from every sample is a hole.
-    min_confidence
-        Samples below this confidence are dropped.
-    confidence_ratio
-        After fusion, samples whose confidence is below this fraction of the
-        best confidence within two spacings (same facing) are dropped: a
-        better measurement of the same surface exists (0: keep all).
-    fill_holes
-        Fit every hole with a smooth surface before the final solve (else
-        Poisson alone, which leaves large holes open).
-    target_triangles
-        Quadric decimation target (None: keep the Poisson mesh).
-    scale
-        Poisson's bounding-cube scale.
-    """
-
-    name: str
-    depth: int
-    samples_per_node: float
-    fuse_voxel_factor: float
-    support_factor: float
-    min_confidence: float
-    fill_holes: bool
-    target_triangles: int | None
-    confidence_ratio: float = 0.5
-    scale: float = 1.1
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.depth, int) and 5 <= self.depth <= 12):
-            raise ValueError(f"SurfacePreset.depth must be an integer in 5..12, got {self.depth!r}")
-        if not self.samples_per_node >= 1.0:
-            raise ValueError(f"SurfacePreset.samples_per_node must be >= 1, got {self.samples_per_node!r}")
-        if not self.fuse_voxel_factor >= 0.0:
-            raise ValueError(f"SurfacePreset.fuse_voxel_factor must be >= 0, got {self.fuse_voxel_factor!r}")
-        if not self.support_factor >= 1.0:
-            raise ValueError(f"SurfacePreset.support_factor must be >= 1, got {self.support_factor!r}")
-        if not 0.0 <= self.confidence_ratio <= 1.0:
-            raise ValueError(f"SurfacePreset.confidence_ratio must be in [0, 1], got {self.confidence_ratio!r}")
-        if not 0.0 <= self.min_confidence < 1.0:
-            raise ValueError(f"SurfacePreset.min_confidence must be in [0, 1), got {self.min_confidence!r}")
-        if self.target_triangles is not None and not (
-            isinstance(self.target_triangles, int) and self.target_triangles >= 100
-        ):
-            raise ValueError(
-                f"SurfacePreset.target_triangles must be None or an integer >= 100, got {self.target_triangles!r}"
-            )
-        if not 1.0 < self.scale <= 4.0:
-            raise ValueError(f"SurfacePreset.scale must be in (1, 4], got {self.scale!r}")
-
-
-#: Named presets.  ``standard`` is meant for 3 passes x 200k points within the
-#: issue's 60 s budget together with registration.
-SURFACE_PRESETS: dict[str, SurfacePreset] = {
-    "draft": SurfacePreset("draft", depth=7, samples_per_node=2.0, fuse_voxel_factor=1.5,
-                           support_factor=4.0, min_confidence=0.05, fill_holes=True,
-                           target_triangles=50_000),
-    "standard": SurfacePreset("standard", depth=8, samples_per_node=1.5, fuse_voxel_factor=1.0,
-                              support_factor=4.0, min_confidence=0.05, fill_holes=True,
-                              target_triangles=200_000),
-    "reference": SurfacePreset("reference", depth=9, samples_per_node=1.5, fuse_voxel_factor=0.0,
-                               support_factor=4.0, min_confidence=0.0, fill_holes=True,
-                               target_triangles=None),
-}
-
-
-@dataclass(frozen=True)
-class SurfaceTimings:
-    """Wall-clock seconds of each step."""
-
-    check_s: float = 0.0
-    fuse_s: float = 0.0
-    holes_s: float = 0.0
-    poisson_s: float = 0.0
-    cleanup_s: float = 0.0
-    decimate_s: float = 0.0
-    report_s: float = 0.0
-    total_s: float = 0.0
-
-
-@dataclass(frozen=True)
-class FilledHole:
-    """A hole of the final mesh: a region not supported by measured data.
-
-    Attributes
-    ----------
-    area_mm2
-        Area (mm^2) of the region.
-    max_distance_mm
-        Largest distance (mm) from the region to the nearest sample.
-    centroid
-        ``(3,)`` area-weighted centre (mm).
-    filled_by
-        ``"spline"`` when guide points of a fitted surface lie in it,
-        ``"poisson"`` when only the Poisson solve spans it.
-    closed
-        True when the mesh is watertight (every hole is closed).
-    """
-
-    area_mm2: float
-    max_distance_mm: float
-    centroid: tuple[float, float, float]
-    filled_by: str
-    closed: bool
-
-
-@dataclass(frozen=True, eq=False)
-class SurfaceResult:
-    """Result of :func:`reconstruct_surface`.
-
-    Attributes
-    ----------
-    vertices, triangles, vertex_normals
-        The mesh: float64 ``(V, 3)`` mm, int64 ``(T, 3)`` counter-clockwise
-        seen from outside, float64 ``(V, 3)`` unit area-weighted normals.
-    watertight
-        Closed, consistently oriented two-manifold (``topology.watertight``).
-    topology
-        Edge / vertex / component counts.
-    support
-        Support of the final mesh by the (fused) samples; its holes are the
-        filled regions.
-    holes
-        One :class:`FilledHole` per region of ``support.holes``.
-    hole_fits
-        How each hole of the coarse surface was fitted.
-    n_guide_points
-        Guide points added on fitted surfaces.
-    preset
-        The settings used.
-    spacing_mm, support_threshold_mm, cell_mm
-        Point spacing of the fused cloud, support threshold, Poisson cell edge.
-    n_input_points, n_fused_points, n_low_confidence, n_dominated
-        Points given, samples after fusion, points dropped for low
-        confidence, fused samples dropped because a better sample of the
-        same surface lies next to them.
-    n_triangles_poisson
-        Triangles before decimation.
-    timings
-        Seconds per step.
-    warnings
-        Anything the caller should report (not watertight, a hole fit
-        failed, normals look inward, decimation stopped early).
-    """
-
-    vertices: NDArray[np.float64]
-    triangles: NDArray[np.int64]
-    vertex_normals: NDArray[np.float64]
-    watertight: bool
-    topology: MeshTopology
-    support: SupportReport
-    holes: tuple[FilledHole, ...]
-    hole_fits: tuple[HoleFit, ...]
-    n_guide_points: int
-    preset: SurfacePreset
-    spacing_mm: float
-    support_threshold_mm: float
-    cell_mm: float
-    n_input_points: int
-    n_fused_points: int
-    n_low_confidence: int
-    n_dominated: int
-    n_triangles_poisson: int
-    timings: SurfaceTimings
-    warnings: tuple[str, ...] = field(default_factory=tuple)
-
-    @property
-    def n_triangles(self) -> int:
-        """Triangles of the final mesh."""
-        return int(self.triangles.shape[0])
-
-    @property
-    def n_holes(self) -> int:
-        """Holes (unsupported regions) of the final mesh."""
-        return len(self.holes)
-
-    @property
-    def hole_area_mm2(self) -> float:
-        """Total area of the holes (mm^2)."""
-        return float(sum(h.area_mm2 for h in self.holes))
-
-    def to_open3d(self) -> Any:
-        """The mesh as an ``open3d.geometry.TriangleMesh`` (with vertex normals)."""
-        import open3d as o3d
-
-        m = o3d.geometry.TriangleMesh(
-            o3d.utility.Vector3dVector(self.vertices), o3d.utility.Vector3iVector(self.triangles.astype(np.int32))
-        )
-        m.vertex_normals = o3d.utility.Vector3dVector(self.vertex_normals)
-        return m
-
-    def summary(self) -> dict[str, Any]:
-        """A JSON-ready report: counts, holes, topology, settings, timings."""
-        return {
-            "preset": asdict(self.preset),
-            "points": {
-                "input": self.n_input_points,
-                "fused": self.n_fused_points,
-                "low_confidence_dropped": self.n_low_confidence,
-                "dominated_dropped": self.n_dominated,
-                "guide": self.n_guide_points,
-                "spacing_mm": self.spacing_mm,
-            },
-            "mesh": {
-                "vertices": int(self.vertices.shape[0]),
-                "triangles": self.n_triangles,
-                "triangles_before_decimation": self.n_triangles_poisson,
-                "watertight": self.watertight,
-                "components": self.topology.n_components,
-                "genus": self.topology.genus,
-                "boundary_edges": self.topology.n_boundary_edges,
-                "nonmanifold_edges": self.topology.n_nonmanifold_edges,
-                "nonmanifold_vertices": self.topology.n_nonmanifold_vertices,
-                "cell_mm": self.cell_mm,
-                "area_mm2": self.support.mesh_area_mm2,
-            },
-            "holes": {
-                "threshold_mm": self.support_threshold_mm,
-                "count": self.n_holes,
-                "total_area_mm2": self.hole_area_mm2,
-                "filled": sum(h.closed for h in self.holes),
-                "items": [asdict(h) for h in self.holes],
-                "fits": [
-                    {"reason": f.reason, "guide_points": f.n_guide_points, "fit_samples": f.n_fit_samples,
-                     "fit_rms_mm": f.fit_rms_mm, "direction": [float(x) for x in f.direction]}
-                    for f in self.hole_fits
-                ],
-            },
-            "timings_s": asdict(self.timings),
-            "warnings": list(self.warnings),
-        }
-
-
 def vertex_normals(vertices: ArrayLike, triangles: ArrayLike) -> NDArray[np.float64]:
     """Area-weighted unit vertex normals (a vertex of no triangle gets +z).
+
+    Parameters
+    ----------
+    vertices
+        ``(V, 3)`` positions (mm).
+    triangles
+        ``(T, 3)`` vertex indices, counter-clockwise seen from outside.
+
+    Returns
+    -------
+    ndarray
+        float64 ``(V, 3)`` unit normals.
 
     Examples
     --------
@@ -378,6 +129,7 @@ def vertex_normals(vertices: ArrayLike, triangles: ArrayLike) -> NDArray[np.floa
 
 
 def _o3d_cloud(points: NDArray, normals: NDArray) -> Any:
+    """An Open3D point cloud with normals."""
     import open3d as o3d
 
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
@@ -423,6 +175,11 @@ def poisson_mesh(
     ------
     SurfaceError
         Poisson returned no triangles.
+
+    References
+    ----------
+    .. [1] Kazhdan, M., Hoppe, H. (2013). Screened Poisson surface
+       reconstruction. ACM TOG 32(3), 29. doi:10.1145/2487228.2487237
     """
     import open3d as o3d
 
@@ -490,10 +247,22 @@ def decimate_mesh(
     Returns
     -------
     vertices, triangles
+        float64 ``(V', 3)`` (mm) and int64 ``(T', 3)``.
+
+    Raises
+    ------
+    ValueError
+        ``target_triangles`` is not an integer >= 4.
+
+    References
+    ----------
+    .. [1] Garland, M., Heckbert, P. S. (1997). Surface simplification using
+       quadric error metrics. SIGGRAPH 1997.
 
     Examples
     --------
     >>> import open3d as o3d
+    >>> from processing.geometry.mesh_topology import mesh_topology
     >>> s = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution=30)
     >>> v, t = decimate_mesh(np.asarray(s.vertices), np.asarray(s.triangles), 400)
     >>> t.shape[0], mesh_topology(t).watertight
@@ -534,6 +303,7 @@ def _check_shape(p: NDArray[np.float64]) -> None:
 
 
 def _resolve_preset(preset: str | SurfacePreset) -> SurfacePreset:
+    """The preset named ``preset`` (or ``preset`` itself)."""
     if isinstance(preset, SurfacePreset):
         return preset
     if isinstance(preset, str) and preset in SURFACE_PRESETS:
@@ -580,6 +350,8 @@ def reconstruct_surface(
     Returns
     -------
     SurfaceResult
+        The mesh (mm), its topology, the filled holes, the settings, counts,
+        timings and warnings.
 
     Raises
     ------
@@ -588,8 +360,90 @@ def reconstruct_surface(
         normals, confidence outside [0, 1], all points collinear or
         coplanar, or a failed reconstruction; the message names the
         parameter.
+    ValueError
+        An unknown preset name.
+
+    References
+    ----------
+    .. [1] Kazhdan, M., Hoppe, H. (2013). Screened Poisson surface
+       reconstruction. ACM TOG 32(3), 29. doi:10.1145/2487228.2487237
+    .. [2] Curless, B., Levoy, M. (1996). A volumetric method for building
+       complex models from range images. SIGGRAPH 1996.
     """
     t_all = time.perf_counter()
+    pre = _settings(preset, target_triangles, table_z_mm)
+    notes: list[str] = []
+
+    t0 = time.perf_counter()
+    p, n, c = _checked_cloud(points, normals, confidence)
+    t_check = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    fused = _fused_cloud(p, n, c, pre, seed, notes)
+    t_fuse = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    fits, guide_p, guide_n = _hole_guides(fused, pre, table_z_mm, seed, notes)
+    t_holes = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    all_p = np.concatenate([fused.points, guide_p])
+    all_n = np.concatenate([fused.normals, guide_n])
+    v, t = poisson_mesh(all_p, all_n, depth=pre.depth, scale=pre.scale, samples_per_node=pre.samples_per_node)
+    t_poisson = time.perf_counter() - t0
+    cell = pre.scale * float((all_p.max(axis=0) - all_p.min(axis=0)).max()) / 2.0**pre.depth
+
+    t0 = time.perf_counter()
+    v, t = _drop_unsupported_components(v, t, all_p, fused.threshold)
+    t_cleanup = time.perf_counter() - t0
+    n_poisson = int(t.shape[0])
+
+    t0 = time.perf_counter()
+    decimated = _decimated(v, t, pre, notes)
+    t_decimate = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    v, t, topo = _final_topology(v, t, decimated, pre, notes)
+    normals_out = vertex_normals(v, t)
+    support = mesh_support(v, t, None, fused.threshold, tree=fused.tree, min_hole_area_mm2=fused.min_hole_area,
+                           low_threshold_mm=fused.low_threshold)
+    holes = _describe_holes(v, t, support, guide_p, fused.threshold, topo.watertight)
+    t_report = time.perf_counter() - t0
+
+    timings = SurfaceTimings(
+        check_s=t_check, fuse_s=t_fuse, holes_s=t_holes, poisson_s=t_poisson, cleanup_s=t_cleanup,
+        decimate_s=t_decimate, report_s=t_report, total_s=time.perf_counter() - t_all,
+    )
+    return SurfaceResult(
+        vertices=v, triangles=t, vertex_normals=normals_out, watertight=topo.watertight, topology=topo,
+        support=support, holes=holes, hole_fits=fits, n_guide_points=int(guide_p.shape[0]), preset=pre,
+        spacing_mm=fused.spacing, support_threshold_mm=fused.threshold, cell_mm=cell,
+        n_input_points=int(p.shape[0]), n_fused_points=int(fused.n_fused), n_low_confidence=int(fused.n_low),
+        n_dominated=fused.n_dominated, n_triangles_poisson=n_poisson, timings=timings, warnings=tuple(notes),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Fused:
+    """The fused samples with their k-d tree, spacing, noise, support thresholds (mm) and counts."""
+
+    points: NDArray[np.float64]
+    normals: NDArray[np.float64]
+    tree: cKDTree
+    spacing: float
+    noise: float
+    threshold: float
+    low_threshold: float
+    min_hole_area: float
+    extent: float
+    n_fused: int
+    n_low: int
+    n_dominated: int
+
+
+def _settings(preset: str | SurfacePreset, target_triangles: int | None | object,
+              table_z_mm: float | None) -> SurfacePreset:
+    """The preset with the decimation target overridden, after checking ``target_triangles`` and ``table_z_mm``."""
     pre = _resolve_preset(preset)
     if target_triangles is not _KEEP:
         if target_triangles is not None and not (
@@ -602,19 +456,23 @@ def reconstruct_surface(
         isinstance(table_z_mm, (int, float, np.floating, np.integer)) and math.isfinite(table_z_mm)
     ):
         raise SurfaceError(f"table_z_mm must be a finite height (mm) or None, got {table_z_mm!r}")
-    notes: list[str] = []
+    return pre
 
-    # 1. check
-    t0 = time.perf_counter()
+
+def _checked_cloud(points: ArrayLike, normals: ArrayLike | None, confidence: ArrayLike | None
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Points, unit normals and confidences of a valid cloud spread in three dimensions (step 1)."""
     try:
         p, n, c = validate_oriented_cloud(points, normals, confidence, min_points=MIN_POINTS)
     except ValueError as exc:
         raise SurfaceError(str(exc)) from exc
     _check_shape(p)
-    t_check = time.perf_counter() - t0
+    return p, n, c
 
-    # 2. fuse
-    t0 = time.perf_counter()
+
+def _fused_cloud(p: NDArray[np.float64], n: NDArray[np.float64], c: NDArray[np.float64], pre: SurfacePreset,
+                 seed: int, notes: list[str]) -> _Fused:
+    """Fuse the samples per voxel, drop dominated ones, and measure spacing, noise and thresholds (step 2)."""
     keep = (c >= pre.min_confidence) & (c > 0.0)
     n_kept = int(np.count_nonzero(keep))
     if n_kept < MIN_POINTS:
@@ -622,15 +480,7 @@ def reconstruct_surface(
             f"confidence: only {n_kept} of {p.shape[0]} points have confidence >= {pre.min_confidence} "
             f"(at least {MIN_POINTS} are needed); rescan or use a preset with a lower min_confidence"
         )
-    spacing0 = point_spacing(p[keep], seed=seed)
-    if not spacing0 > 0:
-        uniq = np.unique(p[keep], axis=0)
-        if uniq.shape[0] < MIN_POINTS:
-            raise SurfaceError(
-                f"points: only {uniq.shape[0]} distinct positions among {n_kept} points "
-                f"(at least {MIN_POINTS} are needed)"
-            )
-        spacing0 = point_spacing(uniq, seed=seed)
+    spacing0 = _input_spacing(p[keep], n_kept, seed)
     if pre.fuse_voxel_factor > 0:
         fused = fuse_points(p, n, c, voxel_mm=pre.fuse_voxel_factor * spacing0, min_confidence=pre.min_confidence)
         fp, fn, fc = fused.points, fused.normals, fused.confidence
@@ -649,6 +499,26 @@ def reconstruct_surface(
             f"points: fusion left {fp.shape[0]} samples (at least {MIN_POINTS} are needed); "
             "the cloud is too small for its spacing"
         )
+    return _measured(fp, fn, pre, seed, notes, n_fused, n_low, n_dominated)
+
+
+def _input_spacing(kept: NDArray[np.float64], n_kept: int, seed: int) -> float:
+    """Point spacing (mm) of the kept input points, over distinct positions if repeated points make it 0."""
+    spacing0 = point_spacing(kept, seed=seed)
+    if not spacing0 > 0:
+        uniq = np.unique(kept, axis=0)
+        if uniq.shape[0] < MIN_POINTS:
+            raise SurfaceError(
+                f"points: only {uniq.shape[0]} distinct positions among {n_kept} points "
+                f"(at least {MIN_POINTS} are needed)"
+            )
+        spacing0 = point_spacing(uniq, seed=seed)
+    return spacing0
+
+
+def _measured(fp: NDArray[np.float64], fn: NDArray[np.float64], pre: SurfacePreset, seed: int, notes: list[str],
+              n_fused: int, n_low: int, n_dominated: int) -> _Fused:
+    """Spacing, noise, support thresholds and extent of the fused samples; a note if the normals look inward."""
     tree = cKDTree(fp)
     spacing = point_spacing(fp, tree=tree, seed=seed)
     noise = noise_level(fp, tree=tree, seed=seed)
@@ -662,55 +532,53 @@ def reconstruct_surface(
             "normals: most normals point toward the centre of the cloud (inward); "
             "the surface may be inside out"
         )
-    t_fuse = time.perf_counter() - t0
+    return _Fused(points=fp, normals=fn, tree=tree, spacing=spacing, noise=noise, threshold=threshold,
+                  low_threshold=low_threshold, min_hole_area=min_hole_area, extent=extent, n_fused=n_fused,
+                  n_low=n_low, n_dominated=n_dominated)
 
-    # 3-4. holes of a coarse surface, fitted with smooth surfaces
-    t0 = time.perf_counter()
+
+def _hole_guides(fused: _Fused, pre: SurfacePreset, table_z_mm: float | None, seed: int, notes: list[str]
+                 ) -> tuple[tuple[HoleFit, ...], NDArray[np.float64], NDArray[np.float64]]:
+    """Holes of a coarse Poisson surface fitted with smooth surfaces, as guide points and normals (steps 3-4)."""
     fits: tuple[HoleFit, ...] = ()
     guide_p = np.zeros((0, 3))
     guide_n = np.zeros((0, 3))
     if pre.fill_holes:
-        depth1 = int(np.clip(round(math.log2(pre.scale * extent / threshold)), 5, max(5, pre.depth - 1)))
-        cell1 = pre.scale * extent / 2.0**depth1
+        fp, fn, threshold = fused.points, fused.normals, fused.threshold
+        depth1 = int(np.clip(round(math.log2(pre.scale * fused.extent / threshold)), 5, max(5, pre.depth - 1)))
+        cell1 = pre.scale * fused.extent / 2.0**depth1
         coarse = _o3d_cloud(fp, fn).voxel_down_sample(0.5 * cell1)
         cp, cn = np.asarray(coarse.points), np.asarray(coarse.normals)
         cn = cn / np.maximum(np.linalg.norm(cn, axis=1, keepdims=True), 1e-12)
         v1, t1 = poisson_mesh(cp, cn, depth=depth1, scale=pre.scale, samples_per_node=pre.samples_per_node)
-        rep1 = mesh_support(v1, t1, None, threshold, tree=tree, min_hole_area_mm2=min_hole_area)
-        guides = hole_guide_points(v1, t1, rep1, fp, fn, spacing_mm=spacing, noise_mm=noise, tree=tree,
-                                   floor_z_mm=table_z_mm, seed=seed)
+        rep1 = mesh_support(v1, t1, None, threshold, tree=fused.tree, min_hole_area_mm2=fused.min_hole_area)
+        guides = hole_guide_points(v1, t1, rep1, fp, fn, spacing_mm=fused.spacing, noise_mm=fused.noise,
+                                   tree=fused.tree, floor_z_mm=table_z_mm, seed=seed)
         fits = guides.fits
         guide_p, guide_n = guides.points, guides.normals
         for f in fits:
             if not f.fitted:
                 notes.append(f"hole {f.hole} of the coarse surface was not fitted: {f.reason}")
-    t_holes = time.perf_counter() - t0
+    return fits, guide_p, guide_n
 
-    # 5. final surface
-    t0 = time.perf_counter()
-    all_p = np.concatenate([fp, guide_p])
-    all_n = np.concatenate([fn, guide_n])
-    v, t = poisson_mesh(all_p, all_n, depth=pre.depth, scale=pre.scale, samples_per_node=pre.samples_per_node)
-    t_poisson = time.perf_counter() - t0
-    cell = pre.scale * float((all_p.max(axis=0) - all_p.min(axis=0)).max()) / 2.0**pre.depth
 
-    t0 = time.perf_counter()
-    v, t = _drop_unsupported_components(v, t, all_p, threshold)
-    t_cleanup = time.perf_counter() - t0
-    n_poisson = int(t.shape[0])
-
-    t0 = time.perf_counter()
-    decimated = False
+def _decimated(v: NDArray[np.float64], t: NDArray[np.int64], pre: SurfacePreset, notes: list[str]
+               ) -> tuple[NDArray[np.float64], NDArray[np.int64]] | None:
+    """The mesh decimated to the preset's target, or None when it has no target or is already below it."""
     if pre.target_triangles is not None and t.shape[0] > pre.target_triangles:
         dv, dt = decimate_mesh(v, t, pre.target_triangles)
-        decimated = True
         if dt.shape[0] > pre.target_triangles:
             notes.append(f"decimation stopped at {dt.shape[0]} triangles (target {pre.target_triangles})")
-    t_decimate = time.perf_counter() - t0
+        return dv, dt
+    return None
 
-    # 6. check and report
-    t0 = time.perf_counter()
-    if decimated:
+
+def _final_topology(v: NDArray[np.float64], t: NDArray[np.int64],
+                    decimated: tuple[NDArray[np.float64], NDArray[np.int64]] | None, pre: SurfacePreset,
+                    notes: list[str]) -> tuple[NDArray[np.float64], NDArray[np.int64], MeshTopology]:
+    """The final mesh (the decimated one unless decimation broke a watertight mesh) and its topology (step 6)."""
+    if decimated is not None:
+        dv, dt = decimated
         topo = mesh_topology(dt)
         if not topo.watertight:
             full = mesh_topology(t)
@@ -732,38 +600,7 @@ def reconstruct_surface(
             f"non-manifold edges, {topo.n_nonmanifold_vertices} non-manifold vertices, "
             f"{topo.n_misoriented_edges} misoriented edges)"
         )
-    normals_out = vertex_normals(v, t)
-    support = mesh_support(v, t, None, threshold, tree=tree, min_hole_area_mm2=min_hole_area,
-                           low_threshold_mm=low_threshold)
-    holes = _describe_holes(v, t, support, guide_p, threshold, topo.watertight)
-    t_report = time.perf_counter() - t0
-
-    timings = SurfaceTimings(
-        check_s=t_check, fuse_s=t_fuse, holes_s=t_holes, poisson_s=t_poisson, cleanup_s=t_cleanup,
-        decimate_s=t_decimate, report_s=t_report, total_s=time.perf_counter() - t_all,
-    )
-    return SurfaceResult(
-        vertices=v,
-        triangles=t,
-        vertex_normals=normals_out,
-        watertight=topo.watertight,
-        topology=topo,
-        support=support,
-        holes=holes,
-        hole_fits=fits,
-        n_guide_points=int(guide_p.shape[0]),
-        preset=pre,
-        spacing_mm=spacing,
-        support_threshold_mm=threshold,
-        cell_mm=cell,
-        n_input_points=int(p.shape[0]),
-        n_fused_points=int(n_fused),
-        n_low_confidence=int(n_low),
-        n_dominated=n_dominated,
-        n_triangles_poisson=n_poisson,
-        timings=timings,
-        warnings=tuple(notes),
-    )
+    return v, t, topo
 
 
 def _drop_unsupported_components(
@@ -792,6 +629,7 @@ def _describe_holes(
     threshold: float,
     closed: bool,
 ) -> tuple[FilledHole, ...]:
+    """One :class:`FilledHole` per unsupported region, filled by a spline fit where guide points lie in it."""
     if not support.n_holes:
         return ()
     spline = np.zeros(support.n_holes, bool)

@@ -17,6 +17,13 @@ Mean, median, 95th percentile and maximum of each are reported, and the
 same statistics over a chosen set of triangles of the reconstruction (the
 filled holes) toward the truth.
 
+References
+----------
+.. [1] Berger, M., Levine, J. A., Nonato, L. G., Taubin, G., Silva, C. T.
+   (2013). A benchmark for surface reconstruction. ACM TOG 32(2).
+.. [2] Aspert, N., Santa-Cruz, D., Ebrahimi, T. (2002). MESH: measuring
+   errors between surfaces using the Hausdorff distance. ICME 2002.
+
 Examples
 --------
 >>> import open3d as o3d
@@ -41,7 +48,16 @@ __all__ = ["DistanceStats", "SurfaceDistance", "surface_distance", "sample_surfa
 
 @dataclass(frozen=True)
 class DistanceStats:
-    """Statistics of point-to-surface distances (mm)."""
+    """Statistics of point-to-surface distances (mm).
+
+    Attributes
+    ----------
+    mean, median, p95, max
+        Mean, median, 95th percentile and largest distance (mm); NaN when
+        there are none.
+    n
+        Number of distances.
+    """
 
     mean: float
     median: float
@@ -51,7 +67,18 @@ class DistanceStats:
 
     @classmethod
     def of(cls, d: NDArray[np.float64]) -> DistanceStats:
-        """Statistics of an array of distances."""
+        """Statistics of an array of distances.
+
+        Parameters
+        ----------
+        d
+            Distances (mm).
+
+        Returns
+        -------
+        DistanceStats
+            Their statistics.
+        """
         if d.size == 0:
             return cls(float("nan"), float("nan"), float("nan"), float("nan"), 0)
         return cls(float(d.mean()), float(np.median(d)), float(np.percentile(d, 95)), float(d.max()), int(d.size))
@@ -83,6 +110,7 @@ class SurfaceDistance:
 
 
 def _check_mesh(vertices: ArrayLike, triangles: ArrayLike, name: str) -> tuple[NDArray, NDArray]:
+    """A checked mesh: non-empty, finite vertices, triangles indexing them."""
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles)
     if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
@@ -118,6 +146,16 @@ def sample_surface(
     subset
         Optional indices of the triangles to sample (default: all).
 
+    Returns
+    -------
+    ndarray
+        ``(n, 3)`` points (mm).
+
+    Raises
+    ------
+    ValueError
+        The mesh (or the chosen triangles) has zero area.
+
     Examples
     --------
     >>> p = sample_surface([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], 1000)
@@ -145,6 +183,18 @@ def distance_to_mesh(points: ArrayLike, vertices: ArrayLike, triangles: ArrayLik
 
     Coordinates are shifted to the mesh's centre before the float32 ray
     tracer sees them, so large offsets do not cost precision.
+
+    Parameters
+    ----------
+    points
+        Points (mm), reshaped to ``(N, 3)``.
+    vertices, triangles
+        The mesh (mm).
+
+    Returns
+    -------
+    ndarray
+        float64 ``(N,)`` distances (mm).
 
     Examples
     --------
@@ -195,6 +245,13 @@ def surface_distance(
     Returns
     -------
     SurfaceDistance
+        The statistics in both directions, and of the region.
+
+    Raises
+    ------
+    ValueError
+        ``n_samples`` below 1, a malformed mesh, region indices outside the
+        reconstruction's triangles.
     """
     if int(n_samples) < 1:
         raise ValueError(f"n_samples must be >= 1, got {n_samples}")

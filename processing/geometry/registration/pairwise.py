@@ -1,0 +1,319 @@
+"""Registration of one pair of clouds: automatic (global search), from an initial pose, or from picks.
+
+See docs/processing.md, section "Registration of passes".
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from processing.geometry.registration.clouds import _as_cloud, _Cloud
+from processing.geometry.registration.global_search import _global_search
+from processing.geometry.registration.presets import RegistrationError, RegistrationPreset, registration_preset
+from processing.geometry.registration.refinement import (
+    _evaluate,
+    _icp_pyramid,
+    _pair_result,
+    _pair_scale,
+    _pyramid,
+    _refine_distinct,
+    _Score,
+    _score_scale,
+    _scored,
+    _verdict,
+)
+from processing.geometry.registration.results import PairResult
+from processing.geometry.registration.symmetry import _axis_sweep, _margin, _sweep_margin, _weak_axis
+from processing.geometry.registration.transforms import _rodrigues, rigid_from_picks, transform_points
+
+__all__ = ["register_from_picks", "register_pair"]
+
+
+def register_pair(
+    source: ArrayLike,
+    target: ArrayLike,
+    *,
+    source_normals: ArrayLike | None = None,
+    target_normals: ArrayLike | None = None,
+    preset: str | RegistrationPreset = "standard",
+    initial: ArrayLike | None = None,
+    seed: int = 0,
+) -> PairResult:
+    """Register two partial point clouds without an initial guess, and verify the result.
+
+    Parameters
+    ----------
+    source, target
+        ``(N, 3)`` points in mm.  At least ``MIN_POINTS``, finite, spanning
+        a volume (not all on a line or in a plane).
+    source_normals, target_normals
+        Optional ``(N, 3)`` outward normals (e.g. oriented toward the sensor);
+        estimated when missing.
+    preset
+        ``draft``, ``standard``, ``reference`` or a :class:`RegistrationPreset`.
+    initial
+        Optional 4 x 4 initial guess (source -> target): skips the global search
+        and only refines and verifies (no ambiguity check, ``margin`` is NaN).
+    seed
+        Seed of the random subsampling (results are reproducible).
+
+    Returns
+    -------
+    PairResult
+        ``transform`` maps source points into the target's frame; read
+        ``verified`` and ``reason`` before trusting it.
+
+    Raises
+    ------
+    RegistrationError
+        A cloud that is not ``(N, 3)``, has fewer than ``MIN_POINTS``
+        points, NaN or infinite points, lies on a line or in a plane, or
+        normals of another shape; an unknown preset; an ``initial`` that is
+        not a rigid transform.
+
+    References
+    ----------
+    .. [1] Besl, P. J., McKay, N. D. (1992). A method for registration of 3-D
+       shapes. IEEE TPAMI 14(2), 239-256. doi:10.1109/34.121791
+    .. [2] Chen, Y., Medioni, G. (1992). Object modelling by registration of
+       multiple range images. Image and Vision Computing 10(3), 145-155.
+       doi:10.1016/0262-8856(92)90066-C
+    .. [3] Rusu, R. B., Blodow, N., Beetz, M. (2009). Fast point feature
+       histograms (FPFH) for 3D registration. ICRA 2009.
+       doi:10.1109/ROBOT.2009.5152473
+    .. [4] Alexa, M. (2022). Super-Fibonacci spirals: fast, low-discrepancy
+       sampling of SO(3). CVPR 2022.
+    .. [5] Gelfand, N., Ikemoto, L., Rusinkiewicz, S., Levoy, M. (2003).
+       Geometrically stable sampling for the ICP algorithm. 3DIM 2003.
+
+    Examples
+    --------
+    An egg-shaped ellipsoid with a bump (no symmetry), turned and shifted:
+
+    >>> from processing.geometry.registration import pose_difference, transform_points
+    >>> rng = np.random.default_rng(0)
+    >>> d = rng.normal(size=(3000, 3)); d /= np.linalg.norm(d, axis=1, keepdims=True)
+    >>> bump = 1 + 0.3 * np.exp(-8 * np.sum((d - [0.5, 0.7, 0.5]) ** 2, axis=1))
+    >>> pts = d * [30, 20, 12] * ((1 + 0.2 * d[:, 0]) * bump)[:, None]
+    >>> turn = np.eye(4); turn[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]; turn[:3, 3] = [5, 0, 2]
+    >>> res = register_pair(pts, transform_points(turn, pts), preset="draft")
+    >>> rot_deg, shift_mm = pose_difference(res.transform, turn, pts)
+    >>> res.verified, rot_deg < 0.05, shift_mm < 0.05
+    (True, True, True)
+    """
+    p = registration_preset(preset)
+    src = _as_cloud(source, source_normals, "source")
+    tgt = _as_cloud(target, target_normals, "target")
+    scale = _pair_scale(src, tgt)
+    rng = np.random.default_rng(seed)
+    if initial is None:
+        return _register(src, tgt, scale, p, rng, (0, 1))
+    t0 = _as_transform(initial, "initial")
+    return _refine_and_check(src, tgt, scale, p, t0, (0, 1), time.perf_counter(), "initial", None)
+
+
+def register_from_picks(
+    source_points: ArrayLike,
+    target_points: ArrayLike,
+    source: ArrayLike | None = None,
+    target: ArrayLike | None = None,
+    *,
+    source_normals: ArrayLike | None = None,
+    target_normals: ArrayLike | None = None,
+    preset: str | RegistrationPreset = "standard",
+) -> PairResult:
+    """Manual fallback: picked point pairs -> rigid transform, refined by ICP on the clouds.
+
+    Parameters
+    ----------
+    source_points, target_points
+        ``(M, 3)`` picked points (mm), ``M >= 3`` pairs in the same order,
+        not collinear.
+    source, target
+        The clouds the points were picked on.  With them the Kabsch estimate
+        is refined by the ICP pyramid and verified (overlap, residual,
+        normals); without them the result is the Kabsch fit alone, reported
+        unverified.
+    source_normals, target_normals, preset
+        As in :func:`register_pair`.
+
+    Returns
+    -------
+    PairResult
+        ``method`` is ``"picks"``; ``margin`` is NaN (no competing hypotheses).
+
+    Raises
+    ------
+    RegistrationError
+        Picks that are not ``(M, 3)``, fewer than 3 pairs, unequal in number,
+        not finite or collinear; only one of the two clouds; a cloud that
+        cannot be registered (see :func:`register_pair`); an unknown preset.
+
+    References
+    ----------
+    .. [1] Kabsch, W. (1976). A solution for the best rotation to relate two
+       sets of vectors. Acta Cryst. A32, 922-923. doi:10.1107/S0567739476001873
+    .. [2] Umeyama, S. (1991). Least-squares estimation of transformation
+       parameters between two point patterns. IEEE TPAMI 13(4), 376-380.
+       doi:10.1109/34.88573
+    .. [3] Chen, Y., Medioni, G. (1992). Object modelling by registration of
+       multiple range images. Image and Vision Computing 10(3), 145-155.
+       doi:10.1016/0262-8856(92)90066-C
+
+    Examples
+    --------
+    Four picks on a torus (symmetric, so only picks can register it), off by 0.5 mm:
+
+    >>> from processing.geometry.registration import pose_difference, transform_points
+    >>> rng = np.random.default_rng(1)
+    >>> u, v = rng.uniform(0, 2 * np.pi, (2, 1500))
+    >>> pts = np.stack([30 * np.cos(u), 15 * np.sin(u) * np.cos(v), 10 * np.sin(v) * (1.3 + np.cos(u))], 1)
+    >>> turn = np.eye(4); turn[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]; turn[:3, 3] = [5, 0, 2]
+    >>> picks = pts[[0, 100, 200, 300]]
+    >>> res = register_from_picks(picks, transform_points(turn, picks) + 0.5, pts,
+    ...                           transform_points(turn, pts), preset="draft")
+    >>> rot_deg, shift_mm = pose_difference(res.transform, turn, pts)
+    >>> res.verified, rot_deg < 0.05, shift_mm < 0.05
+    (True, True, True)
+    """
+    start = time.perf_counter()
+    p = registration_preset(preset)
+    t0, rms = rigid_from_picks(source_points, target_points)
+    if source is None or target is None:
+        if source is not None or target is not None:
+            raise RegistrationError("give both clouds (source and target) or neither")
+        nan = math.nan
+        sc = _Score(nan, nan, rms, nan, nan)
+        return _pair_result(
+            (0, 1), t0, sc, nan, nan, False,
+            f"not refined: no clouds given (Kabsch fit of the picks, RMS {rms:.3g} mm)", start, "picks",
+        )
+    src = _as_cloud(source, source_normals, "source")
+    tgt = _as_cloud(target, target_normals, "target")
+    scale = _pair_scale(src, tgt)
+    first = max(3.0 * rms, p.search_voxel * scale)
+    on_s = np.asarray(source_points, dtype=np.float64)
+    on_t = np.asarray(target_points, dtype=np.float64)
+    return _refine_and_check(src, tgt, scale, p, t0, (0, 1), start, "picks", first, (on_s, on_t, rms))
+
+
+def _register(
+    src: _Cloud,
+    tgt: _Cloud,
+    scale: float,
+    preset: RegistrationPreset,
+    rng: np.random.Generator,
+    indices: tuple[int, int],
+) -> PairResult:
+    """Automatic registration of a pair: global search, refinement, symmetry sweep, checks."""
+    start = time.perf_counter()
+    hyps = _global_search(src, tgt, scale, preset, rng)
+    # every hypothesis down the pyramid but its finest level; decide there
+    levels = _pyramid(preset, scale, src, tgt)
+    upper = levels[:-1] if len(levels) > 1 else levels
+    decide = upper[-1]
+    refined = _refine_distinct(src, tgt, preset, hyps, upper)
+    tau_s = _score_scale(src, tgt, decide, preset)
+    scores = _scored([_evaluate(src, tgt, t, decide, preset) for t in refined], tau_s)
+    best = int(np.argmax([sc.score for sc in scores]))
+    # a nearly symmetric shape: sweep the poses about its weak axis
+    weak_reason = ""
+    sweep = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset)
+    if isinstance(sweep, str):
+        weak_reason = sweep
+    elif sweep is not None:
+        axis, point = sweep
+        swept = _axis_sweep(src, tgt, refined[best], axis, point, decide, preset, rng, tau_s)
+        for t in _refine_distinct(src, tgt, preset, swept, upper[-1:]):
+            refined.append(t)
+            scores.append(_evaluate(src, tgt, t, decide, preset))
+        scores = _scored(scores, tau_s)
+        best = int(np.argmax([sc.score for sc in scores]))
+    margin, second_deg = _margin(refined, scores, best, src.level(decide).points.mean(axis=0), scale, preset)
+    if sweep is not None and not isinstance(sweep, str):
+        again = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset)
+        if again is not None and not isinstance(again, str):
+            m2, d2 = _sweep_margin(src, tgt, refined[best], again[0], again[1], decide, preset, rng, tau_s)
+            if m2 < margin:
+                margin, second_deg = m2, d2
+    t = refined[best]
+    if len(levels) > 1:
+        t = _icp_pyramid(src, tgt, preset, t, levels[-1:], settled=True)
+    fine = levels[-1]
+    sc = replace(_evaluate(src, tgt, t, fine, preset), score=scores[best].score)
+    ok, reason = _verdict(sc, margin, second_deg, fine, preset)
+    if weak_reason:
+        reason = weak_reason if ok else f"{reason}; {weak_reason}"
+        ok = False
+    return _pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global")
+
+
+def _as_transform(t: ArrayLike, name: str) -> NDArray[np.float64]:
+    """A checked finite 4 x 4 rigid transform."""
+    m = np.asarray(t, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise RegistrationError(f"{name} must be a finite 4 x 4 rigid transform, got shape {m.shape}")
+    r = m[:3, :3]
+    if not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) <= 0:
+        raise RegistrationError(f"{name} is not a rigid transform (its 3 x 3 block is not a rotation)")
+    return m
+
+
+def _refine_and_check(
+    src: _Cloud, tgt: _Cloud, scale: float, preset: RegistrationPreset, t0: NDArray[np.float64],
+    indices: tuple[int, int], start: float, method: str, first_distance: float | None,
+    picks: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None,
+) -> PairResult:
+    """ICP from a given pose, then the checks (no competing hypotheses).
+
+    With ``picks`` (source points, target points, their Kabsch RMS): where the
+    fit leaves one rotation free (a surface of revolution turns about its
+    axis without changing the fit), the angle about that axis is taken from
+    the picks; and the result is refused if it moved the picks apart (the
+    clouds do not confirm them).
+    """
+    levels = _pyramid(preset, scale, src, tgt)
+    t = _icp_pyramid(src, tgt, preset, t0, levels, first_distance)
+    fine = levels[-1]
+    extra = ""
+    if picks is not None:
+        on_s, on_t, rms0 = picks
+        weak = _weak_axis(src.level(fine), tgt.level(fine), t, fine, preset)
+        if weak is not None and not isinstance(weak, str):
+            t = _turn_to_picks(t, weak[0], weak[1], on_s, on_t)
+        rms = float(np.sqrt(np.mean(np.sum((transform_points(t, on_s) - on_t) ** 2, axis=1))))
+        allowed = max(3.0 * rms0, 2.0 * fine)
+        if rms > allowed:
+            extra = (f"the fit moved the picked points {rms:.3g} mm apart (more than {allowed:.3g} mm): "
+                     "the clouds do not confirm the picks")
+    tau_s = _score_scale(src, tgt, fine, preset)
+    sc = _scored([_evaluate(src, tgt, t, fine, preset)], tau_s)[0]
+    ok, reason = _verdict(sc, math.nan, math.nan, fine, preset)
+    if extra:
+        ok, reason = False, extra if ok else f"{reason}; {extra}"
+    return _pair_result(indices, t, sc, math.nan, math.nan, ok, reason, start, method)
+
+
+def _turn_to_picks(
+    t: NDArray[np.float64], axis: NDArray[np.float64], point: NDArray[np.float64],
+    on_s: NDArray[np.float64], on_t: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """``t`` turned about an axis (target frame) by the angle that best maps the picked source points onto the targets.
+
+    Closed form on the components across the axis:
+    ``phi = atan2(sum u . (p x q), sum p . q)``.
+    """
+    p = transform_points(t, on_s) - point
+    q = on_t - point
+    p -= np.outer(p @ axis, axis)
+    q -= np.outer(q @ axis, axis)
+    phi = math.atan2(float(np.sum(np.cross(p, q) @ axis)), float(np.sum(p * q)))
+    turn = np.eye(4)
+    turn[:3, :3] = _rodrigues(phi * axis[None, :])[0]
+    turn[:3, 3] = point - turn[:3, :3] @ point
+    return turn @ t

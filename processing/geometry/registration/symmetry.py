@@ -1,0 +1,198 @@
+"""Nearly symmetric shapes: weak directions of the fit, sweeps about a weak axis, margins over competitors.
+
+A surface of revolution turns about its axis without changing the fit
+(Gelfand et al. 2003); such pairs are swept about that axis and reported as
+ambiguous when a competing pose fits nearly as well.  See docs/processing.md,
+section "Registration of passes".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from processing.geometry.registration.clouds import _Cloud, _Level
+from processing.geometry.registration.global_search import _batch_score, _chunked_icp, _distinct, _subsample
+from processing.geometry.registration.presets import RegistrationPreset
+from processing.geometry.registration.refinement import _common_quality, _Score
+from processing.geometry.registration.transforms import (
+    _rodrigues,
+    _rotation_angle_deg,
+    pose_difference,
+    transform_points,
+)
+
+__all__: list[str] = []
+
+
+def _stability(
+    src: _Level, tgt: _Level, t: NDArray[np.float64], tau: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
+    """Eigen-analysis of the point-to-plane information matrix at a pose.
+
+    Gelfand, Ikemoto, Rusinkiewicz & Levoy, "Geometrically stable sampling for
+    the ICP algorithm" (3DIM 2003): with rows ``[(x - c) x n / L, n]`` (``c``
+    the centroid of the matched points, ``L`` their RMS radius), a small
+    eigenvalue of ``J^T J / N`` relative to the largest is a motion that
+    leaves the residuals nearly unchanged: a surface of revolution turns
+    about its axis, a cylinder also slides along it, a sphere turns freely.
+
+    Returns ascending eigenvalues ``(6,)``, eigenvectors ``(6, 6)`` (columns),
+    the centre ``c`` (target frame) and ``L``.
+    """
+    x = transform_points(t, src.points)
+    d, idx = tgt.tree.query(x, distance_upper_bound=tau, workers=-1)
+    hit = np.isfinite(d)
+    if hit.sum() < 6:
+        return np.zeros(6), np.eye(6), x.mean(axis=0), 1.0
+    xh = x[hit]
+    nq = tgt.normals[idx[hit]]
+    c = xh.mean(axis=0)
+    arm = xh - c
+    length = float(np.sqrt(np.mean(np.sum(arm * arm, axis=1))))
+    jac = np.concatenate([np.cross(arm, nq) / length, nq], axis=1)
+    evals, evecs = np.linalg.eigh(jac.T @ jac / len(jac))
+    return evals, evecs, c, length
+
+
+def _weak_axis(
+    src: _Level, tgt: _Level, t: NDArray[np.float64], voxel: float, preset: RegistrationPreset
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | str | None:
+    """The axis (direction, point) of a single weak rotation at ``t``.
+
+    A reason if the pose is undetermined in another way, or None if the fit
+    is stable.
+    """
+    evals, evecs, c, length = _stability(src, tgt, t, preset.icp_distance * voxel)
+    if evals[-1] <= 0:
+        return "undetermined: no matched points to judge the fit"
+    ratio = evals / evals[-1]
+    weak = ratio < preset.min_stability
+    if not weak.any():
+        return None
+    e = evecs[:, 0]
+    rot_part = float(np.linalg.norm(e[:3]))
+    if weak.sum() == 1 and rot_part > 0.7:
+        omega = e[:3] / length
+        v = e[3:]
+        point = c + np.cross(omega, v) / float(omega @ omega)
+        return omega / np.linalg.norm(omega), point
+    return (
+        f"undetermined: {int(weak.sum())} direction(s) of motion barely change the fit "
+        f"(stability {ratio[0]:.1e} < {preset.min_stability:g}); the shape is nearly a sphere, "
+        "cylinder or plane: pick points to register this pair"
+    )
+
+
+def _axis_turns(
+    t: NDArray[np.float64], axis: NDArray[np.float64], point: NDArray[np.float64], steps: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """``t`` turned about an axis (target frame) by ``steps`` even angles, and the same upside down.
+
+    Upside down is after a half turn about an axis across it; returns the
+    rotations, translations and the rotation angle of each from ``t`` (deg).
+    """
+    phi = 2.0 * np.pi * np.arange(steps) / steps
+    turn = _rodrigues(phi[:, None] * axis[None, :])
+    across = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    flip = _rodrigues(np.pi * across[None, :] / np.linalg.norm(across))[0]
+    turn = np.concatenate([turn, turn @ flip])
+    rot = turn @ t[:3, :3]
+    trans = np.einsum("kij,j->ki", turn, t[:3, 3] - point) + point
+    return rot, trans, _rotation_angle_deg(turn, np.eye(3))
+
+
+def _axis_sweep(
+    src: _Cloud, tgt: _Cloud, t: NDArray[np.float64], axis: NDArray[np.float64], point: NDArray[np.float64],
+    voxel: float, preset: RegistrationPreset, rng: np.random.Generator, score_tau: float,
+) -> list[NDArray[np.float64]]:
+    """Distinct poses found by turning ``t`` about an axis (target frame) in even steps, refined by batched ICP.
+
+    The batched ICP runs at ``voxel`` (mm).
+    """
+    s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
+    rot, trans, _ = _axis_turns(t, axis, point, preset.sweep_steps)
+    pts = _subsample(s_lvl.points, 4 * preset.search_points, rng)
+    grid = t_lvl.grid(voxel / 2.0, 3.0 * voxel)
+    taus = voxel * np.array([3.0, 2.0, 2.0, 2.0, 1.5, 1.5, 1.5, 1.5])
+    rot, trans, score = _chunked_icp(rot[1:], trans[1:], pts, t_lvl, grid, taus, score_tau)
+    order = np.argsort(-score)
+    poses = np.zeros((len(order), 4, 4))
+    poses[:, :3, :3] = rot[order]
+    poses[:, :3, 3] = trans[order]
+    poses[:, 3, 3] = 1.0
+    scale = max(src.diagonal, tgt.diagonal)
+    return _distinct(poses, s_lvl.points.mean(axis=0), preset, scale)[: preset.hypotheses]
+
+
+def _competitor_margin(
+    overlap: float, others: Sequence[tuple[float, float, float, int, float]], matched: int
+) -> tuple[float, float]:
+    """Relative margin of a pose over its strongest competitor.
+
+    ``others`` holds, per pose distinct from it, ``(overlap, own, theirs, n,
+    rotation_deg)``: its overlap fraction, the mean truncated quadratic
+    contribution of this pose (``own``) and of the competitor (``theirs``) over
+    the ``n`` points both match, and the rotation between the two.  A
+    competitor explains at least half as much of the clouds and shares at
+    least a quarter of this pose's ``matched`` points; the margin is the
+    smallest ``(own - theirs) / own``.  The comparison is on the common
+    points, not on the overlap: partial views of a symmetric shape overlap more
+    or less depending on how their missing parts line up, which is no evidence.
+    Returns ``(1.0, nan)`` without competitors.
+    """
+    margin, deg = 1.0, math.nan
+    for ov, own, theirs, n, rot in others:
+        if ov >= 0.5 * overlap and n >= 0.25 * matched:
+            m = (own - theirs) / own if own > 0 else 0.0
+            if m < margin:
+                margin, deg = m, rot
+    return margin, deg
+
+
+def _margin(
+    poses: Sequence[NDArray[np.float64]], scores: Sequence[_Score], best: int,
+    centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
+) -> tuple[float, float]:
+    """Margin of ``poses[best]`` over its distinct competitors, and the rotation to the strongest one.
+
+    See :func:`_competitor_margin`; both directions are pooled.
+    """
+    b = scores[best]
+    rb = np.concatenate(b.residuals)
+    others = []
+    for t, sc in zip(poses, scores):
+        rot, disp = pose_difference(poses[best], t, centre[None])
+        if rot >= preset.distinct_deg or disp >= preset.distinct_fraction * scale:
+            own, theirs, n = _common_quality(rb, np.concatenate(sc.residuals), b.tau_s)
+            others.append((max(sc.overlap_source, sc.overlap_target), own, theirs, n, rot))
+    matched = int(np.sum(~np.isnan(rb)))
+    return _competitor_margin(max(b.overlap_source, b.overlap_target), others, matched)
+
+
+def _sweep_margin(
+    src: _Cloud, tgt: _Cloud, t: NDArray[np.float64], axis: NDArray[np.float64], point: NDArray[np.float64],
+    voxel: float, preset: RegistrationPreset, rng: np.random.Generator, score_tau: float,
+) -> tuple[float, float]:
+    """Quality margin of ``t`` over the same pose turned rigidly about a weak axis.
+
+    There is no refinement, so that a continuous symmetry cannot slide the
+    competitors back onto ``t``; see :func:`_competitor_margin`.
+    """
+    s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
+    rot, trans, deg = _axis_turns(t, axis, point, preset.sweep_steps)
+    pts = _subsample(s_lvl.points, 4 * preset.search_points, rng)
+    grid = t_lvl.grid(voxel / 2.0, 3.0 * voxel)
+    tgt_p, tgt_n = t_lvl.padded
+    _, part, hit = _batch_score(rot, trans, pts, tgt_p, tgt_n, grid, preset.icp_distance * voxel, score_tau)
+    overlap = hit.mean(axis=1)
+    both = hit & hit[0]
+    n = both.sum(axis=1)
+    own = (part[0] * both).sum(axis=1) / np.maximum(n, 1)
+    theirs = (part * both).sum(axis=1) / np.maximum(n, 1)
+    far = np.flatnonzero(deg >= preset.distinct_deg)
+    others = [(overlap[k], own[k], theirs[k], int(n[k]), deg[k]) for k in far]
+    return _competitor_margin(float(overlap[0]), others, int(hit[0].sum()))
