@@ -40,8 +40,8 @@ def _calibration(tmp: Path) -> Path:
 
 def library_capture_s(steps: int, passes: int, seed: int = 5) -> float:
     """Wall time of the same capture through the library alone (s)."""
-    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.capture.devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World

@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-pytest.importorskip("PySide6.QtCore", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+pytest.importorskip("PySide6.QtCore", reason="the GUI tests need PySide6 (pip install 'kogei[gui]')")
 
 from bench.responsiveness import own_stalls_ms, run_queue_waits_ns, stalls_ms, steal_ns
 
