@@ -1,4 +1,6 @@
-# The two commands of the README (`make demo`, `make test`) create or refresh .venv themselves.
+# The two commands of the README (`make demo`, `make test`) create or refresh .venv themselves, with every
+# extra (gui: the window, cluster: `kogei batch --dask`, dev: the tests); the stamp makes a changed
+# pyproject.toml reinstall.
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.kogei-installed
@@ -10,7 +12,7 @@ $(STAMP): pyproject.toml scripts/ensure-system-deps.sh
 	bash scripts/ensure-system-deps.sh
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q -e '.[dev,gui,cluster]'
 	touch $(STAMP)
 
 venv: $(STAMP)
@@ -26,7 +28,7 @@ bench: $(STAMP)
 	$(PY) -m bench.unseen_figure --out docs/images/hawk-unseen.png
 
 screenshots: $(STAMP)
-	QT_QPA_PLATFORM=offscreen $(PY) -m app.gui.screenshots --out docs/screenshots
+	QT_QPA_PLATFORM=offscreen $(PY) -m bench.screenshots --out docs/screenshots
 
 clean:
 	rm -rf out .pytest_cache .hypothesis

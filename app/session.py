@@ -1,10 +1,10 @@
 """The session store: a directory of captures with a versioned, crash-safe manifest.
 
-DESIGN.md section 2 and ``docs/session-format.md``.  A session directory
-holds ``session.json`` (schema ``kogei.session``, version
-:data:`SCHEMA_VERSION`) and the captured files.  Every file is written
-atomically (temporary file in the same folder, ``fsync``, rename, ``fsync``
-of the folder) and checksummed (SHA-256) before it is recorded.
+See ``docs/session-format.md``.  A session directory holds ``session.json``
+(schema ``kogei.session``, version :data:`SCHEMA_VERSION`) and the captured
+files.  Every file is written atomically (temporary file in the same folder,
+``fsync``, rename, ``fsync`` of the folder; :mod:`processing.common.files`)
+and checksummed (SHA-256) before it is recorded.
 
 Recording a capture appends one line to ``session.journal`` (a write-ahead
 log), so a capture costs one small append however large the session is;
@@ -50,7 +50,6 @@ import io
 import json
 import os
 import shutil
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from processing.common.files import atomic_path, atomic_write_bytes, fsync_dir, sha256_file
 from processing.errors import InputError
 
 __all__ = [
@@ -69,8 +69,8 @@ __all__ = [
     "SessionLockedError",
     "FileInfo",
     "Session",
-    "atomic_write_bytes",
-    "sha256_file",
+    "atomic_write_bytes",   # re-exported from processing.common.files
+    "sha256_file",          # re-exported from processing.common.files
     "utc_now",
 ]
 
@@ -104,66 +104,6 @@ class FileInfo:
 def utc_now() -> str:
     """The current UTC time as ISO 8601 with microseconds and a ``Z``."""
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-
-
-def _fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    except OSError:  # some filesystems refuse fsync on a directory; the rename is still atomic
-        pass
-    finally:
-        os.close(fd)
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, *, durable: bool = True) -> Path:
-    """Write ``data`` to ``path`` so that readers see the old file or the new one, never a part.
-
-    Parameters
-    ----------
-    path
-        Destination; its folder is created if missing.
-    data
-        The bytes.
-    durable
-        ``fsync`` the file and its folder (survives a power cut, not only a
-        crash).
-
-    Examples
-    --------
-    >>> import tempfile, pathlib
-    >>> p = atomic_write_bytes(pathlib.Path(tempfile.mkdtemp()) / "a" / "b.bin", b"xyz")
-    >>> p.read_bytes()
-    b'xyz'
-    """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            if durable:
-                os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    if durable:
-        _fsync_dir(target.parent)
-    return target
-
-
-def sha256_file(path: str | os.PathLike[str]) -> str:
-    """Hex SHA-256 of a file's contents (read in 1 MiB blocks)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _check_rel(rel: str) -> str:
@@ -356,15 +296,12 @@ class Session:
         try:
             os.replace(source, target)
         except OSError:
-            # another filesystem: copy to a temporary file beside the target, then rename
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-            os.close(fd)
-            shutil.copyfile(source, tmp)
-            with open(tmp, "rb+") as fh:
-                os.fsync(fh.fileno())
-            os.replace(tmp, target)
+            # another filesystem: copy to a temporary file beside the target, then rename (fsync-ed)
+            with atomic_path(target) as tmp:
+                shutil.copyfile(source, tmp)
             source.unlink()
-        _fsync_dir(target.parent)
+        else:
+            fsync_dir(target.parent)
         return FileInfo(rel, digest, size)
 
     def verify_file(self, record: dict[str, Any]) -> str | None:
@@ -447,7 +384,7 @@ class Session:
                 os.close(fd)
             folders.add(path.parent)
         for folder in folders:
-            _fsync_dir(folder)
+            fsync_dir(folder)
         self._unsynced.clear()
         self._journal.flush()
         os.fsync(self._journal.fileno())

@@ -1,16 +1,16 @@
 """Responsiveness of the capture station window during a simulated session, and its cost over the library.
 
-Issue #7: the window must never freeze ("event loop never blocked > 100 ms").
+The window must never freeze ("event loop never blocked > 100 ms").
 One run drives the window offscreen through a whole simulated session --
 connect, capture (profiles only, ``--steps`` x ``--passes``), process
-(``draft``) and a preview render -- while :class:`app.gui.responsiveness.EventLoopMonitor`
+(``draft``) and a preview render -- while :class:`bench.responsiveness.EventLoopMonitor`
 watches a 10 ms timer on the GUI thread: the wall-clock stall of each firing
 (what the technician feels: the window's own work, the interpreter lock held
 by the capture and drawing threads, and the simulated instruments, which run
 in the same process here) and the GUI thread's own CPU time between firings
 (the window's own work alone), and the *own stall*: the stall minus the
 time no CPU ran the process (run-queue waits and steal, see
-:mod:`app.gui.responsiveness`).  The capture's wall time is compared with the
+:mod:`bench.responsiveness`).  The capture's wall time is compared with the
 same plan through :func:`app.capture.runner.run_capture` without the window (same
 station settings): the ratio is the window's overhead on the capture.
 
@@ -33,15 +33,15 @@ __all__ = ["FINDINGS", "run_session", "library_capture_s", "measure", "section",
 
 
 def _calibration(tmp: Path) -> Path:
-    from app.gui.screenshots import _calibration as calibrate
+    from bench.screenshots import _calibration as calibrate
 
     return calibrate(tmp)
 
 
 def library_capture_s(steps: int, passes: int, seed: int = 5) -> float:
     """Wall time of the same capture through the library alone (s)."""
-    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.capture.devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import World
@@ -67,7 +67,7 @@ def run_session(calibration: Path, steps: int, passes: int, seed: int = 5) -> di
     from PySide6.QtWidgets import QApplication
 
     from app.gui.main_window import MainWindow
-    from app.gui.responsiveness import EventLoopMonitor
+    from bench.responsiveness import EventLoopMonitor
     from mocks.world import World
 
     app = QApplication.instance() or QApplication([])
@@ -189,7 +189,7 @@ def section(results: dict[str, Any]) -> list[str]:
     r = results
     over = sum(1 for x in r["own_max_ms_all"] if x >= 100.0)
     return [
-        "## Capture station window (issue #7)",
+        "## Capture station window",
         "",
         f"Measured on {machine_description()}.",
         "",

@@ -345,12 +345,18 @@ def _local(sessions: list[str], steps: tuple[str, ...], options: BatchOptions, w
     return results, interrupted
 
 
+def _require_distributed() -> None:
+    """A :class:`UsageError` naming the extra to install when Dask's ``distributed`` cannot be imported."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise UsageError("--dask needs Dask's 'distributed' package: pip install 'kogei[cluster]'") from None
+
+
 def _dask(sessions: list[str], steps: tuple[str, ...], options: BatchOptions, address: str,
           display: _Display) -> tuple[dict[str, SessionResult], bool, int]:
-    try:
-        from distributed import Client, Queue, as_completed
-    except ImportError:
-        raise UsageError("--dask needs the 'distributed' package: pip install 'dask[distributed]'") from None
+    from distributed import Client, Queue, as_completed  # run_batch checked it is importable
+
     try:
         client = Client(address, timeout="10s")
     except (OSError, TimeoutError, ValueError) as exc:
@@ -421,6 +427,8 @@ def run_batch(sessions: Iterable[str | os.PathLike[str]], steps: str | Iterable[
         raise UsageError(f"--workers must be a whole number >= 1, got {workers!r}")
     step_names = parse_steps(steps if steps is None or isinstance(steps, str) else ",".join(steps))
     options = options or BatchOptions()
+    if dask:
+        _require_distributed()      # before the progress display starts: the message stays one line
     t0 = time.perf_counter()
     display = _Display(len(names), step_names, progress, console)
     with display:

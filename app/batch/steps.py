@@ -27,7 +27,6 @@ object frames' regions and materials, :mod:`app.batch.materials`), ``render``
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import time
 from collections.abc import Callable
@@ -160,11 +159,9 @@ def _render_params(options: BatchOptions) -> dict[str, Any]:
 
 
 def _png_bytes(srgb8: Any) -> bytes:
-    from PIL import Image
+    from processing.common.png import png_bytes
 
-    buf = io.BytesIO()
-    Image.fromarray(srgb8).save(buf, format="PNG")
-    return buf.getvalue()
+    return png_bytes(srgb8)
 
 
 def render_session_mesh(root: Path, illuminant: str, size: tuple[int, int], preset: str,

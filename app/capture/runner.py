@@ -1,7 +1,6 @@
 """The capture session: turntable, laser profiler and camera driven into a session, resumably.
 
-Issue #3, DESIGN.md sections 2-3, ``docs/session-format.md``.  A
-:class:`CapturePlan` expands into a fixed, ordered list of actions per pass,
+See ``docs/session-format.md``.  A :class:`CapturePlan` expands into a fixed, ordered list of actions per pass,
 each with a stable id (``p01/chart``, ``p01/profile/0042``,
 ``p01/frame/03``).  :func:`run_capture` performs the actions that the
 session does not already hold (recorded *and* with an intact file), so an
@@ -37,7 +36,6 @@ the possible error in ``angle_uncertain_deg`` of the pass record.
 
 from __future__ import annotations
 
-import io
 import math
 import shutil
 import threading
@@ -64,6 +62,7 @@ from drivers.errors import (
     TransportClosed,
     TransportError,
 )
+from processing.common.files import sha256_file
 
 __all__ = [
     "PLAN_KINDS",
@@ -783,9 +782,7 @@ class _Runner:
             x[i, :xr.size] = xr
             zz[i, :zr.size] = zr
         angles = np.array([r[0] for r in rows])
-        buf = io.BytesIO()
-        np.savez(buf, angles_deg=angles, x_mm=x, z_mm=zz)
-        info = s.write_file(f"passes/p{p:02d}/profiles.npz", buf.getvalue())
+        info = s.write_arrays(f"passes/p{p:02d}/profiles.npz", angles_deg=angles, x_mm=x, z_mm=zz)
         s.add_capture(f"p{p:02d}/profiles", kind="profiles", **{"pass": p}, steps=len(rows), points=width,
                       file=info.path, sha256=info.sha256, bytes=info.bytes)
 
@@ -846,8 +843,6 @@ def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.n
         raise SessionError(f"session {session_root}: pass {pass_no} has no gathered profiles (the pass is not "
                            f"complete); resume the capture with 'kogei capture --resume {session_root}'")
     path = Path(session_root) / rec["file"]
-    from app.session import sha256_file
-
     if not path.is_file() or sha256_file(path) != rec["sha256"]:
         raise SessionError(f"session {session_root}: {rec['file']} is missing or fails its checksum")
     with np.load(path) as z:

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         from PySide6.QtWidgets import QApplication
     except ImportError as exc:
-        raise UsageError(f"the window needs PySide6 ({exc}); install it with: pip install PySide6-Essentials") from None
+        raise UsageError(f"the window needs PySide6 ({exc}); install it with: pip install 'kogei[gui]'") from None
     if args.mock_triangles < 100:
         raise UsageError(f"--mock-triangles must be at least 100, got {args.mock_triangles}")
     from app.gui.main_window import MainWindow

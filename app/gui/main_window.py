@@ -1,7 +1,7 @@
 """The capture station's main window: tabs for each stage, a drop-out banner, a log panel, shortcuts, settings.
 
-Issue #7.  Tabs: Devices, Session, Capture, Camera, Processing, Spectra and
-materials, Preview (one module each).  Long work runs off the GUI thread
+Tabs: Devices, Session, Capture, Camera, Processing, Spectra and materials,
+Preview (one module each).  Long work runs off the GUI thread
 (:mod:`app.gui.workers`); errors appear as a readable line above the tabs and
 in the log panel, never as a lost session.  Window layout, ports, camera,
 simulated-station folder, last session and calibration persist in

@@ -1,6 +1,6 @@
 """The instruments the window talks to: ports, connect / disconnect, status lights, drop-out and re-handshake.
 
-DESIGN.md section 3 ("Devices").  Every serial operation runs on one
+The instruments' protocols and recovery: docs/protocols.md.  Every serial operation runs on one
 :class:`app.gui.workers.Lane` of a single thread, so the drivers (which are
 not thread-safe) are used by one thread at a time and in order: a jog, a
 status poll and a capture never interleave.  While idle, :class:`StationLink`

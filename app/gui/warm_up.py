@@ -1,7 +1,7 @@
 """Load, before the window is shown, what would otherwise be loaded by a worker thread holding the interpreter lock.
 
-Measured while a simulated session ran through the window (issue #7; see
-the "gui" section of docs/BENCHMARKS.md): the event loop's longest stalls
+Measured while a simulated session ran through the window (see the
+"Capture station window" section of docs/BENCHMARKS.md): the event loop's longest stalls
 while the machine was running the process (120-150 ms) came from
 first uses in worker threads, during which a single C call holds the
 interpreter lock, such as the import of colour-science's dataset modules

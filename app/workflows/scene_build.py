@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from app.errors import UsageError
 from app.workflows.scene_spec import ObjectSpec, SceneSpec
+from processing.common.rotation import rotation_xyz_deg as rotation_matrix  # about x, then y, then z (degrees)
 
 __all__ = ["RenderJob", "build_job", "object_mesh", "rotation_matrix", "DEFAULT_LIGHT"]
 
@@ -27,22 +28,6 @@ class RenderJob:
     scene: object          # render.scene.Scene
     camera: object         # render.camera.Camera
     settings: object       # render.presets.RenderSettings
-
-
-def rotation_matrix(angles_deg: tuple[float, float, float]) -> NDArray[np.float64]:
-    """Rotation about x, then y, then z (degrees), as a 3x3 matrix.
-
-    Examples
-    --------
-    >>> np.round(rotation_matrix((0, 0, 90)) @ [1, 0, 0], 6).tolist()
-    [0.0, 1.0, 0.0]
-    """
-    ax, ay, az = (math.radians(a) for a in angles_deg)
-    cx, sx, cy, sy, cz, sz = math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay), math.cos(az), math.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 def _sphere_arrays(radius: float, triangles: int) -> tuple[NDArray, NDArray, NDArray]:

@@ -69,8 +69,8 @@ def library_capture(world, folder: Path, *, steps: int, passes: int, seed: int, 
     """The plan captured through :func:`app.capture.runner.run_capture` alone, without the window: the ground truth
     the GUI tests compare with (a station's profiles are deterministic per seed, placement and table angle).
     The station lives in ``folder / "station"``; returns the session folder ``folder / "s"``."""
-    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.capture.devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.session import Session
     from mocks.station import SimulatedStation
 

@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install 'kogei[gui]')")
 
 from PySide6.QtCore import Qt
 
-from app.cli.calibrate import session_calibration
 from app.capture.runner import load_pass_profiles
+from app.cli.calibrate import session_calibration
 from app.gui.devices_panel import SIMULATED_OBJECTS
 from app.session import Session
 from mocks.world import World

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install 'kogei[gui]')")
 
 from pathlib import Path
 

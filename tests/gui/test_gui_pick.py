@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install 'kogei[gui]')")
 
 from PySide6.QtCore import QPoint, Qt
 

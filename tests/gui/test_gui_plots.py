@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-pytest.importorskip("PySide6.QtCore", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+pytest.importorskip("PySide6.QtCore", reason="the GUI tests need PySide6 (pip install 'kogei[gui]')")
 
 from app.gui.figures import cloud_figure, draw_figure, empty_figure, profile_figure, spectrum_figure
 from app.gui.plots import FigureDrawer

@@ -1,4 +1,4 @@
-"""The stall accounting of app.gui.responsiveness: closed-form cases and the kernel's per-thread counters."""
+"""The stall accounting of bench.responsiveness: closed-form cases and the kernel's per-thread counters."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import threading
 
 import pytest
 
-pytest.importorskip("PySide6.QtCore", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+pytest.importorskip("PySide6.QtCore", reason="the GUI tests need PySide6 (pip install 'kogei[gui]')")
 
-from app.gui.responsiveness import own_stalls_ms, run_queue_waits_ns, stalls_ms, steal_ns
+from bench.responsiveness import own_stalls_ms, run_queue_waits_ns, stalls_ms, steal_ns
 
 
 def test_own_stall_is_the_stall_less_the_excused_time_never_negative():

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install PySide6-Essentials)")
+pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip install 'kogei[gui]')")
 
 import math
 from pathlib import Path
@@ -59,7 +59,7 @@ def _pinhole(points: np.ndarray, eye: np.ndarray, target: np.ndarray, up: np.nda
 
 
 def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration, monkeypatch):
-    from app.gui.responsiveness import EventLoopMonitor
+    from bench.responsiveness import EventLoopMonitor
 
     w = make_window(qtbot, tmp_path)
     st = w.start_simulated_station(triangles=8000, image_size=(96, 64), n_points=320, seed=5)
@@ -207,10 +207,10 @@ def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration,
     rot, shift = pose_difference(np.asarray(w.processing.report["passes"][1]["pose"]), t21)
     assert rot < POSE_DEG and shift < POSE_MM, (rot, shift)
 
-    # The window stays responsive (issue #7): the event loop is never kept waiting 100 ms while the machine
+    # The window stays responsive: the event loop is never kept waiting 100 ms while the machine
     # runs this process -- every firing of a 10 ms timer comes within 100 ms of the previous one, less the
     # time no CPU ran the process (run-queue waits of the GUI thread and of the longest-waiting other thread,
-    # hypervisor steal; app.gui.responsiveness) -- whether the window's own work or a thread holding the
+    # hypervisor steal; bench.responsiveness) -- whether the window's own work or a thread holding the
     # interpreter lock would delay it.  Also: the GUI thread's own CPU time between two firings stays under
     # 100 ms, and 99% of the firings come within 100 ms of plain wall-clock time on this shared machine.
     assert len(monitor.excused) == len(monitor.stamps) - 1 and all(e >= 0 for e in monitor.excused), stalls

@@ -19,8 +19,8 @@ previous one minus the interval.  Two parts of a stall are told apart:
 The *own stall* is the stall minus the excused time (never below zero): the
 time the event loop waited while the machine was running this process, that
 is for the window's work or for another thread of the window holding the
-interpreter lock.  Issue #7's "event loop never blocked > 100 ms" is asserted
-on it in the tests; the plain wall-clock stalls (99th percentile, maximum)
+interpreter lock.  The window's requirement "event loop never blocked > 100 ms"
+is asserted on it in the tests; the plain wall-clock stalls (99th percentile, maximum)
 are what a technician feels on a loaded machine and are reported by
 ``bench/gui_bench.py``.  Without ``schedstat`` (not Linux) nothing is
 excused and the own stall equals the stall.

@@ -1,4 +1,4 @@
-"""``python -m app.gui.screenshots --out docs/screenshots``: drive the window through a simulated session
+"""``python -m bench.screenshots --out docs/screenshots``: drive the window through a simulated session
 and save a PNG of each main view (``make screenshots``).
 
 The window runs offscreen against the simulated station (the same as
@@ -168,7 +168,7 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m app.gui.screenshots", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m bench.screenshots", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/screenshots")
     parser.add_argument("--steps", type=int, default=90)
     args = parser.parse_args(argv)
