@@ -1,4 +1,4 @@
-"""Accuracy and speed of scan processing against the simulated station's ground truth (issue #4).
+"""Accuracy and speed of scan processing against the simulated station's ground truth.
 
 Every profile is measured by the profiler emulator of :class:`mocks.station.SimulatedStation`
 and travels the way a real capture's does: the turntable and profiler firmware emulators on
@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shutil
 import statistics
 import sys
@@ -77,8 +78,8 @@ __all__ = [
     "main",
 ]
 
-#: Where the real scans live (``../shared/data/meshes`` next to the repository).
-MESH_DIR = ROOT.parent / "shared" / "data" / "meshes"
+#: Where the real scans live: ``$KOGEI_DATA/meshes``; by default the lab's data folder beside the checkout.
+MESH_DIR = Path(os.environ.get("KOGEI_DATA", ROOT.parent / "shared" / "data")) / "meshes"
 
 #: Objects of the benchmark: file name (None: procedural), the station they need, the mesh's up axis.
 OBJECTS: dict[str, dict[str, Any]] = {
@@ -393,8 +394,8 @@ def capture_session(world: Any, geometry: StationGeometry, root: Path, *, steps:
     dict
         Per pass, the true object -> table-frame transform ``Rz(theta_p) @ place(p)`` (4 x 4).
     """
-    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.capture.devices import build_devices
+    from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.session import Session
     from mocks.station import SimulatedStation
     from mocks.world import rotation_z
@@ -437,8 +438,8 @@ def calibrate_station(geometry: StationGeometry, root: Path, seed: int = 7) -> d
 def session_clouds(session_dir: Path, calibration: str) -> list[dict[str, Any]]:
     """Per pass the cloud exactly as ``kogei process`` builds it (after installing the calibration)."""
     from app.cli.calibrate import install_calibration, load_calibration_source, session_calibration
-    from app.workflows.process_session import _pass_clouds
     from app.session import Session
+    from app.workflows.process_session import _pass_clouds
 
     with Session.open(session_dir) as s:
         install_calibration(s, load_calibration_source(calibration))

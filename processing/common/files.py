@@ -1,4 +1,4 @@
-"""Atomic file writes: a reader (or a crash) sees the old file or the new one, never a part.
+r"""Atomic file writes: a reader (or a crash) sees the old file or the new one, never a part.
 
 The data go to a temporary file in the target's folder, are flushed and
 (``durable=True``) ``fsync``-ed, and the temporary file is renamed over the

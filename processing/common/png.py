@@ -1,4 +1,4 @@
-"""PNG encoding of 8-bit images (Pillow).
+r"""PNG encoding of 8-bit images (Pillow).
 
 Examples
 --------

@@ -272,9 +272,9 @@ def test_swatch_pass_is_calibrated_by_several_chart_exposures(tmp_path):
     # the noise-free gain is the same in every channel (tests/integration/test_swatch_chain.py), so the calibrated
     # gains' channel-to-channel spread is their noise: a standard deviation of 0.10-0.18 % per channel from
     # one chart frame at 64 x 48, half that from four
-    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
     from app.errors import UsageError
     from app.session import Session
+    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
 
     shot = capture_swatch_session(tmp_path / "s", COTTON, steps=3, width=64, height=48, seed=5, chart_frames=4)
     charts = {k: r for k, r in Session.read(shot)["captures"].items() if r["kind"] == "chart"}

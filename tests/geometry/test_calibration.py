@@ -86,7 +86,7 @@ def gauge_fixed_point(truth, p):
 def test_noisy_recovery_within_tolerance(noisy_cal):
     truth, _, cal = noisy_cal
     want = gauge_fixed(truth)
-    # targets of issue #4: sub-0.05 deg and sub-0.05 mm
+    # targets: sub-0.05 deg and sub-0.05 mm
     assert rotation_error_deg(cal.sensor_to_room, want) < 0.05
     assert np.linalg.norm(cal.sensor_to_room[:3, 3] - want[:3, 3]) < 0.05
     assert np.linalg.norm(cal.sphere_center_mm - gauge_fixed_point(truth, ball_centre())) < 0.05
