@@ -11,7 +11,7 @@ Examples
 >>> import tempfile, pathlib
 >>> p = atomic_write_json(pathlib.Path(tempfile.mkdtemp()) / "a" / "b.json", {"x": 1})
 >>> p.read_text()
-'{\\n  "x": 1\\n}\\n'
+'{\n  "x": 1\n}\n'
 """
 
 from __future__ import annotations

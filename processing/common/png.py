@@ -4,7 +4,7 @@ Examples
 --------
 >>> import numpy as np
 >>> png_bytes(np.zeros((2, 3, 3), np.uint8))[:8]
-b'\\x89PNG\\r\\n\\x1a\\n'
+b'\x89PNG\r\n\x1a\n'
 """
 
 from __future__ import annotations
