@@ -18,6 +18,7 @@ $(STAMP): pyproject.toml scripts/ensure-system-deps.sh
 venv: $(STAMP)
 
 test: $(STAMP)
+	$(PY) -m ruff check .
 	$(PY) -m pytest -n $(PYTEST_WORKERS) -q
 
 demo: $(STAMP)

@@ -70,6 +70,7 @@ from numpy.typing import NDArray
 from scipy.special import erfc
 
 from processing.cloth.anisotropic_microfacet import anisotropic_lobe
+from processing.errors import InputError
 from processing.materials.lobes import Lobe, Material, material_brdf
 from processing.spectral.spectra import SpectralGrid
 from render.scene import Sky
@@ -350,7 +351,7 @@ def microfacet_geometry(
     elif shadowing == "none":
         g = _F32(1.0)
     else:
-        raise ValueError(f"shadowing={shadowing!r} is not known; use 'smith', 'torrance-sparrow' or 'none'")
+        raise InputError(f"shadowing={shadowing!r} is not known; use 'smith', 'torrance-sparrow' or 'none'")
     valid = (cos_i > 0) & (cos_o > 0)
     denom = _F32(4.0) * np.where(valid, cos_i * cos_o, _F32(1.0))
     with np.errstate(over="ignore", invalid="ignore"):
@@ -957,7 +958,7 @@ class TableBackend:
                 continue
             if group.kind == "anisotropic":
                 if tangential is None:
-                    raise ValueError("an anisotropic lobe needs the tangent frame of the hits")
+                    raise InputError("an anisotropic lobe needs the tangent frame of the hits")
                 if index is None:
                     index = table_index(cd, self.size)
                 s = anisotropic_lobe(ci, co, ch, cd, *tangential, group.roughness, group.roughness_b)
@@ -1293,7 +1294,7 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
             tangential = None
             if plan.anisotropic:
                 if hits.tangent is None:
-                    raise ValueError(f"material {plan.material.name!r} is anisotropic but the hits carry no tangents")
+                    raise InputError(f"material {plan.material.name!r} is anisotropic but the hits carry no tangents")
                 t = _take(hits.tangent, idx)
                 b = cross3(ns, t)
                 tangential = (dot3(t, ld), dot3(b, ld), dot3(t, v), dot3(b, v))

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.materials.lobes import SpectralFactor
 from processing.spectral.spectra import SpectralGrid
 
@@ -218,7 +219,7 @@ class AngleTable:
             return AngleTable(other.values + self.values)
         if other.constant:
             return AngleTable(self.values + other.values)
-        raise ValueError(f"cannot add tables of {self.size} and {other.size} nodes")
+        raise InputError(f"cannot add tables of {self.size} and {other.size} nodes")
 
     def scaled(self, factor: float) -> AngleTable:
         """The table times a constant.

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.cloth.anisotropic_microfacet import ellipsoid_ndf
+from processing.errors import InputError
 from processing.materials.lobes import Lobe, Material, lobe_geometry
 
 __all__ = ["anisotropic_lobe_albedo", "material_albedo", "azimuth_mean_albedo"]
@@ -90,9 +91,9 @@ def _directions(cos_o: ArrayLike, phi_o: ArrayLike) -> NDArray[np.float64]:
     p = np.broadcast_to(np.asarray(phi_o, dtype=np.float64).reshape(-1), c.shape) if np.ndim(phi_o) else np.full(
         c.shape, float(phi_o))
     if np.any(~np.isfinite(c)) or np.any(c < 0) or np.any(c > 1):
-        raise ValueError("cos_o must be finite and in [0, 1]")
+        raise InputError("cos_o must be finite and in [0, 1]")
     if np.any(~np.isfinite(p)):
-        raise ValueError("phi_o must be finite (radians from the tangent t)")
+        raise InputError("phi_o must be finite (radians from the tangent t)")
     s = np.sqrt(1.0 - c * c)
     return np.stack([s * np.cos(p), s * np.sin(p), c], axis=1)
 
@@ -136,10 +137,10 @@ def anisotropic_lobe_albedo(
     1.0
     """
     if lobe.kind != "anisotropic":
-        raise ValueError(f"anisotropic_lobe_albedo needs an anisotropic lobe, got kind {lobe.kind!r}")
+        raise InputError(f"anisotropic_lobe_albedo needs an anisotropic lobe, got kind {lobe.kind!r}")
     for name, value in (("n_q", n_q), ("n_phi", n_phi)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 4:
-            raise ValueError(f"{name} must be an integer >= 4, got {value!r}")
+            raise InputError(f"{name} must be an integer >= 4, got {value!r}")
     wl = np.asarray(wavelengths, dtype=np.float64).reshape(-1)
     weights = _lobe_cd_weights(lobe, _directions(cos_o, phi_o), n_q, n_phi)
     table = np.asarray(lobe.spectral.reflectance(np.linspace(0.0, 1.0, _TABLE_NODES), wl), dtype=np.float64)

@@ -34,6 +34,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
+
 __all__ = [
     "ellipsoid_distance",
     "ellipsoid_ndf",
@@ -75,16 +77,16 @@ def check_axes(a_t: float, a_b: float, what: str = "ellipsoid") -> tuple[float, 
     >>> check_axes(0.0, 0.5)
     Traceback (most recent call last):
     ...
-    ValueError: ellipsoid axis a_t must be a number in [0.0001, 100], got 0.0
+    processing.errors.InputError: ellipsoid axis a_t must be a number in [0.0001, 100], got 0.0
     """
     out = []
     for name, value in (("a_t", a_t), ("a_b", a_b)):
         try:
             v = float(value)
         except (TypeError, ValueError):
-            raise ValueError(f"{what} axis {name} must be a number, got {value!r}") from None
+            raise InputError(f"{what} axis {name} must be a number, got {value!r}") from None
         if not (math.isfinite(v) and AXIS_RANGE[0] <= v <= AXIS_RANGE[1]):
-            raise ValueError(f"{what} axis {name} must be a number in [{AXIS_RANGE[0]:g}, {AXIS_RANGE[1]:g}], got {value!r}")
+            raise InputError(f"{what} axis {name} must be a number in [{AXIS_RANGE[0]:g}, {AXIS_RANGE[1]:g}], got {value!r}")
         out.append(v)
     return out[0], out[1]
 

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from processing.errors import InputError
+
 __all__ = ["DrapedCloth", "draped_cloth"]
 
 
@@ -83,12 +85,12 @@ def draped_cloth(width: float = 4.0, depth: float = 3.0, divisions: int = 96, fo
     for name, value in (("width", width), ("depth", depth), ("fold_period", fold_period),
                         ("wrinkle_period", wrinkle_period)):
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a positive number, got {value!r}")
+            raise InputError(f"{name} must be a positive number, got {value!r}")
     for name, value in (("fold_amplitude", fold_amplitude), ("wrinkle_amplitude", wrinkle_amplitude)):
         if not (math.isfinite(value) and value >= 0):
-            raise ValueError(f"{name} must be a number >= 0, got {value!r}")
+            raise InputError(f"{name} must be a number >= 0, got {value!r}")
     if isinstance(divisions, bool) or not isinstance(divisions, (int, np.integer)) or divisions < 2:
-        raise ValueError(f"divisions must be an integer >= 2, got {divisions!r}")
+        raise InputError(f"divisions must be an integer >= 2, got {divisions!r}")
     nx = int(divisions) + 1
     ny = max(2, int(round(divisions * depth / width))) + 1
     u = np.linspace(0.0, 1.0, nx)

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.cloth.anisotropic_microfacet import check_axes
+from processing.errors import InputError
 from processing.materials.dielectric_model import DielectricFresnel, PigmentReflectance
 from processing.materials.fresnel import fresnel_dielectric
 from processing.materials.lobes import Lobe, Material, checked_parameter
@@ -117,7 +118,7 @@ def kubelka_munk_ratio(reflectance: ArrayLike) -> NDArray[np.float64]:
     """
     r = np.asarray(reflectance, dtype=np.float64)
     if np.any(~np.isfinite(r)) or np.any(r <= 0) or np.any(r > 1):
-        raise ValueError("a Kubelka-Munk reflectance must be in (0, 1]")
+        raise InputError("a Kubelka-Munk reflectance must be in (0, 1]")
     return (1.0 - r) ** 2 / (2.0 * r)
 
 
@@ -149,14 +150,14 @@ def parse_colour(text: str | tuple | list, what: str = "colour") -> tuple[float,
     if isinstance(text, str):
         s = text.strip().lstrip("#")
         if len(s) != 6 or any(ch not in "0123456789abcdefABCDEF" for ch in s):
-            raise ValueError(f"{what} must be an sRGB hex colour such as '#8c1a2b', got {text!r}")
+            raise InputError(f"{what} must be an sRGB hex colour such as '#8c1a2b', got {text!r}")
         return tuple(int(s[i:i + 2], 16) / 255.0 for i in (0, 2, 4))  # type: ignore[return-value]
     try:
         rgb = tuple(float(v) for v in text)
     except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a hex colour or three numbers in [0, 1], got {text!r}") from None
+        raise InputError(f"{what} must be a hex colour or three numbers in [0, 1], got {text!r}") from None
     if len(rgb) != 3 or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in rgb):
-        raise ValueError(f"{what} must be three numbers in [0, 1] (sRGB), got {text!r}")
+        raise InputError(f"{what} must be three numbers in [0, 1] (sRGB), got {text!r}")
     return rgb  # type: ignore[return-value]
 
 
@@ -202,14 +203,14 @@ class Dye:
         wl = np.asarray(self.wavelengths, dtype=np.float64)
         c = np.asarray(self.absorbance, dtype=np.float64)
         if wl.ndim != 1 or wl.size < 2 or c.shape != wl.shape:
-            raise ValueError(
+            raise InputError(
                 f"dye wavelengths (shape {wl.shape}) and absorbance (shape {c.shape}) must be 1-D arrays "
                 "of the same length >= 2"
             )
         if not np.all(np.isfinite(wl)) or not np.all(np.diff(wl) > 0):
-            raise ValueError("dye wavelengths must be finite and strictly increasing (nm)")
+            raise InputError("dye wavelengths must be finite and strictly increasing (nm)")
         if not np.all(np.isfinite(c)) or np.any(c < 0):
-            raise ValueError("dye absorbance c(lambda) must be finite and >= 0 (per layer thickness)")
+            raise InputError("dye absorbance c(lambda) must be finite and >= 0 (per layer thickness)")
         object.__setattr__(self, "wavelengths", wl)
         object.__setattr__(self, "absorbance", c)
 
@@ -296,7 +297,7 @@ class Yarn:
 
     def __post_init__(self) -> None:
         if self.kind not in ("filament", "spun"):
-            raise ValueError(f"yarn kind must be 'filament' or 'spun', got {self.kind!r}")
+            raise InputError(f"yarn kind must be 'filament' or 'spun', got {self.kind!r}")
         check_axes(self.a_t, self.a_b, f"{self.kind} yarn ellipsoid")
 
 
@@ -411,11 +412,11 @@ class InternalLayerReflectance:
 
     def __init__(self, n: float, dye: Dye, k: int, normaliser: float) -> None:
         if not (isinstance(k, (int, np.integer)) and 1 <= k <= MAX_LAYERS):
-            raise ValueError(f"layer number k must be an integer in 1..{MAX_LAYERS}, got {k!r}")
+            raise InputError(f"layer number k must be an integer in 1..{MAX_LAYERS}, got {k!r}")
         if not (math.isfinite(n) and n >= 1.0):
-            raise ValueError(f"fibre index n must be >= 1, got {n!r}")
+            raise InputError(f"fibre index n must be >= 1, got {n!r}")
         if not (math.isfinite(normaliser) and normaliser > 0):
-            raise ValueError(f"layer normaliser must be > 0, got {normaliser!r}")
+            raise InputError(f"layer normaliser must be > 0, got {normaliser!r}")
         self.n, self.dye, self.k, self.normaliser = float(n), dye, int(k), float(normaliser)
 
     def reflectance(self, cos_d: ArrayLike, wavelengths: ArrayLike) -> NDArray[np.float64]:
@@ -440,7 +441,7 @@ class InternalLayerReflectance:
         """
         wl = np.asarray(wavelengths, dtype=np.float64)
         if wl.ndim != 1:
-            raise ValueError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
+            raise InputError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
         c = np.clip(np.asarray(cos_d, dtype=np.float64), 0.0, 1.0)
         r = fresnel_dielectric(c, self.n)
         # refraction angle in the fibre; for n >= 1 it stays above sqrt(1 - 1/n^2) (0 only for n = 1)
@@ -549,7 +550,7 @@ def cloth_material(
     """
     for what, yarn in (("warp", warp), ("weft", weft)):
         if not isinstance(yarn, Yarn):
-            raise ValueError(f"{what} must be a processing.cloth.model.Yarn, got {type(yarn).__name__}")
+            raise InputError(f"{what} must be a processing.cloth.model.Yarn, got {type(yarn).__name__}")
     warp_fraction = checked_parameter("warp_fraction", warp_fraction)
     specular = checked_parameter("specular", specular)
     internal = checked_parameter("internal", internal)
@@ -557,20 +558,20 @@ def cloth_material(
     rounding = checked_parameter("rounding", rounding)
     n = checked_parameter("n", n, open_zero=True, upper=3.0)
     if n < 1.0:
-        raise ValueError(f"n must be in [1, 3] for a fibre, got {n!r}")
+        raise InputError(f"n must be in [1, 3] for a fibre, got {n!r}")
     scattering = checked_parameter("scattering", scattering, open_zero=True, upper=1e3)
     if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or not 0 <= layers <= MAX_LAYERS:
-        raise ValueError(f"layers must be an integer in 0..{MAX_LAYERS}, got {layers!r}")
+        raise InputError(f"layers must be an integer in 0..{MAX_LAYERS}, got {layers!r}")
     if weft_weights is None:
         weft_weights = (specular, internal, diffuse)
     if len(weft_weights) != 3:
-        raise ValueError(f"weft_weights must be (specular, internal, diffuse), got {weft_weights!r}")
+        raise InputError(f"weft_weights must be (specular, internal, diffuse), got {weft_weights!r}")
     weft_weights = tuple(checked_parameter(f"weft_{what}", v)
                          for what, v in zip(("specular", "internal", "diffuse"), weft_weights))
     for who, weights in (("", (specular, internal, diffuse)), ("weft_", weft_weights)):
         total = sum(weights)
         if total > 1.0 + 1e-12:
-            raise ValueError(
+            raise InputError(
                 f"{who}specular + {who}internal + {who}diffuse = {total:g} exceeds 1 (energy conservation); "
                 "lower one of them"
             )

@@ -20,6 +20,7 @@ from types import MappingProxyType
 from typing import Any
 
 from processing.cloth.model import Dye, Yarn, cloth_material
+from processing.errors import InputError
 from processing.materials.lobes import Material
 
 __all__ = ["CLOTH_PRESETS", "CLOTH_PARAMETERS", "CLOTH_SOURCES", "build_cloth"]
@@ -89,7 +90,7 @@ def _weft_weights(params: dict[str, Any]) -> tuple[float, float, float] | None:
         try:
             out.append(float(v))
         except (TypeError, ValueError):
-            raise ValueError(f"{key}={v!r} is not valid; give a number in [0, 1] or 'warp' (as the warp's)") from None
+            raise InputError(f"{key}={v!r} is not valid; give a number in [0, 1] or 'warp' (as the warp's)") from None
     return (out[0], out[1], out[2])
 
 
@@ -135,12 +136,12 @@ def build_cloth(name: str, params: dict[str, Any], description: str = "") -> Mat
         try:
             dyes[key] = Dye.from_srgb(params[key], scattering)
         except ValueError as exc:
-            raise ValueError(f"{key}: {exc}") from None
+            raise InputError(f"{key}: {exc}") from None
     warp = Yarn(str(params["warp_kind"]), float(params["a_t"]), float(params["a_b"]), dyes["warp_colour"])
     weft = Yarn(str(params["weft_kind"]), float(params["weft_a_t"]), float(params["weft_a_b"]), dyes["weft_colour"])
     layers = float(params["layers"])
     if not layers.is_integer():
-        raise ValueError(f"layers must be a whole number 0..50, got {params['layers']!r}")
+        raise InputError(f"layers must be a whole number 0..50, got {params['layers']!r}")
     return cloth_material(
         name, warp, weft, warp_fraction=float(params["warp_fraction"]), specular=float(params["specular"]),
         internal=float(params["internal"]), diffuse=float(params["diffuse"]), layers=int(layers),

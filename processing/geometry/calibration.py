@@ -86,9 +86,9 @@ def ideal_sensor_to_room(standoff_mm: float = 200.0, height_mm: float = 0.0) -> 
     [[0.0, 0.0, -1.0, 200.0], [0.0, 1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 30.0]]
     """
     if not (math.isfinite(standoff_mm) and standoff_mm > 0):
-        raise ValueError(f"standoff_mm must be a positive distance (mm), got {standoff_mm!r}")
+        raise InputError(f"standoff_mm must be a positive distance (mm), got {standoff_mm!r}")
     if not math.isfinite(height_mm):
-        raise ValueError(f"height_mm must be finite (mm), got {height_mm!r}")
+        raise InputError(f"height_mm must be finite (mm), got {height_mm!r}")
     m = np.eye(4)
     m[:3, :3] = [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]
     m[:3, 3] = [standoff_mm, 0.0, height_mm]
@@ -124,20 +124,20 @@ def check_sensor_to_room(matrix: ArrayLike, name: str = "sensor_to_room") -> NDA
     >>> check_sensor_to_room(np.diag([2.0, 1.0, 1.0, 1.0]))
     Traceback (most recent call last):
     ...
-    ValueError: sensor_to_room[:3, :3] must be a rotation (orthonormal, det +1); got max |R^T R - I| = 3 and det = 2
+    processing.errors.InputError: sensor_to_room[:3, :3] must be a rotation (orthonormal, det +1); got max |R^T R - I| = 3 and det = 2
     """
     m = np.asarray(matrix, dtype=np.float64)
     if m.shape != (4, 4):
-        raise ValueError(f"{name} must be a (4, 4) rigid transform, got shape {m.shape}")
+        raise InputError(f"{name} must be a (4, 4) rigid transform, got shape {m.shape}")
     if not np.all(np.isfinite(m)):
-        raise ValueError(f"{name} contains NaN or infinite values")
+        raise InputError(f"{name} contains NaN or infinite values")
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
-        raise ValueError(f"{name} must have last row [0, 0, 0, 1], got {m[3].tolist()}")
+        raise InputError(f"{name} must have last row [0, 0, 0, 1], got {m[3].tolist()}")
     r = m[:3, :3]
     err = float(np.abs(r.T @ r - np.eye(3)).max())
     det = float(np.linalg.det(r))
     if err > 1e-6 or det < 0:
-        raise ValueError(f"{name}[:3, :3] must be a rotation (orthonormal, det +1); "
+        raise InputError(f"{name}[:3, :3] must be a rotation (orthonormal, det +1); "
                          f"got max |R^T R - I| = {err:.3g} and det = {det:.3g}")
     return m
 
@@ -172,7 +172,7 @@ def profile_points_room(x_mm: ArrayLike, z_mm: ArrayLike, sensor_to_room: ArrayL
     x = np.asarray(x_mm, dtype=np.float64)
     z = np.asarray(z_mm, dtype=np.float64)
     if x.shape != z.shape:
-        raise ValueError(f"x_mm and z_mm must have the same shape, got {x.shape} and {z.shape}")
+        raise InputError(f"x_mm and z_mm must have the same shape, got {x.shape} and {z.shape}")
     return x[..., None] * m[:3, 0] + z[..., None] * m[:3, 2] + m[:3, 3]
 
 
@@ -287,27 +287,27 @@ class ScannerCalibration:
             finite numbers, step arrays of different lengths.
         """
         if not isinstance(data, dict):
-            raise ValueError(f"a scanner calibration must be a JSON object, got {type(data).__name__}")
+            raise InputError(f"a scanner calibration must be a JSON object, got {type(data).__name__}")
         if data.get("schema") != cls.SCHEMA:
-            raise ValueError(f"not a scanner calibration: schema is {data.get('schema')!r}, expected {cls.SCHEMA!r}")
+            raise InputError(f"not a scanner calibration: schema is {data.get('schema')!r}, expected {cls.SCHEMA!r}")
         version = data.get("version")
         if not isinstance(version, int) or not 1 <= version <= cls.SCHEMA_VERSION:
-            raise ValueError(f"scanner calibration version {version!r} is not supported "
+            raise InputError(f"scanner calibration version {version!r} is not supported "
                              f"(this program reads versions 1..{cls.SCHEMA_VERSION}); update kogei")
         keys = ("sensor_to_room", "sphere_radius_mm", "sphere_center_mm", "rms_mm", "max_mm", "n_profiles",
                 "n_sphere_points", "n_table_points", "table_rms_mm", "fitted_radius_mm", "step_indices",
                 "step_rms_mm")
         missing = [k for k in keys if k not in data]
         if missing:
-            raise ValueError(f"scanner calibration lacks field(s) {', '.join(missing)}")
+            raise InputError(f"scanner calibration lacks field(s) {', '.join(missing)}")
         m = check_sensor_to_room(data["sensor_to_room"], "calibration 'sensor_to_room'")
         centre = np.asarray(data["sphere_center_mm"], dtype=np.float64)
         if centre.shape != (3,) or not np.all(np.isfinite(centre)):
-            raise ValueError(f"calibration 'sphere_center_mm' must be 3 finite numbers, got {data['sphere_center_mm']!r}")
+            raise InputError(f"calibration 'sphere_center_mm' must be 3 finite numbers, got {data['sphere_center_mm']!r}")
         steps = np.asarray(data["step_indices"], dtype=np.int64).reshape(-1)
         step_rms = np.asarray(data["step_rms_mm"], dtype=np.float64).reshape(-1)
         if steps.shape != step_rms.shape:
-            raise ValueError("calibration 'step_indices' and 'step_rms_mm' must have the same length")
+            raise InputError("calibration 'step_indices' and 'step_rms_mm' must have the same length")
         return cls(sensor_to_room=m, sphere_radius_mm=float(data["sphere_radius_mm"]), sphere_center_mm=centre,
                    rms_mm=float(data["rms_mm"]), max_mm=float(data["max_mm"]), n_profiles=int(data["n_profiles"]),
                    n_sphere_points=int(data["n_sphere_points"]), n_table_points=int(data["n_table_points"]),
@@ -323,17 +323,17 @@ def _check_profiles(x_mm: ArrayLike, z_mm: ArrayLike, angles_deg: ArrayLike
     z = np.asarray(z_mm, dtype=np.float64)
     a = np.asarray(angles_deg, dtype=np.float64)
     if x.ndim != 2:
-        raise ValueError(f"x_mm must be a (steps, points) array of profiles, got shape {x.shape}")
+        raise InputError(f"x_mm must be a (steps, points) array of profiles, got shape {x.shape}")
     if z.shape != x.shape:
-        raise ValueError(f"z_mm must have the shape of x_mm {x.shape}, got {z.shape}")
+        raise InputError(f"z_mm must have the shape of x_mm {x.shape}, got {z.shape}")
     if a.shape != (x.shape[0],):
-        raise ValueError(f"angles_deg must have one angle per profile, shape ({x.shape[0]},), got {a.shape}")
+        raise InputError(f"angles_deg must have one angle per profile, shape ({x.shape[0]},), got {a.shape}")
     if not np.all(np.isfinite(a)):
         bad = np.flatnonzero(~np.isfinite(a))
-        raise ValueError(f"angles_deg has NaN or infinite values at step(s) {bad[:10].tolist()}")
+        raise InputError(f"angles_deg has NaN or infinite values at step(s) {bad[:10].tolist()}")
     for name, arr in (("x_mm", x), ("z_mm", z)):
         if np.isinf(arr).any():
-            raise ValueError(f"{name} contains infinite values; mark invalid points with NaN")
+            raise InputError(f"{name} contains infinite values; mark invalid points with NaN")
     valid = np.isfinite(x) & np.isfinite(z)
     return x, z, a, valid
 
@@ -484,19 +484,19 @@ def _check_options(sphere_radius_mm: float, sphere_height_mm: float | None, tabl
     """The sphere radius and the radius tolerance (mm), after checking every option of :func:`calibrate_sphere`."""
     radius = float(sphere_radius_mm)
     if not (math.isfinite(radius) and 0.5 <= radius <= 500.0):
-        raise ValueError(f"sphere_radius_mm must be a radius in [0.5, 500] mm, got {sphere_radius_mm!r}")
+        raise InputError(f"sphere_radius_mm must be a radius in [0.5, 500] mm, got {sphere_radius_mm!r}")
     if sphere_height_mm is not None and not math.isfinite(float(sphere_height_mm)):
-        raise ValueError(f"sphere_height_mm must be finite (mm) or None, got {sphere_height_mm!r}")
+        raise InputError(f"sphere_height_mm must be finite (mm) or None, got {sphere_height_mm!r}")
     for name, v in (("table_tolerance_mm", table_tolerance_mm), ("gap_mm", gap_mm), ("max_rms_mm", max_rms_mm)):
         if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be positive (mm), got {v!r}")
+            raise InputError(f"{name} must be positive (mm), got {v!r}")
     if not isinstance(min_profiles, int) or min_profiles < 4:
-        raise ValueError(f"min_profiles must be an integer >= 4, got {min_profiles!r}")
+        raise InputError(f"min_profiles must be an integer >= 4, got {min_profiles!r}")
     if not isinstance(min_points_per_profile, int) or min_points_per_profile < 5:
-        raise ValueError(f"min_points_per_profile must be an integer >= 5, got {min_points_per_profile!r}")
+        raise InputError(f"min_points_per_profile must be an integer >= 5, got {min_points_per_profile!r}")
     rad_tol = max(0.2, 0.01 * radius) if radius_tolerance_mm is None else float(radius_tolerance_mm)
     if not (math.isfinite(rad_tol) and rad_tol > 0):
-        raise ValueError(f"radius_tolerance_mm must be positive (mm), got {radius_tolerance_mm!r}")
+        raise InputError(f"radius_tolerance_mm must be positive (mm), got {radius_tolerance_mm!r}")
     return radius, rad_tol
 
 

@@ -46,6 +46,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from processing.errors import InputError
+
 __all__ = [
     "FusedCloud",
     "fuse_points",
@@ -96,7 +98,7 @@ def _as_float_array(value: ArrayLike, name: str) -> NDArray[np.float64]:
     try:
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be an array of numbers ({exc})") from None
+        raise InputError(f"{name} must be an array of numbers ({exc})") from None
 
 
 def validate_oriented_cloud(
@@ -137,41 +139,41 @@ def validate_oriented_cloud(
     >>> validate_oriented_cloud([[0, 0, float("nan")]], [[0, 0, 1]])
     Traceback (most recent call last):
     ...
-    ValueError: points: 1 of 1 points have NaN or infinite coordinates (first: point 0 = [0.0, 0.0, nan]); drop invalid samples before meshing
+    processing.errors.InputError: points: 1 of 1 points have NaN or infinite coordinates (first: point 0 = [0.0, 0.0, nan]); drop invalid samples before meshing
     """
     p = _as_float_array(points, "points")
     if p.size == 0:
-        raise ValueError(
+        raise InputError(
             f"points: the cloud is empty; at least {min_points} points are needed to reconstruct a surface"
         )
     if p.ndim != 2 or p.shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {p.shape}")
+        raise InputError(f"points must have shape (N, 3), got {p.shape}")
     n = p.shape[0]
     if n < min_points:
-        raise ValueError(
+        raise InputError(
             f"points: only {n} points; at least {min_points} are needed to reconstruct a surface "
             "(scan more of the object or lower the fusion voxel)"
         )
     finite = np.all(np.isfinite(p), axis=1)
     if not finite.all():
         bad = np.flatnonzero(~finite)
-        raise ValueError(
+        raise InputError(
             f"points: {bad.size} of {n} points have NaN or infinite coordinates (first: point {bad[0]} = "
             f"{p[bad[0]].tolist()}); drop invalid samples before meshing"
         )
     if normals is None:
-        raise ValueError(
+        raise InputError(
             "normals: the cloud has no normals; surface reconstruction needs outward normals "
             "(estimate and orient them toward the sensor when building the cloud)"
         )
     nr = _as_float_array(normals, "normals")
     if nr.shape != p.shape:
-        raise ValueError(f"normals must have the shape of points {p.shape}, got {nr.shape}")
+        raise InputError(f"normals must have the shape of points {p.shape}, got {nr.shape}")
     length = np.linalg.norm(nr, axis=1)
     bad_n = ~(np.isfinite(length) & (length > _MIN_NORMAL_LENGTH))
     if bad_n.any():
         bad = np.flatnonzero(bad_n)
-        raise ValueError(
+        raise InputError(
             f"normals: {bad.size} of {n} normals are NaN, infinite or zero (first: normal {bad[0]} = "
             f"{nr[bad[0]].tolist()}); estimate normals for every point or drop those points"
         )
@@ -181,11 +183,11 @@ def validate_oriented_cloud(
     else:
         c = _as_float_array(confidence, "confidence").reshape(-1)
         if c.shape[0] != n:
-            raise ValueError(f"confidence must have one value per point ({n}), got {c.shape[0]}")
+            raise InputError(f"confidence must have one value per point ({n}), got {c.shape[0]}")
         bad_c = ~(np.isfinite(c) & (c >= 0.0) & (c <= 1.0))
         if bad_c.any():
             bad = np.flatnonzero(bad_c)
-            raise ValueError(
+            raise InputError(
                 f"confidence: {bad.size} values are NaN or outside [0, 1] (first: confidence[{bad[0]}] = "
                 f"{c[bad[0]]}); confidence is a weight in [0, 1]"
             )
@@ -227,7 +229,7 @@ def point_spacing(points: ArrayLike, *, tree: cKDTree | None = None, sample: int
     """
     p = np.asarray(points, dtype=np.float64)
     if p.shape[0] < 2:
-        raise ValueError(f"points: need at least 2 points to measure their spacing, got {p.shape[0]}")
+        raise InputError(f"points: need at least 2 points to measure their spacing, got {p.shape[0]}")
     t = tree if tree is not None else cKDTree(p)
     if p.shape[0] > sample:
         q = p[np.random.default_rng(seed).choice(p.shape[0], sample, replace=False)]
@@ -281,7 +283,7 @@ def noise_level(
     """
     p = np.asarray(points, dtype=np.float64)
     if p.shape[0] < k:
-        raise ValueError(f"points: need at least k={k} points to estimate the noise, got {p.shape[0]}")
+        raise InputError(f"points: need at least k={k} points to estimate the noise, got {p.shape[0]}")
     t = tree if tree is not None else cKDTree(p)
     rng = np.random.default_rng(seed)
     q = p[rng.choice(p.shape[0], min(sample, p.shape[0]), replace=False)]
@@ -339,9 +341,9 @@ def dominated_samples(
     [False, True, False]
     """
     if not 0.0 <= ratio <= 1.0:
-        raise ValueError(f"ratio must be in [0, 1], got {ratio!r}")
+        raise InputError(f"ratio must be in [0, 1], got {ratio!r}")
     if not (np.isfinite(radius_mm) and radius_mm > 0):
-        raise ValueError(f"radius_mm must be a finite distance > 0 (mm), got {radius_mm!r}")
+        raise InputError(f"radius_mm must be a finite distance > 0 (mm), got {radius_mm!r}")
     p = np.asarray(points, dtype=np.float64)
     nr = np.asarray(normals, dtype=np.float64)
     c = np.asarray(confidence, dtype=np.float64)
@@ -394,14 +396,14 @@ def fuse_points(
         ``min_confidence``, or no point left above ``min_confidence``.
     """
     if not (isinstance(voxel_mm, (int, float, np.floating, np.integer)) and np.isfinite(voxel_mm) and voxel_mm > 0):
-        raise ValueError(f"voxel_mm must be a finite length > 0 (mm), got {voxel_mm!r}")
+        raise InputError(f"voxel_mm must be a finite length > 0 (mm), got {voxel_mm!r}")
     if not (0.0 <= float(min_confidence) < 1.0):
-        raise ValueError(f"min_confidence must be in [0, 1), got {min_confidence!r}")
+        raise InputError(f"min_confidence must be in [0, 1), got {min_confidence!r}")
     p, n, c = validate_oriented_cloud(points, normals, confidence)
     keep = (c >= min_confidence) & (c > 0.0)
     n_low = int(np.count_nonzero(~keep))
     if not keep.any():
-        raise ValueError(
+        raise InputError(
             f"confidence: all {p.shape[0]} points have confidence below min_confidence={min_confidence}; "
             "nothing is left to mesh"
         )
@@ -410,7 +412,7 @@ def fuse_points(
     idx = np.floor((p - lo) / float(voxel_mm)).astype(np.int64)
     dims = idx.max(axis=0) + 1
     if float(np.prod(dims.astype(np.float64))) * 6.0 >= 2.0**62:
-        raise ValueError(
+        raise InputError(
             f"voxel_mm={voxel_mm} is too small for a cloud of extent {(p.max(axis=0) - lo).tolist()} mm"
         )
     axis = np.argmax(np.abs(n), axis=1)

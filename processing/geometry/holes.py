@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from processing.errors import InputError
 from processing.geometry.height_fields import _MIN_RING, _choose_ring_model, _fit, _Floor, _Plane, _rms, _SphereSpline
 from processing.geometry.mesh_support import SupportReport
 from processing.geometry.mesh_topology import edge_twins
@@ -262,11 +263,11 @@ def hole_guide_points(
     dp = np.asarray(data_points, dtype=np.float64)
     dn = np.asarray(data_normals, dtype=np.float64)
     if not (np.isfinite(spacing_mm) and spacing_mm > 0):
-        raise ValueError(f"spacing_mm must be a finite distance > 0 (mm), got {spacing_mm!r}")
+        raise InputError(f"spacing_mm must be a finite distance > 0 (mm), got {spacing_mm!r}")
     if not (np.isfinite(noise_mm) and noise_mm >= 0):
-        raise ValueError(f"noise_mm must be a finite distance >= 0 (mm), got {noise_mm!r}")
+        raise InputError(f"noise_mm must be a finite distance >= 0 (mm), got {noise_mm!r}")
     if floor_z_mm is not None and not np.isfinite(floor_z_mm):
-        raise ValueError(f"floor_z_mm must be a finite height (mm) or None, got {floor_z_mm!r}")
+        raise InputError(f"floor_z_mm must be a finite height (mm) or None, got {floor_z_mm!r}")
     if tree is None:
         tree = cKDTree(dp)
     opt = _Options(threshold_mm=report.threshold_mm, tolerance_mm=2.5 * float(noise_mm) + 0.1 * float(spacing_mm),

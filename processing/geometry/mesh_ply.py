@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from processing.common.files import atomic_write_bytes
+from processing.errors import InputError
 
 __all__ = ["write_mesh_ply"]
 
@@ -70,30 +71,30 @@ def write_mesh_ply(
     """
     p = Path(path)
     if p.suffix.lower() != ".ply":
-        raise ValueError(f"path: '{p}' must end in .ply")
+        raise InputError(f"path: '{p}' must end in .ply")
     if not p.parent.is_dir():
         raise FileNotFoundError(f"path: the folder '{p.parent}' does not exist")
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles)
     if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
-        raise ValueError(f"vertices must be a non-empty (V, 3) array, got shape {v.shape}")
+        raise InputError(f"vertices must be a non-empty (V, 3) array, got shape {v.shape}")
     if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] == 0:
-        raise ValueError(f"triangles must be a non-empty (T, 3) array, got shape {t.shape}")
+        raise InputError(f"triangles must be a non-empty (T, 3) array, got shape {t.shape}")
     if t.dtype.kind not in "iu":
-        raise ValueError(f"triangles must be integer indices, got dtype {t.dtype}")
+        raise InputError(f"triangles must be integer indices, got dtype {t.dtype}")
     if not np.all(np.isfinite(v)):
-        raise ValueError("vertices hold NaN or infinite coordinates")
+        raise InputError("vertices hold NaN or infinite coordinates")
     if t.min() < 0 or t.max() >= v.shape[0]:
-        raise ValueError(f"triangles index vertices outside 0..{v.shape[0] - 1}")
+        raise InputError(f"triangles index vertices outside 0..{v.shape[0] - 1}")
     n = None
     if vertex_normals is not None:
         n = np.asarray(vertex_normals, dtype=np.float64)
         if n.shape != v.shape:
-            raise ValueError(f"vertex_normals must have the shape of vertices {v.shape}, got {n.shape}")
+            raise InputError(f"vertex_normals must have the shape of vertices {v.shape}, got {n.shape}")
         if not np.all(np.isfinite(n)):
-            raise ValueError("vertex_normals hold NaN or infinite values")
+            raise InputError("vertex_normals hold NaN or infinite values")
     if comment is not None and ("\n" in comment or "\r" in comment):
-        raise ValueError("comment must be a single line")
+        raise InputError("comment must be a single line")
 
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if n is not None:

@@ -49,6 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from processing.errors import InputError
 from processing.geometry.mesh_topology import triangle_components
 
 __all__ = ["Hole", "SupportReport", "mesh_support", "triangle_areas"]
@@ -260,21 +261,21 @@ def _checked_input(vertices: ArrayLike, triangles: ArrayLike, data_points: Array
                    ) -> tuple[NDArray[np.float64], NDArray[np.int64], cKDTree, float]:
     """The mesh as arrays, a k-d tree of the data and the low threshold (mm), after checking them."""
     if not (np.isfinite(threshold_mm) and threshold_mm > 0):
-        raise ValueError(f"threshold_mm must be a finite distance > 0 (mm), got {threshold_mm!r}")
+        raise InputError(f"threshold_mm must be a finite distance > 0 (mm), got {threshold_mm!r}")
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or t.ndim != 2 or t.shape[1] != 3:
-        raise ValueError(f"vertices must be (V, 3) and triangles (T, 3), got {v.shape} and {t.shape}")
+        raise InputError(f"vertices must be (V, 3) and triangles (T, 3), got {v.shape} and {t.shape}")
     if tree is None:
         if data_points is None:
-            raise ValueError("data_points: give the measured points or a KD-tree of them")
+            raise InputError("data_points: give the measured points or a KD-tree of them")
         d = np.asarray(data_points, dtype=np.float64)
         if d.ndim != 2 or d.shape[1] != 3 or d.shape[0] == 0:
-            raise ValueError(f"data_points must be a non-empty (N, 3) array, got {d.shape}")
+            raise InputError(f"data_points must be a non-empty (N, 3) array, got {d.shape}")
         tree = cKDTree(d)
     low = float(threshold_mm) if low_threshold_mm is None else float(low_threshold_mm)
     if not (np.isfinite(low) and 0 < low <= threshold_mm):
-        raise ValueError(f"low_threshold_mm must be in (0, threshold_mm={threshold_mm}], got {low_threshold_mm!r}")
+        raise InputError(f"low_threshold_mm must be in (0, threshold_mm={threshold_mm}], got {low_threshold_mm!r}")
     return v, t, tree, low
 
 

@@ -44,6 +44,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 from scipy.sparse import csgraph
 
+from processing.errors import InputError
+
 __all__ = [
     "MeshTopology",
     "mesh_topology",
@@ -119,12 +121,12 @@ def _as_triangles(triangles: ArrayLike) -> NDArray[np.int64]:
     if t.size == 0:
         return np.zeros((0, 3), np.int64)
     if t.ndim != 2 or t.shape[1] != 3:
-        raise ValueError(f"triangles must have shape (T, 3), got {t.shape}")
+        raise InputError(f"triangles must have shape (T, 3), got {t.shape}")
     if t.dtype.kind not in "iu":
-        raise ValueError(f"triangles must be an integer index array, got dtype {t.dtype}")
+        raise InputError(f"triangles must be an integer index array, got dtype {t.dtype}")
     t = t.astype(np.int64)
     if t.min() < 0:
-        raise ValueError(f"triangles hold a negative vertex index ({int(t.min())})")
+        raise InputError(f"triangles hold a negative vertex index ({int(t.min())})")
     return t
 
 
@@ -282,7 +284,7 @@ def triangle_components(triangles: ArrayLike, mask: ArrayLike | None = None) -> 
     n_t = t.shape[0]
     keep = np.ones(n_t, bool) if mask is None else np.asarray(mask, bool).reshape(-1)
     if keep.shape[0] != n_t:
-        raise ValueError(f"mask must have one entry per triangle ({n_t}), got {keep.shape[0]}")
+        raise InputError(f"mask must have one entry per triangle ({n_t}), got {keep.shape[0]}")
     if n_t == 0:
         return 0, np.zeros(0, np.int64)
     return _components(n_t, _half_edges(t), keep)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.geometry.calibration import ScannerCalibration, check_sensor_to_room
 
 __all__ = ["ScanPoints", "profiles_to_points"]
@@ -215,7 +216,7 @@ def profiles_to_points(
     valid = np.isfinite(x) & np.isfinite(z)
     n_total, n_invalid = s * p, int((~valid).sum())
     if not valid.any():
-        raise ValueError(f"the profiles have no valid point (all {n_total} x_mm/z_mm values are NaN); "
+        raise InputError(f"the profiles have no valid point (all {n_total} x_mm/z_mm values are NaN); "
                          "check that the laser saw the object")
     xv, zv = np.where(valid, x, 0.0), np.where(valid, z, 0.0)
     pts, origins = _table_frame(xv, zv, a, m)
@@ -250,36 +251,36 @@ def _check_inputs(x_mm: ArrayLike, z_mm: ArrayLike, angles_deg: ArrayLike,
     z = np.asarray(z_mm, dtype=np.float64)
     a = np.asarray(angles_deg, dtype=np.float64)
     if x.ndim != 2:
-        raise ValueError(f"x_mm must be a (steps, points) array of profiles, got shape {x.shape}")
+        raise InputError(f"x_mm must be a (steps, points) array of profiles, got shape {x.shape}")
     if z.shape != x.shape:
-        raise ValueError(f"z_mm must have the shape of x_mm {x.shape}, got {z.shape}")
+        raise InputError(f"z_mm must have the shape of x_mm {x.shape}, got {z.shape}")
     if a.shape != (x.shape[0],):
-        raise ValueError(f"angles_deg must have one angle per profile, shape ({x.shape[0]},), got {a.shape}")
+        raise InputError(f"angles_deg must have one angle per profile, shape ({x.shape[0]},), got {a.shape}")
     if not np.all(np.isfinite(a)):
         bad = np.flatnonzero(~np.isfinite(a))
-        raise ValueError(f"angles_deg has NaN or infinite values at step(s) {bad[:10].tolist()}")
+        raise InputError(f"angles_deg has NaN or infinite values at step(s) {bad[:10].tolist()}")
     for name, arr in (("x_mm", x), ("z_mm", z)):
         if np.isinf(arr).any():
-            raise ValueError(f"{name} contains infinite values; mark invalid points with NaN")
+            raise InputError(f"{name} contains infinite values; mark invalid points with NaN")
     m = check_sensor_to_room(calibration.sensor_to_room if isinstance(calibration, ScannerCalibration)
                              else calibration, "calibration")
     if not (math.isfinite(table_tolerance_mm) and table_tolerance_mm >= 0):
-        raise ValueError(f"table_tolerance_mm must be a distance >= 0 (mm), got {table_tolerance_mm!r}")
+        raise InputError(f"table_tolerance_mm must be a distance >= 0 (mm), got {table_tolerance_mm!r}")
     if max_radius_mm is not None and not (math.isfinite(max_radius_mm) and max_radius_mm > 0):
-        raise ValueError(f"max_radius_mm must be a positive distance (mm) or None, got {max_radius_mm!r}")
+        raise InputError(f"max_radius_mm must be a positive distance (mm) or None, got {max_radius_mm!r}")
     near, far = (float(v) for v in range_mm)
     if not (math.isfinite(near) and math.isfinite(far) and 0 <= near < far):
-        raise ValueError(f"range_mm must be (near, far) with 0 <= near < far (mm), got {range_mm!r}")
+        raise InputError(f"range_mm must be (near, far) with 0 <= near < far (mm), got {range_mm!r}")
     if not (math.isfinite(normal_span_mm) and normal_span_mm > 0):
-        raise ValueError(f"normal_span_mm must be a positive distance (mm), got {normal_span_mm!r}")
+        raise InputError(f"normal_span_mm must be a positive distance (mm), got {normal_span_mm!r}")
     if normal_window is not None:
         ks, kp = normal_window
         if not (isinstance(ks, (int, np.integer)) and isinstance(kp, (int, np.integer)) and ks >= 0 and kp >= 0
                 and ks + kp >= 1 and ks <= 20 and kp <= 200):
-            raise ValueError(f"normal_window must be (k_steps, k_points), integers with 0 <= k_steps <= 20, "
+            raise InputError(f"normal_window must be (k_steps, k_points), integers with 0 <= k_steps <= 20, "
                              f"0 <= k_points <= 200, not both 0; got {normal_window!r}")
     if max_jump_mm is not None and not (math.isfinite(max_jump_mm) and max_jump_mm > 0):
-        raise ValueError(f"max_jump_mm must be a positive distance (mm) or None, got {max_jump_mm!r}")
+        raise InputError(f"max_jump_mm must be a positive distance (mm) or None, got {max_jump_mm!r}")
     return x, z, a, m, (near, far)
 
 
@@ -306,7 +307,7 @@ def _crop(pts: NDArray, valid: NDArray, table_tolerance_mm: float, max_radius_mm
     keep = valid & ~table & ~outside
     n_table, n_radius, n_kept = int(table.sum()), int(outside.sum()), int(keep.sum())
     if n_kept == 0:
-        raise ValueError(f"all {int(valid.sum())} valid points were cropped ({n_table} as table top within "
+        raise InputError(f"all {int(valid.sum())} valid points were cropped ({n_table} as table top within "
                          f"table_tolerance_mm={table_tolerance_mm:g} of z = 0 or below it, {n_radius} outside "
                          f"max_radius_mm={max_radius_mm}); check the calibration and the crop settings")
     return keep, n_table, n_radius, n_kept

@@ -271,7 +271,7 @@ def decimate_mesh(
     import open3d as o3d
 
     if not (isinstance(target_triangles, (int, np.integer)) and target_triangles >= 4):
-        raise ValueError(f"target_triangles must be an integer >= 4, got {target_triangles!r}")
+        raise InputError(f"target_triangles must be an integer >= 4, got {target_triangles!r}")
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
     if t.shape[0] <= target_triangles:
@@ -308,7 +308,7 @@ def _resolve_preset(preset: str | SurfacePreset) -> SurfacePreset:
         return preset
     if isinstance(preset, str) and preset in SURFACE_PRESETS:
         return SURFACE_PRESETS[preset]
-    raise ValueError(f"preset must be one of {sorted(SURFACE_PRESETS)} or a SurfacePreset, got {preset!r}")
+    raise InputError(f"preset must be one of {sorted(SURFACE_PRESETS)} or a SurfacePreset, got {preset!r}")
 
 
 _KEEP = object()

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.geometry.mesh_support import triangle_areas
 
 __all__ = ["DistanceStats", "SurfaceDistance", "surface_distance", "sample_surface", "distance_to_mesh"]
@@ -114,14 +115,14 @@ def _check_mesh(vertices: ArrayLike, triangles: ArrayLike, name: str) -> tuple[N
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles)
     if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] == 0:
-        raise ValueError(f"{name} vertices must be a non-empty (V, 3) array, got {v.shape}")
+        raise InputError(f"{name} vertices must be a non-empty (V, 3) array, got {v.shape}")
     if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] == 0:
-        raise ValueError(f"{name} triangles must be a non-empty (T, 3) array, got {t.shape}")
+        raise InputError(f"{name} triangles must be a non-empty (T, 3) array, got {t.shape}")
     if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} vertices hold NaN or infinite coordinates")
+        raise InputError(f"{name} vertices hold NaN or infinite coordinates")
     t = t.astype(np.int64)
     if t.min() < 0 or t.max() >= v.shape[0]:
-        raise ValueError(f"{name} triangles index vertices outside 0..{v.shape[0] - 1}")
+        raise InputError(f"{name} triangles index vertices outside 0..{v.shape[0] - 1}")
     return v, t
 
 
@@ -169,7 +170,7 @@ def sample_surface(
     area = triangle_areas(v, t)
     total = area.sum()
     if not total > 0:
-        raise ValueError("the mesh (or the chosen triangles) has zero area; nothing to sample")
+        raise InputError("the mesh (or the chosen triangles) has zero area; nothing to sample")
     rng = np.random.default_rng(seed)
     idx = rng.choice(t.shape[0], size=int(n), p=area / total)
     r1 = np.sqrt(rng.random(int(n)))
@@ -254,7 +255,7 @@ def surface_distance(
         reconstruction's triangles.
     """
     if int(n_samples) < 1:
-        raise ValueError(f"n_samples must be >= 1, got {n_samples}")
+        raise InputError(f"n_samples must be >= 1, got {n_samples}")
     v, t = _check_mesh(vertices, triangles, "reconstruction")
     tv, tt = _check_mesh(truth_vertices, truth_triangles, "truth")
     a = sample_surface(v, t, n_samples, seed=seed)
@@ -266,7 +267,7 @@ def surface_distance(
         sel = np.asarray(region_triangles, dtype=np.int64).reshape(-1)
         if sel.size:
             if sel.min() < 0 or sel.max() >= t.shape[0]:
-                raise ValueError(f"region_triangles must index triangles 0..{t.shape[0] - 1}")
+                raise InputError(f"region_triangles must index triangles 0..{t.shape[0] - 1}")
             r = sample_surface(v, t, n_samples, seed=seed + 2, subset=sel)
             region = DistanceStats.of(distance_to_mesh(r, tv, tt))
         else:

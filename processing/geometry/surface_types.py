@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from processing.errors import InputError
 from processing.geometry.holes import HoleFit
 from processing.geometry.mesh_support import SupportReport
 from processing.geometry.mesh_topology import MeshTopology
@@ -74,25 +75,25 @@ class SurfacePreset:
 
     def __post_init__(self) -> None:
         if not (isinstance(self.depth, int) and 5 <= self.depth <= 12):
-            raise ValueError(f"SurfacePreset.depth must be an integer in 5..12, got {self.depth!r}")
+            raise InputError(f"SurfacePreset.depth must be an integer in 5..12, got {self.depth!r}")
         if not self.samples_per_node >= 1.0:
-            raise ValueError(f"SurfacePreset.samples_per_node must be >= 1, got {self.samples_per_node!r}")
+            raise InputError(f"SurfacePreset.samples_per_node must be >= 1, got {self.samples_per_node!r}")
         if not self.fuse_voxel_factor >= 0.0:
-            raise ValueError(f"SurfacePreset.fuse_voxel_factor must be >= 0, got {self.fuse_voxel_factor!r}")
+            raise InputError(f"SurfacePreset.fuse_voxel_factor must be >= 0, got {self.fuse_voxel_factor!r}")
         if not self.support_factor >= 1.0:
-            raise ValueError(f"SurfacePreset.support_factor must be >= 1, got {self.support_factor!r}")
+            raise InputError(f"SurfacePreset.support_factor must be >= 1, got {self.support_factor!r}")
         if not 0.0 <= self.confidence_ratio <= 1.0:
-            raise ValueError(f"SurfacePreset.confidence_ratio must be in [0, 1], got {self.confidence_ratio!r}")
+            raise InputError(f"SurfacePreset.confidence_ratio must be in [0, 1], got {self.confidence_ratio!r}")
         if not 0.0 <= self.min_confidence < 1.0:
-            raise ValueError(f"SurfacePreset.min_confidence must be in [0, 1), got {self.min_confidence!r}")
+            raise InputError(f"SurfacePreset.min_confidence must be in [0, 1), got {self.min_confidence!r}")
         if self.target_triangles is not None and not (
             isinstance(self.target_triangles, int) and self.target_triangles >= 100
         ):
-            raise ValueError(
+            raise InputError(
                 f"SurfacePreset.target_triangles must be None or an integer >= 100, got {self.target_triangles!r}"
             )
         if not 1.0 < self.scale <= 4.0:
-            raise ValueError(f"SurfacePreset.scale must be in (1, 4], got {self.scale!r}")
+            raise InputError(f"SurfacePreset.scale must be in (1, 4], got {self.scale!r}")
 
 
 #: Named presets.  ``standard`` is meant for 3 passes x 200k points within

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.materials.lobes import Lobe, Material, lobe_geometry
 
 __all__ = ["directional_albedo", "lobe_albedo"]
@@ -36,7 +37,7 @@ _SPECTRAL_TABLE_NODES = 4097
 def _check_counts(n_theta: int, n_phi: int) -> None:
     for name, value in (("n_theta", n_theta), ("n_phi", n_phi)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 4:
-            raise ValueError(f"{name} must be an integer >= 4, got {value!r}")
+            raise InputError(f"{name} must be an integer >= 4, got {value!r}")
 
 
 def _geometry_nodes(
@@ -157,10 +158,10 @@ def lobe_albedo(
     _check_counts(n_theta, n_phi)
     co = np.asarray(cos_o, dtype=np.float64)
     if not np.all(np.isfinite(co)) or np.any(co < 0) or np.any(co > 1):
-        raise ValueError("cos_o must be finite and in [0, 1] (cosine of the viewing angle)")
+        raise InputError("cos_o must be finite and in [0, 1] (cosine of the viewing angle)")
     wl = np.asarray(wavelengths, dtype=np.float64)
     if wl.ndim != 1 or wl.size == 0:
-        raise ValueError(f"wavelengths must be a non-empty 1-D array (nm), got shape {wl.shape}")
+        raise InputError(f"wavelengths must be a non-empty 1-D array (nm), got shape {wl.shape}")
     flat = co.reshape(-1)
     out = np.zeros((flat.size, wl.size))
     if lobe.weight == 0.0 or flat.size == 0:
@@ -240,7 +241,7 @@ def directional_albedo(
     elif isinstance(material_or_lobe, Material):
         lobes = material_or_lobe.lobes
     else:
-        raise ValueError(
+        raise InputError(
             f"material_or_lobe must be a Material or a Lobe, got {type(material_or_lobe).__name__}"
         )
     total = None

@@ -22,6 +22,7 @@ from __future__ import annotations
 from types import MappingProxyType
 from typing import Any
 
+from processing.errors import InputError
 from processing.materials.lobes import Material
 from processing.materials.metal_model import metal_material, normalise_composition
 
@@ -78,10 +79,10 @@ def alloy_names() -> list[str]:
 
 def _canonical(name: str) -> str:
     if not isinstance(name, str):
-        raise ValueError(f"alloy name must be a string, got {name!r}")
+        raise InputError(f"alloy name must be a string, got {name!r}")
     key = "-".join(name.strip().lower().replace("_", " ").replace("-", " ").split())
     if key not in ALLOY_COMPOSITIONS:
-        raise ValueError(f"unknown alloy {name!r}; known alloys: {', '.join(ALLOY_COMPOSITIONS)}")
+        raise InputError(f"unknown alloy {name!r}; known alloys: {', '.join(ALLOY_COMPOSITIONS)}")
     return key
 
 

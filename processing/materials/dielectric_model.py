@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.materials.fresnel import fresnel_dielectric
 from processing.materials.lobes import Lobe, Material, checked_parameter
 from processing.materials.metal_model import check_shadowing
@@ -74,10 +75,10 @@ class DielectricFresnel:
     def __init__(self, n: float | ArrayLike, wavelengths: ArrayLike | None = None) -> None:
         n_arr = np.asarray(n, dtype=np.float64)
         if not np.all(np.isfinite(n_arr)) or np.any(n_arr <= 0):
-            raise ValueError(f"refractive index n must be finite and > 0, got {n!r}")
+            raise InputError(f"refractive index n must be finite and > 0, got {n!r}")
         if wavelengths is None:
             if n_arr.ndim != 0:
-                raise ValueError(
+                raise InputError(
                     "an array of indices needs the matching wavelengths: "
                     "DielectricFresnel(n_values, wavelengths=wavelengths_nm)"
                 )
@@ -85,12 +86,12 @@ class DielectricFresnel:
         else:
             wl = np.asarray(wavelengths, dtype=np.float64)
             if wl.ndim != 1 or wl.size < 2 or n_arr.shape != wl.shape:
-                raise ValueError(
+                raise InputError(
                     f"wavelengths (shape {wl.shape}) and n (shape {n_arr.shape}) must be 1-D "
                     "arrays of the same length >= 2"
                 )
             if not np.all(np.isfinite(wl)) or not np.all(np.diff(wl) > 0):
-                raise ValueError("wavelengths of the index must be finite and strictly increasing (nm)")
+                raise InputError("wavelengths of the index must be finite and strictly increasing (nm)")
             self._wl = wl
         self._n = n_arr
 
@@ -121,7 +122,7 @@ class DielectricFresnel:
         if self._wl is None:
             return np.full(wl.shape, float(self._n))
         if wl.size and (wl.min() < self._wl[0] - 1e-9 or wl.max() > self._wl[-1] + 1e-9):
-            raise ValueError(
+            raise InputError(
                 f"the refractive index is given for {self._wl[0]:g}-{self._wl[-1]:g} nm, "
                 f"asked for {wl.min():g}-{wl.max():g} nm"
             )
@@ -149,7 +150,7 @@ class DielectricFresnel:
         """
         wl = np.asarray(wavelengths, dtype=np.float64)
         if wl.ndim != 1:
-            raise ValueError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
+            raise InputError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
         c = np.asarray(cos_d, dtype=np.float64)
         if self._wl is None:
             f = fresnel_dielectric(c, float(self._n))
@@ -190,14 +191,14 @@ class PigmentReflectance:
         wl = np.asarray(wavelengths, dtype=np.float64)
         vals = np.asarray(values, dtype=np.float64)
         if wl.ndim != 1 or wl.size < 2 or vals.shape != wl.shape:
-            raise ValueError(
+            raise InputError(
                 f"pigment wavelengths (shape {wl.shape}) and values (shape {vals.shape}) must be "
                 "1-D arrays of the same length >= 2"
             )
         if not np.all(np.isfinite(wl)) or not np.all(np.diff(wl) > 0):
-            raise ValueError("pigment wavelengths must be finite and strictly increasing (nm)")
+            raise InputError("pigment wavelengths must be finite and strictly increasing (nm)")
         if not np.all(np.isfinite(vals)) or np.any(vals < 0) or np.any(vals > 1):
-            raise ValueError("pigment reflectance values must be in [0, 1] (a reflectance factor)")
+            raise InputError("pigment reflectance values must be in [0, 1] (a reflectance factor)")
         wl.setflags(write=False)
         vals.setflags(write=False)
         self.wavelengths = wl
@@ -232,7 +233,7 @@ class PigmentReflectance:
             try:
                 s = np.clip(resample(self.wavelengths, self.values, wl), 0.0, 1.0)
             except ValueError as exc:
-                raise ValueError(f"pigment reflectance: {exc}") from None
+                raise InputError(f"pigment reflectance: {exc}") from None
             s.setflags(write=False)
             if len(self._cache) >= _MAX_CACHED_GRIDS:
                 self._cache.pop(next(iter(self._cache)))
@@ -261,7 +262,7 @@ class PigmentReflectance:
         """
         wl = np.asarray(wavelengths, dtype=np.float64)
         if wl.ndim != 1:
-            raise ValueError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
+            raise InputError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
         return np.broadcast_to(self.on(wl), np.shape(cos_d) + (wl.size,))
 
 
@@ -375,7 +376,7 @@ def dielectric_material(
     (['lambert', 'microfacet', 'microfacet'], 1.5)
     """
     if not isinstance(reflectance, PigmentReflectance):
-        raise ValueError(
+        raise InputError(
             "reflectance must be a PigmentReflectance(wavelengths_nm, values), "
             f"got {type(reflectance).__name__}"
         )
@@ -385,7 +386,7 @@ def dielectric_material(
     else:
         n_value = checked_parameter("n", n, open_zero=True, upper=3.0)
         if n_value < 1.0:
-            raise ValueError(f"n must be in [1, 3] for a lacquer or glaze, got {n!r}")
+            raise InputError(f"n must be in [1, 3] for a lacquer or glaze, got {n!r}")
         fresnel = DielectricFresnel(n_value)
     diffuse = checked_parameter("diffuse", diffuse)
     gloss = checked_parameter("gloss", gloss)
@@ -395,7 +396,7 @@ def dielectric_material(
     check_shadowing(shadowing)
     total = diffuse + gloss + mirror
     if total > 1.0 + 1e-12:
-        raise ValueError(
+        raise InputError(
             f"diffuse + gloss + mirror = {total:g} exceeds 1 (energy conservation); "
             "lower one of them"
         )

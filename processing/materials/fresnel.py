@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
+
 __all__ = ["fresnel_conductor", "fresnel_dielectric"]
 
 
@@ -60,9 +62,9 @@ def fresnel_conductor(cos_theta: ArrayLike, eta: ArrayLike) -> NDArray[np.float6
     cos_i = _checked_cos(cos_theta)
     eta = np.asarray(eta, dtype=np.complex128)
     if not np.all(np.isfinite(eta)):
-        raise ValueError("eta contains NaN or infinite values")
+        raise InputError("eta contains NaN or infinite values")
     if np.any(eta.imag < 0) or np.any(eta.real < 0) or np.any(eta == 0):
-        raise ValueError(
+        raise InputError(
             "eta must be n + i k with n >= 0, k >= 0 and eta != 0 (the refractiveindex.info "
             "convention for absorbing media); take the complex conjugate of an index given as n - i k"
         )
@@ -99,7 +101,7 @@ def _difference_ratio(a: NDArray, b: NDArray) -> NDArray[np.complex128]:
 def _checked_cos(cos_theta: ArrayLike) -> NDArray[np.float64]:
     c = np.asarray(cos_theta, dtype=np.float64)
     if not np.all(np.isfinite(c)):
-        raise ValueError("cos_theta contains NaN or infinite values")
+        raise InputError("cos_theta contains NaN or infinite values")
     return np.clip(c, 0.0, 1.0)
 
 
@@ -136,7 +138,7 @@ def fresnel_dielectric(cos_theta: ArrayLike, n: ArrayLike) -> NDArray[np.float64
     cos_i = _checked_cos(cos_theta)
     n = np.asarray(n, dtype=np.float64)
     if not np.all(np.isfinite(n)) or np.any(n <= 0):
-        raise ValueError("the dielectric index n must be finite and > 0")
+        raise InputError("the dielectric index n must be finite and > 0")
     # (n cos(theta_t))^2 = n^2 - sin^2 = (n^2 - 1) + cos^2, accurate near grazing
     # and for n close to 1; it is <= 0 under total internal reflection (n < 1).
     arg = (n * n - 1.0) + cos_i * cos_i

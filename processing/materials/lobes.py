@@ -26,6 +26,7 @@ from typing import Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.materials.microfacet import microfacet_lobe
 
 # processing.cloth.anisotropic_microfacet is imported where it is used: its package's
@@ -122,17 +123,17 @@ class Lobe:
 
     def __post_init__(self) -> None:
         if self.kind not in ("lambert", "microfacet", "anisotropic"):
-            raise ValueError(f"lobe kind {self.kind!r} is not 'lambert', 'microfacet' or 'anisotropic'")
+            raise InputError(f"lobe kind {self.kind!r} is not 'lambert', 'microfacet' or 'anisotropic'")
         if self.kind == "anisotropic":
             from processing.cloth.anisotropic_microfacet import check_axes
 
             check_axes(self.roughness, self.roughness_b, "anisotropic lobe")
             if self.mirror:
-                raise ValueError("an anisotropic lobe cannot be a mirror lobe")
+                raise InputError("an anisotropic lobe cannot be a mirror lobe")
         if not np.isfinite(self.weight) or self.weight < 0:
-            raise ValueError(f"lobe weight must be finite and >= 0, got {self.weight}")
+            raise InputError(f"lobe weight must be finite and >= 0, got {self.weight}")
         if self.kind == "microfacet" and not (0.0 < self.roughness <= 1.0):
-            raise ValueError(
+            raise InputError(
                 f"microfacet roughness (RMS slope) must be in (0, 1], got {self.roughness}"
             )
 
@@ -199,16 +200,16 @@ def checked_parameter(name: str, value: float, *, open_zero: bool = False, upper
     >>> checked_parameter("roughness", 0, open_zero=True)
     Traceback (most recent call last):
     ...
-    ValueError: roughness must be in (0, 1], got 0
+    processing.errors.InputError: roughness must be in (0, 1], got 0
     """
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
+        raise InputError(f"{name} must be a number, got {value!r}") from None
     ok = math.isfinite(v) and ((0.0 < v) if open_zero else (0.0 <= v)) and v <= upper
     if not ok:
         rng = f"(0, {upper:g}]" if open_zero else f"[0, {upper:g}]"
-        raise ValueError(f"{name} must be in {rng}, got {value!r}")
+        raise InputError(f"{name} must be in {rng}, got {value!r}")
     return v
 
 
@@ -272,7 +273,7 @@ def lobe_geometry(
         from processing.cloth.anisotropic_microfacet import anisotropic_lobe
 
         if tangential is None:
-            raise ValueError(
+            raise InputError(
                 "an anisotropic lobe needs the tangent-frame components (i_t, i_b, o_t, o_b) of the light and "
                 "view directions: pass tangential=..."
             )

@@ -33,6 +33,7 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.materials.fresnel import fresnel_conductor
 from processing.materials.lobes import Lobe, Material, checked_parameter
 from processing.materials.optical_constants import canonical_metal, complex_index
@@ -78,22 +79,22 @@ def normalise_composition(metals: Mapping[str, float]) -> dict[str, float]:
     {'Cu': 0.88, 'Sn': 0.12}
     """
     if not isinstance(metals, Mapping) or not metals:
-        raise ValueError("metals must be a non-empty mapping such as {'Au': 1.0}")
+        raise InputError("metals must be a non-empty mapping such as {'Au': 1.0}")
     out: dict[str, float] = {}
     for name, weight in metals.items():
         sym = canonical_metal(name)
         try:
             w = float(weight)
         except (TypeError, ValueError):
-            raise ValueError(f"weight of {sym} must be a number, got {weight!r}") from None
+            raise InputError(f"weight of {sym} must be a number, got {weight!r}") from None
         if not math.isfinite(w) or w < 0:
-            raise ValueError(f"weight of {sym} must be finite and >= 0, got {weight!r}")
+            raise InputError(f"weight of {sym} must be finite and >= 0, got {weight!r}")
         if sym in out:
-            raise ValueError(f"metal {sym} is given twice in the composition")
+            raise InputError(f"metal {sym} is given twice in the composition")
         out[sym] = w
     total = sum(out.values())
     if total <= 0:
-        raise ValueError("the metal weights sum to 0; give at least one positive weight")
+        raise InputError("the metal weights sum to 0; give at least one positive weight")
     return {sym: w / total for sym, w in out.items() if w > 0}
 
 
@@ -192,7 +193,7 @@ class ConductorFresnel:
         """
         wl = np.asarray(wavelengths, dtype=np.float64)
         if wl.ndim != 1:
-            raise ValueError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
+            raise InputError(f"wavelengths must be 1-D (nm), got shape {wl.shape}")
         eta = self.eta(wl)
         c = np.asarray(cos_d, dtype=np.float64)[..., None]
         out = np.zeros(c.shape[:-1] + (wl.size,))
@@ -225,7 +226,7 @@ def check_shadowing(shadowing: str) -> str:
     'smith'
     """
     if shadowing not in SHADOWING_MODELS:
-        raise ValueError(
+        raise InputError(
             f"shadowing={shadowing!r} is not known; use one of: {', '.join(SHADOWING_MODELS)}"
         )
     return shadowing
@@ -296,7 +297,7 @@ def metal_material(
     mirror_roughness = checked_parameter("mirror_roughness", mirror_roughness, open_zero=True)
     check_shadowing(shadowing)
     if gloss + mirror > 1.0 + 1e-12:
-        raise ValueError(
+        raise InputError(
             f"gloss + mirror = {gloss + mirror:g} exceeds 1 (energy conservation); "
             "lower one of them, e.g. gloss=0.7, mirror=0.3"
         )

@@ -27,6 +27,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import erfc
 
+from processing.errors import InputError
+
 __all__ = [
     "beckmann_d",
     "smith_g1_beckmann",
@@ -41,7 +43,7 @@ _TINY = 1e-12
 def _checked_roughness(roughness: float | ArrayLike) -> NDArray[np.float64]:
     sigma = np.asarray(roughness, dtype=np.float64)
     if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
-        raise ValueError(
+        raise InputError(
             f"roughness (Beckmann RMS slope) must be finite and > 0, got {roughness!r}; "
             "use a mirror lobe with a small roughness such as 1e-3 for a near-perfect mirror"
         )
@@ -259,7 +261,7 @@ def microfacet_lobe(
     elif shadowing == "none":
         g = np.ones_like(d)
     else:
-        raise ValueError(
+        raise InputError(
             f"shadowing={shadowing!r} is not known; use 'smith', 'torrance-sparrow' or 'none'"
         )
     valid = (ci > 0.0) & (co > 0.0)

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
+
 __all__ = [
     "METALS",
     "complex_index",
@@ -131,14 +133,14 @@ def canonical_metal(metal: str) -> str:
     ('Au', 'Cu')
     """
     if not isinstance(metal, str):
-        raise ValueError(f"metal must be a chemical symbol such as 'Au', got {metal!r}")
+        raise InputError(f"metal must be a chemical symbol such as 'Au', got {metal!r}")
     key = metal.strip()
     for sym in METALS:
         if key.lower() == sym.lower():
             return sym
     if key.lower() in _ALIASES:
         return _ALIASES[key.lower()]
-    raise ValueError(f"unknown metal {metal!r}; optical constants exist for: {', '.join(METALS)}")
+    raise InputError(f"unknown metal {metal!r}; optical constants exist for: {', '.join(METALS)}")
 
 
 @dataclass(frozen=True)
@@ -371,10 +373,10 @@ def complex_index(metal: str, wavelengths: ArrayLike) -> NDArray[np.complex128]:
     sym = canonical_metal(metal)
     wl = np.asarray(wavelengths, dtype=np.float64)
     if not np.all(np.isfinite(wl)):
-        raise ValueError("wavelengths contains NaN or infinite values (expected nm)")
+        raise InputError("wavelengths contains NaN or infinite values (expected nm)")
     lo, hi = metal_wavelength_range(sym)
     if wl.size and (wl.min() < lo - 1e-9 or wl.max() > hi + 1e-9):
-        raise ValueError(
+        raise InputError(
             f"{sym} optical constants cover {lo:g}-{hi:g} nm, got wavelengths "
             f"{wl.min():g}-{wl.max():g}; wavelengths are in nm"
         )

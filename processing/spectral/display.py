@@ -24,6 +24,7 @@ import functools
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
 from processing.spectral.spectra import REFERENCE_GRID, SpectralGrid, cmfs
 
 __all__ = [
@@ -53,14 +54,14 @@ def _finite(name: str, a: ArrayLike) -> NDArray[np.floating]:
     if not np.issubdtype(arr.dtype, np.floating):
         arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains NaN or infinite values")
+        raise InputError(f"{name} contains NaN or infinite values")
     return arr
 
 
 def _check_grid(grid: object) -> SpectralGrid:
     """``grid`` if it is a SpectralGrid."""
     if not isinstance(grid, SpectralGrid):
-        raise ValueError(f"grid must be a processing.spectral.spectra.SpectralGrid, got {type(grid).__name__}")
+        raise InputError(f"grid must be a processing.spectral.spectra.SpectralGrid, got {type(grid).__name__}")
     return grid
 
 
@@ -102,7 +103,7 @@ def spectra_to_xyz(spectra: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> N
     _check_grid(grid)
     s = _finite("spectra", spectra)
     if s.ndim == 0 or s.shape[-1] != grid.size:
-        raise ValueError(
+        raise InputError(
             f"spectra must have the {grid.size} wavelengths of the grid "
             f"({grid.start:g}-{grid.stop:g} nm, step {grid.step:g}) on the last axis, got shape {s.shape}"
         )
@@ -115,9 +116,9 @@ def _check_light(light: ArrayLike, grid: SpectralGrid) -> NDArray[np.float64]:
     _check_grid(grid)
     e = np.asarray(_finite("light", light), dtype=np.float64)
     if e.shape != (grid.size,):
-        raise ValueError(f"light must have shape ({grid.size},) for this grid, got {e.shape}")
+        raise InputError(f"light must have shape ({grid.size},) for this grid, got {e.shape}")
     if np.any(e < 0):
-        raise ValueError("light spectral power must be >= 0")
+        raise InputError("light spectral power must be >= 0")
     return e
 
 
@@ -156,7 +157,7 @@ def xyz_scale(light: ArrayLike, grid: SpectralGrid = REFERENCE_GRID) -> float:
     e = _check_light(light, grid)
     y = float(spectra_to_xyz(e / np.pi, grid)[1])
     if not y > 0:
-        raise ValueError("light has no luminance on this grid (Y = 0); check the light spectrum")
+        raise InputError("light has no luminance on this grid (Y = 0); check the light spectrum")
     return 1.0 / y
 
 
@@ -234,7 +235,7 @@ def _check_white(source_white: ArrayLike) -> NDArray[np.float64]:
     """A white's XYZ as three positive float64 values."""
     w = np.asarray(_finite("source_white", source_white), dtype=np.float64)
     if w.shape != (3,) or np.any(w <= 0):
-        raise ValueError(
+        raise InputError(
             f"source_white must be the XYZ (3 positive values) of the scene white, e.g. "
             f"white_xyz(light, grid); got {w.tolist() if w.size <= 6 else w.shape}"
         )
@@ -248,7 +249,7 @@ def _xyz_to_rgb_matrix(source_white: NDArray[np.float64], adapt: bool, method: s
         return m_rgb
     key = _cat_names().get(str(method).lower())
     if key is None:
-        raise ValueError(
+        raise InputError(
             f"unknown chromatic adaptation method {method!r}; use one of: {', '.join(adaptation_methods())}"
         )
     import colour
@@ -304,7 +305,7 @@ def xyz_to_linear_srgb(
     """
     x = _finite("xyz", xyz)
     if x.ndim == 0 or x.shape[-1] != 3:
-        raise ValueError(f"xyz must have X, Y, Z on the last axis, got shape {x.shape}")
+        raise InputError(f"xyz must have X, Y, Z on the last axis, got shape {x.shape}")
     m = _xyz_to_rgb_matrix(_check_white(source_white), adapt, method)
     return (x @ m.T).astype(_out_dtype(x), copy=False)
 
@@ -341,9 +342,9 @@ def gamut_map(linear_rgb: ArrayLike, policy: str = "desaturate") -> NDArray[np.f
     """
     rgb = _finite("linear_rgb", linear_rgb)
     if rgb.ndim == 0 or rgb.shape[-1] != 3:
-        raise ValueError(f"linear_rgb must have R, G, B on the last axis, got shape {rgb.shape}")
+        raise InputError(f"linear_rgb must have R, G, B on the last axis, got shape {rgb.shape}")
     if policy not in GAMUT_POLICIES:
-        raise ValueError(f"unknown gamut policy {policy!r}; use one of: {', '.join(GAMUT_POLICIES)}")
+        raise InputError(f"unknown gamut policy {policy!r}; use one of: {', '.join(GAMUT_POLICIES)}")
     dtype = _out_dtype(rgb)
     rgb = rgb.astype(np.float64)
     if policy == "desaturate":
@@ -470,7 +471,7 @@ def delta_e00(xyz_a: ArrayLike, xyz_b: ArrayLike, white: ArrayLike) -> NDArray[n
     a = np.asarray(_finite("xyz_a", xyz_a), dtype=np.float64) / w[1]
     b = np.asarray(_finite("xyz_b", xyz_b), dtype=np.float64) / w[1]
     if a.shape[-1:] != (3,) or b.shape[-1:] != (3,):
-        raise ValueError(f"xyz_a and xyz_b must have X, Y, Z on the last axis, got {a.shape}, {b.shape}")
+        raise InputError(f"xyz_a and xyz_b must have X, Y, Z on the last axis, got {a.shape}, {b.shape}")
     xy = colour.XYZ_to_xy(w)
     lab_a = colour.XYZ_to_Lab(a, xy)
     lab_b = colour.XYZ_to_Lab(b, xy)

@@ -28,6 +28,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.errors import InputError
+
 __all__ = [
     "SpectralGrid",
     "REFERENCE_GRID",
@@ -86,21 +88,21 @@ class SpectralGrid:
         for name in ("start", "stop", "step"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ValueError(f"SpectralGrid {name} must be a number in nm, got {value!r}")
+                raise InputError(f"SpectralGrid {name} must be a number in nm, got {value!r}")
             if not math.isfinite(float(value)):
-                raise ValueError(f"SpectralGrid {name} must be finite, got {value!r}")
+                raise InputError(f"SpectralGrid {name} must be finite, got {value!r}")
             object.__setattr__(self, name, float(value))
         lo, hi = CMF_RANGE
         if not (lo <= self.start < self.stop <= hi):
-            raise ValueError(
+            raise InputError(
                 f"SpectralGrid needs {lo:g} <= start < stop <= {hi:g} nm (the range of the "
                 f"CIE colour-matching functions), got start={self.start:g}, stop={self.stop:g}"
             )
         if self.step <= 0:
-            raise ValueError(f"SpectralGrid step must be > 0 nm, got {self.step:g}")
+            raise InputError(f"SpectralGrid step must be > 0 nm, got {self.step:g}")
         count = (self.stop - self.start) / self.step
         if abs(count - round(count)) > 1e-9 * max(1.0, count):
-            raise ValueError(
+            raise InputError(
                 f"SpectralGrid step {self.step:g} nm does not divide the range "
                 f"{self.start:g}-{self.stop:g} nm; choose a step such as 5, 10 or 20 nm"
             )
@@ -181,11 +183,11 @@ def _as_wavelengths(name: str, wavelengths: ArrayLike) -> NDArray[np.float64]:
     """Wavelengths as a finite, strictly increasing 1-D float64 array."""
     wl = np.asarray(wavelengths, dtype=np.float64)
     if wl.ndim != 1 or wl.size < 1:
-        raise ValueError(f"{name} must be a 1-D array of wavelengths in nm, got shape {wl.shape}")
+        raise InputError(f"{name} must be a 1-D array of wavelengths in nm, got shape {wl.shape}")
     if not np.all(np.isfinite(wl)):
-        raise ValueError(f"{name} contains NaN or infinite wavelengths")
+        raise InputError(f"{name} contains NaN or infinite wavelengths")
     if wl.size > 1 and not np.all(np.diff(wl) > 0):
-        raise ValueError(f"{name} must be strictly increasing (nm)")
+        raise InputError(f"{name} must be strictly increasing (nm)")
     return wl
 
 
@@ -244,18 +246,18 @@ def resample(
     [0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4]
     """
     if method not in ("interpolate", "average"):
-        raise ValueError(f"resample method={method!r} is not known; use 'interpolate' or 'average'")
+        raise InputError(f"resample method={method!r} is not known; use 'interpolate' or 'average'")
     src = _as_wavelengths("wavelengths_src", wavelengths_src)
     if src.size < 2:
-        raise ValueError("wavelengths_src needs at least two samples to resample a spectrum")
+        raise InputError("wavelengths_src needs at least two samples to resample a spectrum")
     vals = np.asarray(values, dtype=np.float64)
     if vals.ndim == 0 or vals.shape[-1] != src.size:
-        raise ValueError(
+        raise InputError(
             f"values must have the wavelengths on the last axis ({src.size} samples), "
             f"got shape {vals.shape}"
         )
     if not np.all(np.isfinite(vals)):
-        raise ValueError("values contains NaN or infinite entries; clean the spectrum first")
+        raise InputError("values contains NaN or infinite entries; clean the spectrum first")
     if isinstance(grid, SpectralGrid):
         target, step = grid.wavelengths, grid.step
     else:
@@ -263,7 +265,7 @@ def resample(
         step = _regular_step(target)
     tol = 1e-6
     if target[0] < src[0] - tol or target[-1] > src[-1] + tol:
-        raise ValueError(
+        raise InputError(
             f"the spectrum covers {src[0]:g}-{src[-1]:g} nm but the grid needs "
             f"{target[0]:g}-{target[-1]:g} nm; supply data over the whole grid (wavelengths in nm)"
         )
@@ -343,7 +345,7 @@ def cmfs(grid: SpectralGrid = REFERENCE_GRID) -> NDArray[np.float64]:
     106.857
     """
     if not isinstance(grid, SpectralGrid):
-        raise ValueError(f"grid must be a SpectralGrid, got {type(grid).__name__}")
+        raise InputError(f"grid must be a SpectralGrid, got {type(grid).__name__}")
     return _cmfs_cached(grid.start, grid.stop, grid.step)
 
 
@@ -398,7 +400,7 @@ def _cct_source(kelvin: float) -> tuple[NDArray[np.float64], NDArray[np.float64]
     """Wavelengths (nm) and values of a Planckian (below 4000 K) or CIE daylight source at ``kelvin``."""
     lo, hi = _CCT_RANGE
     if not (math.isfinite(kelvin) and lo <= kelvin <= hi):
-        raise ValueError(
+        raise InputError(
             f"colour temperature {kelvin:g} K is outside {lo:g}-{hi:g} K; "
             "give e.g. '3200K' (Planck) or '6500K' (CIE daylight)"
         )
@@ -423,7 +425,7 @@ def _read_spectrum_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.floa
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"cannot read light spectrum file '{path}': {exc}") from exc
+        raise InputError(f"cannot read light spectrum file '{path}': {exc}") from exc
     rows: list[tuple[float, float]] = []
     seen_data_line = False
     for lineno, raw in enumerate(text.splitlines(), start=1):
@@ -437,41 +439,41 @@ def _read_spectrum_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.floa
             if not seen_data_line and not rows:
                 seen_data_line = True  # the optional header line
                 continue
-            raise ValueError(
+            raise InputError(
                 f"{path}, line {lineno}: expected two numbers 'wavelength_nm, value', got {line!r}"
             ) from None
         seen_data_line = True
         if len(nums) != 2:
-            raise ValueError(
+            raise InputError(
                 f"{path}, line {lineno}: expected two columns 'wavelength_nm, value', "
                 f"got {len(nums)} in {line!r}"
             )
         if not all(math.isfinite(v) for v in nums):
-            raise ValueError(f"{path}, line {lineno}: NaN or infinite value in {line!r}")
+            raise InputError(f"{path}, line {lineno}: NaN or infinite value in {line!r}")
         if nums[1] < 0:
-            raise ValueError(f"{path}, line {lineno}: spectral power must be >= 0, got {nums[1]:g}")
+            raise InputError(f"{path}, line {lineno}: spectral power must be >= 0, got {nums[1]:g}")
         if rows and nums[0] <= rows[-1][0]:
-            raise ValueError(
+            raise InputError(
                 f"{path}, line {lineno}: wavelength {nums[0]:g} nm does not increase "
                 f"(previous {rows[-1][0]:g} nm); sort the rows by wavelength"
             )
         rows.append((nums[0], nums[1]))
     if len(rows) < 2:
-        raise ValueError(f"{path}: needs at least two '(wavelength_nm, value)' rows, found {len(rows)}")
+        raise InputError(f"{path}: needs at least two '(wavelength_nm, value)' rows, found {len(rows)}")
     arr = np.asarray(rows, dtype=np.float64)
     if not np.any(arr[:, 1] > 0):
-        raise ValueError(f"{path}: every spectral power value is zero")
+        raise InputError(f"{path}: every spectral power value is zero")
     return arr[:, 0], arr[:, 1]
 
 
 def _parse_light(spec: object) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:
     """Wavelengths (nm), values and a label of a light given by name, temperature or CSV path."""
     if isinstance(spec, bool):
-        raise ValueError(f"light spec must be a name, a temperature or a CSV path, got {spec!r}")
+        raise InputError(f"light spec must be a name, a temperature or a CSV path, got {spec!r}")
     if isinstance(spec, (int, float, np.integer, np.floating)):
         return (*_cct_source(float(spec)), f"{float(spec):g} K")
     if not isinstance(spec, (str, os.PathLike)):
-        raise ValueError(
+        raise InputError(
             f"light spec must be an illuminant name, a temperature like '3200K' or a CSV path, "
             f"got {type(spec).__name__}"
         )
@@ -487,8 +489,8 @@ def _parse_light(spec: object) -> tuple[NDArray[np.float64], NDArray[np.float64]
     if path.is_file():
         return (*_read_spectrum_csv(path), str(path))
     if path.suffix.lower() in (".csv", ".txt", ".tsv") or os.sep in text or "/" in text:
-        raise ValueError(f"light spectrum file '{text}' does not exist or is not a file")
-    raise ValueError(
+        raise InputError(f"light spectrum file '{text}' does not exist or is not a file")
+    raise InputError(
         f"unknown light {text!r}: use a CIE illuminant ({', '.join(illuminant_names())}), "
         f"a colour temperature such as '3200K' ({_CCT_RANGE[0]:g}-{_CCT_RANGE[1]:g} K), "
         "or the path of a CSV file of (nm, value) rows"
@@ -541,15 +543,15 @@ def light_spectrum(spec: str | float | os.PathLike[str], grid: SpectralGrid = RE
     True
     """
     if not isinstance(grid, SpectralGrid):
-        raise ValueError(f"grid must be a SpectralGrid, got {type(grid).__name__}")
+        raise InputError(f"grid must be a SpectralGrid, got {type(grid).__name__}")
     wl, values, label = _parse_light(spec)
     try:
         out = resample(wl, values, grid, method="average")
     except ValueError as exc:
-        raise ValueError(f"light {label}: {exc}") from None
+        raise InputError(f"light {label}: {exc}") from None
     ref = out[int(np.argmin(np.abs(grid.wavelengths - _NORMALISATION_NM)))]
     if not ref > 0:
         ref = float(out.max())
         if not ref > 0:
-            raise ValueError(f"light {label} has no power on {grid.start:g}-{grid.stop:g} nm")
+            raise InputError(f"light {label} has no power on {grid.start:g}-{grid.stop:g} nm")
     return out / ref
