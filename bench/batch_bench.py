@@ -39,7 +39,7 @@ PRESET = "draft"
 
 def build_sessions(root: Path, n: int) -> tuple[list[Path], Path]:
     """Capture ``n`` simulated hawk sessions and one calibration session into ``root``."""
-    from app.cli.calibrate import calibrate_session
+    from app.workflows.calibration import calibrate_session
     from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.capture.devices import build_devices
     from app.session import Session

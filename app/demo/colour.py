@@ -6,9 +6,10 @@ eq. (11) and (3)-(4)), run end to end on the simulated station
 on the backdrop) and the object at a few turntable angles go through the
 simulated Nikon D5100 into DNG files, and then through the same library calls
 as ``kogei spectral estimate`` and ``kogei identify``
-(:func:`app.cli.spectral.estimate_spectral`,
-:func:`app.cli.identify.identify_result`), with the world's own region
-labels as the regions.  The answers are compared with the world's true
+(:func:`app.workflows.spectral.estimate_spectral`, the chart measured once by
+:func:`app.workflows.chart.measure_chart`;
+:func:`app.workflows.identification.identify_result`), with the world's own
+region labels as the regions.  The answers are compared with the world's true
 materials and alloy compositions.
 
 Why several views and a light near the camera: a glossy metal under one
@@ -152,8 +153,9 @@ def colour_demo(
         true and estimated alloy weights, pixels), ``correct`` / ``regions_identified``, the
         estimate's metadata, ``seconds`` and the paths written.
     """
-    from app.cli.identify import identify_result, usable_regions
-    from app.cli.spectral import SpectralResult, estimate_spectral
+    from app.workflows.chart import measure_chart
+    from app.workflows.identification import identify_result, usable_regions
+    from app.workflows.spectral import SpectralResult, estimate_spectral
     from mocks.camera_sim import simulate_raw, write_raw
     from mocks.world import World
     from processing.materials.presets import get_material
@@ -168,6 +170,7 @@ def colour_demo(
     chart_raw = simulate_raw(_lens_blur(chart.radiance), chart.grid, chart.light, seed=seed,
                              exposure_s=_CHART_EXPOSURE_S)
     chart_path = write_raw(out / "chart.dng", chart_raw)
+    chart_measured = measure_chart(chart_path)
     results, label_images = [], []
     for k, angle in enumerate(angles):
         frame = world.frame("object", angle)
@@ -177,7 +180,7 @@ def colour_demo(
         dng = write_raw(out / f"{name}.dng", raw)
         labels = _binned_labels(frame.labels)
         _write_png(out / f"labels_{angle:+04.0f}.png", labels.astype(np.uint16))
-        results.append(estimate_spectral(dng, chart_path, method=method))
+        results.append(estimate_spectral(dng, chart_measured, method=method))
         label_images.append(labels)
     # one result of the views side by side: regions pool their pixels over the views
     pooled = SpectralResult(
@@ -275,7 +278,7 @@ def _figure(path: Path, summary: dict[str, Any], cos_d: float, labels: NDArray[n
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
 
-    from app.cli.materials import preset_srgb
+    from app.workflows.materials import preset_srgb
 
     wl = np.asarray(summary["wavelengths"])
     regions = summary["regions"]

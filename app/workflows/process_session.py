@@ -1,6 +1,6 @@
 """``kogei process``: a captured session's profiles -> one registered, watertight mesh, with a report.
 
-Issue #4; DESIGN.md section 2.  The stages, each a plain library call:
+docs/processing.md, "Pipeline".  The stages, each a plain library call:
 
 1. per complete pass: profiles + table angles + the session's scanner
    calibration -> points, normals and confidences in that pass's table frame
@@ -124,8 +124,8 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
     dict
         The report (also written to ``products/process-report.json``).
     """
-    from app.cli.calibrate import install_calibration, load_calibration_source, session_calibration
-    from app.session import Session, SessionError
+    from app.session import Session
+    from app.workflows.calibration import install_calibration, load_calibration_source, session_calibration
     from processing.geometry.mesh_ply import write_mesh_ply
     from processing.geometry.registration import RegistrationError, merge_passes, register_passes
     from processing.geometry.surface import SurfaceError, reconstruct_surface
@@ -135,10 +135,7 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         raise UsageError(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
     root = Path(session_dir)
     t_all = time.perf_counter()
-    try:
-        session = Session.open(root)
-    except SessionError as exc:
-        raise UsageError(str(exc)) from None
+    session = Session.open(root)
     with session:
         manifest = session.manifest
         if manifest["plan"].get("kind") != "scan":

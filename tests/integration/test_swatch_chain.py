@@ -32,8 +32,8 @@ def _binned(a: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def chain(tmp_path_factory):
-    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
     from app.session import Session
+    from app.workflows.cloth_fit import capture_swatch_session, load_swatch_session
 
     world = SwatchWorld.swatch(COTTON, width=W, height=H)
     lights = [tuple(world.light_direction), CAMERA_SIDE]
