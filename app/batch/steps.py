@@ -281,7 +281,7 @@ STEPS: dict[str, Step] = {
                    _report_inputs, _report_params, _report_run),
 }
 STEP_NAMES = tuple(STEPS)
-#: Steps of the issue that this version cannot run, with the reason given to the user.
+#: Steps this version cannot run, with the reason given to the user.
 UNAVAILABLE_STEPS: dict[str, str] = {}
 
 
