@@ -41,8 +41,8 @@ def build_sessions(root: Path, n: int) -> tuple[list[Path], Path]:
     """Capture ``n`` simulated hawk sessions and one calibration session into ``root``."""
     from app.capture.devices import build_devices
     from app.capture.runner import CaptureHooks, CapturePlan, run_capture
-    from app.cli.calibrate import calibrate_session
     from app.session import Session
+    from app.workflows.calibration import calibrate_session
     from mocks.station import SimulatedStation
     from mocks.world import World
 

@@ -3,7 +3,7 @@
 Every profile is measured by the profiler emulator of :class:`mocks.station.SimulatedStation`
 and travels the way a real capture's does: the turntable and profiler firmware emulators on
 pseudo-terminals, the drivers, :func:`app.capture.runner.run_capture` writing the session, then
-:func:`app.cli.calibrate.calibrate_session` (the station geometry comes from a scan of a
+:func:`app.workflows.calibration.calibrate_session` (the station geometry comes from a scan of a
 reference sphere, never from the truth) and :func:`app.workflows.process_session.process_session`
 (``kogei process``).  Nothing of the truth is given to processing; it is used only to score:
 
@@ -420,8 +420,8 @@ def capture_session(world: Any, geometry: StationGeometry, root: Path, *, steps:
 
 def calibrate_station(geometry: StationGeometry, root: Path, seed: int = 7) -> dict[str, Any]:
     """Scan the geometry's reference sphere, calibrate with ``kogei calibrate``, compare with the truth."""
-    from app.cli.calibrate import calibrate_session, session_calibration
     from app.session import Session
+    from app.workflows.calibration import calibrate_session, session_calibration
     from mocks.world import World
     from processing.geometry.registration import pose_difference
 
@@ -437,8 +437,8 @@ def calibrate_station(geometry: StationGeometry, root: Path, seed: int = 7) -> d
 
 def session_clouds(session_dir: Path, calibration: str) -> list[dict[str, Any]]:
     """Per pass the cloud exactly as ``kogei process`` builds it (after installing the calibration)."""
-    from app.cli.calibrate import install_calibration, load_calibration_source, session_calibration
     from app.session import Session
+    from app.workflows.calibration import install_calibration, load_calibration_source, session_calibration
     from app.workflows.process_session import _pass_clouds
 
     with Session.open(session_dir) as s:

@@ -3,7 +3,7 @@
 docs/batch.md.  For each pass's chart frame (``pNN/chart``; the first,
 ``pNN/chart/00``, of a swatch pass that took several) the RAW frame is decoded,
 the chart found and its patches sampled and checked by
-:func:`app.cli.chart.chart_report` (``kogei chart``:
+:func:`app.workflows.chart.chart_report` (``kogei chart``:
 :mod:`processing.camera.raw_decode`, :mod:`processing.camera.chart_detection`,
 :mod:`processing.camera.chart_sampling`).  The **patch errors** are the CIEDE2000
 differences left by the least-squares 3 x 3 matrix from the usable patches'
@@ -18,7 +18,6 @@ products ``products/colour/pNN-chart.json`` and ``pNN-chart.png``.
 
 from __future__ import annotations
 
-import io
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -27,6 +26,8 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
+from processing.common.png import png_bytes
+from processing.errors import InputError
 
 __all__ = ["colour_inputs", "colour_params", "colour_run", "first_chart_frames", "patch_errors", "CHARTS"]
 
@@ -116,17 +117,9 @@ def colour_params(options: Any) -> dict[str, Any]:
     return {"chart": options.chart, "mode": "bin2x2"}
 
 
-def _png(srgb8: np.ndarray) -> bytes:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(srgb8).save(buf, format="PNG")
-    return buf.getvalue()
-
-
 def colour_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str, Any]:
-    from app.cli.chart import chart_report
     from app.session import Session
+    from app.workflows.chart import chart_report
     from processing.camera.chart_layout import reference_lab
     from processing.camera.raw_decode import RawDecodeError, decode_raw, preview_srgb8
 
@@ -143,7 +136,7 @@ def colour_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str
         path = root / rec["file"]
         try:
             report = chart_report(path, chart=options.chart)
-        except UsageError as exc:
+        except InputError as exc:
             raise UsageError(f"{cid} ({rec['file']}): {exc}") from None
         usable = np.array([p["usable"] for p in report["patches"]])
         rgb = np.array([p["mean"] for p in report["patches"]])
@@ -157,7 +150,7 @@ def colour_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str
             raise UsageError(f"{cid}: {exc}") from None
         report["preview_scale"] = img.scale          # sensor pixels per preview pixel
         report["raw"] = rec["file"]
-        results[tag] = (report, _png(preview_srgb8(img)))
+        results[tag] = (report, png_bytes(preview_srgb8(img)))
         log(f"{cid}: {report['method']} (confidence {report['confidence']:.2f}), "
             f"{int(usable.sum())} of {len(usable)} patches usable, patch error mean "
             f"{report['patch_errors']['mean']:.2f} / max {report['patch_errors']['max']:.2f} dE00")

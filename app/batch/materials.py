@@ -1,15 +1,16 @@
 """The ``materials`` step of ``kogei batch``: the object's regions and their identified materials per pass.
 
 docs/batch.md.  Matsuda et al., section 4: for each pass the chart frame, as
-located by the colour step (its corners in ``products/colour/pNN-chart.json``),
+measured by the colour step (its patch means in ``products/colour/pNN-chart.json``),
 calibrates the spectral estimator (``rootpoly``, the default of ``kogei
-spectral estimate``: :func:`app.cli.spectral.estimate_spectral`); every
-object RAW frame of the pass gives basis weights and chart-calibrated camera
-values with saturated and dead pixels masked.  The frames of a pass are
+spectral estimate``, through the same chain:
+:func:`app.workflows.spectral.estimate_from_chart`); every object RAW frame
+of the pass gives basis weights and chart-calibrated camera values with
+saturated and dead pixels masked (:func:`estimate_frame`).  The frames of a pass are
 pooled side by side, split into regions without ground truth
 (:func:`processing.materials.segmentation.segment_regions`: backdrop removed
 by its level and colour measured on the frame's border, lit pixels clustered
-by chromaticity), each cluster identified (:func:`app.cli.identify.
+by chromaticity), each cluster identified (:func:`app.workflows.identification.
 identify_result`: eq. (11), (3)-(4)), and clusters whose identified material
 agrees merged and identified again as one region.
 
@@ -26,7 +27,6 @@ the mesh.
 
 from __future__ import annotations
 
-import io
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -36,9 +36,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import UsageError
+from processing.common.png import png_bytes
+from processing.errors import InputError
 
-__all__ = ["materials_inputs", "materials_params", "materials_run", "largest_material", "material_colour",
-           "METHOD", "LIGHT_DEG", "MODEL_ERROR", "MATERIALS_FILE"]
+__all__ = ["materials_inputs", "materials_params", "materials_run", "estimate_frame", "largest_material",
+           "material_colour", "METHOD", "LIGHT_DEG", "MODEL_ERROR", "MATERIALS_FILE"]
 
 #: Spectral estimator (the best one-shot method in docs/BENCHMARKS.md, ``kogei spectral estimate``'s default).
 METHOD = "rootpoly"
@@ -80,7 +82,7 @@ def material_colour(name: str | None) -> tuple[int, int, int]:
     >>> material_colour(None)
     (255, 0, 255)
     """
-    from app.cli.materials import preset_srgb
+    from app.workflows.materials import preset_srgb
     from processing.materials.identification import NEUTRAL_METAL
 
     if name is None:
@@ -127,7 +129,7 @@ def _chart_record(root: Path, tag: str, files: dict[str, Any]) -> dict[str, Any]
 
 def _pooled(results: list[Any]) -> Any:
     """One spectral result of a pass's frames side by side (their pixels pool per region)."""
-    from app.cli.spectral import SpectralResult
+    from app.workflows.spectral import SpectralResult
 
     first = results[0]
     return SpectralResult(
@@ -139,7 +141,7 @@ def _pooled(results: list[Any]) -> Any:
 
 def _relative_levels(result: Any) -> NDArray[np.float64]:
     """Camera values over those of a white diffuser lit like the chart (1.0 = white)."""
-    from app.cli.identify import white_response
+    from app.workflows.identification import white_response
 
     white = white_response(result)
     return result.camera.astype(np.float64) / np.maximum(white, 1e-12)
@@ -150,7 +152,7 @@ def _identify_merged(result: Any, labels: NDArray[np.int64]) -> tuple[NDArray[np
 
     Returns the merged labels, their reports and how many clusters each merged region holds.
     """
-    from app.cli.identify import identify_result
+    from app.workflows.identification import identify_result
 
     reports = identify_result(result, labels, light_deg=LIGHT_DEG, model_error=MODEL_ERROR)
     groups: dict[Any, list[int]] = {}
@@ -167,27 +169,29 @@ def _identify_merged(result: Any, labels: NDArray[np.int64]) -> tuple[NDArray[np
     return merged, identify_result(result, merged, light_deg=LIGHT_DEG, model_error=MODEL_ERROR), counts
 
 
-def _png(rgb8: NDArray[np.uint8]) -> bytes:
-    from PIL import Image
+def estimate_frame(frame: Path, chart: dict[str, Any], chart_type: str = "classic24") -> Any:
+    """One object frame's spectral estimate (:data:`METHOD`), calibrated by the colour step's chart report.
 
-    buf = io.BytesIO()
-    Image.fromarray(rgb8).save(buf, format="PNG")
-    return buf.getvalue()
+    The report's patch means are those ``kogei spectral estimate`` measures
+    on the chart frame, and the estimate is the same call
+    (:func:`app.workflows.spectral.estimate_spectral` with the measurement),
+    so the weights equal the command's for the same frames.
+    """
+    from app.workflows.chart import ChartMeasurement
+    from app.workflows.spectral import estimate_spectral
+
+    return estimate_spectral(frame, ChartMeasurement.from_report(chart), method=METHOD, chart_type=chart_type)
 
 
 def _pass_materials(root: Path, tag: str, chart: dict[str, Any], frames: list[tuple[str, dict[str, Any]]],
                     options: Any, log: Callable[[str], None]) -> tuple[list[dict[str, Any]], dict[str, bytes], dict]:
-    from app.cli.spectral import estimate_spectral
     from processing.materials.segmentation import SegmentationError, segment_regions
 
-    chart_path = root / chart["raw"]
-    corners = ",".join(f"{v:.3f}" for v in np.asarray(chart["corners"], dtype=np.float64).ravel())
     results = []
     for cid, rec in frames:
         try:
-            results.append(estimate_spectral(root / rec["file"], chart_path, method=METHOD, chart_type=options.chart,
-                                             chart_corners=corners))
-        except UsageError as exc:
+            results.append(estimate_frame(root / rec["file"], chart, options.chart))
+        except InputError as exc:
             raise UsageError(f"{cid} ({rec['file']}): {exc}") from None
     pooled = _pooled(results)
     try:
@@ -203,7 +207,7 @@ def _pass_materials(root: Path, tag: str, chart: dict[str, Any], frames: list[tu
         merged, reports, counts = seg.labels, [], {}
     else:
         merged, reports, counts = _identify_merged(pooled, seg.labels)
-    from app.cli.identify import usable_regions
+    from app.workflows.identification import usable_regions
 
     live = usable_regions(pooled, merged)
     regions = []
@@ -215,10 +219,10 @@ def _pass_materials(root: Path, tag: str, chart: dict[str, Any], frames: list[tu
         regions.append({"region": f"{tag}-r{rep.label}", "pass": tag, "clusters": counts.get(rep.label, 1),
                         "frames": in_frames, **{k: v for k, v in rep.as_dict().items() if k != "label"}})
     maps = {}
-    for (cid, rec), a, b in zip(frames, edges[:-1], edges[1:]):
+    for (cid, _), a, b in zip(frames, edges[:-1], edges[1:]):
         img = colours[np.where(live[:, a:b] > 0, live[:, a:b], 0)]
         img[(live[:, a:b] == 0) & seg.backdrop[:, a:b]] = _BACKDROP_COLOUR
-        maps[cid] = _png(img)
+        maps[cid] = png_bytes(img)
     return regions, maps, info
 
 
@@ -256,7 +260,7 @@ def materials_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[
     if not maps:
         raise UsageError(f"session {root} has no object RAW frame in a pass with a chart frame; capture with "
                          "the camera on (--camera-angles)")
-    from app.cli.spectral import GRID
+    from app.workflows.spectral import GRID
     from processing.spectral.spectra import SpectralGrid
 
     wavelengths = SpectralGrid(*GRID).wavelengths.tolist()

@@ -254,7 +254,7 @@ def _report_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
 def _colour_step() -> Step:
     from app.batch.colour import colour_inputs, colour_params, colour_run
 
-    return Step("colour", ("app.batch.steps", "app.batch.colour", "app.cli.chart", "processing.camera.raw_decode",
+    return Step("colour", ("app.batch.steps", "app.batch.colour", "app.workflows.chart", "processing.camera.raw_decode",
                            "processing.camera.chart_detection", "processing.camera.chart_sampling", "processing.camera.chart_layout"),
                 colour_inputs, colour_params, colour_run)
 
@@ -262,13 +262,13 @@ def _colour_step() -> Step:
 def _materials_step() -> Step:
     from app.batch.materials import materials_inputs, materials_params, materials_run
 
-    return Step("materials", ("app.batch.steps", "app.batch.materials", "app.cli.spectral", "app.cli.identify",
-                              "app.cli.materials", "processing.materials.segmentation"),
+    return Step("materials", ("app.batch.steps", "app.batch.materials", "app.workflows.spectral", "app.workflows.chart",
+                              "app.workflows.identification", "app.workflows.materials", "processing.materials.segmentation"),
                 materials_inputs, materials_params, materials_run, needs=("colour",))
 
 
 STEPS: dict[str, Step] = {
-    "geometry": Step("geometry", ("app.batch.steps", "app.workflows.process_session", "app.cli.calibrate", "app.capture.runner"),
+    "geometry": Step("geometry", ("app.batch.steps", "app.workflows.process_session", "app.workflows.calibration", "app.capture.runner"),
                      _geometry_inputs, _geometry_params, _geometry_run),
     "colour": _colour_step(),
     "materials": _materials_step(),
@@ -278,7 +278,7 @@ STEPS: dict[str, Step] = {
                    _report_inputs, _report_params, _report_run),
 }
 STEP_NAMES = tuple(STEPS)
-#: Steps of the issue that this version cannot run, with the reason given to the user.
+#: Steps this version cannot run, with the reason given to the user.
 UNAVAILABLE_STEPS: dict[str, str] = {}
 
 
@@ -339,7 +339,7 @@ def fingerprint(parts: dict[str, Any]) -> str:
 def _outputs_intact(root: Path, outputs: dict[str, Any]) -> str | None:
     from app.session import sha256_file
 
-    for key, files in outputs.items():
+    for files in outputs.values():
         for rec in files:
             p = root / rec["file"]
             if not p.is_file():

@@ -1,28 +1,19 @@
 """``kogei calibrate``: the scanner calibration from a session that scanned a reference sphere.
 
-The calibration (:func:`processing.geometry.calibration.calibrate_sphere`: the laser
-plane's pose relative to the table axis) is written into the session as
-``calibration.json`` and referenced from its manifest (path, SHA-256,
-residuals).  Other sessions use it with ``kogei process SESSION --calibration
-CAL_SESSION`` (the file is copied into them and referenced the same way), so
-each session carries the exact calibration its geometry was computed with.
+A shell over :func:`app.workflows.calibration.calibrate_session`; other
+sessions use the result with ``kogei process SESSION --calibration
+CAL_SESSION``.
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import math
 from pathlib import Path
-from typing import Any
 
-from app.errors import UsageError
+from app.workflows.calibration import calibrate_session
 
-__all__ = ["add_parser", "run", "calibrate_session", "install_calibration",
-           "session_calibration", "load_calibration_source", "CALIBRATION_FILE"]
-
-CALIBRATION_FILE = "calibration.json"
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -37,95 +28,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(a sphere resting on the table: its radius)")
     p.add_argument("--pass", dest="pass_no", type=int, default=1, metavar="N", help="which pass to use (default 1)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-
-
-def calibrate_session(session_dir: str | Path, sphere_radius_mm: float, *, sphere_height_mm: float | None = None,
-                      pass_no: int = 1) -> dict[str, Any]:
-    """Calibrate from pass ``pass_no`` of a sphere-scan session and store the result in it.
-
-    Returns
-    -------
-    dict
-        The manifest's calibration reference (path, sha256, residuals).
-    """
-    from app.capture.runner import load_pass_profiles
-    from app.session import Session, SessionError
-    from processing.geometry.calibration import CalibrationError, calibrate_sphere
-
-    if not (math.isfinite(sphere_radius_mm) and sphere_radius_mm > 0):
-        raise UsageError(f"--sphere-radius must be a positive number of millimetres, got {sphere_radius_mm!r}")
-    root = Path(session_dir)
-    try:
-        profiles = load_pass_profiles(root, pass_no)
-    except SessionError as exc:
-        raise UsageError(str(exc)) from None
-    try:
-        cal = calibrate_sphere(profiles["x_mm"], profiles["z_mm"], profiles["angles_deg"], sphere_radius_mm,
-                               sphere_height_mm=sphere_height_mm)
-    except CalibrationError as exc:
-        raise UsageError(f"session {root}, pass {pass_no}: {exc}") from None
-    data = cal.to_dict()
-    data["source"] = {"session": str(root.resolve()), "pass": pass_no}
-    try:
-        with Session.open(root) as s:
-            return install_calibration(s, data)
-    except SessionError as exc:
-        raise UsageError(str(exc)) from None
-
-
-def install_calibration(session: Any, data: dict[str, Any]) -> dict[str, Any]:
-    """Write ``data`` (a calibration's JSON form) as the session's ``calibration.json`` and reference it."""
-    blob = (json.dumps(data, indent=1) + "\n").encode()
-    info = session.write_file(CALIBRATION_FILE, blob)
-    ref = {"path": info.path, "sha256": info.sha256, "rms_mm": data.get("rms_mm"), "max_mm": data.get("max_mm"),
-           "sphere_radius_mm": data.get("sphere_radius_mm"), "source": data.get("source")}
-    session.update("calibration", ref)
-    session.event("calibration", f"{info.path} (rms {data.get('rms_mm', float('nan')):.4f} mm)")
-    return ref
-
-
-def session_calibration(session_dir: str | Path, manifest: dict[str, Any]) -> Any:
-    """The session's referenced calibration, checked against its checksum."""
-    from processing.geometry.calibration import CalibrationError, ScannerCalibration
-
-    ref = manifest.get("calibration")
-    if not ref:
-        raise UsageError(f"session {session_dir} has no scanner calibration; scan the reference sphere, run "
-                         "'kogei calibrate CAL_SESSION --sphere-radius MM', then "
-                         f"'kogei process {session_dir} --calibration CAL_SESSION'")
-    path = Path(session_dir) / ref["path"]
-    try:
-        blob = path.read_bytes()
-    except OSError:
-        raise UsageError(f"session {session_dir}: its calibration {ref['path']} is missing; "
-                         "run kogei process with --calibration again") from None
-    if hashlib.sha256(blob).hexdigest() != ref["sha256"]:
-        raise UsageError(f"session {session_dir}: {ref['path']} does not match the checksum in the manifest "
-                         "(edited by hand?); install the calibration again with --calibration")
-    try:
-        return ScannerCalibration.from_dict(json.loads(blob))
-    except (CalibrationError, ValueError, KeyError) as exc:
-        raise UsageError(f"session {session_dir}: {ref['path']}: {exc}") from None
-
-
-def load_calibration_source(source: str | Path) -> dict[str, Any]:
-    """A calibration's JSON form from a calibrated session folder or a calibration JSON file."""
-    from processing.geometry.calibration import CalibrationError, ScannerCalibration
-
-    p = Path(source)
-    file = p / CALIBRATION_FILE if p.is_dir() else p
-    try:
-        data = json.loads(file.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise UsageError(f"--calibration {source}: {file} not found; give a session calibrated with "
-                         "'kogei calibrate' or its calibration.json") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"--calibration {source}: {file} is unreadable ({exc})") from None
-    try:
-        ScannerCalibration.from_dict(data)
-    except (CalibrationError, ValueError, KeyError) as exc:
-        raise UsageError(f"--calibration {source}: {exc}") from None
-    return data
 
 
 def run(args: argparse.Namespace) -> int:

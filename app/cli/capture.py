@@ -82,7 +82,7 @@ def _camera_angles(text: str | None) -> tuple[float, ...] | None:
 def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     from app.capture.devices import parse_camera_spec
     from app.capture.runner import CapturePlan
-    from app.session import Session, SessionError
+    from app.session import Session
 
     if not args.turntable:
         raise UsageError("--turntable PORT is required (see 'kogei devices' for the ports)")
@@ -131,11 +131,8 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     settings = {"unattended": bool(args.unattended), "before_pass": args.before_pass, "shutter": args.shutter,
                 "device_config": config}
     obj = {k: v for k, v in (("name", args.object), ("notes", args.notes)) if v}
-    try:
-        session = Session.create(args.out, plan=plan.to_dict(), object_info=obj, settings=settings,
-                                 devices={k: dict(v) for k, v in config.items()})
-    except SessionError as exc:
-        raise UsageError(str(exc)) from None
+    session = Session.create(args.out, plan=plan.to_dict(), object_info=obj, settings=settings,
+                             devices={k: dict(v) for k, v in config.items()})
     return session, plan, settings
 
 

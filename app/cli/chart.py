@@ -6,26 +6,27 @@
 (:func:`processing.camera.chart_detection.detect_chart`) or takes its four outer
 corners from ``--chart-corners`` (sensor pixels, top-left of the chart first,
 clockwise), samples the linear RGB of every patch and checks the shot
-(:func:`processing.camera.chart_sampling.check_patches`).  It prints one summary line
+(:func:`processing.camera.chart_sampling.check_patches`), all through
+:func:`app.workflows.chart.chart_report`.  It prints one summary line
 and one line per excluded patch; ``--json`` writes the per-patch statistics,
 the patch positions and the exposure metadata.
 
 Exit status 0 when the chart is usable, 2 with a one-line message for a bad
 file, no chart, a chart partly outside the frame or a rejected shot
-(:class:`app.errors.UsageError`).
+(:class:`processing.errors.InputError`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import tempfile
 from pathlib import Path
 
 from app.errors import UsageError
+from app.workflows.chart import chart_report
+from processing.common.files import atomic_path
 
-__all__ = ["add_parser", "run", "chart_report"]
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -48,61 +49,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def chart_report(raw_path: Path, *, chart: str = "classic24", corners: str | None = None, mode: str = "bin2x2",
-                 inset: float = 0.6, trim: float = 0.1) -> dict:
-    """Decode, locate, sample and check; the JSON-ready report.  Errors are ``UsageError``."""
-    from processing.camera.chart_detection import ChartDetectionError, chart_from_corners, detect_chart, parse_corners
-    from processing.camera.chart_sampling import ChartRejectedError, ChartSamplingError, check_patches, sample_patches
-    from processing.camera.raw_decode import RawDecodeError, decode_raw
-
-    try:
-        img = decode_raw(raw_path, mode=mode)
-        h, w = img.shape
-        size = (w * img.scale, h * img.scale)
-        if corners is not None:
-            det = chart_from_corners(parse_corners(corners), chart, image_size=size)
-        else:
-            det = detect_chart(img, chart)
-        samples = sample_patches(img, det, inset=inset, trim=trim)
-        check = check_patches(samples)
-    except (RawDecodeError, ChartDetectionError, ChartSamplingError, ChartRejectedError) as exc:
-        raise UsageError(str(exc)) from None
-    layout = det.layout
-    return {
-        "format": "kogei-chart",
-        "version": 1,
-        "raw": os.fspath(raw_path),
-        "chart": chart,
-        "method": det.method,
-        "confidence": det.confidence,
-        "detect_seconds": det.seconds,
-        "mode": mode,
-        "exposure_time": img.exposure_time,
-        "iso": img.iso,
-        "f_number": img.f_number,
-        "make": img.make,
-        "model": img.model,
-        "black_levels": list(img.black_levels),
-        "white_level": img.white_level,
-        "corners": det.corners.tolist(),
-        "warnings": check.warnings,
-        "patches": [
-            {
-                "number": k + 1,
-                "name": layout.names[k],
-                "centre": det.centres[k].tolist(),
-                "mean": samples.mean[k].tolist(),
-                "std": samples.std[k].tolist(),
-                "clipped": float(samples.clipped[k]),
-                "count": int(samples.count[k]),
-                "nonuniformity": float(samples.nonuniformity[k]),
-                "usable": bool(check.usable[k]),
-            }
-            for k in range(layout.size)
-        ],
-    }
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``kogei chart``; returns the exit status."""
     raw_path = Path(args.raw)
@@ -112,10 +58,8 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.json)
         if not out.parent.is_dir():
             raise UsageError(f"--json {out}: the folder {out.parent} does not exist")
-        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=".chart-", suffix=".json")
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(report, fh, indent=1)
-        os.replace(tmp, out)
+        with atomic_path(out, durable=False, make_parents=False) as tmp:
+            tmp.write_text(json.dumps(report, indent=1), encoding="utf-8")
     if not args.quiet:
         usable = sum(p["usable"] for p in report["patches"])
         how = (f"found by mcc (confidence {report['confidence']:.2f}, {report['detect_seconds']:.2f} s)"

@@ -1,17 +1,9 @@
 """``kogei identify``: the material of each region of a spectral result.
 
-Matsuda et al., section 4.2, eq. (11) and eq. (3)-(4), as implemented by
-:mod:`processing.materials.identification`: every candidate material
-(metals, the alloys, urushi) is forward-modelled into the model camera and
-compared with the region's values in that camera (the ``camera`` array of
-the RESULT.npz written by ``kogei spectral estimate``, i.e. after the chart
-transform), with a free brightness; the answer comes with a confidence (the
-posterior probability), the runner-up, and for a metal or alloy the Ag, Cu,
-Au weights of the alloy model.  The region's mean reflectance and its
-uncertainty (:func:`processing.spectral.estimation.estimator.region_spectra`, with the
-estimate's error on the chart as the method error) ride along.
-
-``kogei identify RESULT.npz [--regions LABELS.png] [--json]``
+``kogei identify RESULT.npz [--regions LABELS.png] [--json]``: a shell over
+:func:`app.workflows.identification.identify_result` (the method, the
+``--min-level`` rule and the report's fields are described there and in
+docs/colour-pipeline.md, "Command line").
 
 * ``--regions``: a single-channel 8- or 16-bit PNG of the estimate's size
   (half the sensor's in ``bin2x2`` mode), one integer label per region, 0
@@ -19,36 +11,21 @@ estimate's error on the chart as the method error) ride along.
 * Without ``--regions`` the whole unmasked image is one region: meant for a
   crop or a frame filled by one material.  Segmenting an object into
   materials is left to the labels, which the capture's mesh provides.
-
-Masked pixels (saturated or dead in the RAW) never count, nor do pixels
-whose brightest channel is below ``--min-level`` (default 0.005) times that
-of a white diffuser lit like the chart (``(1, ..., 1) @ K`` in the model
-camera's units, which the chart transform fixes): a glossy metal under one
-light is black away from its highlights, and such pixels carry read noise,
-not colour (noise clipped at 0 would pull a region's colour toward the
-camera's black).  A
-region with no such pixel is reported with ``material`` null and the reason.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from app.cli.spectral import SpectralResult, load_result
 from app.errors import UsageError
+from app.workflows.identification import identify_result, read_labels
+from app.workflows.spectral import load_result
 
-__all__ = ["add_parser", "run", "read_labels", "identify_result", "usable_regions", "white_response",
-           "RegionReport"]
-
-#: Metals of the alloy model (Matsuda et al., eq. (3)-(4); Table 1's shibuichi and shakudo are Ag-Cu-Au).
-ALLOY_METALS = ("Ag", "Cu", "Au")
+__all__ = ["add_parser", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -71,162 +48,6 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="leave out pixels darker than this fraction of a white diffuser lit like the chart (shadows)")
     p.add_argument("--json", action="store_true", help="print the regions as JSON")
     return p
-
-
-def read_labels(path: Path, shape: tuple[int, int]) -> NDArray[np.int64]:
-    """Read a label PNG and check it against the result's ``(H, W)``; errors are :class:`UsageError`."""
-    import cv2
-
-    if not path.is_file():
-        raise UsageError(f"--regions {path}: no such file")
-    lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if lab is None:
-        raise UsageError(f"--regions {path}: not a readable image; give a single-channel PNG of region labels")
-    if lab.ndim != 2 or lab.dtype.kind not in "iu":
-        raise UsageError(f"--regions {path}: a {lab.shape[2] if lab.ndim == 3 else ''}-channel {lab.dtype} image; "
-                         "give a single-channel (grey) 8- or 16-bit PNG with one integer label per region")
-    if lab.shape != shape:
-        raise UsageError(f"--regions {path}: {lab.shape[1]} x {lab.shape[0]} pixels, but the result is "
-                         f"{shape[1]} x {shape[0]} (in bin2x2 mode the result is half the sensor's size)")
-    return lab.astype(np.int64)
-
-
-@dataclass(frozen=True)
-class RegionReport:
-    """One region's identification (JSON-ready through :meth:`as_dict`).
-
-    ``chi2`` is the best candidate's chi-square under the noise model (c - 1 degrees of freedom
-    for c channels, the brightness being free): far above that, no candidate explains the region
-    and the confidence, a probability among the candidates, says nothing about it.
-    """
-
-    label: int
-    pixels: int
-    material: str | None
-    confidence: float | None
-    runner_up: str | None
-    likelihood_ratio: float | None
-    group: tuple[str, ...]
-    alloy_weights: dict[str, float] | None
-    alloy_std: dict[str, float] | None
-    reflectance: list[float] | None
-    uncertainty: list[float] | None
-    note: str = ""
-    chi2: float | None = None
-
-    def as_dict(self) -> dict[str, Any]:
-        """The fields as a dict."""
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
-
-
-def _is_metal(name: str) -> bool:
-    from processing.materials.identification import NEUTRAL_METAL
-    from processing.materials.presets import get_material
-
-    return name == NEUTRAL_METAL or get_material(name).family in ("metal", "alloy")
-
-
-def white_response(result: SpectralResult) -> NDArray[np.float64]:
-    """Camera values of a white diffuser lit like the chart (``(1, ..., 1) @ K``, the model camera's units).
-
-    Examples
-    --------
-    >>> from processing.camera.response import camera_sensitivities
-    >>> from processing.spectral.spectra import SpectralGrid
-    >>> g = SpectralGrid(400, 700, 10)
-    >>> r = SpectralResult(np.zeros((1, 1, 3), np.float32), np.eye(31, 3), g.wavelengths, np.ones((1, 1), bool),
-    ...                    np.zeros((1, 1, 3), np.float32), camera_sensitivities(g), np.ones((1, 31)), "demo")
-    >>> white_response(r).shape
-    (3,)
-    """
-    from processing.camera.response import channel_matrix
-
-    lights = result.lights[0] if result.lights.shape[0] == 1 else result.lights
-    return np.asarray(np.ones(result.grid.size) @ channel_matrix(result.sensitivities, lights, result.grid),
-                      dtype=np.float64)
-
-
-def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_level: float = 0.005) -> NDArray[np.int64]:
-    """``labels`` with 0 where a pixel is masked or darker than ``min_level`` of a white diffuser (module text).
-
-    Examples
-    --------
-    >>> from processing.camera.response import camera_sensitivities
-    >>> from processing.spectral.spectra import SpectralGrid
-    >>> g = SpectralGrid(400, 700, 10)
-    >>> cam = np.zeros((1, 2, 3), np.float32); cam[0, 0] = 5.0
-    >>> r = SpectralResult(np.zeros((1, 2, 3), np.float32), np.eye(31, 3), g.wavelengths, np.ones((1, 2), bool),
-    ...                    cam, camera_sensitivities(g), np.ones((1, 31)), "demo")
-    >>> usable_regions(r, np.array([[1, 1]])).tolist()
-    [[1, 0]]
-    """
-    white = white_response(result)
-    live = np.asarray(labels, dtype=np.int64) * result.mask
-    # shadows and the off-highlight pixels of a glossy surface hold noise, not colour
-    live[(result.camera < min_level * white.astype(np.float32)).all(axis=2)] = 0
-    return live
-
-
-def identify_result(
-    result: SpectralResult,
-    labels: NDArray[np.integer] | None = None,
-    *,
-    light_deg: float = 30.0,
-    noise: float = 0.01,
-    model_error: float = 0.0,
-    min_level: float = 0.005,
-) -> list[RegionReport]:
-    """Identify every region (label > 0) of ``result``; ``labels=None``: the whole unmasked image."""
-    from processing.materials.identification import candidate_set, estimate_alloy_weights, identify_material
-    from processing.spectral.estimation.estimator import region_spectra
-    from processing.spectral.estimation.fit import SpectralEstimationError
-
-    h, w = result.mask.shape
-    lab = np.ones((h, w), np.int64) if labels is None else np.asarray(labels, dtype=np.int64)
-    if lab.shape != (h, w):
-        raise UsageError(f"labels of {lab.shape[1]} x {lab.shape[0]} pixels for a result of {w} x {h}")
-    if np.any(lab < 0):
-        raise UsageError("labels must be >= 0 (0 = ignore)")
-    ids = [int(v) for v in np.unique(lab) if v > 0]
-    if not ids:
-        raise UsageError("the label image has no region (every label is 0)")
-    grid = result.grid
-    lights = result.lights[0] if result.lights.shape[0] == 1 else result.lights
-    try:
-        cands = candidate_set(result.sensitivities, lights, grid, light_deg=light_deg)
-    except SpectralEstimationError as exc:
-        raise UsageError(str(exc)) from None
-    live = usable_regions(result, lab, min_level)
-    spectra = region_spectra(result.weights, live, result.basis, result.method_error) if live.any() else None
-    row = {} if spectra is None else {int(v): i for i, v in enumerate(spectra.labels)}
-    flat_cam = result.camera.reshape(-1, result.camera.shape[2])
-    flat_lab = live.ravel()
-    reports = []
-    for r in ids:
-        px = flat_cam[flat_lab == r].astype(np.float64)
-        if px.shape[0] == 0:
-            reports.append(RegionReport(r, 0, None, None, None, None, (), None, None, None, None,
-                                        "no usable pixel (saturated or dead in the RAW, or black)"))
-            continue
-        try:
-            found = identify_material(px, cands, noise=noise, model_error=model_error)
-        except SpectralEstimationError as exc:
-            reports.append(RegionReport(r, px.shape[0], None, None, None, None, (), None, None, None, None, str(exc)))
-            continue
-        alloy = alloy_std = None
-        if _is_metal(found.material):
-            est = estimate_alloy_weights(px, result.sensitivities, lights, grid, metals=ALLOY_METALS,
-                                         light_deg=light_deg, noise=max(noise, 1e-6))
-            alloy = est.as_dict()
-            alloy_std = {m: float(s) for m, s in zip(est.metals, est.std)}
-        i = row[r]
-        reports.append(RegionReport(
-            r, int(px.shape[0]), found.material, float(found.confidence), found.runner_up,
-            float(found.likelihood_ratio), tuple(found.group), alloy, alloy_std,
-            spectra.mean[i].tolist(), spectra.uncertainty[i].tolist(),
-            chi2=float(np.min(found.chi2)),
-        ))
-    return reports
 
 
 def run(args: argparse.Namespace) -> int:

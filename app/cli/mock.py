@@ -1,6 +1,6 @@
 """``kogei mock``: run the simulated scan station, and ask it to re-place the object or shoot a frame.
 
-DESIGN.md section 3 ("Devices") and ``docs/simulator.md``.  Three actions:
+The simulated devices are described in ``docs/simulator.md``.  Three actions:
 
 ``kogei mock [--world hawk|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
 [--time-scale S] [--root DIR] [--seed N]``
@@ -39,13 +39,14 @@ import os
 import shlex
 import signal
 import sys
-import tempfile
 import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from app.errors import UsageError
+from processing.common.files import atomic_path
+from processing.errors import InputError
 
 __all__ = ["add_parser", "run", "capture_commands", "PASS_ENV", "main"]
 
@@ -181,10 +182,8 @@ def _print_block(info: dict[str, Any], faults: str) -> None:
 
 
 def _write_station_file(path: Path, info: dict[str, Any]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=".station.", suffix=".tmp", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        json.dump(info, fh, indent=1)
-    os.replace(tmp, path)
+    with atomic_path(path, durable=False, make_parents=False) as tmp:
+        tmp.write_text(json.dumps(info, indent=1), encoding="utf-8")
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -290,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(["mock", *(sys.argv[1:] if argv is None else argv)])
     try:
         return run(args)
-    except UsageError as exc:
+    except InputError as exc:
         print(f"kogei mock: error: {exc}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:

@@ -90,22 +90,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.workflows.scene_build import build_job
-    from processing.materials.presets import MaterialError
-    from render.errors import RenderInputError
     from render.image_io import write_png, write_xyz_tiff
     from render.renderer import render
 
     out = Path(args.out)
     if out.suffix.lower() != ".png":
         raise UsageError(f"--out: {out} must end in .png (the sRGB image); use --xyz for float XYZ")
-    try:
-        spec = spec_from_args(args)
-        job = build_job(spec)
-        t0 = time.perf_counter()
-        result = render(job.scene, job.camera, job.settings)
-        elapsed = time.perf_counter() - t0
-    except (RenderInputError, MaterialError) as exc:
-        raise UsageError(str(exc)) from None
+    spec = spec_from_args(args)
+    job = build_job(spec)
+    t0 = time.perf_counter()
+    result = render(job.scene, job.camera, job.settings)
+    elapsed = time.perf_counter() - t0
     out.parent.mkdir(parents=True, exist_ok=True)
     write_png(out, result.srgb8)
     if args.xyz:

@@ -106,8 +106,8 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
     """Scan the reference sphere (one pass, no camera) and calibrate the scanner from it."""
     from app.capture.devices import build_devices
     from app.capture.runner import CaptureHooks, CapturePlan, run_capture
-    from app.cli.calibrate import calibrate_session
     from app.session import Session
+    from app.workflows.calibration import calibrate_session
     from mocks.station import SimulatedStation
     from mocks.world import World
 
@@ -123,7 +123,7 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
             session.close()
         truth = st.sensor_to_room
     ref = calibrate_session(cal_dir, 25.0)
-    from app.cli.calibrate import session_calibration
+    from app.workflows.calibration import session_calibration
     from processing.geometry.registration import pose_difference
 
     cal = session_calibration(cal_dir, Session.read(cal_dir))

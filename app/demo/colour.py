@@ -6,9 +6,10 @@ eq. (11) and (3)-(4)), run end to end on the simulated station
 on the backdrop) and the object at a few turntable angles go through the
 simulated Nikon D5100 into DNG files, and then through the same library calls
 as ``kogei spectral estimate`` and ``kogei identify``
-(:func:`app.cli.spectral.estimate_spectral`,
-:func:`app.cli.identify.identify_result`), with the world's own region
-labels as the regions.  The answers are compared with the world's true
+(:func:`app.workflows.spectral.estimate_spectral`, the chart measured once by
+:func:`app.workflows.chart.measure_chart`;
+:func:`app.workflows.identification.identify_result`), with the world's own
+region labels as the regions.  The answers are compared with the world's true
 materials and alloy compositions.
 
 Why several views and a light near the camera: a glossy metal under one
@@ -152,11 +153,8 @@ def colour_demo(
         true and estimated alloy weights, pixels), ``correct`` / ``regions_identified``, the
         estimate's metadata, ``seconds`` and the paths written.
     """
-    from app.cli.identify import identify_result, usable_regions
-    from app.cli.spectral import SpectralResult, estimate_spectral
-    from mocks.camera_sim import simulate_raw, write_raw
+    from app.workflows.identification import identify_result, usable_regions
     from mocks.world import World
-    from processing.materials.presets import get_material
 
     t0 = time.perf_counter()
     out = Path(out_dir)
@@ -164,28 +162,8 @@ def colour_demo(
     width, height = size
     world = World.hawk(triangles, chart_layout="classic24", width=width, height=height,
                        light_direction=light_direction)
-    chart = world.frame("chart")
-    chart_raw = simulate_raw(_lens_blur(chart.radiance), chart.grid, chart.light, seed=seed,
-                             exposure_s=_CHART_EXPOSURE_S)
-    chart_path = write_raw(out / "chart.dng", chart_raw)
-    results, label_images = [], []
-    for k, angle in enumerate(angles):
-        frame = world.frame("object", angle)
-        name = f"object_{angle:+04.0f}"
-        raw = simulate_raw(_lens_blur(frame.radiance), frame.grid, frame.light, seed=seed + 1 + k,
-                           exposure_s=_CHART_EXPOSURE_S * object_exposure)
-        dng = write_raw(out / f"{name}.dng", raw)
-        labels = _binned_labels(frame.labels)
-        _write_png(out / f"labels_{angle:+04.0f}.png", labels.astype(np.uint16))
-        results.append(estimate_spectral(dng, chart_path, method=method))
-        label_images.append(labels)
-    # one result of the views side by side: regions pool their pixels over the views
-    pooled = SpectralResult(
-        np.concatenate([r.weights for r in results], axis=1), results[0].basis, results[0].wavelengths,
-        np.concatenate([r.mask for r in results], axis=1), np.concatenate([r.camera for r in results], axis=1),
-        results[0].sensitivities, results[0].lights, method,
-        {**results[0].metadata, "chart_rmse": max(r.method_error for r in results)},
-    )
+    chart_path, results, label_images = _shoot_and_estimate(world, out, angles, method, object_exposure, seed)
+    pooled = _pooled(results, method)
     labels = np.concatenate(label_images, axis=1)
     el = math.radians(world.camera_elevation_deg)
     if light_deg is None:
@@ -193,31 +171,7 @@ def colour_demo(
     reports = identify_result(pooled, labels, light_deg=light_deg, model_error=model_error)
     shapes = _relative_spectra(pooled, usable_regions(pooled, labels))
     cos_d = math.cos(math.radians(light_deg / 2))
-    regions = []
-    for rep in reports:
-        region = world.region_names[rep.label - 1]
-        true = world.materials[region]
-        mat = get_material(true)
-        true_comp = ({m: float(mat.parameters.get(m, 0.0)) for m in ("Ag", "Cu", "Au")}
-                     if mat.family in ("metal", "alloy") else None)
-        regions.append({
-            "region": region,
-            "true_material": true,
-            "material": rep.material,
-            "correct": rep.material == true or (true in rep.group),
-            "confidence": rep.confidence,
-            "chi2": rep.chi2,
-            "runner_up": rep.runner_up,
-            "group": list(rep.group),
-            "pixels": rep.pixels,
-            "true_alloy_weights": true_comp,
-            "alloy_weights": rep.alloy_weights,
-            "alloy_std": rep.alloy_std,
-            "reflectance": rep.reflectance,
-            "uncertainty": rep.uncertainty,
-            "note": rep.note,
-            "relative": shapes.get(rep.label),
-        })
+    regions = [_region_row(world, rep, shapes) for rep in reports]
     summary = {
         "format": "kogei-colour-demo",
         "version": 1,
@@ -240,6 +194,73 @@ def colour_demo(
     summary["files"] = {"identify": str(out / "identify.json"), "figure": str(out / "spectra.png"),
                         "chart": str(chart_path)}
     return summary
+
+
+def _shoot_and_estimate(world: Any, out: Path, angles: tuple[float, ...], method: str, object_exposure: float,
+                        seed: int) -> tuple[Path, list[Any], list[NDArray[np.int64]]]:
+    """The chart and object frames as DNGs (and label PNGs), each view estimated through the chart measured once."""
+    from app.workflows.chart import measure_chart
+    from app.workflows.spectral import estimate_spectral
+    from mocks.camera_sim import simulate_raw, write_raw
+
+    chart = world.frame("chart")
+    chart_raw = simulate_raw(_lens_blur(chart.radiance), chart.grid, chart.light, seed=seed,
+                             exposure_s=_CHART_EXPOSURE_S)
+    chart_path = write_raw(out / "chart.dng", chart_raw)
+    chart_measured = measure_chart(chart_path)
+    results, label_images = [], []
+    for k, angle in enumerate(angles):
+        frame = world.frame("object", angle)
+        name = f"object_{angle:+04.0f}"
+        raw = simulate_raw(_lens_blur(frame.radiance), frame.grid, frame.light, seed=seed + 1 + k,
+                           exposure_s=_CHART_EXPOSURE_S * object_exposure)
+        dng = write_raw(out / f"{name}.dng", raw)
+        labels = _binned_labels(frame.labels)
+        _write_png(out / f"labels_{angle:+04.0f}.png", labels.astype(np.uint16))
+        results.append(estimate_spectral(dng, chart_measured, method=method))
+        label_images.append(labels)
+    return chart_path, results, label_images
+
+
+def _pooled(results: list[Any], method: str) -> Any:
+    """One result of the views side by side: regions pool their pixels over the views."""
+    from app.workflows.spectral import SpectralResult
+
+    return SpectralResult(
+        np.concatenate([r.weights for r in results], axis=1), results[0].basis, results[0].wavelengths,
+        np.concatenate([r.mask for r in results], axis=1), np.concatenate([r.camera for r in results], axis=1),
+        results[0].sensitivities, results[0].lights, method,
+        {**results[0].metadata, "chart_rmse": max(r.method_error for r in results)},
+    )
+
+
+def _region_row(world: Any, rep: Any, shapes: dict[int, dict[str, list[float]]]) -> dict[str, Any]:
+    """One region's identification beside the world's true material and alloy composition."""
+    from processing.materials.presets import get_material
+
+    region = world.region_names[rep.label - 1]
+    true = world.materials[region]
+    mat = get_material(true)
+    true_comp = ({m: float(mat.parameters.get(m, 0.0)) for m in ("Ag", "Cu", "Au")}
+                 if mat.family in ("metal", "alloy") else None)
+    return {
+        "region": region,
+        "true_material": true,
+        "material": rep.material,
+        "correct": rep.material == true or (true in rep.group),
+        "confidence": rep.confidence,
+        "chi2": rep.chi2,
+        "runner_up": rep.runner_up,
+        "group": list(rep.group),
+        "pixels": rep.pixels,
+        "true_alloy_weights": true_comp,
+        "alloy_weights": rep.alloy_weights,
+        "alloy_std": rep.alloy_std,
+        "reflectance": rep.reflectance,
+        "uncertainty": rep.uncertainty,
+        "note": rep.note,
+        "relative": shapes.get(rep.label),
+    }
 
 
 def _relative_spectra(result, live: NDArray[np.int64]) -> dict[int, dict[str, list[float]]]:
@@ -269,49 +290,71 @@ def _write_png(path: Path, image: NDArray) -> None:
 
 def _figure(path: Path, summary: dict[str, Any], cos_d: float, labels: NDArray[np.int64], mask: NDArray[np.bool_],
             region_names: tuple[str, ...]) -> None:
+    """spectra.png: per region its spectrum against the models, the material map, the table of answers."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap
-
-    from app.cli.materials import preset_srgb
 
     wl = np.asarray(summary["wavelengths"])
     regions = summary["regions"]
     n = len(regions)
     fig, axes = plt.subplots(2, max(n, 2), figsize=(3.2 * max(n, 2), 6.4), squeeze=False)
     for i, reg in enumerate(regions):
-        ax = axes[0, i]
-        if reg["relative"] is None or reg["material"] is None:
-            ax.set_title(f"{reg['region']}: not identified\ntrue {reg['true_material']}", fontsize=9)
-            ax.text(0.5, 0.5, reg["note"].replace(" (", "\n("), ha="center", va="center", fontsize=8,
-                    transform=ax.transAxes)
-            ax.axis("off")
-            continue
-        est = np.asarray(reg["relative"]["mean"])
-        spread = np.asarray(reg["relative"]["std"])
-        ax.fill_between(wl, est - spread, est + spread, color="0.82", label="estimate +- spread over pixels")
-        ax.plot(wl, est, "k-", label="estimate")
-        for name, style in ((reg["material"], "r--"), (reg["true_material"], "b:")):
-            if name == "neutral metal":
-                continue
-            model = model_spectrum(name, wl, cos_d)
-            # brightness depends on gloss and angles, not on the material: compare the shapes
-            ax.plot(wl, model / model.mean(), style, label=f"{name} (model)")
-            if reg["material"] == reg["true_material"]:
-                break
-        verdict = "right" if reg["correct"] else "WRONG"
-        ax.set_title(f"{reg['region']}: {reg['material']} ({reg['confidence']:.2f})\ntrue {reg['true_material']}: "
-                     f"{verdict}", fontsize=9)
-        ax.set_xlabel("wavelength (nm)", fontsize=8)
-        ax.set_ylabel("reflectance / its mean", fontsize=8)
-        ax.set_ylim(0, max(2.0, float(np.max(est + spread)) * 1.05))
-        ax.tick_params(labelsize=7)
-        ax.legend(fontsize=6, loc="upper left")
+        _spectrum_axes(axes[0, i], reg, wl, cos_d)
     for j in range(n, axes.shape[1]):
         axes[0, j].axis("off")
-    # material map of the first view: each region coloured by the identified material's sRGB under D65
+    _map_axes(axes, regions, labels, mask, region_names)
+    for j in range(2, axes.shape[1]):
+        axes[1, j].axis("off")
+    if axes.shape[1] > 2:
+        _answer_table(fig, axes, regions)
+    views = len(summary["angles_deg"])
+    fig.suptitle(f"Simulated hawk: {summary['correct']} of {len(regions)} regions identified right "
+                 f"({summary['method']}, {views} view{'s' if views > 1 else ''})", fontsize=11)
+    fig.subplots_adjust(left=0.05, right=0.99, top=0.86, bottom=0.04, wspace=0.35, hspace=0.35)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _spectrum_axes(ax: Any, reg: dict[str, Any], wl: NDArray[np.float64], cos_d: float) -> None:
+    """One region's estimated spectrum (shape, with its spread) against the identified and the true model."""
+    if reg["relative"] is None or reg["material"] is None:
+        ax.set_title(f"{reg['region']}: not identified\ntrue {reg['true_material']}", fontsize=9)
+        ax.text(0.5, 0.5, reg["note"].replace(" (", "\n("), ha="center", va="center", fontsize=8,
+                transform=ax.transAxes)
+        ax.axis("off")
+        return
+    est = np.asarray(reg["relative"]["mean"])
+    spread = np.asarray(reg["relative"]["std"])
+    ax.fill_between(wl, est - spread, est + spread, color="0.82", label="estimate +- spread over pixels")
+    ax.plot(wl, est, "k-", label="estimate")
+    for name, style in ((reg["material"], "r--"), (reg["true_material"], "b:")):
+        if name == "neutral metal":
+            continue
+        model = model_spectrum(name, wl, cos_d)
+        # brightness depends on gloss and angles, not on the material: compare the shapes
+        ax.plot(wl, model / model.mean(), style, label=f"{name} (model)")
+        if reg["material"] == reg["true_material"]:
+            break
+    verdict = "right" if reg["correct"] else "WRONG"
+    ax.set_title(f"{reg['region']}: {reg['material']} ({reg['confidence']:.2f})\ntrue {reg['true_material']}: "
+                 f"{verdict}", fontsize=9)
+    ax.set_xlabel("wavelength (nm)", fontsize=8)
+    ax.set_ylabel("reflectance / its mean", fontsize=8)
+    ax.set_ylim(0, max(2.0, float(np.max(est + spread)) * 1.05))
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=6, loc="upper left")
+
+
+def _map_axes(axes: Any, regions: list[dict[str, Any]], labels: NDArray[np.int64], mask: NDArray[np.bool_],
+              region_names: tuple[str, ...]) -> None:
+    """The first view's true regions and its material map (each region in its material's sRGB under D65)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    from app.workflows.materials import preset_srgb
+
     colours = [(0.1, 0.1, 0.1)]
     for reg in regions:
         name = reg["material"]
@@ -335,23 +378,18 @@ def _figure(path: Path, summary: dict[str, Any], cos_d: float, labels: NDArray[n
             key.legend(handles, names, fontsize=7, loc="upper left", title="identified", title_fontsize=8)
         ax.set_title(title, fontsize=9)
         ax.axis("off")
-    for j in range(2, axes.shape[1]):
-        axes[1, j].axis("off")
-    if axes.shape[1] > 2:
-        lines = ["region    true -> identified (confidence)   Ag / Cu / Au true -> estimated"]
-        for reg in regions:
-            conf = "" if reg["confidence"] is None else f" ({reg['confidence']:.2f})"
-            alloy = ""
-            if reg["true_alloy_weights"] and reg["alloy_weights"]:
-                t, e = reg["true_alloy_weights"], reg["alloy_weights"]
-                alloy = ("   " + " / ".join(f"{100 * t[m]:.0f}" for m in ("Ag", "Cu", "Au")) + " -> "
-                         + " / ".join(f"{100 * e[m]:.0f}" for m in ("Ag", "Cu", "Au")) + " %")
-            lines.append(f"{reg['region']}: {reg['true_material']} -> {reg['material']}{conf}{alloy}")
-        fig.text(0.6 if axes.shape[1] > 3 else 0.02, 0.42, "\n".join(lines), va="top", ha="left", fontsize=8,
-                 family="monospace")
-    views = len(summary["angles_deg"])
-    fig.suptitle(f"Simulated hawk: {summary['correct']} of {len(regions)} regions identified right "
-                 f"({summary['method']}, {views} view{'s' if views > 1 else ''})", fontsize=11)
-    fig.subplots_adjust(left=0.05, right=0.99, top=0.86, bottom=0.04, wspace=0.35, hspace=0.35)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+
+
+def _answer_table(fig: Any, axes: Any, regions: list[dict[str, Any]]) -> None:
+    """A text table: per region the true and the identified material, and the alloy weights."""
+    lines = ["region    true -> identified (confidence)   Ag / Cu / Au true -> estimated"]
+    for reg in regions:
+        conf = "" if reg["confidence"] is None else f" ({reg['confidence']:.2f})"
+        alloy = ""
+        if reg["true_alloy_weights"] and reg["alloy_weights"]:
+            t, e = reg["true_alloy_weights"], reg["alloy_weights"]
+            alloy = ("   " + " / ".join(f"{100 * t[m]:.0f}" for m in ("Ag", "Cu", "Au")) + " -> "
+                     + " / ".join(f"{100 * e[m]:.0f}" for m in ("Ag", "Cu", "Au")) + " %")
+        lines.append(f"{reg['region']}: {reg['true_material']} -> {reg['material']}{conf}{alloy}")
+    fig.text(0.6 if axes.shape[1] > 3 else 0.02, 0.42, "\n".join(lines), va="top", ha="left", fontsize=8,
+             family="monospace")

@@ -111,41 +111,53 @@ def _render(spec: SceneSpec, hawk_triangles: int):
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    """The showcase into ``args.out``: a simulated capture, the colour demo, the renders; ``demo.json``."""
     from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
-    from processing.materials.presets import list_materials
-    from processing.spectral.display import xyz_to_srgb8
-    from render.image_io import write_png, write_xyz_tiff
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     triangles = args.hawk_triangles or HAWK_PRESET_TRIANGLES["reference"]
     size = parse_size(args.size) if args.size else (1024, 768)
     summary: dict = {"preset": args.preset, "renders": []}
-
     if args.capture_steps:
-        from app.demo.capture import simulated_capture
+        _demo_capture(out, args, summary)
+    _demo_colour(out, summary)
+    _demo_hawk(out, size, args.preset, triangles, summary)
+    _demo_spheres(out, size, args.preset, triangles, summary)
+    _demo_cloth(out, size, args.preset, summary)
+    (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    print(f"demo written to {out}/", file=sys.stderr)
+    return 0
 
-        if args.capture_steps < 1 or args.capture_passes < 1:
-            from app.errors import UsageError
 
-            raise UsageError("--capture-steps and --capture-passes must be >= 1 (or --capture-steps 0: no capture)")
-        cap = simulated_capture(out / "capture", steps=args.capture_steps, passes=args.capture_passes,
-                                camera=args.capture_camera, process_preset=args.preset)
-        summary["capture"] = cap
-        print(f"capture: {cap['captures_taken']} captures in {cap['seconds']:.1f} s -> {cap['session']}",
-              file=sys.stderr)
-        proc = cap.get("process")
-        if proc:
-            errs = proc["pose_error_vs_truth"]
-            worst = (max(e["rotation_deg"] for e in errs), max(e["translation_mm"] for e in errs)) if errs else (0, 0)
-            print(f"process: mesh {proc['mesh']['triangles']} triangles "
-                  f"({'watertight' if proc['mesh']['watertight'] else 'NOT watertight'}), registration error vs "
-                  f"the simulation's truth <= {worst[0]:.3f} deg, {worst[1]:.3f} mm -> "
-                  f"{cap['session']}/{proc['mesh']['file']}", file=sys.stderr)
+def _demo_capture(out: Path, args: argparse.Namespace, summary: dict) -> None:
+    """A simulated capture session, processed, then the batch's other steps on it."""
+    from app.demo.capture import simulated_capture
 
-        if proc:
-            summary["batch"] = _batch_steps(Path(cap["session"]), args.preset)
+    if args.capture_steps < 1 or args.capture_passes < 1:
+        from app.errors import UsageError
 
+        raise UsageError("--capture-steps and --capture-passes must be >= 1 (or --capture-steps 0: no capture)")
+    cap = simulated_capture(out / "capture", steps=args.capture_steps, passes=args.capture_passes,
+                            camera=args.capture_camera, process_preset=args.preset)
+    summary["capture"] = cap
+    print(f"capture: {cap['captures_taken']} captures in {cap['seconds']:.1f} s -> {cap['session']}",
+          file=sys.stderr)
+    proc = cap.get("process")
+    if proc:
+        errs = proc["pose_error_vs_truth"]
+        worst = (max(e["rotation_deg"] for e in errs), max(e["translation_mm"] for e in errs)) if errs else (0, 0)
+        print(f"process: mesh {proc['mesh']['triangles']} triangles "
+              f"({'watertight' if proc['mesh']['watertight'] else 'NOT watertight'}), registration error vs "
+              f"the simulation's truth <= {worst[0]:.3f} deg, {worst[1]:.3f} mm -> "
+              f"{cap['session']}/{proc['mesh']['file']}", file=sys.stderr)
+
+    if proc:
+        summary["batch"] = _batch_steps(Path(cap["session"]), args.preset)
+
+
+def _demo_colour(out: Path, summary: dict) -> None:
+    """The colour demo (app.demo.colour) and its comparison with the simulation's truth."""
     from app.demo.colour import colour_demo
 
     colour = colour_demo(out / "colour")
@@ -160,7 +172,12 @@ def run_demo(args: argparse.Namespace) -> int:
         print(f"  {r['region']:<8} true {r['true_material']:<16} identified {r['material']:<16} "
               f"confidence {r['confidence']:.2f}{'' if r['correct'] else '  (wrong)'}", file=sys.stderr)
 
-    job, result, secs = _render(hawk_spec(size, args.preset, triangles), triangles)
+
+def _demo_hawk(out: Path, size: tuple[int, int], preset: str, triangles: int, summary: dict) -> None:
+    """The hawk rendered (hawk.png, hawk.tiff)."""
+    from render.image_io import write_png, write_xyz_tiff
+
+    job, result, secs = _render(hawk_spec(size, preset, triangles), triangles)
     write_png(out / "hawk.png", result.srgb8)
     write_xyz_tiff(out / "hawk.tiff", result.xyz)
     n_tri = sum(o.mesh.n_triangles for o in job.scene.objects)
@@ -168,11 +185,18 @@ def run_demo(args: argparse.Namespace) -> int:
                                "size": list(size), "timings": _plain(result.timings)})
     print(f"hawk: {n_tri} triangles, {secs:.1f} s -> {out / 'hawk.png'}", file=sys.stderr)
 
+
+def _demo_spheres(out: Path, size: tuple[int, int], preset: str, triangles: int, summary: dict) -> None:
+    """Every material preset as a sphere under D65 and A, and the colour shift between them."""
+    from processing.materials.presets import list_materials
+    from processing.spectral.display import xyz_to_srgb8
+    from render.image_io import write_png, write_xyz_tiff
+
     names = list_materials()
     sphere_size = (size[0], int(size[0] * 0.6))
     results = {}
     for illum in ("D65", "A"):
-        job, result, secs = _render(spheres_spec(names, illum, sphere_size, args.preset), triangles)
+        job, result, secs = _render(spheres_spec(names, illum, sphere_size, preset), triangles)
         results[illum] = result
         title = f"material presets under {'D65 (daylight)' if illum == 'D65' else 'illuminant A (tungsten), adapted'}"
         write_png(out / f"spheres-{illum}.png", label_spheres(result.srgb8, job.camera, names, title))
@@ -188,18 +212,17 @@ def run_demo(args: argparse.Namespace) -> int:
     for name, de in summary["shift_D65_to_A"].items():
         print(f"  {name:<28} mean delta E00 D65 vs A (both adapted): {de:.2f}", file=sys.stderr)
 
+
+def _demo_cloth(out: Path, size: tuple[int, int], preset: str, summary: dict) -> None:
+    """The cloth scenes (Yasuda et al.), silk and tamamushi."""
     from app.workflows.cloth_scene import render_cloth_scene
 
     for cloth in ("silk", "tamamushi"):
         t0 = time.perf_counter()
-        png = render_cloth_scene(out, args.preset, (size[0] * 5 // 8, size[1] * 5 // 8), material=cloth)
+        png = render_cloth_scene(out, preset, (size[0] * 5 // 8, size[1] * 5 // 8), material=cloth)
         secs = time.perf_counter() - t0
         summary["renders"].append({"image": png.name, "seconds": round(secs, 3)})
         print(f"cloth ({cloth}, Yasuda et al.): {secs:.1f} s -> {png}", file=sys.stderr)
-
-    (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    print(f"demo written to {out}/", file=sys.stderr)
-    return 0
 
 
 def _batch_steps(session: Path, preset: str) -> dict:

@@ -562,7 +562,7 @@ class CapturePanel(Panel):
             return None
         if self._cal_cache is not None and self._cal_cache[0] == src:
             return self._cal_cache[1]
-        from app.cli.calibrate import load_calibration_source
+        from app.workflows.calibration import load_calibration_source
         from processing.geometry.calibration import ScannerCalibration
 
         try:

@@ -47,9 +47,9 @@ PICK_RADIUS_PX = 6.0
 def pass_points(root: Path, calibration: str | None, pass_no: int, max_points: int = 6000) -> np.ndarray:
     """The pass's points in its table frame (mm), evenly thinned to ``max_points``."""
     from app.capture.runner import load_pass_profiles
-    from app.cli.calibrate import load_calibration_source, session_calibration
     from app.errors import UsageError
     from app.session import Session
+    from app.workflows.calibration import load_calibration_source, session_calibration
     from processing.geometry.calibration import ScannerCalibration
     from processing.geometry.scan_points import profiles_to_points
 

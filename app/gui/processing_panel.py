@@ -1,7 +1,7 @@
 """Processing panel: scanner calibration, registration and meshing of the open session with progress and cancel,
 the residuals, and the manual 3-point registration when automatic registration fails.
 
-A thin shell over :func:`app.cli.calibrate.calibrate_session` and
+A thin shell over :func:`app.workflows.calibration.calibrate_session` and
 :func:`app.workflows.process_session.process_session` (what ``kogei calibrate`` and
 ``kogei process`` run).  Processing runs in a separate process
 (:class:`app.gui.workers.ProcessJob`): registration and meshing hold the
@@ -174,7 +174,7 @@ class ProcessingPanel(Panel):
         radius = float(self.radius.value())
 
         def work(ctx: JobContext) -> dict[str, Any]:
-            from app.cli.calibrate import calibrate_session
+            from app.workflows.calibration import calibrate_session
 
             return calibrate_session(root, radius)
 

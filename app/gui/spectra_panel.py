@@ -1,21 +1,19 @@
 """Spectra and materials panel: click on an object frame to plot the estimated reflectance (with its
 uncertainty) against the identified material's model spectrum; a material map over the frame.
 
-A composition of the colour pipeline's library calls (issue #5):
+A display over the colour pipeline's workflow (docs/colour-pipeline.md):
 
-1. the pass's chart frame: :func:`processing.camera.raw_decode.decode_raw`,
-   :func:`processing.camera.chart_detection.detect_chart`,
-   :func:`processing.camera.chart_sampling.sample_patches` and
-   :func:`processing.camera.chart_sampling.check_patches` (the usable patches);
-2. the estimator (Matsuda et al., section 4.1, eq. (6)-(10), or a better
-   method) fitted for the model camera under the shot's light and
-   calibrated to the chart with the chart transform M2, eq. (9):
-   :func:`processing.spectral.estimation.estimator.fit_estimator` with the
-   ColorChecker's reflectances (:func:`processing.spectral.reflectance_database.load_reflectances`);
-3. a clicked point: the mean reflectance of the pixels around it with its
-   uncertainty (pixel spread and the method's held-out error in quadrature,
-   :func:`processing.spectral.estimation.estimator.region_spectra`);
-4. its material (Matsuda et al., section 4.2, eq. (11)): the candidate whose
+1. the frame and the pass's chart frame go through the same chain as
+   ``kogei spectral estimate``: :func:`app.workflows.chart.measure_chart`
+   and :func:`app.workflows.spectral.estimate_from_chart` (Matsuda et al.,
+   section 4.1, eq. (6)-(10), or a better method, calibrated to the chart
+   with the chart transform M2, eq. (9)), giving per-pixel basis weights, the
+   image in the model camera's units and the mask of saturated or dead
+   pixels, identical to the command's for the same frames;
+2. a clicked point: the mean reflectance of the unmasked pixels around it
+   with its uncertainty (pixel spread and the estimate's error on the chart
+   in quadrature, :func:`processing.spectral.estimation.estimator.region_spectra`);
+3. its material (Matsuda et al., section 4.2, eq. (11)): the candidate whose
    forward-modelled camera colour is nearest
    (:func:`processing.materials.identification.identify_material` on the
    chart-transformed camera values); the candidate's model spectrum is its
@@ -23,9 +21,9 @@ A composition of the colour pipeline's library calls (issue #5):
    (:func:`processing.materials.lobes.material_brdf` times pi cos_i), scaled to the
    measured spectrum by least squares for the plot (brightness is a free
    parameter of the identification);
-5. the material map: the same identification over square blocks of the frame
+4. the material map: the same identification over square blocks of the frame
    (:func:`processing.materials.identification.identify_regions`), leaving out
-   pixels too dark to have a colour, clipped pixels and the backdrop (the
+   pixels too dark to have a colour, masked pixels and the backdrop (the
    colour of the frame's rim), and blocks left less than half full.
 
 Both identifications allow the candidates the same model error as the batch
@@ -95,58 +93,44 @@ def block_labels(shape: tuple[int, int], block: int) -> np.ndarray:
 
 @dataclass
 class SpectralScene:
-    """An object frame with its chart-calibrated estimator."""
+    """An object frame with its chart-calibrated estimate."""
 
     frame: Path
     chart_frame: Path
     preview: np.ndarray            # (H, W, 3) uint8
-    rgb: np.ndarray                # (H, W, 3) linear object-camera RGB
-    fit: Any                       # processing.spectral.estimation.fit.SpectralFit (calibrated)
+    rgb: np.ndarray                # (H, W, 3) linear object-camera RGB, negatives clipped (dark and backdrop tests)
+    estimate: Any                  # app.workflows.spectral.ChartEstimate: weights, model-camera image, mask, fit
     candidates: Any                # processing.materials.identification.CandidateSet
     method_error: float
     usable_patches: int
     light: str
-    clipped: np.ndarray | None = None   # (H, W) bool: a photosite of the pixel reached the white level
+    clipped: np.ndarray | None = None   # (H, W) bool: a photosite of the pixel saturated or dead (not estimated)
+
+    @property
+    def fit(self) -> Any:
+        """The calibrated estimator (:class:`processing.spectral.estimation.fit.SpectralFit`)."""
+        return self.estimate.fit
 
 
 def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = "D65", method: str = "wiener",
                     chart: str = "classic24") -> SpectralScene:
-    """Decode the frames, calibrate the estimator to the chart and forward-model the candidates."""
-    from processing.camera.chart_detection import detect_chart
-    from processing.camera.chart_sampling import check_patches, sample_patches
+    """Decode the frame, estimate it through the chart exactly as ``kogei spectral estimate`` does, model the candidates."""
+    from app.workflows.chart import measure_chart
+    from app.workflows.spectral import estimate_from_chart, estimator_setup
     from processing.camera.raw_decode import decode_raw, preview_srgb8
-    from processing.camera.response import camera_sensitivities
     from processing.materials.identification import candidate_set
-    from processing.spectral.estimation.estimator import fit_estimator
-    from processing.spectral.reflectance_database import load_reflectances
-    from processing.spectral.spectra import SpectralGrid, light_spectrum
 
-    g = SpectralGrid(400, 700, 10)
-    chart_raw = decode_raw(chart_frame, mode="bin2x2")
-    det = detect_chart(chart_raw, chart)
-    samples = sample_patches(chart_raw, det)
-    usable = check_patches(samples).usable
     if chart != "classic24":
         raise ValueError(f"chart {chart!r}: the spectra are calibrated with the ColorChecker Classic (classic24)")
-    refl = load_reflectances("colorchecker", g).spectra
-    sens = camera_sensitivities(g)
-    e = light_spectrum(light, g)
-    fit = fit_estimator(method, load_reflectances("training", g).spectra, sens, e, g,
-                        chart_rgb=samples.mean[usable], chart_reflectance=refl[usable])
+    setup = estimator_setup(light=light, chart_type=chart)
     obj = decode_raw(frame, mode="bin2x2")
-    err = float(fit.training_rmse) if math.isfinite(fit.training_rmse) else 0.0
-    # black subtraction leaves read noise of either sign around 0; the estimator takes signals >= 0
+    est = estimate_from_chart([obj], [measure_chart(Path(chart_frame), chart=chart)], setup, method=method,
+                              image_name=f"{frame}", chart_name=f"{chart_frame}")
+    # black subtraction leaves read noise of either sign around 0
     rgb = np.maximum(obj.rgb, 0.0)
-    return SpectralScene(Path(frame), Path(chart_frame), preview_srgb8(obj), rgb, fit,
-                         candidate_set(sens, e, g, light_deg=LIGHT_DEG), err, int(usable.sum()), light,
-                         np.asarray(obj.saturated, bool))
-
-
-def _model_camera(scene: SpectralScene, rgb: np.ndarray) -> np.ndarray:
-    """Object-camera values -> the model camera's, by the chart transform (negative values clipped)."""
-    t = scene.fit.transform
-    out = rgb.reshape(-1, 3).astype(np.float64)
-    return np.maximum(out @ np.asarray(t).T, 0.0) if t is not None else out
+    return SpectralScene(Path(frame), Path(chart_frame), preview_srgb8(obj), rgb, est,
+                         candidate_set(setup.sensitivities, setup.lights[0], setup.grid, light_deg=LIGHT_DEG),
+                         est.chart_rmse, int(est.usable.sum()), light, ~est.mask)
 
 
 def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
@@ -160,15 +144,14 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
     if not (0 <= x < w and 0 <= y < h):
         raise ValueError(f"pixel ({x}, {y}) is outside the {w} x {h} frame")
     y0, y1, x0, x1 = max(y - radius, 0), min(y + radius + 1, h), max(x - radius, 0), min(x + radius + 1, w)
-    patch = scene.rgb[y0:y1, x0:x1]
-    keep = np.ones(patch.shape[:2], bool) if scene.clipped is None else ~scene.clipped[y0:y1, x0:x1]
+    keep = (np.ones((y1 - y0, x1 - x0), bool) if scene.clipped is None else ~scene.clipped[y0:y1, x0:x1])
     if not keep.any():
         raise ValueError(f"pixel ({x}, {y}) and its neighbours are clipped (saturated): their colour cannot be "
                          "measured; click a less bright part of the object, or shoot with less exposure")
-    patch = patch[keep][:, None, :]                  # the unclipped pixels, as an (N, 1, 3) image
-    weights = scene.fit.estimate_weights(patch)
-    reg = region_spectra(weights, np.ones(patch.shape[:2], np.int64), scene.fit.basis, scene.method_error)
-    ident = identify_material(_model_camera(scene, patch), scene.candidates, model_error=MODEL_ERROR)
+    weights = scene.estimate.weights[y0:y1, x0:x1][keep][:, None, :]      # the kept pixels, as (N, 1, p)
+    reg = region_spectra(weights, np.ones(weights.shape[:2], np.int64), scene.fit.basis, scene.method_error)
+    camera = scene.estimate.camera[y0:y1, x0:x1][keep].astype(np.float64)
+    ident = identify_material(camera, scene.candidates, model_error=MODEL_ERROR)
     wl = scene.fit.wavelengths
     name = ident.material if ident.material in scene.candidates.names else ident.group[0]
     t = math.radians(LIGHT_DEG)
@@ -210,8 +193,8 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
     """Material of each ``block`` x ``block`` tile of the object; returns labels and their names.
 
     Label 0: not judged -- too dark (green below ``min_signal`` of full
-    scale: no colour to measure), clipped (a photosite at the white level:
-    the colour is wrong), the backdrop (:func:`backdrop_mask`), or a block
+    scale: no colour to measure), clipped (a photosite saturated or dead:
+    the colour is wrong, and the estimate leaves it out), the backdrop (:func:`backdrop_mask`), or a block
     with fewer than half its pixels left (the rim of a highlight or of the
     object: too few pixels to average).
     A tile whose best candidate has a confidence below ``min_confidence``
@@ -236,7 +219,7 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
     if not labels.any():
         raise ValueError("no block of the frame is at least half lit, unclipped and unlike the backdrop: nothing "
                          "to identify (a smaller block may do)")
-    model = _model_camera(scene, scene.rgb).reshape(h, w, 3)
+    model = scene.estimate.camera.astype(np.float64)
     found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR)
     named = {lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()}
     names = sorted(set(named.values()) - {UNCERTAIN}) + ([UNCERTAIN] if UNCERTAIN in named.values() else [])
@@ -308,6 +291,30 @@ class SpectraPanel(Panel):
         outer = QHBoxLayout(self)
         left = QVBoxLayout()
         outer.addLayout(left, 0)
+        left.addWidget(self._controls())
+        self.state = QLabel("list the frames of a captured session, then calibrate")
+        self.state.setWordWrap(True)
+        self.state.setMaximumWidth(300)
+        left.addWidget(self.state)
+        self.legend = QLabel("")
+        self.legend.setWordWrap(True)
+        self.legend.setMaximumWidth(300)
+        left.addWidget(self.legend)
+        left.addStretch(1)
+        split = QSplitter(Qt.Orientation.Horizontal)
+        self.image = _ClickImage()
+        self.image.setText("no frame")
+        self.image.clicked.connect(lambda x, y: self.safe(lambda: self.pick(x, y))())
+        self.plot = PlotImage(drawer)
+        split.addWidget(self.image)
+        split.addWidget(self.plot)
+        split.setSizes([560, 560])
+        outer.addWidget(split, 1)
+        self.plot.plot(empty_figure, title="Reflectance", hint="click the object in the frame",
+                       xlabel="wavelength (nm)", ylabel="reflectance")
+
+    def _controls(self) -> QGroupBox:
+        """The frame, light, method and map controls with their buttons."""
         src = QGroupBox("Frame")
         f = QFormLayout(src)
         self.frames = QComboBox()
@@ -342,27 +349,7 @@ class SpectraPanel(Panel):
         f.addRow("Map block", self.block)
         f.addRow("Min. confidence", self.min_confidence)
         f.addRow(self.map_button)
-        left.addWidget(src)
-        self.state = QLabel("list the frames of a captured session, then calibrate")
-        self.state.setWordWrap(True)
-        self.state.setMaximumWidth(300)
-        left.addWidget(self.state)
-        self.legend = QLabel("")
-        self.legend.setWordWrap(True)
-        self.legend.setMaximumWidth(300)
-        left.addWidget(self.legend)
-        left.addStretch(1)
-        split = QSplitter(Qt.Orientation.Horizontal)
-        self.image = _ClickImage()
-        self.image.setText("no frame")
-        self.image.clicked.connect(lambda x, y: self.safe(lambda: self.pick(x, y))())
-        self.plot = PlotImage(drawer)
-        split.addWidget(self.image)
-        split.addWidget(self.plot)
-        split.setSizes([560, 560])
-        outer.addWidget(split, 1)
-        self.plot.plot(empty_figure, title="Reflectance", hint="click the object in the frame",
-                       xlabel="wavelength (nm)", ylabel="reflectance")
+        return src
 
     # ------------------------------------------------------------ sources
     def list_frames(self) -> None:
@@ -410,7 +397,7 @@ class SpectraPanel(Panel):
         self.legend.setText("")
         self.image.show_rgb(scene.preview)
         self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated on {scene.usable_patches} "
-                           f"chart patches under {scene.light} (held-out error {scene.method_error:.3f}). Click the "
+                           f"chart patches under {scene.light} (error on the chart {scene.method_error:.3f}). Click the "
                            "object to see its spectrum.")
         self.log.emit(self.state.text())
 

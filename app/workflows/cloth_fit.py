@@ -130,11 +130,34 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
         Not a session, not a swatch capture, no chart frame, a bad or
         missing geometry file, frames of another size than the geometry.
     """
-    from app.session import Session
-    from processing.cloth.fit import ClothFitError, SwatchMeasurement, chart_gains, grid_chart_means
-    from processing.cloth.swatch_geometry import SwatchGeometry, SwatchGeometryError, swatch_samples
+    from processing.cloth.fit import SwatchMeasurement
 
     root = Path(session)
+    manifest = _swatch_manifest(root)
+    gpath = Path(geometry) if geometry is not None else root / GEOMETRY_FILE
+    geom = _swatch_geometry(gpath)
+    charts, frames = _charts_and_frames(root, manifest.get("captures", {}))
+    passes = np.array([int(r.get("pass", 1)) for r in frames])
+    if int(passes.max()) > geom.passes:
+        raise UsageError(f"{gpath}: the session has frames of {int(passes.max())} passes but the geometry gives "
+                         f"{geom.passes} light direction(s); add pass_light_directions (the light of passes 2, "
+                         "3, ...)")
+    gains_of = _pass_gains(root, gpath, geom, charts, passes)
+    angles = np.array([float(r["angle_deg"]) for r in frames])
+    px, inside = _inside_pixels(geom, angles, margin_mm)
+    images = [_decode(root / r["file"]) for r in frames]
+    px = _usable_pixels(root, px, inside, images, max_pixels)
+    gain_rows = np.stack([gains_of[int(p)] for p in passes])[:, None, :]
+    rgb = np.stack([img.rgb[px[:, 1], px[:, 0]].astype(np.float64) for img in images]) / gain_rows
+    measurement = SwatchMeasurement(angles, px, rgb, images[0].cfa_pattern, passes)
+    gains = next(iter(gains_of.values())) if len(gains_of) == 1 else np.stack([gains_of[k] for k in sorted(gains_of)])
+    return SwatchData(measurement, geom, gains, root)
+
+
+def _swatch_manifest(root: Path) -> dict[str, Any]:
+    """The session's manifest, checked to be a swatch capture."""
+    from app.session import Session
+
     try:
         manifest = Session.read(root)
     except Exception as exc:  # noqa: BLE001 - any unreadable session is one message
@@ -143,15 +166,25 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
     if plan.get("kind") != "swatch":
         raise UsageError(f"{root}: a {plan.get('kind', 'unknown')!r} capture, not a swatch capture "
                          "(kogei capture --plan swatch)")
-    gpath = Path(geometry) if geometry is not None else root / GEOMETRY_FILE
+    return manifest
+
+
+def _swatch_geometry(gpath: Path) -> Any:
+    """The set-up (:class:`processing.cloth.swatch_geometry.SwatchGeometry`) from its JSON file."""
+    from processing.cloth.swatch_geometry import SwatchGeometry, SwatchGeometryError
+
     try:
-        geom = SwatchGeometry.from_dict(json.loads(gpath.read_text()))
+        return SwatchGeometry.from_dict(json.loads(gpath.read_text()))
     except FileNotFoundError:
         raise UsageError(f"{gpath}: swatch geometry not found; give --geometry FILE.json (camera pose, light "
                          "direction, swatch size)") from None
     except (json.JSONDecodeError, SwatchGeometryError, TypeError, AttributeError) as exc:
         raise UsageError(f"{gpath}: {exc}") from None
-    captures = manifest.get("captures", {})
+
+
+def _charts_and_frames(root: Path, captures: dict[str, Any]) -> tuple[dict[int, list[dict[str, Any]]],
+                                                                      list[dict[str, Any]]]:
+    """The chart frames per pass (by file name) and the swatch frames (by pass, then table angle)."""
     charts: dict[int, list[dict[str, Any]]] = {}
     for r in sorted((r for r in captures.values() if r.get("kind") == "chart" and r.get("file")),
                     key=lambda r: r["file"]):
@@ -162,11 +195,14 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
         raise UsageError(f"{root}: no chart frame; the fit calibrates the RAW values with the chart")
     if len(frames) < 3:
         raise UsageError(f"{root}: {len(frames)} swatch frames; the fit needs at least 3 table angles")
-    passes = np.array([int(r.get("pass", 1)) for r in frames])
-    if int(passes.max()) > geom.passes:
-        raise UsageError(f"{gpath}: the session has frames of {int(passes.max())} passes but the geometry gives "
-                         f"{geom.passes} light direction(s); add pass_light_directions (the light of passes 2, "
-                         "3, ...)")
+    return charts, frames
+
+
+def _pass_gains(root: Path, gpath: Path, geom: Any, charts: dict[int, list[dict[str, Any]]],
+                passes: np.ndarray) -> dict[int, np.ndarray]:
+    """Per pass the chart gains of its chart frames, averaged."""
+    from processing.cloth.fit import ClothFitError, chart_gains, grid_chart_means
+
     gains_of = {}
     for p in np.unique(passes):
         # each pass is calibrated by its own chart frames (the lamp moved: its power at the table may differ),
@@ -182,7 +218,13 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
             gains_of[int(p)] = chart_gains(grid_chart_means(np.mean(chart_rgb, axis=0)), geom.for_pass(int(p)))
         except ClothFitError as exc:
             raise UsageError(f"{root}: {exc}") from None
-    angles = np.array([float(r["angle_deg"]) for r in frames])
+    return gains_of
+
+
+def _inside_pixels(geom: Any, angles: np.ndarray, margin_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every binned pixel ``(N, 2)`` (x, y) and whether all its photosites see the swatch at every angle."""
+    from processing.cloth.swatch_geometry import swatch_samples
+
     hb, wb = geom.height // 2, geom.width // 2
     ys, xs = np.mgrid[0:hb, 0:wb]
     px = np.stack([xs.ravel(), ys.ravel()], axis=1)
@@ -190,7 +232,11 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
     for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
         s = swatch_samples(geom, angles, 2 * px[:, 0] + dx, 2 * px[:, 1] + dy, margin_mm=margin_mm)
         ok &= s.inside.all(axis=0)
-    images = [_decode(root / r["file"]) for r in frames]
+    return px, ok
+
+
+def _usable_pixels(root: Path, px: np.ndarray, ok: np.ndarray, images: list[Any], max_pixels: int) -> np.ndarray:
+    """The inside pixels unclipped in every frame, evenly thinned to ``max_pixels`` (at least 8)."""
     for img in images:
         ok &= ~(img.saturated | img.dead).reshape(-1)
     px = px[ok]
@@ -199,11 +245,7 @@ def load_swatch_session(session: str | Path, geometry: str | Path | None = None,
     if px.shape[0] < 8:
         raise UsageError(f"{root}: only {px.shape[0]} binned pixels see the swatch at every angle; "
                          "check the geometry file and that the swatch fills the view")
-    gain_rows = np.stack([gains_of[int(p)] for p in passes])[:, None, :]
-    rgb = np.stack([img.rgb[px[:, 1], px[:, 0]].astype(np.float64) for img in images]) / gain_rows
-    measurement = SwatchMeasurement(angles, px, rgb, images[0].cfa_pattern, passes)
-    gains = next(iter(gains_of.values())) if len(gains_of) == 1 else np.stack([gains_of[k] for k in sorted(gains_of)])
-    return SwatchData(measurement, geom, gains, root)
+    return px
 
 
 def fit_figure(data: SwatchData, fit, path: str | Path) -> Path:

@@ -1,6 +1,6 @@
 """``kogei process``: a captured session's profiles -> one registered, watertight mesh, with a report.
 
-Issue #4; DESIGN.md section 2.  The stages, each a plain library call:
+docs/processing.md, "Pipeline".  The stages, each a plain library call:
 
 1. per complete pass: profiles + table angles + the session's scanner
    calibration -> points, normals and confidences in that pass's table frame
@@ -124,21 +124,15 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
     dict
         The report (also written to ``products/process-report.json``).
     """
-    from app.cli.calibrate import install_calibration, load_calibration_source, session_calibration
-    from app.session import Session, SessionError
-    from processing.geometry.mesh_ply import write_mesh_ply
-    from processing.geometry.registration import RegistrationError, merge_passes, register_passes
-    from processing.geometry.surface import SurfaceError, reconstruct_surface
+    from app.session import Session
+    from app.workflows.calibration import install_calibration, load_calibration_source, session_calibration
 
     note = message or (lambda text: None)
     if preset not in PRESETS:
         raise UsageError(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
     root = Path(session_dir)
     t_all = time.perf_counter()
-    try:
-        session = Session.open(root)
-    except SessionError as exc:
-        raise UsageError(str(exc)) from None
+    session = Session.open(root)
     with session:
         manifest = session.manifest
         if manifest["plan"].get("kind") != "scan":
@@ -155,69 +149,116 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         usable = [e for e in passes if "cloud" in e]
         if not usable:
             raise UsageError(f"session {root}: no pass has usable points ({'; '.join(e.get('skipped', '') for e in passes)})")
-        names = [f"pass {e['pass']}" for e in usable]
         note(f"registering {len(usable)} pass(es) ({', '.join(str(e['points']) for e in usable)} points)")
         t = time.perf_counter()
-        try:
-            index_of = {e["pass"]: k for k, e in enumerate(usable)}
-            unknown = [pair for pair in (picks or {}) if pair[0] not in index_of or pair[1] not in index_of]
-            if unknown:
-                raise UsageError(f"session {root}: picks name passes without usable points: {unknown}")
-            reg = register_passes([e["cloud"][0] for e in usable], [e["cloud"][1] for e in usable],
-                                  preset=preset, names=names,
-                                  picks={(index_of[a], index_of[b]): v for (a, b), v in (picks or {}).items()})
-        except RegistrationError as exc:
-            raise UsageError(f"session {root}: registration: {exc}") from None
+        reg = _register(root, usable, preset, picks)
         timings["registration"] = time.perf_counter() - t
-        for e, pose in zip(usable, reg.poses):
-            e["registered"] = bool(pose.registered)
-            e["pose"] = None if pose.transform is None else np.asarray(pose.transform).tolist()
-            if not pose.registered:
-                e["skipped"] = f"not registered: {pose.reason}"
-                note(f"pass {e['pass']}: {e['skipped']} (left out of the mesh; use the manual 3-point fallback)")
-        points, normals, index = merge_passes([e["cloud"][0] for e in usable], reg, [e["cloud"][1] for e in usable])
-        confidence = np.concatenate([e["cloud"][2] for e, pose in zip(usable, reg.poses) if pose.registered])
+        _note_poses(usable, reg, note)
+        points, normals, confidence = _merged(usable, reg)
         note(f"meshing {len(points)} points")
         t = time.perf_counter()
-        try:
-            # the merged cloud is in pass 1's table frame: its cropped underside is closed on the table top
-            surf = reconstruct_surface(points, normals, confidence, preset=preset, table_z_mm=0.0)
-        except SurfaceError as exc:
-            raise UsageError(f"session {root}: surface: {exc}") from None
+        surf = _surface(root, points, normals, confidence, preset)
         timings["surface"] = time.perf_counter() - t
-        tmp = root / ".incoming" / "mesh.ply"
-        tmp.parent.mkdir(parents=True, exist_ok=True)
-        write_mesh_ply(tmp, surf.vertices, surf.triangles, surf.vertex_normals)
-        mesh_info = session.adopt_file(tmp, MESH)
+        mesh_info = _adopt_mesh(session, root, surf)
         timings["total"] = time.perf_counter() - t_all
-        report = {
-            "session": str(root),
-            "preset": preset,
-            "calibration": manifest.get("calibration"),
-            "passes": [{k: v for k, v in e.items() if k != "cloud"} for e in passes],
-            "registration": {
-                "all_registered": reg.all_registered,
-                "pairs": [pr.as_dict() for pr in reg.pairs],
-                "consistency": None if reg.consistency is None else {
-                    "max_rotation_deg": reg.consistency.max_rotation_deg,
-                    "max_displacement_mm": reg.consistency.max_displacement_mm,
-                },
-                "seconds": reg.seconds,
-            },
-            "surface": surf.summary(),
-            "mesh": {"file": MESH, "sha256": mesh_info.sha256, "vertices": int(len(surf.vertices)),
-                     "triangles": int(len(surf.triangles)), "watertight": bool(surf.watertight)},
-            "timings_s": {k: round(v, 3) for k, v in timings.items()},
-        }
-        blob = (json.dumps(report, indent=1, default=_json_default, allow_nan=False) + "\n").encode()
-        rep_info = session.write_file(REPORT, blob)
-        products = dict(manifest.get("products") or {})
-        products["mesh"] = {"file": MESH, "sha256": mesh_info.sha256, "bytes": mesh_info.bytes, "preset": preset}
-        products["process_report"] = {"file": REPORT, "sha256": rep_info.sha256, "bytes": rep_info.bytes}
-        session.update("products", products)
-        session.event("processed", f"{preset}: mesh {len(surf.triangles)} triangles, "
-                                   f"{sum(1 for e in passes if e.get('registered'))} of {len(passes)} passes")
+        report = _report(root, preset, manifest, passes, reg, surf, mesh_info, timings)
+        _record_products(session, manifest, preset, report, passes, surf, mesh_info)
     return report
+
+
+def _register(root: Path, usable: list[dict[str, Any]], preset: str,
+              picks: dict[tuple[int, int], tuple[Any, Any]] | None) -> Any:
+    """Register the usable passes into pass 1's frame (picks name passes by number)."""
+    from processing.geometry.registration import RegistrationError, register_passes
+
+    names = [f"pass {e['pass']}" for e in usable]
+    try:
+        index_of = {e["pass"]: k for k, e in enumerate(usable)}
+        unknown = [pair for pair in (picks or {}) if pair[0] not in index_of or pair[1] not in index_of]
+        if unknown:
+            raise UsageError(f"session {root}: picks name passes without usable points: {unknown}")
+        return register_passes([e["cloud"][0] for e in usable], [e["cloud"][1] for e in usable],
+                               preset=preset, names=names,
+                               picks={(index_of[a], index_of[b]): v for (a, b), v in (picks or {}).items()})
+    except RegistrationError as exc:
+        raise UsageError(f"session {root}: registration: {exc}") from None
+
+
+def _note_poses(usable: list[dict[str, Any]], reg: Any, note: Callable[[str], None]) -> None:
+    """Record each pass's pose (or why it has none) in its entry."""
+    for e, pose in zip(usable, reg.poses):
+        e["registered"] = bool(pose.registered)
+        e["pose"] = None if pose.transform is None else np.asarray(pose.transform).tolist()
+        if not pose.registered:
+            e["skipped"] = f"not registered: {pose.reason}"
+            note(f"pass {e['pass']}: {e['skipped']} (left out of the mesh; use the manual 3-point fallback)")
+
+
+def _merged(usable: list[dict[str, Any]], reg: Any) -> tuple[Any, Any, Any]:
+    """Points, normals and confidences of the registered passes in pass 1's frame."""
+    from processing.geometry.registration import merge_passes
+
+    points, normals, index = merge_passes([e["cloud"][0] for e in usable], reg, [e["cloud"][1] for e in usable])
+    confidence = np.concatenate([e["cloud"][2] for e, pose in zip(usable, reg.poses) if pose.registered])
+    return points, normals, confidence
+
+
+def _surface(root: Path, points: Any, normals: Any, confidence: Any, preset: str) -> Any:
+    """The merged cloud meshed into a watertight surface."""
+    from processing.geometry.surface import SurfaceError, reconstruct_surface
+
+    try:
+        # the merged cloud is in pass 1's table frame: its cropped underside is closed on the table top
+        return reconstruct_surface(points, normals, confidence, preset=preset, table_z_mm=0.0)
+    except SurfaceError as exc:
+        raise UsageError(f"session {root}: surface: {exc}") from None
+
+
+def _adopt_mesh(session: Any, root: Path, surf: Any) -> Any:
+    """Write the mesh as binary PLY and adopt it into the session as ``products/mesh.ply``."""
+    from processing.geometry.mesh_ply import write_mesh_ply
+
+    tmp = root / ".incoming" / "mesh.ply"
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    write_mesh_ply(tmp, surf.vertices, surf.triangles, surf.vertex_normals)
+    return session.adopt_file(tmp, MESH)
+
+
+def _report(root: Path, preset: str, manifest: dict[str, Any], passes: list[dict[str, Any]], reg: Any, surf: Any,
+            mesh_info: Any, timings: dict[str, float]) -> dict[str, Any]:
+    """The process report (``products/process-report.json``)."""
+    return {
+        "session": str(root),
+        "preset": preset,
+        "calibration": manifest.get("calibration"),
+        "passes": [{k: v for k, v in e.items() if k != "cloud"} for e in passes],
+        "registration": {
+            "all_registered": reg.all_registered,
+            "pairs": [pr.as_dict() for pr in reg.pairs],
+            "consistency": None if reg.consistency is None else {
+                "max_rotation_deg": reg.consistency.max_rotation_deg,
+                "max_displacement_mm": reg.consistency.max_displacement_mm,
+            },
+            "seconds": reg.seconds,
+        },
+        "surface": surf.summary(),
+        "mesh": {"file": MESH, "sha256": mesh_info.sha256, "vertices": int(len(surf.vertices)),
+                 "triangles": int(len(surf.triangles)), "watertight": bool(surf.watertight)},
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+    }
+
+
+def _record_products(session: Any, manifest: dict[str, Any], preset: str, report: dict[str, Any],
+                     passes: list[dict[str, Any]], surf: Any, mesh_info: Any) -> None:
+    """Write the report into the session and reference it and the mesh from the manifest's products."""
+    blob = (json.dumps(report, indent=1, default=_json_default, allow_nan=False) + "\n").encode()
+    rep_info = session.write_file(REPORT, blob)
+    products = dict(manifest.get("products") or {})
+    products["mesh"] = {"file": MESH, "sha256": mesh_info.sha256, "bytes": mesh_info.bytes, "preset": preset}
+    products["process_report"] = {"file": REPORT, "sha256": rep_info.sha256, "bytes": rep_info.bytes}
+    session.update("products", products)
+    session.event("processed", f"{preset}: mesh {len(surf.triangles)} triangles, "
+                               f"{sum(1 for e in passes if e.get('registered'))} of {len(passes)} passes")
 
 
 def _json_default(value: Any) -> Any:

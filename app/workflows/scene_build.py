@@ -55,7 +55,7 @@ def _plane_arrays(size: float, divisions: int = 8) -> tuple[NDArray, NDArray, ND
 
 def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
     """Build the :class:`render.scene.SceneObject` of one object spec."""
-    from processing.materials.presets import MaterialError, get_material
+    from processing.materials.presets import get_material
     from render.meshio import load_mesh, make_mesh
     from render.scene import SceneObject
 
@@ -108,10 +108,7 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
     n = np.asarray(n) @ rot.T
     if tangents is not None:
         tangents = tangents @ rot.T
-    try:
-        resolved = [get_material(m) for m in materials]
-    except MaterialError as exc:
-        raise UsageError(str(exc)) from None
+    resolved = [get_material(m) for m in materials]
     mesh = make_mesh(v, t, n, source=name)
     return SceneObject(mesh, resolved, material_index=region_index,
                        material_index_on="triangle" if region_index is not None else None, name=name,

@@ -11,6 +11,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from app.errors import UsageError
 
@@ -174,50 +175,71 @@ def load_scene_file(path: str | Path) -> SceneSpec:
     Mesh paths are relative to the scene file's folder.
     """
     path = Path(path)
+    data = _read_toml(path)
+    _check_keys(data, {"render", "camera", "sky", "light", "object"}, str(path))
+    spec = SceneSpec()
+    _read_render(spec, _table(data, "render", path), path)
+    spec.camera = _read_camera(_table(data, "camera", path), path)
+    spec.sky = _read_sky(_table(data, "sky", path), path)
+    spec.lights.extend(_read_lights(data.get("light", []), path))
+    spec.objects.extend(_read_objects(data.get("object", []), path))
+    return spec
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    """The scene file's TOML document."""
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise UsageError(f"{path}: scene file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise UsageError(f"{path}: cannot read scene file ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise UsageError(f"{path}: not valid TOML ({exc})") from None
-    _check_keys(data, {"render", "camera", "sky", "light", "object"}, str(path))
 
-    spec = SceneSpec()
-    render = _table(data, "render", path)
+
+def _read_render(spec: SceneSpec, render: dict[str, Any], path: Path) -> None:
+    """The ``[render]`` table into ``spec``: size, preset, illuminant."""
     _check_keys(render, {"size", "preset", "illuminant"}, f"{path} [render]")
     if "size" in render:
         spec.size = parse_size(render["size"])
     spec.preset = str(render.get("preset", spec.preset))
     spec.illuminant = str(render.get("illuminant", spec.illuminant))
 
-    cam = _table(data, "camera", path)
+
+def _read_camera(cam: dict[str, Any], path: Path) -> CameraSpec:
+    """The ``[camera]`` table."""
     _check_keys(cam, {"eye", "target", "up", "fov"}, f"{path} [camera]")
-    spec.camera = CameraSpec(
+    return CameraSpec(
         eye=parse_vector(cam["eye"], f"{path} [camera] eye") if "eye" in cam else None,
         target=parse_vector(cam["target"], f"{path} [camera] target") if "target" in cam else None,
         up=parse_vector(cam.get("up", (0, 0, 1)), f"{path} [camera] up"),
         fov_deg=float(cam.get("fov", 35.0)),
     )
 
-    sky = _table(data, "sky", path)
+
+def _read_sky(sky: dict[str, Any], path: Path) -> SkySpec:
+    """The ``[sky]`` table."""
     _check_keys(sky, {"kind", "zenith", "horizon", "spectrum"}, f"{path} [sky]")
-    spec.sky = SkySpec(
+    return SkySpec(
         kind=str(sky.get("kind", "gradient")),
         zenith=float(sky.get("zenith", 0.25)),
         horizon=float(sky.get("horizon", 0.6)),
         spectrum=sky.get("spectrum"),
     )
 
-    for i, light in enumerate(data.get("light", [])):
+
+def _read_lights(lights: list[dict[str, Any]], path: Path) -> list[LightSpec]:
+    """The ``[[light]]`` tables."""
+    out = []
+    for i, light in enumerate(lights):
         where = f"{path} [[light]] #{i + 1}"
         _check_keys(light, {"kind", "direction", "position", "spectrum", "intensity"}, where)
         kind = str(light.get("kind", "directional"))
         key = "direction" if kind == "directional" else "position"
         if key not in light:
             raise UsageError(f"{where}: a {kind} light needs '{key}'")
-        spec.lights.append(
+        out.append(
             LightSpec(
                 kind=kind,
                 vector=parse_vector(light[key], f"{where} {key}"),
@@ -225,12 +247,16 @@ def load_scene_file(path: str | Path) -> SceneSpec:
                 intensity=float(light.get("intensity", 1.0)),
             )
         )
+    return out
 
-    objects = data.get("object", [])
+
+def _read_objects(objects: list[dict[str, Any]], path: Path) -> list[ObjectSpec]:
+    """The ``[[object]]`` tables (at least one); mesh paths relative to the scene file's folder."""
     if not objects:
         raise UsageError(f"{path}: no [[object]] in the scene; add at least one mesh or procedural object")
     allowed = {"mesh", "procedural", "material", "materials", "translate", "rotate", "scale",
                "weave_angle", "radius", "size", "triangles"}
+    out = []
     for i, obj in enumerate(objects):
         where = f"{path} [[object]] #{i + 1}"
         _check_keys(obj, allowed, where)
@@ -241,7 +267,7 @@ def load_scene_file(path: str | Path) -> SceneSpec:
         regions = obj.get("materials", {})
         if not isinstance(regions, dict):
             raise UsageError(f"{where}: 'materials' must be a table of region = material")
-        spec.objects.append(
+        out.append(
             ObjectSpec(
                 mesh=mesh,
                 procedural=obj.get("procedural"),
@@ -254,4 +280,4 @@ def load_scene_file(path: str | Path) -> SceneSpec:
                 weave_angle_deg=(float(obj["weave_angle"]) if "weave_angle" in obj else None),
             )
         )
-    return spec
+    return out

@@ -14,8 +14,8 @@ from types import SimpleNamespace
 
 from app.capture.devices import build_devices
 from app.capture.runner import CaptureHooks, CapturePlan, run_capture
-from app.cli.calibrate import calibrate_session
 from app.session import Session
+from app.workflows.calibration import calibrate_session
 from mocks.station import SimulatedStation
 from mocks.world import World
 

@@ -3,7 +3,7 @@
 The session is captured by the simulated station from a hawk whose head is gold and whose beak is red
 urushi (``tests.app.batch_session.MATERIALS_WORLD``); the world's own per-pixel region labels (rendered
 independently of the step) say which pixels of the material map belong to which true region.  The map's
-colour of a material is its sRGB under D65 (``app.cli.materials.preset_srgb``).
+colour of a material is its sRGB under D65 (``app.workflows.materials.preset_srgb``).
 """
 
 from __future__ import annotations

@@ -12,9 +12,9 @@ import pytest
 from app.capture.devices import build_devices
 from app.capture.runner import CaptureHooks, CapturePlan, run_capture
 from app.cli import main
-from app.cli.calibrate import session_calibration
 from app.errors import UsageError
 from app.session import Session
+from app.workflows.calibration import session_calibration
 from mocks.station import SimulatedStation
 from mocks.world import World
 

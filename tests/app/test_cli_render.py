@@ -1,4 +1,4 @@
-"""`kogei render` / `kogei materials` end to end, including every bad-input path of issue #2."""
+"""`kogei render` / `kogei materials` end to end, including every bad-input path (docs/scene-file.md)."""
 
 from __future__ import annotations
 

@@ -23,8 +23,8 @@ import pytest
 from app.capture.devices import build_devices
 from app.capture.runner import CaptureHooks, CaptureInterrupted, CapturePlan, run_capture
 from app.cli import main
-from app.cli.calibrate import calibrate_session
 from app.session import Session, sha256_file
+from app.workflows.calibration import calibrate_session
 from mocks.station import SimulatedStation
 from mocks.world import World, rotation_z
 from processing.geometry.mesh_topology import mesh_topology

@@ -1,4 +1,4 @@
-"""`kogei register` (app.cli.register) end to end on files, with ground truth.
+"""`kogei register` (app.cli.register, app.workflows.cloud_registration) end to end on files, with ground truth.
 
 Two or three passes of the procedural hawk in random placements (the ring scan
 of tests/geometry/test_registration.py) are written as PLY / PCD / XYZ files; the poses
@@ -15,15 +15,11 @@ import math
 import numpy as np
 import pytest
 
-from app.cli.register import (
-    POSES_FORMAT,
-    add_parser,
-    read_cloud,
-    read_picks,
-    run,
-)
+from app.cli.register import add_parser, run
 from app.errors import UsageError
+from app.workflows.cloud_registration import POSES_FORMAT, read_cloud, read_picks
 from mocks.procedural_hawk import hawk_head
+from processing.errors import InputError
 from processing.geometry.registration import pose_difference, transform_points
 from tests.geometry.test_registration import _placement, _scan
 
@@ -161,7 +157,7 @@ def test_degenerate_cloud_file_is_a_usage_error(tmp_path):
     good = _write(tmp_path / "good.xyz", np.random.default_rng(0).normal(size=(50, 3)) * 10)
     flat = np.c_[np.random.default_rng(1).normal(size=(50, 2)), np.zeros(50)]
     bad = _write(tmp_path / "flat.xyz", flat)
-    with pytest.raises(UsageError, match="flat.xyz: all points lie in one plane"):
+    with pytest.raises(InputError, match="flat.xyz: all points lie in one plane"):
         run(_parse(good, bad, "--poses", tmp_path / "p.json"))
 
 
@@ -207,7 +203,7 @@ def test_picks_file_missing_and_too_few_picks(tmp_path):
     b = _write(tmp_path / "b.xyz", np.random.default_rng(1).normal(size=(50, 3)) * 10)
     picks = tmp_path / "picks.json"
     picks.write_text(json.dumps([{"pair": [0, 1], "points": [[[0, 0, 0], [1, 0, 0]], [[0, 0, 0], [1, 0, 0]]]}]))
-    with pytest.raises(UsageError, match="at least 3 picked point pairs"):
+    with pytest.raises(InputError, match="at least 3 picked point pairs"):
         run(_parse(a, b, "--poses", tmp_path / "p.json", "--picks", picks))
 
 

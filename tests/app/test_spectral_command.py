@@ -24,7 +24,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.cli import main
-from app.cli.spectral import load_result
+from app.workflows.spectral import load_result
 from processing.spectral.display import spectra_to_xyz
 from processing.spectral.estimation.estimator import region_spectra
 from processing.spectral.spectra import light_spectrum
@@ -336,7 +336,7 @@ def test_a_saturated_pixel_is_masked_and_refused_by_at(shots, tmp_path, capsys):
 @given(st.lists(st.tuples(st.integers(1, 24), st.integers(0, 5)), min_size=1, max_size=6))
 @settings(max_examples=50, deadline=None)
 def test_patch_lists_select_exactly_the_named_patches(ranges):
-    from app.cli.spectral import parse_patch_list
+    from app.workflows.spectral import parse_patch_list
 
     spans = [(a, min(a + n, 24)) for a, n in ranges]
     text = ",".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans)

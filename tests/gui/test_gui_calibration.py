@@ -19,7 +19,7 @@ pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip
 from PySide6.QtCore import Qt
 
 from app.capture.runner import load_pass_profiles
-from app.cli.calibrate import session_calibration
+from app.workflows.calibration import session_calibration
 from app.gui.devices_panel import SIMULATED_OBJECTS
 from app.session import Session
 from mocks.world import World

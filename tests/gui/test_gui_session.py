@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from PySide6.QtCore import QPoint, Qt
 
-from app.cli.calibrate import calibrate_session
+from app.workflows.calibration import calibrate_session
 from app.session import Session
 from mocks.world import World, rotation_z
 from processing.geometry.registration import pose_difference
