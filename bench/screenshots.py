@@ -28,8 +28,8 @@ __all__ = ["main", "take_screenshots"]
 def _calibration(tmp: Path) -> Path:
     from app.capture.devices import build_devices
     from app.capture.runner import CaptureHooks, CapturePlan, run_capture
-    from app.workflows.calibration import calibrate_session
     from app.session import Session
+    from app.workflows.calibration import calibrate_session
     from mocks.station import SimulatedStation
     from mocks.world import World
 

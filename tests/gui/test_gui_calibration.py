@@ -19,9 +19,9 @@ pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip
 from PySide6.QtCore import Qt
 
 from app.capture.runner import load_pass_profiles
-from app.workflows.calibration import session_calibration
 from app.gui.devices_panel import SIMULATED_OBJECTS
 from app.session import Session
+from app.workflows.calibration import session_calibration
 from mocks.world import World
 from tests.gui.helpers import connect_instruments, library_capture, make_window, same_profiles, wait_capture
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 from PySide6.QtCore import QPoint, Qt
 
-from app.workflows.calibration import calibrate_session
 from app.session import Session
+from app.workflows.calibration import calibrate_session
 from mocks.world import World, rotation_z
 from processing.geometry.registration import pose_difference
 from render.meshio import load_mesh
