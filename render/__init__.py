@@ -5,10 +5,14 @@ accuracy and speed.
 
 Modules
 -------
+:mod:`render.backends`
+    The colour backends of the shading: full spectra, or XYZ angle tables.
 :mod:`render.camera`
     Pinhole camera and primary rays (stratified or rotated-grid samples).
 :mod:`render.errors`
     The renderer's exceptions.
+:mod:`render.integrator`
+    Shading of ray hits: direct light with shadow rays, sky light, one mirror bounce.
 :mod:`render.image_io`
     Atomic writing of 8-bit sRGB PNG and float32 XYZ TIFF.
 :mod:`render.meshio`
@@ -20,7 +24,7 @@ Modules
 :mod:`render.scene`
     Objects with materials, lights and the sky.
 :mod:`render.shading`
-    Shading of ray hits: direct light, shadows, sky light, one mirror bounce.
+    The shading's geometry: hits, microfacet terms, material and light plans.
 :mod:`render.tables`
     Angular XYZ tables of a lobe's spectral integral.
 :mod:`render.tangents`

@@ -48,23 +48,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from processing.spectral.spectra import SpectralGrid
+from render.backends import SpectralBackend, TableBackend
 from render.camera import Camera
 from render.errors import RenderCancelled, RenderInputError
+from render.integrator import ShadingContext, light_samples, shade
 from render.presets import PRESETS, RenderSettings
 from render.scene import Scene, Sky, check_point_lights, resolve_spectrum
-from render.shading import (
-    Hits,
-    LightPlan,
-    MaterialPlan,
-    ShadingContext,
-    SpectralBackend,
-    TableBackend,
-    dot3,
-    light_samples,
-    orthonormal_basis,
-    plan_material,
-    shade,
-)
+from render.shading import Hits, LightPlan, MaterialPlan, dot3, orthonormal_basis, plan_material
 
 __all__ = [
     "RenderResult",

@@ -20,7 +20,7 @@ from processing.materials.metal_model import ConductorFresnel
 from processing.materials.presets import get_material
 from processing.spectral.display import spectra_to_xyz, xyz_scale
 from processing.spectral.spectra import SpectralGrid, light_spectrum
-from render.shading import ALBEDO_GRAZING_COS, ALBEDO_TABLE_SIZE, _albedo_spectra
+from render.backends import ALBEDO_GRAZING_COS, ALBEDO_TABLE_SIZE, _albedo_spectra
 from render.tables import AngleTable, spectral_factor_table, table_error, table_index
 
 GRID = SpectralGrid(400, 700, 5)
