@@ -34,6 +34,7 @@ from app.report.figures import (
     pose_graph_figure,
     timing_figure,
 )
+from processing.common.png import png_bytes
 
 __all__ = ["Section", "build_report", "write_report", "report_sections", "REPORT_FILE"]
 
@@ -242,10 +243,6 @@ def _registration(ctx: _Context, rep: dict[str, Any] | None) -> Section:
 
 
 def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
-    import io
-
-    from PIL import Image
-
     from app.batch.steps import render_session_mesh
 
     mesh = ctx.products.get("mesh")
@@ -262,9 +259,7 @@ def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
     for name, direction in MESH_VIEWS:
         result = render_session_mesh(ctx.root, "D65", MESH_VIEW_SIZE, "draft", material=MESH_VIEW_MATERIAL,
                                      direction=direction)
-        buf = io.BytesIO()
-        Image.fromarray(result.srgb8).save(buf, format="PNG")
-        views.append(_img(buf.getvalue(), f"mesh {name}", name))
+        views.append(_img(png_bytes(result.srgb8), f"mesh {name}", name))
     body = _kv(pairs) + "<div class='row'>" + "".join(views) + "</div>"
     return Section("mesh", "Mesh views", body, True)
 
