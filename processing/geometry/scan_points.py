@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.errors import InputError
-from processing.geometry.calibration import ScannerCalibration, check_sensor_to_room
+from processing.geometry.calibration import ScannerCalibration, _check_profiles, check_sensor_to_room
 
 __all__ = ["ScanPoints", "profiles_to_points"]
 
@@ -247,21 +247,7 @@ def _check_inputs(x_mm: ArrayLike, z_mm: ArrayLike, angles_deg: ArrayLike,
                   normal_window: tuple[int, int] | None, max_jump_mm: float | None
                   ) -> tuple[NDArray, NDArray, NDArray, NDArray, tuple[float, float]]:
     """The profiles, angles and ``sensor_to_room`` as float arrays and the range, after checking every option."""
-    x = np.asarray(x_mm, dtype=np.float64)
-    z = np.asarray(z_mm, dtype=np.float64)
-    a = np.asarray(angles_deg, dtype=np.float64)
-    if x.ndim != 2:
-        raise InputError(f"x_mm must be a (steps, points) array of profiles, got shape {x.shape}")
-    if z.shape != x.shape:
-        raise InputError(f"z_mm must have the shape of x_mm {x.shape}, got {z.shape}")
-    if a.shape != (x.shape[0],):
-        raise InputError(f"angles_deg must have one angle per profile, shape ({x.shape[0]},), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        bad = np.flatnonzero(~np.isfinite(a))
-        raise InputError(f"angles_deg has NaN or infinite values at step(s) {bad[:10].tolist()}")
-    for name, arr in (("x_mm", x), ("z_mm", z)):
-        if np.isinf(arr).any():
-            raise InputError(f"{name} contains infinite values; mark invalid points with NaN")
+    x, z, a, _ = _check_profiles(x_mm, z_mm, angles_deg)
     m = check_sensor_to_room(calibration.sensor_to_room if isinstance(calibration, ScannerCalibration)
                              else calibration, "calibration")
     if not (math.isfinite(table_tolerance_mm) and table_tolerance_mm >= 0):
