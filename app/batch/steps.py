@@ -36,6 +36,7 @@ from typing import Any
 
 from app.batch.code_version import code_version
 from app.errors import UsageError
+from processing.common.png import png_bytes
 
 __all__ = ["BatchOptions", "Step", "STEPS", "STEP_NAMES", "UNAVAILABLE_STEPS", "parse_steps", "fingerprint",
            "step_inputs", "up_to_date", "run_step", "DEFAULT_MATERIAL", "RENDER_ILLUMINANTS", "RENDER_SIZE"]
@@ -158,12 +159,6 @@ def _render_params(options: BatchOptions) -> dict[str, Any]:
             "default_material": DEFAULT_MATERIAL}
 
 
-def _png_bytes(srgb8: Any) -> bytes:
-    from processing.common.png import png_bytes
-
-    return png_bytes(srgb8)
-
-
 def render_session_mesh(root: Path, illuminant: str, size: tuple[int, int], preset: str,
                         material: str = DEFAULT_MATERIAL, direction: tuple[float, float, float] | None = None) -> Any:
     """Render the session's ``products/mesh.ply`` with one material under one illuminant.
@@ -208,7 +203,7 @@ def _render_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
         t = time.perf_counter()
         result = render_session_mesh(root, ill, options.render_size, options.preset, material=material)
         seconds[ill] = round(time.perf_counter() - t, 3)
-        images[ill] = _png_bytes(result.srgb8)
+        images[ill] = png_bytes(result.srgb8)
         log(f"rendered under {ill} ({options.render_size[0]}x{options.render_size[1]}, {seconds[ill]:.2f} s)")
     with Session.open(root) as session:
         files = {ill: session.write_file(f"{RENDERS}/{ill}.png", blob) for ill, blob in images.items()}
