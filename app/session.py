@@ -44,12 +44,14 @@ Examples
 from __future__ import annotations
 
 import datetime as _dt
+import errno
 import fcntl
 import hashlib
 import io
 import json
 import os
 import shutil
+import stat
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,6 +71,9 @@ __all__ = [
     "SessionLockedError",
     "FileInfo",
     "Session",
+    "session_path",
+    "check_regular_file",
+    "read_session_file",
     "atomic_write_bytes",   # re-exported from processing.common.files
     "sha256_file",          # re-exported from processing.common.files
     "utc_now",
@@ -80,6 +85,10 @@ SCHEMA_VERSION = 1
 MANIFEST = "session.json"
 JOURNAL = "session.journal"
 LOCK = "session.lock"
+#: Largest ``session.json`` read (bytes); a manifest of 100 000 captures is about 40 MB.
+MAX_MANIFEST_BYTES = 256 << 20
+#: Largest ``session.journal`` replayed (bytes).
+MAX_JOURNAL_BYTES = 1 << 30
 
 _STATUSES = ("new", "capturing", "interrupted", "complete", "failed")
 
@@ -114,6 +123,214 @@ def _check_rel(rel: str) -> str:
     return p.as_posix()
 
 
+_SYMLINK_FIX = "a session folder holds plain files and folders only; replace it with the real file or folder"
+
+
+def _symlink_error(what: str, rel: str) -> SessionError:
+    return SessionError(f"{what}: {rel} is a symbolic link; {_SYMLINK_FIX} (kogei never follows links "
+                        "inside a session)")
+
+
+def session_path(root: str | os.PathLike[str], rel: Any, what: str) -> Path:
+    """``root / rel`` after checking that ``rel`` stays inside the session without following a link.
+
+    Every file name a session stores (a capture's ``file``, a product, the
+    calibration, ...) is untrusted input; join it to the session root only
+    through this function.  ``root`` itself may be a symbolic link (the
+    folder the user names); only the entries below it are checked, each
+    with ``lstat``, so nothing outside the session is read or written
+    through a link planted inside it.  Missing components are accepted (a
+    file about to be written); the caller checks the file itself, e.g. with
+    :func:`check_regular_file`.
+
+    Parameters
+    ----------
+    root
+        The session folder.
+    rel
+        A session-relative file name from the manifest (``/`` separated).
+    what
+        What the name is, for the message (``"products.mesh.file"``).
+
+    Returns
+    -------
+    Path
+        ``Path(root) / rel``.
+
+    Raises
+    ------
+    SessionError
+        ``rel`` is not a non-empty string, contains a NUL byte, is absolute,
+        has a ``..`` component, or a component below ``root`` is a symbolic
+        link.  The message names ``what`` and ``rel``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> session_path(tempfile.mkdtemp(), "passes/p01/a.npz", "capture p01/a").name
+    'a.npz'
+    >>> session_path("/tmp", "../etc/passwd", "products.mesh.file")
+    Traceback (most recent call last):
+    ...
+    app.session.SessionError: products.mesh.file: '../etc/passwd' must be a relative path inside the session (no '..', not absolute); fix or remove that entry in session.json
+    """
+    if not isinstance(rel, str) or not rel:
+        raise SessionError(f"{what}: the file name must be a non-empty text, got {rel!r}; fix or remove "
+                           "that entry in session.json")
+    if "\0" in rel:
+        raise SessionError(f"{what}: the file name {rel!r} contains a NUL byte; fix or remove that entry "
+                           "in session.json")
+    parts = Path(rel).parts
+    if Path(rel).is_absolute() or ".." in parts:
+        raise SessionError(f"{what}: {rel!r} must be a relative path inside the session (no '..', not "
+                           "absolute); fix or remove that entry in session.json")
+    base = Path(root)
+    current = base
+    for part in parts:
+        current = current / part
+        try:
+            mode = os.lstat(current).st_mode
+        except FileNotFoundError:
+            break
+        except OSError as exc:
+            raise SessionError(f"{what}: cannot look at {current}: {exc.strerror or exc}") from None
+        if stat.S_ISLNK(mode):
+            raise _symlink_error(what, current.relative_to(base).as_posix())
+    return base / rel
+
+
+def _kind(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a named pipe (FIFO)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device file"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISLNK(mode):
+        return "a symbolic link"
+    return "not a plain file"
+
+
+def _check_stat(st: os.stat_result, path: Path, what: str, max_bytes: int | None) -> None:
+    if not stat.S_ISREG(st.st_mode):
+        if stat.S_ISLNK(st.st_mode):
+            raise _symlink_error(what, path.name)
+        raise SessionError(f"{what}: {path} is {_kind(st.st_mode)}, not a plain file; a session holds plain "
+                           "files only: replace or remove it")
+    if max_bytes is not None and st.st_size > max_bytes:
+        raise SessionError(f"{what}: {path} has {st.st_size} bytes, more than the {max_bytes} this file may "
+                           "have; it is not what kogei wrote: replace or remove it")
+
+
+def check_regular_file(path: str | os.PathLike[str], what: str, max_bytes: int | None = None) -> Path:
+    """Refuse anything but a plain file of at most ``max_bytes`` at ``path`` (not followed if a link).
+
+    Call it on a path from :func:`session_path` before reading: a FIFO
+    would block the reader for ever, a device file (``/dev/zero``) would
+    exhaust memory, a folder or a huge file is not what kogei wrote.  For a
+    read that cannot be raced (the file swapped between the check and the
+    read) use :func:`read_session_file`.
+
+    Parameters
+    ----------
+    path
+        The file (a symbolic link is refused, not followed).
+    what
+        What the file is, for the message.
+    max_bytes
+        Largest accepted size; None for no bound.
+
+    Returns
+    -------
+    Path
+        ``path``, for chaining.
+
+    Raises
+    ------
+    SessionError
+        Missing, a symbolic link, a folder, FIFO, device or socket, or larger
+        than ``max_bytes``; the message names ``what`` and the file.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "a.bin"
+    >>> _ = p.write_bytes(b"12345")
+    >>> check_regular_file(p, "test file", max_bytes=10).name
+    'a.bin'
+    >>> check_regular_file(p.parent, "test file")
+    Traceback (most recent call last):
+    ...
+    app.session.SessionError: test file: ... is a folder, not a plain file; a session holds plain files only: replace or remove it
+    """
+    p = Path(path)
+    try:
+        st = os.lstat(p)
+    except FileNotFoundError:
+        raise SessionError(f"{what}: {p} is missing") from None
+    except OSError as exc:
+        raise SessionError(f"{what}: cannot look at {p}: {exc.strerror or exc}") from None
+    _check_stat(st, p, what, max_bytes)
+    return p
+
+
+def read_session_file(root: str | os.PathLike[str], rel: Any, what: str, max_bytes: int) -> bytes:
+    """The bytes of the session file ``rel``, checked by :func:`session_path` and as a plain file.
+
+    The file is opened without following a link and without blocking (a
+    FIFO cannot hang the reader), then checked on the open descriptor, so it
+    cannot be swapped between the check and the read.
+
+    Parameters
+    ----------
+    root
+        The session folder.
+    rel
+        The session-relative name (from the manifest: untrusted).
+    what
+        What the file is, for the message.
+    max_bytes
+        Largest accepted size.
+
+    Returns
+    -------
+    bytes
+        The contents.
+
+    Raises
+    ------
+    SessionError
+        As :func:`session_path` and :func:`check_regular_file`, or unreadable.
+    """
+    path = session_path(root, rel, what)
+    return _read_plain(path, what, max_bytes)
+
+
+def _read_plain(path: Path, what: str, max_bytes: int) -> bytes:
+    flags = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise SessionError(f"{what}: {path} is missing") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise _symlink_error(what, path.name) from None
+        raise SessionError(f"{what}: cannot read {path}: {exc.strerror or exc}") from None
+    try:
+        _check_stat(os.fstat(fd), path, what, max_bytes)
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            data = fh.read(max_bytes + 1)
+    except OSError as exc:
+        raise SessionError(f"{what}: cannot read {path}: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise SessionError(f"{what}: {path} grew beyond {max_bytes} bytes while being read; replace it")
+    return data
+
+
 class Session:
     """An open session directory (see the module docstring).
 
@@ -135,7 +352,7 @@ class Session:
         self.root = root
         self.manifest = manifest
         self._lock_fd = lock_fd
-        self._journal = open(root / JOURNAL, "ab")
+        self._journal = _open_journal(root)
         self._journal_ops = 0
         self.sync_interval_s = _interval(sync_interval_s, self.SYNC_INTERVAL_S)
         self._unsynced: set[Path] = set()
@@ -144,7 +361,7 @@ class Session:
     # ------------------------------------------------------------------ life cycle
     @staticmethod
     def _lock(root: Path) -> int:
-        fd = os.open(root / LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = _open_own(root, LOCK, os.O_RDWR | os.O_CREAT)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -261,13 +478,14 @@ class Session:
 
     # ------------------------------------------------------------------ files
     def path(self, rel: str) -> Path:
-        """Absolute path of a session-relative file name."""
-        return self.root / _check_rel(rel)
+        """Absolute path of a session-relative file name (checked by :func:`session_path`)."""
+        return session_path(self.root, _check_rel(rel), "session file")
 
     def write_file(self, rel: str, data: bytes) -> FileInfo:
         """Write ``data`` atomically and durably at ``rel``; returns its checksum (not yet recorded)."""
         self._require_open()
         rel = _check_rel(rel)
+        session_path(self.root, rel, "session file")
         durable = self.sync_interval_s == 0
         try:
             atomic_write_bytes(self.root / rel, data, durable=durable)
@@ -288,7 +506,7 @@ class Session:
         """Move an existing file (e.g. a downloaded RAW frame) to ``rel`` atomically, replacing any old one."""
         self._require_open()
         rel = _check_rel(rel)
-        target = self.root / rel
+        target = session_path(self.root, rel, "session file")
         target.parent.mkdir(parents=True, exist_ok=True)
         source = Path(src)
         digest = sha256_file(source)
@@ -309,9 +527,15 @@ class Session:
         rel = record.get("file")
         if not rel:
             return None
-        p = self.root / rel
-        if not p.is_file():
+        try:
+            p = session_path(self.root, rel, "capture file")
+            st = os.lstat(p)
+        except SessionError as exc:
+            return str(exc)
+        except OSError:
             return f"{rel} is missing"
+        if not stat.S_ISREG(st.st_mode):
+            return f"{rel} is {_kind(st.st_mode)}, not a plain file"
         if "bytes" in record and p.stat().st_size != record["bytes"]:
             return f"{rel} has {p.stat().st_size} bytes, the manifest says {record['bytes']}"
         if "sha256" in record and sha256_file(p) != record["sha256"]:
@@ -425,6 +649,29 @@ class Session:
         self._journal_ops += len(ops)
 
 
+def _open_own(root: Path, name: str, flags: int) -> int:
+    """``os.open`` one of the session's own files (journal, lock) without following a link."""
+    flags |= os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(root / name, flags, 0o666)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise _symlink_error(f"session {root}", name) from None
+        raise
+    try:
+        _check_stat(os.fstat(fd), root / name, f"session {root}", None)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _open_journal(root: Path) -> io.BufferedWriter:
+    fd = _open_own(root, JOURNAL, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+    os.set_blocking(fd, True)
+    return os.fdopen(fd, "ab")
+
+
 def _interval(value: float | None, default: float) -> float:
     interval = default if value is None else value
     if not (isinstance(interval, (int, float)) and 0 <= interval < float("inf")):
@@ -438,12 +685,13 @@ def _dump(manifest: dict[str, Any]) -> bytes:
 
 def _load_manifest(path: Path) -> dict[str, Any]:
     file = path / MANIFEST
-    if not file.is_file():
+    if not os.path.lexists(file):
         raise SessionError(f"{path} is not a kogei session ({MANIFEST} not found); give the folder "
                            "'kogei capture --out' created")
+    data = _read_plain(file, f"session {path}", MAX_MANIFEST_BYTES)
     try:
-        manifest = json.loads(file.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        manifest = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise SessionError(f"{file} is unreadable ({exc}); restore it from a backup") from None
     if not isinstance(manifest, dict) or manifest.get("schema") != SCHEMA:
         raise SessionError(f"{file} is not a kogei session manifest (schema {manifest.get('schema')!r})"
@@ -457,9 +705,9 @@ def _load_manifest(path: Path) -> dict[str, Any]:
 
 def _replay(manifest: dict[str, Any], journal: Path, *, strict: bool) -> int:
     """Apply the journal's operations to ``manifest``; returns how many were applied."""
-    if not journal.is_file():
+    if not os.path.lexists(journal):
         return 0
-    lines = journal.read_bytes().split(b"\n")
+    lines = _read_plain(journal, f"session {journal.parent}", MAX_JOURNAL_BYTES).split(b"\n")
     applied = 0
     for i, line in enumerate(lines):
         if not line.strip():
