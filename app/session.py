@@ -430,10 +430,27 @@ class Session:
     @classmethod
     def read(cls, root: str | os.PathLike[str]) -> dict[str, Any]:
         """The manifest with the journal replayed, without locking or changing anything (for viewers)."""
+        return cls.read_checked(root)[0]
+
+    @classmethod
+    def read_checked(cls, root: str | os.PathLike[str]) -> tuple[dict[str, Any], list[str]]:
+        """As :meth:`read`, with the problems found on the way (corrupt journal lines that were skipped).
+
+        Returns
+        -------
+        tuple
+            The manifest, and a list of one-line problem descriptions (empty
+            when the journal is sound) for a report's "problems found".
+        """
         path = Path(root)
         manifest = _load_manifest(path)
-        _replay(manifest, path / JOURNAL, strict=False)
-        return manifest
+        problems = _replay(manifest, path / JOURNAL, strict=False)
+        return manifest, problems
+
+    @classmethod
+    def problems(cls, root: str | os.PathLike[str]) -> list[str]:
+        """The problems :meth:`read` skips over (corrupt journal lines), one line each; empty if none."""
+        return cls.read_checked(root)[1]
 
     @classmethod
     def open(cls, root: str | os.PathLike[str], *, sync_interval_s: float | None = None) -> Session:
@@ -591,6 +608,10 @@ class Session:
         """Replace a top-level manifest entry (``object``, ``devices``, ``calibration``, ``settings``...)."""
         if key in ("schema", "version", "captures", "passes", "history", "state", "status"):
             raise SessionError(f"manifest key {key!r} is managed by the session; use its own method")
+        try:
+            _check_field(key, value)
+        except _SchemaError as exc:
+            raise SessionError(f"session {self.root}: {exc}") from None
         self._apply({"op": "set", "key": key, "value": value})
 
     def sync(self) -> None:
@@ -697,35 +718,175 @@ def _load_manifest(path: Path) -> dict[str, Any]:
         raise SessionError(f"{file} is not a kogei session manifest (schema {manifest.get('schema')!r})"
                            if isinstance(manifest, dict) else f"{file} is not a kogei session manifest")
     version = manifest.get("version")
-    if not isinstance(version, int) or version > SCHEMA_VERSION:
+    if _is_int(version, SCHEMA_VERSION + 1, 1 << 62):
         raise SessionError(f"{file} has manifest version {version!r}; this kogei reads versions up to "
                            f"{SCHEMA_VERSION}: update kogei")
+    try:
+        _check_manifest(manifest)
+    except _SchemaError as exc:
+        raise SessionError(f"{file}: {exc}; fix that field or restore {MANIFEST} from a backup") from None
     return manifest
 
 
-def _replay(manifest: dict[str, Any], journal: Path, *, strict: bool) -> int:
-    """Apply the journal's operations to ``manifest``; returns how many were applied."""
+def _replay(manifest: dict[str, Any], journal: Path, *, strict: bool) -> list[str]:
+    """Apply the journal's operations to ``manifest``.
+
+    A torn last line (not JSON) is ignored.  Any other bad line raises
+    :class:`SessionError` when ``strict``; otherwise it is skipped and
+    described in the returned list of problems (one line each).
+    """
+    problems: list[str] = []
     if not os.path.lexists(journal):
-        return 0
+        return problems
     lines = _read_plain(journal, f"session {journal.parent}", MAX_JOURNAL_BYTES).split(b"\n")
-    applied = 0
     for i, line in enumerate(lines):
         if not line.strip():
             continue
         try:
             op = json.loads(line)
-            _apply_op(manifest, op)
-        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError):
-            last = all(not rest.strip() for rest in lines[i + 1:])
-            if last:
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            if all(not rest.strip() for rest in lines[i + 1:]):
                 break  # torn final line: the process died while appending it
-            if strict:
-                raise SessionError(f"{journal}: line {i + 1} is corrupt (not a torn last line); the session "
-                                   "needs attention: move the journal aside and resume (captures after the "
-                                   "last checkpoint will be taken again)") from None
-            continue
-        applied += 1
-    return applied
+            why = "not JSON, and not a torn last line"
+        else:
+            try:
+                _check_op(op)
+            except _SchemaError as exc:
+                why = str(exc)
+            else:
+                _apply_op(manifest, op)
+                continue
+        if strict:
+            raise SessionError(f"{journal}: line {i + 1} is corrupt ({why}); the session needs attention: move "
+                               "the journal aside and resume (captures after the last checkpoint will be taken "
+                               "again)")
+        problems.append(f"{JOURNAL} line {i + 1} is corrupt ({why}); it was skipped")
+    return problems
+
+
+# ---------------------------------------------------------------------------- schema of manifest and journal
+#: Bounds a manifest must respect (a session outside them is refused, not processed for ever).
+MAX_PASSES = 1000
+MAX_STEPS = 100_000
+MAX_CAPTURES = 2_000_000
+MAX_HISTORY = 1_000_000
+_MANAGED = ("schema", "version", "captures", "passes", "history", "state", "status")
+_DICT_FIELDS = ("object", "devices", "settings", "state", "products", "batch")
+_OPS = ("capture", "pass", "state", "event", "status", "set")
+
+
+class _SchemaError(ValueError):
+    """A manifest field or journal operation of the wrong type or out of bounds (message names it)."""
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _need(ok: bool, field: str, expected: str, value: Any) -> None:
+    if not ok:
+        raise _SchemaError(f"{field} must be {expected}, got {_short(value)}")
+
+
+def _is_int(value: Any, low: int, high: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+
+
+def _check_record(field: str, rec: Any) -> None:
+    _need(isinstance(rec, dict), field, "an object (a capture record)", rec)
+    _need(rec.get("file") is None or isinstance(rec["file"], str), f"{field}.file", "a file name or null",
+          rec.get("file"))
+    if "bytes" in rec:
+        _need(_is_int(rec["bytes"], 0, 1 << 50), f"{field}.bytes", "a size in bytes", rec["bytes"])
+    if "sha256" in rec:
+        _need(isinstance(rec["sha256"], str), f"{field}.sha256", "a hex digest", rec["sha256"])
+    if "status" in rec:
+        _need(isinstance(rec["status"], str), f"{field}.status", "a text", rec["status"])
+
+
+def _check_plan(plan: Any) -> None:
+    _need(isinstance(plan, dict), "plan", "an object", plan)
+    bounds = {"steps": (1, MAX_STEPS), "passes": (1, MAX_PASSES), "chart_frames": (1, 99)}
+    for key, (low, high) in bounds.items():
+        if plan.get(key) is not None:
+            _need(_is_int(plan[key], low, high), f"plan.{key}", f"an integer in {low}..{high}", plan[key])
+    if "kind" in plan:
+        _need(isinstance(plan["kind"], str), "plan.kind", "a text", plan["kind"])
+    for key in ("chart", "camera"):
+        if key in plan:
+            _need(isinstance(plan[key], bool), f"plan.{key}", "true or false", plan[key])
+    angles = plan.get("camera_angles_deg", [])
+    _need(isinstance(angles, list) and len(angles) <= 1000 and all(
+        isinstance(a, (int, float)) and not isinstance(a, bool) for a in angles),
+        "plan.camera_angles_deg", "a list of at most 1000 angles in degrees", angles)
+    lasers = plan.get("lasers", [])
+    _need(isinstance(lasers, list) and len(lasers) <= 16 and all(_is_int(i, 0, 255) for i in lasers),
+          "plan.lasers", "a list of at most 16 laser numbers", lasers)
+
+
+def _check_field(key: str, value: Any) -> None:
+    """Check one top-level manifest field; raises :class:`_SchemaError` naming it."""
+    if key == "status":
+        _need(value in _STATUSES, key, f"one of {', '.join(_STATUSES)}", value)
+    elif key in ("created_utc", "updated_utc"):
+        _need(isinstance(value, str), key, "a UTC time as text", value)
+    elif key in _DICT_FIELDS:
+        _need(isinstance(value, dict), key, "an object", value)
+    elif key == "calibration":
+        _need(value is None or isinstance(value, dict), key, "an object or null", value)
+    elif key == "plan":
+        _check_plan(value)
+    elif key == "passes":
+        _need(isinstance(value, dict) and len(value) <= MAX_PASSES, key,
+              f"an object of at most {MAX_PASSES} pass records", value)
+        for number, rec in value.items():
+            _need(isinstance(rec, dict), f"passes.{number}", "an object", rec)
+    elif key == "captures":
+        _need(isinstance(value, dict) and len(value) <= MAX_CAPTURES, key,
+              f"an object of at most {MAX_CAPTURES} capture records", value)
+        for cid, rec in value.items():
+            _check_record(f"captures.{cid}", rec)
+    elif key == "history":
+        _need(isinstance(value, list) and len(value) <= MAX_HISTORY, key,
+              f"a list of at most {MAX_HISTORY} entries", value)
+        for i, entry in enumerate(value):
+            _need(isinstance(entry, dict), f"history[{i}]", "an object", entry)
+
+
+def _check_manifest(manifest: dict[str, Any]) -> None:
+    version = manifest.get("version")
+    _need(_is_int(version, 1, 1 << 31), "version", f"an integer in 1..{SCHEMA_VERSION}", version)
+    for key in ("passes", "state", "captures"):
+        manifest.setdefault(key, {})
+    manifest.setdefault("history", [])
+    for key, value in manifest.items():
+        _check_field(key, value)
+
+
+def _check_op(op: Any) -> None:
+    """Check one journal operation; raises :class:`_SchemaError` naming the faulty field."""
+    _need(isinstance(op, dict), "the operation", "an object", op)
+    kind = op.get("op")
+    _need(kind in _OPS, "op", f"one of {', '.join(_OPS)}", kind)
+    if kind == "capture":
+        _need(isinstance(op.get("id"), str) and 0 < len(op["id"]) <= 200, "capture id", "a text", op.get("id"))
+        _check_record(f"record of capture {op['id']}", op.get("record"))
+    elif kind == "pass":
+        _need(_is_int(op.get("pass"), 1, MAX_PASSES), "pass", f"an integer in 1..{MAX_PASSES}", op.get("pass"))
+        _need(isinstance(op.get("fields"), dict), "pass fields", "an object", op.get("fields"))
+    elif kind == "state":
+        _need(isinstance(op.get("fields"), dict), "state fields", "an object", op.get("fields"))
+    elif kind == "event":
+        _need(isinstance(op.get("entry"), dict), "history entry", "an object", op.get("entry"))
+    elif kind == "status":
+        _check_field("status", op.get("status"))
+    else:
+        key = op.get("key")
+        _need(isinstance(key, str) and key not in _MANAGED, "set key",
+              f"a manifest key other than {', '.join(_MANAGED)}", key)
+        _need("value" in op, f"set {key}", "given a value", None)
+        _check_field(key, op["value"])
 
 
 def _apply_op(manifest: dict[str, Any], op: dict[str, Any]) -> None:

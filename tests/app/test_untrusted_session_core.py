@@ -6,6 +6,7 @@ outside it is read, written or truncated."""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -188,3 +189,109 @@ def test_read_session_file_reads_plain_files_only(tmp_path):
         read_session_file(tmp_path, "l", "x", 100)
     with pytest.raises(SessionError, match="relative path"):
         read_session_file(tmp_path, "/dev/zero", "x", 100)
+
+
+# ---------------------------------------------------------------------------- 2. manifest and journal schema
+def _with_manifest(tmp_path: Path, **fields) -> Path:
+    root = _new(tmp_path)
+    m = json.loads((root / MANIFEST).read_text())
+    m.update(fields)
+    (root / MANIFEST).write_text(json.dumps(m))
+    return root
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("version", 0, "version must be an integer"),
+    ("version", -5, "version must be an integer"),
+    ("version", True, "version must be an integer"),
+    ("version", "1", "version must be an integer"),
+    ("version", 2, "update kogei"),
+    ("captures", "x", "captures must be an object"),
+    ("captures", {"a": "x"}, "captures.a must be an object"),
+    ("captures", {"a": {"file": 3}}, "captures.a.file must be a file name"),
+    ("captures", {"a": {"file": "a", "bytes": -1}}, "captures.a.bytes must be"),
+    ("object", [1, 2], "object must be an object"),
+    ("devices", "x", "devices must be an object"),
+    ("settings", None, "settings must be an object"),
+    ("calibration", "cal.json", "calibration must be an object or null"),
+    ("plan", [], "plan must be an object"),
+    ("plan", {"passes": 1_000_000_000}, r"plan.passes must be an integer in 1..1000"),
+    ("plan", {"passes": True}, r"plan.passes must be an integer"),
+    ("plan", {"steps": 0}, r"plan.steps must be an integer in 1..100000"),
+    ("plan", {"camera_angles_deg": list(range(5000))}, "plan.camera_angles_deg"),
+    ("passes", {"1": 5}, "passes.1 must be an object"),
+    ("history", {}, "history must be a list"),
+    ("history", ["x"], r"history\[0\] must be an object"),
+    ("status", "bogus", "status must be one of"),
+    ("products", "x", "products must be an object"),
+])
+@pytest.mark.parametrize("how", ["read", "open"])
+def test_wrong_types_and_bounds_in_the_manifest_are_named(tmp_path, field, value, match, how):
+    root = _with_manifest(tmp_path, **{field: value})
+    with pytest.raises(SessionError, match=match) as err:
+        Session.read(root) if how == "read" else Session.open(root)
+    assert MANIFEST in _one_line(err.value)
+
+
+def test_kogei_report_on_a_wrong_typed_manifest_exits_2_with_one_line(tmp_path, capsys):
+    root = _with_manifest(tmp_path, plan={"kind": "scan", "steps": 4, "passes": 1_000_000_000})
+    assert main(["report", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "plan.passes" in err and len(err.splitlines()) == 1
+
+
+def _append_journal(root: Path, *lines: bytes) -> None:
+    with open(root / JOURNAL, "ab") as fh:
+        fh.write(b"".join(line + b"\n" for line in lines))
+
+
+GOOD_OP = json.dumps({"op": "state", "fields": {"x": 1}}).encode()
+
+
+@pytest.mark.parametrize("line,match", [
+    (b"[1, 2]", "the operation must be an object"),
+    (b'{"op": "capture", "id": "b", "record": "x"}', "record of capture b must be an object"),
+    (b'{"op": "capture", "id": 7, "record": {}}', "capture id must be a text"),
+    (b'{"op": "nuke"}', "op must be one of"),
+    (b'{"op": "pass", "pass": true, "fields": {}}', "pass must be an integer"),
+    (b'{"op": "state", "fields": []}', "state fields must be an object"),
+    (b'{"op": "set", "key": "captures", "value": {}}', "set key must be"),
+    (b'{"op": "set", "key": "plan", "value": {"passes": 1000000000}}', "plan.passes"),
+    (b'{"op": "status", "status": 3}', "status must be one of"),
+])
+def test_a_bad_journal_op_is_a_named_error_on_open_and_a_problem_on_read(tmp_path, line, match):
+    root = _new(tmp_path)
+    _append_journal(root, GOOD_OP, line, GOOD_OP)
+    with pytest.raises(SessionError, match=match) as err:
+        Session.open(root)
+    assert "line 2 is corrupt" in _one_line(err.value)
+    manifest, problems = Session.read_checked(root)
+    assert manifest["state"]["x"] == 1 and len(problems) == 1
+    assert "line 2 is corrupt" in problems[0] and "\n" not in problems[0]
+    assert Session.problems(root) == problems
+
+
+def test_a_bad_last_op_that_is_json_is_not_mistaken_for_a_torn_line(tmp_path):
+    root = _new(tmp_path)
+    _append_journal(root, GOOD_OP, b'{"op": "capture", "id": "b", "record": []}')
+    assert len(Session.problems(root)) == 1
+    with pytest.raises(SessionError, match="line 2 is corrupt"):
+        Session.open(root)
+
+
+def test_corrupt_middle_lines_are_listed_torn_last_line_is_not(tmp_path):
+    root = _new(tmp_path)
+    _append_journal(root, b"garbage", GOOD_OP, b"more garbage", GOOD_OP)
+    with open(root / JOURNAL, "ab") as fh:
+        fh.write(b'{"op":"capture","id":"b","rec')              # torn: the process died mid-append
+    problems = Session.problems(root)
+    assert [p.split(" is corrupt")[0] for p in problems] == ["session.journal line 1", "session.journal line 3"]
+    assert Session.problems(_new(tmp_path, "clean")) == []
+
+
+def test_update_refuses_a_wrong_typed_value_before_journaling_it(tmp_path):
+    root = _new(tmp_path)
+    with Session.open(root) as s:
+        with pytest.raises(SessionError, match="products must be an object"):
+            s.update("products", "x")
+    assert Session.problems(root) == [] and "products" not in Session.read(root)
