@@ -352,7 +352,10 @@ class Session:
         self.root = root
         self.manifest = manifest
         self._lock_fd = lock_fd
-        self._journal = _open_journal(root)
+        try:
+            self._journal = _open_journal(root)
+        except OSError as exc:
+            raise _disk_error(root, f"open {JOURNAL} for writing", exc) from None
         self._journal_ops = 0
         self.sync_interval_s = _interval(sync_interval_s, self.SYNC_INTERVAL_S)
         self._unsynced: set[Path] = set()
@@ -361,7 +364,10 @@ class Session:
     # ------------------------------------------------------------------ life cycle
     @staticmethod
     def _lock(root: Path) -> int:
-        fd = _open_own(root, LOCK, os.O_RDWR | os.O_CREAT)
+        try:
+            fd = _open_own(root, LOCK, os.O_RDWR | os.O_CREAT)
+        except OSError as exc:
+            raise _disk_error(root, f"open {LOCK} for writing", exc) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -424,8 +430,15 @@ class Session:
         except (TypeError, ValueError) as exc:
             raise SessionError(f"session {path}: plan, object, devices and settings must be JSON data: {exc}") from None
         fd = cls._lock(path)
-        atomic_write_bytes(path / MANIFEST, _dump(manifest))
-        return cls(path, manifest, fd, sync_interval_s)
+        try:
+            atomic_write_bytes(path / MANIFEST, _dump(manifest))
+            return cls(path, manifest, fd, sync_interval_s)
+        except OSError as exc:
+            os.close(fd)
+            raise _disk_error(path, f"write {MANIFEST}", exc) from None
+        except BaseException:
+            os.close(fd)
+            raise
 
     @classmethod
     def read(cls, root: str | os.PathLike[str]) -> dict[str, Any]:
@@ -469,11 +482,15 @@ class Session:
         fd = cls._lock(path)
         try:
             _replay(manifest, path / JOURNAL, strict=True)
+            session = cls(path, manifest, fd, sync_interval_s)
         except BaseException:
             os.close(fd)
             raise
-        session = cls(path, manifest, fd, sync_interval_s)
-        session.checkpoint()
+        try:
+            session.checkpoint()
+        except BaseException:
+            session._release()
+            raise
         return session
 
     def close(self) -> None:
@@ -483,15 +500,28 @@ class Session:
         try:
             self.checkpoint()
         finally:
+            self._release()
+
+    def _release(self) -> None:
+        """Close the journal and release the lock without checkpointing (the journal keeps every record)."""
+        try:
             self._journal.close()
-            os.close(self._lock_fd)
-            self._lock_fd = -1
+        except OSError:
+            pass            # a buffered append that failed (disk full) was reported already; the line is torn
+        os.close(self._lock_fd)
+        self._lock_fd = -1
 
     def __enter__(self) -> Session:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        try:
+            self.close()
+        except SessionError:
+            pass            # keep the error in flight (e.g. "disk full"): it is the one the user must see
 
     # ------------------------------------------------------------------ files
     def path(self, rel: str) -> Path:
@@ -524,19 +554,22 @@ class Session:
         self._require_open()
         rel = _check_rel(rel)
         target = session_path(self.root, rel, "session file")
-        target.parent.mkdir(parents=True, exist_ok=True)
         source = Path(src)
         digest = sha256_file(source)
         size = source.stat().st_size
         try:
-            os.replace(source, target)
-        except OSError:
-            # another filesystem: copy to a temporary file beside the target, then rename (fsync-ed)
-            with atomic_path(target) as tmp:
-                shutil.copyfile(source, tmp)
-            source.unlink()
-        else:
-            fsync_dir(target.parent)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.replace(source, target)
+            except OSError:
+                # another filesystem: copy to a temporary file beside the target, then rename (fsync-ed)
+                with atomic_path(target) as tmp:
+                    shutil.copyfile(source, tmp)
+                source.unlink()
+            else:
+                fsync_dir(target.parent)
+        except OSError as exc:
+            raise _disk_error(self.root, f"store {rel}", exc) from None
         return FileInfo(rel, digest, size)
 
     def verify_file(self, record: dict[str, Any]) -> str | None:
@@ -617,6 +650,12 @@ class Session:
     def sync(self) -> None:
         """Make every file written and every record journaled so far durable (``fsync``)."""
         self._require_open()
+        try:
+            self._sync()
+        except OSError as exc:
+            raise _disk_error(self.root, "write its files to disk (fsync)", exc) from None
+
+    def _sync(self) -> None:
         folders = set()
         for path in self._unsynced:
             try:
@@ -640,10 +679,13 @@ class Session:
         self._require_open()
         self.sync()
         self.manifest["updated_utc"] = utc_now()
-        atomic_write_bytes(self.root / MANIFEST, _dump(self.manifest))
-        self._journal.truncate(0)
-        self._journal.seek(0)
-        os.fsync(self._journal.fileno())
+        try:
+            atomic_write_bytes(self.root / MANIFEST, _dump(self.manifest))
+            self._journal.truncate(0)
+            self._journal.seek(0)
+            os.fsync(self._journal.fileno())
+        except OSError as exc:
+            raise _disk_error(self.root, f"save {MANIFEST}", exc) from None
         self._journal_ops = 0
 
     # ------------------------------------------------------------------ internals
@@ -661,13 +703,30 @@ class Session:
             self._journal.write(line)
             self._journal.flush()
             if time.monotonic() - self._last_sync >= self.sync_interval_s:
-                self.sync()
+                self._sync()
         except OSError as exc:
             raise SessionError(f"session {self.root}: cannot append to {JOURNAL}: {exc.strerror or exc} "
                                "(disk full? free space and resume)") from None
         for op in ops:
             _apply_op(self.manifest, op)
         self._journal_ops += len(ops)
+
+
+_READ_ONLY = (errno.EROFS, errno.EACCES, errno.EPERM)
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+def _disk_error(root: Path, action: str, exc: OSError) -> SessionError:
+    """The one-line message for an ``OSError`` while writing the session: what failed and what to do."""
+    reason = exc.strerror or str(exc)
+    if exc.errno in _FULL:
+        todo = "the disk is full: free space"
+    elif exc.errno in _READ_ONLY:
+        todo = "the session is read-only here: make it writable or copy it to a writable disk"
+    else:
+        todo = "fix the disk"
+    return SessionError(f"session {root}: cannot {action}: {reason}; nothing recorded is lost: {todo} and run "
+                        f"the command again (a capture continues with 'kogei capture --resume {root}')")
 
 
 def _open_own(root: Path, name: str, flags: int) -> int:

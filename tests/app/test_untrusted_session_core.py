@@ -6,6 +6,7 @@ outside it is read, written or truncated."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from pathlib import Path
@@ -295,3 +296,108 @@ def test_update_refuses_a_wrong_typed_value_before_journaling_it(tmp_path):
         with pytest.raises(SessionError, match="products must be an object"):
             s.update("products", "x")
     assert Session.problems(root) == [] and "products" not in Session.read(root)
+
+
+# ---------------------------------------------------------------------------- 3. full disk, read-only filesystem
+def _raising(code: int):
+    def fail(*args, **kwargs):
+        raise OSError(code, os.strerror(code))
+    return fail
+
+
+def _with_journaled_capture(tmp_path: Path) -> Path:
+    """A session whose last capture is only in the journal (a capture killed before its checkpoint)."""
+    root = _new(tmp_path)
+    s = Session.open(root)
+    info = s.write_file("passes/p01/b.bin", b"bbb")
+    s.add_capture("p01/b", kind="note", file=info.path, sha256=info.sha256, bytes=info.bytes)
+    s._journal.flush()
+    s._release()
+    return root
+
+
+@pytest.mark.parametrize("code,todo", [(errno.ENOSPC, "disk is full: free space"),
+                                       (errno.EDQUOT, "disk is full: free space"),
+                                       (errno.EROFS, "read-only"), (errno.EACCES, "read-only")])
+def test_open_on_a_full_or_read_only_disk_is_one_line_and_loses_nothing(tmp_path, monkeypatch, code, todo):
+    root = _with_journaled_capture(tmp_path)
+    manifest, journal = (root / MANIFEST).read_bytes(), (root / JOURNAL).read_bytes()
+    monkeypatch.setattr("app.session.atomic_write_bytes", _raising(code))
+    with pytest.raises(SessionError) as err:
+        Session.open(root)
+    msg = _one_line(err.value)
+    assert f"cannot save {MANIFEST}" in msg and todo in msg and f"kogei capture --resume {root}" in msg
+    assert (root / MANIFEST).read_bytes() == manifest and (root / JOURNAL).read_bytes() == journal
+    monkeypatch.undo()
+    with Session.open(root) as s:                   # the lock was released; nothing was lost
+        assert s.is_done("p01/a") and s.is_done("p01/b")
+
+
+@pytest.mark.parametrize("code", [errno.EROFS, errno.EACCES, errno.ENOSPC])
+def test_lock_and_journal_open_failures_are_one_line(tmp_path, monkeypatch, code):
+    root = _new(tmp_path)
+    real_open = os.open
+
+    def open_(path, flags, *args, **kwargs):
+        if Path(path).name in (LOCK, JOURNAL) and flags & os.O_CREAT:
+            raise OSError(code, os.strerror(code), str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", open_)
+    with pytest.raises(SessionError, match=f"cannot open {LOCK} for writing") as err:
+        Session.open(root)
+    _one_line(err.value)
+    monkeypatch.setattr("app.session._open_journal", _raising(code))
+    monkeypatch.setattr(os, "open", real_open)
+    with pytest.raises(SessionError, match=f"cannot open {JOURNAL} for writing"):
+        Session.open(root)
+    monkeypatch.undo()
+    Session.open(root).close()                      # the lock was released
+
+
+def test_close_on_the_error_path_keeps_the_first_message(tmp_path, monkeypatch):
+    root = _new(tmp_path)
+    with pytest.raises(SessionError, match="the first error"):
+        with Session.open(root) as s:
+            s.set_state(x=1)
+            monkeypatch.setattr("app.session.atomic_write_bytes", _raising(errno.ENOSPC))
+            raise SessionError("the first error")
+    monkeypatch.undo()
+    assert Session.read(root)["state"]["x"] == 1    # still in the journal
+    s = Session.open(root)
+    monkeypatch.setattr("app.session.atomic_write_bytes", _raising(errno.ENOSPC))
+    with pytest.raises(SessionError, match="disk is full"):
+        s.close()                                   # a plain close reports it in one line ...
+    monkeypatch.undo()
+    Session.open(root).close()                      # ... and released the lock all the same
+
+
+def test_kogei_report_on_a_full_disk_exits_2_with_one_line(tmp_path, monkeypatch, capsys):
+    root = _with_journaled_capture(tmp_path)
+    manifest = (root / MANIFEST).read_bytes()
+    monkeypatch.setattr("app.session.atomic_write_bytes", _raising(errno.ENOSPC))
+    assert main(["report", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "free space" in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert (root / MANIFEST).read_bytes() == manifest
+    monkeypatch.undo()
+    assert Session.read(root)["captures"]["p01/b"]["bytes"] == 3
+
+
+def test_read_only_copy_can_be_read_but_not_opened(tmp_path, capsys):
+    root = _with_journaled_capture(tmp_path)
+    files = [root, *root.rglob("*")]
+    for p in files:
+        p.chmod(p.stat().st_mode & ~0o222)
+    try:
+        if os.access(root / MANIFEST, os.W_OK) or os.access(root, os.W_OK):
+            pytest.skip("running as root: chmod does not make the session read-only")
+        assert Session.read(root)["captures"]["p01/b"]["bytes"] == 3
+        with pytest.raises(SessionError, match="read-only") as err:
+            Session.open(root)
+        _one_line(err.value)
+        assert main(["report", str(root)]) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    finally:
+        for p in files:
+            p.chmod(p.stat().st_mode | 0o200)
