@@ -373,8 +373,9 @@ class Session:
         except BlockingIOError:
             os.close(fd)
             raise SessionLockedError(
-                f"session {root} is being written by another process (a capture still running?); "
-                "stop it first, or open the session read-only with Session.read") from None
+                f"session {root} is in use by another process (a kogei capture, batch, report or the GUI "
+                "still running?); wait for it to finish or close it, then run the command again "
+                f"('kogei report {root} --out FILE.html' reads the session without locking it)") from None
         return fd
 
     @classmethod

@@ -20,6 +20,7 @@ from app.session import (
     MANIFEST,
     Session,
     SessionError,
+    SessionLockedError,
     check_regular_file,
     read_session_file,
     session_path,
@@ -401,3 +402,19 @@ def test_read_only_copy_can_be_read_but_not_opened(tmp_path, capsys):
     finally:
         for p in files:
             p.chmod(p.stat().st_mode | 0o200)
+
+
+# ---------------------------------------------------------------------------- 4. the lock message
+def test_lock_message_tells_a_cli_user_what_to_do(tmp_path, capsys):
+    root = _new(tmp_path)
+    with Session.open(root):
+        with pytest.raises(SessionLockedError) as err:
+            Session.open(root)
+        msg = _one_line(err.value)
+        assert "another process" in msg and "wait for it to finish or close it" in msg
+        assert "--out FILE.html" in msg and "Session.read" not in msg
+        assert main(["report", str(root)]) == 2
+        cli = capsys.readouterr().err.strip()
+        assert "wait for it" in cli and len(cli.splitlines()) == 1
+        out = tmp_path / "r.html"
+        assert main(["report", str(root), "--out", str(out)]) == 0 and out.is_file()
