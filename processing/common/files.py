@@ -6,6 +6,14 @@ target; the folder is then ``fsync``-ed so the rename itself survives a power
 cut.  A failure at any point removes the temporary file and leaves the target
 as it was.
 
+The written file gets the permissions of any new file (``0o666`` less the
+process umask, e.g. ``0o644`` under umask ``022``), like a file written with
+:func:`open`: the temporary file is created with mode ``0o666`` and the
+kernel applies the umask (and a folder's default ACL), so the umask is never
+read or changed (``os.umask`` would change it for every thread).
+``tempfile.mkstemp`` would leave ``0o600``, unreadable for the lab's other
+users and its web server.
+
 Examples
 --------
 >>> import tempfile, pathlib
@@ -19,7 +27,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
+import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -44,6 +52,18 @@ def fsync_dir(folder: str | os.PathLike[str]) -> None:
         pass
     finally:
         os.close(fd)
+
+
+def _create_temp(parent: Path, prefix: str, suffix: str) -> tuple[int, Path]:
+    """Create a new, empty temporary file in ``parent`` (mode ``0o666`` less the umask); its fd and path."""
+    flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(100):
+        name = parent / f"{prefix}{secrets.token_hex(4)}{suffix}"
+        try:
+            return os.open(name, flags, 0o666), name
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary file name in {parent}")
 
 
 @contextmanager
@@ -80,9 +100,8 @@ def atomic_path(path: str | os.PathLike[str], *, durable: bool = True, make_pare
     parent = target.parent if str(target.parent) else Path(".")
     if make_parents:
         parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=f".tmp{target.suffix}", dir=parent)
+    fd, tmp = _create_temp(parent, f".{target.name}.", f".tmp{target.suffix}")
     os.close(fd)
-    tmp = Path(name)
     try:
         yield tmp
         if durable:
@@ -128,7 +147,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, *, durable: bo
     parent = target.parent if str(target.parent) else Path(".")
     if make_parents:
         parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent)
+    fd, tmp = _create_temp(parent, f".{target.name}.", ".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)

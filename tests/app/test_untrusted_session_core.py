@@ -9,6 +9,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import stat
 from pathlib import Path
 
 import pytest
@@ -418,3 +419,34 @@ def test_lock_message_tells_a_cli_user_what_to_do(tmp_path, capsys):
         assert "wait for it" in cli and len(cli.splitlines()) == 1
         out = tmp_path / "r.html"
         assert main(["report", str(root), "--out", str(out)]) == 0 and out.is_file()
+
+
+# ---------------------------------------------------------------------------- 5. atomically written files respect the umask
+@pytest.fixture
+def umask():
+    old = os.umask(0o022)
+    yield os.umask
+    os.umask(old)
+
+
+@pytest.mark.parametrize("mask,mode", [(0o022, 0o644), (0o027, 0o640), (0o002, 0o664)])
+def test_atomic_writes_respect_the_umask(tmp_path, umask, mask, mode):
+    from processing.common.files import atomic_path, atomic_write_json
+
+    umask(mask)
+    root = _new(tmp_path)
+    with Session.open(root) as s:
+        info = s.write_file("products/report.html", b"<html>")
+        s.adopt_file(_plain(tmp_path / "frame.dng"), "passes/p01/raw/frame_00.dng")
+    written = [root / MANIFEST, root / info.path, root / "passes/p01/raw/frame_00.dng",
+               atomic_write_json(tmp_path / "cal" / "calibration.json", {"a": 1})]
+    with atomic_path(tmp_path / "mesh.ply") as tmp:
+        tmp.write_bytes(b"ply\n")
+    written.append(tmp_path / "mesh.ply")
+    for p in written:
+        assert stat.S_IMODE(p.stat().st_mode) == mode, p
+
+
+def _plain(path: Path) -> Path:
+    path.write_bytes(b"II*\0raw")
+    return path
