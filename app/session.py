@@ -27,6 +27,14 @@ the price of several ``fsync`` per profile step, see docs/BENCHMARKS.md).
 One process at a time may write a session (an ``flock`` on
 ``session.lock``, released by the kernel even after ``kill -9``).
 
+A session folder is untrusted input (``docs/session-format.md``, "Trust
+model"): the session's own files are opened without following links and
+must be plain files; the manifest and every journal operation are checked
+against a bounded schema on load; file names stored in a session are joined
+to its root only through :func:`session_path` and read through
+:func:`check_regular_file` / :func:`read_session_file`.  A full or
+read-only disk ends in a one-line :class:`SessionError`, never a traceback.
+
 Examples
 --------
 >>> import tempfile, pathlib
