@@ -125,6 +125,31 @@ def _emit(queue: _Queue | None, *event: Any) -> None:
             pass
 
 
+#: Top-level manifest fields the steps read, and their types.
+_MANIFEST_TYPES = {"plan": dict, "captures": dict, "passes": dict, "products": dict, "batch": dict, "history": list}
+
+
+def _check_manifest_types(root: Path, manifest: dict[str, Any]) -> None:
+    """A :class:`app.session.SessionError` naming the first top-level field of the wrong type.
+
+    >>> _check_manifest_types(Path("S"), {"plan": {}, "captures": "x"})
+    Traceback (most recent call last):
+    ...
+    app.session.SessionError: session S: session.json captures is a str, not a dict; the manifest is damaged
+    """
+    from app.session import SessionError
+
+    for key, kind in _MANIFEST_TYPES.items():
+        value = manifest.get(key)
+        if value is not None and not isinstance(value, kind):
+            raise SessionError(f"session {root}: session.json {key} is a {type(value).__name__}, not a "
+                               f"{kind.__name__}; the manifest is damaged")
+    bad = [cid for cid, rec in (manifest.get("captures") or {}).items() if not isinstance(rec, dict)]
+    if bad:
+        raise SessionError(f"session {root}: session.json captures {bad[0]!r} is not a record; the manifest "
+                           "is damaged")
+
+
 def _lock_and_log(root: Path) -> tuple[int, _SessionLog]:
     """Take the session's batch lock and open its ``batch.log`` (neither may be a symlink).
 
@@ -172,7 +197,7 @@ def process_one(session: str, steps: tuple[str, ...], options: BatchOptions,
     result = SessionResult(session=session, status="ok")
     _emit(queue, "session", session, "", "started", "")
     try:
-        Session.read(root)
+        _check_manifest_types(root, Session.read(root))
     except (SessionError, OSError) as exc:
         result.status, result.reason = "failed", str(exc)
         result.steps = [StepResult(n, "not run", "not a readable session") for n in steps]

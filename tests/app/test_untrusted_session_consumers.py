@@ -391,3 +391,14 @@ def test_batch_geometry_step_refuses_a_symlinked_calibration(tmp_path, sentinel)
     r = _one(root, ("geometry",))
     assert r.status == "failed" and "symlink" in r.reason, r
     assert sentinel.unchanged()
+
+
+@pytest.mark.parametrize("fields, field", [({"captures": "x"}, "captures is a str"),
+                                           ({"plan": [1]}, "plan is a list"),
+                                           ({"products": 3}, "products is a int"),
+                                           ({"captures": {"p01/chart": "x"}}, "captures 'p01/chart'")])
+def test_batch_names_a_wrong_typed_manifest_field(tmp_path, fields, field):
+    root = _session(tmp_path / "s", **fields)
+    r = _one(root, ("geometry", "colour", "report"))
+    assert r.status == "failed" and field in r.reason, r
+    assert "Traceback" not in r.reason and not (root / "batch.log").exists()
