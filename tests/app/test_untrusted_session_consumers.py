@@ -402,3 +402,31 @@ def test_batch_names_a_wrong_typed_manifest_field(tmp_path, fields, field):
     r = _one(root, ("geometry", "colour", "report"))
     assert r.status == "failed" and field in r.reason, r
     assert "Traceback" not in r.reason and not (root / "batch.log").exists()
+
+
+def test_report_refuses_a_symlinked_report_file(tmp_path, sentinel, capsys):
+    root = _session(tmp_path / "s")
+    (root / "products").mkdir()
+    (root / "products" / "report.html").symlink_to(sentinel.path)
+    with time_limit():
+        code = main(["report", str(root)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "symlink" in err
+    assert (root / "products" / "report.html").is_symlink() and sentinel.unchanged()
+
+
+def test_batch_refuses_a_calibration_source_with_a_symlinked_file(tmp_path, sentinel):
+    cal = tmp_path / "cal"
+    cal.mkdir()
+    (cal / "calibration.json").symlink_to(sentinel.path)
+    root = _session(tmp_path / "s")
+    r = _one(root, ("geometry",), calibration=str(cal))
+    assert r.status == "failed" and "--calibration" in r.reason and "symlink" in r.reason, r
+    assert sentinel.unchanged()
+
+
+def test_batch_of_a_non_utf8_session_path(tmp_path, capsys):
+    root = _session(tmp_path / os.fsdecode(b"s\xff"))
+    r = _one(root, ("report",))
+    assert r.status == "ok", r
+    assert (root / "products" / "report.html").is_file()
