@@ -51,6 +51,18 @@ def _observed_range(z_mm: np.ndarray) -> tuple[float, float]:
 MAX_PASSES = 1000
 
 
+def _check_types(root: Path, manifest: dict[str, Any]) -> None:
+    """A one-line error naming a manifest field the geometry reads that is not a record."""
+    for key in ("plan", "captures", "passes"):
+        if not isinstance(manifest.get(key), dict):
+            raise UsageError(f"session {root}: session.json {key} is a {type(manifest.get(key)).__name__}, not a "
+                             "record; the manifest is damaged")
+    for key in ("captures", "passes"):
+        bad = [k for k, v in manifest[key].items() if not isinstance(v, dict)]
+        if bad:
+            raise UsageError(f"session {root}: session.json {key} {bad[0]!r} is not a record; the manifest is damaged")
+
+
 def _pass_count(root: Path, plan: dict[str, Any]) -> int:
     """``plan.passes`` checked to be a whole number 1..:data:`MAX_PASSES` (else a one-line error)."""
     n = plan.get("passes")
@@ -153,8 +165,7 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
     session = Session.open(root)
     with session:
         manifest = session.manifest
-        if not isinstance(manifest.get("plan"), dict) or not isinstance(manifest.get("captures"), dict):
-            raise UsageError(f"session {root}: session.json plan or captures is not a record; the manifest is damaged")
+        _check_types(root, manifest)
         if manifest["plan"].get("kind") != "scan":
             raise UsageError(f"session {root} is a {manifest['plan'].get('kind')!r} capture; only scan sessions "
                              "have profiles to mesh")

@@ -430,3 +430,32 @@ def test_batch_of_a_non_utf8_session_path(tmp_path, capsys):
     r = _one(root, ("report",))
     assert r.status == "ok", r
     assert (root / "products" / "report.html").is_file()
+
+
+# ---------------------------------------------------------------------------- kogei process / calibrate
+def _cli(args: list[str], capsys) -> tuple[int, str]:
+    with time_limit():
+        code = main(args)
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fields, text", [
+    ({"plan": {"kind": "scan", "steps": 4, "passes": 10 ** 9}}, "plan.passes"),
+    ({"passes": {"1": "x"}}, "passes '1' is not a record"),
+    ({"captures": {"p01/profile/000": 7}}, "captures 'p01/profile/000' is not a record"),
+    ({"captures": {"p01/profiles": {"kind": "profiles", "pass": 1, "file": "../outside/secret.png", "sha256": "0"}}},
+     "captures.p01/profiles.file"),
+])
+def test_process_of_a_hostile_session_is_one_line(tmp_path, sentinel, capsys, fields, text):
+    root = _calibrated(tmp_path / "s", **fields)
+    code, err = _cli(["process", str(root), "--preset", "draft", "--quiet"], capsys)
+    assert code == 2 and err.count("\n") == 1 and text in err, err
+    assert sentinel.unchanged()
+
+
+def test_calibrate_refuses_profiles_outside_the_session(tmp_path, sentinel, capsys):
+    root = _session(tmp_path / "s", captures={"p01/profiles": {"kind": "profiles", "pass": 1, "status": "done",
+                                                               "file": str(sentinel.path), "sha256": "0"}})
+    code, err = _cli(["calibrate", str(root), "--sphere-radius", "25"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "captures.p01/profiles.file" in err, err
+    assert sentinel.unchanged()
