@@ -188,6 +188,10 @@ _FIELD_TYPES: dict[str, tuple[type, ...]] = {
 }
 #: The largest pass count the report looks at (a plan is bounded far below this by ``kogei capture``).
 MAX_PASSES = 1000
+try:
+    from PIL.Image import DecompressionBombError as _DecompressionBomb
+except ImportError:                 # pragma: no cover - Pillow is a dependency
+    _DecompressionBomb = MemoryError
 
 
 def _manifest_problems(manifest: dict[str, Any]) -> list[str]:
@@ -444,8 +448,8 @@ def _chart(ctx: _Context) -> Section:
     body = ""
     shown = False
     for tag, files in sorted((colour.get("passes") or {}).items()):
-        blob = ctx.product_bytes(files.get("chart"))
-        pre = ctx.product_bytes(files.get("preview"))
+        blob = ctx.product_bytes(files.get("chart"), f"products.colour.passes.{tag}.chart", MAX_JSON_BYTES)
+        pre = ctx.product_bytes(files.get("preview"), f"products.colour.passes.{tag}.preview")
         if blob is None or pre is None:
             continue
         chart = json.loads(blob)
@@ -475,7 +479,8 @@ def _chart(ctx: _Context) -> Section:
 
 
 def _materials_doc(ctx: _Context) -> dict[str, Any] | None:
-    blob = ctx.product_bytes((ctx.products.get("materials") or {}).get("report"))
+    blob = ctx.product_bytes((ctx.products.get("materials") or {}).get("report"), "products.materials.report",
+                             MAX_JSON_BYTES)
     return None if blob is None else json.loads(blob)
 
 
@@ -533,7 +538,7 @@ def _materials(ctx: _Context) -> Section:
 
     figs = ""
     for cid, rec in sorted(((ctx.products.get("materials") or {}).get("maps") or {}).items()):
-        blob = ctx.product_bytes(rec)
+        blob = ctx.product_bytes(rec, f"products.materials.maps.{cid}")
         if blob is not None:
             img = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
             figs += _img(material_map_figure(img, doc["regions"]), f"material map {cid}",
@@ -550,7 +555,7 @@ def _renders(ctx: _Context) -> Section:
             "no renders", f"kogei batch {ctx.root} --steps render"), False)
     figs = []
     for ill, img in (rec.get("images") or {}).items():
-        blob = ctx.product_bytes(img)
+        blob = ctx.product_bytes(img, f"products.renders.images.{ill}")
         if blob is not None:
             figs.append(_img(blob, f"render under {ill}", f"illuminant {ill}"))
     body = _kv([("material", f"{rec.get('material')} ({rec.get('material_source', '')})"),
@@ -608,7 +613,8 @@ def report_sections(session_dir: str | os.PathLike[str]) -> list[Section]:
     for key, title, build in builders:
         try:
             sections.append(build())
-        except (ValueError, OSError, KeyError, TypeError, IndexError, AttributeError, OverflowError) as exc:
+        except (ValueError, OSError, KeyError, TypeError, IndexError, AttributeError, OverflowError, MemoryError,
+                _DecompressionBomb) as exc:
             # a product the section cannot read (an older or damaged file) must not cost the whole report
             text = f"{title}: the session's data could not be shown ({type(exc).__name__}: {exc})"
             ctx.problems.append(text)
