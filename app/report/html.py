@@ -687,7 +687,10 @@ def write_report(session_dir: str | os.PathLike[str], out: str | os.PathLike[str
             return atomic_write_bytes(Path(out), text)
         except OSError as exc:
             raise UsageError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
-    check_not_symlink(root, REPORT_FILE, "report")
+    try:
+        check_not_symlink(root, REPORT_FILE, "report")
+    except UnsafeSessionPath as exc:
+        raise UsageError(f"{exc}; or write the report elsewhere with --out FILE.html") from None
     try:
         with Session.open(root) as session:
             info = session.write_file(REPORT_FILE, text)

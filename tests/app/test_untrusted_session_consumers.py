@@ -263,7 +263,7 @@ def test_report_refuses_a_symlinked_products_folder(tmp_path, sentinel, capsys):
         code = main(["report", str(root)])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
-    assert "products" in err and "symlink" in err
+    assert "products" in err and "symlink" in err and "--out" in err
     assert sorted(p.name for p in sentinel.path.parent.iterdir()) == ["secret.png"]
     assert sentinel.unchanged()
 
@@ -484,3 +484,11 @@ def test_report_of_a_decompression_bomb_costs_only_its_section(tmp_path, capsys)
     assert code == 0, err
     assert "Material map and confidences: the session" in _problems(html)
     assert "DecompressionBombError" in _problems(html)
+
+
+def test_batch_refuses_a_symlinked_batch_lock(tmp_path, sentinel):
+    root = _session(tmp_path / "s")
+    (root / "batch.lock").symlink_to(sentinel.path)
+    r = _one(root, ("report",))
+    assert r.status == "failed" and "batch.lock is a symlink" in r.reason, r
+    assert sentinel.unchanged() and not (root / "batch.log").exists()
