@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
+from app.session_paths import check_not_symlink, confined_file
 from processing.common.png import png_bytes
 from processing.errors import InputError
 
@@ -133,7 +134,7 @@ def colour_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str
         if count > 1:
             log(f"{tag}: {count} chart frames; the first ({cid}) calibrates the pass (the others are for the "
                 "cloth fit's average gain)")
-        path = root / rec["file"]
+        path = confined_file(root, rec.get("file"), f"captures.{cid}.file")
         try:
             report = chart_report(path, chart=options.chart)
         except InputError as exc:
@@ -154,6 +155,7 @@ def colour_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[str
         log(f"{cid}: {report['method']} (confidence {report['confidence']:.2f}), "
             f"{int(usable.sum())} of {len(usable)} patches usable, patch error mean "
             f"{report['patch_errors']['mean']:.2f} / max {report['patch_errors']['max']:.2f} dE00")
+    check_not_symlink(root, f"{COLOUR_DIR}/x", "colour products")
     with Session.open(root) as session:
         passes = {}
         for tag, (report, png) in results.items():

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import UsageError
+from app.session_paths import MAX_JSON_BYTES, check_not_symlink, confined_file, read_confined_bytes
 from processing.common.png import png_bytes
 from processing.errors import InputError
 
@@ -117,14 +118,18 @@ def largest_material(regions: list[dict[str, Any]]) -> tuple[str, int] | None:
 
 
 def _chart_record(root: Path, tag: str, files: dict[str, Any]) -> dict[str, Any]:
-    from app.session import sha256_file
+    import hashlib
 
     rec = files.get("chart") or {}
-    path = root / rec.get("file", "")
-    if not path.is_file() or sha256_file(path) != rec.get("sha256"):
+    try:
+        blob = read_confined_bytes(root, rec.get("file", ""), f"products.colour.passes.{tag}.chart.file",
+                                   MAX_JSON_BYTES)
+    except FileNotFoundError:
+        blob = None
+    if blob is None or hashlib.sha256(blob).hexdigest() != rec.get("sha256"):
         raise UsageError(f"session {root}: {rec.get('file', tag)} is missing or changed since the colour step "
                          f"wrote it; run 'kogei batch {root} --steps colour' again")
-    return json.loads(path.read_text(encoding="utf-8"))
+    return json.loads(blob.decode("utf-8"))
 
 
 def _pooled(results: list[Any]) -> Any:
@@ -190,7 +195,8 @@ def _pass_materials(root: Path, tag: str, chart: dict[str, Any], frames: list[tu
     results = []
     for cid, rec in frames:
         try:
-            results.append(estimate_frame(root / rec["file"], chart, options.chart))
+            frame = confined_file(root, rec.get("file"), f"captures.{cid}.file")
+            results.append(estimate_frame(frame, chart, options.chart))
         except InputError as exc:
             raise UsageError(f"{cid} ({rec['file']}): {exc}") from None
     pooled = _pooled(results)
@@ -269,6 +275,7 @@ def materials_run(root: Path, options: Any, log: Callable[[str], None]) -> dict[
            "model_error": MODEL_ERROR, "chart": options.chart, "wavelengths": wavelengths, "passes": passes,
            "regions": regions,
            "largest": None if largest is None else {"material": largest[0], "pixels": largest[1]}}
+    check_not_symlink(root, f"{MAPS_DIR}/x", "materials products")
     with Session.open(root) as session:
         rep = session.write_file(MATERIALS_FILE, (json.dumps(doc, indent=1, allow_nan=False) + "\n").encode())
         files = {}

@@ -103,8 +103,10 @@ class _SessionLog:
     """``SESSION/batch.log``: one timestamped line per event, appended and flushed at once."""
 
     def __init__(self, root: Path) -> None:
+        from app.session_paths import open_log_append
+
         self.path = root / LOG_FILE
-        self._fh = open(self.path, "a", encoding="utf-8", buffering=1)
+        self._fh = open_log_append(root, LOG_FILE, LOG_FILE)
 
     def __call__(self, text: str) -> None:
         from app.session import utc_now
@@ -121,6 +123,56 @@ def _emit(queue: _Queue | None, *event: Any) -> None:
             queue.put(event)
         except Exception:  # progress is best effort: a lost event must not fail the session
             pass
+
+
+#: Top-level manifest fields the steps read, and their types.
+_MANIFEST_TYPES = {"plan": dict, "captures": dict, "passes": dict, "products": dict, "batch": dict, "history": list}
+
+
+def _check_manifest_types(root: Path, manifest: dict[str, Any]) -> None:
+    """A :class:`app.session.SessionError` naming the first top-level field of the wrong type.
+
+    >>> _check_manifest_types(Path("S"), {"plan": {}, "captures": "x"})
+    Traceback (most recent call last):
+    ...
+    app.session.SessionError: session S: session.json captures is a str, not a dict; the manifest is damaged
+    """
+    from app.session import SessionError
+
+    for key, kind in _MANIFEST_TYPES.items():
+        value = manifest.get(key)
+        if value is not None and not isinstance(value, kind):
+            raise SessionError(f"session {root}: session.json {key} is a {type(value).__name__}, not a "
+                               f"{kind.__name__}; the manifest is damaged")
+    bad = [cid for cid, rec in (manifest.get("captures") or {}).items() if not isinstance(rec, dict)]
+    if bad:
+        raise SessionError(f"session {root}: session.json captures {bad[0]!r} is not a record; the manifest "
+                           "is damaged")
+
+
+def _lock_and_log(root: Path) -> tuple[int, _SessionLog]:
+    """Take the session's batch lock and open its ``batch.log`` (neither may be a symlink).
+
+    ``BlockingIOError`` when another batch holds the lock; ``UnsafeSessionPath`` (a ``ValueError``)
+    for a symlink or a non-regular file.
+    """
+    import errno
+
+    from app.session_paths import UnsafeSessionPath
+
+    try:
+        lock_fd = os.open(root / BATCH_LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise UnsafeSessionPath(f"{BATCH_LOCK} is a symlink; a session may not contain symlinks (remove it)") \
+                from None
+        raise
+    try:
+        fcntl.flock(lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return lock_fd, _SessionLog(root)
+    except BaseException:
+        os.close(lock_fd)
+        raise
 
 
 def process_one(session: str, steps: tuple[str, ...], options: BatchOptions,
@@ -145,7 +197,7 @@ def process_one(session: str, steps: tuple[str, ...], options: BatchOptions,
     result = SessionResult(session=session, status="ok")
     _emit(queue, "session", session, "", "started", "")
     try:
-        Session.read(root)
+        _check_manifest_types(root, Session.read(root))
     except (SessionError, OSError) as exc:
         result.status, result.reason = "failed", str(exc)
         result.steps = [StepResult(n, "not run", "not a readable session") for n in steps]
@@ -153,19 +205,17 @@ def process_one(session: str, steps: tuple[str, ...], options: BatchOptions,
             _emit(queue, "step", session, n, "failed", result.reason)
         _emit(queue, "session", session, "", "failed", result.reason)
         return result
-    lock_fd = os.open(root / BATCH_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
     try:
-        fcntl.flock(lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        os.close(lock_fd)
-        reason = f"session {root} is being processed by another kogei batch; wait for it to finish"
+        lock_fd, log = _lock_and_log(root)
+    except (BlockingIOError, ValueError, OSError) as exc:
+        reason = (f"session {root} is being processed by another kogei batch; wait for it to finish"
+                  if isinstance(exc, BlockingIOError) else f"session {root}: {exc}")
         result.status, result.reason = "failed", reason
         result.steps = [StepResult(n, "not run", reason) for n in steps]
         for n in steps:
             _emit(queue, "step", session, n, "failed", reason)
         _emit(queue, "session", session, "", "failed", reason)
         return result
-    log = _SessionLog(root)
     result.log = str(log.path)
     log(f"batch: steps {','.join(steps)}, preset {options.preset}, pid {os.getpid()}")
     failed: set[str] = set()
@@ -392,6 +442,27 @@ def _dask(sessions: list[str], steps: tuple[str, ...], options: BatchOptions, ad
     return results, interrupted, workers
 
 
+def _refuse_duplicates(names: list[str]) -> None:
+    """A :class:`UsageError` naming two arguments that are the same session folder (compared resolved).
+
+    >>> _refuse_duplicates(["a", "b"])
+    >>> _refuse_duplicates(["/tmp", "/tmp/"])
+    Traceback (most recent call last):
+    ...
+    app.errors.UsageError: session given more than once: '/tmp' and '/tmp/' are the same folder (one worker per session)
+    """
+    seen: dict[str, str] = {}
+    for name in names:
+        try:
+            key = str(Path(name).resolve())
+        except (OSError, RuntimeError):
+            key = os.path.abspath(name)
+        if key in seen:
+            raise UsageError(f"session given more than once: {seen[key]!r} and {name!r} are the same folder "
+                             "(one worker per session)")
+        seen[key] = name
+
+
 def run_batch(sessions: Iterable[str | os.PathLike[str]], steps: str | Iterable[str] | None = None, *,
               options: BatchOptions | None = None, workers: int = 1, dask: str | None = None,
               progress: bool = False, console: Any = None) -> BatchSummary:
@@ -420,9 +491,7 @@ def run_batch(sessions: Iterable[str | os.PathLike[str]], steps: str | Iterable[
     names = [str(s) for s in sessions]
     if not names:
         raise UsageError("give one or more session folders")
-    dupes = sorted({s for s in names if names.count(s) > 1})
-    if dupes:
-        raise UsageError(f"session(s) given more than once: {', '.join(dupes)} (one worker per session)")
+    _refuse_duplicates(names)
     if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
         raise UsageError(f"--workers must be a whole number >= 1, got {workers!r}")
     step_names = parse_steps(steps if steps is None or isinstance(steps, str) else ",".join(steps))

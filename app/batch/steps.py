@@ -36,6 +36,7 @@ from typing import Any
 
 from app.batch.code_version import code_version
 from app.errors import UsageError
+from app.session_paths import check_not_symlink, confined_file
 from processing.common.png import png_bytes
 
 __all__ = ["BatchOptions", "Step", "STEPS", "STEP_NAMES", "UNAVAILABLE_STEPS", "parse_steps", "fingerprint",
@@ -99,13 +100,9 @@ class Step:
 
 # ---------------------------------------------------------------------------- geometry
 def _calibration_sha(source: str) -> str:
-    p = Path(source)
-    file = p / "calibration.json" if p.is_dir() else p
-    try:
-        return hashlib.sha256(file.read_bytes()).hexdigest()
-    except OSError:
-        raise UsageError(f"--calibration {source}: {file} not found; give a session calibrated with "
-                         "'kogei calibrate' or its calibration.json") from None
+    from app.workflows.calibration import calibration_source_bytes
+
+    return hashlib.sha256(calibration_source_bytes(source)[1]).hexdigest()
 
 
 def _geometry_inputs(root: Path, manifest: dict[str, Any], options: BatchOptions) -> dict[str, str]:
@@ -179,7 +176,7 @@ def render_session_mesh(root: Path, illuminant: str, size: tuple[int, int], pres
     if not mesh:
         raise UsageError(f"session {root} has no mesh; run 'kogei batch {root} --steps geometry' "
                          f"(or 'kogei process {root}') first")
-    path = root / mesh["file"]
+    path = confined_file(root, mesh.get("file") if isinstance(mesh, dict) else None, "products.mesh.file")
     spec = SceneSpec(objects=[ObjectSpec(mesh=path, material=material)], illuminant=illuminant, size=size,
                      preset=preset)
     try:
@@ -205,6 +202,7 @@ def _render_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
         seconds[ill] = round(time.perf_counter() - t, 3)
         images[ill] = png_bytes(result.srgb8)
         log(f"rendered under {ill} ({options.render_size[0]}x{options.render_size[1]}, {seconds[ill]:.2f} s)")
+    check_not_symlink(root, f"{RENDERS}/{RENDER_ILLUMINANTS[0]}.png", "render")
     with Session.open(root) as session:
         files = {ill: session.write_file(f"{RENDERS}/{ill}.png", blob) for ill, blob in images.items()}
         products = dict(session.manifest.get("products") or {})
@@ -236,7 +234,8 @@ def _report_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
     from app.report.html import build_report
     from app.session import Session
 
-    html = build_report(root).encode("utf-8")
+    html = build_report(root).encode("utf-8", "backslashreplace")
+    check_not_symlink(root, REPORT_FILE, "report")
     with Session.open(root) as session:
         info = session.write_file(REPORT_FILE, html)
         products = dict(session.manifest.get("products") or {})
@@ -334,10 +333,11 @@ def fingerprint(parts: dict[str, Any]) -> str:
 def _outputs_intact(root: Path, outputs: dict[str, Any]) -> str | None:
     from app.session import sha256_file
 
-    for files in outputs.values():
+    for key, files in outputs.items():
         for rec in files:
-            p = root / rec["file"]
-            if not p.is_file():
+            try:
+                p = confined_file(root, rec.get("file"), f"batch.steps outputs {key}")
+            except OSError:
                 return f"{rec['file']} is missing"
             if sha256_file(p) != rec["sha256"]:
                 return f"{rec['file']} was changed since the step wrote it"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 __all__ = ["add_parser", "run"]
@@ -21,6 +22,13 @@ def run(args: argparse.Namespace) -> int:
     from app.report.html import write_report
 
     path = write_report(args.session, args.out)
-    print(f"report: {path}", file=sys.stderr)
-    print(path)
+    shown = os.fsdecode(path).encode("utf-8", "backslashreplace").decode("utf-8")
+    print(f"report: {shown}", file=sys.stderr)
+    out = getattr(sys.stdout, "buffer", None)
+    if out is None:
+        print(shown)
+    else:       # the path's own bytes, so a script can open it even when the name is not UTF-8
+        sys.stdout.flush()
+        out.write(os.fsencode(path) + b"\n")
+        out.flush()
     return 0

@@ -34,6 +34,14 @@ from app.report.figures import (
     pose_graph_figure,
     timing_figure,
 )
+from app.session_paths import (
+    MAX_JSON_BYTES,
+    MAX_PRODUCT_BYTES,
+    UnsafeSessionPath,
+    check_not_symlink,
+    confined_file,
+    read_confined_bytes,
+)
 from processing.common.png import png_bytes
 
 __all__ = ["Section", "build_report", "write_report", "report_sections", "REPORT_FILE"]
@@ -99,7 +107,7 @@ def _step_command(root: Path, step: str) -> str:
 
 
 class _Context:
-    """The session as the sections read it: manifest, verified product files."""
+    """The session as the sections read it: manifest, verified product files, the problems found."""
 
     def __init__(self, root: Path) -> None:
         from app.session import Session, SessionError
@@ -109,37 +117,151 @@ class _Context:
             self.manifest = Session.read(root)
         except SessionError as exc:
             raise UsageError(str(exc)) from None
-        self.products: dict[str, Any] = dict(self.manifest.get("products") or {})
+        except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
+            raise UsageError(f"session {_shown(root)}: session.json or session.journal is damaged "
+                             f"({type(exc).__name__}: {exc}); restore it from a backup") from None
         self.problems: list[str] = []
+        self.problems += _manifest_problems(self.manifest)
+        self.problems += _journal_problems(root)
+        self.manifest = _sanitized(self.manifest)
+        self.products: dict[str, Any] = self.manifest.get("products") or {}
 
-    def product_bytes(self, rec: dict[str, Any] | None) -> bytes | None:
-        """The bytes of a product file if present and matching its checksum (else noted in ``problems``)."""
+    def product_bytes(self, rec: dict[str, Any] | None, what: str = "products",
+                      max_bytes: int = MAX_PRODUCT_BYTES) -> bytes | None:
+        """The bytes of a product file if present, inside the session and matching its checksum.
+
+        Anything else is noted in ``problems`` and gives None: a path outside the
+        session, a symlink, a FIFO or device, an oversized, missing or changed file.
+        """
         import hashlib
 
-        if not rec or "file" not in rec:
+        if not isinstance(rec, dict) or "file" not in rec:
             return None
-        path = self.root / rec["file"]
+        name = rec["file"]
         try:
-            blob = path.read_bytes()
+            blob = read_confined_bytes(self.root, name, f"{what}.file", max_bytes)
+        except UnsafeSessionPath as exc:
+            self.problems.append(f"{exc}; it is not shown")
+            return None
         except OSError:
-            self.problems.append(f"{rec['file']} is listed in the manifest but missing")
+            self.problems.append(f"{name} is listed in the manifest ({what}) but missing")
             return None
         if rec.get("sha256") and hashlib.sha256(blob).hexdigest() != rec["sha256"]:
-            self.problems.append(f"{rec['file']} does not match its checksum in the manifest (changed after it "
+            self.problems.append(f"{name} does not match its checksum in the manifest (changed after it "
                                  "was written); it is not shown")
             return None
         return blob
 
+    def product_path(self, rec: dict[str, Any], what: str) -> Path | None:
+        """The checked path of a product (for a loader that opens it itself), or None (a problem noted)."""
+        if self.product_bytes(rec, what) is None:
+            return None
+        try:
+            return confined_file(self.root, rec["file"], f"{what}.file")
+        except (UnsafeSessionPath, OSError) as exc:
+            self.problems.append(f"{exc}; it is not shown")
+            return None
+
     def process_report(self) -> dict[str, Any] | None:
-        blob = self.product_bytes(self.products.get("process_report"))
-        return None if blob is None else json.loads(blob)
+        blob = self.product_bytes(self.products.get("process_report"), "products.process_report", MAX_JSON_BYTES)
+        if blob is None:
+            return None
+        doc = json.loads(blob)
+        return doc if isinstance(doc, dict) else None
 
     def calibration(self) -> dict[str, Any] | None:
         ref = self.manifest.get("calibration")
         if not ref:
             return None
-        blob = self.product_bytes({"file": ref["path"], "sha256": ref.get("sha256")})
+        if not isinstance(ref, dict) or not isinstance(ref.get("path"), str):
+            self.problems.append("session.json: calibration is not a record with a 'path'; it is not shown")
+            return None
+        blob = self.product_bytes({"file": ref["path"], "sha256": ref.get("sha256")}, "calibration", MAX_JSON_BYTES)
         return None if blob is None else json.loads(blob)
+
+
+#: Expected types of the manifest's top-level fields (a wrong type is listed under "problems found").
+_FIELD_TYPES: dict[str, tuple[type, ...]] = {
+    "object": (dict,), "devices": (dict,), "settings": (dict,), "plan": (dict,), "passes": (dict,),
+    "state": (dict,), "captures": (dict,), "history": (list,), "products": (dict,), "batch": (dict,),
+    "calibration": (dict, type(None)), "status": (str,), "created_utc": (str,), "updated_utc": (str,),
+}
+#: The largest pass count the report looks at (a plan is bounded far below this by ``kogei capture``).
+MAX_PASSES = 1000
+try:
+    from PIL.Image import DecompressionBombError as _DecompressionBomb
+except ImportError:                 # pragma: no cover - Pillow is a dependency
+    _DecompressionBomb = MemoryError
+
+
+def _manifest_problems(manifest: dict[str, Any]) -> list[str]:
+    """One line per top-level manifest field of the wrong type, and per out-of-bounds plan count."""
+    out = [f"session.json: {key} is a {type(manifest[key]).__name__}, expected "
+           f"{' or '.join('null' if t is type(None) else t.__name__ for t in kinds)}; it is ignored"
+           for key, kinds in _FIELD_TYPES.items() if key in manifest and not isinstance(manifest[key], kinds)]
+    plan = manifest.get("plan")
+    if isinstance(plan, dict) and "passes" in plan and _plan_passes(manifest) != plan["passes"]:
+        out.append(f"session.json: plan.passes {plan['passes']!r} is not a whole number 0..{MAX_PASSES}; "
+                   "no pass is shown")
+    captures = manifest.get("captures")
+    if isinstance(captures, dict):
+        bad = [cid for cid, rec in captures.items() if not isinstance(rec, dict)]
+        if bad:
+            out.append(f"session.json: captures {', '.join(map(str, bad[:5]))} are not records; they are ignored")
+    return out
+
+
+def _sanitized(manifest: dict[str, Any]) -> dict[str, Any]:
+    """The manifest with every wrong-typed top-level field emptied and non-record captures dropped."""
+    out = dict(manifest)
+    for key, kinds in _FIELD_TYPES.items():
+        if key in out and not isinstance(out[key], kinds):
+            out[key] = None if type(None) in kinds else kinds[0]()
+    out["captures"] = {k: v for k, v in (out.get("captures") or {}).items() if isinstance(v, dict)}
+    out["history"] = [h for h in (out.get("history") or []) if isinstance(h, dict)]
+    return out
+
+
+def _plan_passes(manifest: dict[str, Any]) -> int:
+    """``plan.passes`` if it is a whole number within bounds, else 0."""
+    plan = manifest.get("plan")
+    n = plan.get("passes", 0) if isinstance(plan, dict) else 0
+    return n if isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_PASSES else 0
+
+
+def _journal_problems(root: Path) -> list[str]:
+    """One line per journal line that is not a JSON operation (a torn last line included)."""
+    from app.session import JOURNAL
+
+    try:
+        text = read_confined_bytes(root, JOURNAL, "session.journal", MAX_JSON_BYTES)
+    except FileNotFoundError:
+        return []
+    except (UnsafeSessionPath, OSError) as exc:
+        return [f"{exc}; its records are not shown" if isinstance(exc, UnsafeSessionPath)
+                else f"session.journal is unreadable ({exc.strerror or exc})"]
+    lines = text.split(b"\n")
+    bad = []
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            op = json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            op = None
+        if not (isinstance(op, dict) and isinstance(op.get("op"), str)):
+            bad.append(i + 1)
+    if not bad:
+        return []
+    last = max(i for i, line in enumerate(lines) if line.strip()) + 1
+    torn = " (the last one torn by an interrupted write)" if bad[-1] == last else ""
+    return [f"session.journal: line(s) {', '.join(map(str, bad[:20]))}{' ...' if len(bad) > 20 else ''} "
+            f"are corrupt and were skipped{torn}; the records they held are not shown"]
+
+
+def _shown(path: Path | str) -> str:
+    """A path as text, whatever bytes its name holds (a non-UTF-8 name is shown with escapes)."""
+    return os.fsdecode(path).encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 # ---------------------------------------------------------------------------- sections
@@ -147,7 +269,7 @@ def _object(ctx: _Context) -> Section:
     m = ctx.manifest
     obj = m.get("object") or {}
     pairs = [(k, v) for k, v in obj.items()] or [("object", "no metadata given (kogei capture --object NAME)")]
-    pairs += [("session", str(ctx.root.resolve())), ("status", m.get("status")), ("created (UTC)", m.get("created_utc")),
+    pairs += [("session", _shown(ctx.root.resolve())), ("status", m.get("status")), ("created (UTC)", m.get("created_utc")),
               ("updated (UTC)", m.get("updated_utc")), ("plan", m.get("plan"))]
     dev = m.get("devices") or {}
     for name, d in dev.items():
@@ -186,9 +308,10 @@ def _capture_log(ctx: _Context) -> Section:
                                                                            for h in shown])
         if len(notable) > len(shown):
             body += f"<p>({len(notable) - len(shown)} earlier events not shown; see session.json)</p>"
-    wires = sorted((ctx.root / "wire").glob("*.log")) if (ctx.root / "wire").is_dir() else []
+    wire = ctx.root / "wire"
+    wires = sorted(wire.glob("*.log")) if wire.is_dir() and not wire.is_symlink() else []
     if wires:
-        body += _kv([(f"wire log {w.name}", f"{w.stat().st_size / 1e3:.0f} kB") for w in wires])
+        body += _kv([(f"wire log {_shown(w.name)}", f"{w.lstat().st_size / 1e3:.0f} kB") for w in wires])
     return Section("capture", "Capture log", body, True)
 
 
@@ -246,7 +369,7 @@ def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
     from app.batch.steps import render_session_mesh
 
     mesh = ctx.products.get("mesh")
-    if not mesh or ctx.product_bytes(mesh) is None:
+    if not mesh or ctx.product_path(mesh, "products.mesh") is None:
         return Section("mesh", "Mesh", _missing("no mesh", f"kogei process {ctx.root} (or kogei batch {ctx.root} "
                                                 "--steps geometry)"), False)
     pairs = [("file", mesh["file"]), ("preset", mesh.get("preset"))]
@@ -270,12 +393,14 @@ def _coverage(ctx: _Context, rep: dict[str, Any] | None) -> Section:
 
     body = ""
     profiles = []
-    plan = ctx.manifest.get("plan") or {}
-    for p in range(1, int(plan.get("passes", 0)) + 1):
-        if f"p{p:02d}/profiles" in (ctx.manifest.get("captures") or {}):
+    captures = ctx.manifest.get("captures") or {}
+    for p in range(1, _plan_passes(ctx.manifest) + 1):
+        cid = f"p{p:02d}/profiles"
+        if cid in captures:
             try:
+                confined_file(ctx.root, captures[cid].get("file"), f"captures.{cid}.file")
                 profiles.append(load_pass_profiles(ctx.root, p))
-            except SessionError as exc:
+            except (SessionError, OSError) as exc:
                 ctx.problems.append(str(exc))
     if profiles:
         rows = [[i + 1, f"{100 * float(np.isfinite(pr['z_mm']).mean()):.1f} %", pr["z_mm"].shape[0]]
@@ -297,10 +422,11 @@ def _coverage(ctx: _Context, rep: dict[str, Any] | None) -> Section:
                        [[h.get("area_mm2"), h.get("max_distance_mm"), h.get("filled_by"), h.get("closed")]
                         for h in items[:30]])
     mesh = ctx.products.get("mesh")
-    if mesh and ctx.product_bytes(mesh) is not None:
+    path = ctx.product_path(mesh, "products.mesh") if mesh else None
+    if path is not None:
         from render.meshio import load_mesh
 
-        v = load_mesh(ctx.root / mesh["file"]).vertices
+        v = load_mesh(path).vertices
         body += _img(holes_figure(v, items), "holes", "Mesh vertices with the holes' centroids.")
     return Section("coverage", "Coverage and filled holes", body, True)
 
@@ -322,8 +448,8 @@ def _chart(ctx: _Context) -> Section:
     body = ""
     shown = False
     for tag, files in sorted((colour.get("passes") or {}).items()):
-        blob = ctx.product_bytes(files.get("chart"))
-        pre = ctx.product_bytes(files.get("preview"))
+        blob = ctx.product_bytes(files.get("chart"), f"products.colour.passes.{tag}.chart", MAX_JSON_BYTES)
+        pre = ctx.product_bytes(files.get("preview"), f"products.colour.passes.{tag}.preview")
         if blob is None or pre is None:
             continue
         chart = json.loads(blob)
@@ -353,7 +479,8 @@ def _chart(ctx: _Context) -> Section:
 
 
 def _materials_doc(ctx: _Context) -> dict[str, Any] | None:
-    blob = ctx.product_bytes((ctx.products.get("materials") or {}).get("report"))
+    blob = ctx.product_bytes((ctx.products.get("materials") or {}).get("report"), "products.materials.report",
+                             MAX_JSON_BYTES)
     return None if blob is None else json.loads(blob)
 
 
@@ -411,7 +538,7 @@ def _materials(ctx: _Context) -> Section:
 
     figs = ""
     for cid, rec in sorted(((ctx.products.get("materials") or {}).get("maps") or {}).items()):
-        blob = ctx.product_bytes(rec)
+        blob = ctx.product_bytes(rec, f"products.materials.maps.{cid}")
         if blob is not None:
             img = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
             figs += _img(material_map_figure(img, doc["regions"]), f"material map {cid}",
@@ -428,7 +555,7 @@ def _renders(ctx: _Context) -> Section:
             "no renders", f"kogei batch {ctx.root} --steps render"), False)
     figs = []
     for ill, img in (rec.get("images") or {}).items():
-        blob = ctx.product_bytes(img)
+        blob = ctx.product_bytes(img, f"products.renders.images.{ill}")
         if blob is not None:
             figs.append(_img(blob, f"render under {ill}", f"illuminant {ill}"))
     body = _kv([("material", f"{rec.get('material')} ({rec.get('material_source', '')})"),
@@ -486,7 +613,8 @@ def report_sections(session_dir: str | os.PathLike[str]) -> list[Section]:
     for key, title, build in builders:
         try:
             sections.append(build())
-        except (ValueError, OSError, KeyError, TypeError, IndexError) as exc:
+        except (ValueError, OSError, KeyError, TypeError, IndexError, AttributeError, OverflowError, MemoryError,
+                _DecompressionBomb) as exc:
             # a product the section cannot read (an older or damaged file) must not cost the whole report
             text = f"{title}: the session's data could not be shown ({type(exc).__name__}: {exc})"
             ctx.problems.append(text)
@@ -523,15 +651,17 @@ def build_report(session_dir: str | os.PathLike[str]) -> str:
     root = Path(session_dir)
     sections = report_sections(root)
     manifest = _Context(root).manifest
-    name = (manifest.get("object") or {}).get("name") or root.name
+    name = (manifest.get("object") or {}).get("name") or _shown(root.name)
     nav = "".join(f"<a href='#{s.key}'>{_e(s.title)}</a>" for s in sections)
     parts = [f"<section id='{s.key}'><h2>{_e(s.title)}</h2>{s.body}</section>" for s in sections]
     held = sum(s.has_data for s in sections)
-    return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+    text = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>kogei report: {_e(name)}</title><style>{_CSS}</style></head><body>"
-            f"<h1>{_e(name)}</h1><p>kogei session report, written {_e(utc_now())} from <code>{_e(root.resolve())}"
+            f"<h1>{_e(name)}</h1><p>kogei session report, written {_e(utc_now())} from <code>{_e(_shown(root.resolve()))}"
             f"</code>; {held} of {len(sections)} sections have data.</p><nav>{nav}</nav>"
             + "".join(parts) + "</body></html>\n")
+    # a non-UTF-8 session path (surrogate escapes) is shown with backslash escapes, never a crash
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 def write_report(session_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None) -> Path:
@@ -551,12 +681,16 @@ def write_report(session_dir: str | os.PathLike[str], out: str | os.PathLike[str
     root = Path(session_dir)
     if out is not None and Path(out).suffix.lower() not in (".html", ".htm"):
         raise UsageError(f"--out: {out} must end in .html")
-    text = build_report(root).encode("utf-8")
+    text = build_report(root).encode("utf-8", "backslashreplace")
     if out is not None:
         try:
             return atomic_write_bytes(Path(out), text)
         except OSError as exc:
             raise UsageError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
+    try:
+        check_not_symlink(root, REPORT_FILE, "report")
+    except UnsafeSessionPath as exc:
+        raise UsageError(f"{exc}; or write the report elsewhere with --out FILE.html") from None
     try:
         with Session.open(root) as session:
             info = session.write_file(REPORT_FILE, text)

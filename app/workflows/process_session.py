@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
+from app.session_paths import UnsafeSessionPath, check_not_symlink, confined_file
 
 __all__ = ["process_session", "PRESETS", "MIN_PASS_POINTS"]
 
@@ -46,6 +47,31 @@ def _observed_range(z_mm: np.ndarray) -> tuple[float, float]:
     return max(lo - pad, 0.0), hi + pad
 
 
+#: Most passes a session's plan may name (``kogei capture`` plans far fewer).
+MAX_PASSES = 1000
+
+
+def _check_types(root: Path, manifest: dict[str, Any]) -> None:
+    """A one-line error naming a manifest field the geometry reads that is not a record."""
+    for key in ("plan", "captures", "passes"):
+        if not isinstance(manifest.get(key), dict):
+            raise UsageError(f"session {root}: session.json {key} is a {type(manifest.get(key)).__name__}, not a "
+                             "record; the manifest is damaged")
+    for key in ("captures", "passes"):
+        bad = [k for k, v in manifest[key].items() if not isinstance(v, dict)]
+        if bad:
+            raise UsageError(f"session {root}: session.json {key} {bad[0]!r} is not a record; the manifest is damaged")
+
+
+def _pass_count(root: Path, plan: dict[str, Any]) -> int:
+    """``plan.passes`` checked to be a whole number 1..:data:`MAX_PASSES` (else a one-line error)."""
+    n = plan.get("passes")
+    if not (isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= MAX_PASSES):
+        raise UsageError(f"session {root}: session.json plan.passes is {n!r}, not a whole number 1..{MAX_PASSES}; "
+                         "the manifest is damaged")
+    return n
+
+
 def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[[str], None]) -> list[dict[str, Any]]:
     from app.capture.runner import load_pass_profiles
     from app.session import SessionError
@@ -53,7 +79,7 @@ def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[
 
     plan = manifest["plan"]
     out = []
-    for p in range(1, int(plan["passes"]) + 1):
+    for p in range(1, _pass_count(root, plan) + 1):
         entry: dict[str, Any] = {"pass": p}
         if f"p{p:02d}/profiles" not in manifest["captures"]:
             held = sum(1 for k, r in manifest["captures"].items()
@@ -64,8 +90,12 @@ def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[
             out.append(entry)
             continue
         try:
+            rec = manifest["captures"][f"p{p:02d}/profiles"]
+            confined_file(root, rec.get("file") if isinstance(rec, dict) else None, f"captures.p{p:02d}/profiles.file")
             prof = load_pass_profiles(root, p)
-        except SessionError as exc:
+        except UnsafeSessionPath:
+            raise
+        except (SessionError, OSError) as exc:
             entry["skipped"] = f"{exc}; resume the capture to gather the pass's profiles again"
             note(f"pass {p}: {entry['skipped']}")
             out.append(entry)
@@ -135,6 +165,7 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
     session = Session.open(root)
     with session:
         manifest = session.manifest
+        _check_types(root, manifest)
         if manifest["plan"].get("kind") != "scan":
             raise UsageError(f"session {root} is a {manifest['plan'].get('kind')!r} capture; only scan sessions "
                              "have profiles to mesh")
@@ -218,7 +249,8 @@ def _adopt_mesh(session: Any, root: Path, surf: Any) -> Any:
     """Write the mesh as binary PLY and adopt it into the session as ``products/mesh.ply``."""
     from processing.geometry.mesh_ply import write_mesh_ply
 
-    tmp = root / ".incoming" / "mesh.ply"
+    tmp = check_not_symlink(root, ".incoming/mesh.ply", "mesh staging file")
+    check_not_symlink(root, MESH, "products.mesh")
     tmp.parent.mkdir(parents=True, exist_ok=True)
     write_mesh_ply(tmp, surf.vertices, surf.triangles, surf.vertex_normals)
     return session.adopt_file(tmp, MESH)
