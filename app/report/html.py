@@ -114,7 +114,7 @@ class _Context:
 
         self.root = root
         try:
-            self.manifest = Session.read(root)
+            self.manifest, journal_problems = Session.read_checked(root)
         except SessionError as exc:
             raise UsageError(str(exc)) from None
         except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
@@ -122,7 +122,7 @@ class _Context:
                              f"({type(exc).__name__}: {exc}); restore it from a backup") from None
         self.problems: list[str] = []
         self.problems += _manifest_problems(self.manifest)
-        self.problems += _journal_problems(root)
+        self.problems += journal_problems
         self.manifest = _sanitized(self.manifest)
         self.products: dict[str, Any] = self.manifest.get("products") or {}
 
@@ -227,36 +227,6 @@ def _plan_passes(manifest: dict[str, Any]) -> int:
     plan = manifest.get("plan")
     n = plan.get("passes", 0) if isinstance(plan, dict) else 0
     return n if isinstance(n, int) and not isinstance(n, bool) and 0 <= n <= MAX_PASSES else 0
-
-
-def _journal_problems(root: Path) -> list[str]:
-    """One line per journal line that is not a JSON operation (a torn last line included)."""
-    from app.session import JOURNAL
-
-    try:
-        text = read_confined_bytes(root, JOURNAL, "session.journal", MAX_JSON_BYTES)
-    except FileNotFoundError:
-        return []
-    except (UnsafeSessionPath, OSError) as exc:
-        return [f"{exc}; its records are not shown" if isinstance(exc, UnsafeSessionPath)
-                else f"session.journal is unreadable ({exc.strerror or exc})"]
-    lines = text.split(b"\n")
-    bad = []
-    for i, line in enumerate(lines):
-        if not line.strip():
-            continue
-        try:
-            op = json.loads(line)
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            op = None
-        if not (isinstance(op, dict) and isinstance(op.get("op"), str)):
-            bad.append(i + 1)
-    if not bad:
-        return []
-    last = max(i for i, line in enumerate(lines) if line.strip()) + 1
-    torn = " (the last one torn by an interrupted write)" if bad[-1] == last else ""
-    return [f"session.journal: line(s) {', '.join(map(str, bad[:20]))}{' ...' if len(bad) > 20 else ''} "
-            f"are corrupt and were skipped{torn}; the records they held are not shown"]
 
 
 def _shown(path: Path | str) -> str:
