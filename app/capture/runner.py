@@ -37,7 +37,10 @@ the possible error in ``angle_uncertain_deg`` of the pass record.
 from __future__ import annotations
 
 import math
+import os
+import secrets
 import shutil
+import stat
 import threading
 import time
 from collections import defaultdict
@@ -79,6 +82,8 @@ __all__ = [
     "load_pass_profiles",
     "parse_camera_angles",
     "open_for_resume",
+    "keep_orphans",
+    "check_not_linked",
 ]
 
 PLAN_KINDS = ("scan", "swatch")
@@ -421,6 +426,7 @@ class _Runner:
     def run(self) -> CaptureReport:
         s = self.session
         resumed = bool(s.manifest["captures"]) or s.manifest["status"] in ("interrupted", "capturing")
+        check_not_linked(s.root, STAGING, ORPHANS)
         s.set_status("capturing")
         s.event("resumed" if resumed else "started",
                 f"{self.plan.kind}: {self.plan.passes} pass(es) x {self.plan.steps} steps")
@@ -481,18 +487,16 @@ class _Runner:
 
     # ---------------------------------------------------------------- set-up
     def _stage(self) -> None:
-        """Empty the staging folder; frames a crash left there are kept in ``orphans/``."""
+        """Empty the staging folder; files a crash left there are kept in ``orphans/`` (see :func:`keep_orphans`)."""
         staging = self.session.root / STAGING
-        if staging.is_dir():
-            leftovers = [p for p in staging.rglob("*") if p.is_file()]
-            if leftovers:
-                keep = self.session.root / ORPHANS / time.strftime("%Y%m%dT%H%M%S")
-                keep.mkdir(parents=True, exist_ok=True)
-                for f in leftovers:
-                    shutil.move(str(f), keep / f.name)
-                self._note(f"kept {len(leftovers)} unrecorded file(s) from an interrupted capture in "
-                           f"{keep.relative_to(self.session.root)}")
-            shutil.rmtree(staging, ignore_errors=True)
+        kept, links, keep = keep_orphans(self.session.root)
+        if kept:
+            self._note(f"kept {len(kept)} unrecorded file(s) from an interrupted capture in "
+                       f"{keep}: {', '.join(kept)}")
+        if links:
+            self._note(f"removed {len(links)} symbolic link(s) from {STAGING} without following them: "
+                       f"{', '.join(links)}")
+        shutil.rmtree(staging, ignore_errors=True)
         staging.mkdir(parents=True, exist_ok=True)
         if self.dev.camera is not None:
             self.camera = self.dev.camera(staging)
@@ -785,6 +789,67 @@ class _Runner:
         info = s.write_arrays(f"passes/p{p:02d}/profiles.npz", angles_deg=angles, x_mm=x, z_mm=zz)
         s.add_capture(f"p{p:02d}/profiles", kind="profiles", **{"pass": p}, steps=len(rows), points=width,
                       file=info.path, sha256=info.sha256, bytes=info.bytes)
+
+
+def check_not_linked(root: Path, *names: str) -> None:
+    """Raise :class:`SessionError` if ``root/<name>`` is a symbolic link (kogei never follows one in a session)."""
+    for name in names:
+        path = Path(root) / name
+        if path.is_symlink():
+            raise SessionError(f"session {root}: {name} is a symbolic link (to {os.readlink(path)}); kogei does not "
+                               f"follow links inside a session: remove the link {path} and resume")
+
+
+def _unique_folder(parent: Path) -> Path:
+    """A new folder ``parent/<UTC time>-<random>`` (never an existing one, even within the same second)."""
+    parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        path = parent / f"{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{secrets.token_hex(4)}"
+        try:
+            path.mkdir()
+            return path
+        except FileExistsError:
+            continue
+
+
+def keep_orphans(root: Path) -> tuple[list[str], list[str], str]:
+    """Move the regular files under ``root/.incoming`` into a new ``orphans/<time>-<unique>/`` folder.
+
+    Each file keeps its path relative to ``.incoming`` (two gphoto2 work folders each holding
+    ``capt0000.dng`` keep both).  Symbolic links are never followed: ``.incoming`` or ``orphans``
+    being a link raises :class:`SessionError`; a link inside ``.incoming`` is listed, not moved
+    (the folder is removed afterwards, which removes the link and not its target).
+
+    Returns
+    -------
+    tuple
+        The kept files (relative to ``.incoming``), the links found, and the folder they went to
+        (relative to ``root``; empty when nothing was kept).
+    """
+    root = Path(root)
+    check_not_linked(root, STAGING, ORPHANS)
+    staging = root / STAGING
+    if not staging.is_dir():
+        return [], [], ""
+    files: list[str] = []
+    links: list[str] = []
+    for folder, dirs, names in os.walk(staging, followlinks=False):
+        for name in sorted(dirs + names):
+            path = Path(folder) / name
+            rel = path.relative_to(staging).as_posix()
+            st = path.lstat()
+            if stat.S_ISLNK(st.st_mode):
+                links.append(rel)
+            elif stat.S_ISREG(st.st_mode):
+                files.append(rel)
+    if not files:
+        return [], sorted(links), ""
+    keep = _unique_folder(root / ORPHANS)
+    for rel in files:
+        target = keep / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staging / rel, target)
+    return sorted(files), sorted(links), keep.relative_to(root).as_posix()
 
 
 def open_for_resume(root: str | Path) -> tuple[Any, CapturePlan, dict[str, Any], dict[str, Any]]:

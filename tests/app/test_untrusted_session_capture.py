@@ -1,0 +1,135 @@
+"""A session folder is untrusted input, as ``kogei capture --resume`` sees it: leftover files are kept
+without overwriting each other, symbolic links are never followed, stored commands do not run
+silently, junk frames and laser-less passes are not "complete", grandchildren cannot defeat a
+timeout, and bad options leave no folder behind."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from app.capture.devices import build_devices
+from app.capture.runner import CaptureHooks, CapturePlan, CaptureSettings, keep_orphans, run_capture
+from app.session import Session, SessionError
+from mocks.station import SimulatedStation
+from mocks.world import World
+
+PLAN = CapturePlan("scan", steps=2, passes=1, camera=False)
+
+
+def _station(tmp_path: Path, name: str = "station") -> SimulatedStation:
+    return SimulatedStation(World.hawk(2000, width=48, height=32), root=tmp_path / name, seed=3, n_points=96)
+
+
+def _config(st: SimulatedStation) -> dict:
+    return {"turntable": {"port": str(st.turntable_path)},
+            "profiler": {"port": str(st.profiler_path), "baudrate": 115200}}
+
+
+def _sentinel(tmp_path: Path) -> tuple[Path, bytes, int]:
+    outside = tmp_path / "outside"
+    outside.mkdir(exist_ok=True)
+    f = outside / "precious.dng"
+    f.write_bytes(b"precious bytes")
+    return f, f.read_bytes(), f.stat().st_mtime_ns
+
+
+def _untouched(sentinel: tuple[Path, bytes, int]) -> None:
+    f, data, mtime = sentinel
+    assert f.read_bytes() == data and f.stat().st_mtime_ns == mtime
+
+
+def _interrupted_session(root: Path, plan: CapturePlan = PLAN, config: dict | None = None) -> None:
+    s = Session.create(root, plan=plan.to_dict(), settings={"device_config": config or {}})
+    s.set_status("interrupted")
+    s.close()
+
+
+# ------------------------------------------------------------------ item 3: orphans
+def _leftovers(root: Path) -> None:
+    for work, data in ((".gphoto2-a", b"first"), (".gphoto2-b", b"second")):
+        (root / ".incoming" / work).mkdir(parents=True, exist_ok=True)
+        (root / ".incoming" / work / "capt0000.dng").write_bytes(data)
+
+
+def test_orphans_keep_their_relative_paths_and_never_share_a_folder(tmp_path):
+    root = tmp_path / "s"
+    _interrupted_session(root)
+    _leftovers(root)
+    kept, links, folder = keep_orphans(root)
+    assert kept == [".gphoto2-a/capt0000.dng", ".gphoto2-b/capt0000.dng"] and links == []
+    assert (root / folder / ".gphoto2-a" / "capt0000.dng").read_bytes() == b"first"
+    assert (root / folder / ".gphoto2-b" / "capt0000.dng").read_bytes() == b"second"
+    _leftovers(root)                                   # a second resume within the same second
+    kept2, _, folder2 = keep_orphans(root)
+    assert len(kept2) == 2 and folder2 != folder
+    assert len(list((root / "orphans").iterdir())) == 2
+
+
+def test_resume_lists_every_kept_orphan_in_the_history(tmp_path):
+    root = tmp_path / "s"
+    with _station(tmp_path) as st:
+        _interrupted_session(root, config=_config(st))
+        _leftovers(root)
+        s = Session.open(root)
+        try:
+            run_capture(s, PLAN, build_devices(_config(st), root), CaptureHooks(before_pass=lambda p, n: st.place(p)),
+                        CaptureSettings(reconnect_timeout_s=2.0))
+        finally:
+            s.close()
+    notes = " ".join(h["detail"] for h in Session.read(root)["history"] if h["event"] == "note")
+    assert "kept 2 unrecorded file(s)" in notes
+    assert ".gphoto2-a/capt0000.dng" in notes and ".gphoto2-b/capt0000.dng" in notes
+    assert sorted(p.read_bytes() for p in (root / "orphans").rglob("*.dng")) == [b"first", b"second"]
+
+
+def test_symlinked_incoming_is_refused_and_its_target_not_moved(tmp_path):
+    root = tmp_path / "s"
+    _interrupted_session(root)
+    sentinel = _sentinel(tmp_path)
+    (root / ".incoming").symlink_to(sentinel[0].parent)
+    with pytest.raises(SessionError, match=r"\.incoming is a symbolic link"):
+        keep_orphans(root)
+    _untouched(sentinel)
+    assert not (root / "orphans").exists()
+
+
+def test_symlinked_orphans_folder_is_refused(tmp_path):
+    root = tmp_path / "s"
+    _interrupted_session(root)
+    _leftovers(root)
+    sentinel = _sentinel(tmp_path)
+    (root / "orphans").symlink_to(sentinel[0].parent)
+    with pytest.raises(SessionError, match="orphans is a symbolic link"):
+        keep_orphans(root)
+    _untouched(sentinel)
+    assert sorted(p.name for p in sentinel[0].parent.iterdir()) == ["precious.dng"]
+
+
+def test_symlinks_inside_incoming_are_not_followed(tmp_path):
+    root = tmp_path / "s"
+    _interrupted_session(root)
+    sentinel = _sentinel(tmp_path)
+    (root / ".incoming" / ".gphoto2-a").mkdir(parents=True)
+    (root / ".incoming" / ".gphoto2-a" / "capt0000.dng").symlink_to(sentinel[0])
+    (root / ".incoming" / "dir").symlink_to(sentinel[0].parent, target_is_directory=True)
+    kept, links, _ = keep_orphans(root)
+    assert kept == [] and links == [".gphoto2-a/capt0000.dng", "dir"]
+    _untouched(sentinel)
+
+
+def test_cli_resume_with_a_symlinked_incoming_exits_2(tmp_path, capsys):
+    from app.cli import main
+
+    root = tmp_path / "s"
+    sentinel = _sentinel(tmp_path)
+    with _station(tmp_path) as st:
+        _interrupted_session(root, config=_config(st))
+        (root / ".incoming").symlink_to(sentinel[0].parent)
+        code = main(["capture", "--resume", str(root), "--unattended", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "symbolic link" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    _untouched(sentinel)
+
