@@ -8,8 +8,11 @@ Ctrl-C (resumable too).
 from __future__ import annotations
 
 import argparse
+import getpass
 import math
+import os
 import signal
+import socket
 import sys
 import threading
 from pathlib import Path
@@ -52,6 +55,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "KOGEI_PASSES, KOGEI_SESSION); e.g. 'kogei mock place --control DIR'")
     p.add_argument("--shutter", default=None, metavar="CMD",
                    help="command that fires the camera for a hot folder (env KOGEI_FRAME)")
+    p.add_argument("--trust-hooks", action="store_true",
+                   help="on --resume, run the commands stored in a session created by another user or machine "
+                        "(--before-pass, --shutter, the gphoto2 program); without it they are shown and refused")
     p.add_argument("--steps-per-degree", type=float, default=None, help="turntable motor steps per degree")
     p.add_argument("--speed", type=float, default=None, metavar="DEG_S", help="turntable speed (deg/s)")
     p.add_argument("--exposure-us", type=int, default=None, help="laser profiler exposure (microseconds)")
@@ -129,11 +135,53 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
         if args.exposure_us is not None:
             config["profiler"]["exposure_us"] = args.exposure_us
     settings = {"unattended": bool(args.unattended), "before_pass": args.before_pass, "shutter": args.shutter,
-                "device_config": config}
+                "device_config": config, "created_by": _origin()}
     obj = {k: v for k, v in (("name", args.object), ("notes", args.notes)) if v}
     session = Session.create(args.out, plan=plan.to_dict(), object_info=obj, settings=settings,
                              devices={k: dict(v) for k, v in config.items()})
     return session, plan, settings
+
+
+def _origin() -> dict[str, Any]:
+    """Who creates a session here: user name, user id and host (stored as ``settings.created_by``)."""
+    try:
+        user = getpass.getuser()
+    except (KeyError, OSError):
+        user = ""
+    return {"user": user, "uid": os.getuid() if hasattr(os, "getuid") else None, "host": socket.gethostname()}
+
+
+def _same_origin(stored: Any) -> bool:
+    """True if ``stored`` (a session's ``created_by``) names this user on this machine."""
+    here = _origin()
+    return isinstance(stored, dict) and stored.get("uid") == here["uid"] and stored.get("host") == here["host"]
+
+
+def _stored_commands(settings: dict[str, Any], config: dict[str, Any], args: argparse.Namespace) -> list[str]:
+    """The commands a resume would run from the session itself (not re-entered on the command line)."""
+    found = [f"--{key.replace('_', '-')} {settings[key]}" for key in ("before_pass", "shutter")
+             if settings.get(key) and not getattr(args, key)]
+    cam = config.get("camera") if isinstance(config.get("camera"), dict) else {}
+    if not args.camera and cam.get("kind") == "gphoto2" and cam.get("executable", "gphoto2") != "gphoto2":
+        found.append(f"--camera gphoto2:{cam['executable']}")
+    return found
+
+
+def _check_trust(session: Any, settings: dict[str, Any], config: dict[str, Any], args: argparse.Namespace) -> None:
+    """Refuse (exit 2) to run a foreign session's stored commands without ``--trust-hooks``; list them first."""
+    stored = _stored_commands(settings, config, args)
+    origin = settings.get("created_by")
+    if not stored or args.trust_hooks or _same_origin(origin):
+        return
+    session.close()
+    who = (f"{origin.get('user') or 'uid ' + str(origin.get('uid'))} on {origin.get('host')}"
+           if isinstance(origin, dict) else "an unknown user or machine")
+    print(f"session {args.resume} stores these commands:", file=sys.stderr)
+    for cmd in stored:
+        print(f"    {cmd}", file=sys.stderr)
+    raise UsageError(f"session {args.resume} was created by {who}, and its stored commands are not run "
+                     "unless you trust them: read them above, then resume with --trust-hooks (or give them "
+                     "again on the command line)")
 
 
 def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
@@ -141,6 +189,7 @@ def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     from app.capture.runner import open_for_resume
 
     session, plan, settings, config = open_for_resume(args.resume)
+    _check_trust(session, settings, config, args)
     if args.turntable:
         config.setdefault("turntable", {})["port"] = args.turntable
     if args.laser:

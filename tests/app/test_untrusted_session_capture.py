@@ -5,6 +5,7 @@ timeout, and bad options leave no folder behind."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -133,3 +134,75 @@ def test_cli_resume_with_a_symlinked_incoming_exits_2(tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1
     _untouched(sentinel)
 
+
+
+# ------------------------------------------------------------------ item 4: stored commands
+def _foreign_session(root: Path, config: dict, marker: Path, origin: dict | None) -> None:
+    settings = {"device_config": config, "unattended": True, "before_pass": f"touch {marker}"}
+    if origin is not None:
+        settings["created_by"] = origin
+    s = Session.create(root, plan=PLAN.to_dict(), settings=settings)
+    s.set_status("interrupted")
+    s.close()
+
+
+@pytest.mark.parametrize("origin", [{"user": "mallory", "uid": 12345, "host": "elsewhere.example"}, None])
+def test_stored_hook_of_a_foreign_session_is_shown_not_run(origin, tmp_path, capsys):
+    from app.cli import main
+
+    root, marker = tmp_path / "s", tmp_path / "ran"
+    _foreign_session(root, {"turntable": {"port": str(tmp_path / "tt")}}, marker, origin)
+    code = main(["capture", "--resume", str(root), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and not marker.exists()
+    assert f"touch {marker}" in err and "--trust-hooks" in err and "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith("kogei")
+    assert Session.read(root)["status"] == "interrupted"        # not touched: no capture was started
+
+
+def test_stored_camera_executable_of_a_foreign_session_is_shown_not_run(tmp_path, capsys):
+    from app.cli import main
+
+    root = tmp_path / "s"
+    plan = CapturePlan("scan", steps=2, passes=1, camera_angles_deg=(0.0,))
+    config = {"turntable": {"port": "x"}, "profiler": {"port": "y"},
+              "camera": {"kind": "gphoto2", "executable": str(tmp_path / "evil.sh")}}
+    s = Session.create(root, plan=plan.to_dict(), settings={"device_config": config, "unattended": True,
+                                                            "created_by": {"uid": -1, "host": "elsewhere"}})
+    s.close()
+    code = main(["capture", "--resume", str(root), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and str(tmp_path / "evil.sh") in err and "--trust-hooks" in err
+
+
+@pytest.mark.parametrize("how", ["--trust-hooks", "re-entered", "own session"])
+def test_stored_hook_runs_when_trusted(how, tmp_path, capsys):
+    import socket
+
+    from app.cli import main
+
+    root, marker = tmp_path / "s", tmp_path / "ran"
+    with _station(tmp_path) as st:
+        origin = {"user": "mallory", "uid": 12345, "host": "elsewhere.example"}
+        if how == "own session":
+            origin = {"user": "me", "uid": os.getuid(), "host": socket.gethostname()}
+        _foreign_session(root, _config(st), marker, origin)
+        extra = {"--trust-hooks": ["--trust-hooks"], "re-entered": ["--before-pass", f"touch {marker}"],
+                 "own session": []}[how]
+        code = main(["capture", "--resume", str(root), "--quiet", *extra])
+    assert code == 0, capsys.readouterr().err
+    assert marker.exists()
+
+
+def test_new_session_records_who_created_it(tmp_path):
+    import socket
+
+    from app.cli import main
+
+    with _station(tmp_path) as st:
+        code = main(["capture", "--turntable", str(st.turntable_path), "--laser", str(st.profiler_path),
+                     "--camera", "none", "--steps", "2", "--passes", "1", "--out", str(tmp_path / "s"),
+                     "--unattended", "--quiet"])
+    assert code == 0
+    origin = Session.read(tmp_path / "s")["settings"]["created_by"]
+    assert origin["uid"] == os.getuid() and origin["host"] == socket.gethostname() and origin["user"]
