@@ -53,10 +53,12 @@ import numpy as np
 
 from app.session import Session, SessionError, utc_now
 from drivers.camera_errors import (
+    CameraBadFrameError,
     CameraBusyError,
     CameraError,
     CameraTimeoutError,
 )
+from drivers.camera_hotfolder import raw_format_problem
 from drivers.errors import (
     DeviceAlarm,
     DeviceError,
@@ -84,9 +86,12 @@ __all__ = [
     "open_for_resume",
     "keep_orphans",
     "check_not_linked",
+    "MIN_VALID_SHARE",
 ]
 
 PLAN_KINDS = ("scan", "swatch")
+#: A pass whose share of profiles with a laser return is below this is suspect (laser never on?).
+MIN_VALID_SHARE = 0.05
 STAGING = ".incoming"
 ORPHANS = "orphans"
 
@@ -299,6 +304,10 @@ class CaptureHooks:
     after_chart
         ``after_chart(pass_no)``: the pass's last chart frame is taken
         (remove the chart).
+    low_return
+        ``low_return(pass_no, valid_share, text)``: the pass's profiles
+        (nearly) never saw the laser line; ask whether to go on (raise
+        :class:`CaptureInterrupted` to stop).
     progress
         Called after every action with a :class:`CaptureProgress`.
     message
@@ -310,6 +319,7 @@ class CaptureHooks:
     before_pass: Callable[[int, int], None] | None = None
     before_chart: Callable[[int, int], None] | None = None
     after_chart: Callable[[int], None] | None = None
+    low_return: Callable[[int, float, str], None] | None = None
     progress: Callable[[CaptureProgress], None] | None = None
     message: Callable[[str], None] | None = None
     cancel: threading.Event | None = None
@@ -361,6 +371,7 @@ class CaptureReport:
     recoveries: list[str] = field(default_factory=list)
     elapsed_s: float = 0.0
     status: str = "complete"
+    warnings: list[str] = field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------- the engine
@@ -750,8 +761,8 @@ class _Runner:
         tries = 0
         while True:
             try:
-                return self.camera.shoot(name)
-            except (CameraBusyError, CameraTimeoutError) as exc:
+                return self._checked(self.camera.shoot(name))
+            except (CameraBusyError, CameraTimeoutError, CameraBadFrameError) as exc:
                 tries += 1
                 if tries > self.settings.camera_retries:
                     raise CaptureInterrupted(self._resume_hint(f"camera: {exc} (tried {tries} times)"),
@@ -761,6 +772,17 @@ class _Runner:
                 time.sleep(self.settings.camera_retry_wait_s)
             except CameraError as exc:
                 raise CaptureInterrupted(self._resume_hint(f"camera: {exc}"), session=self.session.root) from exc
+
+    def _checked(self, path: Path) -> Path:
+        """``path`` if it is the RAW format its ending claims; else it is moved to ``orphans/`` and refused."""
+        problem = raw_format_problem(path)
+        if problem is None:
+            return path
+        keep = _unique_folder(self.session.root / ORPHANS)
+        os.replace(path, keep / path.name)
+        raise CameraBadFrameError(f"the camera delivered {problem} (kept as "
+                                  f"{(keep / path.name).relative_to(self.session.root).as_posix()}); check that "
+                                  "the camera saves RAW and the USB cable")
 
     # ---------------------------------------------------------------- end of pass
     def _gathered_ok(self, p: int) -> bool:
@@ -789,6 +811,25 @@ class _Runner:
         info = s.write_arrays(f"passes/p{p:02d}/profiles.npz", angles_deg=angles, x_mm=x, z_mm=zz)
         s.add_capture(f"p{p:02d}/profiles", kind="profiles", **{"pass": p}, steps=len(rows), points=width,
                       file=info.path, sha256=info.sha256, bytes=info.bytes)
+        self._check_returns(p, zz)
+
+    def _check_returns(self, p: int, z_mm: np.ndarray) -> None:
+        """Record the pass's share of profiles with a laser return; warn (and ask) when it is near zero."""
+        share = float(np.isfinite(z_mm).any(axis=1).mean()) if z_mm.size else 0.0
+        self.session.update_pass(p, valid_share=round(share, 4))
+        if share >= MIN_VALID_SHARE:
+            return
+        text = (f"pass {p}: only {share:.0%} of its {z_mm.shape[0]} profiles saw the laser line; check the "
+                "laser (power, the turntable's laser output, its aim) before the object leaves the table")
+        self.report.warnings.append(text)
+        try:
+            self.session.event("warning", text)
+        except SessionError:
+            pass
+        if self.hooks.message:
+            self.hooks.message(text)
+        if self.hooks.low_return is not None:
+            self.hooks.low_return(p, share, text)
 
 
 def check_not_linked(root: Path, *names: str) -> None:

@@ -1,8 +1,9 @@
 """``kogei capture``: a capture session from the command line (a thin shell over :mod:`app.capture.runner`).
 
 Exit status: 0 complete; 1 stopped by a device fault (the session is
-resumable, the message says what to fix); 2 bad input; 130 stopped with
-Ctrl-C (resumable too).
+resumable, the message says what to fix) or, unattended, a pass with
+(nearly) no laser returns; 2 bad input; 130 stopped with Ctrl-C
+(resumable too).
 """
 
 from __future__ import annotations
@@ -238,11 +239,21 @@ def _hooks(session: Any, plan: Any, settings: dict[str, Any], cancel: threading.
         if not unattended and not settings.get("before_pass"):
             input("Chart frame taken. Remove the chart from the view, then press Enter: ")
 
+    def low_return(p: int, share: float, text: str) -> None:
+        if unattended or settings.get("before_pass"):
+            return
+        answer = input(f"\nWarning: {text}.\nPress Enter to go on anyway, or q and Enter to stop: ")
+        if answer.strip().lower().startswith("q"):
+            raise CaptureInterrupted(f"stopped after pass {p} (no laser line); fix the laser, then resume with: "
+                                     f"kogei capture --resume {session.root}", session=session.root,
+                                     reason="cancelled")
+
     def message(text: str) -> None:
         if not quiet:
             print(f"  note: {text}", file=sys.stderr)
 
-    return CaptureHooks(before_pass=before_pass, after_chart=after_chart, message=message, cancel=cancel)
+    return CaptureHooks(before_pass=before_pass, after_chart=after_chart, low_return=low_return, message=message,
+                        cancel=cancel)
 
 
 def _shutter(settings: dict[str, Any], session_root: Path):
@@ -303,6 +314,12 @@ def run(args: argparse.Namespace) -> int:
         session.close()
     print(f"session {report.session}: complete; {report.taken} captures taken, {report.skipped} already held, "
           f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
+    for text in report.warnings:
+        print(f"  warning: {text}", file=sys.stderr)
+    if report.warnings and settings.get("unattended"):
+        print(f"kogei capture: {len(report.warnings)} pass(es) of {report.session} have (nearly) no laser "
+              "returns (valid_share in the manifest); check the laser before processing", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0
 
 

@@ -6,6 +6,7 @@ timeout, and bad options leave no folder behind."""
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -206,3 +207,89 @@ def test_new_session_records_who_created_it(tmp_path):
     assert code == 0
     origin = Session.read(tmp_path / "s")["settings"]["created_by"]
     assert origin["uid"] == os.getuid() and origin["host"] == socket.gethostname() and origin["user"]
+
+
+# ------------------------------------------------------------------ item 5: junk frames, passes without a laser
+def _junk_camera(tmp_path: Path, payload: bytes = b"8 bytes!") -> Path:
+    exe = tmp_path / "junk-gphoto2"
+    exe.write_text(f"#!{sys.executable}\nopen('capt0000.dng', 'wb').write({payload!r})\n")
+    exe.chmod(0o755)
+    return exe
+
+
+def test_raw_format_problem_sniffs_the_header(tmp_path):
+    import numpy as np
+
+    from drivers.camera_hotfolder import raw_format_problem
+    from mocks.dng_writer import dng_bytes
+
+    good = tmp_path / "a.dng"
+    good.write_bytes(dng_bytes(np.full((32, 48), 700, np.uint16), black_level=600, white_level=16383))
+    assert raw_format_problem(good) is None
+    for name, data, match in (("b.dng", b"8 bytes!", "not a DNG file"), ("c.nef", b"", "empty"),
+                              ("d.cr2", b"II*\x00\xff\xff\x00\x00", "truncated or damaged CR2"),
+                              ("e.cr3", b"\x00\x00\x00\x18junk", "not a CR3")):
+        (tmp_path / name).write_bytes(data)
+        assert match in raw_format_problem(tmp_path / name)
+
+
+def test_junk_camera_download_is_a_failed_capture_not_complete(tmp_path):
+    from app.capture.runner import CaptureInterrupted
+
+    plan = CapturePlan("scan", steps=2, passes=1, camera_angles_deg=(0.0,), chart=False)
+    root = tmp_path / "s"
+    with _station(tmp_path) as st:
+        config = {**_config(st), "camera": {"kind": "gphoto2", "executable": str(_junk_camera(tmp_path))}}
+        s = Session.create(root, plan=plan.to_dict(), settings={"device_config": config})
+        try:
+            with pytest.raises(CaptureInterrupted, match=r"(?s)not a DNG file.*tried 2 times.*--resume"):
+                run_capture(s, plan, build_devices(config, root), CaptureHooks(before_pass=lambda p, n: st.place(p)),
+                            CaptureSettings(reconnect_timeout_s=2.0, camera_retries=1, camera_retry_wait_s=0.01))
+        finally:
+            s.close()
+    m = Session.read(root)
+    assert m["status"] == "interrupted" and "p01/frame/00" not in m["captures"]
+    assert len(list((root / "orphans").rglob("*.dng"))) == 2            # the junk is kept, out of the way
+
+
+def test_pass_without_laser_returns_is_warned_and_recorded(tmp_path, monkeypatch):
+    monkeypatch.setattr(SimulatedStation, "laser_powered", property(lambda self: False))
+    asked = []
+    root = tmp_path / "s"
+    with _station(tmp_path) as st:
+        s = Session.create(root, plan=PLAN.to_dict(), settings={"device_config": _config(st)})
+        try:
+            report = run_capture(s, PLAN, build_devices(_config(st), root),
+                                 CaptureHooks(low_return=lambda p, share, text: asked.append((p, share))),
+                                 CaptureSettings(reconnect_timeout_s=2.0))
+        finally:
+            s.close()
+    m = Session.read(root)
+    assert asked == [(1, 0.0)] and m["passes"]["1"]["valid_share"] == 0.0
+    assert report.warnings and "check the laser" in report.warnings[0]
+    assert any(h["event"] == "warning" and "laser" in h["detail"] for h in m["history"])
+
+
+def test_unattended_cli_ends_non_zero_when_the_laser_never_came_on(tmp_path, capsys, monkeypatch):
+    from app.cli import main
+
+    monkeypatch.setattr(SimulatedStation, "laser_powered", property(lambda self: False))
+    with _station(tmp_path) as st:
+        code = main(["capture", "--turntable", str(st.turntable_path), "--laser", str(st.profiler_path),
+                     "--camera", "none", "--steps", "2", "--passes", "1", "--out", str(tmp_path / "s"),
+                     "--unattended", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 1 and "check the laser" in err and "Traceback" not in err
+    assert Session.read(tmp_path / "s")["passes"]["1"]["valid_share"] == 0.0
+
+
+def test_normal_pass_records_its_valid_share(tmp_path):
+    root = tmp_path / "s"
+    with _station(tmp_path) as st:
+        s = Session.create(root, plan=PLAN.to_dict(), settings={"device_config": _config(st)})
+        try:
+            report = run_capture(s, PLAN, build_devices(_config(st), root),
+                                 CaptureHooks(before_pass=lambda p, n: st.place(p)), CaptureSettings())
+        finally:
+            s.close()
+    assert report.warnings == [] and Session.read(root)["passes"]["1"]["valid_share"] == 1.0
