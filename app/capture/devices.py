@@ -23,13 +23,13 @@ from __future__ import annotations
 
 import os
 import shlex
-import subprocess
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from app.capture.runner import CaptureDevices
 from app.errors import UsageError
+from drivers.process import run_bounded
 
 __all__ = [
     "parse_camera_spec",
@@ -59,7 +59,13 @@ def parse_camera_spec(spec: str) -> dict[str, Any]:
 
 
 def run_hook_command(command: str, what: str, env: dict[str, str], timeout_s: float = 600.0) -> None:
-    """Run a user hook (``--before-pass``, ``--shutter``) without a shell; raise RuntimeError if it fails."""
+    """Run a user hook (``--before-pass``, ``--shutter``) without a shell; raise RuntimeError if it fails.
+
+    The hook runs in its own process group with output to temporary files
+    (:func:`drivers.process.run_bounded`): a process it leaves in the
+    background does not block the capture, and at the deadline the whole
+    group is killed.
+    """
     try:
         argv = shlex.split(command)
     except ValueError as exc:
@@ -67,12 +73,14 @@ def run_hook_command(command: str, what: str, env: dict[str, str], timeout_s: fl
     if not argv:
         raise RuntimeError(f"{what} command is empty")
     try:
-        proc = subprocess.run(argv, env={**os.environ, **env}, capture_output=True, text=True, timeout=timeout_s,
-                              stdin=subprocess.DEVNULL)
+        proc = run_bounded(argv, timeout_s=timeout_s, env={**os.environ, **env})
     except FileNotFoundError:
         raise RuntimeError(f"{what} command {argv[0]!r} was not found; check the command line") from None
-    except subprocess.TimeoutExpired:
-        raise RuntimeError(f"{what} command {command!r} did not finish within {timeout_s:g} s") from None
+    except OSError as exc:
+        raise RuntimeError(f"{what} command {argv[0]!r} cannot be started: {exc.strerror or exc}") from None
+    if proc.timed_out:
+        raise RuntimeError(f"{what} command {command!r} did not finish within {timeout_s:g} s and was stopped "
+                           "(with everything it started)")
     if proc.returncode != 0:
         out = (proc.stderr or proc.stdout).strip().splitlines()
         raise RuntimeError(f"{what} command {command!r} failed with status {proc.returncode}: "

@@ -293,3 +293,86 @@ def test_normal_pass_records_its_valid_share(tmp_path):
         finally:
             s.close()
     assert report.warnings == [] and Session.read(root)["passes"]["1"]["valid_share"] == 1.0
+
+
+# ------------------------------------------------------------------ item 8: timeouts and grandchildren
+def _hanging_camera(tmp_path: Path, pids: Path, hang: bool = True) -> Path:
+    """A gphoto2 stand-in that leaves a detached ``sleep 100`` holding its stdout (and hangs itself)."""
+    exe = tmp_path / "hanging-gphoto2"
+    exe.write_text(f"#!/bin/sh\nsetsid sleep 100 &\necho $! >> {pids}\nsleep 100 &\necho $! >> {pids}\n"
+                   + ("sleep 100\n" if hang else "exit 3\n"))
+    exe.chmod(0o755)
+    return exe
+
+
+@pytest.fixture
+def pids(tmp_path):
+    """A file the fake programs write their children's pids to; they are all killed afterwards."""
+    import signal
+
+    path = tmp_path / "pids"
+    yield path
+    if path.exists():
+        for pid in path.read_text().split():
+            try:
+                os.kill(int(pid), signal.SIGKILL)
+            except (ProcessLookupError, ValueError):
+                pass
+
+
+def test_gphoto2_timeout_is_not_defeated_by_a_detached_grandchild(tmp_path, pids):
+    import time
+
+    from drivers.camera_errors import CameraTimeoutError
+    from drivers.camera_gphoto2 import Gphoto2Camera
+
+    cam = Gphoto2Camera(tmp_path / "dest", executable=_hanging_camera(tmp_path, pids), timeout_s=1.0)
+    t = time.monotonic()
+    with pytest.raises(CameraTimeoutError, match="within 1 s"):
+        cam.capture("x")
+    assert time.monotonic() - t < 4.0
+
+
+def test_gphoto2_exit_is_not_held_up_by_a_grandchild_holding_stdout(tmp_path, pids):
+    import time
+
+    from drivers.camera_errors import CameraCommandError
+    from drivers.camera_gphoto2 import Gphoto2Camera
+
+    cam = Gphoto2Camera(tmp_path / "dest", executable=_hanging_camera(tmp_path, pids, hang=False), timeout_s=30)
+    t = time.monotonic()
+    with pytest.raises(CameraCommandError, match="status 3"):
+        cam.capture("x")
+    assert time.monotonic() - t < 4.0
+
+
+def test_hook_that_backgrounds_a_process_does_not_block(tmp_path, pids):
+    import time
+
+    from app.capture.devices import run_hook_command
+
+    t = time.monotonic()
+    run_hook_command(f"sh -c 'sleep 100 & echo $! >> {pids}; echo placed'", "--before-pass", {})
+    assert time.monotonic() - t < 4.0
+    t = time.monotonic()
+    with pytest.raises(RuntimeError, match="did not finish within 1 s"):
+        run_hook_command(f"sh -c 'setsid sleep 100 & echo $! >> {pids}; sleep 100'", "--before-pass", {},
+                         timeout_s=1.0)
+    assert time.monotonic() - t < 4.0
+
+
+def test_cli_camera_timeout_3_ends_within_four_tries(tmp_path, pids, capsys):
+    import time
+
+    from app.cli import main
+
+    exe = _hanging_camera(tmp_path, pids)
+    with _station(tmp_path) as st:
+        t = time.monotonic()
+        code = main(["capture", "--turntable", str(st.turntable_path), "--laser", str(st.profiler_path),
+                     "--camera", f"gphoto2:{exe}", "--camera-timeout", "3", "--steps", "2", "--passes", "1",
+                     "--camera-angles", "0", "--no-chart", "--out", str(tmp_path / "s"), "--unattended", "--quiet"])
+        elapsed = time.monotonic() - t
+    err = capsys.readouterr().err
+    assert code == 1 and "tried 4 times" in err and "--resume" in err
+    assert elapsed < 30, elapsed        # 4 tries of 3 s and 3 waits of 1 s, not 4 x 100 s
