@@ -37,6 +37,8 @@ __all__ = [
     "Gphoto2Shooter",
     "HotFolderShooter",
     "build_devices",
+    "check_device_config",
+    "check_command",
 ]
 
 
@@ -120,29 +122,32 @@ class HotFolderShooter:
         return self.camera.wait_for_new(name)
 
 
-def build_devices(config: dict[str, Any], session_root: Path,
+def build_devices(config: dict[str, Any], session_root: Path | None,
                   shutter: Callable[[], None] | None = None) -> CaptureDevices:
     """Drivers (not yet connected) for a device configuration, wire-logged into the session.
 
     ``config``: ``{"turntable": {"port", "steps_per_degree", "speed_deg_s"},
     "profiler": {"port", "exposure_us"}, "camera": {"kind", ...}}``; a
-    missing entry means the plan does not use that device.
+    missing entry means the plan does not use that device.  ``session_root``
+    None builds them without wire logs (see :func:`check_device_config`).
     """
     from drivers.profiler import LaserProfiler
     from drivers.transport import SerialTransport, WireLog
     from drivers.turntable import Turntable
 
-    wire = session_root / "wire"
+    def log(name: str) -> WireLog | None:
+        return None if session_root is None else WireLog(session_root / "wire" / f"{name}.log")
+
     devices = CaptureDevices()
     tt = config.get("turntable")
     if tt:
-        t = SerialTransport(tt["port"], 115200, wire_log=WireLog(wire / "turntable.log"), label="turntable",
+        t = SerialTransport(tt["port"], 115200, wire_log=log("turntable"), label="turntable",
                             open=False)
         devices.turntable = Turntable(t, steps_per_degree=float(tt.get("steps_per_degree", 3200.0 / 360.0)),
                                       speed_deg_s=float(tt.get("speed_deg_s", 100.0)))
     pr = config.get("profiler")
     if pr:
-        t = SerialTransport(pr["port"], int(pr.get("baudrate", 921600)), wire_log=WireLog(wire / "profiler.log"),
+        t = SerialTransport(pr["port"], int(pr.get("baudrate", 921600)), wire_log=log("profiler"),
                             label="profiler", open=False)
         devices.profiler = LaserProfiler(t, exposure_us=int(pr.get("exposure_us", 500)))
     cam = config.get("camera") or {"kind": "none"}
@@ -154,3 +159,61 @@ def build_devices(config: dict[str, Any], session_root: Path,
         devices.camera = lambda staging: HotFolderShooter(staging, folder, shutter, stable, timeout)
     devices.info = {"camera": cam}
     return devices
+
+
+#: Which command-line options set each part of a device configuration (named in errors).
+_OPTIONS = {"turntable": "--turntable / --speed / --steps-per-degree", "profiler": "--laser / --exposure-us",
+            "camera": "--camera / --camera-timeout / --hotfolder-stable"}
+
+
+def _check_port(name: str, part: dict[str, Any]) -> None:
+    port = part.get("port")
+    if not isinstance(port, str) or not port.strip() or "\x00" in port or len(port) > 4096:
+        raise ValueError(f"port {port!r} is not a device path or pyserial URL (e.g. /dev/ttyUSB0, "
+                         "socket://host:port)")
+
+
+def check_device_config(config: Any) -> None:
+    """Raise :class:`UsageError` (naming the options) if ``config`` cannot build its drivers.
+
+    Builds every driver without opening a port, writing a wire log or running
+    a program, so options are checked before a session folder is created.
+    """
+    from drivers.camera_gphoto2 import Gphoto2Camera
+    from drivers.camera_hotfolder import HotFolderCamera
+
+    if not isinstance(config, dict) or not all(isinstance(v, dict) for v in config.values()):
+        raise UsageError(f"device configuration {config!r} is not a table of devices; give the ports again")
+    for name in ("turntable", "profiler", "camera"):
+        part = config.get(name)
+        if not part:
+            continue
+        try:
+            if name == "camera":
+                cam = build_devices({"camera": part}, None).info["camera"]
+                if cam["kind"] == "gphoto2":
+                    Gphoto2Camera(".", executable=cam.get("executable", "gphoto2"),
+                                  timeout_s=cam.get("timeout_s", 60.0))
+                elif cam["kind"] == "hotfolder":
+                    HotFolderCamera(cam["folder"], ".", stable_s=cam.get("stable_s", 1.0),
+                                    timeout_s=cam.get("timeout_s", 60.0))
+                elif cam["kind"] != "none":
+                    raise ValueError(f"camera kind {cam['kind']!r} is not gphoto2, hotfolder or none")
+            else:
+                _check_port(name, part)
+                build_devices({name: part}, None)
+        except (ValueError, TypeError, KeyError) as exc:
+            text = str(exc).strip() or type(exc).__name__
+            raise UsageError(f"{_OPTIONS[name]}: {text}") from None
+
+
+def check_command(command: Any, what: str) -> None:
+    """Raise :class:`UsageError` if a hook ``command`` (``--before-pass``, ``--shutter``) cannot be parsed."""
+    if command is None:
+        return
+    try:
+        argv = shlex.split(command) if isinstance(command, str) else None
+    except ValueError as exc:
+        raise UsageError(f"{what} {command!r} cannot be parsed: {exc}") from None
+    if not argv:
+        raise UsageError(f"{what} {command!r} is empty or not a command line; give the program and its arguments")

@@ -910,10 +910,18 @@ def open_for_resume(root: str | Path) -> tuple[Any, CapturePlan, dict[str, Any],
     if session.manifest["status"] == "complete":
         session.close()
         raise UsageError(f"session {root} is already complete; nothing to resume")
-    plan = CapturePlan.from_dict(session.manifest["plan"])
-    settings = dict(session.manifest.get("settings") or {})
-    config = {k: dict(v) for k, v in (settings.get("device_config") or {}).items()}
-    return session, plan, settings, config
+    settings = session.manifest.get("settings") or {}
+    config = settings.get("device_config") or {} if isinstance(settings, dict) else None
+    if not isinstance(config, dict) or not all(isinstance(v, dict) for v in config.values()):
+        session.close()
+        raise UsageError(f"session {root}: settings.device_config in session.json is not a table of devices; "
+                         "the session is damaged (restore session.json from a copy)")
+    try:
+        plan = CapturePlan.from_dict(session.manifest["plan"])
+    except (ValueError, TypeError) as exc:
+        session.close()
+        raise UsageError(f"session {root}: plan in session.json is not valid: {exc}") from None
+    return session, plan, dict(settings), {k: dict(v) for k, v in config.items()}
 
 
 def parse_camera_angles(text: str, what: str = "camera angles") -> tuple[float, ...]:

@@ -87,7 +87,7 @@ def _camera_angles(text: str | None) -> tuple[float, ...] | None:
 
 
 def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
-    from app.capture.devices import parse_camera_spec
+    from app.capture.devices import check_command, check_device_config, parse_camera_spec
     from app.capture.runner import CapturePlan
     from app.session import Session
 
@@ -137,6 +137,9 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
             config["profiler"]["exposure_us"] = args.exposure_us
     settings = {"unattended": bool(args.unattended), "before_pass": args.before_pass, "shutter": args.shutter,
                 "device_config": config, "created_by": _origin()}
+    check_device_config(config)
+    check_command(args.before_pass, "--before-pass")
+    check_command(args.shutter, "--shutter")
     obj = {k: v for k, v in (("name", args.object), ("notes", args.notes)) if v}
     session = Session.create(args.out, plan=plan.to_dict(), object_info=obj, settings=settings,
                              devices={k: dict(v) for k, v in config.items()})
@@ -186,7 +189,7 @@ def _check_trust(session: Any, settings: dict[str, Any], config: dict[str, Any],
 
 
 def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
-    from app.capture.devices import parse_camera_spec
+    from app.capture.devices import check_command, check_device_config, parse_camera_spec
     from app.capture.runner import open_for_resume
 
     session, plan, settings, config = open_for_resume(args.resume)
@@ -203,6 +206,13 @@ def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     if args.unattended:
         settings["unattended"] = True
     settings["device_config"] = config
+    try:
+        check_device_config(config)
+        for key in ("before_pass", "shutter"):
+            check_command(settings.get(key), "--" + key.replace("_", "-"))
+    except UsageError:
+        session.close()
+        raise
     session.update("settings", settings)
     return session, plan, settings
 

@@ -376,3 +376,47 @@ def test_cli_camera_timeout_3_ends_within_four_tries(tmp_path, pids, capsys):
     err = capsys.readouterr().err
     assert code == 1 and "tried 4 times" in err and "--resume" in err
     assert elapsed < 30, elapsed        # 4 tries of 3 s and 3 waits of 1 s, not 4 x 100 s
+
+
+# ------------------------------------------------------------------ item 9: options checked before the folder exists
+@pytest.mark.parametrize("extra,match", [
+    (["--exposure-us", "0"], "exposure_us must be"),
+    (["--exposure-us", "-5"], "--exposure-us"),
+    (["--steps", "0"], "steps must be"),
+    (["--passes", "1000"], "passes must be"),
+    (["--turntable", " "], "not a device path"),
+    (["--camera-timeout", "nan"], "--camera-timeout must be"),
+    (["--before-pass", "'unclosed"], "--before-pass"),
+    (["--shutter", " "], "--shutter"),
+    (["--camera-angles", "0,x"], "--camera-angles"),
+])
+def test_bad_option_leaves_no_session_folder(extra, match, tmp_path, capsys):
+    from app.cli import main
+
+    out = tmp_path / "s"
+    code = main(["capture", "--turntable", "x", "--laser", "y", "--camera", "none", "--out", str(out),
+                 "--unattended", "--quiet", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and match in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("config", [
+    {"turntable": {"port": 42}},
+    {"turntable": {"port": "x", "speed_deg_s": "fast"}},
+    {"turntable": {"port": "x"}, "profiler": {"port": "y", "exposure_us": 10 ** 9}},
+    {"turntable": {"port": "x"}, "profiler": {"port": "y"}, "camera": {"kind": "webcam"}},
+    {"turntable": {"port": "x"}, "profiler": {"port": "y"}, "camera": {"executable": "gphoto2"}},
+    {"turntable": ["x"]},
+    "everything",
+])
+def test_resume_with_a_wrong_typed_device_config_exits_2(config, tmp_path, capsys):
+    from app.cli import main
+
+    root = tmp_path / "s"
+    s = Session.create(root, plan=PLAN.to_dict(), settings={"device_config": config, "unattended": True})
+    s.close()
+    code = main(["capture", "--resume", str(root), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert Session.read(root)["status"] == "new"
