@@ -420,3 +420,19 @@ def test_resume_with_a_wrong_typed_device_config_exits_2(config, tmp_path, capsy
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert Session.read(root)["status"] == "new"
+
+
+# ------------------------------------------------------------------ wire logs
+def test_cli_resume_with_a_symlinked_wire_log_exits_2(tmp_path, capsys):
+    from app.cli import main
+
+    root = tmp_path / "s"
+    sentinel = _sentinel(tmp_path)
+    with _station(tmp_path) as st:
+        _interrupted_session(root, config=_config(st))
+        (root / "wire").mkdir()
+        (root / "wire" / "turntable.log").symlink_to(sentinel[0])
+        code = main(["capture", "--resume", str(root), "--unattended", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "symbolic link" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    _untouched(sentinel)
