@@ -21,8 +21,10 @@ Examples
 
 from __future__ import annotations
 
+import getpass
 import os
 import shlex
+import socket
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -39,6 +41,9 @@ __all__ = [
     "build_devices",
     "check_device_config",
     "check_command",
+    "creator_record",
+    "created_here",
+    "stored_commands",
 ]
 
 
@@ -217,3 +222,36 @@ def check_command(command: Any, what: str) -> None:
         raise UsageError(f"{what} {command!r} cannot be parsed: {exc}") from None
     if not argv:
         raise UsageError(f"{what} {command!r} is empty or not a command line; give the program and its arguments")
+
+
+def creator_record() -> dict[str, Any]:
+    """Who creates a session here: user name, user id and host (stored as ``settings.created_by``)."""
+    try:
+        user = getpass.getuser()
+    except (KeyError, OSError):
+        user = ""
+    return {"user": user, "uid": os.getuid() if hasattr(os, "getuid") else None, "host": socket.gethostname()}
+
+
+def created_here(stored: Any) -> bool:
+    """True if ``stored`` (a session's ``settings.created_by``) names this user id on this host."""
+    here = creator_record()
+    return isinstance(stored, dict) and stored.get("uid") == here["uid"] and stored.get("host") == here["host"]
+
+
+def stored_commands(settings: dict[str, Any], config: dict[str, Any], *, before_pass: str | None = None,
+                    shutter: str | None = None, camera: str | None = None) -> list[str]:
+    """The commands resuming would run from the session itself, as command-line options.
+
+    A command given again (``before_pass``, ``shutter``, ``camera`` as typed
+    now) replaces the stored one and is not listed.  A session not
+    :func:`created_here` must not run the listed ones without the user's
+    explicit trust (``kogei capture --resume --trust-hooks``).
+    """
+    given = {"before_pass": before_pass, "shutter": shutter}
+    found = [f"--{key.replace('_', '-')} {settings[key]}" for key in ("before_pass", "shutter")
+             if settings.get(key) and not given[key]]
+    cam = config.get("camera") if isinstance(config.get("camera"), dict) else {}
+    if not camera and cam.get("kind") == "gphoto2" and cam.get("executable", "gphoto2") != "gphoto2":
+        found.append(f"--camera gphoto2:{cam['executable']}")
+    return found

@@ -9,11 +9,8 @@ resumable, the message says what to fix) or, unattended, a pass with
 from __future__ import annotations
 
 import argparse
-import getpass
 import math
-import os
 import signal
-import socket
 import sys
 import threading
 from pathlib import Path
@@ -87,7 +84,7 @@ def _camera_angles(text: str | None) -> tuple[float, ...] | None:
 
 
 def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
-    from app.capture.devices import check_command, check_device_config, parse_camera_spec
+    from app.capture.devices import check_command, check_device_config, creator_record, parse_camera_spec
     from app.capture.runner import CapturePlan
     from app.session import Session
 
@@ -136,7 +133,7 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
         if args.exposure_us is not None:
             config["profiler"]["exposure_us"] = args.exposure_us
     settings = {"unattended": bool(args.unattended), "before_pass": args.before_pass, "shutter": args.shutter,
-                "device_config": config, "created_by": _origin()}
+                "device_config": config, "created_by": creator_record()}
     check_device_config(config)
     check_command(args.before_pass, "--before-pass")
     check_command(args.shutter, "--shutter")
@@ -146,36 +143,14 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     return session, plan, settings
 
 
-def _origin() -> dict[str, Any]:
-    """Who creates a session here: user name, user id and host (stored as ``settings.created_by``)."""
-    try:
-        user = getpass.getuser()
-    except (KeyError, OSError):
-        user = ""
-    return {"user": user, "uid": os.getuid() if hasattr(os, "getuid") else None, "host": socket.gethostname()}
-
-
-def _same_origin(stored: Any) -> bool:
-    """True if ``stored`` (a session's ``created_by``) names this user on this machine."""
-    here = _origin()
-    return isinstance(stored, dict) and stored.get("uid") == here["uid"] and stored.get("host") == here["host"]
-
-
-def _stored_commands(settings: dict[str, Any], config: dict[str, Any], args: argparse.Namespace) -> list[str]:
-    """The commands a resume would run from the session itself (not re-entered on the command line)."""
-    found = [f"--{key.replace('_', '-')} {settings[key]}" for key in ("before_pass", "shutter")
-             if settings.get(key) and not getattr(args, key)]
-    cam = config.get("camera") if isinstance(config.get("camera"), dict) else {}
-    if not args.camera and cam.get("kind") == "gphoto2" and cam.get("executable", "gphoto2") != "gphoto2":
-        found.append(f"--camera gphoto2:{cam['executable']}")
-    return found
-
-
 def _check_trust(session: Any, settings: dict[str, Any], config: dict[str, Any], args: argparse.Namespace) -> None:
     """Refuse (exit 2) to run a foreign session's stored commands without ``--trust-hooks``; list them first."""
-    stored = _stored_commands(settings, config, args)
+    from app.capture.devices import created_here, stored_commands
+
+    stored = stored_commands(settings, config, before_pass=args.before_pass, shutter=args.shutter,
+                             camera=args.camera)
     origin = settings.get("created_by")
-    if not stored or args.trust_hooks or _same_origin(origin):
+    if not stored or args.trust_hooks or created_here(origin):
         return
     session.close()
     who = (f"{origin.get('user') or 'uid ' + str(origin.get('uid'))} on {origin.get('host')}"
