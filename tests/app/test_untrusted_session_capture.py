@@ -436,3 +436,35 @@ def test_cli_resume_with_a_symlinked_wire_log_exits_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "symbolic link" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     _untouched(sentinel)
+
+
+# ------------------------------------------------------------------ gathered profiles read back (report, GUI)
+@pytest.mark.parametrize("how", ["absolute", "dotdot", "symlink", "linked folder", "fifo", "not a dict"])
+def test_load_pass_profiles_stays_inside_the_session(how, tmp_path):
+    from app.capture.runner import load_pass_profiles
+
+    root = tmp_path / "s"
+    sentinel = _sentinel(tmp_path)
+    s = Session.create(root, plan=PLAN.to_dict(), settings={})
+    rel = {"absolute": str(sentinel[0]), "dotdot": "../outside/precious.dng"}.get(how, "passes/p01/profiles.npz")
+    (root / "passes" / "p01").mkdir(parents=True)
+    if how == "symlink":
+        (root / rel).symlink_to(sentinel[0])
+    elif how == "linked folder":
+        os.rmdir(root / "passes" / "p01")
+        (root / "passes" / "p01").symlink_to(sentinel[0].parent, target_is_directory=True)
+        rel = "passes/p01/precious.dng"
+    elif how == "fifo":
+        os.mkfifo(root / rel)
+    s.add_capture("p01/profiles", kind="profiles", file=rel, sha256="0" * 64, bytes=1)
+    s.close()
+    if how == "not a dict":
+        import json
+
+        m = json.loads((root / "session.json").read_text())
+        m["captures"]["p01/profiles"] = "x"
+        (root / "session.json").write_text(json.dumps(m))
+    match = ".*" if how == "not a dict" else r"relative path|symbolic link|not a regular file"
+    with pytest.raises(SessionError, match=match):       # a schema check on load may find the damage first
+        load_pass_profiles(root, 1)
+    _untouched(sentinel)
