@@ -268,7 +268,7 @@ class Gphoto2Camera:
                     f"run '{' '.join(self.command())}' by hand to see the full message",
                     returncode=code, executable=self.executable, stderr=_excerpt(err),
                 )
-            files = sorted(p for p in workdir.iterdir() if p.is_file())
+            files = sorted(p for p in workdir.iterdir() if p.is_file() and not p.is_symlink())
             raws = [p for p in files if p.suffix.lower() in self.extensions]
             if not raws:
                 got = ", ".join(p.name for p in files) or "nothing"

@@ -35,6 +35,7 @@ from __future__ import annotations
 import errno
 import os
 import shutil
+import stat
 import struct
 import tempfile
 import time
@@ -274,6 +275,8 @@ def raw_format_problem(path: str | os.PathLike[str]) -> str | None:
     ext = path.suffix.lower()
     kind = ext.lstrip(".").upper()
     try:
+        if not stat.S_ISREG(path.lstat().st_mode):
+            return f"{path.name} is not a regular file (a symbolic link, a folder or a device)"
         with open(path, "rb") as fh:
             head = fh.read(16)
     except OSError as exc:
@@ -305,7 +308,7 @@ class HotFolderCamera:
 
     Files already in the folder when the camera is created are left alone
     (they belong to someone else) unless ``include_existing``; every later RAW file is taken once, in
-    the order of their modification times.
+    the order of their modification times.  Symbolic links are never taken.
 
     Parameters
     ----------
@@ -386,7 +389,8 @@ class HotFolderCamera:
             ) from None
         return [
             e.name for e in entries
-            if not e.name.startswith(".") and e.name.lower().endswith(self.extensions) and e.is_file()
+            if not e.name.startswith(".") and e.name.lower().endswith(self.extensions)
+            and e.is_file(follow_symlinks=False)
         ]
 
     def pending(self) -> list[Path]:

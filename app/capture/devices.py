@@ -241,7 +241,7 @@ def created_here(stored: Any) -> bool:
 
 def stored_commands(settings: dict[str, Any], config: dict[str, Any], *, before_pass: str | None = None,
                     shutter: str | None = None, camera: str | None = None) -> list[str]:
-    """The commands resuming would run from the session itself, as command-line options.
+    """The commands (and the hot folder) resuming would use from the session itself, as command-line options.
 
     A command given again (``before_pass``, ``shutter``, ``camera`` as typed
     now) replaces the stored one and is not listed.  A session not
@@ -254,4 +254,6 @@ def stored_commands(settings: dict[str, Any], config: dict[str, Any], *, before_
     cam = config.get("camera") if isinstance(config.get("camera"), dict) else {}
     if not camera and cam.get("kind") == "gphoto2" and cam.get("executable", "gphoto2") != "gphoto2":
         found.append(f"--camera gphoto2:{cam['executable']}")
+    if not camera and cam.get("kind") == "hotfolder":          # new RAW files are moved out of that folder
+        found.append(f"--camera hotfolder:{cam.get('folder')}")
     return found

@@ -468,3 +468,19 @@ def test_load_pass_profiles_stays_inside_the_session(how, tmp_path):
     with pytest.raises(SessionError, match=match):       # a schema check on load may find the damage first
         load_pass_profiles(root, 1)
     _untouched(sentinel)
+
+
+def test_stored_hot_folder_of_a_foreign_session_needs_trust(tmp_path, capsys):
+    from app.cli import main
+
+    root = tmp_path / "s"
+    plan = CapturePlan("scan", steps=2, passes=1, camera_angles_deg=(0.0,))
+    photos = tmp_path / "someone's photos"
+    photos.mkdir()
+    config = {"turntable": {"port": "x"}, "profiler": {"port": "y"}, "camera": {"kind": "hotfolder",
+                                                                               "folder": str(photos)}}
+    s = Session.create(root, plan=plan.to_dict(), settings={"device_config": config, "unattended": True})
+    s.close()
+    code = main(["capture", "--resume", str(root), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"hotfolder:{photos}" in err and "--trust-hooks" in err

@@ -1,4 +1,4 @@
-"""Wire logs never write through a symbolic link or into a FIFO: nothing outside the session is touched."""
+"""Drivers never write through a symbolic link or into a FIFO, nor take a linked frame: nothing outside the session is touched."""
 
 from __future__ import annotations
 
@@ -63,3 +63,22 @@ def test_plain_log_still_appends(tmp_path):
     with WireLog(log) as w:
         w.record("tt", "<", b"ok")
     assert len(log.read_text().splitlines()) == 2
+
+
+def test_hot_folder_never_takes_a_symbolic_link(tmp_path, outside):
+    import numpy as np
+
+    from drivers.camera_errors import CameraTimeoutError
+    from drivers.camera_hotfolder import HotFolderCamera, raw_format_problem
+    from mocks.dng_writer import dng_bytes
+
+    hot, dest = tmp_path / "hot", tmp_path / "dest"
+    hot.mkdir()
+    real = tmp_path / "outside" / "real.dng"
+    real.write_bytes(dng_bytes(np.full((32, 48), 700, np.uint16), black_level=600, white_level=16383))
+    cam = HotFolderCamera(hot, dest, stable_s=0.05, timeout_s=0.5, poll_s=0.01)
+    (hot / "IMG_0001.DNG").symlink_to(real)
+    with pytest.raises(CameraTimeoutError, match="no new RAW file"):
+        cam.wait_for_new("f")
+    assert real.exists() and (hot / "IMG_0001.DNG").is_symlink()
+    assert "not a regular file" in raw_format_problem(hot / "IMG_0001.DNG")
