@@ -484,3 +484,30 @@ def test_stored_hot_folder_of_a_foreign_session_needs_trust(tmp_path, capsys):
     code = main(["capture", "--resume", str(root), "--quiet"])
     err = capsys.readouterr().err
     assert code == 2 and f"hotfolder:{photos}" in err and "--trust-hooks" in err
+
+
+def test_interactive_cli_asks_when_the_laser_never_came_on(tmp_path, capsys, monkeypatch):
+    import builtins
+    import io
+
+    from app.cli import main
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    prompts: list[str] = []
+
+    def answer(prompt: str = "") -> str:
+        prompts.append(prompt)
+        return "q" if "laser line" in prompt else ""
+
+    monkeypatch.setattr(SimulatedStation, "laser_powered", property(lambda self: False))
+    monkeypatch.setattr(sys, "stdin", Tty())
+    monkeypatch.setattr(builtins, "input", answer)
+    with _station(tmp_path) as st:
+        code = main(["capture", "--turntable", str(st.turntable_path), "--laser", str(st.profiler_path),
+                     "--camera", "none", "--steps", "2", "--passes", "1", "--out", str(tmp_path / "s"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 130 and "no laser line" in err and "--resume" in err
+    assert any("saw the laser line" in p for p in prompts)
