@@ -466,7 +466,7 @@ class _Runner:
             self.report.elapsed_s = time.monotonic() - self.t0
             try:
                 s.checkpoint()
-            except SessionError:
+            except (SessionError, OSError):   # a full disk: the journal has the rest
                 pass
         return self.report
 
@@ -479,14 +479,14 @@ class _Runner:
         try:
             self.session.set_status("interrupted")
             self.session.event("interrupted", f"{reason}: {text}")
-        except SessionError:
+        except (SessionError, OSError):   # a full disk: the journal has the rest
             pass
 
     def _note(self, text: str) -> None:
         self.report.recoveries.append(text)
         try:
             self.session.event("note", text)
-        except SessionError:
+        except (SessionError, OSError):   # a full disk: the journal has the rest
             pass
         if self.hooks.message:
             self.hooks.message(text)
@@ -824,7 +824,7 @@ class _Runner:
         self.report.warnings.append(text)
         try:
             self.session.event("warning", text)
-        except SessionError:
+        except (SessionError, OSError):   # a full disk: the journal has the rest
             pass
         if self.hooks.message:
             self.hooks.message(text)

@@ -296,7 +296,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-        session.close()
+        _close(session)
     print(f"session {report.session}: complete; {report.taken} captures taken, {report.skipped} already held, "
           f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
     for text in report.warnings:
@@ -306,6 +306,17 @@ def run(args: argparse.Namespace) -> int:
               "returns (valid_share in the manifest); check the laser before processing", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def _close(session: Any) -> None:
+    """Close the session; a failure (a full disk) is reported in one line, its journal keeps the captures."""
+    from app.session import SessionError
+
+    try:
+        session.close()
+    except (SessionError, OSError) as exc:
+        print(f"kogei capture: note: {session.root} could not be closed cleanly ({exc}); its journal holds the "
+              f"captures: free space, then run kogei capture --resume {session.root}", file=sys.stderr)
 
 
 class _progress:

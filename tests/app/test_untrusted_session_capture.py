@@ -511,3 +511,32 @@ def test_interactive_cli_asks_when_the_laser_never_came_on(tmp_path, capsys, mon
     err = capsys.readouterr().err
     assert code == 130 and "no laser line" in err and "--resume" in err
     assert any("saw the laser line" in p for p in prompts)
+
+
+# ------------------------------------------------------------------ a full disk during capture
+def test_full_disk_mid_capture_is_a_message_not_a_traceback(tmp_path, capsys, monkeypatch):
+    import errno
+
+    from app.cli import main
+
+    real_add = Session.add_capture
+    calls = []
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def add_capture(self, *args, **kwargs):
+        calls.append(args[0])
+        if len(calls) == 2:
+            for name in ("checkpoint", "event", "set_status", "close", "sync"):
+                monkeypatch.setattr(Session, name, full)
+            full()
+        return real_add(self, *args, **kwargs)
+
+    monkeypatch.setattr(Session, "add_capture", add_capture)
+    with _station(tmp_path) as st:
+        code = main(["capture", "--turntable", str(st.turntable_path), "--laser", str(st.profiler_path),
+                     "--camera", "none", "--steps", "4", "--passes", "1", "--out", str(tmp_path / "s"),
+                     "--unattended", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 1 and "No space left" in err and "--resume" in err and "Traceback" not in err
