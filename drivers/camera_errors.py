@@ -22,6 +22,7 @@ __all__ = [
     "CameraTimeoutError",
     "CameraCommandError",
     "CameraOutputMissingError",
+    "CameraBadFrameError",
     "CameraFileExistsError",
     "CameraTransferError",
 ]
@@ -79,6 +80,10 @@ class CameraCommandError(CameraError):
 
 class CameraOutputMissingError(CameraError):
     """The capture reported success but no RAW file was downloaded."""
+
+
+class CameraBadFrameError(CameraOutputMissingError):
+    """A downloaded frame is not the RAW format its file name claims (junk, a text file, a JPEG)."""
 
 
 class CameraFileExistsError(CameraError, FileExistsError):

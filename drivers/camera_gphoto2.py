@@ -38,8 +38,6 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import signal
-import subprocess
 import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -53,6 +51,7 @@ from drivers.camera_errors import (
     CameraTimeoutError,
 )
 from drivers.camera_hotfolder import RAW_EXTENSIONS, check_capture_name, move_file_atomic, tiff_complete
+from drivers.process import run_bounded
 
 __all__ = [
     "Gphoto2Camera",
@@ -199,31 +198,22 @@ class Gphoto2Camera:
         argv = self.command()
         argv[0] = self._resolve_executable()
         try:
-            proc = subprocess.Popen(
-                argv, cwd=workdir, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                text=True, errors="replace", start_new_session=True,
-            )
+            done = run_bounded(argv, timeout_s=self.timeout_s, cwd=workdir, kill_leftovers=True)
         except OSError as exc:
             raise CameraConfigError(
                 f"cannot start gphoto2 executable {self.executable}: {exc.strerror or exc}; check the path "
                 "and its permissions",
                 executable=self.executable,
             ) from exc
-        try:
-            out, err = proc.communicate(timeout=self.timeout_s)
-        except subprocess.TimeoutExpired:
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                proc.kill()
-            out, err = proc.communicate()
+        out, err = done.stdout, done.stderr
+        if done.timed_out:
             raise CameraTimeoutError(
                 f"{self.executable} did not finish the capture within {self.timeout_s:g} s and was stopped; "
                 "check that the camera is awake and focused (autofocus can hang; use manual focus), or raise "
                 f"timeout_s for long exposures. Output: {_excerpt(err or out) or '(none)'}",
                 executable=self.executable, stderr=_excerpt(err),
-            ) from None
-        return proc.returncode, out, err
+            )
+        return int(done.returncode or 0), out, err
 
     def capture(self, name: str) -> Path:
         """Fire the camera, download the RAW frame and move it to ``dest_dir/<name><ext>``.
@@ -278,7 +268,7 @@ class Gphoto2Camera:
                     f"run '{' '.join(self.command())}' by hand to see the full message",
                     returncode=code, executable=self.executable, stderr=_excerpt(err),
                 )
-            files = sorted(p for p in workdir.iterdir() if p.is_file())
+            files = sorted(p for p in workdir.iterdir() if p.is_file() and not p.is_symlink())
             raws = [p for p in files if p.suffix.lower() in self.extensions]
             if not raws:
                 got = ", ".join(p.name for p in files) or "nothing"

@@ -35,6 +35,7 @@ from __future__ import annotations
 import errno
 import os
 import shutil
+import stat
 import struct
 import tempfile
 import time
@@ -55,6 +56,7 @@ __all__ = [
     "move_file_atomic",
     "check_capture_name",
     "tiff_complete",
+    "raw_format_problem",
 ]
 
 #: File name endings taken as RAW frames (case-insensitive).
@@ -240,6 +242,60 @@ def tiff_complete(path: str | os.PathLike[str]) -> bool | None:
     return True
 
 
+#: RAW endings that are TIFF files (their header must be a TIFF header and their strips complete).
+TIFF_RAW_EXTENSIONS: tuple[str, ...] = (".dng", ".nef", ".nrw", ".cr2", ".arw", ".srf", ".sr2", ".pef", ".srw",
+                                        ".tif", ".tiff")
+
+#: The leading bytes of the RAW formats that are not plain TIFF (offset, accepted magics).
+_OTHER_MAGIC: dict[str, tuple[int, tuple[bytes, ...]]] = {
+    ".cr3": (4, (b"ftyp",)),
+    ".raf": (0, (b"FUJIFILM",)),
+    ".orf": (0, (b"IIRO", b"IIRS", b"MMOR")),
+    ".rw2": (0, (b"IIU\x00",)),
+}
+
+
+def raw_format_problem(path: str | os.PathLike[str]) -> str | None:
+    """Why the file at ``path`` is not the RAW format its ending claims, or None if it looks right.
+
+    TIFF-based formats (DNG, NEF, CR2, ARW, PEF, ...) need the TIFF header
+    magic (``II*\\0`` or ``MM\\0*``) and a first IFD whose image data ends
+    inside the file (:func:`tiff_complete`); CR3, RAF, ORF and RW2 need
+    their own leading bytes.  Other endings are not checked.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "capt0000.dng"
+    >>> _ = p.write_bytes(b"garbage!")
+    >>> raw_format_problem(p)
+    "capt0000.dng is not a DNG file: it starts with b'garbage!', not a TIFF header"
+    """
+    path = Path(path)
+    ext = path.suffix.lower()
+    kind = ext.lstrip(".").upper()
+    try:
+        if not stat.S_ISREG(path.lstat().st_mode):
+            return f"{path.name} is not a regular file (a symbolic link, a folder or a device)"
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as exc:
+        return f"{path.name} cannot be read: {exc.strerror or exc}"
+    if not head:
+        return f"{path.name} is empty"
+    if ext in TIFF_RAW_EXTENSIONS:
+        if head[:4] not in (b"II*\x00", b"MM\x00*"):
+            return f"{path.name} is not a {kind} file: it starts with {head[:8]!r}, not a TIFF header"
+        if tiff_complete(path) is not True:
+            return f"{path.name} is a truncated or damaged {kind} file (its TIFF directory or image data is cut)"
+        return None
+    if ext in _OTHER_MAGIC:
+        at, magics = _OTHER_MAGIC[ext]
+        if not any(head[at:at + len(m)] == m for m in magics):
+            return f"{path.name} is not a {kind} file: it starts with {head[:8]!r}"
+    return None
+
+
 @dataclass
 class _Seen:
     size: int
@@ -252,7 +308,7 @@ class HotFolderCamera:
 
     Files already in the folder when the camera is created are left alone
     (they belong to someone else) unless ``include_existing``; every later RAW file is taken once, in
-    the order of their modification times.
+    the order of their modification times.  Symbolic links are never taken.
 
     Parameters
     ----------
@@ -333,7 +389,8 @@ class HotFolderCamera:
             ) from None
         return [
             e.name for e in entries
-            if not e.name.startswith(".") and e.name.lower().endswith(self.extensions) and e.is_file()
+            if not e.name.startswith(".") and e.name.lower().endswith(self.extensions)
+            and e.is_file(follow_symlinks=False)
         ]
 
     def pending(self) -> list[Path]:

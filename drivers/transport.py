@@ -28,7 +28,9 @@ b'ok'
 from __future__ import annotations
 
 import datetime as dt
+import errno
 import os
+import stat
 import threading
 import time
 from collections.abc import Callable
@@ -68,13 +70,41 @@ def escape_bytes(data: bytes) -> str:
     return "".join(_PRINTABLE.get(b) or f"\\x{b:02x}" for b in data)
 
 
+def _open_append(path: Path) -> IO[str]:
+    """Open ``path`` for appending without following a symbolic link (the file or its folder).
+
+    A link, a FIFO, a device or any other non-regular file is refused with a
+    ``ValueError`` naming it: a log never writes outside where it was put.
+    """
+    links = "; kogei never follows links in a session: remove the link and try again"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"wire_log: cannot create the folder of {str(path)!r}: {exc}") from exc
+    if path.parent.is_symlink():
+        raise ValueError(f"wire_log: the folder {str(path.parent)!r} is a symbolic link{links}")
+    flags = (os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+             | getattr(os, "O_CLOEXEC", 0))
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP or path.is_symlink():
+            raise ValueError(f"wire_log: {str(path)!r} is a symbolic link{links}") from None
+        raise ValueError(f"wire_log: cannot open {str(path)!r} for appending: {exc}") from exc
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ValueError(f"wire_log: {str(path)!r} is not a regular file; remove it and try again")
+    return os.fdopen(fd, "a", encoding="ascii", buffering=1)
+
+
 class WireLog:
     """Append-only, line-flushed log of the bytes on one or more links.
 
     Parameters
     ----------
     path
-        File to append to (created with its parent folders).
+        File to append to (created with its parent folders); a symbolic link,
+        a link as its folder, or a non-regular file is refused (``ValueError``).
 
     Examples
     --------
@@ -88,11 +118,7 @@ class WireLog:
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._fh: IO[str] | None = open(self.path, "a", encoding="ascii", buffering=1)
-        except OSError as exc:
-            raise ValueError(f"wire_log: cannot open {str(self.path)!r} for appending: {exc}") from exc
+        self._fh: IO[str] | None = _open_append(self.path)
         self._lock = threading.Lock()
 
     def record(self, label: str, direction: str, data: bytes) -> None:

@@ -37,7 +37,10 @@ the possible error in ``angle_uncertain_deg`` of the pass record.
 from __future__ import annotations
 
 import math
+import os
+import secrets
 import shutil
+import stat
 import threading
 import time
 from collections import defaultdict
@@ -50,10 +53,12 @@ import numpy as np
 
 from app.session import Session, SessionError, utc_now
 from drivers.camera_errors import (
+    CameraBadFrameError,
     CameraBusyError,
     CameraError,
     CameraTimeoutError,
 )
+from drivers.camera_hotfolder import raw_format_problem
 from drivers.errors import (
     DeviceAlarm,
     DeviceError,
@@ -79,9 +84,14 @@ __all__ = [
     "load_pass_profiles",
     "parse_camera_angles",
     "open_for_resume",
+    "keep_orphans",
+    "check_not_linked",
+    "MIN_VALID_SHARE",
 ]
 
 PLAN_KINDS = ("scan", "swatch")
+#: A pass whose share of profiles with a laser return is below this is suspect (laser never on?).
+MIN_VALID_SHARE = 0.05
 STAGING = ".incoming"
 ORPHANS = "orphans"
 
@@ -294,6 +304,10 @@ class CaptureHooks:
     after_chart
         ``after_chart(pass_no)``: the pass's last chart frame is taken
         (remove the chart).
+    low_return
+        ``low_return(pass_no, valid_share, text)``: the pass's profiles
+        (nearly) never saw the laser line; ask whether to go on (raise
+        :class:`CaptureInterrupted` to stop).
     progress
         Called after every action with a :class:`CaptureProgress`.
     message
@@ -305,6 +319,7 @@ class CaptureHooks:
     before_pass: Callable[[int, int], None] | None = None
     before_chart: Callable[[int, int], None] | None = None
     after_chart: Callable[[int], None] | None = None
+    low_return: Callable[[int, float, str], None] | None = None
     progress: Callable[[CaptureProgress], None] | None = None
     message: Callable[[str], None] | None = None
     cancel: threading.Event | None = None
@@ -356,6 +371,7 @@ class CaptureReport:
     recoveries: list[str] = field(default_factory=list)
     elapsed_s: float = 0.0
     status: str = "complete"
+    warnings: list[str] = field(default_factory=list)
 
 
 # ---------------------------------------------------------------------------- the engine
@@ -421,6 +437,7 @@ class _Runner:
     def run(self) -> CaptureReport:
         s = self.session
         resumed = bool(s.manifest["captures"]) or s.manifest["status"] in ("interrupted", "capturing")
+        check_not_linked(s.root, STAGING, ORPHANS)
         s.set_status("capturing")
         s.event("resumed" if resumed else "started",
                 f"{self.plan.kind}: {self.plan.passes} pass(es) x {self.plan.steps} steps")
@@ -449,7 +466,7 @@ class _Runner:
             self.report.elapsed_s = time.monotonic() - self.t0
             try:
                 s.checkpoint()
-            except SessionError:
+            except (SessionError, OSError):   # a full disk: the journal has the rest
                 pass
         return self.report
 
@@ -462,14 +479,14 @@ class _Runner:
         try:
             self.session.set_status("interrupted")
             self.session.event("interrupted", f"{reason}: {text}")
-        except SessionError:
+        except (SessionError, OSError):   # a full disk: the journal has the rest
             pass
 
     def _note(self, text: str) -> None:
         self.report.recoveries.append(text)
         try:
             self.session.event("note", text)
-        except SessionError:
+        except (SessionError, OSError):   # a full disk: the journal has the rest
             pass
         if self.hooks.message:
             self.hooks.message(text)
@@ -481,18 +498,16 @@ class _Runner:
 
     # ---------------------------------------------------------------- set-up
     def _stage(self) -> None:
-        """Empty the staging folder; frames a crash left there are kept in ``orphans/``."""
+        """Empty the staging folder; files a crash left there are kept in ``orphans/`` (see :func:`keep_orphans`)."""
         staging = self.session.root / STAGING
-        if staging.is_dir():
-            leftovers = [p for p in staging.rglob("*") if p.is_file()]
-            if leftovers:
-                keep = self.session.root / ORPHANS / time.strftime("%Y%m%dT%H%M%S")
-                keep.mkdir(parents=True, exist_ok=True)
-                for f in leftovers:
-                    shutil.move(str(f), keep / f.name)
-                self._note(f"kept {len(leftovers)} unrecorded file(s) from an interrupted capture in "
-                           f"{keep.relative_to(self.session.root)}")
-            shutil.rmtree(staging, ignore_errors=True)
+        kept, links, keep = keep_orphans(self.session.root)
+        if kept:
+            self._note(f"kept {len(kept)} unrecorded file(s) from an interrupted capture in "
+                       f"{keep}: {', '.join(kept)}")
+        if links:
+            self._note(f"removed {len(links)} symbolic link(s) from {STAGING} without following them: "
+                       f"{', '.join(links)}")
+        shutil.rmtree(staging, ignore_errors=True)
         staging.mkdir(parents=True, exist_ok=True)
         if self.dev.camera is not None:
             self.camera = self.dev.camera(staging)
@@ -746,8 +761,8 @@ class _Runner:
         tries = 0
         while True:
             try:
-                return self.camera.shoot(name)
-            except (CameraBusyError, CameraTimeoutError) as exc:
+                return self._checked(self.camera.shoot(name))
+            except (CameraBusyError, CameraTimeoutError, CameraBadFrameError) as exc:
                 tries += 1
                 if tries > self.settings.camera_retries:
                     raise CaptureInterrupted(self._resume_hint(f"camera: {exc} (tried {tries} times)"),
@@ -757,6 +772,17 @@ class _Runner:
                 time.sleep(self.settings.camera_retry_wait_s)
             except CameraError as exc:
                 raise CaptureInterrupted(self._resume_hint(f"camera: {exc}"), session=self.session.root) from exc
+
+    def _checked(self, path: Path) -> Path:
+        """``path`` if it is the RAW format its ending claims; else it is moved to ``orphans/`` and refused."""
+        problem = raw_format_problem(path)
+        if problem is None:
+            return path
+        keep = _unique_folder(self.session.root / ORPHANS)
+        os.replace(path, keep / path.name)
+        raise CameraBadFrameError(f"the camera delivered {problem} (kept as "
+                                  f"{(keep / path.name).relative_to(self.session.root).as_posix()}); check that "
+                                  "the camera saves RAW and the USB cable")
 
     # ---------------------------------------------------------------- end of pass
     def _gathered_ok(self, p: int) -> bool:
@@ -785,6 +811,86 @@ class _Runner:
         info = s.write_arrays(f"passes/p{p:02d}/profiles.npz", angles_deg=angles, x_mm=x, z_mm=zz)
         s.add_capture(f"p{p:02d}/profiles", kind="profiles", **{"pass": p}, steps=len(rows), points=width,
                       file=info.path, sha256=info.sha256, bytes=info.bytes)
+        self._check_returns(p, zz)
+
+    def _check_returns(self, p: int, z_mm: np.ndarray) -> None:
+        """Record the pass's share of profiles with a laser return; warn (and ask) when it is near zero."""
+        share = float(np.isfinite(z_mm).any(axis=1).mean()) if z_mm.size else 0.0
+        self.session.update_pass(p, valid_share=round(share, 4))
+        if share >= MIN_VALID_SHARE:
+            return
+        text = (f"pass {p}: only {share:.0%} of its {z_mm.shape[0]} profiles saw the laser line; check the "
+                "laser (power, the turntable's laser output, its aim) before the object leaves the table")
+        self.report.warnings.append(text)
+        try:
+            self.session.event("warning", text)
+        except (SessionError, OSError):   # a full disk: the journal has the rest
+            pass
+        if self.hooks.message:
+            self.hooks.message(text)
+        if self.hooks.low_return is not None:
+            self.hooks.low_return(p, share, text)
+
+
+def check_not_linked(root: Path, *names: str) -> None:
+    """Raise :class:`SessionError` if ``root/<name>`` is a symbolic link (kogei never follows one in a session)."""
+    for name in names:
+        path = Path(root) / name
+        if path.is_symlink():
+            raise SessionError(f"session {root}: {name} is a symbolic link (to {os.readlink(path)}); kogei does not "
+                               f"follow links inside a session: remove the link {path} and resume")
+
+
+def _unique_folder(parent: Path) -> Path:
+    """A new folder ``parent/<UTC time>-<random>`` (never an existing one, even within the same second)."""
+    parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        path = parent / f"{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{secrets.token_hex(4)}"
+        try:
+            path.mkdir()
+            return path
+        except FileExistsError:
+            continue
+
+
+def keep_orphans(root: Path) -> tuple[list[str], list[str], str]:
+    """Move the regular files under ``root/.incoming`` into a new ``orphans/<time>-<unique>/`` folder.
+
+    Each file keeps its path relative to ``.incoming`` (two gphoto2 work folders each holding
+    ``capt0000.dng`` keep both).  Symbolic links are never followed: ``.incoming`` or ``orphans``
+    being a link raises :class:`SessionError`; a link inside ``.incoming`` is listed, not moved
+    (the folder is removed afterwards, which removes the link and not its target).
+
+    Returns
+    -------
+    tuple
+        The kept files (relative to ``.incoming``), the links found, and the folder they went to
+        (relative to ``root``; empty when nothing was kept).
+    """
+    root = Path(root)
+    check_not_linked(root, STAGING, ORPHANS)
+    staging = root / STAGING
+    if not staging.is_dir():
+        return [], [], ""
+    files: list[str] = []
+    links: list[str] = []
+    for folder, dirs, names in os.walk(staging, followlinks=False):
+        for name in sorted(dirs + names):
+            path = Path(folder) / name
+            rel = path.relative_to(staging).as_posix()
+            st = path.lstat()
+            if stat.S_ISLNK(st.st_mode):
+                links.append(rel)
+            elif stat.S_ISREG(st.st_mode):
+                files.append(rel)
+    if not files:
+        return [], sorted(links), ""
+    keep = _unique_folder(root / ORPHANS)
+    for rel in files:
+        target = keep / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(staging / rel, target)
+    return sorted(files), sorted(links), keep.relative_to(root).as_posix()
 
 
 def open_for_resume(root: str | Path) -> tuple[Any, CapturePlan, dict[str, Any], dict[str, Any]]:
@@ -804,10 +910,18 @@ def open_for_resume(root: str | Path) -> tuple[Any, CapturePlan, dict[str, Any],
     if session.manifest["status"] == "complete":
         session.close()
         raise UsageError(f"session {root} is already complete; nothing to resume")
-    plan = CapturePlan.from_dict(session.manifest["plan"])
-    settings = dict(session.manifest.get("settings") or {})
-    config = {k: dict(v) for k, v in (settings.get("device_config") or {}).items()}
-    return session, plan, settings, config
+    settings = session.manifest.get("settings") or {}
+    config = settings.get("device_config") or {} if isinstance(settings, dict) else None
+    if not isinstance(config, dict) or not all(isinstance(v, dict) for v in config.values()):
+        session.close()
+        raise UsageError(f"session {root}: settings.device_config in session.json is not a table of devices; "
+                         "the session is damaged (restore session.json from a copy)")
+    try:
+        plan = CapturePlan.from_dict(session.manifest["plan"])
+    except (ValueError, TypeError) as exc:
+        session.close()
+        raise UsageError(f"session {root}: plan in session.json is not valid: {exc}") from None
+    return session, plan, dict(settings), {k: dict(v) for k, v in config.items()}
 
 
 def parse_camera_angles(text: str, what: str = "camera angles") -> tuple[float, ...]:
@@ -838,12 +952,38 @@ def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.n
         The pass is not complete or its file fails its checksum.
     """
     manifest = Session.read(session_root)
-    rec = manifest["captures"].get(f"p{int(pass_no):02d}/profiles")
+    captures = manifest.get("captures")
+    key = f"p{int(pass_no):02d}/profiles"
+    rec = captures.get(key) if isinstance(captures, dict) else None
     if rec is None:
         raise SessionError(f"session {session_root}: pass {pass_no} has no gathered profiles (the pass is not "
                            f"complete); resume the capture with 'kogei capture --resume {session_root}'")
-    path = Path(session_root) / rec["file"]
-    if not path.is_file() or sha256_file(path) != rec["sha256"]:
-        raise SessionError(f"session {session_root}: {rec['file']} is missing or fails its checksum")
-    with np.load(path) as z:
+    if not isinstance(rec, dict) or not isinstance(rec.get("file"), str) or not isinstance(rec.get("sha256"), str):
+        raise SessionError(f"session {session_root}: captures[{key!r}] in session.json is not a record with "
+                           "'file' and 'sha256'; the session is damaged")
+    path = _confined_file(Path(session_root), rec["file"])
+    if sha256_file(path) != rec["sha256"]:
+        raise SessionError(f"session {session_root}: {rec['file']} fails its checksum")
+    with np.load(path, allow_pickle=False) as z:
         return {k: z[k] for k in ("angles_deg", "x_mm", "z_mm")}
+
+
+def _confined_file(root: Path, rel: str) -> Path:
+    """``root/rel`` if it is a regular file inside ``root`` reached without a symbolic link, else SessionError."""
+    parts = Path(rel).parts
+    if not rel or Path(rel).is_absolute() or ".." in parts or "\x00" in rel:
+        raise SessionError(f"session {root}: file {rel!r} in session.json is not a relative path inside the "
+                           "session (absolute or '..'); the session is damaged or hostile")
+    path = root
+    for i, part in enumerate(parts):
+        path = path / part
+        try:
+            st = path.lstat()
+        except OSError:
+            raise SessionError(f"session {root}: {rel} is missing") from None
+        if stat.S_ISLNK(st.st_mode):
+            raise SessionError(f"session {root}: {Path(*parts[:i + 1]).as_posix()} is a symbolic link; kogei "
+                               "does not follow links inside a session")
+    if not stat.S_ISREG(st.st_mode):
+        raise SessionError(f"session {root}: {rel} is not a regular file")
+    return path

@@ -1,8 +1,9 @@
 """``kogei capture``: a capture session from the command line (a thin shell over :mod:`app.capture.runner`).
 
 Exit status: 0 complete; 1 stopped by a device fault (the session is
-resumable, the message says what to fix); 2 bad input; 130 stopped with
-Ctrl-C (resumable too).
+resumable, the message says what to fix) or, unattended, a pass with
+(nearly) no laser returns; 2 bad input; 130 stopped with Ctrl-C
+(resumable too).
 """
 
 from __future__ import annotations
@@ -52,6 +53,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "KOGEI_PASSES, KOGEI_SESSION); e.g. 'kogei mock place --control DIR'")
     p.add_argument("--shutter", default=None, metavar="CMD",
                    help="command that fires the camera for a hot folder (env KOGEI_FRAME)")
+    p.add_argument("--trust-hooks", action="store_true",
+                   help="on --resume, run the commands stored in a session created by another user or machine "
+                        "(--before-pass, --shutter, the gphoto2 program); without it they are shown and refused")
     p.add_argument("--steps-per-degree", type=float, default=None, help="turntable motor steps per degree")
     p.add_argument("--speed", type=float, default=None, metavar="DEG_S", help="turntable speed (deg/s)")
     p.add_argument("--exposure-us", type=int, default=None, help="laser profiler exposure (microseconds)")
@@ -80,7 +84,7 @@ def _camera_angles(text: str | None) -> tuple[float, ...] | None:
 
 
 def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
-    from app.capture.devices import parse_camera_spec
+    from app.capture.devices import check_command, check_device_config, creator_record, parse_camera_spec
     from app.capture.runner import CapturePlan
     from app.session import Session
 
@@ -129,18 +133,42 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
         if args.exposure_us is not None:
             config["profiler"]["exposure_us"] = args.exposure_us
     settings = {"unattended": bool(args.unattended), "before_pass": args.before_pass, "shutter": args.shutter,
-                "device_config": config}
+                "device_config": config, "created_by": creator_record()}
+    check_device_config(config)
+    check_command(args.before_pass, "--before-pass")
+    check_command(args.shutter, "--shutter")
     obj = {k: v for k, v in (("name", args.object), ("notes", args.notes)) if v}
     session = Session.create(args.out, plan=plan.to_dict(), object_info=obj, settings=settings,
                              devices={k: dict(v) for k, v in config.items()})
     return session, plan, settings
 
 
+def _check_trust(session: Any, settings: dict[str, Any], config: dict[str, Any], args: argparse.Namespace) -> None:
+    """Refuse (exit 2) to run a foreign session's stored commands without ``--trust-hooks``; list them first."""
+    from app.capture.devices import created_here, stored_commands
+
+    stored = stored_commands(settings, config, before_pass=args.before_pass, shutter=args.shutter,
+                             camera=args.camera)
+    origin = settings.get("created_by")
+    if not stored or args.trust_hooks or created_here(origin):
+        return
+    session.close()
+    who = (f"{origin.get('user') or 'uid ' + str(origin.get('uid'))} on {origin.get('host')}"
+           if isinstance(origin, dict) else "an unknown user or machine")
+    print(f"session {args.resume} stores these commands:", file=sys.stderr)
+    for cmd in stored:
+        print(f"    {cmd}", file=sys.stderr)
+    raise UsageError(f"session {args.resume} was created by {who}, and its stored commands are not run "
+                     "unless you trust them: read them above, then resume with --trust-hooks (or give them "
+                     "again on the command line)")
+
+
 def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
-    from app.capture.devices import parse_camera_spec
+    from app.capture.devices import check_command, check_device_config, parse_camera_spec
     from app.capture.runner import open_for_resume
 
     session, plan, settings, config = open_for_resume(args.resume)
+    _check_trust(session, settings, config, args)
     if args.turntable:
         config.setdefault("turntable", {})["port"] = args.turntable
     if args.laser:
@@ -153,6 +181,13 @@ def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     if args.unattended:
         settings["unattended"] = True
     settings["device_config"] = config
+    try:
+        check_device_config(config)
+        for key in ("before_pass", "shutter"):
+            check_command(settings.get(key), "--" + key.replace("_", "-"))
+    except UsageError:
+        session.close()
+        raise
     session.update("settings", settings)
     return session, plan, settings
 
@@ -189,11 +224,21 @@ def _hooks(session: Any, plan: Any, settings: dict[str, Any], cancel: threading.
         if not unattended and not settings.get("before_pass"):
             input("Chart frame taken. Remove the chart from the view, then press Enter: ")
 
+    def low_return(p: int, share: float, text: str) -> None:
+        if unattended or settings.get("before_pass"):
+            return
+        answer = input(f"\nWarning: {text}.\nPress Enter to go on anyway, or q and Enter to stop: ")
+        if answer.strip().lower().startswith("q"):
+            raise CaptureInterrupted(f"stopped after pass {p} (no laser line); fix the laser, then resume with: "
+                                     f"kogei capture --resume {session.root}", session=session.root,
+                                     reason="cancelled")
+
     def message(text: str) -> None:
         if not quiet:
             print(f"  note: {text}", file=sys.stderr)
 
-    return CaptureHooks(before_pass=before_pass, after_chart=after_chart, message=message, cancel=cancel)
+    return CaptureHooks(before_pass=before_pass, after_chart=after_chart, low_return=low_return, message=message,
+                        cancel=cancel)
 
 
 def _shutter(settings: dict[str, Any], session_root: Path):
@@ -251,10 +296,27 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-        session.close()
+        _close(session)
     print(f"session {report.session}: complete; {report.taken} captures taken, {report.skipped} already held, "
           f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
+    for text in report.warnings:
+        print(f"  warning: {text}", file=sys.stderr)
+    if report.warnings and settings.get("unattended"):
+        print(f"kogei capture: {len(report.warnings)} pass(es) of {report.session} have (nearly) no laser "
+              "returns (valid_share in the manifest); check the laser before processing", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0
+
+
+def _close(session: Any) -> None:
+    """Close the session; a failure (a full disk) is reported in one line, its journal keeps the captures."""
+    from app.session import SessionError
+
+    try:
+        session.close()
+    except (SessionError, OSError) as exc:
+        print(f"kogei capture: note: {session.root} could not be closed cleanly ({exc}); its journal holds the "
+              f"captures: free space, then run kogei capture --resume {session.root}", file=sys.stderr)
 
 
 class _progress:
