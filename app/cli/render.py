@@ -89,6 +89,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``kogei render``; running out of memory is a one-line :class:`UsageError`, not a traceback."""
+    try:
+        return _render(args)
+    except MemoryError:
+        raise UsageError(f"{args.scene}: not enough memory for this render; use a smaller --size "
+                         "or a simpler mesh, or free memory") from None
+
+
+def _render(args: argparse.Namespace) -> int:
+    """Build the scene, render it and write the PNG (and XYZ TIFF)."""
     from app.workflows.scene_build import build_job
     from render.image_io import write_png, write_xyz_tiff
     from render.renderer import render

@@ -263,6 +263,20 @@ def check_procedural_args(kind: str, args: dict[str, Any], where: str) -> dict[s
     a non-finite or non-positive size, a triangle count outside
     ``1..MAX_TRIANGLES`` or a key the shape does not take.
 
+    Parameters
+    ----------
+    kind
+        The procedural shape: one of :data:`PROCEDURAL_KEYS`.
+    args
+        Its ``radius``, ``size`` and ``triangles`` values as given.
+    where
+        Names the object in messages.
+
+    Returns
+    -------
+    dict
+        ``radius`` and ``size`` as floats, ``triangles`` as an int.
+
     Examples
     --------
     >>> check_procedural_args("sphere", {"radius": 2, "triangles": 500}, "obj")

@@ -126,3 +126,133 @@ def test_procedural_spec_from_code_is_checked_too():
         object_mesh(ObjectSpec(procedural="sphere", procedural_args={"radius": -1.0}))
     with pytest.raises(UsageError, match="triangles"):
         object_mesh(ObjectSpec(procedural="hawk", procedural_args={"triangles": 10**12}))
+
+
+# ----------------------------------------------------------------------------------------- memory bounds
+
+def _sphere_scene(tmp_path):
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[[object]]\nprocedural = 'sphere'\ntriangles = 200\n")
+    return scene
+
+
+def test_render_too_large_for_memory_is_refused_before_allocating(tmp_path, capsys, monkeypatch):
+    import time
+
+    import render.renderer as renderer
+
+    monkeypatch.setattr(renderer, "available_memory_bytes", lambda: 2_000_000_000)
+    out = tmp_path / "big.png"
+    t0 = time.perf_counter()
+    line = _one_line_error(capsys, ["render", _sphere_scene(tmp_path), "--size", "8000x8000", "--preset", "draft",
+                                    "--out", out, "--quiet"], "8000x8000", "GB", "--size")
+    assert time.perf_counter() - t0 < 10
+    assert not out.exists()
+    # the size it suggests fits
+    fit = line.split("render at most ")[1].split()[0]
+    w, h = (int(v) for v in fit.split("x"))
+    assert w == h and renderer.estimate_peak_bytes(w, h, 200) <= 2_000_000_000
+
+
+def test_memory_estimate_uses_the_measured_coefficients():
+    from render.errors import RenderInputError
+    from render.renderer import BYTES_PER_PIXEL, check_memory, estimate_peak_bytes
+
+    assert estimate_peak_bytes(8000, 8000) >= 8000 * 8000 * BYTES_PER_PIXEL > 6.6e9
+    check_memory(8000, 8000, 0, available=10**11)          # fits: no error
+    with pytest.raises(RenderInputError, match="simplify the mesh"):
+        check_memory(10, 10, 10**9, available=10**9)
+    with pytest.raises(RenderInputError, match=r"4000x2000 render needs about"):
+        check_memory(4000, 2000, 0, available=500_000_000)
+
+
+def test_memory_error_on_cli_paths_is_one_line(tmp_path, capsys, monkeypatch):
+    import app.cli.identify as identify
+    import app.cli.register as register
+    import app.cli.spectral as spectral
+    import render.renderer as renderer
+
+    def boom(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(renderer, "render", boom)
+    _one_line_error(capsys, ["render", _sphere_scene(tmp_path), "--size", "16x16", "--out", tmp_path / "o.png"],
+                    "not enough memory", "--size")
+    monkeypatch.setattr(register, "read_cloud", boom)
+    _one_line_error(capsys, ["register", "a.ply", "b.ply", "--poses", tmp_path / "p.json"], "not enough memory")
+    monkeypatch.setattr(spectral, "load_result", boom)
+    _one_line_error(capsys, ["spectral", "at", "r.npz", "0", "0"], "not enough memory")
+    monkeypatch.setattr(identify, "load_result", boom)
+    _one_line_error(capsys, ["identify", "r.npz"], "not enough memory")
+
+
+# ----------------------------------------------------------------------------------------- declared counts
+
+_XYZ = "0 0 0\n1 0 0\n0 1 0\n0 0 1\n"
+
+#: Files whose headers claim far more records than they hold (suffix, bytes).
+HUGE_HEADERS = {
+    "ascii.ply": b"ply\nformat ascii 1.0\nelement vertex 2000000000\nproperty float x\nproperty float y\n"
+                 b"property float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n",
+    "binary.ply": b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\n"
+                  b"property float y\nproperty float z\nend_header\n" + bytes(36),
+    "ascii.pcd": b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2000000000\n"
+                 b"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2000000000\nDATA ascii\n0 0 0\n1 0 0\n",
+    "binary.pcd": b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2000000000\n"
+                  b"HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2000000000\nDATA binary\n" + bytes(24),
+    "count.pts": b"100000000\n0 0 0\n1 0 0\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(HUGE_HEADERS))
+def test_register_refuses_a_header_claiming_more_points_than_the_file_holds(tmp_path, capsys, name):
+    import time
+
+    bad = tmp_path / name
+    bad.write_bytes(HUGE_HEADERS[name])
+    good = tmp_path / "good.xyz"
+    good.write_text(_XYZ)
+    t0 = time.perf_counter()
+    _one_line_error(capsys, ["register", good, bad, "--poses", tmp_path / "p.json", "--quiet"],
+                    name, "header declares", "bytes follow the header")
+    assert time.perf_counter() - t0 < 10
+    assert not (tmp_path / "p.json").exists()
+
+
+def test_register_refuses_a_cloud_larger_than_memory(tmp_path, capsys, monkeypatch):
+    import render.renderer as renderer
+
+    monkeypatch.setattr(renderer, "available_memory_bytes", lambda: 100)
+    ply = tmp_path / "four.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                   "end_header\n" + _XYZ)
+    _one_line_error(capsys, ["register", ply, ply, "--poses", tmp_path / "p.json"], "4 points", "subsample")
+
+
+def test_sane_headers_pass_the_count_check(tmp_path):
+    from render.meshio import check_declared_counts
+
+    ply = tmp_path / "four.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                   "element face 1\nproperty list uchar int vertex_indices\nend_header\n" + _XYZ + "3 0 1 2\n")
+    assert check_declared_counts(ply) == 4
+    xyz = tmp_path / "a.xyz"
+    xyz.write_text(_XYZ)
+    assert check_declared_counts(xyz) is None
+
+
+#: Mesh files whose headers claim more triangles or vertices than they hold.
+HUGE_MESHES = {
+    "huge.ply": HUGE_HEADERS["ascii.ply"].replace(b"end_header", b"element face 5\nproperty list uchar int "
+                                                  b"vertex_indices\nend_header"),
+    "huge.off": b"OFF\n2000000000 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+    "huge.stl": bytes(80) + (2_000_000_000).to_bytes(4, "little") + bytes(50),
+    "bad.ply": b"ply\nformat ascii 1.0\nelement vertex many\nproperty float x\nend_header\n0\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(HUGE_MESHES))
+def test_render_refuses_a_mesh_header_claiming_more_than_the_file_holds(tmp_path, capsys, name):
+    mesh = tmp_path / name
+    mesh.write_bytes(HUGE_MESHES[name])
+    _one_line_error(capsys, ["render", mesh, "--size", "16x16", "--out", tmp_path / "o.png"], name, "header")
