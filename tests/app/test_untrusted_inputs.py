@@ -256,3 +256,145 @@ def test_render_refuses_a_mesh_header_claiming_more_than_the_file_holds(tmp_path
     mesh = tmp_path / name
     mesh.write_bytes(HUGE_MESHES[name])
     _one_line_error(capsys, ["render", mesh, "--size", "16x16", "--out", tmp_path / "o.png"], name, "header")
+
+
+# ----------------------------------------------------------------------------------------- RESULT.npz
+
+def _good_arrays(**change):
+    import json
+
+    import numpy as np
+
+    wl = np.arange(400.0, 701.0, 10.0)
+    arrays = {"weights": np.zeros((2, 3, 3), np.float32), "basis": np.ones((wl.size, 3)), "wavelengths": wl,
+              "mask": np.ones((2, 3), bool), "camera": np.ones((2, 3, 3), np.float32),
+              "sensitivities": np.ones((wl.size, 3)), "lights": np.ones((1, wl.size)),
+              "method": np.array("rootpoly"), "metadata": np.array(json.dumps({"chart_rmse": 0.02}))}
+    arrays.update(change)
+    return arrays
+
+
+def _write_npz(path, arrays):
+    import numpy as np
+
+    np.savez(path, **arrays)
+    return path
+
+
+def test_a_good_result_loads(tmp_path):
+    from app.workflows.spectral import load_result
+
+    res = load_result(_write_npz(tmp_path / "r.npz", _good_arrays()))
+    assert res.weights.shape == (2, 3, 3) and res.method == "rootpoly" and res.method_error == 0.02
+
+
+def _result_error(capsys, path, *needles):
+    line = _one_line_error(capsys, ["spectral", "at", path, "0", "0"], path.name, *needles)
+    _one_line_error(capsys, ["identify", path], path.name, *needles)
+    return line
+
+
+def test_text_file_named_npz_is_not_a_result(tmp_path, capsys):
+    path = tmp_path / "notes.npz"
+    path.write_text("hello, this is not a result\n")
+    line = _result_error(capsys, path, "not a kogei spectral result", "text file")
+    assert "pickled" not in line
+
+
+@pytest.mark.parametrize("content, needle", [(b"", "empty file"), (b"\x00\x01\x02garbage\xff", "not a zip archive")])
+def test_empty_or_binary_file_named_npz(tmp_path, capsys, content, needle):
+    path = tmp_path / "junk.npz"
+    path.write_bytes(content)
+    _result_error(capsys, path, "not a kogei spectral result", needle)
+
+
+def test_npy_named_npz(tmp_path, capsys):
+    import numpy as np
+
+    path = tmp_path / "one.npz"
+    with open(path, "wb") as fh:
+        np.save(fh, np.zeros(3))
+    _result_error(capsys, path, "single NumPy array")
+
+
+def test_zip_that_is_not_an_npz(tmp_path, capsys):
+    import zipfile
+
+    path = tmp_path / "photos.npz"
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("readme.txt", "hello")
+    _result_error(capsys, path, "zip archive of no NumPy arrays")
+
+
+def test_truncated_zip(tmp_path, capsys):
+    path = _write_npz(tmp_path / "cut.npz", _good_arrays())
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    _result_error(capsys, path, "damaged")
+
+
+def test_missing_key(tmp_path, capsys):
+    arrays = _good_arrays()
+    del arrays["lights"]
+    _result_error(capsys, _write_npz(tmp_path / "part.npz", arrays), "missing lights")
+
+
+def test_pickled_objects_are_refused_without_unpickling(tmp_path, capsys):
+    import numpy as np
+
+    arrays = _good_arrays(metadata=np.array([{"a": 1}], dtype=object))
+    _result_error(capsys, _write_npz(tmp_path / "obj.npz", arrays), "'metadata'", "Python objects")
+
+
+def test_array_header_claiming_more_than_the_member_holds(tmp_path, capsys):
+    """A weights header of 100000 x 100000 x 8 float32 (320 GB) in a tiny member is refused before reading."""
+    import io
+    import zipfile
+
+    import numpy as np
+
+    path = _write_npz(tmp_path / "bomb.npz", _good_arrays())
+    with zipfile.ZipFile(path) as zf:
+        members = {n: zf.read(n) for n in zf.namelist()}
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f4", "fortran_order": False,
+                                               "shape": (100000, 100000, 8)})
+    members["weights.npy"] = buf.getvalue() + bytes(64)
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    _result_error(capsys, path, "'weights'", "(100000, 100000, 8)", "member holds")
+
+
+def _bad_value(name):
+    import json
+
+    import numpy as np
+
+    wl = np.arange(400.0, 701.0, 10.0)
+    return {"int-weights": ("weights", np.zeros((2, 3, 3), np.int32)), "float-mask": ("mask", np.ones((2, 3))),
+            "1d-basis": ("basis", np.ones(31)), "number-method": ("method", np.array(3.0)),
+            "bogus-method": ("method", np.array("bogus")), "reversed-wavelengths": ("wavelengths", wl[::-1].copy()),
+            "short-lights": ("lights", np.ones((1, 5))),
+            "list-metadata": ("metadata", np.array(json.dumps([1, 2]))),
+            "text-rmse": ("metadata", np.array(json.dumps({"chart_rmse": "high"})))}[name]
+
+
+BAD_ARRAYS = {
+    "int-weights": ("'weights'", "floating-point"),
+    "float-mask": ("'mask'", "boolean"),
+    "1d-basis": ("'basis'", "2 dimension"),
+    "number-method": ("'method'", "a string"),
+    "bogus-method": ("method 'bogus'", "one of"),
+    "reversed-wavelengths": ("'wavelengths'", "evenly spaced"),
+    "short-lights": ("inconsistent",),
+    "list-metadata": ("metadata", "JSON object"),
+    "text-rmse": ("chart_rmse", "non-negative number"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_ARRAYS))
+def test_wrong_dtypes_and_shapes_are_one_line(tmp_path, capsys, name):
+    key, value = _bad_value(name)
+    arrays = _good_arrays(**{key: value})
+    _result_error(capsys, _write_npz(tmp_path / "bad.npz", arrays), *BAD_ARRAYS[name])
