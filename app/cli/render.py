@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -34,6 +35,8 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
             raise UsageError(f"{src}: mesh file not found")
         spec = SceneSpec(objects=[ObjectSpec(mesh=src, material=args.material or "gold")])
     if args.weave_angle is not None:
+        if not math.isfinite(args.weave_angle):
+            raise UsageError(f"--weave-angle: expected a finite angle in degrees, got {args.weave_angle}")
         for obj in spec.objects:
             obj.weave_angle_deg = args.weave_angle
     if args.light:

@@ -398,3 +398,9 @@ def test_wrong_dtypes_and_shapes_are_one_line(tmp_path, capsys, name):
     key, value = _bad_value(name)
     arrays = _good_arrays(**{key: value})
     _result_error(capsys, _write_npz(tmp_path / "bad.npz", arrays), *BAD_ARRAYS[name])
+
+
+@pytest.mark.parametrize("flag, value", [("--weave-angle", "nan"), ("--fov", "nan"), ("--fov", "inf")])
+def test_non_finite_render_flags_are_one_line(tmp_path, capsys, flag, value):
+    _one_line_error(capsys, ["render", _sphere_scene(tmp_path), flag, value, "--size", "16x16", "--preset", "draft",
+                             "--out", tmp_path / "o.png"], flag)
