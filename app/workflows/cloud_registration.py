@@ -19,7 +19,7 @@ import numpy as np
 from app.errors import UsageError
 from processing.common.files import atomic_path
 
-__all__ = ["BYTES_PER_POINT", "POSES_FORMAT", "READABLE", "WRITABLE", "read_cloud", "read_picks", "poses_document", "write_poses",
+__all__ = ["BYTES_PER_POINT", "MAX_PICKS_BYTES", "POSES_FORMAT", "READABLE", "WRITABLE", "read_cloud", "read_picks", "poses_document", "write_poses",
            "write_merged_cloud"]
 
 #: ``format`` field of poses.json.
@@ -104,11 +104,18 @@ def _check_cloud_size(path: Path) -> None:
                          f"{available / 1e9:.1f} GB is available; subsample the cloud first")
 
 
+#: Largest picks file read: a few dozen picked points are a few kB.
+MAX_PICKS_BYTES = 1 << 20
+
+
 def read_picks(path: Path, n_inputs: int) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
     """Manual picks from a JSON file as ``{(i, j): (points_on_i, points_on_j)}`` with ``i < j``."""
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"--picks: {path}: file not found")
+    if path.stat().st_size > MAX_PICKS_BYTES:
+        raise UsageError(f"--picks: {path}: {path.stat().st_size} bytes is too large for a picks file "
+                         f"(at most {MAX_PICKS_BYTES} bytes)")
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -138,6 +145,8 @@ def read_picks(path: Path, n_inputs: int) -> dict[tuple[int, int], tuple[np.ndar
             raise UsageError(
                 f"{where}: points must be two equally long lists of [x, y, z], got shapes {a.shape} and {b.shape}"
             )
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            raise UsageError(f"{where}: points must be finite numbers (no NaN or Infinity)")
         if i > j:
             i, j, a, b = j, i, b, a
         out[(i, j)] = (a, b)

@@ -25,6 +25,7 @@ __all__ = [
     "parse_size",
     "parse_light",
     "load_scene_file",
+    "MAX_SCENE_BYTES",
     "check_procedural_args",
     "MAX_TRIANGLES",
     "PROCEDURAL_KEYS",
@@ -339,9 +340,18 @@ def load_scene_file(path: str | Path) -> SceneSpec:
     return spec
 
 
+#: Largest scene file read (a scene is a few hundred bytes; this refuses a disk image or a device).
+MAX_SCENE_BYTES = 1 << 20
+
+
 def _read_toml(path: Path) -> dict[str, Any]:
-    """The scene file's TOML document."""
+    """The scene file's TOML document (a regular file of at most ``MAX_SCENE_BYTES``)."""
     try:
+        if path.exists() and not path.is_file():
+            raise UsageError(f"{path}: not a regular file; give a TOML scene file")
+        if path.exists() and path.stat().st_size > MAX_SCENE_BYTES:
+            raise UsageError(f"{path}: {path.stat().st_size} bytes is too large for a scene file "
+                             f"(at most {MAX_SCENE_BYTES} bytes)")
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise UsageError(f"{path}: scene file not found") from None

@@ -404,3 +404,37 @@ def test_wrong_dtypes_and_shapes_are_one_line(tmp_path, capsys, name):
 def test_non_finite_render_flags_are_one_line(tmp_path, capsys, flag, value):
     _one_line_error(capsys, ["render", _sphere_scene(tmp_path), flag, value, "--size", "16x16", "--preset", "draft",
                              "--out", tmp_path / "o.png"], flag)
+
+
+def test_scene_path_that_is_a_fifo_or_huge_is_refused_without_blocking(tmp_path, capsys):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    fifo = tmp_path / "pipe.toml"
+    os.mkfifo(fifo)
+    # a subprocess with a timeout: reading a FIFO that nobody writes would block for ever
+    root = str(Path(__file__).resolve().parents[2])
+    proc = subprocess.run([sys.executable, "-c", "import sys; from app.cli import main; sys.exit(main(sys.argv[1:]))",
+                           "render", str(fifo), "--out", str(tmp_path / "o.png")], capture_output=True, text=True,
+                          timeout=60, cwd=root, env={**os.environ, "PYTHONPATH": root})
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "pipe.toml" in proc.stderr and "not a regular file" in proc.stderr
+    big = tmp_path / "big.toml"
+    with open(big, "wb") as fh:
+        fh.truncate(2 << 20)
+    _one_line_error(capsys, ["render", big, "--out", tmp_path / "o.png"], "big.toml", "too large")
+
+
+def test_picks_with_nan_or_too_large_are_one_line(tmp_path, capsys):
+    good = tmp_path / "a.xyz"
+    good.write_text(_XYZ)
+    picks = tmp_path / "picks.json"
+    picks.write_text('[{"pair": [0, 1], "points": [[[0, 0, NaN], [1, 0, 0], [0, 1, 0]], '
+                     '[[0, 0, 0], [1, 0, 0], [0, 1, 0]]]}]')
+    argv = ["register", good, good, "--picks", picks, "--poses", tmp_path / "p.json"]
+    _one_line_error(capsys, argv, "picks.json", "finite")
+    with open(picks, "wb") as fh:
+        fh.truncate(2 << 20)
+    _one_line_error(capsys, argv, "picks.json", "too large")
