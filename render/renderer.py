@@ -662,6 +662,10 @@ BYTES_PER_TRIANGLE = 200
 _TILE_BYTES = 64 << 20
 
 
+#: Share of the free memory a suggested smaller size may use.
+_SUGGEST_SHARE = 0.8
+
+
 def estimate_peak_bytes(width: int, height: int, n_triangles: int = 0) -> int:
     """Estimated peak memory of :func:`render` (and writing its PNG) above what the process already holds.
 
@@ -687,25 +691,75 @@ def estimate_peak_bytes(width: int, height: int, n_triangles: int = 0) -> int:
 
 
 def available_memory_bytes() -> int | None:
-    """Memory available to new allocations.
+    """Memory available to new allocations of this process.
+
+    The least of the system's available memory, the room left under a
+    cgroup memory limit (containers, batch schedulers) and the room left
+    under the address-space limit (``ulimit -v``).
 
     Returns
     -------
     int or None
-        Bytes: ``MemAvailable`` of /proc/meminfo, else the free pages
-        (``SC_AVPHYS_PAGES``); None when neither can be read.
+        Bytes; None when none of them can be read.
     """
-    try:
-        with open("/proc/meminfo", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
+    found = [x for x in (_system_available(), _cgroup_room(), _address_space_room()) if x is not None]
+    return max(0, min(found)) if found else None
+
+
+def _system_available() -> int | None:
+    """``MemAvailable`` of /proc/meminfo, else the free pages (``SC_AVPHYS_PAGES``)."""
+    value = _proc_field("/proc/meminfo", "MemAvailable:")
+    if value is not None:
+        return value
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (AttributeError, ValueError, OSError):
         return None
+
+
+def _proc_field(path: str, key: str) -> int | None:
+    """A ``key: N kB`` field of a /proc file in bytes (None: absent or unreadable)."""
+    try:
+        with open(path, encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _read_int(path: str) -> int | None:
+    """The integer a cgroup file holds (None: absent, ``max`` or unreadable)."""
+    try:
+        with open(path, encoding="ascii") as fh:
+            return int(fh.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def _cgroup_room() -> int | None:
+    """Limit minus usage of this process's cgroup (v2, else v1); None without a limit."""
+    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        limit = _read_int(limit_file)
+        if limit is not None and limit < 1 << 60:        # v1 writes a huge number for "no limit"
+            return limit - (_read_int(usage_file) or 0)
+    return None
+
+
+def _address_space_room() -> int | None:
+    """``RLIMIT_AS`` minus the process's virtual size (None: unlimited)."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError):
+        return None
+    if soft == resource.RLIM_INFINITY:
+        return None
+    return soft - (_proc_field("/proc/self/status", "VmSize:") or 0)
 
 
 def check_memory(width: int, height: int, n_triangles: int = 0, available: int | None = None) -> None:
@@ -738,7 +792,9 @@ def check_memory(width: int, height: int, n_triangles: int = 0, available: int |
             f"rendering {n_triangles} triangles needs about {need / 1e9:.1f} GB but only "
             f"{available / 1e9:.1f} GB of memory is available; simplify the mesh or free memory"
         )
-    f = math.sqrt(room / BYTES_PER_PIXEL / (width * height))
+    # the suggested size leaves a fifth of the room free: the estimate is a measured mean, and a render that
+    # fills the memory to the last byte would still fail (or swap)
+    f = math.sqrt(_SUGGEST_SHARE * room / BYTES_PER_PIXEL / (width * height))
     fit_w, fit_h = max(1, int(width * f)), max(1, int(height * f))
     raise RenderInputError(
         f"a {width}x{height} render needs about {need / 1e9:.1f} GB of memory but {available / 1e9:.1f} GB "

@@ -438,3 +438,23 @@ def test_picks_with_nan_or_too_large_are_one_line(tmp_path, capsys):
     with open(picks, "wb") as fh:
         fh.truncate(2 << 20)
     _one_line_error(capsys, argv, "picks.json", "too large")
+
+
+def test_render_under_an_address_space_limit_is_refused_with_a_size_that_fits(tmp_path):
+    """``ulimit -v 3 GB``: the estimate counts the room under the limit, not the machine's free memory."""
+    import os
+    import resource
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+    root = str(Path(__file__).resolve().parents[2])
+    proc = subprocess.run([sys.executable, "-c", "import sys; from app.cli import main; sys.exit(main(sys.argv[1:]))",
+                           "render", str(_sphere_scene(tmp_path)), "--size", "8000x8000", "--preset", "draft",
+                           "--out", str(tmp_path / "o.png")], capture_output=True, text=True, timeout=120,
+                          cwd=root, env={**os.environ, "PYTHONPATH": root}, preexec_fn=limit)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "8000x8000 render needs about" in proc.stderr and "render at most" in proc.stderr
