@@ -13,6 +13,7 @@ from app.workflows.scene_spec import (
     CameraSpec,
     ObjectSpec,
     SceneSpec,
+    check_path_text,
     load_scene_file,
     parse_light,
     parse_size,
@@ -24,6 +25,7 @@ __all__ = ["add_parser", "run", "spec_from_args"]
 
 def spec_from_args(args: argparse.Namespace) -> SceneSpec:
     """Scene description from ``kogei render`` flags; flags override a scene file's values."""
+    check_path_text(args.scene, "MESH|SCENE.toml")
     src = Path(args.scene)
     if src.suffix.lower() == ".toml":
         spec = load_scene_file(src)

@@ -26,6 +26,7 @@ __all__ = [
     "parse_light",
     "load_scene_file",
     "MAX_SCENE_BYTES",
+    "check_path_text",
     "check_procedural_args",
     "MAX_TRIANGLES",
     "PROCEDURAL_KEYS",
@@ -297,6 +298,35 @@ def check_procedural_args(kind: str, args: dict[str, Any], where: str) -> dict[s
     return out
 
 
+def check_path_text(text: str, where: str) -> None:
+    r"""Refuse a file name the operating system cannot take: empty, with a NUL byte, or too long.
+
+    Parameters
+    ----------
+    text
+        The file path as given.
+    where
+        Names the key or flag in messages.
+
+    Examples
+    --------
+    >>> check_path_text("head.ply", "mesh")
+    >>> check_path_text("a\x00b", "mesh")
+    Traceback (most recent call last):
+    ...
+    app.errors.UsageError: mesh: expected a file path, got 'a\x00b' (it cannot contain a NUL byte)
+    """
+    if not text.strip():
+        raise UsageError(f"{where}: expected a file path, got an empty string")
+    if "\x00" in text:
+        raise UsageError(f"{where}: expected a file path, got {text!r} (it cannot contain a NUL byte)")
+    try:
+        Path(text).exists()
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"{where}: {text[:80]!r} cannot be used as a file path ({exc.__class__.__name__}: "
+                         f"{getattr(exc, 'strerror', None) or exc})") from None
+
+
 def _table(data: dict, key: str, path: Path) -> dict:
     value = data.get(key, {})
     if not isinstance(value, dict):
@@ -432,8 +462,8 @@ def _read_object(obj: dict[str, Any], where: str, path: Path) -> ObjectSpec:
     if ("mesh" in obj) == ("procedural" in obj):
         raise UsageError(f"{where}: give exactly one of 'mesh' (a file) or 'procedural' (hawk, sphere, plane, cloth)")
     mesh = _string(obj, "mesh", where)
-    if mesh is not None and not mesh.strip():
-        raise UsageError(f"{where} mesh: expected a mesh file path, got an empty string")
+    if mesh is not None:
+        check_path_text(mesh, f"{where} mesh")
     procedural = _string(obj, "procedural", where, None, tuple(PROCEDURAL_KEYS))
     proc_args = {k: obj[k] for k in ("radius", "size", "triangles") if k in obj}
     if procedural is not None:

@@ -458,3 +458,15 @@ def test_render_under_an_address_space_limit_is_refused_with_a_size_that_fits(tm
                           cwd=root, env={**os.environ, "PYTHONPATH": root}, preexec_fn=limit)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert "8000x8000 render needs about" in proc.stderr and "render at most" in proc.stderr
+
+
+@pytest.mark.parametrize("mesh, needle", [("a\\u0000b.ply", "NUL byte"), ("x" * 5000 + ".ply", "cannot be used"),
+                                          ("", "empty string")])
+def test_scene_mesh_paths_the_os_cannot_take(tmp_path, capsys, mesh, needle):
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f'[[object]]\nmesh = "{mesh}"\n')
+    _one_line_error(capsys, ["render", scene, "--out", tmp_path / "o.png"], "scene.toml", "mesh", needle)
+
+
+def test_command_line_mesh_path_too_long(tmp_path, capsys):
+    _one_line_error(capsys, ["render", "y" * 5000 + ".ply", "--out", tmp_path / "o.png"], "cannot be used")
