@@ -48,6 +48,7 @@ __all__ = [
     "make_mesh",
     "smooth_vertex_normals",
     "face_normals",
+    "check_declared_counts",
 ]
 
 #: File name suffixes :func:`load_mesh` accepts.
@@ -445,6 +446,7 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
     size = p.stat().st_size
     if size == 0:
         raise MeshError(f"mesh file '{name}' is empty (0 bytes)")
+    check_declared_counts(p)
     try:
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             raw = o3d.io.read_triangle_mesh(name)
@@ -481,3 +483,192 @@ def load_mesh(path: str | os.PathLike[str]) -> Mesh:
         "triangle" if mat is not None else None,
         source=name,
     )
+
+
+# ----------------------------------------------------------------------------------- header checks
+#: Bytes of one PLY scalar of each type name.
+_PLY_SIZES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+              "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+#: The most header bytes read to find a PLY's ``end_header`` or a PCD's ``DATA`` line.
+_HEADER_BYTES = 1 << 16
+
+#: Largest expansion of LZF (binary_compressed PCD) data: a 3-byte back reference yields at most 264 bytes.
+_LZF_MAX_RATIO = 88
+
+
+def check_declared_counts(path: str | os.PathLike[str]) -> int | None:
+    r"""Check the element counts a file's header declares against the file's size, before a reader allocates.
+
+    PLY (``element`` lines), OFF (the counts line), binary STL (the triangle
+    count), PCD (``POINTS``) and PTS (the first line) say how many records
+    follow; Open3D's readers allocate that many at once, so a header that
+    claims 2e9 vertices in a 200-byte file would exhaust memory.  Each record
+    needs at least some bytes (binary: the size of its fields; text: one
+    character and a separator per value), so a count the rest of the file
+    cannot hold is refused.  Other formats (OBJ, glTF, XYZ) carry no counts.
+
+    Parameters
+    ----------
+    path
+        A mesh or point-cloud file; the suffix selects the format.
+
+    Returns
+    -------
+    int or None
+        The number of vertices / points the header declares (None: the
+        format declares none).
+
+    Raises
+    ------
+    MeshError
+        One line naming the file, the declared count and the bytes there are.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "big.ply"
+    >>> _ = p.write_text("ply\nformat ascii 1.0\nelement vertex 2000000000\nproperty float x\nend_header\n0\n")
+    >>> check_declared_counts(p)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    render.errors.MeshError: ...declares 2000000000 vertex records (at least 4000000000 bytes) but only 2 bytes...
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    reader = {".ply": _ply_counts, ".off": _off_counts, ".stl": _stl_counts, ".pcd": _pcd_counts,
+              ".pts": _pts_counts}.get(suffix)
+    if reader is None:
+        return None
+    try:
+        size = p.stat().st_size
+        with open(p, "rb") as fh:
+            head = fh.read(_HEADER_BYTES)
+    except OSError as exc:
+        raise MeshError(f"'{p}' could not be read: {exc.strerror or exc}") from None
+    try:
+        found = reader(head, size)
+    except MeshError as exc:
+        raise MeshError(f"'{p}': {exc}; the header is damaged") from None
+    if found is None:
+        return None
+    declared, need, have, count = found
+    if need > have:
+        raise MeshError(
+            f"'{p}': its header declares {declared} (at least {need} bytes) but only {max(have, 0)} bytes follow "
+            "the header; the file is truncated or its header is damaged"
+        )
+    return count
+
+
+#: What a header declares: its text, the least bytes that needs, the bytes there are, the vertex / point count.
+_Found = tuple[str, int, int, int] | None
+
+
+def _whole_count(text: str, what: str) -> int:
+    """A header count: a non-negative whole number."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise MeshError(f"header count of {what} is {text!r}, not a whole number") from None
+    if value < 0:
+        raise MeshError(f"header count of {what} is negative ({value})")
+    return value
+
+
+def _ply_counts(head: bytes, size: int) -> _Found:
+    """PLY: every element's count times its smallest record."""
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return None
+    body_start = head.find(b"\n", end)
+    body_start = len(head) if body_start < 0 else body_start + 1
+    lines = head[:end].decode("ascii", "replace").splitlines()
+    binary = any(ln.split()[:2] in (["format", "binary_little_endian"], ["format", "binary_big_endian"])
+                 for ln in lines if ln.strip())
+    elements: list[list] = []          # [name, count, smallest record bytes]
+    for ln in lines:
+        words = ln.split()
+        if len(words) >= 3 and words[0] == "element":
+            elements.append([words[1], _whole_count(words[2], f"PLY element {words[1]}"), 0])
+        elif len(words) >= 3 and words[0] == "property" and elements:
+            if not binary:
+                elements[-1][2] += 2
+            elif words[1] == "list":
+                elements[-1][2] += _PLY_SIZES.get(words[2], 1)
+            else:
+                elements[-1][2] += _PLY_SIZES.get(words[1], 1)
+    need = sum(count * least for _, count, least in elements)
+    names = ", ".join(f"{count} {name}" for name, count, _ in elements)
+    vertices = next((count for name, count, _ in elements if name == "vertex"), 0)
+    return f"{names} records", need, size - body_start, vertices
+
+
+def _text_lines(head: bytes) -> list[tuple[str, int]]:
+    """The first lines of a text header with the byte offset just after each."""
+    out, pos = [], 0
+    for raw in head.splitlines(keepends=True):
+        pos += len(raw)
+        if raw.endswith((b"\n", b"\r")):
+            out.append((raw.decode("ascii", "replace").strip(), pos))
+    return out
+
+
+def _off_counts(head: bytes, size: int) -> _Found:
+    """OFF: ``nv nf ne`` after the keyword; at least 6 bytes per vertex and 8 per triangle."""
+    lines = [(t, pos) for t, pos in _text_lines(head) if t and not t.startswith("#")]
+    if not lines or not lines[0][0].upper().endswith("OFF"):
+        return None
+    words = lines[0][0].split()[1:] or (lines[1][0].split() if len(lines) > 1 else [])
+    pos = lines[0][1] if len(lines[0][0].split()) > 1 else (lines[1][1] if len(lines) > 1 else size)
+    if len(words) < 2:
+        return None
+    nv, nf = _whole_count(words[0], "OFF vertices"), _whole_count(words[1], "OFF faces")
+    return f"{nv} vertices and {nf} faces", 6 * nv + 8 * nf, size - pos, nv
+
+
+def _stl_counts(head: bytes, size: int) -> _Found:
+    """Binary STL: 50 bytes per triangle after the 84-byte header (text STL: no count)."""
+    if len(head) < 84 or (head.lstrip().startswith(b"solid") and b"facet" in head[:1024]):
+        return None
+    n = int.from_bytes(head[80:84], "little")
+    return f"{n} binary STL triangles", 50 * n, size - 84, 3 * n
+
+
+def _pcd_counts(head: bytes, size: int) -> _Found:
+    """PCD: ``POINTS`` times the bytes of one point (ASCII: 2 per value; compressed: LZF's largest ratio)."""
+    fields: dict[str, list[str]] = {}
+    pos = None
+    for text, after in _text_lines(head):
+        words = text.split()
+        if words and not text.startswith("#"):
+            fields[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                pos = after
+                break
+    if pos is None or "POINTS" not in fields or not fields["POINTS"]:
+        return None
+    n = _whole_count(fields["POINTS"][0], "PCD points")
+    counts = [_whole_count(c, "PCD COUNT") for c in fields.get("COUNT", [])] or [1] * len(fields.get("SIZE", []))
+    sizes = [_whole_count(s, "PCD SIZE") for s in fields.get("SIZE", [])]
+    kind = (fields["DATA"] or ["ascii"])[0].lower()
+    if kind == "ascii":
+        least = 2 * max(1, sum(counts))
+    else:
+        least = max(1, sum(s * c for s, c in zip(sizes, counts)))
+    have = size - pos
+    if kind == "binary_compressed":
+        have *= _LZF_MAX_RATIO
+    return f"{n} points of DATA {kind}", n * least, have, n
+
+
+def _pts_counts(head: bytes, size: int) -> _Found:
+    """PTS: the first line is the point count; each point is a line of at least three values."""
+    lines = _text_lines(head)
+    if not lines or len(lines[0][0].split()) != 1:
+        return None
+    try:
+        n = _whole_count(lines[0][0], "PTS points")
+    except MeshError:
+        return None
+    return f"{n} points", 6 * n, size - lines[0][1], n

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -64,6 +65,11 @@ __all__ = [
     "cast_rays_baseline",
     "RenderCancelled",
     "MAX_TILE_SAMPLES",
+    "BYTES_PER_PIXEL",
+    "BYTES_PER_TRIANGLE",
+    "estimate_peak_bytes",
+    "available_memory_bytes",
+    "check_memory",
 ]
 
 _F32 = np.float32
@@ -638,6 +644,164 @@ def _tile_rngs(settings: RenderSettings, number: int) -> tuple[np.random.Generat
     return tuple(np.random.default_rng([settings.seed, number, stream]) for stream in range(3))
 
 
+# --------------------------------------------------------------------------- memory bound
+#: Peak memory per image pixel of a render and its PNG, above the process's resident size.  Measured
+#: with ``ru_maxrss`` of ``kogei render`` (a 20k-triangle sphere, gradient sky): draft 1000 x 1000 ->
+#: 2000 x 2000 grew 369 -> 748 MiB (132 B/pixel), standard 1000 x 1000 -> 2000 x 1000 grew
+#: 363 -> 495 MiB (138 B/pixel); with ``--xyz`` the same.  The full-size buffers (XYZ, coverage,
+#: refined flags: 17 B) are small beside the float64 intermediates of the colour conversion of the
+#: whole image in ``_display``; the tiles themselves are bounded by ``MAX_TILE_SAMPLES``.
+BYTES_PER_PIXEL = 140
+
+#: Peak memory per scene triangle (ray tracer's BVH, per-triangle normals, tangents and materials):
+#: a 2M-triangle sphere at 64 x 64 pixels peaked 416 MiB above the 20k-triangle one (about 218 B,
+#: some of it the mesh arrays built before rendering).
+BYTES_PER_TRIANGLE = 200
+
+#: Working memory of one tile and the shading tables, whatever the image size (MiB-scale, rounded up).
+_TILE_BYTES = 64 << 20
+
+
+#: Share of the free memory a suggested smaller size may use.
+_SUGGEST_SHARE = 0.8
+
+
+def estimate_peak_bytes(width: int, height: int, n_triangles: int = 0) -> int:
+    """Estimated peak memory of :func:`render` (and writing its PNG) above what the process already holds.
+
+    Parameters
+    ----------
+    width, height
+        Image size in pixels.
+    n_triangles
+        Triangles of all the scene's objects.
+
+    Returns
+    -------
+    int
+        Bytes: ``BYTES_PER_PIXEL`` per pixel, ``BYTES_PER_TRIANGLE`` per
+        triangle and one tile's working memory.
+
+    Examples
+    --------
+    >>> estimate_peak_bytes(8000, 8000) / 1e9 > 8.9
+    True
+    """
+    return int(width) * int(height) * BYTES_PER_PIXEL + int(n_triangles) * BYTES_PER_TRIANGLE + _TILE_BYTES
+
+
+def available_memory_bytes() -> int | None:
+    """Memory available to new allocations of this process.
+
+    The least of the system's available memory, the room left under a
+    cgroup memory limit (containers, batch schedulers) and the room left
+    under the address-space limit (``ulimit -v``).
+
+    Returns
+    -------
+    int or None
+        Bytes; None when none of them can be read.
+    """
+    found = [x for x in (_system_available(), _cgroup_room(), _address_space_room()) if x is not None]
+    return max(0, min(found)) if found else None
+
+
+def _system_available() -> int | None:
+    """``MemAvailable`` of /proc/meminfo, else the free pages (``SC_AVPHYS_PAGES``)."""
+    value = _proc_field("/proc/meminfo", "MemAvailable:")
+    if value is not None:
+        return value
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _proc_field(path: str, key: str) -> int | None:
+    """A ``key: N kB`` field of a /proc file in bytes (None: absent or unreadable)."""
+    try:
+        with open(path, encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _read_int(path: str) -> int | None:
+    """The integer a cgroup file holds (None: absent, ``max`` or unreadable)."""
+    try:
+        with open(path, encoding="ascii") as fh:
+            return int(fh.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def _cgroup_room() -> int | None:
+    """Limit minus usage of this process's cgroup (v2, else v1); None without a limit."""
+    for limit_file, usage_file in (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                                   ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                                    "/sys/fs/cgroup/memory/memory.usage_in_bytes")):
+        limit = _read_int(limit_file)
+        if limit is not None and limit < 1 << 60:        # v1 writes a huge number for "no limit"
+            return limit - (_read_int(usage_file) or 0)
+    return None
+
+
+def _address_space_room() -> int | None:
+    """``RLIMIT_AS`` minus the process's virtual size (None: unlimited)."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError):
+        return None
+    if soft == resource.RLIM_INFINITY:
+        return None
+    return soft - (_proc_field("/proc/self/status", "VmSize:") or 0)
+
+
+def check_memory(width: int, height: int, n_triangles: int = 0, available: int | None = None) -> None:
+    """Refuse a render whose estimated peak memory exceeds the available memory.
+
+    Parameters
+    ----------
+    width, height
+        Image size in pixels.
+    n_triangles
+        Triangles of all the scene's objects.
+    available
+        Bytes available; None: :func:`available_memory_bytes` (when that
+        cannot be known the render is allowed).
+
+    Raises
+    ------
+    RenderInputError
+        One line with the estimate, the memory available and the largest
+        size of the same aspect ratio that fits.
+    """
+    if available is None:
+        available = available_memory_bytes()
+    need = estimate_peak_bytes(width, height, n_triangles)
+    if available is None or need <= available:
+        return
+    room = available - estimate_peak_bytes(0, 0, n_triangles)
+    if room <= 0:
+        raise RenderInputError(
+            f"rendering {n_triangles} triangles needs about {need / 1e9:.1f} GB but only "
+            f"{available / 1e9:.1f} GB of memory is available; simplify the mesh or free memory"
+        )
+    # the suggested size leaves a fifth of the room free: the estimate is a measured mean, and a render that
+    # fills the memory to the last byte would still fail (or swap)
+    f = math.sqrt(_SUGGEST_SHARE * room / BYTES_PER_PIXEL / (width * height))
+    fit_w, fit_h = max(1, int(width * f)), max(1, int(height * f))
+    raise RenderInputError(
+        f"a {width}x{height} render needs about {need / 1e9:.1f} GB of memory but {available / 1e9:.1f} GB "
+        f"is available; render at most {fit_w}x{fit_h} (--size) or free memory"
+    )
+
+
 # --------------------------------------------------------------------------- render
 def render(
     scene: Scene,
@@ -699,6 +863,7 @@ def render(
     (1.0, 255)
     """
     settings = _check_args(scene, camera, settings)
+    check_memory(camera.width, camera.height, sum(o.mesh.n_triangles for o in scene.objects))
     t_start = time.perf_counter()
     prep = _prepare(scene, camera, settings)
     ctx = prep.ctx

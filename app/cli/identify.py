@@ -51,7 +51,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``kogei identify``; returns the exit status."""
+    """Run ``kogei identify``; returns the exit status (running out of memory is a one-line UsageError)."""
+    try:
+        return _identify(args)
+    except MemoryError:
+        raise UsageError(f"{args.result}: not enough memory to identify the materials of this result; "
+                         "free memory or estimate a smaller image") from None
+
+
+def _identify(args: argparse.Namespace) -> int:
+    """Check the options, identify every region and print the reports."""
     for flag, v in (("--noise", args.noise), ("--model-error", args.model_error)):
         if not (np.isfinite(v) and 0 <= v < 1):
             raise UsageError(f"{flag} {v!r}: give a relative level in [0, 1), e.g. 0.01 for 1 %")

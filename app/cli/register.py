@@ -79,7 +79,16 @@ def _check_output(path: str | None, flag: str, suffixes: tuple[str, ...]) -> Pat
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``kogei register``; returns the exit status (an input error for bad input)."""
+    """Run ``kogei register``; returns the exit status (an input error for bad input, or when out of memory)."""
+    try:
+        return _register(args)
+    except MemoryError:
+        raise UsageError("not enough memory to register these clouds; subsample them (or use --preset draft) "
+                         "or free memory") from None
+
+
+def _register(args: argparse.Namespace) -> int:
+    """Read, register and write; the exit status."""
     from processing.geometry.registration import register_passes
 
     out = _check_output(args.out, "--out", WRITABLE)

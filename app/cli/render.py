@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -12,6 +13,7 @@ from app.workflows.scene_spec import (
     CameraSpec,
     ObjectSpec,
     SceneSpec,
+    check_path_text,
     load_scene_file,
     parse_light,
     parse_size,
@@ -23,6 +25,7 @@ __all__ = ["add_parser", "run", "spec_from_args"]
 
 def spec_from_args(args: argparse.Namespace) -> SceneSpec:
     """Scene description from ``kogei render`` flags; flags override a scene file's values."""
+    check_path_text(args.scene, "MESH|SCENE.toml")
     src = Path(args.scene)
     if src.suffix.lower() == ".toml":
         spec = load_scene_file(src)
@@ -34,6 +37,8 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
             raise UsageError(f"{src}: mesh file not found")
         spec = SceneSpec(objects=[ObjectSpec(mesh=src, material=args.material or "gold")])
     if args.weave_angle is not None:
+        if not math.isfinite(args.weave_angle):
+            raise UsageError(f"--weave-angle: expected a finite angle in degrees, got {args.weave_angle}")
         for obj in spec.objects:
             obj.weave_angle_deg = args.weave_angle
     if args.light:
@@ -89,6 +94,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``kogei render``; running out of memory is a one-line :class:`UsageError`, not a traceback."""
+    try:
+        return _render(args)
+    except MemoryError:
+        raise UsageError(f"{args.scene}: not enough memory for this render; use a smaller --size "
+                         "or a simpler mesh, or free memory") from None
+
+
+def _render(args: argparse.Namespace) -> int:
+    """Build the scene, render it and write the PNG (and XYZ TIFF)."""
     from app.workflows.scene_build import build_job
     from render.image_io import write_png, write_xyz_tiff
     from render.renderer import render

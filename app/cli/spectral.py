@@ -120,7 +120,14 @@ def _run_at(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``kogei spectral estimate`` or ``kogei spectral at``; returns the exit status."""
-    if args.spectral_command == "estimate":
-        return _run_estimate(args)
-    return _run_at(args)
+    """Run ``kogei spectral estimate`` or ``kogei spectral at``; returns the exit status.
+
+    Running out of memory is a one-line :class:`UsageError`, not a traceback.
+    """
+    try:
+        if args.spectral_command == "estimate":
+            return _run_estimate(args)
+        return _run_at(args)
+    except MemoryError:
+        raise UsageError(f"not enough memory for 'kogei spectral {args.spectral_command}'; "
+                         "use a smaller image (or --mode bin2x2) or free memory") from None

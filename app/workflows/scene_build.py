@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import UsageError
-from app.workflows.scene_spec import ObjectSpec, SceneSpec
+from app.workflows.scene_spec import ObjectSpec, SceneSpec, check_procedural_args
 from processing.common.rotation import rotation_xyz_deg as rotation_matrix  # about x, then y, then z (degrees)
 
 __all__ = ["RenderJob", "build_job", "object_mesh", "rotation_matrix", "DEFAULT_LIGHT"]
@@ -68,7 +68,8 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
         materials = [obj.material]
     else:
         kind = (obj.procedural or "").lower()
-        args = obj.procedural_args
+        # specs built by the GUI or the demo pass the same checks as a scene file's
+        args = check_procedural_args(kind, obj.procedural_args, f"procedural object {kind}")
         if kind == "hawk":
             from mocks.procedural_hawk import DEFAULT_MATERIALS, hawk_head
 

@@ -25,7 +25,20 @@ __all__ = [
     "parse_size",
     "parse_light",
     "load_scene_file",
+    "MAX_SCENE_BYTES",
+    "check_path_text",
+    "check_procedural_args",
+    "MAX_TRIANGLES",
+    "PROCEDURAL_KEYS",
+    "PRESET_NAMES",
+    "SKY_KINDS",
 ]
+
+#: Render presets a scene file may name (render/presets.py).
+PRESET_NAMES = ("draft", "standard", "reference")
+
+#: Sky kinds (render/scene.py).
+SKY_KINDS = ("uniform", "gradient", "none")
 
 
 @dataclass
@@ -93,8 +106,8 @@ def parse_vector(text: str | list | tuple, name: str) -> tuple[float, float, flo
     >>> parse_vector("1, 2,3", "--eye")
     (1.0, 2.0, 3.0)
     """
-    parts = text.split(",") if isinstance(text, str) else list(text)
     try:
+        parts = text.split(",") if isinstance(text, str) else list(text)
         values = tuple(float(p) for p in parts)
     except (TypeError, ValueError):
         raise UsageError(f"{name}: expected three numbers X,Y,Z, got {text!r}") from None
@@ -154,10 +167,179 @@ def parse_light(text: str) -> LightSpec:
     return LightSpec(kind=kind, vector=vec, spectrum=spectrum or None, intensity=intensity)
 
 
+#: Most triangles a procedural object may ask for: the renderer needs about 0.6 GB for a
+#: 1M-triangle mesh (render/renderer.py), so 10 million is a generous but finite bound.
+MAX_TRIANGLES = 10_000_000
+
+#: Procedural shapes and the keys each takes besides the common ones.
+PROCEDURAL_KEYS = {"hawk": ("triangles",), "sphere": ("radius", "triangles"), "plane": ("size",),
+                   "cloth": ("triangles",)}
+
+
+def _kind(value: Any) -> str:
+    """The TOML name of ``value``'s type, for messages."""
+    if isinstance(value, bool):
+        return "boolean"
+    if isinstance(value, dict):
+        return "table"
+    if isinstance(value, list):
+        return "array"
+    return {int: "integer", float: "float", str: "string"}.get(type(value), type(value).__name__)
+
+
+def _string(table: dict, key: str, where: str, default: Any = None,
+            choices: tuple[str, ...] | None = None) -> Any:
+    """``table[key]`` as a string (``default`` when absent), one of ``choices`` if given."""
+    if key not in table:
+        return default
+    value = table[key]
+    if not isinstance(value, str):
+        expected = f"one of {', '.join(choices)}" if choices else "a string"
+        raise UsageError(f"{where} {key}: expected {expected}, got {value!r} ({_kind(value)})")
+    if choices is not None and value.lower() not in choices:
+        raise UsageError(f"{where} {key}: expected one of {', '.join(choices)}, got {value!r}")
+    return value.lower() if choices is not None else value
+
+
+def _number(table: dict, key: str, where: str, default: float | None, *, low: float | None = None,
+            high: float | None = None, strict: bool = False) -> float | None:
+    """``table[key]`` as a finite float in ``[low, high]`` (``(low, high)`` when ``strict``); ``default`` when absent."""
+    if key not in table:
+        return default
+    value = table[key]
+    rng = _range_text(low, high, strict)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise UsageError(f"{where} {key}: expected a number{rng}, got {value!r} ({_kind(value)})")
+    x = float(value)
+    ok = math.isfinite(x)
+    if ok and low is not None:
+        ok = x > low if strict else x >= low
+    if ok and high is not None:
+        ok = x < high if strict else x <= high
+    if not ok:
+        raise UsageError(f"{where} {key}: expected a finite number{rng}, got {value!r}")
+    return x
+
+
+def _range_text(low: float | None, high: float | None, strict: bool) -> str:
+    """`` > 0``, `` between 0 and 180`` ...: the range part of a message."""
+    if low is not None and high is not None:
+        return f" between {low:g} and {high:g}" + (" (exclusive)" if strict else "")
+    if low is not None:
+        return f" {'>' if strict else '>='} {low:g}"
+    if high is not None:
+        return f" {'<' if strict else '<='} {high:g}"
+    return ""
+
+
+def _whole(table: dict, key: str, where: str, low: int, high: int) -> int | None:
+    """``table[key]`` as a whole number in ``[low, high]`` (None when absent)."""
+    if key not in table:
+        return None
+    value = table[key]
+    if (isinstance(value, bool) or not isinstance(value, (int, float))
+            or (isinstance(value, float) and not (math.isfinite(value) and value.is_integer()))):
+        raise UsageError(f"{where} {key}: expected a whole number from {low} to {high}, "
+                         f"got {value!r} ({_kind(value)})")
+    if not low <= value <= high:
+        raise UsageError(f"{where} {key}: expected a whole number from {low} to {high}, got {value!r}")
+    return int(value)
+
+
+def _vector(table: dict, key: str, where: str, default: Any) -> tuple[float, float, float] | None:
+    """``table[key]`` as three finite numbers (an array ``[x, y, z]``); ``default`` when absent."""
+    if key not in table:
+        return default
+    value = table[key]
+    if (not isinstance(value, list) or len(value) != 3
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
+        raise UsageError(f"{where} {key}: expected an array of three numbers [x, y, z], "
+                         f"got {value!r} ({_kind(value)})")
+    return parse_vector(value, f"{where} {key}")
+
+
+def check_procedural_args(kind: str, args: dict[str, Any], where: str) -> dict[str, Any]:
+    """The checked size arguments of a procedural object (``radius``, ``size`` > 0, ``triangles`` bounded).
+
+    Raises :class:`UsageError` naming ``where`` and the key for a wrong type,
+    a non-finite or non-positive size, a triangle count outside
+    ``1..MAX_TRIANGLES`` or a key the shape does not take.
+
+    Parameters
+    ----------
+    kind
+        The procedural shape: one of :data:`PROCEDURAL_KEYS`.
+    args
+        Its ``radius``, ``size`` and ``triangles`` values as given.
+    where
+        Names the object in messages.
+
+    Returns
+    -------
+    dict
+        ``radius`` and ``size`` as floats, ``triangles`` as an int.
+
+    Examples
+    --------
+    >>> check_procedural_args("sphere", {"radius": 2, "triangles": 500}, "obj")
+    {'radius': 2.0, 'triangles': 500}
+    """
+    allowed = PROCEDURAL_KEYS.get(kind, ())
+    extra = sorted(set(args) - set(allowed))
+    if extra:
+        raise UsageError(f"{where}: a {kind} object takes no {', '.join(extra)} "
+                         f"(it takes {', '.join(allowed) or 'no size keys'})")
+    out: dict[str, Any] = {}
+    for key in ("radius", "size"):
+        if key in args:
+            out[key] = _number(args, key, where, None, low=0.0, strict=True)
+    if "triangles" in args:
+        out["triangles"] = _whole(args, "triangles", where, 1, MAX_TRIANGLES)
+    return out
+
+
+def check_path_text(text: str, where: str) -> None:
+    r"""Refuse a file name the operating system cannot take: empty, with a NUL byte, or too long.
+
+    Parameters
+    ----------
+    text
+        The file path as given.
+    where
+        Names the key or flag in messages.
+
+    Examples
+    --------
+    >>> check_path_text("head.ply", "mesh")
+    >>> check_path_text("a\x00b", "mesh")
+    Traceback (most recent call last):
+    ...
+    app.errors.UsageError: mesh: expected a file path, got 'a\x00b' (it cannot contain a NUL byte)
+    """
+    if not text.strip():
+        raise UsageError(f"{where}: expected a file path, got an empty string")
+    if "\x00" in text:
+        raise UsageError(f"{where}: expected a file path, got {text!r} (it cannot contain a NUL byte)")
+    try:
+        Path(text).exists()
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"{where}: {text[:80]!r} cannot be used as a file path ({exc.__class__.__name__}: "
+                         f"{getattr(exc, 'strerror', None) or exc})") from None
+
+
 def _table(data: dict, key: str, path: Path) -> dict:
     value = data.get(key, {})
     if not isinstance(value, dict):
-        raise UsageError(f"{path}: [{key}] must be a table")
+        raise UsageError(f"{path}: [{key}] must be a table, got {value!r} ({_kind(value)})")
+    return value
+
+
+def _tables(data: dict, key: str, path: Path) -> list[dict]:
+    """``[[key]]``: an array of tables (empty when absent)."""
+    value = data.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise UsageError(f"{path}: [[{key}]] must be an array of tables ([[{key}]] headers), "
+                         f"got {value!r} ({_kind(value)})")
     return value
 
 
@@ -172,7 +354,9 @@ def _check_keys(table: dict, allowed: set[str], where: str) -> None:
 def load_scene_file(path: str | Path) -> SceneSpec:
     """Read a TOML scene file (format in ``docs/scene-file.md``).
 
-    Mesh paths are relative to the scene file's folder.
+    Mesh paths are relative to the scene file's folder.  Every value is
+    checked for its type and range; a wrong one is a :class:`UsageError`
+    naming the file, the table and the key.
     """
     path = Path(path)
     data = _read_toml(path)
@@ -181,14 +365,23 @@ def load_scene_file(path: str | Path) -> SceneSpec:
     _read_render(spec, _table(data, "render", path), path)
     spec.camera = _read_camera(_table(data, "camera", path), path)
     spec.sky = _read_sky(_table(data, "sky", path), path)
-    spec.lights.extend(_read_lights(data.get("light", []), path))
-    spec.objects.extend(_read_objects(data.get("object", []), path))
+    spec.lights.extend(_read_lights(_tables(data, "light", path), path))
+    spec.objects.extend(_read_objects(_tables(data, "object", path), path))
     return spec
 
 
+#: Largest scene file read (a scene is a few hundred bytes; this refuses a disk image or a device).
+MAX_SCENE_BYTES = 1 << 20
+
+
 def _read_toml(path: Path) -> dict[str, Any]:
-    """The scene file's TOML document."""
+    """The scene file's TOML document (a regular file of at most ``MAX_SCENE_BYTES``)."""
     try:
+        if path.exists() and not path.is_file():
+            raise UsageError(f"{path}: not a regular file; give a TOML scene file")
+        if path.exists() and path.stat().st_size > MAX_SCENE_BYTES:
+            raise UsageError(f"{path}: {path.stat().st_size} bytes is too large for a scene file "
+                             f"(at most {MAX_SCENE_BYTES} bytes)")
         return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise UsageError(f"{path}: scene file not found") from None
@@ -200,32 +393,39 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 def _read_render(spec: SceneSpec, render: dict[str, Any], path: Path) -> None:
     """The ``[render]`` table into ``spec``: size, preset, illuminant."""
-    _check_keys(render, {"size", "preset", "illuminant"}, f"{path} [render]")
-    if "size" in render:
-        spec.size = parse_size(render["size"])
-    spec.preset = str(render.get("preset", spec.preset))
-    spec.illuminant = str(render.get("illuminant", spec.illuminant))
+    where = f"{path} [render]"
+    _check_keys(render, {"size", "preset", "illuminant"}, where)
+    size = _string(render, "size", where)
+    if size is not None:
+        try:
+            spec.size = parse_size(size)
+        except UsageError as exc:
+            raise UsageError(f"{where} size: {str(exc).removeprefix('--size: ')}") from None
+    spec.preset = _string(render, "preset", where, spec.preset, PRESET_NAMES)
+    spec.illuminant = _string(render, "illuminant", where, spec.illuminant)
 
 
 def _read_camera(cam: dict[str, Any], path: Path) -> CameraSpec:
     """The ``[camera]`` table."""
-    _check_keys(cam, {"eye", "target", "up", "fov"}, f"{path} [camera]")
+    where = f"{path} [camera]"
+    _check_keys(cam, {"eye", "target", "up", "fov"}, where)
     return CameraSpec(
-        eye=parse_vector(cam["eye"], f"{path} [camera] eye") if "eye" in cam else None,
-        target=parse_vector(cam["target"], f"{path} [camera] target") if "target" in cam else None,
-        up=parse_vector(cam.get("up", (0, 0, 1)), f"{path} [camera] up"),
-        fov_deg=float(cam.get("fov", 35.0)),
+        eye=_vector(cam, "eye", where, None),
+        target=_vector(cam, "target", where, None),
+        up=_vector(cam, "up", where, (0.0, 0.0, 1.0)),
+        fov_deg=_number(cam, "fov", where, 35.0, low=0.0, high=180.0, strict=True),
     )
 
 
 def _read_sky(sky: dict[str, Any], path: Path) -> SkySpec:
     """The ``[sky]`` table."""
-    _check_keys(sky, {"kind", "zenith", "horizon", "spectrum"}, f"{path} [sky]")
+    where = f"{path} [sky]"
+    _check_keys(sky, {"kind", "zenith", "horizon", "spectrum"}, where)
     return SkySpec(
-        kind=str(sky.get("kind", "gradient")),
-        zenith=float(sky.get("zenith", 0.25)),
-        horizon=float(sky.get("horizon", 0.6)),
-        spectrum=sky.get("spectrum"),
+        kind=_string(sky, "kind", where, "gradient", SKY_KINDS),
+        zenith=_number(sky, "zenith", where, 0.25, low=0.0),
+        horizon=_number(sky, "horizon", where, 0.6, low=0.0),
+        spectrum=_string(sky, "spectrum", where),
     )
 
 
@@ -235,18 +435,15 @@ def _read_lights(lights: list[dict[str, Any]], path: Path) -> list[LightSpec]:
     for i, light in enumerate(lights):
         where = f"{path} [[light]] #{i + 1}"
         _check_keys(light, {"kind", "direction", "position", "spectrum", "intensity"}, where)
-        kind = str(light.get("kind", "directional"))
+        kind = _string(light, "kind", where, "directional", ("directional", "point"))
         key = "direction" if kind == "directional" else "position"
         if key not in light:
             raise UsageError(f"{where}: a {kind} light needs '{key}'")
-        out.append(
-            LightSpec(
-                kind=kind,
-                vector=parse_vector(light[key], f"{where} {key}"),
-                spectrum=light.get("spectrum"),
-                intensity=float(light.get("intensity", 1.0)),
-            )
-        )
+        vector = _vector(light, key, where, None)
+        if kind == "directional" and not any(vector):
+            raise UsageError(f"{where} direction: expected a non-zero direction, got {light[key]!r}")
+        out.append(LightSpec(kind=kind, vector=vector, spectrum=_string(light, "spectrum", where),
+                             intensity=_number(light, "intensity", where, 1.0, low=0.0, strict=True)))
     return out
 
 
@@ -254,30 +451,38 @@ def _read_objects(objects: list[dict[str, Any]], path: Path) -> list[ObjectSpec]
     """The ``[[object]]`` tables (at least one); mesh paths relative to the scene file's folder."""
     if not objects:
         raise UsageError(f"{path}: no [[object]] in the scene; add at least one mesh or procedural object")
+    return [_read_object(obj, f"{path} [[object]] #{i + 1}", path) for i, obj in enumerate(objects)]
+
+
+def _read_object(obj: dict[str, Any], where: str, path: Path) -> ObjectSpec:
+    """One ``[[object]]`` table."""
     allowed = {"mesh", "procedural", "material", "materials", "translate", "rotate", "scale",
                "weave_angle", "radius", "size", "triangles"}
-    out = []
-    for i, obj in enumerate(objects):
-        where = f"{path} [[object]] #{i + 1}"
-        _check_keys(obj, allowed, where)
-        if ("mesh" in obj) == ("procedural" in obj):
-            raise UsageError(f"{where}: give exactly one of 'mesh' (a file) or 'procedural' (hawk, sphere, plane, cloth)")
-        mesh = (path.parent / obj["mesh"]) if "mesh" in obj else None
-        proc_args = {k: obj[k] for k in ("radius", "size", "triangles") if k in obj}
-        regions = obj.get("materials", {})
-        if not isinstance(regions, dict):
-            raise UsageError(f"{where}: 'materials' must be a table of region = material")
-        out.append(
-            ObjectSpec(
-                mesh=mesh,
-                procedural=obj.get("procedural"),
-                procedural_args=proc_args,
-                material=str(obj.get("material", "gold")),
-                region_materials={str(k): str(v) for k, v in regions.items()},
-                translate=parse_vector(obj.get("translate", (0, 0, 0)), f"{where} translate"),
-                rotate_deg=parse_vector(obj.get("rotate", (0, 0, 0)), f"{where} rotate"),
-                scale=float(obj.get("scale", 1.0)),
-                weave_angle_deg=(float(obj["weave_angle"]) if "weave_angle" in obj else None),
-            )
-        )
-    return out
+    _check_keys(obj, allowed, where)
+    if ("mesh" in obj) == ("procedural" in obj):
+        raise UsageError(f"{where}: give exactly one of 'mesh' (a file) or 'procedural' (hawk, sphere, plane, cloth)")
+    mesh = _string(obj, "mesh", where)
+    if mesh is not None:
+        check_path_text(mesh, f"{where} mesh")
+    procedural = _string(obj, "procedural", where, None, tuple(PROCEDURAL_KEYS))
+    proc_args = {k: obj[k] for k in ("radius", "size", "triangles") if k in obj}
+    if procedural is not None:
+        proc_args = check_procedural_args(procedural, proc_args, where)
+    elif proc_args:
+        raise UsageError(f"{where}: {', '.join(proc_args)} belong(s) to procedural objects, not to a mesh file")
+    regions = obj.get("materials", {})
+    if not isinstance(regions, dict) or not all(isinstance(v, str) for v in regions.values()):
+        raise UsageError(f"{where} materials: expected a table of region = \"material\" strings, "
+                         f"got {regions!r} ({_kind(regions)})")
+    weave = _number(obj, "weave_angle", where, None)
+    return ObjectSpec(
+        mesh=(path.parent / mesh) if mesh is not None else None,
+        procedural=procedural,
+        procedural_args=proc_args,
+        material=_string(obj, "material", where, "gold"),
+        region_materials={str(k): v for k, v in regions.items()},
+        translate=_vector(obj, "translate", where, (0.0, 0.0, 0.0)),
+        rotate_deg=_vector(obj, "rotate", where, (0.0, 0.0, 0.0)),
+        scale=_number(obj, "scale", where, 1.0, low=0.0, strict=True),
+        weave_angle_deg=weave,
+    )
