@@ -963,7 +963,7 @@ def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.n
                            "'file' and 'sha256'; the session is damaged")
     path = _confined_file(Path(session_root), rec["file"])
     if sha256_file(path) != rec["sha256"]:
-        raise SessionError(f"session {session_root}: {rec['file']} fails its checksum")
+        raise SessionError(f"session {session_root}: {rec['file']} is missing or fails its checksum")
     with np.load(path, allow_pickle=False) as z:
         return {k: z[k] for k in ("angles_deg", "x_mm", "z_mm")}
 
