@@ -51,7 +51,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from app.session import Session, SessionError, utc_now
+from app.session import Session, SessionError, check_regular_file, session_path, utc_now
 from drivers.camera_errors import (
     CameraBadFrameError,
     CameraBusyError,
@@ -961,29 +961,9 @@ def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.n
     if not isinstance(rec, dict) or not isinstance(rec.get("file"), str) or not isinstance(rec.get("sha256"), str):
         raise SessionError(f"session {session_root}: captures[{key!r}] in session.json is not a record with "
                            "'file' and 'sha256'; the session is damaged")
-    path = _confined_file(Path(session_root), rec["file"])
+    path = check_regular_file(session_path(session_root, rec["file"], f"captures.{key}.file"),
+                              f"captures.{key}.file")
     if sha256_file(path) != rec["sha256"]:
         raise SessionError(f"session {session_root}: {rec['file']} is missing or fails its checksum")
     with np.load(path, allow_pickle=False) as z:
         return {k: z[k] for k in ("angles_deg", "x_mm", "z_mm")}
-
-
-def _confined_file(root: Path, rel: str) -> Path:
-    """``root/rel`` if it is a regular file inside ``root`` reached without a symbolic link, else SessionError."""
-    parts = Path(rel).parts
-    if not rel or Path(rel).is_absolute() or ".." in parts or "\x00" in rel:
-        raise SessionError(f"session {root}: file {rel!r} in session.json is not a relative path inside the "
-                           "session (absolute or '..'); the session is damaged or hostile")
-    path = root
-    for i, part in enumerate(parts):
-        path = path / part
-        try:
-            st = path.lstat()
-        except OSError:
-            raise SessionError(f"session {root}: {rel} is missing") from None
-        if stat.S_ISLNK(st.st_mode):
-            raise SessionError(f"session {root}: {Path(*parts[:i + 1]).as_posix()} is a symbolic link; kogei "
-                               "does not follow links inside a session")
-    if not stat.S_ISREG(st.st_mode):
-        raise SessionError(f"session {root}: {rel} is not a regular file")
-    return path
