@@ -324,8 +324,10 @@ class CapturePanel(Panel):
             for name in ("turntable", "profiler"):
                 if self.link.ports.get(name) and name in config:
                     config[name]["port"] = self.link.ports[name]
-            if self.link.camera.get("kind", "none") != "none":
+            chosen = self.link.camera.get("kind", "none") != "none"
+            if chosen:
                 config["camera"] = dict(self.link.camera)
+            _refuse_foreign_commands(session, root, settings, config, camera_chosen=chosen)
             settings["device_config"] = config
             session.update("settings", settings)
             self.set_plan(plan.to_dict())
@@ -572,3 +574,22 @@ class CapturePanel(Panel):
             cal = None
         self._cal_cache = (src, cal)
         return cal
+
+
+def _refuse_foreign_commands(session: Any, root: Path, settings: dict[str, Any], config: dict[str, Any], *,
+                             camera_chosen: bool) -> None:
+    """Close ``session`` and refuse when resuming would run commands stored by another user or machine.
+
+    The window asks before each pass itself, so a stored before-pass hook never runs here; a stored
+    shutter command, gphoto2 program or hot folder would, unless a camera is chosen on the Devices tab.
+    """
+    from app.capture.devices import created_here, stored_commands
+    from app.errors import UsageError
+
+    stored = stored_commands(settings, config, before_pass="(asked by the window)",
+                             camera="(chosen on the Devices tab)" if camera_chosen else None)
+    if stored and not created_here(settings.get("created_by")):
+        session.close()
+        raise UsageError(f"session {root} was created by another user or machine and resuming it would run "
+                         f"its stored {'; '.join(stored)}; choose the camera on the Devices tab, or resume it "
+                         f"from a terminal with 'kogei capture --resume {root} --trust-hooks' after checking them")
