@@ -292,11 +292,15 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return EXIT_CANCELLED
     except ValueError as exc:
+        if isinstance(exc.__cause__, OSError):      # a wire log that cannot be written: a full disk
+            raise _disk_message(session.root, exc.__cause__) from None
         raise UsageError(str(exc)) from None
+    except OSError as exc:
+        raise _disk_message(session.root, exc) from None
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-        _close(session)
+        _close(session, quiet=sys.exc_info()[0] is not None)
     print(f"session {report.session}: complete; {report.taken} captures taken, {report.skipped} already held, "
           f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
     for text in report.warnings:
@@ -308,13 +312,25 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _close(session: Any) -> None:
-    """Close the session; a failure (a full disk) is reported in one line, its journal keeps the captures."""
+def _disk_message(root: Path, exc: OSError) -> Exception:
+    """The one-line "free space / make it writable, then resume" error for ``exc`` while writing ``root``."""
+    from app.session import _disk_error
+
+    return _disk_error(root, f"write {exc.filename or 'a file'}", exc)
+
+
+def _close(session: Any, quiet: bool = False) -> None:
+    """Close the session; a failure (a full disk) is reported in one line, its journal keeps the captures.
+
+    With ``quiet`` (an error is already being reported) a failure to close adds no second line.
+    """
     from app.session import SessionError
 
     try:
         session.close()
     except (SessionError, OSError) as exc:
+        if quiet:
+            return
         print(f"kogei capture: note: {session.root} could not be closed cleanly ({exc}); its journal holds the "
               f"captures: free space, then run kogei capture --resume {session.root}", file=sys.stderr)
 
