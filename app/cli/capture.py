@@ -278,6 +278,7 @@ def run(args: argparse.Namespace) -> int:
     old_int = signal.signal(signal.SIGINT, on_signal)
     old_term = signal.signal(signal.SIGTERM, on_signal)
     hooks = _hooks(session, plan, settings, cancel, args.quiet)
+    reported = False
     try:
         devices = build_devices(settings["device_config"], session.root, _shutter(settings, session.root))
         with _progress(args.quiet) as show:
@@ -285,9 +286,11 @@ def run(args: argparse.Namespace) -> int:
             report = run_capture(session, plan, devices, hooks,
                                  CaptureSettings(reconnect_timeout_s=args.reconnect_timeout))
     except CaptureInterrupted as exc:
+        reported = True                             # its line already says how to resume
         print(f"kogei capture: {exc}", file=sys.stderr)
         return EXIT_CANCELLED if exc.reason == "cancelled" else EXIT_INTERRUPTED
     except KeyboardInterrupt:
+        reported = True
         print(f"kogei capture: stopped; the session is resumable: kogei capture --resume {session.root}",
               file=sys.stderr)
         return EXIT_CANCELLED
@@ -300,7 +303,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGINT, old_int)
         signal.signal(signal.SIGTERM, old_term)
-        _close(session, quiet=sys.exc_info()[0] is not None)
+        closed = _close(session, quiet=reported or sys.exc_info()[0] is not None)
+    if not closed:                                  # a full disk at the end: said in one line; not "complete"
+        return 2
     print(f"session {report.session}: complete; {report.taken} captures taken, {report.skipped} already held, "
           f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
     for text in report.warnings:
@@ -319,10 +324,11 @@ def _disk_message(root: Path, exc: OSError) -> Exception:
     return _disk_error(root, f"write {exc.filename or 'a file'}", exc)
 
 
-def _close(session: Any, quiet: bool = False) -> None:
+def _close(session: Any, quiet: bool = False) -> bool:
     """Close the session; a failure (a full disk) is reported in one line, its journal keeps the captures.
 
     With ``quiet`` (an error is already being reported) a failure to close adds no second line.
+    Returns whether the session was closed cleanly.
     """
     from app.session import SessionError
 
@@ -330,9 +336,13 @@ def _close(session: Any, quiet: bool = False) -> None:
         session.close()
     except (SessionError, OSError) as exc:
         if quiet:
-            return
-        print(f"kogei capture: note: {session.root} could not be closed cleanly ({exc}); its journal holds the "
-              f"captures: free space, then run kogei capture --resume {session.root}", file=sys.stderr)
+            return False
+        reason = exc.strerror if isinstance(exc, OSError) else str(exc).split(": ", 2)[-1].split(";")[0]
+        print(f"kogei capture: session {session.root}: every capture is taken and kept in its journal, but "
+              f"session.json could not be saved ({reason}): free space or make the folder writable, then run "
+              f"'kogei report {session.root}' (or any command on the session) to save it", file=sys.stderr)
+        return False
+    return True
 
 
 class _progress:

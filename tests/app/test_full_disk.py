@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from app.capture.runner import CapturePlan
 from app.cli import main
 from app.session import Session
 from tests.app.batch_session import built_sessions, copy_session
@@ -74,7 +75,7 @@ def _captures(root: Path) -> dict:
 
 
 def _under_fault(monkeypatch, capsys, root: Path, argv: list[str], code: int, after: int, *,
-                 one_line: bool = True, exit_code: int = 2) -> None:
+                 one_line: bool = True, exit_code: int = 2, lines: int = 1) -> None:
     """Run ``argv`` with the fault: one-line message, no traceback, every capture still listed."""
     before = _captures(root)
     capsys.readouterr()
@@ -89,7 +90,7 @@ def _under_fault(monkeypatch, capsys, root: Path, argv: list[str], code: int, af
     assert "Traceback" not in out + err
     assert result == exit_code, err
     if one_line:
-        assert len(err.strip().splitlines()) == 1, err
+        assert len(err.strip().splitlines()) == lines, err
         assert "free space" in err or "writable" in err or "read-only" in err, err
     after_fault = _captures(root)
     assert all(after_fault.get(k) == v for k, v in before.items()), "a capture was lost"
@@ -162,3 +163,25 @@ def test_capture_resume(tmp_path, monkeypatch, capsys, code, after):
     m = Session.read(root)
     assert m["status"] == "complete"
     assert sum(r["kind"] == "profile" for r in m["captures"].values()) == PLAN.steps * PLAN.passes
+
+
+@pytest.mark.parametrize("code,after", [(errno.ENOSPC, 8), (errno.ENOSPC, 16), (errno.EROFS, 12)])
+def test_capture_resume_when_the_disk_fills_mid_pass(tmp_path, monkeypatch, capsys, code, after):
+    # a profile of an 8-step pass fails: the capture's "interrupted" message (the cause, then the resume
+    # command; exit 1 by its own rule) and no further line about closing the session; or every profile is
+    # taken and only the last checkpoint fails: one line saying so, exit 2, and the next command saves it
+    plan = CapturePlan("scan", steps=8, passes=1, camera=False)
+    root = tmp_path / "s"
+    with _station(tmp_path) as st:
+        _interrupted_session(root, plan=plan, config=_config(st))
+        argv = ["capture", "--resume", str(root), "--unattended", "--quiet"]
+        interrupted = after != 16       # the capture's own message: what happened, then how to resume
+        _under_fault(monkeypatch, capsys, root, argv, code, after, exit_code=1 if interrupted else 2,
+                     lines=2 if interrupted else 1)
+        held = _captures(root)
+        if after == 16:                             # every profile taken; only the last checkpoint failed
+            argv = ["report", str(root)]
+        _completes(capsys, root, argv)
+    m = Session.read(root)
+    assert m["status"] == "complete" and sum(r["kind"] == "profile" for r in m["captures"].values()) == 8
+    assert all(_captures(root)[k] == v for k, v in held.items())
