@@ -251,8 +251,13 @@ def _adopt_mesh(session: Any, root: Path, surf: Any) -> Any:
 
     tmp = check_not_symlink(root, ".incoming/mesh.ply", "mesh staging file")
     check_not_symlink(root, MESH, "products.mesh")
-    tmp.parent.mkdir(parents=True, exist_ok=True)
-    write_mesh_ply(tmp, surf.vertices, surf.triangles, surf.vertex_normals)
+    try:
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        write_mesh_ply(tmp, surf.vertices, surf.triangles, surf.vertex_normals)
+    except OSError as exc:                          # a full disk or a read-only folder: one line, resumable
+        from app.session import _disk_error
+
+        raise _disk_error(root, f"write the mesh {MESH}", exc) from None
     return session.adopt_file(tmp, MESH)
 
 

@@ -185,3 +185,30 @@ def test_capture_resume_when_the_disk_fills_mid_pass(tmp_path, monkeypatch, caps
     m = Session.read(root)
     assert m["status"] == "complete" and sum(r["kind"] == "profile" for r in m["captures"].values()) == 8
     assert all(_captures(root)[k] == v for k, v in held.items())
+
+
+@pytest.mark.parametrize("after", [4, 5])
+def test_process_when_fsync_reports_the_full_disk(sessions, tmp_path, monkeypatch, capsys, after):
+    # a network or delayed-allocation filesystem says ENOSPC only at fsync: the mesh's, then the manifest's
+    root = copy_session(sessions.raw, tmp_path / "s")
+    argv = ["process", str(root), "--preset", "draft", "--calibration", str(sessions.cal), "--quiet"]
+    before = _captures(root)
+    left, real_fsync = [after], os.fsync
+
+    def fsync(fd):
+        if left[0] <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        left[0] -= 1
+        return real_fsync(fd)
+
+    capsys.readouterr()
+    monkeypatch.setattr(os, "fsync", fsync)
+    try:
+        code = main(argv)
+    finally:
+        monkeypatch.undo()
+    out, err = capsys.readouterr()
+    assert code == 2 and "Traceback" not in out + err and len(err.strip().splitlines()) == 1, err
+    assert "free space" in err
+    assert all(_captures(root).get(k) == v for k, v in before.items())
+    _completes(capsys, root, argv)
