@@ -77,6 +77,7 @@ __all__ = [
     "JOURNAL",
     "SessionError",
     "SessionLockedError",
+    "disk_error",
     "FileInfo",
     "Session",
     "session_path",
@@ -363,7 +364,7 @@ class Session:
         try:
             self._journal = _open_journal(root)
         except OSError as exc:
-            raise _disk_error(root, f"open {JOURNAL} for writing", exc) from None
+            raise disk_error(root, f"open {JOURNAL} for writing", exc) from None
         self._journal_ops = 0
         self.sync_interval_s = _interval(sync_interval_s, self.SYNC_INTERVAL_S)
         self._unsynced: set[Path] = set()
@@ -375,7 +376,7 @@ class Session:
         try:
             fd = _open_own(root, LOCK, os.O_RDWR | os.O_CREAT)
         except OSError as exc:
-            raise _disk_error(root, f"open {LOCK} for writing", exc) from None
+            raise disk_error(root, f"open {LOCK} for writing", exc) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -444,7 +445,7 @@ class Session:
             return cls(path, manifest, fd, sync_interval_s)
         except OSError as exc:
             os.close(fd)
-            raise _disk_error(path, f"write {MANIFEST}", exc) from None
+            raise disk_error(path, f"write {MANIFEST}", exc) from None
         except BaseException:
             os.close(fd)
             raise
@@ -578,7 +579,7 @@ class Session:
             else:
                 fsync_dir(target.parent)
         except OSError as exc:
-            raise _disk_error(self.root, f"store {rel}", exc) from None
+            raise disk_error(self.root, f"store {rel}", exc) from None
         return FileInfo(rel, digest, size)
 
     def verify_file(self, record: dict[str, Any]) -> str | None:
@@ -662,7 +663,7 @@ class Session:
         try:
             self._sync()
         except OSError as exc:
-            raise _disk_error(self.root, "write its files to disk (fsync)", exc) from None
+            raise disk_error(self.root, "write its files to disk (fsync)", exc) from None
 
     def _sync(self) -> None:
         folders = set()
@@ -694,7 +695,7 @@ class Session:
             self._journal.seek(0)
             os.fsync(self._journal.fileno())
         except OSError as exc:
-            raise _disk_error(self.root, f"save {MANIFEST}", exc) from None
+            raise disk_error(self.root, f"save {MANIFEST}", exc) from None
         self._journal_ops = 0
 
     # ------------------------------------------------------------------ internals
@@ -725,7 +726,7 @@ _READ_ONLY = (errno.EROFS, errno.EACCES, errno.EPERM)
 _FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
-def _disk_error(root: Path, action: str, exc: OSError) -> SessionError:
+def disk_error(root: Path, action: str, exc: OSError) -> SessionError:
     """The one-line message for an ``OSError`` while writing the session: what failed and what to do."""
     reason = exc.strerror or str(exc)
     if exc.errno in _FULL:

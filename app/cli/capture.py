@@ -319,9 +319,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _disk_message(root: Path, exc: OSError) -> Exception:
     """The one-line "free space / make it writable, then resume" error for ``exc`` while writing ``root``."""
-    from app.session import _disk_error
+    from app.session import disk_error
 
-    return _disk_error(root, f"write {exc.filename or 'a file'}", exc)
+    return disk_error(root, f"write {exc.filename or 'a file'}", exc)
 
 
 def _close(session: Any, quiet: bool = False) -> bool:

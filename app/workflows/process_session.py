@@ -255,9 +255,9 @@ def _adopt_mesh(session: Any, root: Path, surf: Any) -> Any:
         tmp.parent.mkdir(parents=True, exist_ok=True)
         write_mesh_ply(tmp, surf.vertices, surf.triangles, surf.vertex_normals)
     except OSError as exc:                          # a full disk or a read-only folder: one line, resumable
-        from app.session import _disk_error
+        from app.session import disk_error
 
-        raise _disk_error(root, f"write the mesh {MESH}", exc) from None
+        raise disk_error(root, f"write the mesh {MESH}", exc) from None
     return session.adopt_file(tmp, MESH)
 
 
