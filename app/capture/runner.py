@@ -484,9 +484,13 @@ class _Runner:
 
     def _note(self, text: str) -> None:
         self.report.recoveries.append(text)
+        self._tell("note", text)
+
+    def _tell(self, event: str, text: str) -> None:
+        """Record ``text`` as a history event (skipped on a full disk: the journal has the rest) and show it."""
         try:
-            self.session.event("note", text)
-        except (SessionError, OSError):   # a full disk: the journal has the rest
+            self.session.event(event, text)
+        except (SessionError, OSError):
             pass
         if self.hooks.message:
             self.hooks.message(text)
@@ -822,12 +826,7 @@ class _Runner:
         text = (f"pass {p}: only {share:.0%} of its {z_mm.shape[0]} profiles saw the laser line; check the "
                 "laser (power, the turntable's laser output, its aim) before the object leaves the table")
         self.report.warnings.append(text)
-        try:
-            self.session.event("warning", text)
-        except (SessionError, OSError):   # a full disk: the journal has the rest
-            pass
-        if self.hooks.message:
-            self.hooks.message(text)
+        self._tell("warning", text)
         if self.hooks.low_return is not None:
             self.hooks.low_return(p, share, text)
 
