@@ -66,6 +66,14 @@ def _create_temp(parent: Path, prefix: str, suffix: str) -> tuple[int, Path]:
     raise FileExistsError(f"no free temporary file name in {parent}")
 
 
+def _parent(target: Path, make_parents: bool) -> Path:
+    """The folder of ``target`` (``.`` for a bare name), created first if ``make_parents``."""
+    parent = target.parent if str(target.parent) else Path(".")
+    if make_parents:
+        parent.mkdir(parents=True, exist_ok=True)
+    return parent
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike[str], *, durable: bool = True, make_parents: bool = True) -> Iterator[Path]:
     """A temporary path beside ``path`` to write by name; renamed over ``path`` when the block ends.
@@ -97,9 +105,7 @@ def atomic_path(path: str | os.PathLike[str], *, durable: bool = True, make_pare
     'done'
     """
     target = Path(path)
-    parent = target.parent if str(target.parent) else Path(".")
-    if make_parents:
-        parent.mkdir(parents=True, exist_ok=True)
+    parent = _parent(target, make_parents)
     fd, tmp = _create_temp(parent, f".{target.name}.", f".tmp{target.suffix}")
     os.close(fd)
     try:
@@ -144,9 +150,7 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes, *, durable: bo
     b'xyz'
     """
     target = Path(path)
-    parent = target.parent if str(target.parent) else Path(".")
-    if make_parents:
-        parent.mkdir(parents=True, exist_ok=True)
+    parent = _parent(target, make_parents)
     fd, tmp = _create_temp(parent, f".{target.name}.", ".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
