@@ -89,8 +89,11 @@ __all__ = [
 ]
 
 SCHEMA = "kogei.session"
-#: Version of the manifest layout; :meth:`Session.open` refuses newer versions.
-SCHEMA_VERSION = 1
+#: Version of the manifest layout; :meth:`Session.open` refuses newer versions and migrates older ones
+#: (version 2 adds ``camera_calibration``, ``lamp_calibration``, ``plan.board``, ``plan.sphere_radius_mm``
+#: and the products ``frame_poses``, ``observations``, ``projection_report``; a version 1 session simply
+#: has no camera poses).
+SCHEMA_VERSION = 2
 MANIFEST = "session.json"
 JOURNAL = "session.journal"
 LOCK = "session.lock"
@@ -429,6 +432,8 @@ class Session:
             "devices": dict(devices or {}),
             "settings": dict(settings or {}),
             "calibration": None,
+            "camera_calibration": None,
+            "lamp_calibration": None,
             "plan": dict(plan),
             "passes": {},
             "state": {},
@@ -794,7 +799,25 @@ def _load_manifest(path: Path) -> dict[str, Any]:
         _check_manifest(manifest)
     except _SchemaError as exc:
         raise SessionError(f"{file}: {exc}; fix that field or restore {MANIFEST} from a backup") from None
+    _migrate(manifest)
     return manifest
+
+
+def _migrate(manifest: dict[str, Any]) -> None:
+    """Bring an older manifest to :data:`SCHEMA_VERSION` in memory (written back at the next checkpoint).
+
+    Version 1 -> 2: the session has no camera or lamp calibration and no
+    posed frames (``camera_calibration`` and ``lamp_calibration`` are null).
+    """
+    version = manifest["version"]
+    if version >= SCHEMA_VERSION:
+        return
+    manifest.setdefault("camera_calibration", None)
+    manifest.setdefault("lamp_calibration", None)
+    manifest["version"] = SCHEMA_VERSION
+    manifest["history"].append({"utc": utc_now(), "event": "migrated",
+                                "detail": f"manifest version {version} -> {SCHEMA_VERSION} "
+                                          "(no camera or lamp calibration: frames are not posed)"})
 
 
 def _replay(manifest: dict[str, Any], journal: Path, *, strict: bool) -> list[str]:
@@ -889,6 +912,13 @@ def _check_plan(plan: Any) -> None:
     _need(isinstance(angles, list) and len(angles) <= 1000 and all(
         isinstance(a, (int, float)) and not isinstance(a, bool) for a in angles),
         "plan.camera_angles_deg", "a list of at most 1000 angles in degrees", angles)
+    if plan.get("board") is not None:
+        board = plan["board"]
+        _need(isinstance(board, dict) and len(board) <= 16, "plan.board", "an object (the ChArUco board)", board)
+    if plan.get("sphere_radius_mm") is not None:
+        r = plan["sphere_radius_mm"]
+        _need(isinstance(r, (int, float)) and not isinstance(r, bool) and 0 < r <= 500, "plan.sphere_radius_mm",
+              "a radius in (0, 500] mm", r)
     lasers = plan.get("lasers", [])
     _need(isinstance(lasers, list) and len(lasers) <= 16 and all(_is_int(i, 0, 255) for i in lasers),
           "plan.lasers", "a list of at most 16 laser numbers", lasers)
@@ -902,7 +932,7 @@ def _check_field(key: str, value: Any) -> None:
         _need(isinstance(value, str), key, "a UTC time as text", value)
     elif key in _DICT_FIELDS:
         _need(isinstance(value, dict), key, "an object", value)
-    elif key == "calibration":
+    elif key in ("calibration", "camera_calibration", "lamp_calibration"):
         _need(value is None or isinstance(value, dict), key, "an object or null", value)
     elif key == "plan":
         _check_plan(value)

@@ -71,6 +71,10 @@ from processing.common.files import sha256_file
 
 __all__ = [
     "PLAN_KINDS",
+    "CAMERA_ONLY_KINDS",
+    "CALIBRATION_KINDS",
+    "DEFAULT_BOARD",
+    "DEFAULT_CAMERA_ANGLES_DEG",
     "CapturePlan",
     "Action",
     "Shooter",
@@ -83,13 +87,25 @@ __all__ = [
     "run_capture",
     "load_pass_profiles",
     "parse_camera_angles",
+    "placement_prompt",
     "open_for_resume",
     "keep_orphans",
     "check_not_linked",
     "MIN_VALID_SHARE",
 ]
 
-PLAN_KINDS = ("scan", "swatch")
+PLAN_KINDS = ("scan", "swatch", "camera-calibration", "lamp-calibration")
+#: Plans that take only RAW frames, one at every step angle of each pass (no profiles).
+CAMERA_ONLY_KINDS = ("swatch", "camera-calibration", "lamp-calibration")
+#: Plans that calibrate the station (no colour chart by default).
+CALIBRATION_KINDS = ("camera-calibration", "lamp-calibration")
+#: The ChArUco board a camera-calibration plan uses unless told otherwise (lengths in mm).
+DEFAULT_BOARD = {"dictionary": "DICT_5X5_100", "squares_x": 9, "squares_y": 6, "square_mm": 15.0, "marker_mm": 11.0}
+#: Table angles of a scan pass's RAW frames: every 30 deg, so a metal's highlights sweep its surface.
+DEFAULT_CAMERA_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 30))
+#: Steps and passes per plan kind when not given.
+_DEFAULT_STEPS = {"scan": 200, "swatch": 200, "camera-calibration": 12, "lamp-calibration": 12}
+_DEFAULT_PASSES = {"scan": 3, "swatch": 1, "camera-calibration": 3, "lamp-calibration": 1}
 #: A pass whose share of profiles with a laser return is below this is suspect (laser never on?).
 MIN_VALID_SHARE = 0.05
 STAGING = ".incoming"
@@ -147,17 +163,24 @@ class CapturePlan:
     Parameters
     ----------
     kind
-        ``"scan"`` (profiles over a revolution plus RAW frames) or
-        ``"swatch"`` (RAW frames at every step angle, no profiles).
+        ``"scan"`` (profiles over a revolution plus RAW frames),
+        ``"swatch"`` (RAW frames at every step angle, no profiles: a cloth
+        swatch), ``"camera-calibration"`` (RAW frames of a ChArUco board at
+        every step angle; one pass per placement of the board, flat or on a
+        wedge) or ``"lamp-calibration"`` (RAW frames of a mirror sphere at
+        every step angle).
     steps
-        Table positions per revolution (equal angles from 0).
+        Table positions per revolution (equal angles from 0); default 200
+        for ``scan`` and ``swatch``, 12 for the calibration plans.
     passes
-        Placements of the object (re-placed by hand between passes).
+        Placements of the object (re-placed by hand between passes);
+        default 3 for ``scan`` and ``camera-calibration``, 1 otherwise.
     camera_angles_deg
         Table angles of the RAW frames of a ``scan`` pass (snapped to the
-        nearest step); ignored for ``swatch``.
+        nearest step; default every 30 deg); ignored by the other kinds.
     chart
-        Shoot the colour-chart frame first in every pass.
+        Shoot the colour-chart frame first in every pass (default: yes,
+        except for the calibration plans).
     lasers
         Turntable laser outputs to switch on while profiling (the laser
         line's power); they are off for every camera frame.
@@ -168,6 +191,13 @@ class CapturePlan:
         for ``swatch``, whose fit is limited by the chart's pixel noise:
         docs/cloth.md; 1 for ``scan``).  One frame has the id ``pNN/chart``; several have
         ``pNN/chart/00``, ``pNN/chart/01``, ...
+    board
+        The ChArUco board of a ``camera-calibration`` plan (dictionary,
+        squares, square and marker sizes in mm; default
+        :data:`DEFAULT_BOARD`), stored with the plan in the session.
+    sphere_radius_mm
+        Radius of a ``lamp-calibration`` plan's mirror sphere (mm), if known
+        when capturing.
 
     Examples
     --------
@@ -181,17 +211,20 @@ class CapturePlan:
     """
 
     kind: str = "scan"
-    steps: int = 200
-    passes: int = 3
-    camera_angles_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
-    chart: bool = True
+    steps: int | None = None
+    passes: int | None = None
+    camera_angles_deg: tuple[float, ...] = DEFAULT_CAMERA_ANGLES_DEG
+    chart: bool | None = None
     lasers: tuple[int, ...] = (1,)
     camera: bool = True
     chart_frames: int | None = None
+    board: dict[str, Any] | None = None
+    sphere_radius_mm: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in PLAN_KINDS:
             raise ValueError(f"plan kind must be one of {', '.join(PLAN_KINDS)}, got {self.kind!r}")
+        self._resolve_defaults()
         if not isinstance(self.steps, int) or isinstance(self.steps, bool) or not 1 <= self.steps <= 100_000:
             raise ValueError(f"steps must be an integer in 1..100000 (table positions per revolution), got {self.steps!r}")
         if not isinstance(self.passes, int) or isinstance(self.passes, bool) or not 1 <= self.passes <= 99:
@@ -201,14 +234,34 @@ class CapturePlan:
             raise ValueError(f"camera angles must be finite degrees, got {self.camera_angles_deg!r}")
         object.__setattr__(self, "camera_angles_deg", angles)
         object.__setattr__(self, "lasers", tuple(int(i) for i in self.lasers))
-        if self.kind == "swatch" and not self.camera:
-            raise ValueError("a swatch plan needs the camera (it takes only RAW frames)")
+        if self.kind in CAMERA_ONLY_KINDS and not self.camera:
+            raise ValueError(f"a {self.kind} plan needs the camera (it takes only RAW frames)")
         if self.chart_frames is None:
             object.__setattr__(self, "chart_frames", 16 if self.kind == "swatch" else 1)
         if not isinstance(self.chart_frames, int) or isinstance(self.chart_frames, bool) or \
                 not 1 <= self.chart_frames <= 99:
             raise ValueError(f"chart_frames must be an integer in 1..99 (chart frames per pass), "
                              f"got {self.chart_frames!r}")
+
+    def _resolve_defaults(self) -> None:
+        """Fill the per-kind defaults and check the calibration plans' own fields."""
+        if self.steps is None:
+            object.__setattr__(self, "steps", _DEFAULT_STEPS[self.kind])
+        if self.passes is None:
+            object.__setattr__(self, "passes", _DEFAULT_PASSES[self.kind])
+        if self.chart is None:
+            object.__setattr__(self, "chart", self.kind not in CALIBRATION_KINDS)
+        if self.kind == "camera-calibration":
+            board = dict(DEFAULT_BOARD if self.board is None else self.board)
+            if set(board) != set(DEFAULT_BOARD):
+                raise ValueError(f"board must have exactly the fields {', '.join(DEFAULT_BOARD)}, got {sorted(board)}")
+            object.__setattr__(self, "board", board)
+        elif self.board is not None:
+            raise ValueError(f"board is for a camera-calibration plan, not {self.kind!r}")
+        r = self.sphere_radius_mm
+        if r is not None and not (isinstance(r, (int, float)) and not isinstance(r, bool)
+                                  and math.isfinite(r) and 0 < r <= 500):
+            raise ValueError(f"sphere_radius_mm must be a radius in (0, 500] mm, got {r!r}")
 
     @property
     def step_deg(self) -> float:
@@ -231,7 +284,7 @@ class CapturePlan:
                 out.append(Action(f"{p}/chart", "chart", pass_no, 0, 0.0))
             else:
                 out += [Action(f"{p}/chart/{k:02d}", "chart", pass_no, k, 0.0) for k in range(self.chart_frames)]
-        if self.kind == "swatch":
+        if self.kind in CAMERA_ONLY_KINDS:
             out += [Action(f"{p}/frame/{i:02d}" if self.steps <= 100 else f"{p}/frame/{i:04d}", "frame",
                            pass_no, i, self.step_angle(i)) for i in range(self.steps)]
             return out
@@ -250,19 +303,45 @@ class CapturePlan:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form (stored in the session manifest's ``plan``)."""
-        return {"kind": self.kind, "steps": self.steps, "passes": self.passes,
-                "camera_angles_deg": list(self.camera_angles_deg), "chart": self.chart,
-                "lasers": list(self.lasers), "camera": self.camera,
-                "chart_frames": self.chart_frames}
+        out = {"kind": self.kind, "steps": self.steps, "passes": self.passes,
+               "camera_angles_deg": list(self.camera_angles_deg), "chart": self.chart,
+               "lasers": list(self.lasers), "camera": self.camera,
+               "chart_frames": self.chart_frames}
+        if self.board is not None:
+            out["board"] = dict(self.board)
+        if self.sphere_radius_mm is not None:
+            out["sphere_radius_mm"] = float(self.sphere_radius_mm)
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CapturePlan:
         """Inverse of :meth:`to_dict`."""
-        known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera", "chart_frames"}
+        known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera", "chart_frames",
+                 "board", "sphere_radius_mm"}
         args = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in known}
         # a manifest written before chart_frames existed was taken with one chart frame per pass
         args.setdefault("chart_frames", 1)
         return cls(**args)
+
+
+def placement_prompt(kind: str, pass_no: int) -> str:
+    """What the technician does before pass ``pass_no`` of a plan of ``kind`` (lower case, no full stop).
+
+    Examples
+    --------
+    >>> placement_prompt("camera-calibration", 1)
+    'lay the ChArUco board flat on the table, near its centre'
+    """
+    p = pass_no
+    if kind == "camera-calibration":
+        return ("lay the ChArUco board flat on the table, near its centre" if p == 1 else
+                "prop the ChArUco board on a wedge facing the camera, at a tilt the passes before did not use")
+    if kind == "lamp-calibration":
+        return "put the mirror sphere on the table, 3-4 cm from its centre, with the lamps as they are for the scans"
+    if kind == "swatch":        # a swatch stays put; a new pass moves the lamp (pass_light_directions)
+        return ("lay the swatch flat on the table centre" if p == 1 else
+                f"move the lamp to the light direction of pass {p} in swatch.json; leave the swatch as it lies")
+    return "place the object on the table" if p == 1 else "re-place the object in a new orientation"
 
 
 # ---------------------------------------------------------------------------- devices and hooks

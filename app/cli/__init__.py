@@ -25,6 +25,7 @@ EXIT_USAGE = 2
 COMMANDS = {
     "render": "render", "materials": "materials", "demo": "demo", "devices": "devices",
     "capture": "capture", "mock": "mock", "calibrate": "calibrate", "process": "process",
+    "project": "project",
     "register": "register", "gui": "gui", "chart": "chart", "batch": "batch", "report": "report",
     "cloth": "cloth", "spectral": "spectral", "identify": "identify",
 }

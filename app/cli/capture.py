@@ -37,12 +37,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--turntable", metavar="PORT", help="turntable serial port (path or pyserial URL)")
     p.add_argument("--laser", metavar="PORT", help="laser profiler serial port")
     p.add_argument("--camera", metavar="SPEC", help="gphoto2, gphoto2:PATH, hotfolder:DIR or none")
-    p.add_argument("--plan", choices=["scan", "swatch"], default="scan",
-                   help="scan: profiles + RAW frames (default); swatch: RAW frames at every step (cloth)")
-    p.add_argument("--steps", type=int, default=None, help="table positions per revolution (default 200)")
-    p.add_argument("--passes", type=int, default=None, help="placements of the object (default 3)")
+    p.add_argument("--plan", choices=["scan", "swatch", "camera-calibration", "lamp-calibration"], default="scan",
+                   help="scan: profiles + RAW frames (default); swatch: RAW frames at every step (cloth); "
+                        "camera-calibration: a ChArUco board at every step, one pass per placement of the board "
+                        "(flat, then on wedges); lamp-calibration: a mirror sphere at every step")
+    p.add_argument("--steps", type=int, default=None,
+                   help="table positions per revolution (default 200; 12 for the calibration plans)")
+    p.add_argument("--passes", type=int, default=None,
+                   help="placements of the object (default 3 for scan and camera-calibration, else 1)")
     p.add_argument("--camera-angles", default=None, metavar="DEG,DEG,...",
-                   help="table angles of the RAW frames of each scan pass (default 0,90,180,270)")
+                   help="table angles of the RAW frames of each scan pass (default every 30 deg: 0,30,...,330)")
+    p.add_argument("--board", default=None, metavar="FILE.json",
+                   help="camera-calibration: the ChArUco board's definition (dictionary, squares_x, squares_y, "
+                        "square_mm, marker_mm); default a 9 x 6 board of 15 mm squares, DICT_5X5_100")
+    p.add_argument("--sphere-radius", type=float, default=None, metavar="MM",
+                   help="lamp-calibration: the mirror sphere's radius (mm), recorded with the plan")
     p.add_argument("--no-chart", action="store_true", help="do not shoot a colour-chart frame first in each pass")
     p.add_argument("--object", default=None, metavar="NAME", help="object name for the session metadata")
     p.add_argument("--notes", default=None, help="free text for the session metadata")
@@ -83,6 +92,24 @@ def _camera_angles(text: str | None) -> tuple[float, ...] | None:
         raise UsageError(str(exc)) from None
 
 
+def _board_file(path: str) -> dict[str, Any]:
+    """The ChArUco board definition in a small JSON file."""
+    import json
+
+    try:
+        with open(path, "rb") as f:
+            blob = f.read(65536)
+        data = json.loads(blob.decode("utf-8"))
+    except OSError as exc:
+        raise UsageError(f"--board {path}: unreadable ({exc.strerror or exc}); give the board's JSON file") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UsageError(f"--board {path}: not JSON ({exc}); give the board's JSON file") from None
+    if not isinstance(data, dict):
+        raise UsageError(f"--board {path}: must hold an object with dictionary, squares_x, squares_y, square_mm, "
+                         "marker_mm")
+    return data
+
+
 def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     from app.capture.devices import check_command, check_device_config, creator_record, parse_camera_spec
     from app.capture.runner import CapturePlan
@@ -95,20 +122,27 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     camera = parse_camera_spec(args.camera)
     if args.plan == "scan" and not args.laser:
         raise UsageError("--laser PORT is required for a scan (the laser profiler's port)")
-    if args.plan == "swatch" and camera["kind"] == "none":
-        raise UsageError("a swatch capture takes only RAW frames: give --camera")
+    if args.plan != "scan" and camera["kind"] == "none":
+        raise UsageError(f"a {args.plan} capture takes only RAW frames: give --camera")
     for name in ("speed", "steps_per_degree", "camera_timeout", "hotfolder_stable", "reconnect_timeout"):
         _positive("--" + name.replace("_", "-"), getattr(args, name))
     angles = _camera_angles(args.camera_angles)
-    kw: dict[str, Any] = {"kind": args.plan, "chart": not args.no_chart, "camera": camera["kind"] != "none"}
+    kw: dict[str, Any] = {"kind": args.plan, "chart": False if args.no_chart else None,
+                          "camera": camera["kind"] != "none"}
     if args.steps is not None:
         kw["steps"] = args.steps
     if args.passes is not None:
         kw["passes"] = args.passes
     if angles is not None:
         kw["camera_angles_deg"] = angles
-    if args.plan == "swatch" and args.passes is None:
-        kw["passes"] = 1
+    if args.board is not None:
+        if args.plan != "camera-calibration":
+            raise UsageError("--board is for --plan camera-calibration")
+        kw["board"] = _board_file(args.board)
+    if args.sphere_radius is not None:
+        if args.plan != "lamp-calibration":
+            raise UsageError("--sphere-radius is for --plan lamp-calibration")
+        kw["sphere_radius_mm"] = args.sphere_radius
     try:
         plan = CapturePlan(**kw)
     except ValueError as exc:
@@ -194,7 +228,7 @@ def _open_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
 
 def _hooks(session: Any, plan: Any, settings: dict[str, Any], cancel: threading.Event, quiet: bool):
     from app.capture.devices import run_hook_command
-    from app.capture.runner import CaptureHooks, CaptureInterrupted
+    from app.capture.runner import CaptureHooks, CaptureInterrupted, placement_prompt
 
     unattended = bool(settings.get("unattended"))
     env = {"KOGEI_SESSION": str(session.root), "KOGEI_PASSES": str(plan.passes)}
@@ -210,10 +244,7 @@ def _hooks(session: Any, plan: Any, settings: dict[str, Any], cancel: threading.
             return
         if unattended:
             return
-        what = "place the object on the table" if p == 1 else "re-place the object in a new orientation"
-        if plan.kind == "swatch":         # a swatch stays put; a new pass moves the lamp (pass_light_directions)
-            what = ("lay the swatch flat on the table centre" if p == 1 else
-                    f"move the lamp to the light direction of pass {p} in swatch.json; leave the swatch as it lies")
+        what = placement_prompt(plan.kind, p)
         chart = " and put the colour chart in view of the camera" if plan.camera and plan.chart else ""
         answer = input(f"\nPass {p} of {passes}: {what}{chart}.\nPress Enter to start, or q and Enter to stop: ")
         if answer.strip().lower().startswith("q"):

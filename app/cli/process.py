@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "projection_line"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -17,6 +17,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", default="standard", choices=["draft", "standard", "reference"])
     p.add_argument("--calibration", default=None, metavar="CAL_SESSION|CAL.json",
                    help="install this scanner calibration into the session first")
+    p.add_argument("--camera-calibration", default=None, metavar="BOARD_SESSION|FILE.json",
+                   help="install this camera calibration first; then every RAW frame is posed on the mesh and "
+                        "projected (products/frame-poses.json, observations.npz, projection-report.json)")
+    p.add_argument("--lamp-calibration", default=None, metavar="LAMP_SESSION|FILE.json",
+                   help="install this lamp calibration first (the observations' light directions)")
+    p.add_argument("--no-project", action="store_true",
+                   help="mesh only: do not pose and project the frames even if the session is camera-calibrated")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--quiet", action="store_true")
 
@@ -28,7 +35,9 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"  {text}", file=sys.stderr)
 
-    report = process_session(args.session, preset=args.preset, calibration=args.calibration, message=message)
+    report = process_session(args.session, preset=args.preset, calibration=args.calibration,
+                             camera_calibration=args.camera_calibration, lamp_calibration=args.lamp_calibration,
+                             project=not args.no_project, message=message)
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
@@ -44,4 +53,16 @@ def run(args: argparse.Namespace) -> int:
     m = report["mesh"]
     print(f"mesh: {m['triangles']} triangles, {'watertight' if m['watertight'] else 'NOT watertight'} -> "
           f"{args.session}/{m['file']} ({report['timings_s']['total']:.1f} s)")
+    proj = report.get("projection")
+    if proj:
+        print(projection_line(args.session, proj))
     return 0
+
+
+def projection_line(session: str, proj: dict) -> str:
+    """One line: frames posed, observations, worst silhouette IoU."""
+    iou = proj.get("iou_min")
+    return (f"frames: {len(proj['frames'])} posed on the mesh, {proj['observations']['count']} observations of "
+            f"{proj['observations']['vertices_seen']} vertices"
+            + ("" if iou is None else f", silhouette IoU >= {iou:.3f}")
+            + f" -> {session}/products/projection-report.json")

@@ -36,7 +36,16 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import Qt, Signal
-from PySide6.QtWidgets import QFileDialog, QHBoxLayout, QLabel, QPushButton, QSplitter, QVBoxLayout, QWidget
+from PySide6.QtWidgets import (
+    QComboBox,
+    QFileDialog,
+    QHBoxLayout,
+    QLabel,
+    QPushButton,
+    QSplitter,
+    QVBoxLayout,
+    QWidget,
+)
 
 from app.gui.figures import HISTOGRAM_BINS, QUALITY_COLOURS, display_image, frame_figure, histogram_figure
 from app.gui.plots import FigureDrawer, PlotImage
@@ -77,15 +86,26 @@ class FrameView:
     outline: np.ndarray | None = None      # (4, 2) the chart's corners in preview pixels
     histogram: np.ndarray | None = None    # (3, 128) pixel counts of the linear signal over HISTOGRAM_BINS
     clipped: float = 0.0                   # fraction of saturated pixels
+    mesh_outlines: list[np.ndarray] | None = None   # the mesh's projected outline, preview pixels
+    posed: str = ""                        # "p01/frame/03: IoU 0.991" for a posed frame
 
 
-def analyse_frame(path: str | Path) -> FrameView:
-    """Decode ``path``, make its preview, find the chart and judge each patch."""
+def analyse_frame(path: str | Path, posed: dict[str, Any] | None = None) -> FrameView:
+    """Decode ``path``, make its preview, find the chart and judge each patch.
+
+    ``posed``: :func:`app.workflows.posed_frames.frame_outline` of the frame
+    (outlines in full-resolution pixels), drawn over the preview.
+    """
     from processing.camera.chart_detection import ChartDetectionError, detect_chart
     from processing.camera.raw_decode import decode_raw, preview_srgb8
 
     raw = decode_raw(path, mode="bin2x2")
     view = FrameView(Path(path), preview_srgb8(raw), raw.rgb, raw.saturated, raw.scale, raw=raw)
+    if posed is not None:
+        view.mesh_outlines = [raw.from_sensor(o) for o in posed["outlines"]]
+        iou = posed.get("iou")
+        view.posed = f"{posed['frame']}: mesh outline, silhouette IoU " + ("not checked" if iou is None else
+                                                                         f"{iou:.3f}")
     view.clipped = float(raw.saturated.mean())
     view.histogram = np.stack([np.histogram(np.clip(raw.rgb[..., c], 0, 1), bins=HISTOGRAM_BINS)[0]
                                for c in range(3)])
@@ -135,10 +155,16 @@ class CameraPanel(Panel):
         self.shoot_button.setShortcut("Ctrl+R")
         self.open_button = QPushButton("Open RAW…")
         self.chart_frame_button = QPushButton("Open the session's chart frame")
+        self.posed_list = QComboBox()
+        self.posed_list.setMinimumContentsLength(14)
+        self.posed_list.setToolTip("the session's frames posed on the mesh (after kogei process with a camera "
+                                   "calibration, or kogei project)")
+        self.posed_button = QPushButton("Show with the mesh outline")
+        self.posed_button.clicked.connect(self.safe(self.open_posed))
         self.shoot_button.clicked.connect(self.safe(self.shoot))
         self.open_button.clicked.connect(self.safe(self._open))
         self.chart_frame_button.clicked.connect(self.safe(self.open_session_chart))
-        for b in (self.shoot_button, self.open_button, self.chart_frame_button):
+        for b in (self.shoot_button, self.open_button, self.chart_frame_button, self.posed_list, self.posed_button):
             row.addWidget(b)
         row.addStretch(1)
         outer.addLayout(row)
@@ -208,6 +234,35 @@ class CameraPanel(Panel):
             raise UsageError(f"session {root} has no chart frame (was the plan's chart option off?)")
         self.open_file(root / charts[-1]["file"])
 
+    def refresh_posed(self) -> list[str]:
+        """Fill the list of the session's posed frames; returns them."""
+        from app.workflows.posed_frames import posed_frame_names
+
+        root = self.session_root()
+        names = [] if root is None or not (root / "session.json").exists() else posed_frame_names(root)
+        current = self.posed_list.currentText()
+        self.posed_list.clear()
+        self.posed_list.addItems(names)
+        if current in names:
+            self.posed_list.setCurrentText(current)
+        return names
+
+    def open_posed(self) -> None:
+        """Open the chosen posed frame with the mesh's outline projected on it (decoded on a worker thread)."""
+        from app.errors import UsageError
+        from app.session import Session
+        from app.workflows.posed_frames import frame_outline
+
+        root = self.session_root()
+        if not self.posed_list.currentText() and not self.refresh_posed():
+            raise UsageError("the session's frames are not posed on the mesh yet: calibrate the camera, then "
+                             "process the session with --camera-calibration (or kogei project)")
+        cid = self.posed_list.currentText()
+        rec = Session.read(root)["captures"][cid]
+        self.state.setText(f"projecting the mesh onto {cid}…")
+        self.lane.run(lambda ctx: analyse_frame(root / rec["file"], frame_outline(root, cid)), "decode",
+                      succeeded=self.show_frame, failed=self._failed)
+
     def _failed(self, text: str, exc: Any) -> None:
         self.state.setText(f"failed: {text}")
         self.error.emit(f"camera: {text}")
@@ -222,8 +277,11 @@ class CameraPanel(Panel):
                      + ", ".join(f"{v} {k}" for k, v in counts.items() if v))
         else:
             title = f"{view.path.name}: no chart found" if view.chart_problem else view.path.name
+        if view.posed:
+            title = view.posed
         self.image_plot.plot(frame_figure, image=display_image(view.preview), size=(w, h), title=title,
-                             outline=view.outline, quads=view.quads, qualities=view.qualities)
+                             outline=view.outline, quads=view.quads, qualities=view.qualities,
+                             mesh_outlines=view.mesh_outlines)
         clipped = view.clipped
         if view.histogram is not None:
             self.hist_plot.plot(histogram_figure, counts=view.histogram, clipped=clipped)

@@ -210,16 +210,20 @@ class CapturePanel(Panel):
         plan = QGroupBox("Scan plan")
         f = QFormLayout(plan)
         self.kind = QComboBox()
-        self.kind.addItems(["scan", "swatch"])
+        self.kind.addItems(["scan", "swatch", "camera-calibration", "lamp-calibration"])
+        self.kind.setToolTip("scan: profiles + RAW frames; swatch: RAW frames of a cloth swatch at every step; "
+                             "camera-calibration: a ChArUco board at every step, flat then on wedges; "
+                             "lamp-calibration: a mirror sphere at every step")
         self.steps = QSpinBox()
         self.steps.setRange(1, 100_000)
         self.steps.setValue(200)
         self.passes = QSpinBox()
         self.passes.setRange(1, 99)
         self.passes.setValue(3)
-        self.camera_angles = QLineEdit("0,90,180,270")
+        self.camera_angles = QLineEdit(",".join(f"{a:g}" for a in range(0, 360, 30)))
         self.chart = QCheckBox("colour chart first in every pass")
         self.chart.setChecked(True)
+        self.kind.currentTextChanged.connect(self._kind_defaults)
         f.addRow("Kind", self.kind)
         f.addRow("Steps per turn", self.steps)
         f.addRow("Passes", self.passes)
@@ -301,6 +305,16 @@ class CapturePanel(Panel):
                            camera_angles_deg=parse_angles(self.camera_angles.text()),
                            chart=self.chart.isChecked(), camera=camera)
 
+    def _kind_defaults(self, kind: str) -> None:
+        """Show a plan kind's defaults (steps, passes, chart) when the technician picks it."""
+        from app.capture.runner import CapturePlan
+
+        plan = CapturePlan(kind)
+        self.steps.setValue(int(plan.steps))
+        self.passes.setValue(int(plan.passes))
+        self.chart.setChecked(bool(plan.chart))
+        self.camera_angles.setEnabled(kind == "scan")
+
     def set_plan(self, plan: dict[str, Any]) -> None:
         """Show a session's plan (an opened session resumes with its own plan)."""
         self.kind.setCurrentText(str(plan.get("kind", "scan")))
@@ -343,8 +357,8 @@ class CapturePanel(Panel):
         problem = self.link.camera_problem()
         if plan.camera and problem:
             raise UsageError(problem)
-        if plan.kind == "swatch" and not plan.camera:
-            raise UsageError("a swatch capture takes only RAW frames: choose a camera on the Devices tab")
+        if plan.kind != "scan" and not plan.camera:
+            raise UsageError(f"a {plan.kind} capture takes only RAW frames: choose a camera on the Devices tab")
         try:
             session = Session.create(root, plan=plan.to_dict(), object_info=self.metadata(),
                                      settings={"unattended": False, "device_config": config, "station": "gui"},
@@ -356,7 +370,13 @@ class CapturePanel(Panel):
     # ------------------------------------------------------------ run
     def start_capture(self) -> None:
         from app.capture.devices import build_devices
-        from app.capture.runner import CaptureHooks, CaptureInterrupted, CaptureSettings, run_capture
+        from app.capture.runner import (
+            CaptureHooks,
+            CaptureInterrupted,
+            CaptureSettings,
+            placement_prompt,
+            run_capture,
+        )
         from app.errors import UsageError
 
         if self.job is not None and not self.job.done:
@@ -378,7 +398,8 @@ class CapturePanel(Panel):
 
         def work(ctx: JobContext) -> Any:
             def before_pass(p: int, n: int) -> None:
-                what = "Place the object on the table" if p == 1 else "Re-place the object in a new orientation"
+                text = placement_prompt(plan.kind, p)
+                what = text[0].upper() + text[1:]
                 chart = " and put the colour chart in view of the camera" if plan.camera and plan.chart else ""
                 if not gate.ask(f"Pass {p} of {n}: {what}{chart}, then press Continue.", ctx.cancel):
                     raise CaptureInterrupted(f"stopped before pass {p}; the session {session.root} is intact and "

@@ -177,16 +177,23 @@ def cloud_figure(fig: Figure, p: int, angles: np.ndarray, x: np.ndarray, z: np.n
 
 def frame_figure(fig: Figure, image: np.ndarray, size: tuple[int, int], title: str,
                  outline: np.ndarray | None = None, quads: np.ndarray | None = None,
-                 qualities: list[str] | None = None) -> None:
+                 qualities: list[str] | None = None, mesh_outlines: list[np.ndarray] | None = None) -> None:
     """A camera frame with the chart's outline and each patch coloured by its quality.
 
     ``image`` may be a subsampled copy (:func:`display_image`) of a preview
-    of ``size`` = (width, height) px; ``outline`` (4, 2) and ``quads``
-    (N, 4, 2) are in that preview's pixels.
+    of ``size`` = (width, height) px; ``outline`` (4, 2), ``quads``
+    (N, 4, 2) and ``mesh_outlines`` (the scanned mesh's outline projected
+    with the calibrated camera, polylines (M, 2)) are in that preview's pixels.
     """
     ax = fig.add_subplot(111)
     w, h = size
     ax.imshow(image, interpolation="nearest", extent=(-0.5, w - 0.5, h - 0.5, -0.5))
+    for k, line in enumerate(mesh_outlines or []):
+        closed = np.vstack([line, line[:1]])
+        ax.plot(closed[:, 0], closed[:, 1], "-", color="#00e5ff", lw=1.0,
+                label="mesh outline (calibrated camera)" if k == 0 else None)
+    if mesh_outlines:
+        ax.legend(loc="lower right", fontsize=7, framealpha=0.7)
     if outline is not None:
         closed = np.vstack([outline, outline[:1]])
         ax.plot(closed[:, 0], closed[:, 1], "-", color="#ffdd00", lw=1.5)

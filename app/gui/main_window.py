@@ -335,6 +335,10 @@ class MainWindow(QMainWindow):
         manifest = self.session.manifest
         if manifest is not None:
             self.capture.set_plan(manifest.get("plan", {}))
+        try:
+            self.camera.refresh_posed()
+        except Exception as exc:  # noqa: BLE001 - a damaged product must not stop the session from opening
+            self.camera.state.setText(f"posed frames not listed: {exc}")
         self.setWindowTitle(f"kogei — capture station — {root}")
 
     def _maybe_refresh_session(self, value: int) -> None:

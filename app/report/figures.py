@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["png_of", "calibration_residuals_figure", "pose_graph_figure", "coverage_figure", "holes_figure",
+__all__ = ["png_of", "calibration_residuals_figure", "frame_residuals_figure", "pose_graph_figure", "coverage_figure", "holes_figure",
            "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure", "region_spectra_figure",
            "material_map_figure"]
 
@@ -60,6 +60,20 @@ def calibration_residuals_figure(step_indices: Sequence[int], step_rms_mm: Seque
     ax.axhline(rms_mm * 1000.0, color="#c0392b", lw=1, ls="--", label=f"overall RMS {rms_mm * 1000:.1f} um")
     ax.set_xlabel("profile step of the sphere scan")
     ax.set_ylabel("sphere residual RMS (um)")
+    ax.legend(loc="upper right", fontsize=8)
+    return png_of(fig)
+
+
+def frame_residuals_figure(names: Sequence[str], rms_px: Sequence[float], overall_px: float) -> bytes:
+    """Reprojection RMS of each calibration frame (board corners), with the overall RMS."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.0, 2.6), constrained_layout=True)
+    x = np.arange(len(names))
+    ax.bar(x, np.asarray(rms_px, dtype=float), width=0.8, color="#4a7ab5")
+    ax.axhline(overall_px, color="#c0392b", lw=1, ls="--", label=f"overall RMS {overall_px:.3f} px")
+    step = max(1, len(names) // 12)
+    ax.set_xticks(x[::step], [str(n).replace("/frame/", " f") for n in names][::step], rotation=60, fontsize=7)
+    ax.set_ylabel("reprojection RMS (px)")
     ax.legend(loc="upper right", fontsize=8)
     return png_of(fig)
 

@@ -30,6 +30,7 @@ from app.report.figures import (
     calibration_residuals_figure,
     coverage_figure,
     data_uri,
+    frame_residuals_figure,
     holes_figure,
     pose_graph_figure,
     timing_figure,
@@ -169,22 +170,31 @@ class _Context:
         doc = json.loads(blob)
         return doc if isinstance(doc, dict) else None
 
-    def calibration(self) -> dict[str, Any] | None:
-        ref = self.manifest.get("calibration")
+    def calibration(self, key: str = "calibration") -> dict[str, Any] | None:
+        """A referenced calibration file's JSON (``calibration``, ``camera_calibration`` or ``lamp_calibration``)."""
+        ref = self.manifest.get(key)
         if not ref:
             return None
         if not isinstance(ref, dict) or not isinstance(ref.get("path"), str):
-            self.problems.append("session.json: calibration is not a record with a 'path'; it is not shown")
+            self.problems.append(f"session.json: {key} is not a record with a 'path'; it is not shown")
             return None
-        blob = self.product_bytes({"file": ref["path"], "sha256": ref.get("sha256")}, "calibration", MAX_JSON_BYTES)
-        return None if blob is None else json.loads(blob)
+        blob = self.product_bytes({"file": ref["path"], "sha256": ref.get("sha256")}, key, MAX_JSON_BYTES)
+        doc = None if blob is None else json.loads(blob)
+        return doc if isinstance(doc, dict) else None
+
+    def product_json(self, key: str) -> dict[str, Any] | None:
+        """A JSON product (``products.<key>``), checked, or None."""
+        blob = self.product_bytes(self.products.get(key), f"products.{key}", MAX_JSON_BYTES)
+        doc = None if blob is None else json.loads(blob)
+        return doc if isinstance(doc, dict) else None
 
 
 #: Expected types of the manifest's top-level fields (a wrong type is listed under "problems found").
 _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "object": (dict,), "devices": (dict,), "settings": (dict,), "plan": (dict,), "passes": (dict,),
     "state": (dict,), "captures": (dict,), "history": (list,), "products": (dict,), "batch": (dict,),
-    "calibration": (dict, type(None)), "status": (str,), "created_utc": (str,), "updated_utc": (str,),
+    "calibration": (dict, type(None)), "camera_calibration": (dict, type(None)),
+    "lamp_calibration": (dict, type(None)), "status": (str,), "created_utc": (str,), "updated_utc": (str,),
 }
 #: The largest pass count the report looks at (a plan is bounded far below this by ``kogei capture``).
 MAX_PASSES = 1000
@@ -333,6 +343,89 @@ def _registration(ctx: _Context, rep: dict[str, Any] | None) -> Section:
                   f"{cons['max_rotation_deg']:.4f} deg, {cons['max_displacement_mm']:.4f} mm")])
     body += _img(pose_graph_figure(passes, pairs), "pose graph", "The pose graph of the passes.")
     return Section("registration", "Registration and pose graph", body, True)
+
+
+def _camera_rows(cam: dict[str, Any]) -> list[tuple[str, Any]]:
+    """Key figures of a camera calibration's JSON."""
+    k = cam.get("K") or [[float("nan")] * 3] * 3
+    stds = cam.get("stds") or {}
+    src = cam.get("source") or {}
+    size = cam.get("image_size") or ["?", "?"]
+    return [("reprojection RMS", f"{cam.get('rms_px', float('nan')):.3f} px"),
+            ("calibrated frame size", f"{size[0]} x {size[1]} px"),
+            ("focal length", f"{k[0][0]:.1f} x {k[1][1]:.1f} px (+- {stds.get('fx_px', float('nan')):.2f} px)"),
+            ("principal point", f"({k[0][2]:.1f}, {k[1][2]:.1f}) px"),
+            ("distortion k1, k2, p1, p2, k3", ", ".join(f"{v:.4g}" for v in cam.get("dist") or [])),
+            ("board frames used / rejected", f"{src.get('frames_used', '?')} / {len(src.get('frames_rejected') or [])}"),
+            ("sphere photos tying the camera to the turntable", src.get("sphere_photos")),
+            ("axis direction +-", f"{stds.get('axis_direction_deg', float('nan')):.4f} deg"),
+            ("rotation about the axis +-", f"{stds.get('gauge_rotation_deg', float('nan')):.4f} deg")]
+
+
+def _lamp_rows(lamps: dict[str, Any]) -> list[list[Any]]:
+    """One row per lamp: kind, where, uncertainty, rays used."""
+    import math as _math
+
+    rows = []
+    for lp in lamps.get("lamps") or []:
+        cov = lp.get("covariance") or [[0.0] * 3] * 3
+        sd = [_math.sqrt(max(float(cov[i][i]), 0.0)) for i in range(3)]
+        if lp.get("kind") == "point":
+            where = "(" + ", ".join(f"{v:.1f}" for v in lp.get("position_mm") or []) + ") mm"
+            unc = "+- (" + ", ".join(f"{v:.1f}" for v in sd) + ") mm"
+        else:
+            where = "toward (" + ", ".join(f"{v:.4f}" for v in lp.get("direction") or []) + ")"
+            unc = f"+- {_math.degrees(max(sd)):.3f} deg"
+        rows.append([lp.get("name"), lp.get("kind"), where, unc, lp.get("n_observations"),
+                     f"{lp.get('rms_deg', float('nan')):.3f} deg", lp.get("spectrum")])
+    return rows
+
+
+def _posed(ctx: _Context) -> Section:
+    """Camera and lamp calibration, and the mesh's outline on every photo with its silhouette IoU."""
+    cam = ctx.calibration("camera_calibration")
+    if cam is None:
+        return Section("posed", "Camera and lamp", _missing(
+            "no camera calibration: the photos are not posed on the mesh",
+            f"kogei calibrate --camera BOARD_SESSION --scanner SPHERE_SESSION; kogei process {ctx.root} "
+            "--camera-calibration BOARD_SESSION --lamp-calibration LAMP_SESSION"), False)
+    body = "<h3>Camera</h3>" + _kv(_camera_rows(cam))
+    views = cam.get("view_rms_px") or {}
+    if views:
+        body += _img(frame_residuals_figure(list(views), list(views.values()), cam.get("rms_px", 0.0)),
+                     "board frame residuals", "Reprojection RMS of each board frame used.")
+    lamps = ctx.calibration("lamp_calibration")
+    body += "<h3>Lamps</h3>" + (_table(["lamp", "kind", "where (table frame)", "uncertainty (1 sigma)", "rays",
+                                        "ray RMS", "spectrum"], _lamp_rows(lamps)) if lamps else
+                                "<p>No lamp calibration: observations have no light directions "
+                                "(<code>kogei calibrate --lamp LAMP_SESSION --camera-calibration BOARD_SESSION</code>)."
+                                "</p>")
+    proj = ctx.product_json("projection_report")
+    if proj is None:
+        body += _missing("the frames are not projected yet", f"kogei project {ctx.root}")
+        return Section("posed", "Camera and lamp", body, True)
+    frames = [f for f in proj.get("frames") or [] if isinstance(f, dict)]
+    obs = proj.get("observations") or {}
+    body += "<h3>Every photo posed on the mesh</h3>" + _kv([
+        ("frames posed", len(frames)), ("lowest silhouette IoU", proj.get("iou_min")),
+        ("mean boundary offset", f"{proj.get('offset_px_mean') or float('nan'):.2f} px"),
+        ("observations", f"{obs.get('count')} of {obs.get('vertices_seen')} / {obs.get('vertices')} vertices seen, "
+                         f"median {obs.get('median_per_seen_vertex')} frames per seen vertex"),
+        ("chart-calibrated passes", ", ".join(str(p) for p in proj.get("chart_calibrated_passes") or []) or "none")])
+    body += _table(["frame", "pass", "table angle", "IoU", "offset (px)"],
+                   [[f.get("frame"), f.get("pass"), f"{f.get('table_angle_deg', 0):.0f} deg",
+                     "-" if f.get("iou") is None else f"{f['iou']:.4f}",
+                     "-" if f.get("offset_px") is None else f"{f['offset_px']:.2f}"] for f in frames])
+    shown = []
+    for f in frames[:: max(1, len(frames) // 6)][:6]:
+        blob = ctx.product_bytes({"file": f.get("overlay")}, "projection overlay") if f.get("overlay") else None
+        if blob is not None:
+            iou = "" if f.get("iou") is None else f", IoU {f['iou']:.3f}"
+            shown.append(_img(blob, f"overlay {f.get('frame')}", f"{f.get('frame')}{iou}"))
+    if shown:
+        body += ("<p>The mesh's outline (cyan) projected with the calibrated camera onto the photos:</p>"
+                 "<div class='row'>" + "".join(shown) + "</div>")
+    return Section("posed", "Camera and lamp", body, True)
 
 
 def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
@@ -571,6 +664,7 @@ def report_sections(session_dir: str | os.PathLike[str]) -> list[Section]:
         ("capture", "Capture log", lambda: _capture_log(ctx)),
         ("calibration", "Scanner calibration", lambda: _calibration(ctx)),
         ("registration", "Registration and pose graph", lambda: _registration(ctx, rep)),
+        ("posed", "Camera and lamp", lambda: _posed(ctx)),
         ("mesh", "Mesh views", lambda: _mesh(ctx, rep)),
         ("coverage", "Coverage and filled holes", lambda: _coverage(ctx, rep)),
         ("chart", "Colour chart", lambda: _chart(ctx)),

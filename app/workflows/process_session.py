@@ -127,7 +127,8 @@ def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[
 
 
 def process_session(session_dir: str | Path, *, preset: str = "standard", calibration: str | Path | None = None,
-                    message: Callable[[str], None] | None = None,
+                    camera_calibration: str | Path | None = None, lamp_calibration: str | Path | None = None,
+                    project: bool = True, message: Callable[[str], None] | None = None,
                     picks: dict[tuple[int, int], tuple[Any, Any]] | None = None) -> dict[str, Any]:
     """Process a captured session into ``products/mesh.ply`` and ``products/process-report.json``.
 
@@ -141,6 +142,13 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
     calibration
         A calibrated session folder or a calibration JSON file to install
         into the session first; default: the session's own.
+    camera_calibration, lamp_calibration
+        A calibrated board / mirror-sphere session (or its JSON file) to
+        install first (:mod:`app.workflows.station_calibration`).
+    project
+        After meshing, pose and project every RAW frame when the session has
+        a camera calibration (:func:`app.workflows.posed_frames.project_session`);
+        its report is under ``"projection"``.
     message
         Called with progress and warnings.
     picks
@@ -172,6 +180,7 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         if calibration is not None:
             install_calibration(session, {**load_calibration_source(calibration),
                                           "installed_from": str(Path(calibration).resolve())})
+        _install_station(session, camera_calibration, lamp_calibration)
         cal = session_calibration(root, manifest)
         timings: dict[str, float] = {}
         t = time.perf_counter()
@@ -194,7 +203,34 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         timings["total"] = time.perf_counter() - t_all
         report = _report(root, preset, manifest, passes, reg, surf, mesh_info, timings)
         _record_products(session, manifest, preset, report, passes, surf, mesh_info)
+        posed = bool(session.manifest.get("camera_calibration"))
+    if project and posed:
+        from app.workflows.posed_frames import project_session
+
+        report["projection"] = project_session(root, message=note)
+    elif project:
+        note("no camera calibration: the RAW frames are not posed on the mesh (kogei calibrate --camera ..., then "
+             "kogei process --camera-calibration BOARD_SESSION)")
     return report
+
+
+def _install_station(session: Any, camera: str | Path | None, lamps: str | Path | None) -> None:
+    """Install a camera and/or lamp calibration (from a calibrated session or its JSON) into ``session``."""
+    from processing.geometry.camera_calibration import CameraCalibration, CameraCalibrationError
+    from processing.geometry.lamp_calibration import LampCalibration, LampCalibrationError
+
+    from app.workflows.station_calibration import install_station_calibration, load_station_source
+
+    for key, source, cls, error in (("camera_calibration", camera, CameraCalibration, CameraCalibrationError),
+                                    ("lamp_calibration", lamps, LampCalibration, LampCalibrationError)):
+        if source is None:
+            continue
+        data = load_station_source(source, key)
+        try:
+            cls.from_dict(data)
+        except error as exc:
+            raise UsageError(f"--{key.replace('_', '-')} {source}: {exc}") from None
+        install_station_calibration(session, key, {**data, "installed_from": str(Path(source).resolve())})
 
 
 def _register(root: Path, usable: list[dict[str, Any]], preset: str,

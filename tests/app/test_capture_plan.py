@@ -82,3 +82,40 @@ def test_swatch_chart_frames_have_their_own_ids():
 def test_bad_chart_frames_are_refused(bad):
     with pytest.raises(ValueError, match="chart_frames"):
         CapturePlan("swatch", chart_frames=bad)
+
+
+# ---------------------------------------------------------------------------- calibration plans
+def test_a_camera_calibration_plan_shoots_the_board_at_twelve_angles_per_placement_without_a_chart():
+    plan = CapturePlan("camera-calibration")
+    assert (plan.steps, plan.passes, plan.chart) == (12, 3, False)
+    frames = [a for a in plan.actions() if a.kind == "frame"]
+    assert len(frames) == 36 and not [a for a in plan.actions() if a.kind != "frame"]
+    assert [a.angle_deg for a in plan.pass_actions(2)] == [30.0 * i for i in range(12)]
+    assert plan.board == {"dictionary": "DICT_5X5_100", "squares_x": 9, "squares_y": 6, "square_mm": 15.0,
+                          "marker_mm": 11.0}
+    # the board travels with the plan into the manifest and back
+    assert CapturePlan.from_dict(plan.to_dict()) == plan
+
+
+def test_a_lamp_calibration_plan_is_one_pass_of_twelve_frames_and_keeps_the_sphere_radius():
+    plan = CapturePlan("lamp-calibration", sphere_radius_mm=20.0)
+    assert (plan.steps, plan.passes, plan.chart) == (12, 1, False)
+    assert [a.id for a in plan.actions()][:2] == ["p01/frame/00", "p01/frame/01"]
+    assert CapturePlan.from_dict(plan.to_dict()).sphere_radius_mm == 20.0
+
+
+def test_a_scan_plan_shoots_frames_every_30_degrees_by_default():
+    plan = CapturePlan("scan", steps=120, passes=1)
+    frames = [a for a in plan.actions() if a.kind == "frame"]
+    assert [a.angle_deg for a in frames] == [30.0 * i for i in range(12)]
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"kind": "camera-calibration", "board": {"squares_x": 9}}, "board must have exactly the fields"),
+    ({"kind": "scan", "board": {"squares_x": 9}}, "board is for a camera-calibration plan"),
+    ({"kind": "lamp-calibration", "sphere_radius_mm": -2.0}, "sphere_radius_mm must be a radius"),
+    ({"kind": "lamp-calibration", "camera": False}, "needs the camera"),
+])
+def test_calibration_plan_fields_are_checked(kw, match):
+    with pytest.raises(ValueError, match=match):
+        CapturePlan(**kw)

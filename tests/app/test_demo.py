@@ -25,7 +25,7 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     summary = json.loads((out / "demo.json").read_text())
     cap = summary["capture"]
     manifest = json.loads((out / "capture" / "session" / "session.json").read_text())
-    assert manifest["status"] == "complete" and cap["captures_taken"] == 2 * (1 + 60 + 4)
+    assert manifest["status"] == "complete" and cap["captures_taken"] == 2 * (1 + 60 + 12)
     assert sum(r["kind"] == "chart" for r in manifest["captures"].values()) == 2
     # single placements have holes (occlusion, specular dropouts) but see the object
     assert all(0.05 < f < 0.95 for f in cap["valid_fraction_per_pass"])
