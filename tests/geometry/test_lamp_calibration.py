@@ -31,6 +31,8 @@ def test_point_lamp_within_2_mm_at_500_mm():
     (lamp,) = cal.lamps
     assert lamp.kind == "point" and lamp.n_observations == 12          # auto chose the point model
     assert np.linalg.norm(lamp.position_mm - POINT) < 2.0
+    err = lamp.position_mm - POINT                                    # the covariance is of the right size
+    assert np.all(np.abs(err) < 5 * np.sqrt(np.diag(lamp.covariance)))
     assert np.all(cal.circle_miss_mm < 0.1)                           # sphere centres on the table's circle
     assert np.all(cal.sphere_rms_px < 0.15) and np.all(cal.ray_miss_deg < 0.1)
 
@@ -46,10 +48,31 @@ def test_distant_lamp_within_0_2_deg():
 def test_two_lamps_both_recovered():
     second = np.array([150.0, -380.0, 300.0])
     scene = Scene(point_lamps=[(POINT, 15.0, 1.3), (second, 15.0, 0.9)])
-    cal = calibrate_lamps(scene.views(ANGLES), K, DIST, scene.room_to_camera, 20.0, model="point")
-    assert len(cal.lamps) == 2
+    cal = calibrate_lamps(scene.views(ANGLES), K, DIST, scene.room_to_camera, 20.0)
+    assert [lp.kind for lp in cal.lamps] == ["point", "point"]
+    assert all(lp.n_observations == 12 for lp in cal.lamps)          # each frame's two highlights split 1 + 1
     found = sorted((lp.position_mm for lp in cal.lamps), key=lambda p: p[0])
     assert np.linalg.norm(found[0] - POINT) < 2.0 and np.linalg.norm(found[1] - second) < 2.0
+
+
+def test_a_point_and_a_distant_lamp_are_told_apart():
+    sun = np.array([0.5, -0.6, 0.6]) / np.linalg.norm([0.5, -0.6, 0.6])
+    scene = Scene(point_lamps=[(POINT, 15.0, 1.3)], distant_lamps=[(sun, 1.0, 1.0)])
+    cal = calibrate_lamps(scene.views(ANGLES), K, DIST, scene.room_to_camera, 20.0)
+    by_kind = {lp.kind: lp for lp in cal.lamps}
+    assert sorted(by_kind) == ["distant", "point"]
+    assert np.linalg.norm(by_kind["point"].position_mm - POINT) < 2.0
+    assert _angle_deg(by_kind["distant"].direction, sun) < 0.2
+
+
+def test_highlights_with_a_mask_are_the_lamp_reflections():
+    scene = Scene(point_lamps=[(POINT, 15.0, 1.3)])
+    img = scene.render(scene.sphere_centre_room(0.0))
+    vv, uu = np.mgrid[0:640, 0:960]
+    mask = (uu - 742.0) ** 2 + (vv - 295.0) ** 2 < 140.0 ** 2
+    (hl,) = find_highlights(img, mask, clip_level=1.0, name="f")
+    bright = np.argwhere(img > 0.5)                                   # the lamp's reflection (backdrop 0.25)
+    assert np.linalg.norm(hl - bright.mean(axis=0)[::-1]) < 1.0
 
 
 def test_round_trip_through_json_and_untrusted_input():
