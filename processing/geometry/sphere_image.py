@@ -168,7 +168,12 @@ def pixel_rays(px: ArrayLike, K: ArrayLike, dist: ArrayLike) -> NDArray[np.float
     """
     p = np.asarray(px, dtype=np.float64).reshape(-1, 1, 2)
     d = None if dist is None else np.asarray(dist, dtype=np.float64)
-    xy = cv2.undistortPoints(p, np.asarray(K, dtype=np.float64), d).reshape(-1, 2)
+    k = np.asarray(K, dtype=np.float64)
+    if d is None or not np.any(d):
+        xy = cv2.undistortPoints(p, k, None).reshape(-1, 2)
+    else:       # iterate to convergence rather than OpenCV's default 5 steps (strong distortion)
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+        xy = cv2.undistortPoints(p, k, d, R=None, P=None, criteria=crit).reshape(-1, 2)
     rays = np.column_stack([xy, np.ones(len(xy))])
     return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 

@@ -64,3 +64,21 @@ def test_saturated_sphere_is_refused():
 def test_fit_refuses_too_few_points():
     with pytest.raises(SphereImageError, match="needs >= 5 outline points"):
         fit_sphere_centre(np.zeros((3, 2)), K, DIST, 20.0)
+
+
+def test_fit_removes_lens_distortion():
+    # outline of a known sphere projected through a distorting lens with OpenCV's own model
+    dist = np.array([-0.25, 0.12, 0.001, -0.0015, 0.0])
+    truth = np.array([-45.0, 30.0, 250.0])
+    axis = truth / np.linalg.norm(truth)
+    half = np.arcsin(20.0 / np.linalg.norm(truth))
+    e1 = np.cross(axis, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    phi = np.linspace(0, 2 * np.pi, 400, endpoint=False)[:, None]
+    rays = np.cos(half) * axis + np.sin(half) * (np.cos(phi) * e1 + np.sin(phi) * e2)
+    px, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, dist)
+    centre, _, rms = fit_sphere_centre(px.reshape(-1, 2), K, dist, 20.0)
+    assert np.linalg.norm(centre - truth) < 1e-4 and rms < 1e-4
+    wrong, _, rms_wrong = fit_sphere_centre(px.reshape(-1, 2), K, DIST, 20.0)   # ignoring the distortion
+    assert np.linalg.norm(wrong - truth) > 0.5 and rms_wrong > 0.1
