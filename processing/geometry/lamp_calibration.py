@@ -15,6 +15,14 @@ residuals of the rays about each model, SS_d and SS_p over n rays, ``F = (SS_d -
 (2 n - 3))`` follows Fisher's F(1, 2n - 3) when the lamp is distant; the lamp is a point when the
 F-test rejects that at the 0.1 % level and the point lies in front of every ray, otherwise distant.
 
+References
+----------
+M. W. Powell, S. Sarkar, D. Goldgof, "A simple strategy for calibrating the geometry of light
+sources", IEEE Trans. Pattern Anal. Mach. Intell. 23(9), 2001 (highlights on spheres, rays
+intersected).  J. Ackermann, S. Fuhrmann, M. Goesele, "Geometric point light source calibration",
+Vision, Modeling and Visualization 2013 (the ray intersection compared with image-space fits).
+(DOIs not verified here, so not given.)
+
 Examples
 --------
 >>> lamp = Lamp("key", "distant", direction=np.array([0, 0, 1.0]), covariance=np.eye(3) * 1e-6)
@@ -173,7 +181,10 @@ class LampCalibration:
             raise LampCalibrationError("lamp calibration 'frames.names' must be a list of strings")
         arrays = [_array(frames.get(k, []), (len(names),), f"frames.{k}")
                   for k in ("sphere_rms_px", "ray_miss_deg", "circle_miss_mm")]
-        return cls([_lamp_from_dict(d, i) for i, d in enumerate(lamps)], radius, names, *arrays)
+        parsed = [_lamp_from_dict(d, i) for i, d in enumerate(lamps)]
+        if len({lp.name for lp in parsed}) != len(parsed):
+            raise LampCalibrationError("lamp calibration: two lamps have the same name; name each lamp once")
+        return cls(parsed, radius, names, *arrays)
 
 
 def _number(v: Any, what: str) -> float:
@@ -210,8 +221,11 @@ def _lamp_from_dict(d: Any, i: int) -> Lamp:
     n_obs = d.get("n_observations", 0)
     if isinstance(n_obs, bool) or not isinstance(n_obs, int) or n_obs < 0:
         raise LampCalibrationError(f"lamp {name!r}: 'n_observations' must be a non-negative integer")
-    return Lamp(name, d["kind"], pos, direction, _array(d.get("covariance"), (3, 3), f"{name}.covariance"),
-                spectrum, n_obs, _number(d.get("rms_deg", 0.0), f"{name}.rms_deg"))
+    cov = _array(d.get("covariance"), (3, 3), f"{name}.covariance")
+    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(cov).max()))) \
+            or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() < -1e-9 * max(1.0, float(np.abs(cov).max())):
+        raise LampCalibrationError(f"lamp {name!r}: 'covariance' must be symmetric positive semi-definite")
+    return Lamp(name, d["kind"], pos, direction, cov, spectrum, n_obs, _number(d.get("rms_deg", 0.0), f"{name}.rms_deg"))
 
 
 # ---------------------------------------------------------------------------- highlights
@@ -329,7 +343,10 @@ def _fit_lamp(p: NDArray[np.float64], r: NDArray[np.float64], model: str, name: 
 def _cluster(r: NDArray[np.float64], view: NDArray[np.int64], n_lamps: int) -> NDArray[np.int64]:
     """Lamp index of each reflected direction: k-means on the unit sphere seeded by a frame with all lamps."""
     counts = np.bincount(view)
-    seed_view = int(np.flatnonzero(counts == n_lamps)[0])
+    if counts.max() < n_lamps:
+        raise LampCalibrationError(f"no frame shows {n_lamps} highlights (at most {counts.max()}); "
+                                   "give the number of lamps the frames show")
+    seed_view = int(np.flatnonzero(counts >= n_lamps)[0])
     centres = r[view == seed_view][:n_lamps]
     label = np.zeros(len(r), dtype=np.int64)
     for _ in range(10):

@@ -84,7 +84,10 @@ def test_round_trip_through_json_and_untrusted_input():
     assert np.allclose(back.lamps[0].position_mm, POINT) and np.allclose(back.lamps[1].direction, DISTANT)
     bad = cal.to_dict()
     bad["lamps"][0]["position_mm"] = [1, 2]
-    for data, msg in ((bad, "key.position_mm"), ({**cal.to_dict(), "version": 9}, "version 9"),
+    twice, skew = cal.to_dict(), cal.to_dict()
+    twice["lamps"][1]["name"] = "key"
+    skew["lamps"][0]["covariance"] = [[1, 2, 0], [0, 1, 0], [0, 0, 1]]
+    for data, msg in ((bad, "key.position_mm"), (twice, "same name"), (skew, "symmetric positive"), ({**cal.to_dict(), "version": 9}, "version 9"),
                       ({**cal.to_dict(), "schema": "x"}, "not a lamp calibration"), ([], "JSON object"),
                       ({**cal.to_dict(), "lamps": []}, "non-empty list")):
         with pytest.raises(LampCalibrationError, match=msg):
@@ -109,6 +112,8 @@ def test_too_few_views_and_missing_sphere_are_refused():
     views = scene.views(ANGLES[:3])
     with pytest.raises(LampCalibrationError, match="at least 3 frames"):
         calibrate_lamps(views[:2], K, DIST, scene.room_to_camera, 20.0)
+    with pytest.raises(LampCalibrationError, match="no frame shows 2 highlights"):
+        calibrate_lamps(views, K, DIST, scene.room_to_camera, 20.0, n_lamps=2)
     views[1] = ("empty.png", 30.0, np.full((640, 960), 0.25))
     with pytest.raises(LampCalibrationError, match="sphere not found in frame empty.png"):
         calibrate_lamps(views, K, DIST, scene.room_to_camera, 20.0)
