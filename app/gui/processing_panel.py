@@ -46,7 +46,7 @@ from app.gui.plots import FigureDrawer
 from app.gui.widgets import Panel, browse_row
 from app.gui.workers import JobContext, Lane, ProcessJob
 
-__all__ = ["ProcessingPanel", "pair_row", "run_processing"]
+__all__ = ["ProcessingPanel", "pair_row", "run_processing", "camera_summary"]
 
 
 def pair_row(pair: dict[str, Any], names: list[str]) -> list[str]:
@@ -62,12 +62,39 @@ def pair_row(pair: dict[str, Any], names: list[str]) -> list[str]:
             "yes" if pair.get("verified") else "NO", str(pair.get("reason", ""))]
 
 
-def run_processing(session: str, preset: str, calibration: str | None, picks: dict | None = None, *,
+def run_processing(session: str, preset: str, calibration: str | None, picks: dict | None = None,
+                   camera_calibration: str | None = None, lamp_calibration: str | None = None, *,
                    message: Callable[[str], None]) -> dict[str, Any]:
     """:func:`app.workflows.process_session.process_session` in a worker process (module-level: picklable)."""
     from app.workflows.process_session import process_session
 
-    return process_session(session, preset=preset, calibration=calibration, message=message, picks=picks)
+    return process_session(session, preset=preset, calibration=calibration, message=message, picks=picks,
+                           camera_calibration=camera_calibration, lamp_calibration=lamp_calibration)
+
+
+def camera_summary(ref: dict[str, Any]) -> str:
+    """One line on a stored camera calibration (its manifest reference).
+
+    Examples
+    --------
+    >>> camera_summary({"rms_px": 0.112, "image_size": [960, 640],
+    ...                 "source": {"frames_used": 30, "frames_rejected": ["a", "b"], "sphere_photos": 4}})
+    'camera: reprojection rms 0.112 px over 30 board frames (2 rejected), 960 x 640 px, tied to the turntable by 4 sphere photos'
+    """
+    src = ref.get("source") or {}
+    size = ref.get("image_size") or ["?", "?"]
+    return (f"camera: reprojection rms {ref['rms_px']:.3f} px over {src.get('frames_used', '?')} board frames "
+            f"({len(src.get('frames_rejected') or [])} rejected), {size[0]} x {size[1]} px, tied to the turntable "
+            f"by {src.get('sphere_photos', '?')} sphere photos")
+
+
+def _projection_text(proj: dict[str, Any] | None) -> str:
+    """The posed-frames part of the summary line."""
+    if not proj:
+        return " · photos not posed (no camera calibration)"
+    iou = proj.get("iou_min")
+    return (f" · {len(proj['frames'])} photos posed on the mesh"
+            + ("" if iou is None else f", silhouette IoU >= {iou:.3f}") + " (Camera tab: Show with the mesh outline)")
 
 
 class ProcessingPanel(Panel):
@@ -108,6 +135,7 @@ class ProcessingPanel(Panel):
         self.cal_state = QLabel("")
         f.addRow(self.cal_state)
         outer.addWidget(cal)
+        outer.addWidget(self._station_box())
 
         run = QGroupBox("Registration and meshing")
         v = QVBoxLayout(run)
@@ -155,6 +183,87 @@ class ProcessingPanel(Panel):
         self.cancel_button.setEnabled(False)
         self.pick_button.setEnabled(False)
 
+    def _station_box(self) -> QGroupBox:
+        """Camera and lamp calibration: sources for processing, and buttons to calibrate from the open session."""
+        box = QGroupBox("Camera and lamps (pose every photo on the mesh)")
+        f = QFormLayout(box)
+        self.camera_cal = QLineEdit()
+        self.camera_cal.setPlaceholderText("a camera-calibrated board session or its camera_calibration.json "
+                                           "(empty: the session's own, if any)")
+        f.addRow("Camera", browse_row(self.camera_cal, lambda: self._browse_into(self.camera_cal)))
+        self.lamp_cal = QLineEdit()
+        self.lamp_cal.setPlaceholderText("a lamp-calibrated mirror-sphere session or its lamp_calibration.json")
+        f.addRow("Lamps", browse_row(self.lamp_cal, lambda: self._browse_into(self.lamp_cal)))
+        row = QHBoxLayout()
+        self.camera_button = QPushButton("Calibrate the camera from the open session (board)")
+        self.camera_button.setToolTip("the open session is a camera-calibration capture; the scanner calibration "
+                                      "above names the sphere session whose photos tie the camera to the turntable")
+        self.lamp_button = QPushButton("Calibrate the lamps from the open session (mirror sphere)")
+        self.camera_button.clicked.connect(self.safe(self.calibrate_camera))
+        self.lamp_button.clicked.connect(self.safe(self.calibrate_lamps))
+        row.addWidget(self.camera_button)
+        row.addWidget(self.lamp_button)
+        row.addStretch(1)
+        f.addRow(row)
+        self.station_state = QLabel("")
+        self.station_state.setWordWrap(True)
+        f.addRow(self.station_state)
+        return box
+
+    def _browse_into(self, field: QLineEdit) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Calibrated session")
+        if path:
+            field.setText(path)
+
+    def calibrate_camera(self) -> None:
+        from app.errors import UsageError
+
+        root = self.session_root()
+        scanner = self.calibration_source()
+        if root is None:
+            raise UsageError("open the camera-calibration (board) session first (Session tab)")
+        if scanner is None or not Path(scanner).is_dir():
+            raise UsageError("name the scanner's sphere session in Scanner calibration above: its photos of the "
+                             "sphere tie the camera to the turntable")
+
+        def work(ctx: JobContext) -> dict[str, Any]:
+            from app.workflows.station_calibration import calibrate_camera_session
+
+            return calibrate_camera_session(root, scanner, message=ctx.message)
+
+        def done(ref: dict[str, Any]) -> None:
+            self.camera_cal.setText(str(root))
+            self.station_state.setText(camera_summary(ref))
+            self.log.emit(self.station_state.text())
+
+        self.station_state.setText("calibrating the camera…")
+        self.lane.run(work, "calibrate camera", succeeded=done,
+                      failed=lambda text, exc: (self.station_state.setText(""), self.error.emit(text)))
+
+    def calibrate_lamps(self) -> None:
+        from app.errors import UsageError
+
+        root = self.session_root()
+        camera = self.camera_cal.text().strip()
+        if root is None:
+            raise UsageError("open the lamp-calibration (mirror sphere) session first (Session tab)")
+        if not camera:
+            raise UsageError("name the calibrated camera (Camera above) first")
+
+        def work(ctx: JobContext) -> dict[str, Any]:
+            from app.workflows.station_calibration import calibrate_lamp_session
+
+            return calibrate_lamp_session(root, camera, message=ctx.message)
+
+        def done(ref: dict[str, Any]) -> None:
+            self.lamp_cal.setText(str(root))
+            self.station_state.setText(f"lamps: {ref['lamps']} located from {root}")
+            self.log.emit(self.station_state.text())
+
+        self.station_state.setText("locating the lamps…")
+        self.lane.run(work, "calibrate lamps", succeeded=done,
+                      failed=lambda text, exc: (self.station_state.setText(""), self.error.emit(text)))
+
     def _browse(self) -> None:
         path = QFileDialog.getExistingDirectory(self, "Calibrated session")
         if path:
@@ -199,6 +308,7 @@ class ProcessingPanel(Panel):
             raise UsageError("processing is already running")
         picks = {k: (list(map(list, a)), list(map(list, b))) for k, (a, b) in self.picks.items()} or None
         self.job = ProcessJob(run_processing, str(root), self.preset.currentText(), self.calibration_source(), picks,
+                              self.camera_cal.text().strip() or None, self.lamp_cal.text().strip() or None,
                               parent=self)
         self.job.message.connect(self._on_message)
         self.job.succeeded.connect(self._on_done)
@@ -261,7 +371,8 @@ class ProcessingPanel(Panel):
              if c else "") +
             f"Mesh: {m['triangles']} triangles, {'watertight' if m['watertight'] else 'NOT watertight'} · "
             f"{report['timings_s']['total']:.1f} s"
-            + (" · a pass was not registered: use the manual 3-point registration" if failed else ""))
+            + (" · a pass was not registered: use the manual 3-point registration" if failed else "")
+            + _projection_text(report.get("projection")))
         self.stage.setText("done")
         self.pick_button.setEnabled(True)
         self.log.emit(f"processed: {self.summary.text()}")
