@@ -409,7 +409,7 @@ def _result(res: Any, prob: FitProblem, views: list[BoardView], size: tuple[int,
         image_size=size, K=k, dist=dist, gauge_to_camera=gauge_transform(p[n:n + 3], p[n + 3]),
         view_rms_px={v.name: float(r) for v, r in zip(views, rms_v)}, rms_px=rms,
         stds={key: float(val) for key, val in stds.items()}, board=dict(board or {}), dropped_views=dropped,
-        gauge_cov=cov[n:n + 4, n:n + 4].copy())
+        gauge_cov=0.5 * (cov[n:n + 4, n:n + 4] + cov[n:n + 4, n:n + 4].T))
 
 
 def _observations(observations: list) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
@@ -519,7 +519,7 @@ def _linked(calib: CameraCalibration, a: NDArray[np.float64], res: Any, room_pts
                     rotation_std_deg=math.degrees(math.sqrt(max(cov[0, 0], 0.0))),
                     height_std_mm=math.sqrt(max(cov[1, 1], 0.0)), residuals_mm=cen - pred, chi2_per_dof=chi2)
     stds = dict(calib.stds, gauge_rotation_deg=link.rotation_std_deg, gauge_height_mm=link.height_std_mm)
-    gcov = cov[2:6, 2:6].copy() if len(res.x) == 6 else calib.gauge_cov
+    gcov = 0.5 * (cov[2:6, 2:6] + cov[2:6, 2:6].T) if len(res.x) == 6 else calib.gauge_cov
     return replace(calib, room_to_camera=r2c, gauge_to_camera=a, gauge_cov=gcov, stds=stds), link
 
 

@@ -132,7 +132,7 @@ def parse_calibration(data: Any) -> dict[str, Any]:
     gcov = None
     if data.get("gauge_cov") is not None:
         gcov = _array(data, "gauge_cov", (4, 4))
-        if not (np.allclose(gcov, gcov.T, rtol=1e-6, atol=1e-12) and np.all(np.diag(gcov) >= 0)):
+        if not (np.allclose(gcov, gcov.T, rtol=1e-6, atol=1e-9 * float(np.abs(gcov).max())) and np.all(np.diag(gcov) >= 0)):
             raise _fail("gauge_cov must be a symmetric 4 x 4 covariance; re-run the calibration")
     return {"gauge_cov": gcov, "image_size": size, "K": k, "dist": dist, "gauge_to_camera": _rigid(data, "gauge_to_camera"),
             "room_to_camera": room, "view_rms_px": _figures(data, "view_rms_px"), "rms_px": float(rms),
