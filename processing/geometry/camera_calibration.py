@@ -444,8 +444,8 @@ def _gauge_params(calib: CameraCalibration) -> tuple[NDArray[np.float64], NDArra
         return q0, None
 
 
-def link_to_room(calib: CameraCalibration, observations: list, sphere_centre_table_mm: ArrayLike,
-                 ) -> tuple[CameraCalibration, RoomLink]:
+def link_to_room(calib: CameraCalibration, observations: list, sphere_centre_table_mm: ArrayLike, *,
+                 update_pose: bool = True) -> tuple[CameraCalibration, RoomLink]:
     """Fix the gauge (rotation about the axis, height along it) with photos of the reference sphere.
 
     Parameters
@@ -458,6 +458,10 @@ def link_to_room(calib: CameraCalibration, observations: list, sphere_centre_tab
     sphere_centre_table_mm
         The sphere centre ``c`` in the room at table angle 0 (the scanner calibration's);
         at angle ``theta`` it is at ``Rz(theta) c``.
+    update_pose
+        Also refine the gauge pose ``A`` (rotation, ``rho``) with the sphere centres, under its
+        covariance from the board fit as a prior (``calib.gauge_cov``); False fits only the two
+        gauge parameters.
 
     Returns
     -------
@@ -486,6 +490,7 @@ def link_to_room(calib: CameraCalibration, observations: list, sphere_centre_tab
     h0 = float((c[2] - g_meas[:, 2]).mean())
     white = np.linalg.inv(np.linalg.cholesky(covs))
     q0, prior = _gauge_params(calib)
+    prior = prior if update_pose else None
     n_a = 0 if prior is None else 4
 
     def fun(q: NDArray[np.float64]) -> NDArray[np.float64]:
