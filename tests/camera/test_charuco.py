@@ -135,3 +135,16 @@ def test_not_an_image():
         detect_board(np.zeros(10), DEFN, name="x")
     with pytest.raises(CharucoError, match="flat"):
         detect_board(np.ones((64, 64)), DEFN, name="x")
+
+
+def test_too_few_corners():
+    # everything but the board's 60 x 40 mm top-left corner (3 x 2 squares) is covered:
+    # truth: 2 inner corners ((20, 20) and (40, 20) mm) are left, fewer than 8
+    btc = _front(500.0)
+    img = render(btc)
+    (x0, y0), (x1, y1) = project(btc, np.array([[0.0, 0.0, 0.0], [60.0, 40.0, 0.0]])).astype(int)
+    covered = np.ones(img.shape, bool)
+    covered[y0:y1, x0:x1] = False
+    img[covered] = img.min()
+    with pytest.raises(CharucoError, match=r"frame hidden: too few board corners \(2 < 8\)"):
+        detect_board(img, DEFN, name="hidden")
