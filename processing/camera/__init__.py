@@ -16,6 +16,8 @@ transfer
     The chart transform M2 from the object camera into the model camera.
 from_chart
     Smooth non-negative sensitivities estimated from a chart of known reflectances.
+charuco
+    ChArUco board definitions and their checked, sub-pixel detection in a linear frame.
 
 The function ``chart_layout`` shares its module's name, so this front door
 does not export it (the package attribute stays the module); use

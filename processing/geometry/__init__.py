@@ -31,6 +31,8 @@ Modules
     Binary PLY output of triangle meshes.
 :mod:`~processing.geometry.surface_distance`
     Two-sided sampled distance between a reconstruction and the truth.
+:mod:`~processing.geometry.camera_calibration`
+    Camera intrinsics and pose relative to the turntable from ChArUco views; link to the room.
 
 The functions :func:`~processing.geometry.mesh_support.mesh_support`,
 :func:`~processing.geometry.mesh_topology.mesh_topology` and
