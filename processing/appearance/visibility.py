@@ -111,12 +111,21 @@ def _candidates(vertices, normals, frame, max_view_deg):
     return ok, uv, to_cam, dist
 
 
-def _unoccluded(scene, centre, to_cam, dist, tol_mm):
+def _unoccluded(scene, centre, to_cam, dist, tol_mm, idx, triangles):
+    """First hit no closer than the vertex (minus ``tol_mm``), or on a triangle of the vertex itself.
+
+    The second case catches grazing rays whose float32 hit on the vertex's own
+    triangle falls short of the vertex by more than the tolerance.
+    """
     rays = np.empty((len(dist), 6), dtype=np.float32)
     rays[:, :3] = centre.astype(np.float32)
     rays[:, 3:] = -to_cam / dist[:, None]
-    t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-    return t_hit >= dist - tol_mm
+    hit = scene.cast_rays(o3d.core.Tensor(rays))
+    t_hit, prim = hit["t_hit"].numpy(), hit["primitive_ids"].numpy()
+    own = np.zeros(len(dist), dtype=bool)
+    finite = np.isfinite(t_hit)
+    own[finite] = np.any(triangles[prim[finite].astype(np.intp)] == idx[finite, None], axis=1)
+    return (t_hit >= dist - tol_mm) | own
 
 
 def visible_vertices(vertices: ArrayLike, triangles: ArrayLike, vertex_normals: ArrayLike, frame_pose: FramePose, *,
@@ -165,8 +174,9 @@ def visible_vertices(vertices: ArrayLike, triangles: ArrayLike, vertex_normals: 
         scene = raycasting_scene(v, triangles)
     ok, uv, to_cam, dist = _candidates(v, n, frame_pose, max_view_deg)
     idx = np.flatnonzero(ok)
-    keep = _unoccluded(scene, frame_pose.camera_centre_mm, to_cam[idx], dist[idx], occlusion_tolerance_mm(v,
-                       occlusion_tol_rel))
+    tol_mm = occlusion_tolerance_mm(v, occlusion_tol_rel)
+    keep = _unoccluded(scene, frame_pose.camera_centre_mm, to_cam[idx], dist[idx], tol_mm, idx,
+                       np.asarray(triangles))
     idx = idx[keep]
     if edge_margin_px > 0 and len(idx):
         b = int(depth_binning)
