@@ -195,8 +195,8 @@ def _pixel_rays_cached(k_bytes: bytes, dist_bytes: bytes, size: tuple[int, int],
     uu, vv = np.meshgrid(np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64))
     pts = np.stack([uu.ravel(), vv.ravel()], axis=1)
     if np.any(dist != 0):
-        ab = cv2.undistortPointsIter(pts.reshape(-1, 1, 2), k, dist, None, None,
-                                     (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9)).reshape(-1, 2)
+        ab = cv2.undistortPoints(pts.reshape(-1, 1, 2), k, dist, None, None, None,
+                                 (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-9)).reshape(-1, 2)
     else:
         ab = np.stack([(pts[:, 0] - k[0, 2]) / k[0, 0], (pts[:, 1] - k[1, 2]) / k[1, 1]], axis=1)
     d = np.concatenate([ab, np.ones((len(ab), 1))], axis=1)
