@@ -119,16 +119,16 @@ def project_points(points: ArrayLike, frame: FramePose) -> tuple[NDArray[np.floa
     m = frame.mesh_to_camera
     x = p @ m[:3, :3].T + m[:3, 3]
     z = x[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a, b = x[:, 0] / z, x[:, 1] / z
     k1, k2, p1, p2, k3 = frame.dist
-    r2 = a * a + b * b
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = a * radial + 2.0 * p1 * a * b + p2 * (r2 + 2.0 * a * a)
-    yd = b * radial + p1 * (r2 + 2.0 * b * b) + 2.0 * p2 * a * b
     k = frame.K
-    uv = np.stack([k[0, 0] * xd + k[0, 2], k[1, 1] * yd + k[1, 2]], axis=1)
-    bad = ~(z > 1e-9) | ~(r2 <= (1.5 ** 2) * _corner_radius2(frame))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        a, b = x[:, 0] / z, x[:, 1] / z
+        r2 = a * a + b * b
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = a * radial + 2.0 * p1 * a * b + p2 * (r2 + 2.0 * a * a)
+        yd = b * radial + p1 * (r2 + 2.0 * b * b) + 2.0 * p2 * a * b
+        uv = np.stack([k[0, 0] * xd + k[0, 2], k[1, 1] * yd + k[1, 2]], axis=1)
+        bad = ~(z > 1e-9) | ~(r2 <= (1.5 ** 2) * _corner_radius2(frame))
     uv[bad] = np.nan
     return uv, z
 

@@ -46,3 +46,10 @@ def test_depth_map_matches_an_analytic_sphere():
     # inscribed facets of a 60-segment sphere lie at most R (1 - cos(3 deg)) = 0.055 mm inside it,
     # so at most 0.055 / cos(incidence) = 0.11 mm along the ray
     assert both.sum() > 3000 and np.abs(depth[both] - (t * d_cam[:, 2].reshape(depth.shape))[both]).max() < 0.12
+
+
+def test_points_behind_or_on_the_camera_plane_get_nan_without_warnings():
+    frame = FramePose("f", 1, 0.0, (240, 160), intrinsics(), np.array([-0.2, 0.05, 0.0, 0.0, 0.0]), np.eye(4))
+    pts = np.array([[0.0, 0.0, 100.0], [1.0, 1.0, 0.0], [0.0, 0.0, 0.0], [5.0, 0.0, -10.0], [1e3, 0.0, 1.0]])
+    uv, depth = project_points(pts, frame)  # RuntimeWarnings are errors under pytest here
+    assert np.all(np.isfinite(uv[0])) and np.all(np.isnan(uv[1:])) and depth.tolist()[3] == -10.0
