@@ -42,7 +42,7 @@ def _look_at(eye, target) -> np.ndarray:
 
 
 def projection_figures(n_frames: int = 24, width: int = 3000, height: int = 2000, resolution: int = 500,
-                       depth_binning: int = 2, edge_margin_px: float = 2.0) -> dict:
+                       depth_binning: int = 2, edge_margin_px: float = 2.0, jitter_mm: float = 0.2) -> dict:
     """Time, ray throughput and peak memory of ``visible_vertices`` over ``n_frames`` frames.
 
     Returns a dict: triangles, vertices, seconds for the scene build and per frame, rays cast
@@ -50,7 +50,7 @@ def projection_figures(n_frames: int = 24, width: int = 3000, height: int = 2000
     """
     sphere = o3d.geometry.TriangleMesh.create_sphere(100.0, resolution=resolution).translate([0, 0, 110.0])
     v = np.asarray(sphere.vertices)
-    v += np.random.default_rng(0).normal(0, 0.2, v.shape)
+    v += np.random.default_rng(0).normal(0, jitter_mm, v.shape)
     sphere.vertices = o3d.utility.Vector3dVector(v)
     sphere.compute_vertex_normals()
     t0 = time.perf_counter()
@@ -85,9 +85,11 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--depth-binning", type=int, default=2)
+    ap.add_argument("--jitter-mm", type=float, default=0.2)
     ap.add_argument("--resolution", type=int, default=500, help="Open3D sphere resolution (500: ~1M triangles)")
     args = ap.parse_args(argv)
-    print(json.dumps(projection_figures(args.frames, resolution=args.resolution, depth_binning=args.depth_binning)))
+    print(json.dumps(projection_figures(args.frames, resolution=args.resolution, depth_binning=args.depth_binning,
+                                          jitter_mm=args.jitter_mm)))
 
 
 if __name__ == "__main__":
