@@ -27,7 +27,7 @@ from processing.appearance.frame_poses import FramePose
 from processing.appearance.projection import mesh_arrays, raycasting_scene
 from processing.appearance.visibility import visible_vertices
 
-__all__ = ["projection_figures", "main"]
+__all__ = ["projection_figures", "observe_figures", "main"]
 
 
 def _look_at(eye, target) -> np.ndarray:
@@ -81,13 +81,55 @@ def projection_figures(n_frames: int = 24, width: int = 3000, height: int = 2000
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
 
 
+class _LazyImages:
+    """``images[k]``: a 3-channel float32 image made on demand (a smooth gradient), one at a time."""
+
+    def __init__(self, n: int, width: int, height: int) -> None:
+        self.n, self.width, self.height = n, width, height
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        u = np.linspace(0.1, 0.9, self.width, dtype=np.float32)
+        v = np.linspace(0.2, 0.6, self.height, dtype=np.float32)[:, None]
+        return np.stack(np.broadcast_arrays(u + 0 * v, v + 0 * u, (u * v + 0.01 * k).astype(np.float32)), -1)
+
+
+def observe_figures(n_frames: int = 24, width: int = 3000, height: int = 2000, resolution: int = 500) -> dict:
+    """Time and peak memory of :func:`~processing.appearance.observations.observe` with lazily made images."""
+    from processing.appearance.observations import observe
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(100.0, resolution=resolution).translate([0, 0, 110.0])
+    sphere.compute_vertex_normals()
+    fx = (width / 2) / math.tan(math.radians(25.0) / 2)
+    k = np.array([[fx, 0, width / 2 - 0.5], [0, fx, height / 2 - 0.5], [0, 0, 1.0]])
+    room_to_camera = _look_at(np.array([600.0, 0.0, 300.0]), [0.0, 0.0, 110.0])
+    lamps = [{"name": "key", "position_mm": [300.0, 400.0, 600.0]}, {"name": "fill", "direction": [0.0, -0.6, 0.8]}]
+    frames = [FramePose.from_chain(f"f{i}", 1, room_to_camera, 360.0 * i / n_frames, np.eye(4), k, np.zeros(5),
+                                   (width, height), lamps) for i in range(n_frames)]
+    t = time.perf_counter()
+    obs = observe(frames, sphere, _LazyImages(n_frames, width, height), noise=[1e-5, 1e-3], clip_level=0.95)
+    total = time.perf_counter() - t
+    return {"frames": n_frames, "observations": len(obs), "total_s": round(total, 2),
+            "per_frame_s": round(total / n_frames, 3),
+            "observation_mb": round(sum(getattr(obs, a).nbytes for a in ("offsets", "vertex", "frame", "uv_px",
+                                    "signal", "sigma", "clipped", "normal", "view_dir", "light_dir",
+                                    "half_angle_deg", "distance_mm")) / 2**20, 1),
+            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--depth-binning", type=int, default=2)
+    ap.add_argument("--observe", action="store_true", help="measure observe() instead of visibility alone")
     ap.add_argument("--jitter-mm", type=float, default=0.2)
     ap.add_argument("--resolution", type=int, default=500, help="Open3D sphere resolution (500: ~1M triangles)")
     args = ap.parse_args(argv)
+    if args.observe:
+        print(json.dumps(observe_figures(args.frames, resolution=args.resolution)))
+        return
     print(json.dumps(projection_figures(args.frames, resolution=args.resolution, depth_binning=args.depth_binning,
                                           jitter_mm=args.jitter_mm)))
 

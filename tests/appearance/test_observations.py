@@ -207,3 +207,12 @@ def test_bad_inputs_to_observe(setup):
         observe(frames[:1], sphere, [images[0][:10]], noise=[0, 1e-3], clip_level=1.0)
     with pytest.raises(AppearanceError, match="noise"):
         observe(frames, sphere, images, noise=[[0, 1]] * 3, clip_level=1.0)
+
+
+def test_non_finite_pixels_where_the_mesh_is_seen_are_refused(setup):
+    sphere, frames, images, obs = setup
+    bad = images[0].copy()
+    u, v = obs.uv_px[obs.frame == 0][0]
+    bad[int(round(v)), int(round(u)), 2] = np.nan
+    with pytest.raises(AppearanceError, match="IMG_0.*NaN"):
+        observe(frames[:1], sphere, [bad], noise=[0, 1e-3], clip_level=4.0)
