@@ -229,7 +229,8 @@ def observe(frames: Sequence[FramePose], mesh: Any, images: Sequence[Any], *, no
     frames
         The frames' poses (all with the same lamps, in the same order).
     mesh
-        Open3D ``TriangleMesh`` or ``(vertices, triangles[, normals])`` in M.
+        Open3D ``TriangleMesh`` or ``(vertices, triangles[, normals])`` in M; its
+        vertex normals (outward) are used when present, else computed by Open3D.
     images
         ``images[k]``: float ``(H, W, C)`` linear, chart-calibrated image of
         ``frames[k]`` (read one at a time, so a lazy sequence keeps memory low).
