@@ -24,8 +24,13 @@ __all__ = ["simulated_capture", "profiles_figure"]
 
 
 def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: str = "gphoto2",
-                      triangles: int = 20_000, seed: int = 1, process_preset: str | None = "standard") -> dict[str, Any]:
+                      triangles: int = 20_000, seed: int = 1, process_preset: str | None = "standard",
+                      pose_frames: bool = True) -> dict[str, Any]:
     """Calibrate the simulated scanner, capture a session of the procedural hawk into ``out``, process it.
+
+    With ``pose_frames`` (and a camera) the camera and the lamp are calibrated
+    first (:func:`app.demo.station.calibrate_station`) and processing poses every
+    RAW frame on the mesh.
 
     Returns
     -------
@@ -47,11 +52,27 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     for d in (session_dir, cal_dir):
         if d.exists():
             shutil.rmtree(d)
+    from app.demo.station import CAMERA_SIZE, FRAME_BINNING, calibrate_station
+
     t0 = time.perf_counter()
-    calibration = _calibration_scan(out, cal_dir, seed)
+    pose_frames = pose_frames and camera != "none"
+    calibration = _calibration_scan(out, cal_dir, seed, camera=pose_frames)
     print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
+    station = calibrate_station(out, cal_dir, seed=seed) if pose_frames else None
+    if station is not None:
+        cam, err = station["camera"], station["camera"]["error_vs_truth"]
+        print(f"camera: reprojection rms {cam['rms_px']:.3f} px from {cam['frames_used']} board frames; vs the "
+              f"simulation's truth focal {err['focal_pct']:+.3f} %, pose {err['rotation_deg']:.4f} deg / "
+              f"{err['translation_mm']:.3f} mm", file=sys.stderr)
+        for e in station["lamps"]["error_vs_truth"]:
+            what = (f"direction {e['direction_error_deg']:.3f} deg" if "direction_error_deg" in e else
+                    f"position {e['position_error_mm']:.2f} mm" if "position_error_mm" in e else
+                    f"kind {e['kind']} (truth {e.get('truth_kind')})")
+            print(f"lamp {e['lamp']} ({e['kind']}): vs the simulation's truth {what}", file=sys.stderr)
     plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none")
-    with SimulatedStation(World.hawk(triangles, width=240, height=160, chart_layout="classic24"), root=out / "station", seed=seed) as st:
+    size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
+    with SimulatedStation(World.hawk(triangles, chart_layout="classic24", **size), root=out / "station",
+                          seed=seed) as st:
         config: dict[str, Any] = {"turntable": {"port": str(st.turntable_path)},
                                   "profiler": {"port": str(st.profiler_path)}}
         if camera == "gphoto2":
@@ -95,15 +116,16 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
         "valid_fraction_per_pass": [round(float(np.isfinite(p["z_mm"]).mean()), 4) for p in profiles],
         "figure": "capture-profiles.png",
         "calibration": calibration,
+        "station": station,
         "simulation_truth": truth,
     }
     if process_preset:
-        summary["process"] = _process(session_dir, cal_dir, process_preset, truth)
+        summary["process"] = _process(session_dir, cal_dir, process_preset, truth, station)
     return summary
 
 
-def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
-    """Scan the reference sphere (one pass, no camera) and calibrate the scanner from it."""
+def _calibration_scan(out: Path, cal_dir: Path, seed: int, *, camera: bool = False) -> dict[str, Any]:
+    """Scan the reference sphere (one pass; with ``camera``, RAW frames of it too) and calibrate the scanner."""
     from app.capture.devices import build_devices
     from app.capture.runner import CaptureHooks, CapturePlan, run_capture
     from app.session import Session
@@ -111,9 +133,16 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
     from mocks.station import SimulatedStation
     from mocks.world import World
 
-    plan = CapturePlan("scan", steps=90, passes=1, camera=False)
-    with SimulatedStation(World.calibration_sphere(25.0, 60.0), root=out / "station-calibration", seed=seed) as st:
-        config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
+    from app.demo.station import CAMERA_SIZE, FRAME_BINNING
+
+    plan = CapturePlan("scan", steps=90, passes=1, camera=camera, chart=False)
+    size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
+    with SimulatedStation(World.calibration_sphere(25.0, 60.0, **size), root=out / "station-calibration",
+                          seed=seed) as st:
+        config: dict[str, Any] = {"turntable": {"port": str(st.turntable_path)},
+                                  "profiler": {"port": str(st.profiler_path)}}
+        if camera:
+            config["camera"] = {"kind": "gphoto2", "executable": str(st.gphoto2_path)}
         session = Session.create(cal_dir, plan=plan.to_dict(), object_info={"name": "reference sphere, r = 25 mm"},
                                  settings={"unattended": True, "device_config": config})
         try:
@@ -132,12 +161,15 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int) -> dict[str, Any]:
             "error_vs_truth": {"rotation_deg": round(rot, 5), "translation_mm": round(shift, 5)}}
 
 
-def _process(session_dir: Path, cal_dir: Path, preset: str, truth: dict[str, Any]) -> dict[str, Any]:
+def _process(session_dir: Path, cal_dir: Path, preset: str, truth: dict[str, Any],
+             station: dict[str, Any] | None = None) -> dict[str, Any]:
     """``kogei process`` on the captured session, and its registration error against the simulation's truth."""
     from app.workflows.process_session import process_session
     from processing.geometry.registration import pose_difference
 
     report = process_session(session_dir, preset=preset, calibration=cal_dir,
+                             camera_calibration=None if station is None else station["camera_session"],
+                             lamp_calibration=None if station is None else station["lamp_session"],
                              message=lambda text: print(f"process: {text}", file=sys.stderr))
     poses = {int(k): np.asarray(v) for k, v in truth["poses"].items()}
     errors = []
@@ -149,8 +181,12 @@ def _process(session_dir: Path, cal_dir: Path, preset: str, truth: dict[str, Any
         true = poses[1] @ np.linalg.inv(poses[p])
         rot, shift = pose_difference(np.asarray(entry["pose"]), true)
         errors.append({"pass": p, "rotation_deg": round(rot, 4), "translation_mm": round(shift, 4)})
+    proj = report.get("projection")
     return {"mesh": report["mesh"], "registered": [e.get("registered", False) for e in report["passes"]],
             "pose_error_vs_truth": errors, "timings_s": report["timings_s"],
+            "projection": None if proj is None else {
+                "frames": len(proj["frames"]), "iou_min": proj["iou_min"], "offset_px_mean": proj["offset_px_mean"],
+                "observations": proj["observations"]["count"], "seconds": proj["seconds"]},
             "holes": report["surface"].get("holes") if isinstance(report["surface"], dict) else None}
 
 

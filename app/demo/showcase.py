@@ -151,6 +151,11 @@ def _demo_capture(out: Path, args: argparse.Namespace, summary: dict) -> None:
               f"({'watertight' if proc['mesh']['watertight'] else 'NOT watertight'}), registration error vs "
               f"the simulation's truth <= {worst[0]:.3f} deg, {worst[1]:.3f} mm -> "
               f"{cap['session']}/{proc['mesh']['file']}", file=sys.stderr)
+        proj = proc.get("projection")
+        if proj:
+            print(f"photos: {proj['frames']} RAW frames posed on the mesh; the mesh's outline covers the object "
+                  f"with silhouette IoU >= {proj['iou_min']:.3f}, mean boundary offset {proj['offset_px_mean']:.2f} px "
+                  f"({proj['observations']} observations, {proj['seconds']:.1f} s)", file=sys.stderr)
 
     if proc:
         summary["batch"] = _batch_steps(Path(cap["session"]), args.preset)
