@@ -423,7 +423,8 @@ class SimulatedStation:
     def _set_placement(self, n: int) -> NDArray[np.float64]:
         from mocks.profiler_firmware import RaycastSource
 
-        pose = placement_pose(self.world.vertices, self._base_pose, self.seed, n)
+        fixed = self.world.fixed_placement_pose(n)     # a calibration world's own placements
+        pose = placement_pose(self.world.vertices, self._base_pose, self.seed, n) if fixed is None else fixed
         obj = self.world.vertices @ pose[:3, :3].T + pose[:3, 3]
         tv, tt = self._table
         verts = np.vstack([obj, tv])
