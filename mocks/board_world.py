@@ -261,5 +261,5 @@ class BoardWorld(World):
         light, irradiance, _ = self._lamp_at(points)
         shade = (np.clip(light @ normal, 0.0, None) * irradiance).reshape(h, w)
         scalar = refl * shade + (1.0 - cover) * BACKDROP_REFLECTANCE
-        labels = np.where(cover > 0.5, 0 if front else 1, -1).astype(np.int16)
+        labels = np.where(cover > 0.5, 0, -1).astype(np.int16)      # the board (either face) or backdrop
         return Frame(scalar[..., None] * (e / math.pi), grid, e, labels, "object", angle)

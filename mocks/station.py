@@ -20,7 +20,10 @@ docs/simulator.md describes it; in short:
   fault is identical to the one a fault-free run gets.
 * **Placements.**  :meth:`SimulatedStation.place` ``(n)``: placement 1 is the
   world's base pose resting on the table; placement ``n >= 2`` a
-  pseudo-random rest pose (:func:`mocks.station_geometry.placement_pose`).  A
+  pseudo-random rest pose (:func:`mocks.station_geometry.placement_pose`);
+  a calibration world's own placement instead where it has one
+  (:meth:`mocks.world.World.fixed_placement_pose`: the ChArUco board's tilts,
+  the mirror sphere's offsets).  A
   new placement puts the colour chart in view for the next camera frame
   (gphoto2 or hot folder); later frames show the object at the current table
   angle.

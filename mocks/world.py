@@ -4,8 +4,11 @@
 :mod:`mocks.procedural_hawk` or a mesh file), its pose on the table
 (object -> table, 4 x 4, millimetres), a material per mesh region, the
 ColorChecker (colour-science's ``SDS_COLOURCHECKERS``, Ohta's measured
-spectra by default), one directional light with a named spectrum, the camera
-view, and the table angle.  :meth:`World.frame` returns the spectral radiance
+spectra by default), one light with a named spectrum (distant, or a point lamp
+at ``light_position_mm``), the camera -- fixed in the room, aimed at
+``camera_target_mm`` -- and the table angle.  :meth:`World.camera_intrinsics`,
+:meth:`World.room_to_camera` and :meth:`World.lamp_truth` are the truth a
+calibration should find.  :meth:`World.frame` returns the spectral radiance
 image a camera at the station sees:
 
 * ``kind="chart"``: with ``chart_layout="grid"`` the 24 patches (4 rows x 6
