@@ -300,8 +300,8 @@ def _world(data: dict[str, Any], config_path: Path) -> Any:
 
     from mocks.world import World
 
-    if "swatch" in data:
-        return World.from_dict(data)        # two triangles and a cloth: nothing worth caching
+    if "swatch" in data or "board" in data or "mirror" in data:
+        return World.from_dict(data)        # analytic or quick to build: nothing worth caching
     cache = config_path.with_name(config_path.name + ".mesh.npz")
     source = str(data.get("mesh", "hawk:4000"))
     if cache.exists():

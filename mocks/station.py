@@ -20,7 +20,10 @@ docs/simulator.md describes it; in short:
   fault is identical to the one a fault-free run gets.
 * **Placements.**  :meth:`SimulatedStation.place` ``(n)``: placement 1 is the
   world's base pose resting on the table; placement ``n >= 2`` a
-  pseudo-random rest pose (:func:`mocks.station_geometry.placement_pose`).  A
+  pseudo-random rest pose (:func:`mocks.station_geometry.placement_pose`);
+  a calibration world's own placement instead where it has one
+  (:meth:`mocks.world.World.fixed_placement_pose`: the ChArUco board's tilts,
+  the mirror sphere's offsets).  A
   new placement puts the colour chart in view for the next camera frame
   (gphoto2 or hot folder); later frames show the object at the current table
   angle.
@@ -423,7 +426,8 @@ class SimulatedStation:
     def _set_placement(self, n: int) -> NDArray[np.float64]:
         from mocks.profiler_firmware import RaycastSource
 
-        pose = placement_pose(self.world.vertices, self._base_pose, self.seed, n)
+        fixed = self.world.fixed_placement_pose(n)     # a calibration world's own placements
+        pose = placement_pose(self.world.vertices, self._base_pose, self.seed, n) if fixed is None else fixed
         obj = self.world.vertices @ pose[:3, :3].T + pose[:3, 3]
         tv, tt = self._table
         verts = np.vstack([obj, tv])

@@ -72,6 +72,7 @@ class SwatchWorld(World):
         vertices = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]])
         triangles = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
         kwargs.setdefault("camera_elevation_deg", 45.0)
+        kwargs.setdefault("camera_target_mm", (0.0, 0.0, 0.0))   # the swatch's centre on the table
         kwargs.setdefault("light_direction", (0.22, 0.6, 0.77))
         kwargs.setdefault("width", 160)
         kwargs.setdefault("height", 120)

@@ -4,8 +4,11 @@
 :mod:`mocks.procedural_hawk` or a mesh file), its pose on the table
 (object -> table, 4 x 4, millimetres), a material per mesh region, the
 ColorChecker (colour-science's ``SDS_COLOURCHECKERS``, Ohta's measured
-spectra by default), one directional light with a named spectrum, the camera
-view, and the table angle.  :meth:`World.frame` returns the spectral radiance
+spectra by default), one light with a named spectrum (distant, or a point lamp
+at ``light_position_mm``), the camera -- fixed in the room, aimed at
+``camera_target_mm`` -- and the table angle.  :meth:`World.camera_intrinsics`,
+:meth:`World.room_to_camera` and :meth:`World.lamp_truth` are the truth a
+calibration should find.  :meth:`World.frame` returns the spectral radiance
 image a camera at the station sees:
 
 * ``kind="chart"``: with ``chart_layout="grid"`` the 24 patches (4 rows x 6
@@ -163,8 +166,21 @@ class World:
     width, height
         Image size in pixels (even).
     camera_distance_mm, camera_elevation_deg, fov_deg
-        Camera on the room's -y side at this distance and elevation, looking
-        at the object's centre, with this horizontal field of view.
+        Camera on the room's -y side at this distance (mm) from
+        ``camera_target_mm`` and this elevation (degrees), with this
+        horizontal field of view (degrees): an ideal pinhole
+        (:meth:`camera_intrinsics`, :meth:`room_to_camera`).
+    camera_target_mm
+        The room point (mm) the camera looks at; fixed in the room, so
+        re-placing the object does not move the camera.  The default is
+        about the procedural hawk's centre standing on the table.
+    light_position_mm
+        A point lamp's position (room frame, mm); None: the distant light of
+        ``light_direction``.  A point lamp's irradiance falls off as
+        ``(d0 / d)**2`` with ``d0`` its distance to ``camera_target_mm``.
+    lamp_radius_mm
+        Radius of the lamp's emitting disc (mm), seen only in a mirror
+        (:mod:`mocks.mirror_world`).
     spectral_step
         Wavelength step (nm) of the simulation grid over 400-700 nm.
     table_angle_deg
@@ -193,6 +209,9 @@ class World:
     spectral_step: float = 10.0
     table_angle_deg: float = 0.0
     mesh_source: str = ""
+    camera_target_mm: tuple[float, float, float] = (0.0, 0.0, 37.0)
+    light_position_mm: tuple[float, float, float] | None = None
+    lamp_radius_mm: float = 15.0
 
     def __post_init__(self) -> None:
         self.vertices = np.asarray(self.vertices, dtype=np.float64)
@@ -224,6 +243,14 @@ class World:
             raise WorldError(f"fov_deg must be in (0, 170) degrees, got {self.fov_deg!r}")
         if not self.camera_distance_mm > 0:
             raise WorldError(f"camera_distance_mm must be > 0, got {self.camera_distance_mm!r}")
+        self.camera_target_mm = _point3("camera_target_mm", self.camera_target_mm)
+        if self.light_position_mm is not None:
+            self.light_position_mm = _point3("light_position_mm", self.light_position_mm)
+            if np.linalg.norm(np.subtract(self.light_position_mm, self.camera_target_mm)) == 0:
+                raise WorldError("light_position_mm must differ from camera_target_mm")
+        if not (isinstance(self.lamp_radius_mm, (int, float)) and math.isfinite(self.lamp_radius_mm)
+                and self.lamp_radius_mm > 0):
+            raise WorldError(f"lamp_radius_mm must be > 0 mm, got {self.lamp_radius_mm!r}")
         _ = self.grid  # validates spectral_step
         from mocks.chart_scene import ChartPlacement, ChartSceneError
 
@@ -295,12 +322,22 @@ class World:
     def from_dict(cls, data: dict[str, Any]) -> World:
         """Rebuild a world from :meth:`to_dict` (the fake gphoto2's configuration).
 
-        A mapping with a ``"swatch"`` entry is a :class:`mocks.swatch_world.SwatchWorld`.
+        A mapping with a ``"swatch"`` entry is a :class:`mocks.swatch_world.SwatchWorld`, with
+        ``"board"`` a :class:`mocks.board_world.BoardWorld`, with ``"mirror"`` a
+        :class:`mocks.mirror_world.MirrorWorld`.
         """
         if "swatch" in data:
             from mocks.swatch_world import SwatchWorld  # imported here: it builds on this module
 
             return SwatchWorld.from_dict(data)
+        if "board" in data:
+            from mocks.board_world import BoardWorld
+
+            return BoardWorld.from_dict(data)
+        if "mirror" in data:
+            from mocks.mirror_world import MirrorWorld
+
+            return MirrorWorld.from_dict(data)
         data = dict(data)
         source = str(data.pop("mesh", "hawk:4000"))
         if source.startswith("sphere:"):
@@ -343,7 +380,16 @@ class World:
             "fov_deg": self.fov_deg,
             "spectral_step": self.spectral_step,
             "table_angle_deg": self.table_angle_deg,
+            "camera_target_mm": list(self.camera_target_mm),
+            "light_position_mm": None if self.light_position_mm is None else list(self.light_position_mm),
+            "lamp_radius_mm": float(self.lamp_radius_mm),
         }
+
+    def fixed_placement_pose(self, placement: int) -> NDArray[np.float64] | None:
+        """The object -> table pose of station placement ``placement``, or None: the station's
+        pseudo-random rest pose (:func:`mocks.station_geometry.placement_pose`).  Calibration
+        worlds (board, mirror sphere) return their own."""
+        return None
 
     # ------------------------------------------------------------------ rendering
     @property
@@ -411,21 +457,87 @@ class World:
         radiance = table[labels] * (e / math.pi)          # label -1 picks the backdrop row
         return Frame(radiance, grid, e, labels, "chart", angle)
 
-    def _view(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Camera position and unit ray directions ``(H, W, 3)`` (pinhole, looking at the object's centre)."""
-        lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
-        target = (self.pose @ np.append(0.5 * (lo + hi), 1.0))[:3]
+    def _camera_axes(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The camera's centre (room, mm) and its axes as rows (x right, y down, z forward), room frame."""
+        target = np.asarray(self.camera_target_mm, dtype=np.float64)
         el = math.radians(self.camera_elevation_deg)
         eye = target + self.camera_distance_mm * np.array([0.0, -math.cos(el), math.sin(el)])
         fwd = (target - eye) / np.linalg.norm(target - eye)
         right = np.cross(fwd, [0.0, 0.0, 1.0])
         right /= np.linalg.norm(right)
         up = np.cross(right, fwd)
-        half = math.tan(math.radians(self.fov_deg) / 2)
-        xs = ((np.arange(self.width) + 0.5) / self.width * 2 - 1) * half
-        ys = (1 - (np.arange(self.height) + 0.5) / self.height * 2) * half * self.height / self.width
-        d = fwd + xs[None, :, None] * right + ys[:, None, None] * up
+        return eye, np.stack([right, -up, fwd])
+
+    def camera_intrinsics(self) -> NDArray[np.float64]:
+        """The true camera matrix ``K`` (3 x 3, pixels; OpenCV: the centre of pixel (0, 0) is at (0, 0)).
+
+        ``fx = fy = (width / 2) / tan(fov / 2)``, ``cx = width / 2 - 0.5``,
+        ``cy = height / 2 - 0.5``; zero distortion.  For tests (truth).
+
+        Examples
+        --------
+        >>> k = World.hawk(2_000, width=240, height=160).camera_intrinsics()
+        >>> round(float(k[0, 0]), 3), float(k[0, 2]), float(k[1, 2])
+        (541.285, 119.5, 79.5)
+        """
+        f = (self.width / 2) / math.tan(math.radians(self.fov_deg) / 2)
+        return np.array([[f, 0.0, self.width / 2 - 0.5], [0.0, f, self.height / 2 - 0.5], [0.0, 0.0, 1.0]])
+
+    def room_to_camera(self) -> NDArray[np.float64]:
+        """The true room -> camera transform (4 x 4, mm; camera x right, y down, z forward).  For tests.
+
+        Examples
+        --------
+        >>> w = World.hawk(2_000)
+        >>> (np.round(w.room_to_camera() @ [*w.camera_target_mm, 1.0], 9) + 0.0).tolist()
+        [0.0, 0.0, 260.0, 1.0]
+        """
+        eye, axes = self._camera_axes()
+        m = np.eye(4)
+        m[:3, :3] = axes
+        m[:3, 3] = -axes @ eye
+        return m
+
+    def lamp_truth(self) -> dict[str, Any]:
+        """The lamp as the lamp calibration should find it: ``{"kind": "point", "position_mm": [...],
+        "radius_mm": r}`` or ``{"kind": "distant", "direction": [...]}`` (room frame, unit vector toward it)."""
+        if self.light_position_mm is not None:
+            return {"kind": "point", "position_mm": [float(v) for v in self.light_position_mm],
+                    "radius_mm": float(self.lamp_radius_mm), "spectrum": self.light}
+        d = np.asarray(self.light_direction, dtype=np.float64)
+        return {"kind": "distant", "direction": (d / np.linalg.norm(d)).tolist(), "spectrum": self.light}
+
+    def _rays(self, supersample: int = 1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Camera centre and unit ray directions ``(H * s, W * s, 3)`` through ``s x s`` points per pixel."""
+        eye, axes = self._camera_axes()
+        k = self.camera_intrinsics()
+        s = int(supersample)
+        sub = (np.arange(s) + 0.5) / s - 0.5
+        u = (np.arange(self.width)[:, None] + sub[None, :]).ravel()
+        v = (np.arange(self.height)[:, None] + sub[None, :]).ravel()
+        x = (u - k[0, 2]) / k[0, 0]
+        y = (v - k[1, 2]) / k[1, 1]
+        d = axes[2] + x[None, :, None] * axes[0] + y[:, None, None] * axes[1]
         return eye, d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def _view(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Camera position and unit ray directions ``(H, W, 3)`` through the pixel centres (pinhole)."""
+        return self._rays(1)
+
+    def _lamp_at(self, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                             NDArray[np.float64]]:
+        """Unit directions toward the lamp ``(N, 3)``, relative irradiance ``(N,)`` and lamp distance
+        ``(N,)`` (inf for a distant lamp) at room points ``(N, 3)``."""
+        if self.light_position_mm is None:
+            light = np.asarray(self.light_direction, dtype=np.float64)
+            light = light / np.linalg.norm(light)
+            n = len(points)
+            return np.broadcast_to(light, (n, 3)), np.ones(n), np.full(n, np.inf)
+        lamp = np.asarray(self.light_position_mm, dtype=np.float64)
+        to = lamp - points
+        dist = np.linalg.norm(to, axis=1)
+        d0 = float(np.linalg.norm(lamp - np.asarray(self.camera_target_mm)))
+        return to / dist[:, None], (d0 / dist) ** 2, dist
 
     def _object_frame(self, angle: float) -> Frame:
         import open3d as o3d
@@ -456,19 +568,20 @@ class World:
             n = normal[idx]
             view = -d[idx]
             n *= np.where(np.einsum("ij,ij->i", n, view) < 0, -1.0, 1.0)[:, None]
-            light = np.asarray(self.light_direction, dtype=np.float64)
-            light = light / np.linalg.norm(light)
             pos = eye + d[idx] * t[idx, None]
+            light, irradiance, dist = self._lamp_at(pos)
             size = float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
             origin = pos + n * (1e-4 * size)
-            shadow = np.concatenate([origin, np.broadcast_to(light, origin.shape)], axis=1).astype(np.float32)
-            lit = ~scene.test_occlusions(o3d.core.Tensor(shadow)).numpy()
-            ci = np.clip(n @ light, 0.0, 1.0) * lit
+            point = bool(np.all(np.isfinite(dist)))      # a point lamp: occluders only up to the lamp (t < 1)
+            toward = light * dist[:, None] if point else light
+            shadow = np.concatenate([origin, toward], axis=1).astype(np.float32)
+            lit = ~scene.test_occlusions(o3d.core.Tensor(shadow), tfar=1.0 if point else math.inf).numpy()
+            ci = np.clip(np.einsum("ij,ij->i", n, light), 0.0, 1.0) * lit
             co = np.clip(np.einsum("ij,ij->i", n, view), 1e-6, 1.0)
             half = light + view
             half /= np.linalg.norm(half, axis=1, keepdims=True)
             ch = np.clip(np.einsum("ij,ij->i", n, half), 0.0, 1.0)
-            cd = np.clip(half @ light, 0.0, 1.0)
+            cd = np.clip(np.einsum("ij,ij->i", half, light), 0.0, 1.0)
             reg = self.region[prim[idx]]
             labels[idx] = reg
             for r, name in enumerate(self.region_names):
@@ -477,7 +590,7 @@ class World:
                     continue
                 mat = get_material(self.materials[name])
                 f = material_brdf(mat, ci[sel], co[sel], ch[sel], cd[sel], grid.wavelengths)
-                radiance[idx[sel]] = f * (ci[sel] * 1.0)[:, None] * e
+                radiance[idx[sel]] = f * (ci[sel] * irradiance[sel])[:, None] * e
         return Frame(radiance.reshape(h, w, grid.size), grid, e, labels.reshape(h, w), "object", angle)
 
 
@@ -491,13 +604,28 @@ def world_settings(data: dict[str, Any]) -> dict[str, Any]:
     """
     allowed = {"pose", "light", "light_direction", "chart", "chart_present", "chart_layout", "chart_placement",
                "width", "height",
-               "camera_distance_mm", "camera_elevation_deg", "fov_deg", "spectral_step", "table_angle_deg"}
+               "camera_distance_mm", "camera_elevation_deg", "fov_deg", "spectral_step", "table_angle_deg",
+               "camera_target_mm", "light_position_mm", "lamp_radius_mm"}
     unknown = set(data) - allowed
     if unknown:
         raise WorldError(f"unknown world setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(allowed))}")
     out = dict(data)
     if "light_direction" in out:
         out["light_direction"] = tuple(float(v) for v in out["light_direction"])
+    for key in ("camera_target_mm", "light_position_mm"):
+        if out.get(key) is not None:
+            out[key] = tuple(float(v) for v in out[key])
     if "pose" in out:
         out["pose"] = np.asarray(out["pose"], dtype=np.float64)
     return out
+
+
+def _point3(name: str, value: Any) -> tuple[float, float, float]:
+    """``value`` as a finite 3-tuple of floats, or a :class:`WorldError` naming ``name``."""
+    try:
+        p = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        p = np.array([np.nan])
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise WorldError(f"{name} must be a finite 3-vector in millimetres (room frame), got {value!r}")
+    return (float(p[0]), float(p[1]), float(p[2]))

@@ -2,7 +2,7 @@
 
 The simulated devices are described in ``docs/simulator.md``.  Three actions:
 
-``kogei mock [--world hawk|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
+``kogei mock [--world hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
 [--time-scale S] [--root DIR] [--seed N]``
     Starts :class:`mocks.station.SimulatedStation`, prints its turntable
     port, profiler port, gphoto2 shim, hot folder and control folder with
@@ -64,9 +64,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                     "pseudo-terminals, a fake gphoto2 and a hot folder, all looking at one simulated object. "
                     "'kogei mock place' and 'kogei mock shoot' talk to a running station.",
     )
-    p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|MESH",
-                   help="the procedural hawk head (default), a calibration sphere of radius R mm (default 25) "
-                        "OFF mm from the axis (default 60), or a mesh file (PLY/OBJ/STL/glTF, millimetres)")
+    p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|MESH",
+                   help="the procedural hawk head (default); a calibration sphere of radius R mm (default 25) "
+                        "OFF mm from the axis (default 60); a ChArUco board (DICT_5X5_100, 9 x 6 squares of "
+                        "15 mm, markers 11 mm) for camera calibration, 960 x 640 frames, placements 1, 2, 3 flat "
+                        "and on 40 and 55 degree wedges, or every placement at TILT degrees (0 = flat, < 90); "
+                        "a chrome ball for lamp calibration, radius R mm (default 20) OFF mm from the axis "
+                        "(default 35), 960 x 640 frames; or a mesh file (PLY/OBJ/STL/glTF, millimetres)")
     p.add_argument("--triangles", type=int, default=None, metavar="N",
                    help="triangle count of the hawk mesh (default 4000)")
     p.add_argument("--material", default=None, metavar="SPEC",
@@ -130,6 +134,8 @@ def _build_world(args: argparse.Namespace) -> Any:
             get_material(args.material)
         except MaterialError as exc:
             raise UsageError(f"--material {args.material}: {exc}") from None
+    if args.material is not None and args.world.split(":")[0] in ("board", "mirror-sphere"):
+        raise UsageError(f"--material does not apply to --world {args.world} (a printed board or a chrome ball)")
     if args.triangles is not None and args.world != "hawk":
         raise UsageError("--triangles sets the size of the procedural hawk; it does not apply to a mesh file")
     try:
@@ -150,6 +156,10 @@ def _build_world(args: argparse.Namespace) -> Any:
                 raise UsageError(f"--world {args.world}: use sphere, sphere:RADIUS_MM or "
                                  "sphere:RADIUS_MM:OFFSET_MM") from None
             return World.calibration_sphere(radius, offset)
+        if args.world == "board" or args.world.startswith("board:"):
+            return _board_world(args.world)
+        if args.world == "mirror-sphere" or args.world.startswith("mirror-sphere:"):
+            return _mirror_world(args.world)
         path = Path(args.world)
         if not path.is_file():
             raise UsageError(f"--world {args.world}: no such mesh file; give 'hawk' or the path of a "
@@ -159,6 +169,38 @@ def _build_world(args: argparse.Namespace) -> Any:
         if isinstance(exc, UsageError):
             raise
         raise UsageError(f"--world {args.world}: {exc}") from None
+
+
+def _board_world(spec: str) -> Any:
+    """``board`` or ``board:TILT`` (degrees, every placement on that wedge)."""
+    from mocks.board_world import BoardWorld
+
+    parts = spec.split(":")[1:]
+    if len(parts) > 1:
+        raise UsageError(f"--world {spec}: use board or board:TILT_DEG")
+    if not parts or not parts[0]:
+        return BoardWorld.charuco()
+    try:
+        tilt = float(parts[0])
+    except ValueError:
+        raise UsageError(f"--world {spec}: TILT must be a number of degrees in [0, 90), e.g. board:55") from None
+    return BoardWorld.charuco(tilts_deg=(tilt,))
+
+
+def _mirror_world(spec: str) -> Any:
+    """``mirror-sphere``, ``mirror-sphere:R`` or ``mirror-sphere:R:OFF`` (mm)."""
+    from mocks.mirror_world import MirrorWorld
+
+    parts = spec.split(":")[1:]
+    try:
+        if len(parts) > 2:
+            raise ValueError
+        radius = float(parts[0]) if parts and parts[0] else 20.0
+        offset = float(parts[1]) if len(parts) > 1 else 35.0
+    except ValueError:
+        raise UsageError(f"--world {spec}: use mirror-sphere, mirror-sphere:RADIUS_MM or "
+                         "mirror-sphere:RADIUS_MM:OFFSET_MM") from None
+    return MirrorWorld.mirror_sphere(radius, offset)
 
 
 def _print_block(info: dict[str, Any], faults: str) -> None:

@@ -1,0 +1,42 @@
+"""``kogei mock --world board[:TILT]`` and ``--world mirror-sphere[:R[:OFF]]`` build the calibration worlds."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from app.cli.mock import _build_world, add_parser
+from app.errors import UsageError
+from mocks.board_world import BoardWorld
+from mocks.mirror_world import MirrorWorld
+
+
+def _args(*argv):
+    parser = argparse.ArgumentParser(prog="kogei")
+    add_parser(parser.add_subparsers(dest="command"))
+    return parser.parse_args(["mock", *argv])
+
+
+def test_board_worlds():
+    w = _build_world(_args("--world", "board"))
+    assert isinstance(w, BoardWorld) and w.tilts_deg == (0.0, 40.0, 55.0)
+    assert (w.width, w.height, w.fov_deg) == (960, 640, 25.0)
+    assert _build_world(_args("--world", "board:30")).tilts_deg == (30.0,)
+
+
+def test_mirror_sphere_worlds():
+    w = _build_world(_args("--world", "mirror-sphere"))
+    assert isinstance(w, MirrorWorld) and (w.sphere_radius_mm, w.offsets_mm) == (20.0, (35.0,))
+    w = _build_world(_args("--world", "mirror-sphere:15:40"))
+    assert (w.sphere_radius_mm, w.offsets_mm, float(w.pose[0, 3])) == (15.0, (40.0,), 40.0)
+
+
+@pytest.mark.parametrize("spec, words", [("board:steep", "TILT"), ("board:95", "tilt_deg"),
+                                         ("board:10:2", "board:TILT_DEG"), ("mirror-sphere:x", "RADIUS_MM"),
+                                         ("mirror-sphere:20:-5", "offsets_mm")])
+def test_bad_specs(spec, words):
+    with pytest.raises(UsageError, match=words):
+        _build_world(_args("--world", spec))
+    with pytest.raises(UsageError, match="material"):
+        _build_world(_args("--world", "board", "--material", "gold"))
