@@ -38,15 +38,16 @@ from mocks.world import BACKDROP_REFLECTANCE, Frame, World, WorldError, rotation
 __all__ = ["BoardWorld", "DEFAULT_BOARD", "WHITE_REFLECTANCE", "BLACK_REFLECTANCE", "board_pose"]
 
 #: The ChArUco board definition the sessions store (see the shared conventions).
-DEFAULT_BOARD: dict[str, Any] = {"dictionary": "DICT_5X5_100", "squares_x": 9, "squares_y": 6,
-                                 "square_mm": 15.0, "marker_mm": 11.0}
+DEFAULT_BOARD: dict[str, Any] = {"dictionary": "DICT_5X5_100", "squares_x": 7, "squares_y": 5,
+                                 "square_mm": 8.0, "marker_mm": 6.0}
 #: Lambertian reflectance of the paper and of the print.
 WHITE_REFLECTANCE = 0.85
 BLACK_REFLECTANCE = 0.04
 #: Reflectance of the board's unprinted back.
 _BACK_REFLECTANCE = 0.3
-#: Small offsets (x, y in mm, table frame) of the board's centre per placement, cycled.
-_OFFSETS_MM = ((0.0, 28.0), (4.0, 6.0), (-5.0, 2.0), (6.0, 12.0), (-4.0, 18.0))
+#: Offsets (x, y in mm, table frame) of the board's centre per placement, cycled: behind the axis, where the
+#: fixed camera (aimed 37 mm above the table) sees a board lying on the table or on a low wedge.
+_OFFSETS_MM = ((0.0, 50.0), (4.0, 30.0), (-5.0, 26.0), (6.0, 40.0), (-4.0, 45.0))
 
 
 def _board_size_mm(board: dict[str, Any]) -> tuple[float, float]:
@@ -80,7 +81,7 @@ def board_pose(board: dict[str, Any], tilt_deg: float, offset_mm: tuple[float, f
     Examples
     --------
     >>> p = board_pose(DEFAULT_BOARD, 0.0)
-    >>> (p[:3, :3] @ [0, 0, -1.0]).round(9).tolist(), (p @ [67.5, 45.0, 0, 1])[:3].round(9).tolist()
+    >>> (p[:3, :3] @ [0, 0, -1.0]).round(9).tolist(), (p @ [28.0, 20.0, 0, 1])[:3].round(9).tolist()
     ([0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
     """
     if not (math.isfinite(tilt_deg) and 0.0 <= tilt_deg < 90.0):
@@ -160,7 +161,7 @@ class BoardWorld(World):
         --------
         >>> w = BoardWorld.charuco(tilts_deg=(55.0,), width=96, height=64)
         >>> w.board["squares_x"], w.frame("object", 0.0).radiance.shape[:2]
-        (9, (64, 96))
+        (7, (64, 96))
         """
         b = _check_board(dict(DEFAULT_BOARD) if board is None else board)
         tilts = tuple(float(t) for t in tilts_deg)
@@ -178,6 +179,11 @@ class BoardWorld(World):
         source = f"board:{b['dictionary']}:{b['squares_x']}x{b['squares_y']}"
         return cls(vertices, triangles, np.zeros(2, np.int64), ("board",), {"board": "paper"},
                    mesh_source=source, board=b, tilts_deg=tilts, margin_mm=margin, **kwargs)
+
+    @property
+    def shows_chart(self) -> bool:
+        """A calibration target: the station shoots no chart frame."""
+        return False
 
     def fixed_placement_pose(self, placement: int) -> NDArray[np.float64]:
         """Board -> table pose of station placement ``placement`` (>= 1): the n-th tilt, its own offset."""

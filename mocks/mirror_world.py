@@ -139,6 +139,11 @@ class MirrorWorld(World):
                    ("sphere",), {"sphere": "chrome"}, mesh_source=f"mirror:{radius_mm:g}:{offsets[0]:g}",
                    sphere_radius_mm=float(radius_mm), offsets_mm=offsets, lamps=lamps, **kwargs)
 
+    @property
+    def shows_chart(self) -> bool:
+        """A calibration target: the station shoots no chart frame."""
+        return False
+
     def fixed_placement_pose(self, placement: int) -> NDArray[np.float64]:
         """Ball -> table pose of station placement ``placement`` (>= 1): centre at the n-th offset on +x."""
         pose = np.eye(4)

@@ -470,6 +470,10 @@ class SimulatedStation:
     def place(self, placement: int) -> NDArray[np.float64]:
         """Put the object in the rest pose of ``placement`` (>= 1); the next camera frame shows the chart.
 
+        Calibration targets (the reference sphere, the ChArUco board, the mirror
+        sphere: :attr:`mocks.world.World.shows_chart` false) are shot without a
+        chart, as their capture plans take none.
+
         Returns
         -------
         NDArray
@@ -482,10 +486,15 @@ class SimulatedStation:
         with self._lock:
             pose = self._set_placement(int(placement))
             if self._started:
-                update_config(self.config_path, placement=int(placement), chart_next=True, pose=pose.tolist())
+                update_config(self.config_path, placement=int(placement), chart_next=self._shows_chart(),
+                              pose=pose.tolist())
         return pose.copy()
 
     # ----------------------------------------------------------- cameras
+    def _shows_chart(self) -> bool:
+        """Whether the first frame after a placement shows the colour chart (not for calibration targets)."""
+        return bool(getattr(self.world, "shows_chart", True))
+
     def _write_camera_config(self, table_angle_deg: float) -> None:
         """The fake gphoto2's configuration for the current world and placement (the next frame: the chart)."""
         from mocks.fake_gphoto2 import cache_mesh, write_config
@@ -495,7 +504,7 @@ class SimulatedStation:
             world["pose"] = self._pose.tolist()
             placement = self._placement
         world["table_angle_deg"] = float(table_angle_deg)
-        write_config(self.config_path, world, faults=self._camera_faults, chart_first=True,
+        write_config(self.config_path, world, faults=self._camera_faults, chart_first=self._shows_chart(),
                      exposure_s=self.exposure_s, seed=self.seed, placement=placement)
         cache_mesh(self.config_path, self.world, label)
 

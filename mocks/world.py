@@ -393,6 +393,11 @@ class World:
 
     # ------------------------------------------------------------------ rendering
     @property
+    def shows_chart(self) -> bool:
+        """Whether the station shows the colour chart first after a placement (not for the reference sphere)."""
+        return not self.mesh_source.startswith("sphere:")
+
+    @property
     def grid(self) -> SpectralGrid:
         """The simulation's wavelength grid, 400-700 nm at ``spectral_step``."""
         try:

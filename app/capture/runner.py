@@ -100,7 +100,7 @@ CAMERA_ONLY_KINDS = ("swatch", "camera-calibration", "lamp-calibration")
 #: Plans that calibrate the station (no colour chart by default).
 CALIBRATION_KINDS = ("camera-calibration", "lamp-calibration")
 #: The ChArUco board a camera-calibration plan uses unless told otherwise (lengths in mm).
-DEFAULT_BOARD = {"dictionary": "DICT_5X5_100", "squares_x": 9, "squares_y": 6, "square_mm": 15.0, "marker_mm": 11.0}
+DEFAULT_BOARD = {"dictionary": "DICT_5X5_100", "squares_x": 7, "squares_y": 5, "square_mm": 8.0, "marker_mm": 6.0}
 #: Table angles of a scan pass's RAW frames: every 30 deg, so a metal's highlights sweep its surface.
 DEFAULT_CAMERA_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 30))
 #: Steps and passes per plan kind when not given.

@@ -49,7 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="table angles of the RAW frames of each scan pass (default every 30 deg: 0,30,...,330)")
     p.add_argument("--board", default=None, metavar="FILE.json",
                    help="camera-calibration: the ChArUco board's definition (dictionary, squares_x, squares_y, "
-                        "square_mm, marker_mm); default a 9 x 6 board of 15 mm squares, DICT_5X5_100")
+                        "square_mm, marker_mm); default a 7 x 5 board of 8 mm squares, DICT_5X5_100")
     p.add_argument("--sphere-radius", type=float, default=None, metavar="MM",
                    help="lamp-calibration: the mirror sphere's radius (mm), recorded with the plan")
     p.add_argument("--no-chart", action="store_true", help="do not shoot a colour-chart frame first in each pass")

@@ -66,8 +66,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|MESH",
                    help="the procedural hawk head (default); a calibration sphere of radius R mm (default 25) "
-                        "OFF mm from the axis (default 60); a ChArUco board (DICT_5X5_100, 9 x 6 squares of "
-                        "15 mm, markers 11 mm) for camera calibration, 960 x 640 frames, placements 1, 2, 3 flat "
+                        "OFF mm from the axis (default 60); a ChArUco board (DICT_5X5_100, 7 x 5 squares of "
+                        "8 mm, markers 6 mm) for camera calibration, 960 x 640 frames, placements 1, 2, 3 flat "
                         "and on 40 and 55 degree wedges, or every placement at TILT degrees (0 = flat, < 90); "
                         "a chrome ball for lamp calibration, radius R mm (default 20) OFF mm from the axis "
                         "(default 35), 960 x 640 frames; or a mesh file (PLY/OBJ/STL/glTF, millimetres)")

@@ -121,7 +121,7 @@ def calibrate_station(out: Path, sphere_session: Path, *, seed: int = 1) -> dict
     w, h = CAMERA_SIZE
     board_world = BoardWorld.charuco(width=w, height=h)
     board = _camera_only_session(board_world, out, "camera-calibration", CapturePlan("camera-calibration"), seed,
-                                 "ChArUco board, 9 x 6 squares of 15 mm")
+                                 "ChArUco board, 7 x 5 squares of 8 mm")
     mirror_world = MirrorWorld.mirror_sphere(MIRROR_RADIUS_MM, MIRROR_OFFSET_MM, width=w, height=h)
     lamp = _camera_only_session(mirror_world, out, "lamp-calibration",
                                 CapturePlan("lamp-calibration", sphere_radius_mm=MIRROR_RADIUS_MM), seed,

@@ -57,6 +57,8 @@ _FILES = {"camera_calibration": CAMERA_FILE, "lamp_calibration": LAMP_FILE}
 _FLAGS = {"camera_calibration": "--camera-calibration", "lamp_calibration": "--lamp-calibration"}
 #: A decoded pixel at or above this (1.0 = the white level) counts as clipped.
 CLIP_LEVEL = 0.98
+#: A sphere photo whose outline misses the fitted sphere's by more than this (px RMS) is not used.
+MAX_OUTLINE_RMS_PX = 0.5
 
 
 # ---------------------------------------------------------------------------- frames of a session
@@ -142,10 +144,9 @@ def _board_views(root: Path, manifest: dict[str, Any], mode: str, note: Callable
 def _sphere_observations(sphere_root: Path, calib: Any, scanner: Any, mode: str, note: Callable[[str], None]
                          ) -> list[Any]:
     """The reference sphere's centre in the camera frame, from the sphere session's photos."""
+    from app.session import Session, SessionError
     from processing.geometry.camera_calibration import CameraCalibrationError, SphereObservation
     from processing.geometry.sphere_image import SphereImageError, fit_sphere_centre, sphere_silhouette
-
-    from app.session import Session, SessionError
 
     try:
         manifest = Session.read(sphere_root)
@@ -165,9 +166,13 @@ def _sphere_observations(sphere_root: Path, calib: Any, scanner: Any, mode: str,
             raise UsageError(f"--scanner {sphere_root}: {cid}: {exc}") from None
         try:
             edge = sphere_silhouette(img.rgb, name=cid, clip_level=CLIP_LEVEL)
-            centre, cov, _ = fit_sphere_centre(edge, k, dist, scanner.sphere_radius_mm)
+            centre, cov, rms_px = fit_sphere_centre(edge, k, dist, scanner.sphere_radius_mm)
         except SphereImageError as exc:
             note(f"sphere photo left out: {exc}")
+            continue
+        if rms_px > MAX_OUTLINE_RMS_PX:
+            note(f"sphere photo left out: {cid}: its outline is not a sphere of radius "
+                 f"{scanner.sphere_radius_mm:g} mm (fit rms {rms_px:.2f} px > {MAX_OUTLINE_RMS_PX:g} px)")
             continue
         out.append(SphereObservation(float(rec["angle_deg"]), centre, cov))
     return out
@@ -201,11 +206,10 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
     dict
         The manifest's reference to the stored calibration (path, sha256, figures).
     """
-    from processing.camera.charuco import board_corners_mm
-    from processing.geometry.camera_calibration import CameraCalibrationError, calibrate_camera, link_to_room
-
     from app.session import Session, SessionError
     from app.workflows.calibration import session_calibration
+    from processing.camera.charuco import board_corners_mm
+    from processing.geometry.camera_calibration import CameraCalibrationError, calibrate_camera, link_to_room
 
     note = message or (lambda text: None)
     root, sphere_root = Path(board_session), Path(scanner_session)
@@ -294,10 +298,9 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     dict
         The manifest's reference to the stored lamp calibration.
     """
+    from app.session import Session, SessionError
     from processing.geometry.camera_calibration import CameraCalibration, CameraCalibrationError
     from processing.geometry.lamp_calibration import LampCalibrationError, calibrate_lamps
-
-    from app.session import Session, SessionError
 
     note = message or (lambda text: None)
     root = Path(lamp_session)
@@ -323,13 +326,7 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     if calib.room_to_camera is None:
         raise UsageError(f"--camera-calibration {camera_source}: the camera is not tied to the scanner's frame; "
                          "calibrate it with --scanner SPHERE_SESSION")
-    views, size = [], None
-    for cid, rec in frame_records(root, manifest):
-        img = decode_frame(root, cid, rec, decode)
-        size = _sensor_size(img)
-        views.append((cid, float(rec["angle_deg"]), img.rgb))
-    if size is None:
-        raise UsageError(f"session {root} has no RAW frames of the mirror sphere")
+    views, size = _mirror_views(root, manifest, decode, note)
     try:
         k, dist = calib.for_image_size(*size)
         lamps = calibrate_lamps(views, k, dist, calib.room_to_camera, float(radius), model=model, n_lamps=n_lamps,
@@ -343,6 +340,26 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     data["source"] = {"lamp_session": str(root.resolve()), "camera_calibration": str(Path(camera_source).resolve())}
     with Session.open(root) as s:
         return install_station_calibration(s, "lamp_calibration", data)
+
+
+def _mirror_views(root: Path, manifest: dict[str, Any], decode: str, note: Callable[[str], None]
+                  ) -> tuple[list[tuple[str, float, Any]], tuple[int, int]]:
+    """The lamp session's frames whose mirror sphere is whole in view; the others are listed and left out."""
+    from processing.geometry.sphere_image import SphereImageError, sphere_silhouette
+
+    views, size = [], None
+    for cid, rec in frame_records(root, manifest):
+        img = decode_frame(root, cid, rec, decode)
+        size = _sensor_size(img)
+        try:
+            sphere_silhouette(img.rgb, name=cid)
+        except SphereImageError as exc:
+            note(f"left out: {exc}")
+            continue
+        views.append((cid, float(rec["angle_deg"]), img.rgb))
+    if size is None:
+        raise UsageError(f"session {root} has no RAW frames of the mirror sphere")
+    return views, size
 
 
 def _lamp_spectrum(spectrum: str | None) -> str | float | None:

@@ -85,6 +85,11 @@ def object_mask(image: ArrayLike, *, name: str, threshold_sigma: float = 6.0, bo
     when any channel differs by more than ``threshold_sigma`` noise units.
     A 3 x 3 opening removes isolated noise, connected components smaller
     than ``keep_frac`` of the largest are dropped and holes are filled.
+    Finally the outline is placed where a pixel is half covered: a pixel of
+    the 2-pixel rim counts as object when its difference from the backdrop
+    projected on that of the nearest pixel further inside is at least half
+    of it (coverage >= 0.5), so the mask neither grows by the partly covered
+    pixels a noise threshold catches nor depends on the object's brightness.
 
     Parameters
     ----------
@@ -118,7 +123,23 @@ def object_mask(image: ArrayLike, *, name: str, threshold_sigma: float = 6.0, bo
     areas = stats[1:, cv2.CC_STAT_AREA]
     keep = np.zeros(count, dtype=bool)
     keep[1:] = areas >= keep_frac * areas.max()
-    return ndimage.binary_fill_holes(keep[labels])
+    return _half_covered(ndimage.binary_fill_holes(keep[labels]), img - med)
+
+
+def _half_covered(mask: NDArray[np.bool_], diff: NDArray[np.float64], rim_px: int = 2) -> NDArray[np.bool_]:
+    """``mask`` with its rim pixels kept only where the object covers at least half of them.
+
+    A rim pixel's colour is ``a * object + (1 - a) * backdrop``; its difference from the backdrop
+    projected on the difference of the nearest interior pixel estimates the coverage ``a``.
+    """
+    k = 2 * rim_px + 1
+    inner = cv2.erode(mask.astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)
+    if not inner.any():
+        return mask
+    _, (iy, ix) = ndimage.distance_transform_edt(~inner, return_indices=True)
+    ref = diff[iy, ix]
+    cover = np.sum(diff * ref, axis=2) / np.maximum(np.sum(ref * ref, axis=2), 1e-30)
+    return inner | (mask & ~inner & (cover >= 0.5))
 
 
 def _boundary(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -87,10 +87,10 @@ class BoardDefinition:
     """
 
     dictionary: str = "DICT_5X5_100"
-    squares_x: int = 9
-    squares_y: int = 6
-    square_mm: float = 15.0
-    marker_mm: float = 11.0
+    squares_x: int = 7
+    squares_y: int = 5
+    square_mm: float = 8.0
+    marker_mm: float = 6.0
 
     def __post_init__(self) -> None:
         """Validate every field; one-line :class:`CharucoError` naming the bad one."""

@@ -47,6 +47,9 @@ from processing.geometry.camera_calibration_fit import (
 )
 
 __all__ = [
+    "INTRINSIC_NAMES",
+    "LONG_LENS_HELD",
+    "PP_MAX_STD_PX",
     "CAMERA_CALIBRATION_SCHEMA",
     "CAMERA_CALIBRATION_SCHEMA_VERSION",
     "BoardView",
@@ -66,6 +69,12 @@ CAMERA_CALIBRATION_SCHEMA_VERSION = 1
 MIN_VIEWS, MIN_VIEW_CORNERS = 6, 6
 #: A view whose RMS exceeds this multiple of the median is dropped (once).
 OUTLIER_FACTOR = 5.0
+#: Names of the intrinsic parameters in the fit's order.
+INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+#: Held by the long-lens model: the principal point (at the image centre), k2 and the tangential terms.
+LONG_LENS_HELD = (2, 3, 5, 6, 7)
+#: A principal point less certain than this (px, one sigma) cannot be told from a camera rotation.
+PP_MAX_STD_PX = 1.0
 #: Largest accepted chi-square per degree of freedom of the room link.
 MAX_LINK_CHI2 = 25.0
 
@@ -148,6 +157,9 @@ class CameraCalibration:
     gauge_cov
         ``(4, 4)`` covariance of ``gauge_to_camera``'s rotation vector (rad) and ``rho`` (mm),
         used by :func:`link_to_room` to weigh the sphere centres; None if unknown.
+    held
+        Intrinsic parameters held at nominal values rather than fitted (``cx``, ``cy`` at the image
+        centre; ``k2``, ``p1``, ``p2`` at 0) by the long-lens model, else empty.
     """
 
     image_size: tuple[int, int]
@@ -161,6 +173,7 @@ class CameraCalibration:
     board: dict[str, Any] = field(default_factory=dict)
     dropped_views: tuple[str, ...] = ()
     gauge_cov: NDArray[np.float64] | None = None
+    held: tuple[str, ...] = ()
 
     def for_image_size(self, width: int, height: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(K, dist)`` for frames binned by an integer factor from the calibrated size.
@@ -211,6 +224,7 @@ class CameraCalibration:
             "rms_px": float(self.rms_px), "stds": {str(k): float(v) for k, v in self.stds.items()},
             "board": dict(self.board), "dropped_views": list(self.dropped_views),
             "gauge_cov": None if self.gauge_cov is None else np.asarray(self.gauge_cov, float).tolist(),
+            "held": list(self.held),
         }
 
     @classmethod
@@ -279,7 +293,8 @@ def _usable(views: list[BoardView], corners_mm: NDArray[np.float64]) -> list[Boa
     return out
 
 
-def _problem(views: list[BoardView], corners_mm: NDArray[np.float64], fit_k3: bool) -> tuple[FitProblem, list]:
+def _problem(views: list[BoardView], corners_mm: NDArray[np.float64], fit_k3: bool,
+             fixed: tuple[int, ...] = ()) -> tuple[FitProblem, list]:
     """Stack the views' observations; the group names in index order."""
     names = sorted({v.group for v in views})
     gi = {g: i for i, g in enumerate(names)}
@@ -288,7 +303,7 @@ def _problem(views: list[BoardView], corners_mm: NDArray[np.float64], fit_k3: bo
     view = np.concatenate([np.full(len(v.ids), k) for k, v in enumerate(views)]).astype(np.int64)
     ang = np.radians([float(v.table_angle_deg) for v in views])
     grp = np.array([gi[v.group] for v in views], dtype=np.int64)
-    return FitProblem(obj, img, view, ang, grp, len(names), fit_k3), names
+    return FitProblem(obj, img, view, ang, grp, len(names), fit_k3, tuple(fixed)), names
 
 
 def _axis_groups(views: list[BoardView], groups: list[str]) -> list[int]:
@@ -302,9 +317,9 @@ def _axis_groups(views: list[BoardView], groups: list[str]) -> list[int]:
 
 
 def _fit(views: list[BoardView], corners_mm: NDArray[np.float64], image_size: tuple[int, int],
-         initial_focal_px: float | None, fit_k3: bool) -> tuple:
+         initial_focal_px: float | None, fit_k3: bool, fixed: tuple[int, ...] = ()) -> tuple:
     """Start (or reuse the previous intrinsics) and solve robustly; returns (p, problem, groups)."""
-    prob, groups = _problem(views, corners_mm, fit_k3)
+    prob, groups = _problem(views, corners_mm, fit_k3, fixed)
     axis_groups = _axis_groups(views, groups)
     if not axis_groups:
         raise CameraCalibrationError("turntable axis unobservable: no board placement has >= 3 distinct table "
@@ -318,14 +333,44 @@ def _fit(views: list[BoardView], corners_mm: NDArray[np.float64], image_size: tu
                                      "turn the table between views")
     r_a, rho, gp = start
     intr = [k[0, 0], k[1, 1], k[0, 2], k[1, 2], *dist[:4]] + ([dist[4]] if fit_k3 else [])
+    for i in prob.fixed:                # held parameters start (and stay) at their nominal values
+        if i in (2, 3):
+            intr[i] = (image_size[i - 2] - 1) / 2.0
+        elif 4 <= i < len(intr):
+            intr[i] = 0.0
     p0 = np.concatenate([intr, r_a, [rho], gp.ravel()])
     res = solve(p0, prob, loss="soft_l1")
     return res.x, prob, groups
 
 
+def _fit_model(use: list[BoardView], corners_mm: NDArray[np.float64], size: tuple[int, int],
+               initial_focal_px: float | None, fit_k3: bool, principal_point: str) -> tuple:
+    """Fit the full model, or the long-lens model when the views cannot place the principal point.
+
+    With ``principal_point="auto"`` the full model (principal point, k1, k2, p1, p2) is fitted first;
+    when either coordinate of the principal point has a standard deviation above
+    :data:`PP_MAX_STD_PX`, the views cannot tell it from a rotation of the camera (a long lens seen
+    over a small field), and the model is refitted with the principal point held at the image centre
+    and only k1 for the distortion.  Returns ``(p, problem, groups, held)``.
+    """
+    if principal_point not in ("auto", "fit", "centre"):
+        raise CameraCalibrationError(f"principal_point must be auto, fit or centre, got {principal_point!r}")
+    if principal_point != "centre":
+        p, prob, groups = _fit(use, corners_mm, size, initial_focal_px, fit_k3)
+        if principal_point == "fit":
+            return p, prob, groups, ()
+        res = solve(p, prob, loss="linear")
+        sd = np.sqrt(np.clip(np.diag(covariance(res, 2 * len(prob.img_px))), 0, None))
+        if max(sd[2], sd[3]) <= PP_MAX_STD_PX:
+            return p, prob, groups, ()
+    p, prob, groups = _fit(use, corners_mm, size, initial_focal_px, fit_k3, LONG_LENS_HELD)
+    return p, prob, groups, tuple(INTRINSIC_NAMES[i] for i in LONG_LENS_HELD)
+
+
 def calibrate_camera(views: list[BoardView], image_size: tuple[int, int], board_corners_mm: ArrayLike, *,
                      board: dict[str, Any] | None = None, initial_focal_px: float | None = None,
-                     max_rms_px: float = 1.0, fit_k3: bool = False) -> CameraCalibration:
+                     max_rms_px: float = 1.0, fit_k3: bool = False,
+                     principal_point: str = "auto") -> CameraCalibration:
     """Intrinsics and the camera's pose relative to the turntable axis from board views.
 
     Parameters
@@ -346,6 +391,11 @@ def calibrate_camera(views: list[BoardView], image_size: tuple[int, int], board_
         Largest accepted overall reprojection RMS (px).
     fit_k3
         Fit the distortion's k3 (else it is fixed at 0).
+    principal_point
+        ``"fit"``, ``"centre"`` (held at the image centre, with only k1 for the
+        distortion: the long-lens model) or ``"auto"`` (the long-lens model when
+        the full fit leaves the principal point uncertain by more than
+        :data:`PP_MAX_STD_PX`; the result's ``held`` names what was held).
 
     Returns
     -------
@@ -363,7 +413,7 @@ def calibrate_camera(views: list[BoardView], image_size: tuple[int, int], board_
     if len(use) < MIN_VIEWS:
         raise CameraCalibrationError(f"only {len(use)} usable board views (< {MIN_VIEWS}); shoot more table "
                                      "angles with the whole board in view")
-    p, prob, groups = _fit(use, corners_mm, (w, h), initial_focal_px, fit_k3)
+    p, prob, groups, held = _fit_model(use, corners_mm, (w, h), initial_focal_px, fit_k3, principal_point)
     rms_v = per_view_rms(p, prob)
     bad = rms_v > OUTLIER_FACTOR * np.median(rms_v)
     dropped = tuple(v.name for v, b in zip(use, bad) if b)
@@ -372,9 +422,9 @@ def calibrate_camera(views: list[BoardView], image_size: tuple[int, int], board_
         if len(use) < MIN_VIEWS:
             raise CameraCalibrationError(f"only {len(use)} usable board views after dropping "
                                          f"{', '.join(dropped)} (RMS > {OUTLIER_FACTOR:g}x the median)")
-        p, prob, groups = _fit(use, corners_mm, (w, h), initial_focal_px, fit_k3)
+        p, prob, groups, held = _fit_model(use, corners_mm, (w, h), initial_focal_px, fit_k3, principal_point)
     res = solve(p, prob, loss="linear")
-    return _result(res, prob, use, (w, h), board, dropped, max_rms_px)
+    return replace(_result(res, prob, use, (w, h), board, dropped, max_rms_px), held=held)
 
 
 def _result(res: Any, prob: FitProblem, views: list[BoardView], size: tuple[int, int], board: dict | None,

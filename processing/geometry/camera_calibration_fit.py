@@ -63,6 +63,9 @@ class FitProblem:
         Number of groups.
     fit_k3
         Whether k3 is a free parameter.
+    fixed
+        Indices of parameters held at their start values (e.g. the tangential
+        distortion ``(6, 7)``, which a long lens cannot separate from the pose).
     """
 
     obj_mm: NDArray[np.float64]
@@ -72,6 +75,7 @@ class FitProblem:
     group: NDArray[np.int64]
     n_groups: int
     fit_k3: bool = False
+    fixed: tuple[int, ...] = ()
 
     @property
     def n_intr(self) -> int:
@@ -265,10 +269,21 @@ def solve(p0: NDArray[np.float64], prob: FitProblem, loss: str = "linear") -> ob
     -------
     scipy.optimize.OptimizeResult
     """
-    def fun(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    free = np.ones(len(p0), dtype=bool)
+    free[list(prob.fixed)] = False
+
+    def fun(q: NDArray[np.float64]) -> NDArray[np.float64]:
+        p = p0.copy()
+        p[free] = q
         return (project_model(p, prob) - prob.img_px).ravel()
 
-    return least_squares(fun, p0, method="trf", loss=loss, f_scale=1.0, x_scale="jac", max_nfev=200)
+    res = least_squares(fun, p0[free], method="trf", loss=loss, f_scale=1.0, x_scale="jac", max_nfev=200)
+    x = p0.copy()
+    x[free] = res.x
+    jac = np.zeros((res.jac.shape[0], len(p0)))
+    jac[:, free] = res.jac
+    res.x, res.jac = x, jac
+    return res
 
 
 def per_view_rms(p: NDArray[np.float64], prob: FitProblem) -> NDArray[np.float64]:
@@ -369,7 +384,7 @@ def covariance(res: object, n_resid: int) -> NDArray[np.float64]:
         ``(P, P)``.
     """
     jac = res.jac
-    dof = max(n_resid - jac.shape[1], 1)
+    dof = max(n_resid - int(np.count_nonzero(np.any(jac != 0, axis=0))), 1)
     s2 = 2.0 * float(res.cost) / dof
     return np.linalg.pinv(jac.T @ jac) * s2
 

@@ -129,6 +129,10 @@ def parse_calibration(data: Any) -> dict[str, Any]:
     dropped = data.get("dropped_views", [])
     if not isinstance(dropped, list) or not all(isinstance(d, str) for d in dropped):
         raise _fail("dropped_views must be a list of view names")
+    held = data.get("held", [])
+    if not isinstance(held, list) or not all(h in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+                                             for h in held):
+        raise _fail("held must be a list of intrinsic parameter names (cx, cy, k2, p1, p2, ...)")
     gcov = None
     if data.get("gauge_cov") is not None:
         gcov = _array(data, "gauge_cov", (4, 4))
@@ -136,4 +140,5 @@ def parse_calibration(data: Any) -> dict[str, Any]:
             raise _fail("gauge_cov must be a symmetric 4 x 4 covariance; re-run the calibration")
     return {"gauge_cov": gcov, "image_size": size, "K": k, "dist": dist, "gauge_to_camera": _rigid(data, "gauge_to_camera"),
             "room_to_camera": room, "view_rms_px": _figures(data, "view_rms_px"), "rms_px": float(rms),
-            "stds": _figures(data, "stds"), "board": _board(data), "dropped_views": tuple(dropped)}
+            "stds": _figures(data, "stds"), "board": _board(data), "dropped_views": tuple(dropped),
+            "held": tuple(held)}

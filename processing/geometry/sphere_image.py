@@ -45,38 +45,51 @@ class SphereImageError(InputError):
     """No usable sphere in a frame; the one-line message names the frame and what to do."""
 
 
-def _gray(image: ArrayLike, name: str) -> NDArray[np.float64]:
+def _channels(image: ArrayLike, name: str) -> NDArray[np.float64]:
+    """The image as ``(H, W, C)`` float64 (C = 1 for a grey image), checked."""
     img = np.asarray(image, dtype=np.float64)
-    if img.ndim == 3:
-        img = img.mean(axis=2)
-    if img.ndim != 2 or min(img.shape) < 4 * _BORDER_PX:
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3 or min(img.shape[:2]) < 4 * _BORDER_PX:
         raise SphereImageError(f"{name}: expected a 2-D (or H x W x C) image, got shape {np.shape(image)}")
     if not np.all(np.isfinite(img)):
         raise SphereImageError(f"{name}: the image has NaN or infinite pixels")
     return img
 
 
-def _backdrop(img: NDArray[np.float64]) -> tuple[float, float]:
-    """Robust level and noise (median, 1.4826 MAD) of the image border."""
+def _backdrop(img: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Robust level and noise (median, 1.4826 MAD) of the image border, per channel."""
     b = _BORDER_PX
-    border = np.concatenate([img[:b].ravel(), img[-b:].ravel(), img[b:-b, :b].ravel(), img[b:-b, -b:].ravel()])
-    level = float(np.median(border))
-    return level, float(1.4826 * np.median(np.abs(border - level)))
+    c = img.shape[2]
+    border = np.concatenate([img[:b].reshape(-1, c), img[-b:].reshape(-1, c), img[b:-b, :b].reshape(-1, c),
+                             img[b:-b, -b:].reshape(-1, c)])
+    level = np.median(border, axis=0)
+    return level, 1.4826 * np.median(np.abs(border - level), axis=0)
 
 
-def _sphere_blob(smooth: NDArray[np.float64], level: float, noise: float, threshold_sigma: float,
-                 name: str) -> NDArray[np.uint8]:
-    """The filled largest region differing from the backdrop (uint8 0/1)."""
-    thr = max(threshold_sigma * noise, 0.05 * abs(level), 1e-12)
-    mask = (np.abs(smooth - level) > thr).astype(np.uint8)
+def _difference(smooth: NDArray[np.float64], level: NDArray[np.float64], noise: NDArray[np.float64]
+                ) -> NDArray[np.float64]:
+    """How far each pixel's colour is from the backdrop's, in units of the threshold scale (per channel).
+
+    The scale of a channel is its border noise, but at least 5/8 % of its level (so the default
+    threshold of 8 also asks for 5 % of the level).  The largest channel difference counts: a red
+    sphere whose brightness equals the grey backdrop's at its terminator still differs in colour.
+    """
+    scale = np.maximum(np.maximum(noise, 0.05 / 8.0 * np.abs(level)), 1e-12)
+    return np.max(np.abs(smooth - level) / scale, axis=2)
+
+
+def _sphere_blob(diff: NDArray[np.float64], threshold_sigma: float, name: str) -> NDArray[np.uint8]:
+    """The largest region differing from the backdrop, made convex (a sphere's outline is), as uint8 0/1."""
+    mask = (diff > threshold_sigma).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n < 2 or stats[1:, cv2.CC_STAT_AREA].max() < _MIN_AREA_PX:
         raise SphereImageError(f"{name}: no sphere found (nothing differs from the backdrop by more than "
-                               f"{thr:.3g}); check the exposure and that the sphere is in view")
+                               f"{threshold_sigma:g} noise units); check the exposure and that the sphere is in view")
     k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    contours, _ = cv2.findContours((labels == k).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    pts = cv2.findNonZero((labels == k).astype(np.uint8))
     blob = np.zeros_like(mask)
-    cv2.drawContours(blob, contours, -1, 1, thickness=cv2.FILLED)     # fills the holes (the highlights)
+    cv2.fillConvexPoly(blob, cv2.convexHull(pts), 1)     # fills the highlights and a terminator's gap
     x, y, w, h = cv2.boundingRect(blob)
     if x <= 1 or y <= 1 or x + w >= blob.shape[1] - 1 or y + h >= blob.shape[0] - 1:
         raise SphereImageError(f"{name}: the sphere is partly outside the frame; move it or the camera "
@@ -85,7 +98,11 @@ def _sphere_blob(smooth: NDArray[np.float64], level: float, noise: float, thresh
 
 
 def _edge_points(smooth: NDArray[np.float64], blob: NDArray[np.uint8]) -> NDArray[np.float64]:
-    """Sub-pixel edge points: the gradient maximum along each contour point's normal."""
+    """Sub-pixel edge points: the gradient maximum along each contour point's normal.
+
+    ``smooth`` is the colour-difference image; points where the outline is invisible (the sphere's
+    colour equals the backdrop's there: a weak gradient) are dropped.
+    """
     contours, _ = cv2.findContours(blob, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     pts = max(contours, key=len)[:, 0, :].astype(np.float64)
     m = cv2.moments(blob, binaryImage=True)
@@ -100,7 +117,9 @@ def _edge_points(smooth: NDArray[np.float64], blob: NDArray[np.uint8]) -> NDArra
     g0, g1, g2 = (grad[np.arange(len(pts)), i + k] for k in (-1, 0, 1))
     den = g0 - 2 * g1 + g2
     frac = np.where(den < 0, 0.5 * (g0 - g2) / np.where(den < 0, den, -1.0), 0.0)
-    keep = (np.argmax(grad, axis=1) > 0) & (np.argmax(grad, axis=1) < len(t) - 1) & (np.abs(frac) <= 1)
+    peak = grad[np.arange(len(pts)), i]
+    keep = (np.argmax(grad, axis=1) > 0) & (np.argmax(grad, axis=1) < len(t) - 1) & (np.abs(frac) <= 1) \
+        & (peak > 0.3 * np.median(peak))
     s = t[i] + 0.25 * frac
     return (pts + s[:, None] * normal)[keep]
 
@@ -112,7 +131,9 @@ def sphere_silhouette(image: ArrayLike, *, name: str = "image", clip_level: floa
     Parameters
     ----------
     image
-        (H, W) or (H, W, C) linear image (channels are averaged).
+        (H, W) or (H, W, C) linear image; a pixel differs from the backdrop by its largest channel
+        difference (in noise units), so a coloured sphere is found where its brightness equals the
+        backdrop's.
     name
         The frame's name, for the error messages.
     clip_level
@@ -134,16 +155,19 @@ def sphere_silhouette(image: ArrayLike, *, name: str = "image", clip_level: floa
     SphereImageError
         No sphere found; the sphere touches the frame border; the outline is clipped.
     """
-    img = _gray(image, name)
-    smooth = cv2.GaussianBlur(img, (0, 0), smooth_px) if smooth_px > 0 else img
+    img = _channels(image, name)
+    smooth = np.stack([cv2.GaussianBlur(img[..., c], (0, 0), smooth_px) for c in range(img.shape[2])], axis=2) \
+        if smooth_px > 0 else img
     level, noise = _backdrop(smooth)
-    blob = _sphere_blob(smooth, level, noise, threshold_sigma, name)
+    diff = _difference(smooth, level, noise)
+    blob = _sphere_blob(diff, threshold_sigma, name)
     if clip_level is not None:
         ring = cv2.dilate(blob, np.ones((7, 7), np.uint8)) - cv2.erode(blob, np.ones((7, 7), np.uint8))
-        if np.any(img[ring > 0] >= clip_level) or np.mean(img[blob > 0] >= clip_level) > 0.5:
+        top = img.max(axis=2)
+        if np.any(top[ring > 0] >= clip_level) or np.mean(top[blob > 0] >= clip_level) > 0.5:
             raise SphereImageError(f"{name}: the sphere is saturated (pixels at the clip level {clip_level:g}); "
                                    "shoot at a shorter exposure")
-    edge = _edge_points(smooth, blob)
+    edge = _edge_points(diff, blob)
     if len(edge) < 20:
         raise SphereImageError(f"{name}: no sharp sphere outline found ({len(edge)} edge points); check the focus")
     return edge

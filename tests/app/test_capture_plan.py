@@ -91,8 +91,8 @@ def test_a_camera_calibration_plan_shoots_the_board_at_twelve_angles_per_placeme
     frames = [a for a in plan.actions() if a.kind == "frame"]
     assert len(frames) == 36 and not [a for a in plan.actions() if a.kind != "frame"]
     assert [a.angle_deg for a in plan.pass_actions(2)] == [30.0 * i for i in range(12)]
-    assert plan.board == {"dictionary": "DICT_5X5_100", "squares_x": 9, "squares_y": 6, "square_mm": 15.0,
-                          "marker_mm": 11.0}
+    assert plan.board == {"dictionary": "DICT_5X5_100", "squares_x": 7, "squares_y": 5, "square_mm": 8.0,
+                          "marker_mm": 6.0}
     # the board travels with the plan into the manifest and back
     assert CapturePlan.from_dict(plan.to_dict()) == plan
 

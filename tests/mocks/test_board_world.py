@@ -50,12 +50,13 @@ def test_board_is_detected_at_several_table_angles(world, detector, placement, a
         times.append(elapsed)
         assert frame.radiance.shape[:2] == (640, 960)
         assert ids is not None and len(ids) >= 15, (placement, angle)
-        # detected corners lie where the true pose projects them (flat board seen at grazing incidence: 1.5 px)
+        # detected corners lie where the true pose projects them (OpenCV's own refinement, no sub-pixel step:
+        # 10 mm squares on a wedge 0.4 px, the flat board seen at grazing incidence 1.5 px)
         obj = detector[0].getChessboardCorners()[ids.ravel()]
         cam = world.room_to_camera() @ world.board_to_room(angle)
         p = (obj @ cam[:3, :3].T + cam[:3, 3]) @ world.camera_intrinsics().T
         err = np.abs(p[:, :2] / p[:, 2:] - corners.reshape(-1, 2)).max()
-        assert err < (1.5 if world.tilts_deg[placement - 1] == 0 else 0.3), (placement, angle, err)
+        assert err < (1.5 if world.tilts_deg[placement - 1] == 0 else 0.4), (placement, angle, err)
     assert np.median(times) < 3.0
 
 
