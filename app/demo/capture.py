@@ -20,7 +20,13 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["simulated_capture", "profiles_figure"]
+__all__ = ["simulated_capture", "profiles_figure", "REFERENCE_RADIUS_MM", "REFERENCE_OFFSET_MM"]
+
+#: The reference sphere of the scanner calibration: radius and distance from the axis (mm); its photos,
+#: taken while it is scanned, tie the camera to the scanner's frame, so it must be whole in view at
+#: several table angles.
+REFERENCE_RADIUS_MM = 20.0
+REFERENCE_OFFSET_MM = 40.0
 
 
 def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: str = "gphoto2",
@@ -136,13 +142,13 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int, *, camera: bool = Fal
 
     plan = CapturePlan("scan", steps=90, passes=1, camera=camera, chart=False)
     size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
-    with SimulatedStation(World.calibration_sphere(25.0, 60.0, **size), root=out / "station-calibration",
+    with SimulatedStation(World.calibration_sphere(REFERENCE_RADIUS_MM, REFERENCE_OFFSET_MM, **size), root=out / "station-calibration",
                           seed=seed) as st:
         config: dict[str, Any] = {"turntable": {"port": str(st.turntable_path)},
                                   "profiler": {"port": str(st.profiler_path)}}
         if camera:
             config["camera"] = {"kind": "gphoto2", "executable": str(st.gphoto2_path)}
-        session = Session.create(cal_dir, plan=plan.to_dict(), object_info={"name": "reference sphere, r = 25 mm"},
+        session = Session.create(cal_dir, plan=plan.to_dict(), object_info={"name": f"reference sphere, r = {REFERENCE_RADIUS_MM:g} mm"},
                                  settings={"unattended": True, "device_config": config})
         try:
             run_capture(session, plan, build_devices(config, session.root),
@@ -150,7 +156,7 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int, *, camera: bool = Fal
         finally:
             session.close()
         truth = st.sensor_to_room
-    ref = calibrate_session(cal_dir, 25.0)
+    ref = calibrate_session(cal_dir, REFERENCE_RADIUS_MM)
     from app.workflows.calibration import session_calibration
     from processing.geometry.registration import pose_difference
 
