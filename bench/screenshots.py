@@ -167,11 +167,59 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
     return saved
 
 
+def posed_screenshot(session: Path, out: Path, frame: int = 20) -> Path:
+    """The Camera tab showing one of a projected session's frames with the mesh's outline (``camera-posed.png``).
+
+    ``session`` is a session posed on its mesh, e.g. ``out/demo/capture/session`` after ``make demo``.
+    """
+    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+    from PySide6.QtCore import QSettings
+    from PySide6.QtWidgets import QApplication
+
+    from app.gui.main_window import MainWindow
+
+    app = QApplication.instance() or QApplication([])
+    with tempfile.TemporaryDirectory(prefix="kogei-screenshots-") as tmp:
+        w = MainWindow(QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat))
+        w.resize(1360, 900)
+        w.show()
+        try:
+            w.session.open_session(str(session))
+            w.tabs.setCurrentWidget(w.camera)
+            names = w.camera.refresh_posed()
+            if not names:
+                raise RuntimeError(f"screenshots: {session} has no posed frames; run make demo first")
+            w.camera.posed_list.setCurrentIndex(min(frame, len(names) - 1))
+            w.camera.open_posed()
+            end = time.monotonic() + 120
+            while w.camera.frame is None or w.camera.frame.mesh_outlines is None or w.camera.image_plot.busy:
+                if time.monotonic() > end:
+                    raise TimeoutError("screenshots: timed out waiting for the posed frame")
+                app.processEvents()
+                time.sleep(0.01)
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                app.processEvents()
+                time.sleep(0.01)
+            out.mkdir(parents=True, exist_ok=True)
+            path = out / "camera-posed.png"
+            w.grab().save(str(path))
+        finally:
+            w.close()
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.screenshots", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/screenshots")
     parser.add_argument("--steps", type=int, default=90)
+    parser.add_argument("--posed", default=None, metavar="SESSION",
+                        help="only the Camera tab with the mesh outline on a frame of this projected session "
+                             "(e.g. out/demo/capture/session after make demo)")
     args = parser.parse_args(argv)
+    if args.posed:
+        print(f"wrote {posed_screenshot(Path(args.posed), Path(args.out))}")
+        return 0
     take_screenshots(Path(args.out), steps=args.steps)
     return 0
 

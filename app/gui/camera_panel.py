@@ -109,6 +109,8 @@ def analyse_frame(path: str | Path, posed: dict[str, Any] | None = None) -> Fram
     view.clipped = float(raw.saturated.mean())
     view.histogram = np.stack([np.histogram(np.clip(raw.rgb[..., c], 0, 1), bins=HISTOGRAM_BINS)[0]
                                for c in range(3)])
+    if posed is not None:
+        return view                     # an object frame: no chart to look for
     try:
         det = detect_chart(raw)
     except ChartDetectionError as exc:
@@ -291,5 +293,6 @@ class CameraPanel(Panel):
         else:
             self.clip_warning.setText("")
         self.state.setText(f"{view.path.name}: {w}x{h} preview (2x2 binned)"
+                           + (f" · {view.posed}" if view.posed else "")
                            + (f" · chart: {view.chart_problem}" if view.chart_problem else ""))
         self.frame_shown.emit(view)

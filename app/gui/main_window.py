@@ -335,6 +335,7 @@ class MainWindow(QMainWindow):
         manifest = self.session.manifest
         if manifest is not None:
             self.capture.set_plan(manifest.get("plan", {}))
+        self.processing.show_station(manifest)
         try:
             self.camera.refresh_posed()
         except Exception as exc:  # noqa: BLE001 - a damaged product must not stop the session from opening

@@ -210,6 +210,18 @@ class ProcessingPanel(Panel):
         f.addRow(self.station_state)
         return box
 
+    def show_station(self, manifest: dict[str, Any] | None) -> None:
+        """Show the open session's installed camera and lamp calibrations (or that it has none)."""
+        cam = (manifest or {}).get("camera_calibration")
+        lamps = (manifest or {}).get("lamp_calibration")
+        parts = []
+        if isinstance(cam, dict) and isinstance(cam.get("rms_px"), (int, float)):
+            parts.append(camera_summary(cam))
+        if isinstance(lamps, dict):
+            parts.append(f"lamps: {lamps.get('lamps', '?')} located")
+        self.station_state.setText(" · ".join(parts) if parts else
+                                   "this session has no camera calibration: its photos are not posed on the mesh")
+
     def _browse_into(self, field: QLineEdit) -> None:
         path = QFileDialog.getExistingDirectory(self, "Calibrated session")
         if path:
