@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["png_of", "calibration_residuals_figure", "frame_residuals_figure", "pose_graph_figure", "coverage_figure", "holes_figure",
+__all__ = ["png_of", "calibration_residuals_figure", "frame_residuals_figure", "overlay_sheet", "pose_graph_figure", "coverage_figure", "holes_figure",
            "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure", "region_spectra_figure",
            "material_map_figure"]
 
@@ -76,6 +76,30 @@ def frame_residuals_figure(names: Sequence[str], rms_px: Sequence[float], overal
     ax.set_ylabel("reprojection RMS (px)")
     ax.legend(loc="upper right", fontsize=8)
     return png_of(fig)
+
+
+def overlay_sheet(tiles: Sequence[tuple[bytes, str]], width_px: int = 240, columns: int = 6) -> bytes:
+    """A contact sheet: PNG images (overlays) scaled to ``width_px`` wide, ``columns`` per row, each captioned."""
+    import io
+
+    import cv2
+    from PIL import Image
+
+    from processing.common.png import png_bytes
+
+    cells = []
+    for blob, caption in tiles:
+        img = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
+        h = max(1, round(img.shape[0] * width_px / img.shape[1]))
+        cell = np.full((h + 18, width_px, 3), 255, np.uint8)
+        cell[:h] = cv2.resize(img, (width_px, h), interpolation=cv2.INTER_AREA)
+        cv2.putText(cell, caption, (3, h + 13), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (30, 30, 30), 1, cv2.LINE_AA)
+        cells.append(cell)
+    height = max(c.shape[0] for c in cells)
+    cells = [np.vstack([c, np.full((height - c.shape[0], width_px, 3), 255, np.uint8)]) for c in cells]
+    cells += [np.full_like(cells[0], 255)] * ((-len(cells)) % columns)
+    rows = [np.hstack(cells[i:i + columns]) for i in range(0, len(cells), columns)]
+    return png_bytes(np.vstack(rows))
 
 
 def pose_graph_figure(passes: Sequence[dict[str, Any]], pairs: Sequence[dict[str, Any]]) -> bytes:

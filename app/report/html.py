@@ -32,6 +32,7 @@ from app.report.figures import (
     data_uri,
     frame_residuals_figure,
     holes_figure,
+    overlay_sheet,
     pose_graph_figure,
     timing_figure,
 )
@@ -357,6 +358,8 @@ def _camera_rows(cam: dict[str, Any]) -> list[tuple[str, Any]]:
             ("principal point", f"({k[0][2]:.1f}, {k[1][2]:.1f}) px"),
             ("distortion k1, k2, p1, p2, k3", ", ".join(f"{v:.4g}" for v in cam.get("dist") or [])),
             ("board frames used / rejected", f"{src.get('frames_used', '?')} / {len(src.get('frames_rejected') or [])}"),
+            ("board coverage of the image", "not recorded" if not isinstance(src.get("coverage"), dict) else
+             f"{100 * float(src['coverage'].get('fraction', 0.0)):.0f} % of a 12 x 8 grid of cells"),
             ("sphere photos tying the camera to the turntable", src.get("sphere_photos")),
             ("axis direction +-", f"{stds.get('axis_direction_deg', float('nan')):.4f} deg"),
             ("rotation about the axis +-", f"{stds.get('gauge_rotation_deg', float('nan')):.4f} deg")]
@@ -379,6 +382,10 @@ def _lamp_rows(lamps: dict[str, Any]) -> list[list[Any]]:
         rows.append([lp.get("name"), lp.get("kind"), where, unc, lp.get("n_observations"),
                      f"{lp.get('rms_deg', float('nan')):.3f} deg", lp.get("spectrum")])
     return rows
+
+
+#: Most posed frames drawn in the report's contact sheet.
+MAX_OVERLAYS = 48
 
 
 def _posed(ctx: _Context) -> Section:
@@ -416,15 +423,15 @@ def _posed(ctx: _Context) -> Section:
                    [[f.get("frame"), f.get("pass"), f"{f.get('table_angle_deg', 0):.0f} deg",
                      "-" if f.get("iou") is None else f"{f['iou']:.4f}",
                      "-" if f.get("offset_px") is None else f"{f['offset_px']:.2f}"] for f in frames])
-    shown = []
-    for f in frames[:: max(1, len(frames) // 6)][:6]:
+    tiles = []
+    for f in frames[:MAX_OVERLAYS]:
         blob = ctx.product_bytes({"file": f.get("overlay")}, "projection overlay") if f.get("overlay") else None
         if blob is not None:
-            iou = "" if f.get("iou") is None else f", IoU {f['iou']:.3f}"
-            shown.append(_img(blob, f"overlay {f.get('frame')}", f"{f.get('frame')}{iou}"))
-    if shown:
-        body += ("<p>The mesh's outline (cyan) projected with the calibrated camera onto the photos:</p>"
-                 "<div class='row'>" + "".join(shown) + "</div>")
+            tiles.append((blob, f"{f.get('frame')}" + ("" if f.get("iou") is None else f"  IoU {f['iou']:.3f}")))
+    if tiles:
+        body += _img(overlay_sheet(tiles), "overlays of every posed frame",
+                     "The mesh's outline (cyan) projected with the calibrated camera onto every photo"
+                     + (f" (the first {MAX_OVERLAYS})" if len(frames) > MAX_OVERLAYS else "") + ".")
     return Section("posed", "Camera and lamp", body, True)
 
 

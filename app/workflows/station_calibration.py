@@ -49,6 +49,7 @@ __all__ = [
     "session_lamp_calibration",
     "frame_records",
     "decode_frame",
+    "board_coverage",
 ]
 
 CAMERA_FILE = "camera_calibration.json"
@@ -233,9 +234,36 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
     data = calib.to_dict()
     data["source"] = {"board_session": str(root.resolve()), "scanner_session": str(sphere_root.resolve()),
                       "frames_used": len(views), "frames_rejected": rejected,
-                      "sphere_photos": len(observations), "link": _jsonable(link)}
+                      "sphere_photos": len(observations), "link": _jsonable(link),
+                      "coverage": board_coverage([v.corners_px for v in views], size)}
     with Session.open(root) as s:
         return install_station_calibration(s, "camera_calibration", data)
+
+
+def board_coverage(corners_px: list[Any], image_size: tuple[int, int], cells: tuple[int, int] = (12, 8)
+                   ) -> dict[str, Any]:
+    """How much of the image the board's corners covered over all frames used (a 12 x 8 grid of cells).
+
+    Returns ``{"cells": [cols, rows], "counts": rows x cols corner counts, "fraction": share of cells
+    with at least one corner}``: a calibration from corners in one corner of the image extrapolates
+    the distortion elsewhere.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> board_coverage([np.array([[10.0, 10.0], [950.0, 630.0]])], (960, 640))["fraction"]
+    0.020833333333333332
+    """
+    import numpy as np
+
+    cols, rows = cells
+    counts = np.zeros((rows, cols), dtype=np.int64)
+    for c in corners_px:
+        c = np.asarray(c, dtype=np.float64).reshape(-1, 2)
+        i = np.clip((c[:, 1] / image_size[1] * rows).astype(int), 0, rows - 1)
+        j = np.clip((c[:, 0] / image_size[0] * cols).astype(int), 0, cols - 1)
+        np.add.at(counts, (i, j), 1)
+    return {"cells": [cols, rows], "counts": counts.tolist(), "fraction": float(np.mean(counts > 0))}
 
 
 def _manual_focal(focal_mm: float | None, sensor_mm: float | None, width_px: int) -> float | None:
