@@ -187,6 +187,10 @@ class World:
         Current table angle (degrees).
     mesh_source
         Where the mesh came from (``"hawk:<triangles>"`` or a path).
+    chart_first
+        The station shows the colour chart in the first frame after each
+        placement (a technician holding the chart up); False for a scan
+        whose plan takes no chart (the reference sphere's).
     """
 
     vertices: NDArray[np.float64]
@@ -212,6 +216,7 @@ class World:
     camera_target_mm: tuple[float, float, float] = (0.0, 0.0, 37.0)
     light_position_mm: tuple[float, float, float] | None = None
     lamp_radius_mm: float = 15.0
+    chart_first: bool = True
 
     def __post_init__(self) -> None:
         self.vertices = np.asarray(self.vertices, dtype=np.float64)
@@ -383,6 +388,7 @@ class World:
             "camera_target_mm": list(self.camera_target_mm),
             "light_position_mm": None if self.light_position_mm is None else list(self.light_position_mm),
             "lamp_radius_mm": float(self.lamp_radius_mm),
+            "chart_first": bool(self.chart_first),
         }
 
     def fixed_placement_pose(self, placement: int) -> NDArray[np.float64] | None:
@@ -394,8 +400,8 @@ class World:
     # ------------------------------------------------------------------ rendering
     @property
     def shows_chart(self) -> bool:
-        """Whether the station shows the colour chart first after a placement (not for the reference sphere)."""
-        return not self.mesh_source.startswith("sphere:")
+        """Whether the station shows the colour chart in the first frame after a placement (:attr:`chart_first`)."""
+        return bool(self.chart_first)
 
     @property
     def grid(self) -> SpectralGrid:
@@ -610,7 +616,7 @@ def world_settings(data: dict[str, Any]) -> dict[str, Any]:
     allowed = {"pose", "light", "light_direction", "chart", "chart_present", "chart_layout", "chart_placement",
                "width", "height",
                "camera_distance_mm", "camera_elevation_deg", "fov_deg", "spectral_step", "table_angle_deg",
-               "camera_target_mm", "light_position_mm", "lamp_radius_mm"}
+               "camera_target_mm", "light_position_mm", "lamp_radius_mm", "chart_first"}
     unknown = set(data) - allowed
     if unknown:
         raise WorldError(f"unknown world setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(allowed))}")

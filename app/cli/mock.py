@@ -155,7 +155,7 @@ def _build_world(args: argparse.Namespace) -> Any:
             except ValueError:
                 raise UsageError(f"--world {args.world}: use sphere, sphere:RADIUS_MM or "
                                  "sphere:RADIUS_MM:OFFSET_MM") from None
-            return World.calibration_sphere(radius, offset)
+            return World.calibration_sphere(radius, offset, chart_first=False)   # a calibration scan takes no chart
         if args.world == "board" or args.world.startswith("board:"):
             return _board_world(args.world)
         if args.world == "mirror-sphere" or args.world.startswith("mirror-sphere:"):

@@ -142,7 +142,8 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int, *, camera: bool = Fal
 
     plan = CapturePlan("scan", steps=90, passes=1, camera=camera, chart=False)
     size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
-    with SimulatedStation(World.calibration_sphere(REFERENCE_RADIUS_MM, REFERENCE_OFFSET_MM, **size), root=out / "station-calibration",
+    with SimulatedStation(World.calibration_sphere(REFERENCE_RADIUS_MM, REFERENCE_OFFSET_MM,
+                                                                 chart_first=False, **size), root=out / "station-calibration",
                           seed=seed) as st:
         config: dict[str, Any] = {"turntable": {"port": str(st.turntable_path)},
                                   "profiler": {"port": str(st.profiler_path)}}
