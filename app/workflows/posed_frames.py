@@ -393,10 +393,9 @@ def frame_outline(session_dir: str | Path, frame: str) -> dict[str, Any]:
         (``image_size``, sensor photosites when decoded with ``demosaic``);
         ``image_size``; ``iou`` and ``offset_px`` from the projection report (or None).
     """
+    from app.session import Session
     from processing.appearance.frame_poses import AppearanceError, FramePose
     from processing.appearance.silhouette import mesh_mask, outline_px
-
-    from app.session import Session
 
     root = Path(session_dir)
     manifest = Session.read(root)
