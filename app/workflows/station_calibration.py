@@ -141,6 +141,16 @@ def _board_views(root: Path, manifest: dict[str, Any], mode: str, note: Callable
     return views, rejected, size, defn.to_dict()
 
 
+def _sphere_frames(sphere_root: Path, manifest: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """The sphere session's RAW frames of the calibrated pass; a one-line error when there are none."""
+    source_pass = (manifest.get("calibration") or {}).get("source") or {}
+    frames = frame_records(sphere_root, manifest, passes={int(source_pass.get("pass") or 1)})
+    if not frames:
+        raise UsageError(f"--scanner {sphere_root}: the sphere session has no RAW frames of the sphere; capture it "
+                         "with the camera connected (kogei capture with --camera), then calibrate again")
+    return frames
+
+
 def _sphere_observations(sphere_root: Path, calib: Any, scanner: Any, mode: str, note: Callable[[str], None]
                          ) -> list[Any]:
     """The reference sphere's centre in the camera frame, from the sphere session's photos."""
@@ -152,11 +162,7 @@ def _sphere_observations(sphere_root: Path, calib: Any, scanner: Any, mode: str,
         manifest = Session.read(sphere_root)
     except SessionError as exc:
         raise UsageError(str(exc)) from None
-    source_pass = (manifest.get("calibration") or {}).get("source") or {}
-    frames = frame_records(sphere_root, manifest, passes={int(source_pass.get("pass") or 1)})
-    if not frames:
-        raise UsageError(f"--scanner {sphere_root}: the sphere session has no RAW frames of the sphere; capture it "
-                         "with the camera connected (kogei capture with --camera), then calibrate again")
+    frames = _sphere_frames(sphere_root, manifest)
     out = []
     for cid, rec in frames:
         img = decode_frame(sphere_root, cid, rec, mode)
@@ -209,9 +215,10 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
     from app.session import Session, SessionError
     from app.workflows.calibration import session_calibration
     from processing.camera.charuco import board_corners_mm
-    from processing.geometry.camera_calibration import CameraCalibrationError, calibrate_camera, link_to_room
+    from processing.geometry.camera_calibration import MIN_VIEWS, CameraCalibrationError, calibrate_camera, link_to_room
 
     note = message or (lambda text: None)
+    _manual_focal(focal_mm, sensor_mm, 1)          # argument errors before any frame is read
     root, sphere_root = Path(board_session), Path(scanner_session)
     try:
         manifest = Session.read(root)
@@ -219,7 +226,14 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
     except SessionError as exc:
         raise UsageError(str(exc)) from None
     scanner = session_calibration(sphere_root, sphere_manifest)
+    _sphere_frames(sphere_root, sphere_manifest)     # said at once, not after the board is detected
     views, rejected, size, board = _board_views(root, manifest, decode, note)
+    if len(views) < MIN_VIEWS:
+        raise UsageError(f"session {root}: {len(rejected)} of {len(rejected) + len(views)} frames rejected (no board "
+                         f"found: {rejected[0] if rejected else 'none'}), {len(views)} usable; at least "
+                         f"{MIN_VIEWS} frames must show the board {board.get('squares_x')} x "
+                         f"{board.get('squares_y')} squares ({board.get('dictionary')}): check the plan's board and "
+                         "the lighting, then capture again")
     focal = _manual_focal(focal_mm, sensor_mm, size[0])
     from processing.camera.charuco import BoardDefinition
 
