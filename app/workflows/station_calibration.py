@@ -219,6 +219,8 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
 
     note = message or (lambda text: None)
     _manual_focal(focal_mm, sensor_mm, 1)          # argument errors before any frame is read
+    if not (isinstance(max_rms_px, (int, float)) and math.isfinite(max_rms_px) and max_rms_px > 0):
+        raise UsageError(f"--max-rms must be a positive number of pixels, got {max_rms_px!r}")
     root, sphere_root = Path(board_session), Path(scanner_session)
     try:
         manifest = Session.read(root)
@@ -332,6 +334,8 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     if radius is None:
         raise UsageError(f"session {root}: give the mirror sphere's radius with --sphere-radius MM (the plan does not "
                          "record it)")
+    if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not (math.isfinite(radius) and radius > 0):
+        raise UsageError(f"--sphere-radius must be the mirror sphere's radius in mm (> 0), got {radius!r}")
     spec = _lamp_spectrum(spectrum)
     try:
         calib = CameraCalibration.from_dict(load_station_source(camera_source, "camera_calibration"))
@@ -372,7 +376,8 @@ def _mirror_views(root: Path, manifest: dict[str, Any], decode: str, note: Calla
             continue
         views.append((cid, float(rec["angle_deg"]), img.rgb))
     if size is None:
-        raise UsageError(f"session {root} has no RAW frames of the mirror sphere")
+        raise UsageError(f"session {root} has no RAW frames of the mirror sphere; capture it with "
+                         "'kogei capture --plan lamp-calibration'")
     return views, size
 
 
@@ -411,6 +416,10 @@ def _describe_lamp(lamp: Any) -> str:
 # ---------------------------------------------------------------------------- installing and reading back
 def install_station_calibration(session: Any, key: str, data: dict[str, Any]) -> dict[str, Any]:
     """Write ``data`` as the session's camera or lamp calibration file and reference it from the manifest."""
+    if key == "camera_calibration" and data.get("room_to_camera") is None:
+        raise UsageError(f"--camera-calibration {data.get('installed_from') or ''}: the camera is not tied to the "
+                         "scanner's frame (room_to_camera is null); calibrate it with 'kogei calibrate --camera "
+                         "BOARD_SESSION --scanner SPHERE_SESSION'")
     blob = (json.dumps(data, indent=1, allow_nan=False) + "\n").encode()
     info = session.write_file(_FILES[key], blob)
     ref: dict[str, Any] = {"path": info.path, "sha256": info.sha256, "source": data.get("source")}

@@ -96,7 +96,11 @@ def sessions(tmp_path_factory):
     data = json.loads((edited / "camera_calibration.json").read_text())
     data["K"][0][0] *= 1.01
     (edited / "camera_calibration.json").write_text(json.dumps(data))
-    make("untied", camera={**_true_camera(), "room_to_camera": None})
+    untied = make("untied")
+    with Session.open(untied) as s:
+        # install_station_calibration refuses an untied camera: write it as another tool might have
+        info = s.write_file("camera_calibration.json", json.dumps({**_true_camera(), "room_to_camera": None}).encode())
+        s.update("camera_calibration", {"path": info.path, "sha256": info.sha256})
     no_angle = make("no-angle", camera=_true_camera())
     manifest = json.loads((no_angle / MANIFEST).read_text())
     del manifest["captures"]["p01/frame/01"]["angle_deg"]

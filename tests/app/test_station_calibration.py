@@ -66,6 +66,9 @@ def sessions(tmp_path_factory):
     k = World.calibration_sphere(20.0, 40.0, width=960, height=640)
     untied = CameraCalibration((960, 640), k.camera_intrinsics(), np.zeros(5), np.eye(4), room_to_camera=None)
     (base / "untied.json").write_text(json.dumps(untied.to_dict()))
+    tied = CameraCalibration((960, 640), k.camera_intrinsics(), np.zeros(5), np.eye(4),
+                             room_to_camera=k.room_to_camera())
+    (base / "tied.json").write_text(json.dumps(tied.to_dict()))
     (base / "garbage.json").write_text("{not json")
     (base / "wrong-schema.json").write_text(json.dumps({"schema": "kogei.scanner_calibration", "version": 1}))
     return base
@@ -107,6 +110,12 @@ def test_manual_focal_is_checked_before_any_frame_is_read(extra, sessions, capsy
     err = _fails(["calibrate", "--camera", str(sessions / "board-empty"), "--scanner", str(sessions / "scanner"),
                   *extra], capsys, sessions, "--focal-mm")
     assert "RAW" not in err
+
+
+@pytest.mark.parametrize("rms", ["-1", "0", "nan"])
+def test_a_bad_max_rms_is_refused_before_any_frame(rms, sessions, capsys):
+    _fails(["calibrate", "--camera", str(sessions / "board-empty"), "--scanner", str(sessions / "sphere-photos"),
+            f"--max-rms={rms}"], capsys, sessions, "--max-rms")
 
 
 # ---------------------------------------------------------------------------- camera: the sessions
@@ -151,6 +160,17 @@ def test_a_lamp_session_without_a_radius(sessions, capsys):
             str(sessions / "untied.json")], capsys, sessions, "--sphere-radius")
 
 
+@pytest.mark.parametrize("radius", ["-5", "0", "nan", "inf"])
+def test_a_bad_mirror_sphere_radius_is_refused_before_any_frame(radius, sessions, capsys):
+    _fails(["calibrate", "--lamp", str(sessions / "lamp"), "--camera-calibration", str(sessions / "tied.json"),
+            f"--sphere-radius={radius}"], capsys, sessions, "--sphere-radius", radius)
+
+
+def test_a_lamp_session_without_frames(sessions, capsys):
+    _fails(["calibrate", "--lamp", str(sessions / "lamp"), "--camera-calibration", str(sessions / "tied.json")],
+           capsys, sessions, "no RAW frames of the mirror sphere", "--plan lamp-calibration")
+
+
 def test_a_board_session_is_not_a_lamp_session(sessions, capsys):
     _fails(["calibrate", "--lamp", str(sessions / "no-board"), "--camera-calibration", str(sessions / "untied.json")],
            capsys, sessions, "not a lamp-calibration", "--plan lamp-calibration")
@@ -184,6 +204,12 @@ def test_a_bad_camera_calibration_for_the_lamps(source, needles, sessions, capsy
 
 
 # ---------------------------------------------------------------------------- kogei process --camera-calibration
+def test_process_refuses_a_camera_calibration_not_tied_to_the_scanner(sessions, capsys):
+    # refused when installed, not after the session is meshed
+    _fails(["process", str(sessions / "scanner"), "--camera-calibration", str(sessions / "untied.json")], capsys,
+           sessions, "--camera-calibration", "not tied to the scanner", "--scanner")
+
+
 @pytest.mark.parametrize("source, needles", [
     ("nowhere.json", ["not found"]),
     ("wrong-schema.json", []),
