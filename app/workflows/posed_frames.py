@@ -267,7 +267,11 @@ def _mesh(root: Path, manifest: dict[str, Any]) -> tuple[np.ndarray, np.ndarray,
     from app.session_paths import confined_file
 
     mesh_ref = (manifest.get("products") or {}).get("mesh") or {}
-    path = confined_file(root, mesh_ref.get("file"), "products.mesh.file")
+    try:
+        path = confined_file(root, mesh_ref.get("file"), "products.mesh.file")
+    except FileNotFoundError:
+        raise UsageError(f"session {root}: its mesh {mesh_ref.get('file')} is missing; run kogei process {root} "
+                         "again") from None
     mesh = o3d.io.read_triangle_mesh(str(path))
     if len(mesh.triangles) == 0:
         raise UsageError(f"session {root}: {mesh_ref.get('file')} holds no triangles; run kogei process again")
@@ -393,10 +397,9 @@ def frame_outline(session_dir: str | Path, frame: str) -> dict[str, Any]:
         (``image_size``, sensor photosites when decoded with ``demosaic``);
         ``image_size``; ``iou`` and ``offset_px`` from the projection report (or None).
     """
+    from app.session import Session
     from processing.appearance.frame_poses import AppearanceError, FramePose
     from processing.appearance.silhouette import mesh_mask, outline_px
-
-    from app.session import Session
 
     root = Path(session_dir)
     manifest = Session.read(root)

@@ -89,7 +89,11 @@ def decode_frame(root: Path, cid: str, rec: dict[str, Any], mode: str = "demosai
     from processing.camera.raw_decode import RawDecodeError, decode_raw
     from processing.common.files import sha256_file
 
-    path = confined_file(root, rec.get("file"), f"captures.{cid}.file")
+    try:
+        path = confined_file(root, rec.get("file"), f"captures.{cid}.file")
+    except FileNotFoundError:
+        raise UsageError(f"session {root}: {rec.get('file')} ({cid}) is missing; restore it from a copy of the "
+                         "session, or take the frames again with kogei capture") from None
     if isinstance(rec.get("sha256"), str) and sha256_file(path) != rec["sha256"]:
         raise UsageError(f"session {root}: {rec['file']} ({cid}) does not match its checksum; take the frame "
                          "again (kogei capture --resume re-takes damaged frames)")
@@ -231,8 +235,8 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
     _sphere_frames(sphere_root, sphere_manifest)     # said at once, not after the board is detected
     views, rejected, size, board = _board_views(root, manifest, decode, note)
     if len(views) < MIN_VIEWS:
-        raise UsageError(f"session {root}: {len(rejected)} of {len(rejected) + len(views)} frames rejected (no board "
-                         f"found: {rejected[0] if rejected else 'none'}), {len(views)} usable; at least "
+        raise UsageError(f"session {root}: {len(rejected)} of {len(rejected) + len(views)} frames rejected (first: "
+                         f"{rejected[0] if rejected else 'none'}), {len(views)} usable; at least "
                          f"{MIN_VIEWS} frames must show the board {board.get('squares_x')} x "
                          f"{board.get('squares_y')} squares ({board.get('dictionary')}): check the plan's board and "
                          "the lighting, then capture again")

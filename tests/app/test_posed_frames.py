@@ -245,3 +245,18 @@ def test_a_version_1_session_processed_today_has_no_camera_poses_and_reports(tmp
     assert main(["report", str(root), "--out", str(out)]) == 0, capsys.readouterr().err
     html = out.read_text()
     assert "Camera and lamp" in html and "no camera calibration" in html
+
+
+def test_a_missing_raw_frame_is_named(sessions, capsys):
+    root = sessions / "frame-missing"
+    shutil.copytree(sessions / "good", root)
+    rec = json.loads((root / MANIFEST).read_text())["captures"]["p01/frame/01"]
+    (root / rec["file"]).unlink()
+    _fails(["project", str(root)], capsys, sessions, rec["file"], "p01/frame/01", "missing", "kogei capture")
+
+
+def test_a_missing_mesh_is_named(sessions, capsys):
+    root = sessions / "mesh-missing"
+    shutil.copytree(sessions / "good", root)
+    (root / "products" / "mesh.ply").unlink()
+    _fails(["project", str(root)], capsys, sessions, "products/mesh.ply", "missing", "kogei process")
