@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from app.errors import UsageError
-from app.session_paths import MAX_JSON_BYTES, UnsafeSessionPath, confined_file, read_confined_bytes
+from app.session_paths import MAX_JSON_BYTES, confined_file, read_confined_bytes
 
 __all__ = [
     "CAMERA_FILE",
@@ -441,20 +441,17 @@ def load_station_source(source: str | Path, key: str) -> dict[str, Any]:
     """A camera or lamp calibration's JSON form from a calibrated session folder or the JSON file itself."""
     flag, name = _FLAGS[key], _FILES[key]
     p = Path(source)
+    if p.is_dir():
+        return _calibrated_session_file(p, key)
     try:
-        if p.is_dir():
-            blob = read_confined_bytes(p, name, f"{flag} {source}", MAX_JSON_BYTES)
-        else:
-            st = p.stat()
-            if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_JSON_BYTES:
-                raise UsageError(f"{flag} {source}: not a regular file of at most {MAX_JSON_BYTES} bytes; give "
-                                 f"a {name} or a calibrated session folder")
-            blob = p.read_bytes()
+        st = p.stat()
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_JSON_BYTES:
+            raise UsageError(f"{flag} {source}: not a regular file of at most {MAX_JSON_BYTES} bytes; give "
+                             f"a {name} or a calibrated session folder")
+        blob = p.read_bytes()
     except FileNotFoundError:
         raise UsageError(f"{flag} {source}: {name} not found; give the session calibrated with 'kogei calibrate' "
                          f"or its {name}") from None
-    except UnsafeSessionPath:
-        raise
     except OSError as exc:
         raise UsageError(f"{flag} {source}: unreadable ({exc.strerror or exc})") from None
     try:
@@ -463,6 +460,27 @@ def load_station_source(source: str | Path, key: str) -> dict[str, Any]:
         raise UsageError(f"{flag} {source}: not JSON ({exc})") from None
     if not isinstance(data, dict):
         raise UsageError(f"{flag} {source}: not a {name}")
+    return data
+
+
+def _calibrated_session_file(root: Path, key: str) -> dict[str, Any]:
+    """The calibration a session folder references from its manifest, checked against its SHA-256."""
+    from app.session import Session, SessionError
+
+    flag, name = _FLAGS[key], _FILES[key]
+    try:
+        manifest = Session.read(root)
+    except SessionError as exc:
+        raise UsageError(f"{flag} {root}: not a kogei session ({exc}); give a calibrated session folder or its "
+                         f"{name}") from None
+    data = _session_file(root, manifest, key)
+    if data is None:
+        what = "--camera BOARD_SESSION --scanner SPHERE_SESSION" if key == "camera_calibration" else \
+            "--lamp LAMP_SESSION --camera-calibration BOARD_SESSION"
+        raise UsageError(f"{flag} {root}: the session has no {name} (not found); calibrate it with "
+                         f"'kogei calibrate {what}' or give a {name}")
+    if not isinstance(data, dict):
+        raise UsageError(f"{flag} {root}: {name} is not a {name}")
     return data
 
 

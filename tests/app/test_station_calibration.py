@@ -17,7 +17,7 @@ from app.cli import main
 from app.errors import UsageError
 from app.session import Session
 from app.workflows.calibration import install_calibration
-from app.workflows.station_calibration import calibrate_lamp_session
+from app.workflows.station_calibration import calibrate_lamp_session, install_station_calibration
 from mocks.station import SimulatedStation
 from mocks.world import World
 from processing.geometry.calibration import ScannerCalibration, ideal_sensor_to_room
@@ -69,6 +69,15 @@ def sessions(tmp_path_factory):
     tied = CameraCalibration((960, 640), k.camera_intrinsics(), np.zeros(5), np.eye(4),
                              room_to_camera=k.room_to_camera())
     (base / "tied.json").write_text(json.dumps(tied.to_dict()))
+    # a camera-calibrated board session, and a copy whose camera_calibration.json was edited by hand
+    with Session.create(base / "board-calibrated", plan=CapturePlan("camera-calibration").to_dict()) as s:
+        install_station_calibration(s, "camera_calibration", tied.to_dict())
+    shutil.copytree(base / "board-calibrated", base / "board-edited")
+    edited = json.loads((base / "board-edited" / "camera_calibration.json").read_text())
+    edited["K"][0][0] *= 1.01
+    (base / "board-edited" / "camera_calibration.json").write_text(json.dumps(edited))
+    (base / "not-a-session").mkdir()
+    (base / "not-a-session" / "camera_calibration.json").write_text(json.dumps(tied.to_dict()))
     (base / "garbage.json").write_text("{not json")
     (base / "wrong-schema.json").write_text(json.dumps({"schema": "kogei.scanner_calibration", "version": 1}))
     return base
@@ -196,7 +205,9 @@ def test_an_unknown_lamp_spectrum(spectrum, sessions, capsys):
     ("wrong-schema.json", ["--camera-calibration"]),
     ("untied.json", ["not tied to the scanner", "--scanner"]),
     ("nowhere.json", ["not found"]),
-    ("board-empty", ["camera_calibration.json", "not found"]),
+    ("board-empty", ["camera_calibration.json", "not found", "kogei calibrate --camera"]),
+    ("board-edited", ["camera_calibration.json", "checksum"]),
+    ("not-a-session", ["session.json"]),
 ])
 def test_a_bad_camera_calibration_for_the_lamps(source, needles, sessions, capsys):
     _fails(["calibrate", "--lamp", str(sessions / "lamp"), "--camera-calibration", str(sessions / source)], capsys,
@@ -214,7 +225,21 @@ def test_process_refuses_a_camera_calibration_not_tied_to_the_scanner(sessions, 
     ("nowhere.json", ["not found"]),
     ("wrong-schema.json", []),
     ("garbage.json", ["not JSON"]),
+    ("board-edited", ["checksum"]),
+    ("board-empty", ["not found"]),
 ])
 def test_process_refuses_a_bad_camera_calibration(source, needles, sessions, capsys):
     _fails(["process", str(sessions / "scanner"), "--camera-calibration", str(sessions / source)], capsys, sessions,
            "--camera-calibration", source, *needles)
+
+
+def test_the_lamps_use_a_calibrated_board_session(sessions, capsys):
+    # the good board session passes every check up to the lamp session's (missing) frames
+    _fails(["calibrate", "--lamp", str(sessions / "lamp"), "--camera-calibration", str(sessions / "board-calibrated")],
+           capsys, sessions, "no RAW frames of the mirror sphere")
+
+
+@pytest.mark.parametrize("source, needles", [("garbage.json", ["not JSON"]), ("nowhere", ["not found"])])
+def test_process_refuses_a_bad_lamp_calibration(source, needles, sessions, capsys):
+    _fails(["process", str(sessions / "scanner"), "--lamp-calibration", str(sessions / source)], capsys, sessions,
+           "--lamp-calibration", source, *needles)
