@@ -108,6 +108,14 @@ def _fails(argv: list[str], capsys, base: Path, *needles: str) -> str:
     (["--camera", "B", "--lamp", "L"], ["not both"]),
     (["--lamp", "L"], ["--camera-calibration"]),
     ([], ["--camera BOARD_SESSION", "--lamp LAMP_SESSION", "--sphere-radius"]),
+    # options of one mode given to another are refused, not silently ignored
+    (["SPHERE", "--camera", "B", "--scanner", "S"], ["SESSION", "--camera"]),
+    (["SPHERE", "--lamp", "L", "--camera-calibration", "C"], ["SESSION", "--lamp"]),
+    (["SPHERE", "--sphere-radius", "20", "--scanner", "S"], ["--scanner", "--camera"]),
+    (["SPHERE", "--sphere-radius", "20", "--camera-calibration", "C"], ["--camera-calibration", "--lamp"]),
+    (["--camera", "B", "--scanner", "S", "--camera-calibration", "C"], ["--camera-calibration", "--lamp"]),
+    (["--lamp", "L", "--camera-calibration", "C", "--scanner", "S"], ["--scanner", "--camera"]),
+    (["--lamp", "L", "--camera-calibration", "C", "--focal-mm", "50", "--sensor-mm", "36"], ["--focal-mm"]),
 ])
 def test_calibrate_mode_arguments_are_checked(args, needles, sessions, capsys):
     _fails(["calibrate", *args], capsys, sessions, *needles)
