@@ -147,8 +147,11 @@ def _board_views(root: Path, manifest: dict[str, Any], mode: str, note: Callable
 
 def _sphere_frames(sphere_root: Path, manifest: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
     """The sphere session's RAW frames of the calibrated pass; a one-line error when there are none."""
-    source_pass = (manifest.get("calibration") or {}).get("source") or {}
-    frames = frame_records(sphere_root, manifest, passes={int(source_pass.get("pass") or 1)})
+    ref = manifest.get("calibration")
+    source = ref.get("source") if isinstance(ref, dict) else None
+    p = source.get("pass") if isinstance(source, dict) else None     # session.json is untrusted
+    pass_no = p if isinstance(p, int) and not isinstance(p, bool) and p >= 1 else 1
+    frames = frame_records(sphere_root, manifest, passes={pass_no})
     if not frames:
         raise UsageError(f"--scanner {sphere_root}: the sphere session has no RAW frames of the sphere; capture it "
                          "with the camera connected (kogei capture with --camera), then calibrate again")

@@ -15,7 +15,7 @@ from app.capture.devices import build_devices
 from app.capture.runner import CaptureHooks, CapturePlan, run_capture
 from app.cli import main
 from app.errors import UsageError
-from app.session import Session
+from app.session import MANIFEST, Session
 from app.workflows.calibration import install_calibration
 from app.workflows.station_calibration import calibrate_lamp_session, install_station_calibration
 from mocks.station import SimulatedStation
@@ -251,3 +251,15 @@ def test_the_lamps_use_a_calibrated_board_session(sessions, capsys):
 def test_process_refuses_a_bad_lamp_calibration(source, needles, sessions, capsys):
     _fails(["process", str(sessions / "scanner"), "--lamp-calibration", str(sessions / source)], capsys, sessions,
            "--lamp-calibration", source, *needles)
+
+
+@pytest.mark.parametrize("source", ["bench", 7, {"pass": "one"}, {"pass": True}])
+def test_a_scanner_calibration_with_an_odd_source_record(source, sessions, capsys, tmp_path):
+    # session.json is untrusted: an odd calibration.source is read as pass 1, not a traceback
+    root = tmp_path / "sphere"
+    shutil.copytree(sessions / "sphere-photos", root)
+    manifest = json.loads((root / MANIFEST).read_text())
+    manifest["calibration"]["source"] = source
+    (root / MANIFEST).write_text(json.dumps(manifest))
+    _fails(["calibrate", "--camera", str(sessions / "no-board"), "--scanner", str(root)], capsys, sessions,
+           "3 of 3 frames rejected")
