@@ -73,6 +73,9 @@ def frame_records(root: Path, manifest: dict[str, Any], *, passes: set[int] | No
         if not isinstance(rec, dict) or rec.get("kind") != "frame" or rec.get("status") != "done":
             continue
         p = rec.get("pass")
+        if not _is_count(p) or not _is_count(rec.get("index", 0)):
+            raise UsageError(f"session {root}: frame {cid} has no valid pass and index (pass {p!r}, index "
+                             f"{rec.get('index')!r}); session.json is damaged: restore it from a copy")
         if passes is not None and p not in passes:
             continue
         angle = rec.get("angle_deg")
@@ -82,6 +85,11 @@ def frame_records(root: Path, manifest: dict[str, Any], *, passes: set[int] | No
         out.append((cid, rec))
     out.sort(key=lambda item: (int(item[1].get("pass") or 0), int(item[1].get("index") or 0)))
     return out
+
+
+def _is_count(value: Any) -> bool:
+    """An integer >= 0 (not a bool)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
 def decode_frame(root: Path, cid: str, rec: dict[str, Any], mode: str = "demosaic") -> Any:

@@ -260,3 +260,26 @@ def test_a_missing_mesh_is_named(sessions, capsys):
     shutil.copytree(sessions / "good", root)
     (root / "products" / "mesh.ply").unlink()
     _fails(["project", str(root)], capsys, sessions, "products/mesh.ply", "missing", "kogei process")
+
+
+@pytest.mark.parametrize("report", [[], "text", {"passes": "all"}, {"passes": [{"pass": "one", "registered": True,
+                                                                              "pose": np.eye(4).tolist()}]},
+                                    {"passes": [{"pass": 1, "registered": True, "pose": [[1, 0], [0, 1]]}]}])
+def test_an_odd_process_report(report, sessions, capsys):
+    """The process report is a session file like any other (untrusted): odd content is an error, not a traceback."""
+    root = sessions / f"report-{len(list(sessions.glob('report-*')))}"
+    shutil.copytree(sessions / "good", root)
+    with Session.open(root) as s:
+        info = s.write_file("products/process-report.json", json.dumps(report).encode())
+        s.update("products", {**s.manifest["products"], "process_report": {"file": info.path, "sha256": info.sha256}})
+    _fails(["project", str(root)], capsys, sessions, "process report", "kogei process")
+
+
+@pytest.mark.parametrize("value", ["one", None, 2.5])
+def test_an_odd_frame_pass(value, sessions, capsys):
+    root = sessions / f"pass-{len(list(sessions.glob('pass-*')))}"
+    shutil.copytree(sessions / "good", root)
+    manifest = json.loads((root / MANIFEST).read_text())
+    manifest["captures"]["p01/frame/01"]["pass"] = value
+    (root / MANIFEST).write_text(json.dumps(manifest))
+    _fails(["project", str(root)], capsys, sessions, "p01/frame/01", "pass", "session.json")
