@@ -191,6 +191,10 @@ def test_the_true_camera_poses_the_frames_on_the_mesh(sessions, capsys):
     assert posed_frame_names(root) == ["p01/frame/00", "p01/frame/01", "p01/frame/02"]
     outline = frame_outline(root, "p01/frame/01")
     assert tuple(outline["image_size"]) == (240, 160) and len(outline["outlines"]) >= 1
+    assert outline["iou"] == pytest.approx(report["frames"][1]["iou"])
+    # a frame may be named by its file too
+    file = json.loads((root / MANIFEST).read_text())["captures"]["p01/frame/01"]["file"]
+    assert frame_outline(root, Path(file).name)["frame"] == "p01/frame/01"
     from app.errors import UsageError
 
     with pytest.raises(UsageError, match="p09/frame/00 is not posed"):
@@ -283,3 +287,16 @@ def test_an_odd_frame_pass(value, sessions, capsys):
     manifest["captures"]["p01/frame/01"]["pass"] = value
     (root / MANIFEST).write_text(json.dumps(manifest))
     _fails(["project", str(root)], capsys, sessions, "p01/frame/01", "pass", "session.json")
+
+
+def test_an_edited_lamp_calibration(sessions, capsys):
+    from processing.geometry.lamp_calibration import Lamp, LampCalibration
+
+    root = sessions / "lamp-edited"
+    shutil.copytree(sessions / "good", root)
+    lamp = Lamp("key", "distant", direction=np.array([0.0, 0.0, 1.0]), covariance=np.eye(3) * 1e-6)
+    with Session.open(root) as s:
+        install_station_calibration(s, "lamp_calibration", LampCalibration([lamp], 20.0).to_dict())
+    path = root / "lamp_calibration.json"
+    path.write_text(path.read_text().replace('"key"', '"kez"'))
+    _fails(["project", str(root)], capsys, sessions, "lamp_calibration.json", "checksum", "--lamp-calibration")
