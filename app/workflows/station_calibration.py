@@ -59,6 +59,8 @@ _FLAGS = {"camera_calibration": "--camera-calibration", "lamp_calibration": "--l
 CLIP_LEVEL = 0.98
 #: A sphere photo whose outline misses the fitted sphere's by more than this (px RMS) is not used.
 MAX_OUTLINE_RMS_PX = 0.5
+#: Most lamps ``--lamps`` may ask for.
+MAX_LAMPS = 16
 
 
 # ---------------------------------------------------------------------------- frames of a session
@@ -337,6 +339,9 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     root = Path(lamp_session)
     if model not in ("auto", "point", "distant"):
         raise UsageError(f"--lamp-model must be auto, point or distant, got {model!r}")
+    if n_lamps is not None and not (isinstance(n_lamps, int) and not isinstance(n_lamps, bool)
+                                    and 1 <= n_lamps <= MAX_LAMPS):
+        raise UsageError(f"--lamps must be a number of lamps in 1..{MAX_LAMPS}, got {n_lamps!r}")
     try:
         manifest = Session.read(root)
     except SessionError as exc:

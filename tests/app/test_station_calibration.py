@@ -183,6 +183,12 @@ def test_a_bad_mirror_sphere_radius_is_refused_before_any_frame(radius, sessions
             f"--sphere-radius={radius}"], capsys, sessions, "--sphere-radius", radius)
 
 
+@pytest.mark.parametrize("n", ["0", "-1", "99"])
+def test_a_bad_number_of_lamps_is_refused_before_any_frame(n, sessions, capsys):
+    _fails(["calibrate", "--lamp", str(sessions / "lamp"), "--camera-calibration", str(sessions / "tied.json"),
+            f"--lamps={n}"], capsys, sessions, "--lamps", n)
+
+
 def test_a_lamp_session_without_frames(sessions, capsys):
     _fails(["calibrate", "--lamp", str(sessions / "lamp"), "--camera-calibration", str(sessions / "tied.json")],
            capsys, sessions, "no RAW frames of the mirror sphere", "--plan lamp-calibration")
