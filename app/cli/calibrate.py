@@ -70,9 +70,29 @@ def _say(text: str) -> None:
     print(f"  {text}", file=sys.stderr)
 
 
+#: Options that belong to one mode only (a given option of another mode is refused, not ignored).
+_ONLY = {"camera": (("scanner", "--scanner"), ("focal_mm", "--focal-mm"), ("sensor_mm", "--sensor-mm")),
+         "lamp": (("camera_calibration", "--camera-calibration"), ("lamps", "--lamps"),
+                  ("lamp_spectrum", "--lamp-spectrum")),
+         "scanner": (("session", "SESSION"), ("sphere_height", "--sphere-height"))}
+_MODE = {"camera": "--camera BOARD_SESSION", "lamp": "--lamp LAMP_SESSION", "scanner": "SESSION --sphere-radius MM"}
+
+
+def _check_mode_options(args: argparse.Namespace, mode: str) -> None:
+    """Refuse options of another mode than ``mode`` (``camera``, ``lamp`` or ``scanner``)."""
+    for other, options in _ONLY.items():
+        if other == mode:
+            continue
+        for attr, flag in options:
+            if getattr(args, attr) is not None:
+                raise UsageError(f"{flag} is for {_MODE[other]}, not for {_MODE[mode]}: leave it out or run the "
+                                 f"{other} calibration separately")
+
+
 def run(args: argparse.Namespace) -> int:
     if args.camera and args.lamp:
         raise UsageError("give --camera or --lamp, not both: calibrate the camera first, then the lamps with it")
+    _check_mode_options(args, "camera" if args.camera else "lamp" if args.lamp else "scanner")
     if args.camera:
         if not args.scanner:
             raise UsageError("--camera needs --scanner SPHERE_SESSION: the scanner-calibrated sphere session whose "

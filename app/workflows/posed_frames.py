@@ -69,14 +69,24 @@ def _pass_poses(root: Path, manifest: dict[str, Any]) -> dict[int, np.ndarray]:
     except (OSError, ValueError) as exc:
         raise UsageError(f"session {root}: its process report is unreadable ({exc}); run kogei process again") \
             from None
+    entries = report.get("passes") if isinstance(report, dict) else None
+    if not isinstance(entries, list):
+        raise UsageError(f"session {root}: its process report has no list of passes; run 'kogei process {root}' "
+                         "again")
     poses = {}
-    for entry in report.get("passes") or []:
-        if isinstance(entry, dict) and entry.get("registered") and entry.get("pose") is not None:
+    for entry in entries:
+        if not (isinstance(entry, dict) and entry.get("registered") is True and isinstance(entry.get("pose"), list)):
+            continue
+        p = entry.get("pass")
+        try:
             m = np.asarray(entry["pose"], dtype=np.float64)
-            if m.shape == (4, 4) and np.all(np.isfinite(m)):
-                poses[int(entry["pass"])] = m
+        except (TypeError, ValueError):
+            continue
+        if isinstance(p, int) and not isinstance(p, bool) and p >= 1 and m.shape == (4, 4) and np.all(np.isfinite(m)):
+            poses[p] = m
     if not poses:
-        raise UsageError(f"session {root}: no registered pass in the process report; register the passes first")
+        raise UsageError(f"session {root}: no registered pass with a valid pose in the process report; run "
+                         f"'kogei process {root}' (it registers the passes) again")
     return poses
 
 
@@ -267,7 +277,11 @@ def _mesh(root: Path, manifest: dict[str, Any]) -> tuple[np.ndarray, np.ndarray,
     from app.session_paths import confined_file
 
     mesh_ref = (manifest.get("products") or {}).get("mesh") or {}
-    path = confined_file(root, mesh_ref.get("file"), "products.mesh.file")
+    try:
+        path = confined_file(root, mesh_ref.get("file"), "products.mesh.file")
+    except FileNotFoundError:
+        raise UsageError(f"session {root}: its mesh {mesh_ref.get('file')} is missing; run kogei process {root} "
+                         "again") from None
     mesh = o3d.io.read_triangle_mesh(str(path))
     if len(mesh.triangles) == 0:
         raise UsageError(f"session {root}: {mesh_ref.get('file')} holds no triangles; run kogei process again")

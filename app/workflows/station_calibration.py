@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from app.errors import UsageError
-from app.session_paths import MAX_JSON_BYTES, UnsafeSessionPath, confined_file, read_confined_bytes
+from app.session_paths import MAX_JSON_BYTES, confined_file, read_confined_bytes
 
 __all__ = [
     "CAMERA_FILE",
@@ -60,6 +60,8 @@ _FLAGS = {"camera_calibration": "--camera-calibration", "lamp_calibration": "--l
 CLIP_LEVEL = 0.98
 #: A sphere photo whose outline misses the fitted sphere's by more than this (px RMS) is not used.
 MAX_OUTLINE_RMS_PX = 0.5
+#: Most lamps ``--lamps`` may ask for.
+MAX_LAMPS = 16
 
 
 # ---------------------------------------------------------------------------- frames of a session
@@ -74,6 +76,9 @@ def frame_records(root: Path, manifest: dict[str, Any], *, passes: set[int] | No
         if not isinstance(rec, dict) or rec.get("kind") != "frame" or rec.get("status") != "done":
             continue
         p = rec.get("pass")
+        if not _is_count(p) or not _is_count(rec.get("index", 0)):
+            raise UsageError(f"session {root}: frame {cid} has no valid pass and index (pass {p!r}, index "
+                             f"{rec.get('index')!r}); session.json is damaged: restore it from a copy")
         if passes is not None and p not in passes:
             continue
         angle = rec.get("angle_deg")
@@ -85,12 +90,21 @@ def frame_records(root: Path, manifest: dict[str, Any], *, passes: set[int] | No
     return out
 
 
+def _is_count(value: Any) -> bool:
+    """An integer >= 0 (not a bool)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
 def decode_frame(root: Path, cid: str, rec: dict[str, Any], mode: str = "demosaic") -> Any:
     """Decode one recorded frame (confined to the session, checked against its SHA-256)."""
     from processing.camera.raw_decode import RawDecodeError, decode_raw
     from processing.common.files import sha256_file
 
-    path = confined_file(root, rec.get("file"), f"captures.{cid}.file")
+    try:
+        path = confined_file(root, rec.get("file"), f"captures.{cid}.file")
+    except FileNotFoundError:
+        raise UsageError(f"session {root}: {rec.get('file')} ({cid}) is missing; restore it from a copy of the "
+                         "session, or take the frames again with kogei capture") from None
     if isinstance(rec.get("sha256"), str) and sha256_file(path) != rec["sha256"]:
         raise UsageError(f"session {root}: {rec['file']} ({cid}) does not match its checksum; take the frame "
                          "again (kogei capture --resume re-takes damaged frames)")
@@ -142,6 +156,19 @@ def _board_views(root: Path, manifest: dict[str, Any], mode: str, note: Callable
     return views, rejected, size, defn.to_dict()
 
 
+def _sphere_frames(sphere_root: Path, manifest: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """The sphere session's RAW frames of the calibrated pass; a one-line error when there are none."""
+    ref = manifest.get("calibration")
+    source = ref.get("source") if isinstance(ref, dict) else None
+    p = source.get("pass") if isinstance(source, dict) else None     # session.json is untrusted
+    pass_no = p if isinstance(p, int) and not isinstance(p, bool) and p >= 1 else 1
+    frames = frame_records(sphere_root, manifest, passes={pass_no})
+    if not frames:
+        raise UsageError(f"--scanner {sphere_root}: the sphere session has no RAW frames of the sphere; capture it "
+                         "with the camera connected (kogei capture with --camera), then calibrate again")
+    return frames
+
+
 def _sphere_observations(sphere_root: Path, calib: Any, scanner: Any, mode: str, note: Callable[[str], None]
                          ) -> list[Any]:
     """The reference sphere's centre in the camera frame, from the sphere session's photos."""
@@ -153,11 +180,7 @@ def _sphere_observations(sphere_root: Path, calib: Any, scanner: Any, mode: str,
         manifest = Session.read(sphere_root)
     except SessionError as exc:
         raise UsageError(str(exc)) from None
-    source_pass = (manifest.get("calibration") or {}).get("source") or {}
-    frames = frame_records(sphere_root, manifest, passes={int(source_pass.get("pass") or 1)})
-    if not frames:
-        raise UsageError(f"--scanner {sphere_root}: the sphere session has no RAW frames of the sphere; capture it "
-                         "with the camera connected (kogei capture with --camera), then calibrate again")
+    frames = _sphere_frames(sphere_root, manifest)
     out = []
     for cid, rec in frames:
         img = decode_frame(sphere_root, cid, rec, mode)
@@ -210,9 +233,12 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
     from app.session import Session, SessionError
     from app.workflows.calibration import session_calibration
     from processing.camera.charuco import board_corners_mm
-    from processing.geometry.camera_calibration import CameraCalibrationError, calibrate_camera, link_to_room
+    from processing.geometry.camera_calibration import MIN_VIEWS, CameraCalibrationError, calibrate_camera, link_to_room
 
     note = message or (lambda text: None)
+    _manual_focal(focal_mm, sensor_mm, 1)          # argument errors before any frame is read
+    if not (isinstance(max_rms_px, (int, float)) and math.isfinite(max_rms_px) and max_rms_px > 0):
+        raise UsageError(f"--max-rms must be a positive number of pixels, got {max_rms_px!r}")
     root, sphere_root = Path(board_session), Path(scanner_session)
     try:
         manifest = Session.read(root)
@@ -220,7 +246,14 @@ def calibrate_camera_session(board_session: str | Path, scanner_session: str | P
     except SessionError as exc:
         raise UsageError(str(exc)) from None
     scanner = session_calibration(sphere_root, sphere_manifest)
+    _sphere_frames(sphere_root, sphere_manifest)     # said at once, not after the board is detected
     views, rejected, size, board = _board_views(root, manifest, decode, note)
+    if len(views) < MIN_VIEWS:
+        raise UsageError(f"session {root}: {len(rejected)} of {len(rejected) + len(views)} frames rejected (first: "
+                         f"{rejected[0] if rejected else 'none'}), {len(views)} usable; at least "
+                         f"{MIN_VIEWS} frames must show the board {board.get('squares_x')} x "
+                         f"{board.get('squares_y')} squares ({board.get('dictionary')}): check the plan's board and "
+                         "the lighting, then capture again")
     focal = _manual_focal(focal_mm, sensor_mm, size[0])
     from processing.camera.charuco import BoardDefinition
 
@@ -334,6 +367,9 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     root = Path(lamp_session)
     if model not in ("auto", "point", "distant"):
         raise UsageError(f"--lamp-model must be auto, point or distant, got {model!r}")
+    if n_lamps is not None and not (isinstance(n_lamps, int) and not isinstance(n_lamps, bool)
+                                    and 1 <= n_lamps <= MAX_LAMPS):
+        raise UsageError(f"--lamps must be a number of lamps in 1..{MAX_LAMPS}, got {n_lamps!r}")
     try:
         manifest = Session.read(root)
     except SessionError as exc:
@@ -346,6 +382,8 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     if radius is None:
         raise UsageError(f"session {root}: give the mirror sphere's radius with --sphere-radius MM (the plan does not "
                          "record it)")
+    if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not (math.isfinite(radius) and radius > 0):
+        raise UsageError(f"--sphere-radius must be the mirror sphere's radius in mm (> 0), got {radius!r}")
     spec = _lamp_spectrum(spectrum)
     try:
         calib = CameraCalibration.from_dict(load_station_source(camera_source, "camera_calibration"))
@@ -386,7 +424,8 @@ def _mirror_views(root: Path, manifest: dict[str, Any], decode: str, note: Calla
             continue
         views.append((cid, float(rec["angle_deg"]), img.rgb))
     if size is None:
-        raise UsageError(f"session {root} has no RAW frames of the mirror sphere")
+        raise UsageError(f"session {root} has no RAW frames of the mirror sphere; capture it with "
+                         "'kogei capture --plan lamp-calibration'")
     return views, size
 
 
@@ -425,6 +464,10 @@ def _describe_lamp(lamp: Any) -> str:
 # ---------------------------------------------------------------------------- installing and reading back
 def install_station_calibration(session: Any, key: str, data: dict[str, Any]) -> dict[str, Any]:
     """Write ``data`` as the session's camera or lamp calibration file and reference it from the manifest."""
+    if key == "camera_calibration" and data.get("room_to_camera") is None:
+        raise UsageError(f"--camera-calibration {data.get('installed_from') or ''}: the camera is not tied to the "
+                         "scanner's frame (room_to_camera is null); calibrate it with 'kogei calibrate --camera "
+                         "BOARD_SESSION --scanner SPHERE_SESSION'")
     blob = (json.dumps(data, indent=1, allow_nan=False) + "\n").encode()
     info = session.write_file(_FILES[key], blob)
     ref: dict[str, Any] = {"path": info.path, "sha256": info.sha256, "source": data.get("source")}
@@ -442,20 +485,17 @@ def load_station_source(source: str | Path, key: str) -> dict[str, Any]:
     """A camera or lamp calibration's JSON form from a calibrated session folder or the JSON file itself."""
     flag, name = _FLAGS[key], _FILES[key]
     p = Path(source)
+    if p.is_dir():
+        return _calibrated_session_file(p, key)
     try:
-        if p.is_dir():
-            blob = read_confined_bytes(p, name, f"{flag} {source}", MAX_JSON_BYTES)
-        else:
-            st = p.stat()
-            if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_JSON_BYTES:
-                raise UsageError(f"{flag} {source}: not a regular file of at most {MAX_JSON_BYTES} bytes; give "
-                                 f"a {name} or a calibrated session folder")
-            blob = p.read_bytes()
+        st = p.stat()
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_JSON_BYTES:
+            raise UsageError(f"{flag} {source}: not a regular file of at most {MAX_JSON_BYTES} bytes; give "
+                             f"a {name} or a calibrated session folder")
+        blob = p.read_bytes()
     except FileNotFoundError:
         raise UsageError(f"{flag} {source}: {name} not found; give the session calibrated with 'kogei calibrate' "
                          f"or its {name}") from None
-    except UnsafeSessionPath:
-        raise
     except OSError as exc:
         raise UsageError(f"{flag} {source}: unreadable ({exc.strerror or exc})") from None
     try:
@@ -464,6 +504,27 @@ def load_station_source(source: str | Path, key: str) -> dict[str, Any]:
         raise UsageError(f"{flag} {source}: not JSON ({exc})") from None
     if not isinstance(data, dict):
         raise UsageError(f"{flag} {source}: not a {name}")
+    return data
+
+
+def _calibrated_session_file(root: Path, key: str) -> dict[str, Any]:
+    """The calibration a session folder references from its manifest, checked against its SHA-256."""
+    from app.session import Session, SessionError
+
+    flag, name = _FLAGS[key], _FILES[key]
+    try:
+        manifest = Session.read(root)
+    except SessionError as exc:
+        raise UsageError(f"{flag} {root}: not a kogei session ({exc}); give a calibrated session folder or its "
+                         f"{name}") from None
+    data = _session_file(root, manifest, key)
+    if data is None:
+        what = "--camera BOARD_SESSION --scanner SPHERE_SESSION" if key == "camera_calibration" else \
+            "--lamp LAMP_SESSION --camera-calibration BOARD_SESSION"
+        raise UsageError(f"{flag} {root}: the session has no {name} (not found); calibrate it with "
+                         f"'kogei calibrate {what}' or give a {name}")
+    if not isinstance(data, dict):
+        raise UsageError(f"{flag} {root}: {name} is not a {name}")
     return data
 
 
