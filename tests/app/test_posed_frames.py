@@ -69,7 +69,7 @@ def _processed(s: Session) -> None:
 def sessions(tmp_path_factory):
     base = tmp_path_factory.mktemp("posed")
     raw = base / "raw"
-    world = World.calibration_sphere(RADIUS_MM, OFFSET_MM, width=FULL[0] // 4, height=FULL[1] // 4)
+    world = World.calibration_sphere(RADIUS_MM, OFFSET_MM, width=FULL[0] // 4, height=FULL[1] // 4, chart_first=False)
     plan = CapturePlan("camera-calibration", steps=3, passes=1)
     with SimulatedStation(world, root=base / "station", seed=4) as st:
         config = {"turntable": {"port": str(st.turntable_path)},
@@ -220,7 +220,7 @@ def test_a_version_1_session_processed_today_has_no_camera_poses_and_reports(tmp
 
     root = tmp_path / "old"
     plan = CapturePlan("scan", steps=36, passes=1, camera=True, chart=False, camera_angles_deg=(0.0, 180.0))
-    world = World.calibration_sphere(25.0, 60.0, width=FULL[0] // 4, height=FULL[1] // 4)
+    world = World.calibration_sphere(25.0, 60.0, width=FULL[0] // 4, height=FULL[1] // 4, chart_first=False)
     with SimulatedStation(world, root=tmp_path / "station", seed=6, n_points=400) as st:
         config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)},
                   "camera": {"kind": "gphoto2", "executable": str(st.gphoto2_path)}}

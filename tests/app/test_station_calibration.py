@@ -57,7 +57,7 @@ def sessions(tmp_path_factory):
     Session.create(base / "lamp-no-radius", plan=CapturePlan("lamp-calibration").to_dict()).close()
     Session.create(base / "lamp", plan=CapturePlan("lamp-calibration", sphere_radius_mm=20.0).to_dict()).close()
     # the camera-calibration plan shot at a reference sphere: frames without a board
-    _camera_only(World.calibration_sphere(20.0, 40.0, width=240, height=160), base / "no-board",
+    _camera_only(World.calibration_sphere(20.0, 40.0, width=240, height=160, chart_first=False), base / "no-board",
                  CapturePlan("camera-calibration", steps=3, passes=1), base / "station-no-board")
     # a scanner-calibrated session with RAW frames of the sphere (the same frames, calibration installed)
     shutil.copytree(base / "no-board", base / "sphere-photos")
