@@ -116,7 +116,7 @@ def _pose_breakdown(calib: Any, world: Any, link: dict[str, Any]) -> dict[str, A
     return {"rotation_about_axis_deg": round(math.degrees(float(rotvec[2])), 4),
             "rotation_off_axis_deg": round(math.degrees(float(np.hypot(rotvec[0], rotvec[1]))), 4),
             "centre_error_cam_mm": [round(float(v), 3) for v in centre_cam],
-            "camera_distance_mm": round(float(np.linalg.norm(true[:3, 3] - np.asarray(world.camera_target_mm))), 1),
+            "camera_axis_distance_mm": round(float(np.hypot(*true[:2, 3])), 1),
             "link_rotation_std_deg": round(float(link.get("rotation_std_deg", float("nan"))), 4),
             "link_chi2_per_dof": round(float(link.get("chi2_per_dof", float("nan"))), 2),
             "link_residual_max_mm": round(float(np.abs(res).max()) if res.size else float("nan"), 3)}
@@ -547,6 +547,7 @@ def _camera_notes(c: dict[str, Any]) -> list[str]:
     d = c["demo_session"]
     b = d.get("breakdown") or {}
     cx, cy, cz = b.get("centre_error_cam_mm", [float("nan")] * 3)
+    fits = [r["fit_s"] for r in c["rows"] if "fit_s" in r] or [float("nan")]
     return [
         "",
         "What limits it.  *Frames*: the board (flat, then on the 40- and 55-degree wedges) faces the camera only",
@@ -563,7 +564,8 @@ def _camera_notes(c: dict[str, Any]) -> list[str]:
         f"{b.get('link_rotation_std_deg', float('nan')):.4f} deg, chi-square per dof",
         f"{b.get('link_chi2_per_dof', float('nan')):.1f}: the sphere centres' covariances are too small), and the "
         f"camera centre is off by {cx:.3f} mm sideways",
-        f"(that turn at the camera's {b.get('camera_distance_mm', float('nan')):.0f} mm lever), {cy:.3f} mm vertically "
+        f"(that turn at the camera's {b.get('camera_axis_distance_mm', float('nan')):.0f} mm from the axis), "
+        f"{cy:.3f} mm vertically "
         f"and {cz:.3f} mm along the line of sight (the focal / distance",
         "coupling of a long lens: the focal error times the distance).  The link rests on "
         f"{d['sphere_photos']} of the 12 reference-sphere",
@@ -574,8 +576,9 @@ def _camera_notes(c: dict[str, Any]) -> list[str]:
         "and it misses the 0.2 mm target narrowly.  More sphere photos whole in view (a sphere nearer the axis",
         "or more camera angles in the sphere scan) or full-resolution sphere photos are the levers -- demo",
         "parameters in `app/demo/`, not the fit.  *Time*: the 36-frame session is decoded, detected (12 boards),",
-        "fitted and linked in the time above; the fit alone takes 0.3-0.6 s (`fit` column, more when the",
-        "machine is loaded).  Seed 1's 30-degree row comes from its 24-angle session, whose table angles differ",
+        "fitted and linked in the time above; the fit alone takes "
+        f"{min(fits):.1f}-{max(fits):.1f} s (`fit` column; the spread is the loaded",
+        "machine).  Seed 1's 30-degree row comes from its 24-angle session, whose table angles differ",
         "from the demo session's by the motor's step rounding, so the two seed-1 figures differ slightly.",
     ]
 
@@ -635,18 +638,29 @@ def _iou_notes(r: dict[str, Any]) -> list[str]:
 
 
 def _projection_notes(rows: list[dict[str, Any]]) -> list[str]:
+    by = {r["label"]: r for r in rows}
+    b1, b2, b4 = (by[PROJECTION_VARIANTS[i][0]] for i in (1, 0, 2))
+    small, big = by[PROJECTION_VARIANTS[3][0]], by[PROJECTION_VARIANTS[4][0]]
     return [
         "",
         "What limits it.  Visibility is ray casting (Open3D's BVH, both cores): one ray per candidate vertex",
-        "for occlusion plus a depth map per frame for the edge margin; the depth map dominates -- 6 M rays a",
-        "frame at full resolution against 1.5 M binned by 2 -- so the time scales with the depth map's",
-        "pixels and only weakly with the mesh (BVH depth grows as log of the triangles; the vertex rays",
-        "grow with the vertices in view).  `observe()` adds reading the 24 images, sampling every visible",
-        "vertex with its footprint and writing the per-observation arrays, whose size (and the peak memory)",
-        "grows with vertices in view x frames.  Binning 2 keeps the edge margin at a 2 px scale of the full",
-        "frame (the depth jumps are found on the binned map), so the default loses nothing the silhouette",
-        "check can see; binning 4 saves little more time.",
+        "for occlusion plus a depth map per frame for the edge margin, and the depth map dominates: "
+        f"{b1['rays'] / 1e6:.0f} M rays",
+        f"in all at full resolution ({b1['total_s']:.0f} s, over the 60 s target), {b2['rays'] / 1e6:.0f} M binned by 2 "
+        f"({b2['total_s']:.0f} s), {b4['rays'] / 1e6:.0f} M binned by 4 ({b4['total_s']:.0f} s).",
+        f"The mesh matters less: {small['triangles'] / 1e3:.0f}k triangles take {small['total_s']:.0f} s and "
+        f"{big['triangles'] / 1e6:.1f}M take {big['total_s']:.0f} s at binning 2",
+        "(the BVH's depth grows as the log of the triangles; the vertex rays grow with the vertices in view;",
+        "a 2M-triangle run faster than the 1M one is the machine's noise, not the method),",
+        "and the peak memory follows the depth map and the vertex count.  `observe()` (the smooth sphere",
+        "without jitter, lamps, reading 24 synthetic images and sampling every visible vertex) stays within",
+        "the target too; its observation arrays grow with vertices in view x frames.  Single runs, with the",
+        "2 cores shared with other work (load average above 4 during the run): the same default case took",
+        "8.3 s on a quieter machine earlier the same day (commit ec12fdd), so read the ratios between rows, not the",
+        "seconds.  Binning 2 keeps the edge margin on a map a quarter of the frame's pixels and is the default.",
     ]
+
+
 CASES = {"sessions": sessions_case, "capture": capture_case, "camera": camera_case, "lamp": lamp_case, "iou": iou_case}
 
 
