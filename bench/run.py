@@ -379,6 +379,15 @@ def gui_section() -> list[str]:
     return section(json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
+def posed_section() -> list[str]:
+    """Camera and lamp calibration, silhouettes and projection speed of the posed photos (bench/posed_bench.py)."""
+    from bench.posed_bench import section
+
+    proc = subprocess.run([sys.executable, "-m", "bench.posed_bench", "--case", "all"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=3600, check=True)
+    return section(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
 #: Sections of docs/BENCHMARKS.md: ``--only NAME`` key -> (heading prefix, builder).
 SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
@@ -389,6 +398,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "cloth": ("## Cloth", cloth_section),
     "batch": ("## Batch reprocessing", batch_section),
     "gui": ("## Capture station window", gui_section),
+    "posed": ("## Posed photos", posed_section),
 }
 
 
