@@ -96,8 +96,26 @@ def test_intrinsics_against_truth(calibrated):
     assert max(calib.view_rms_px.values()) < 0.3
 
 
-def test_reported_uncertainties_cover_the_errors(calibrated):
+@pytest.fixture(scope="module")
+def calibrated_full(views):
+    """The full model (principal point and k1, k2, p1, p2 fitted), as ``principal_point="fit"`` forces."""
+    return calibrate_camera(views, (WIDTH, HEIGHT), CORNERS, board=DEFN.to_dict(), principal_point="fit")
+
+
+def test_a_long_lens_holds_the_principal_point_when_the_views_cannot_place_it(calibrated, calibrated_full):
+    """The full fit leaves the principal point uncertain by more than 1 px here; auto holds it at the centre."""
     calib, _ = calibrated
+    assert max(calibrated_full.stds["cx_px"], calibrated_full.stds["cy_px"]) > 1.0
+    assert calibrated_full.held == ()
+    assert calib.held == ("cx", "cy", "k2", "p1", "p2")
+    assert calib.K[0, 2] == (WIDTH - 1) / 2 and calib.K[1, 2] == (HEIGHT - 1) / 2
+    assert calib.dist[1:].tolist() == [0.0, 0.0, 0.0, 0.0]
+    # held, and stored so: the JSON round trip keeps it
+    assert CameraCalibration.from_dict(calib.to_dict()).held == calib.held
+
+
+def test_reported_uncertainties_cover_the_errors(calibrated_full):
+    calib = calibrated_full
     s = calib.stds
     assert set(s) >= {"fx_px", "fy_px", "cx_px", "cy_px", "axis_direction_deg", "camera_distance_mm"}
     for key, err in (("fx_px", calib.K[0, 0] - FX), ("cx_px", calib.K[0, 2] - K_TRUE[0, 2]),
