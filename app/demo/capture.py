@@ -135,7 +135,7 @@ def _calibration_scan(out: Path, cal_dir: Path, seed: int, *, camera: bool = Fal
     """Scan the reference sphere (one pass; with ``camera``, RAW frames of it too) and calibrate the scanner."""
     from app.capture.devices import build_devices
     from app.capture.runner import CaptureHooks, CapturePlan, run_capture
-    from app.demo.station import CAMERA_SIZE, FRAME_BINNING
+    from app.demo.station import CAMERA_SIZE
     from app.session import Session
     from app.workflows.calibration import calibrate_session
     from mocks.station import SimulatedStation
