@@ -514,7 +514,7 @@ def section(r: dict[str, Any]) -> list[str]:
         "`bench/projection_bench.py` (synthetic jittered sphere, 24 frames of 3000 x 2000).",
         "",
         f"Run on: {r['machine']}.  Load average (1 min) at the start and end: "
-        f"{r['load_average'][0]:.1f}, {r['load_average'][-1]:.1f} (other agents shared the 2 cores, so times",
+        f"{r['load_average'][0]:.1f}, {r['load_average'][-1]:.1f} (other work shared the 2 cores, so times",
         "are upper bounds).  Wall time of this section: "
         f"{r['total_s'] / 60:.1f} min (the shared capture, with the bench's own board and lamp sessions taken beside "
         f"it, {cap['wall_s'] / 60:.1f} min; board detection and fits {cam['wall_s'] / 60:.1f} min; lamp fits "
@@ -574,14 +574,14 @@ def _camera_notes(c: dict[str, Any]) -> list[str]:
         f"(that turn at the camera's {b.get('camera_axis_distance_mm', float('nan')):.0f} mm from the axis), "
         f"{cy:.3f} mm vertically "
         f"and {cz:.3f} mm along the line of sight (the focal / distance",
-        "coupling of a long lens: the focal error times the distance).  The link rests on "
+        "coupling of a long lens: the focal error times the distance, which the board's 12 views leave at",
+        "about 1 sigma of the camera distance).  The link rests on "
         f"{d['sphere_photos']} of the 12 reference-sphere",
-        "photos (the others show the sphere partly outside the 480 x 320 frame), with depth residuals up to",
-        f"{b.get('link_residual_max_mm', float('nan')):.2f} mm, and every seed here shares that one sphere session, "
-        "which is why the translation sits at",
-        "0.20-0.22 mm for every board seed with 12 or more views: it is the link's bias, not the board's noise,",
-        "and it misses the 0.2 mm target narrowly.  More sphere photos whole in view (a sphere nearer the axis",
-        "or more camera angles in the sphere scan) or full-resolution sphere photos are the levers -- demo",
+        "photos (full resolution; the others show the sphere partly outside the frame), with depth residuals up to",
+        f"{b.get('link_residual_max_mm', float('nan')):.2f} mm, and every seed here shares that one sphere session.  "
+        "With 5 photos at 480 x 320",
+        "(the sphere 40 mm from the axis) the link's turn about the axis was 0.037 deg and the translation",
+        "0.20-0.22 mm for every seed: more photos whole in view at full resolution were the lever -- demo",
         "parameters in `app/demo/`, not the fit.  *Time*: the 36-frame session is decoded, detected (12 boards),",
         "fitted and linked in the time above; the fit alone takes "
         f"{min(fits):.1f}-{max(fits):.1f} s (`fit` column; the spread is the loaded",
