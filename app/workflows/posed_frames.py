@@ -247,7 +247,7 @@ def _project(session: Any, root: Path, manifest: dict[str, Any], frames: list[tu
     info = session.write_file(FRAME_POSES, blob.encode())
     session.update("products", {**(session.manifest.get("products") or {}),
                                 "frame_poses": {"file": FRAME_POSES, "sha256": info.sha256, "bytes": info.bytes}})
-    noise = _noise_model(frames)
+    noise = _noise_model(frames, gains)
     images = _Images(root, frames, gains, mode)
     obs = observe(posed, mesh, images, noise=noise,
                   clip_level=CLIP_LEVEL, max_view_deg=max_view_deg, edge_margin_px=edge_margin_px)
@@ -296,15 +296,23 @@ def _mean(values: list[Any]) -> float | None:
     return float(np.mean(vals)) if vals else None
 
 
-def _noise_model(frames: list[tuple[str, dict[str, Any]]]) -> np.ndarray:
-    """``(a, b)`` of ``sigma^2 = a + b * signal`` (1.0 = saturation) per frame.
+def _noise_model(frames: list[tuple[str, dict[str, Any]]], gains: dict[int, np.ndarray]) -> np.ndarray:
+    """``(a, b)`` of ``sigma^2 = a + b * signal`` per frame, in the units of the signal observed.
 
-    Without the sensor's gain in the file, a 14-bit sensor's typical read noise (2 DN) and a full
-    well of 30 000 electrons at the white level; the chart's patch noise replaces it when measured.
+    A nominal sensor, since the files do not carry the gain: a 14-bit sensor's typical read noise
+    (2 DN) and a full well of 30 000 electrons at the white level, in raw units (1.0 = saturation).
+    A frame whose pass has chart gains ``g`` (signal = g x raw) gets ``a g^2`` and ``b g`` with the
+    mean of the three channels' gains (the model has one ``(a, b)`` for all channels).
     """
     a = (2.0 / 16383.0) ** 2
     b = 1.0 / 30000.0
-    return np.tile([a, b], (len(frames), 1))
+    out = np.tile([a, b], (len(frames), 1))
+    for k, (_, rec) in enumerate(frames):
+        g = gains.get(int(rec.get("pass") or 0))
+        if g is not None:
+            m = float(np.mean(g))
+            out[k] = (a * m * m, b * m)
+    return out
 
 
 def _silhouettes(session: Any, root: Path, frames: list[tuple[str, dict[str, Any]]], posed: list[Any], mesh: Any,

@@ -300,3 +300,19 @@ def test_an_edited_lamp_calibration(sessions, capsys):
     path = root / "lamp_calibration.json"
     path.write_text(path.read_text().replace('"key"', '"kez"'))
     _fails(["project", str(root)], capsys, sessions, "lamp_calibration.json", "checksum", "--lamp-calibration")
+
+
+def test_the_noise_model_follows_the_chart_gain():
+    """A signal scaled by g has its variance scaled by g^2: a -> a g^2 (read noise), b -> b g (shot noise)."""
+    import numpy as np
+
+    from app.workflows.posed_frames import _noise_model
+
+    frames = [("p01/frame/00", {"pass": 1}), ("p02/frame/00", {"pass": 2})]
+    raw = _noise_model(frames, {})
+    scaled = _noise_model(frames, {1: np.array([1.5, 2.0, 2.5])})
+    signal = 0.3
+    var_raw = raw[0, 0] + raw[0, 1] * signal          # variance of a raw value of 0.3
+    var_scaled = scaled[0, 0] + scaled[0, 1] * (2.0 * signal)   # the same value times the mean gain 2
+    assert var_scaled == pytest.approx(4.0 * var_raw, rel=1e-12)
+    assert scaled[1].tolist() == raw[1].tolist()      # pass 2 has no chart: raw units
