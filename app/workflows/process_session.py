@@ -216,10 +216,9 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
 
 def _install_station(session: Any, camera: str | Path | None, lamps: str | Path | None) -> None:
     """Install a camera and/or lamp calibration (from a calibrated session or its JSON) into ``session``."""
+    from app.workflows.station_calibration import install_station_calibration, load_station_source
     from processing.geometry.camera_calibration import CameraCalibration, CameraCalibrationError
     from processing.geometry.lamp_calibration import LampCalibration, LampCalibrationError
-
-    from app.workflows.station_calibration import install_station_calibration, load_station_source
 
     for key, source, cls, error in (("camera_calibration", camera, CameraCalibration, CameraCalibrationError),
                                     ("lamp_calibration", lamps, LampCalibration, LampCalibrationError)):
