@@ -103,8 +103,12 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def capture_commands(info: dict[str, Any], steps: int = 36, passes: int = 3,
-                     session: str = "kogei-session") -> dict[str, str]:
+                     session: str = "kogei-session", plan: str | None = None) -> dict[str, str]:
     """The ``kogei capture`` command lines for a station's ``info()``: with gphoto2 and with the hot folder.
+
+    ``plan`` is the plan's options for a calibration target (``--plan camera-calibration`` for the
+    board, ``--plan lamp-calibration --sphere-radius R`` for the mirror sphere): camera only, the
+    plan's own steps and passes.
 
     Examples
     --------
@@ -112,12 +116,18 @@ def capture_commands(info: dict[str, Any], steps: int = 36, passes: int = 3,
     ...         "hotfolder": "/s/hot", "control": "/s/control"}
     >>> print(capture_commands(info, 8, 2, "out")["gphoto2"])
     kogei capture --turntable /s/turntable --laser /s/profiler --camera gphoto2:/s/bin/gphoto2 --steps 8 --passes 2 --out out --unattended --before-pass 'kogei mock place --control /s/control'
+    >>> print(capture_commands(info, session="board", plan="--plan camera-calibration")["gphoto2"])
+    kogei capture --turntable /s/turntable --camera gphoto2:/s/bin/gphoto2 --plan camera-calibration --out board --unattended --before-pass 'kogei mock place --control /s/control'
     """
     q = shlex.quote
     place = f"kogei mock place --control {q(info['control'])}"
     shoot = f"kogei mock shoot --control {q(info['control'])}"
-    common = f"--turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
-    tail = f"--steps {steps} --passes {passes} --out {q(session)} --unattended --before-pass {q(place)}"
+    if plan:
+        common = f"--turntable {q(info['turntable'])}"
+        tail = f"{plan} --out {q(session)} --unattended --before-pass {q(place)}"
+    else:
+        common = f"--turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
+        tail = f"--steps {steps} --passes {passes} --out {q(session)} --unattended --before-pass {q(place)}"
     return {
         "gphoto2": f"kogei capture {common} --camera {q('gphoto2:' + info['gphoto2'])} {tail}",
         "hotfolder": (f"kogei capture {common} --camera {q('hotfolder:' + info['hotfolder'])} "
@@ -203,8 +213,20 @@ def _mirror_world(spec: str) -> Any:
     return MirrorWorld.mirror_sphere(radius, offset)
 
 
+def _calibration_plan(world: Any) -> str | None:
+    """The capture plan options a calibration target needs (None for an object to scan)."""
+    from mocks.board_world import BoardWorld
+    from mocks.mirror_world import MirrorWorld
+
+    if isinstance(world, BoardWorld):
+        return "--plan camera-calibration"
+    if isinstance(world, MirrorWorld):
+        return f"--plan lamp-calibration --sphere-radius {world.sphere_radius_mm:g}"
+    return None
+
+
 def _print_block(info: dict[str, Any], faults: str) -> None:
-    cmds = capture_commands(info)
+    cmds = info["capture"]
     lines = [
         (f"kogei simulated station: world {info['world']}, seed {info['seed']}, "
          f"time scale {info['time_scale']:g}, faults {faults}"),
@@ -262,7 +284,9 @@ def _serve(args: argparse.Namespace) -> int:
         station.start()
         info = {**station.info(), "station_file": str(station_file), "pid": os.getpid(),
                 "faults": format_faults(faults)}
-        info["capture"] = capture_commands(info)
+        plan = _calibration_plan(world)
+        info["capture"] = capture_commands(info, plan=plan, session="kogei-session" if plan is None else
+                                           plan.split()[1] + "-session")
         _write_station_file(station_file, info)
         _print_block(info, format_faults(faults))
         try:

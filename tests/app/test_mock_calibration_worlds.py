@@ -40,3 +40,19 @@ def test_bad_specs(spec, words):
         _build_world(_args("--world", spec))
     with pytest.raises(UsageError, match="material"):
         _build_world(_args("--world", "board", "--material", "gold"))
+
+
+def test_the_printed_capture_commands_use_the_calibration_plans():
+    """kogei mock --world board / mirror-sphere suggests the calibration plan, camera only, no laser."""
+    from app.cli.mock import _calibration_plan, capture_commands
+    from mocks.board_world import BoardWorld
+    from mocks.mirror_world import MirrorWorld
+    from mocks.world import World
+
+    info = {"turntable": "/s/t", "profiler": "/s/p", "gphoto2": "/s/g", "hotfolder": "/s/h", "control": "/s/c"}
+    board = capture_commands(info, plan=_calibration_plan(BoardWorld.charuco(width=96, height=64)))["gphoto2"]
+    assert "--plan camera-calibration" in board and "--laser" not in board and "--steps" not in board
+    mirror = capture_commands(info, plan=_calibration_plan(MirrorWorld.mirror_sphere(18.0, 30.0, width=96,
+                                                                                      height=64)))["hotfolder"]
+    assert "--plan lamp-calibration --sphere-radius 18" in mirror and "--shutter" in mirror
+    assert _calibration_plan(World.hawk(2000)) is None
