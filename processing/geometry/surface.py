@@ -186,8 +186,11 @@ def poisson_mesh(
     p = np.asarray(points, dtype=np.float64)
     pcd = _o3d_cloud(p, np.asarray(normals, dtype=np.float64))
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        # one thread: Open3D's multi-threaded PoissonRecon crashes at random with a segmentation fault (a
+        # known upstream bug, seen once in this project's test suite), and a crash takes the process with it
         mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-            pcd, depth=int(depth), scale=float(scale), linear_fit=True, samples_per_node=float(samples_per_node)
+            pcd, depth=int(depth), scale=float(scale), linear_fit=True, samples_per_node=float(samples_per_node),
+            n_threads=1,
         )
     if len(mesh.triangles) == 0:
         raise SurfaceError(
