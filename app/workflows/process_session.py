@@ -216,19 +216,17 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
 
 def _install_station(session: Any, camera: str | Path | None, lamps: str | Path | None) -> None:
     """Install a camera and/or lamp calibration (from a calibrated session or its JSON) into ``session``."""
-    from app.workflows.station_calibration import install_station_calibration, load_station_source
-    from processing.geometry.camera_calibration import CameraCalibration, CameraCalibrationError
-    from processing.geometry.lamp_calibration import LampCalibration, LampCalibrationError
+    from app.workflows.station_calibration import (
+        install_station_calibration,
+        load_station_source,
+        parse_station_calibration,
+    )
 
-    for key, source, cls, error in (("camera_calibration", camera, CameraCalibration, CameraCalibrationError),
-                                    ("lamp_calibration", lamps, LampCalibration, LampCalibrationError)):
+    for key, source in (("camera_calibration", camera), ("lamp_calibration", lamps)):
         if source is None:
             continue
         data = load_station_source(source, key)
-        try:
-            cls.from_dict(data)
-        except error as exc:
-            raise UsageError(f"--{key.replace('_', '-')} {source}: {exc}") from None
+        parse_station_calibration(key, data, f"--{key.replace('_', '-')} {source}")
         install_station_calibration(session, key, {**data, "installed_from": str(Path(source).resolve())})
 
 

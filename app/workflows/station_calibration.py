@@ -50,6 +50,7 @@ __all__ = [
     "frame_records",
     "decode_frame",
     "board_coverage",
+    "parse_station_calibration",
 ]
 
 CAMERA_FILE = "camera_calibration.json"
@@ -360,7 +361,7 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
         The manifest's reference to the stored lamp calibration.
     """
     from app.session import Session, SessionError
-    from processing.geometry.camera_calibration import CameraCalibration, CameraCalibrationError
+    from processing.geometry.camera_calibration import CameraCalibrationError
     from processing.geometry.lamp_calibration import LampCalibrationError, calibrate_lamps
 
     note = message or (lambda text: None)
@@ -385,10 +386,8 @@ def calibrate_lamp_session(lamp_session: str | Path, camera_source: str | Path, 
     if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not (math.isfinite(radius) and radius > 0):
         raise UsageError(f"--sphere-radius must be the mirror sphere's radius in mm (> 0), got {radius!r}")
     spec = _lamp_spectrum(spectrum)
-    try:
-        calib = CameraCalibration.from_dict(load_station_source(camera_source, "camera_calibration"))
-    except CameraCalibrationError as exc:
-        raise UsageError(f"--camera-calibration {camera_source}: {exc}") from None
+    calib = parse_station_calibration("camera_calibration", load_station_source(camera_source, "camera_calibration"),
+                                      f"--camera-calibration {camera_source}")
     if calib.room_to_camera is None:
         raise UsageError(f"--camera-calibration {camera_source}: the camera is not tied to the scanner's frame; "
                          "calibrate it with --scanner SPHERE_SESSION")
@@ -550,27 +549,28 @@ def _session_file(root: Path, manifest: dict[str, Any], key: str) -> dict[str, A
         raise UsageError(f"session {root}: {ref['path']}: not JSON ({exc})") from None
 
 
+def parse_station_calibration(key: str, data: dict[str, Any], where: str) -> Any:
+    """A camera or lamp calibration's JSON form as its object, checked; errors are one line starting ``where``."""
+    if key == "camera_calibration":
+        from processing.geometry.camera_calibration import CameraCalibration as parsed
+        from processing.geometry.camera_calibration import CameraCalibrationError as error
+    else:
+        from processing.geometry.lamp_calibration import LampCalibration as parsed
+        from processing.geometry.lamp_calibration import LampCalibrationError as error
+    try:
+        return parsed.from_dict(data)
+    except error as exc:
+        raise UsageError(f"{where}: {exc}") from None
+
+
 def session_camera_calibration(root: str | Path, manifest: dict[str, Any]) -> Any:
     """The session's camera calibration (:class:`~processing.geometry.camera_calibration.CameraCalibration`) or None."""
-    from processing.geometry.camera_calibration import CameraCalibration, CameraCalibrationError
-
     data = _session_file(Path(root), manifest, "camera_calibration")
-    if data is None:
-        return None
-    try:
-        return CameraCalibration.from_dict(data)
-    except CameraCalibrationError as exc:
-        raise UsageError(f"session {root}: {CAMERA_FILE}: {exc}") from None
+    return None if data is None else parse_station_calibration("camera_calibration", data,
+                                                               f"session {root}: {CAMERA_FILE}")
 
 
 def session_lamp_calibration(root: str | Path, manifest: dict[str, Any]) -> Any:
     """The session's lamp calibration (:class:`~processing.geometry.lamp_calibration.LampCalibration`) or None."""
-    from processing.geometry.lamp_calibration import LampCalibration, LampCalibrationError
-
     data = _session_file(Path(root), manifest, "lamp_calibration")
-    if data is None:
-        return None
-    try:
-        return LampCalibration.from_dict(data)
-    except LampCalibrationError as exc:
-        raise UsageError(f"session {root}: {LAMP_FILE}: {exc}") from None
+    return None if data is None else parse_station_calibration("lamp_calibration", data, f"session {root}: {LAMP_FILE}")
