@@ -357,6 +357,7 @@ def _camera_rows(cam: dict[str, Any]) -> list[tuple[str, Any]]:
             ("focal length", f"{k[0][0]:.1f} x {k[1][1]:.1f} px (+- {stds.get('fx_px', float('nan')):.2f} px)"),
             ("principal point", f"({k[0][2]:.1f}, {k[1][2]:.1f}) px"),
             ("distortion k1, k2, p1, p2, k3", ", ".join(f"{v:.4g}" for v in cam.get("dist") or [])),
+            ("held at nominal values (long lens)", ", ".join(str(h) for h in cam.get("held") or []) or "none"),
             ("board frames used / rejected", f"{src.get('frames_used', '?')} / {len(src.get('frames_rejected') or [])}"),
             ("board coverage of the image", "not recorded" if not isinstance(src.get("coverage"), dict) else
              f"{100 * float(src['coverage'].get('fraction', 0.0)):.0f} % of a 12 x 8 grid of cells"),

@@ -63,6 +63,7 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     html = (out / "capture" / "session" / "products" / "report.html").read_text()
     assert "<img" in html and 'src="http' not in html
     assert "Every photo posed on the mesh" in html and "alt='overlays of every posed frame'" in html
+    assert "held at nominal values (long lens)</th><td>cx, cy, k2, p1, p2" in html
     # the hawk's materials from RAW frames calibrated by the chart, against the simulation's truth
     regions = {r["region"]: r for r in summary["colour"]["regions"]}
     assert regions["beak"]["true_material"] == "gold" and regions["beak"]["material"] == "gold"
