@@ -22,6 +22,7 @@ from mocks.station import SimulatedStation
 from mocks.world import World
 from processing.geometry.calibration import ScannerCalibration, ideal_sensor_to_room
 from processing.geometry.camera_calibration import CameraCalibration
+from tests.app.cli_checks import fails_with_one_line
 
 
 def _camera_only(world: World, root: Path, plan: CapturePlan, station: Path) -> Path:
@@ -35,11 +36,6 @@ def _camera_only(world: World, root: Path, plan: CapturePlan, station: Path) -> 
         finally:
             s.close()
     return root
-
-
-def _files(base: Path) -> dict[str, int]:
-    """Every file under ``base`` with its size (what a failed command must leave as it was)."""
-    return {str(p.relative_to(base)): p.stat().st_size for p in base.rglob("*") if p.is_file()}
 
 
 @pytest.fixture(scope="module")
@@ -82,23 +78,6 @@ def sessions(tmp_path_factory):
     (base / "wrong-schema.json").write_text(json.dumps({"schema": "kogei.scanner_calibration", "version": 1}))
     return base
 
-
-def _fails(argv: list[str], capsys, base: Path, *needles: str) -> str:
-    """Run ``kogei argv``: exit code 2, one line on stderr holding every needle, nothing written."""
-    before = _files(base)
-    code = main(argv)
-    out = capsys.readouterr()
-    assert code == 2, (code, out.err)
-    assert "Traceback" not in out.err, out.err
-    # progress notes are indented; the error is one line, the last
-    errors = [line for line in out.err.splitlines() if not line.startswith("  ")]
-    assert len(errors) == 1 and out.err.rstrip().endswith(errors[0]), out.err
-    err = errors[0]
-    assert err.startswith(f"kogei {argv[0]}: error: "), err
-    for n in needles:
-        assert n in err, (n, err)
-    assert _files(base) == before, "a failed command wrote files"
-    return err
 
 
 # ---------------------------------------------------------------------------- argument combinations
@@ -269,3 +248,7 @@ def test_a_scanner_calibration_with_an_odd_source_record(source, sessions, capsy
     (root / MANIFEST).write_text(json.dumps(manifest))
     _fails(["calibrate", "--camera", str(sessions / "no-board"), "--scanner", str(root)], capsys, sessions,
            "3 of 3 frames rejected")
+
+
+def _fails(argv: list[str], capsys, base: Path, *needles: str) -> str:
+    return fails_with_one_line(argv, capsys, base, *needles)
