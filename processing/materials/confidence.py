@@ -190,6 +190,18 @@ def is_right(decision: Decision, truth: str) -> bool:
     A named material is right when it is the truth; :data:`NEUTRAL_METAL` when the truth is in its
     group; :data:`NO_FIT` names nothing and is never right (count it as an abstention).
 
+    Parameters
+    ----------
+    decision
+        The answer of :func:`decide`.
+    truth
+        The true material's candidate name.
+
+    Returns
+    -------
+    bool
+        True when the answer is right.
+
     Examples
     --------
     >>> d = decide(["silver", "aluminium", "gold"], [2.0, 2.5, 500.0], [2, 2, 2], [1, 1, 1],
