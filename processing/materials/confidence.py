@@ -58,7 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 from processing.errors import InputError
 
 __all__ = ["Decision", "decide", "NEUTRAL_METAL", "NO_FIT", "NOT_MEASURED", "MAX_MISFIT", "AMBIGUOUS_LR",
-           "is_right", "ConfidenceError"]
+           "is_right", "reliability_table", "Reliability", "ConfidenceError"]
 
 #: The answer when neutral metals cannot be told apart.
 NEUTRAL_METAL = "neutral metal"
@@ -214,3 +214,80 @@ def is_right(decision: Decision, truth: str) -> bool:
     if decision.answer == NEUTRAL_METAL:
         return truth in decision.group
     return decision.answer == truth
+
+
+@dataclass(frozen=True)
+class Reliability:
+    """Stated confidence against observed accuracy (a reliability diagram's numbers).
+
+    Attributes
+    ----------
+    edges
+        ``(B + 1,)`` bin edges of the stated confidence.
+    count
+        ``(B,)`` answers per bin.
+    stated
+        ``(B,)`` mean stated confidence per bin (NaN for an empty bin).
+    observed
+        ``(B,)`` share of right answers per bin (NaN for an empty bin).
+    ece
+        Expected calibration error: ``sum_b count_b / N * |observed_b - stated_b|``.
+    high_accuracy
+        Share right among answers stated at >= 0.9 (NaN when there are none).
+    high_count
+        Answers stated at >= 0.9.
+    """
+
+    edges: NDArray[np.float64]
+    count: NDArray[np.int64]
+    stated: NDArray[np.float64]
+    observed: NDArray[np.float64]
+    ece: float
+    high_accuracy: float
+    high_count: int
+
+
+def reliability_table(confidence: ArrayLike, right: ArrayLike, bins: int = 10) -> Reliability:
+    """Bin answers by stated confidence and compare with how often they were right.
+
+    Parameters
+    ----------
+    confidence
+        ``(N,)`` stated confidences in [0, 1] of answers that name a material (leave abstentions out).
+    right
+        ``(N,)`` whether each answer was right (:func:`is_right`).
+    bins
+        Equal-width bins over [0, 1].
+
+    Returns
+    -------
+    Reliability
+
+    References
+    ----------
+    .. [1] Guo et al. (2017), doi:10.48550/arXiv.1706.04599 (reliability diagram, ECE).
+
+    Examples
+    --------
+    >>> r = reliability_table([0.95, 0.95, 0.55, 0.55], [True, True, True, False], bins=2)
+    >>> r.count.tolist(), r.observed.tolist(), round(r.ece, 3), r.high_accuracy
+    ([2, 2], [0.5, 1.0], 0.05, 1.0)
+    """
+    c = np.asarray(confidence, dtype=np.float64).reshape(-1)
+    ok = np.asarray(right, dtype=bool).reshape(-1)
+    if c.size != ok.size or c.size == 0 or not np.all((c >= 0) & (c <= 1)):
+        raise ConfidenceError(f"confidence ({c.size}) and right ({ok.size}) must be equally long, non-empty, "
+                              "with confidences in [0, 1]")
+    if not (isinstance(bins, int) and bins >= 1):
+        raise ConfidenceError(f"bins must be a positive integer, got {bins!r}")
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    idx = np.clip(np.searchsorted(edges, c, side="right") - 1, 0, bins - 1)
+    count = np.bincount(idx, minlength=bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        stated = np.bincount(idx, weights=c, minlength=bins) / count
+        observed = np.bincount(idx, weights=ok.astype(np.float64), minlength=bins) / count
+    filled = count > 0
+    ece = float(np.sum(count[filled] / c.size * np.abs(observed[filled] - stated[filled])))
+    high = c >= 0.9
+    acc = float(ok[high].mean()) if high.any() else float("nan")
+    return Reliability(edges, count.astype(np.int64), stated, observed, ece, acc, int(high.sum()))
