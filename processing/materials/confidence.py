@@ -269,7 +269,7 @@ def reliability_table(confidence: ArrayLike, right: ArrayLike, bins: int = 10) -
 
     Examples
     --------
-    >>> r = reliability_table([0.95, 0.95, 0.55, 0.55], [True, True, True, False], bins=2)
+    >>> r = reliability_table([0.95, 0.95, 0.45, 0.45], [True, True, True, False], bins=2)
     >>> r.count.tolist(), r.observed.tolist(), round(r.ece, 3), r.high_accuracy
     ([2, 2], [0.5, 1.0], 0.05, 1.0)
     """
