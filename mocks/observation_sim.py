@@ -139,7 +139,7 @@ def simulated_observations(world: World, angles_deg: Sequence[float], *, noise: 
     mesh.compute_vertex_normals()
     normals = np.asarray(mesh.vertex_normals, dtype=np.float64)
     grid, e = world.grid, world.light_spectrum()
-    white = channel_signal(e, grid, sensitivities)             # a white diffuser facing the lamp, per channel
+    white = channel_signal(e, grid, sensitivities) / np.pi     # a white diffuser facing the lamp: radiance E / pi
     rng = np.random.default_rng(seed)
     k, r2c, lamps = world.camera_intrinsics(), world.room_to_camera(), world_lamps(world)
     frames, images, labels = [], [], []
