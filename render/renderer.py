@@ -826,7 +826,9 @@ def render(
     scene
         Objects, lights (the first sets the exposure) and sky.
     camera
-        Pinhole camera; its width and height are the image size.
+        Pinhole camera, or the calibrated camera of a posed photo
+        (:class:`render.calibrated_camera.CalibratedCamera`); its width and
+        height are the image size.
     settings
         A :class:`~render.presets.RenderSettings`; None means the
         ``standard`` preset.
