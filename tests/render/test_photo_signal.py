@@ -87,3 +87,20 @@ def test_bad_inputs_are_refused(sim):
         render_signal(*args[:6], np.ones(3))
     with pytest.raises(RenderInputError, match="normals"):
         render_signal(*args[:2], np.ones((2, 3)), *args[3:])
+
+
+def test_distorted_frame_outline_matches_the_mesh_mask(sim):
+    from processing.appearance.frame_poses import FramePose
+    from processing.appearance.silhouette import mesh_mask
+
+    w, s, _, d0 = sim
+    f = s.frames[0]
+    distorted = FramePose(f.name, f.pass_index, f.table_angle_deg, f.image_size, f.K,
+                          np.array([-0.6, 0.2, 0.002, -0.001, 0.0]), f.mesh_to_camera, f.lamps)
+    specs = [s.materials[n] for n in s.region_names]
+    _, mask = render_signal(s.vertices, s.triangles, None, s.face_region, specs, distorted, w.light_spectrum(),
+                            sensitivities=s.sensitivities, scale=SIM_SCALE, irradiance_ref_mm=d0, grid=w.grid)
+    truth = mesh_mask((s.vertices, s.triangles), distorted)
+    undistorted = s.labels[0] >= 0
+    assert (mask & truth).sum() / (mask | truth).sum() > 0.99
+    assert (mask ^ undistorted).sum() > 100                               # the distortion moved the outline
