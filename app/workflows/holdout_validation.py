@@ -16,13 +16,13 @@ as PNG bytes.  docs/validation.md describes the rule and the figures.
 from __future__ import annotations
 
 import io
-import math
 import time
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage
 
 from app.errors import UsageError
 from processing.appearance.photo_comparison import ImageComparison, camera_to_xyz_matrix, compare_images
@@ -155,7 +155,7 @@ def triptych_png(photo: ArrayLike, rendered: ArrayLike, error_map: ArrayLike, ca
 def _pooled(de: list[NDArray[np.float64]]) -> dict[str, float | int]:
     allde = np.concatenate(de) if de else np.zeros(0)
     if allde.size == 0:
-        return {"mean_de2000": math.nan, "p95_de2000": math.nan, "median_de2000": math.nan, "n_pixels": 0}
+        return {"mean_de2000": None, "p95_de2000": None, "median_de2000": None, "n_pixels": 0}
     return {"mean_de2000": float(allde.mean()), "p95_de2000": float(np.percentile(allde, 95)),
             "median_de2000": float(np.median(allde)), "n_pixels": int(allde.size)}
 
@@ -176,7 +176,7 @@ def _region_figures(per_frame: list[dict[str, dict[str, Any]]]) -> dict[str, dic
 
 def _compare_frame(frame: Any, photo: NDArray[Any], mesh: tuple, specs: Sequence[str | None], baseline_spec: str,
                    spectra: dict[str, Any], matrix: NDArray[np.float64], options: dict[str, Any]
-                   ) -> tuple[dict[str, Any], ImageComparison, ImageComparison]:
+                   ) -> tuple[dict[str, Any], ImageComparison | None, ImageComparison | None]:
     vertices, triangles, normals, face_material = mesh
     kw = dict(sensitivities=spectra["sensitivities"], scale=options["scale"], grid=spectra["grid"],
               irradiance_ref_mm=options["irradiance_ref_mm"])
@@ -192,6 +192,10 @@ def _compare_frame(frame: Any, photo: NDArray[Any], mesh: tuple, specs: Sequence
     if options["clip_level"] is not None:
         usable &= ~np.any(photo >= np.asarray(options["clip_level"]), axis=-1)
     margin = options["edge_margin_px"]
+    left = ndimage.binary_erosion(usable, iterations=margin) if margin else usable
+    if not left.any():
+        return {"name": frame.name, "skipped": "no measured, unclipped object pixel in this frame",
+                "seconds": time.perf_counter() - t0}, None, None
     res_m = compare_images(photo, measured, usable, matrix, edge_margin_px=margin)
     res_b = compare_images(photo, base, usable, matrix, edge_margin_px=margin)
     faces = pixel_faces(vertices, triangles, frame)
@@ -240,7 +244,8 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
         ``{"frames": [{"name", "measured": {mean_de2000, p95_de2000, median_de2000, n_pixels}, "baseline": {...},
         "regions": {"<index>": {"measured": {...}, "baseline": {...}}}, "clipped_pixels", "seconds",
         "error_map_png", "baseline_error_map_png", "triptych_png"}, ...], "overall": {"measured": {...},
-        "baseline": {...}, "regions": {...}, "n_frames"}, "baseline_spec", "camera_to_xyz"}``; overall
+        "baseline": {...}, "regions": {...}, "n_frames", "n_skipped"}, "baseline_spec", "camera_to_xyz"}``; a frame with
+        no measured, unclipped object pixel has only ``"name"``, ``"skipped"`` (why) and ``"seconds"``; overall
         figures pool the pixels of all frames; "regions" splits them by the face region seen in each pixel.
     """
     from processing.camera.response import camera_sensitivities
@@ -261,6 +266,9 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
         out, de_m, de_b, regions = [], [], [], []
         for i, frame in enumerate(frames):
             entry, res_m, res_b = _compare_frame(frame, photos[i], mesh, specs, baseline_spec, spectra, matrix, options)
+            if res_m is None:
+                out.append(entry)
+                continue
             regions.append(entry["regions"])
             entry["regions"] = _region_figures([entry["regions"]])
             out.append(entry)
@@ -268,6 +276,7 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
             de_b.append(res_b.error_map[np.isfinite(res_b.error_map)].astype(np.float64))
     except InputError as exc:
         raise UsageError(f"held-out validation: {exc}") from None
-    return {"frames": out, "overall": {"measured": _pooled(de_m), "baseline": _pooled(de_b), "n_frames": len(out),
+    return {"frames": out, "overall": {"measured": _pooled(de_m), "baseline": _pooled(de_b), "n_frames": len(de_m),
+                                      "n_skipped": len(out) - len(de_m),
                                       "regions": _region_figures(regions)},
             "baseline_spec": baseline_spec, "camera_to_xyz": matrix.tolist()}

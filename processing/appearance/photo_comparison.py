@@ -57,7 +57,7 @@ class ImageComparison:
 
     Attributes
     ----------
-    mean_de2000, p95_de2000, median_de2000
+    mean_de2000, p95_de2000, median
         Mean, 95th percentile and median CIEDE2000 over the compared pixels.
     n_pixels
         Number of compared pixels (the mask eroded by the edge margin).
@@ -67,19 +67,19 @@ class ImageComparison:
 
     mean_de2000: float
     p95_de2000: float
-    median_de2000: float
+    median: float
     n_pixels: int
     error_map: NDArray[np.float32] = field(repr=False)
 
     @property
-    def median(self) -> float:
-        """The median CIEDE2000 (alias of :attr:`median_de2000`)."""
-        return self.median_de2000
+    def median_de2000(self) -> float:
+        """The median CIEDE2000 (:attr:`median`)."""
+        return self.median
 
     def to_dict(self) -> dict[str, Any]:
         """The figures (no map) as a JSON-ready dict."""
         return {"mean_de2000": self.mean_de2000, "p95_de2000": self.p95_de2000,
-                "median_de2000": self.median_de2000, "n_pixels": self.n_pixels}
+                "median_de2000": self.median, "n_pixels": self.n_pixels}
 
 
 def _matrix3(value: ArrayLike, name: str) -> NDArray[np.float64]:

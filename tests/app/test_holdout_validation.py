@@ -121,3 +121,13 @@ def test_wrong_photos_are_refused_in_one_line(run):
     with pytest.raises(UsageError, match="NaN"):
         validate_frames([sim.frames[idx[0]]], [bad], *args, grid=w.grid, images=False)
 
+
+
+def test_a_frame_without_measured_pixels_is_skipped_not_guessed(run):
+    sim, idx, _, _, (w, _, d0) = run
+    res = validate_frames([sim.frames[idx[0]]], [sim.images[idx[0]]], sim.vertices, sim.triangles, None,
+                          sim.face_region, [None] * len(sim.region_names), "nami-shibuichi", w.light_spectrum(),
+                          sim.sensitivities, SIM_SCALE, irradiance_ref_mm=d0, grid=w.grid)
+    assert res["frames"][0]["skipped"] and "measured" not in res["frames"][0]
+    assert res["overall"]["n_frames"] == 0 and res["overall"]["n_skipped"] == 1
+    assert res["overall"]["measured"]["mean_de2000"] is None
