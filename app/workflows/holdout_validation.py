@@ -110,8 +110,10 @@ def error_map_png(error_map: ArrayLike, title: str = "") -> bytes:
     fig = Figure(figsize=(max(3.0, w / 80 + 1.2), max(2.0, h / 80 + 0.6)), dpi=100)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    ax.set_facecolor((40 / 255,) * 3)
-    im = ax.imshow(np.ma.masked_invalid(emap), cmap=_COLORMAP, vmin=0.0, vmax=ERROR_RANGE_DE, interpolation="nearest")
+    import matplotlib
+
+    cmap = matplotlib.colormaps[_COLORMAP].with_extremes(bad=(40 / 255,) * 3)
+    im = ax.imshow(np.ma.masked_invalid(emap), cmap=cmap, vmin=0.0, vmax=ERROR_RANGE_DE, interpolation="nearest")
     ax.set_axis_off()
     if title:
         ax.set_title(title, fontsize=8)
