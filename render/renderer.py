@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 
 from processing.spectral.spectra import SpectralGrid
 from render.backends import SpectralBackend, TableBackend
+from render.calibrated_camera import CalibratedCamera
 from render.camera import Camera
 from render.errors import RenderCancelled, RenderInputError
 from render.integrator import ShadingContext, light_samples, shade
@@ -193,8 +194,9 @@ def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -
     """The settings to use (None: the ``standard`` preset), after checking the argument types."""
     if not isinstance(scene, Scene):
         raise RenderInputError(f"scene must be a render.scene.Scene, got {type(scene).__name__}")
-    if not isinstance(camera, Camera):
-        raise RenderInputError(f"camera must be a render.camera.Camera, got {type(camera).__name__}")
+    if not isinstance(camera, (Camera, CalibratedCamera)):
+        raise RenderInputError(f"camera must be a render.camera.Camera or a render.calibrated_camera.CalibratedCamera, "
+                               f"got {type(camera).__name__}")
     if settings is None:
         return PRESETS["standard"]
     if not isinstance(settings, RenderSettings):
@@ -824,7 +826,9 @@ def render(
     scene
         Objects, lights (the first sets the exposure) and sky.
     camera
-        Pinhole camera; its width and height are the image size.
+        Pinhole camera, or the calibrated camera of a posed photo
+        (:class:`render.calibrated_camera.CalibratedCamera`); its width and
+        height are the image size.
     settings
         A :class:`~render.presets.RenderSettings`; None means the
         ``standard`` preset.
