@@ -10,8 +10,6 @@ simulated sensor also saturates, so clipped pixels are left out.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -22,7 +20,7 @@ from mocks.world import World
 from render.errors import RenderInputError
 from render.photo_signal import pixel_faces, render_signal
 
-SIM_SCALE = 1.0 / math.pi       # the simulation's white diffuser reads 1/pi
+SIM_SCALE = 1.0          # the simulation's white diffuser reads 1, as after the chart calibration
 
 
 def _world(point: bool) -> World:
