@@ -253,12 +253,56 @@ def _colour_step() -> Step:
                 colour_inputs, colour_params, colour_run)
 
 
-def _materials_step() -> Step:
-    from app.batch.materials import materials_inputs, materials_params, materials_run
+def _posed(manifest: dict[str, Any]) -> bool:
+    """True when the session's photos are posed on its mesh (observations and frame poses exist)."""
+    products = manifest.get("products") or {}
+    return isinstance(products.get("observations"), dict) and isinstance(products.get("frame_poses"), dict)
 
+
+def _materials_inputs(root: Path, manifest: dict[str, Any], options: BatchOptions) -> dict[str, str]:
+    from app.batch.materials import materials_inputs
+
+    if not _posed(manifest):
+        return materials_inputs(root, manifest, options)
+    products = manifest["products"]
+    return {"observations": str(products["observations"].get("sha256", "")),
+            "frame_poses": str(products["frame_poses"].get("sha256", "")),
+            "mesh": str((products.get("mesh") or {}).get("sha256", ""))}
+
+
+def _materials_params(options: BatchOptions) -> dict[str, Any]:
+    from app.batch.materials import materials_params
+    from app.workflows.object_materials import HOLDOUT_EVERY
+
+    return {"image_only": materials_params(options), "on_mesh": {"holdout_every": HOLDOUT_EVERY, "model_error": 0.02}}
+
+
+def _materials_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:
+    """Materials on the mesh when the photos are posed; else the image-only path, labelled as such."""
+    from app.batch.materials import materials_run
+
+    if not _posed(_manifest(root)):
+        log("materials: image-only -- the photos are not posed on the mesh (no camera calibration), so regions "
+            "are found in the images and one material stands for the mesh; calibrate the camera and the lamp "
+            "(kogei calibrate) and process with them to measure materials on the mesh")
+        return materials_run(root, options, log)
+    from app.workflows.object_materials import measure_object
+
+    doc = measure_object(root, message=log)
+    val = doc.get("validation") or {}
+    return {"products": ("object_materials", "object_mesh", "object_scene"),
+            "summary": {"regions": len(doc["regions"]), "materials": [r["material"] for r in doc["regions"]],
+                        "holdout_mean_de2000": val.get("mean_de2000"),
+                        "baseline_mean_de2000": val.get("baseline_mean_de2000")}}
+
+
+def _materials_step() -> Step:
     return Step("materials", ("app.batch.steps", "app.batch.materials", "app.workflows.spectral", "app.workflows.chart",
-                              "app.workflows.identification", "app.workflows.materials", "processing.materials.segmentation"),
-                materials_inputs, materials_params, materials_run, needs=("colour",))
+                              "app.workflows.identification", "app.workflows.materials", "processing.materials.segmentation",
+                              "app.workflows.object_materials", "app.workflows.holdout_validation",
+                              "processing.appearance.surface_segmentation", "processing.materials.forward_fit",
+                              "processing.materials.confidence"),
+                _materials_inputs, _materials_params, _materials_run, needs=("colour",))
 
 
 STEPS: dict[str, Step] = {

@@ -25,7 +25,7 @@ EXIT_USAGE = 2
 COMMANDS = {
     "render": "render", "materials": "materials", "demo": "demo", "devices": "devices",
     "capture": "capture", "mock": "mock", "calibrate": "calibrate", "process": "process",
-    "project": "project",
+    "project": "project", "fit-materials": "fit_materials",
     "register": "register", "gui": "gui", "chart": "chart", "batch": "batch", "report": "report",
     "cloth": "cloth", "spectral": "spectral", "identify": "identify",
 }

@@ -26,7 +26,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 __all__ = ["style", "draw_figure", "render_figure", "axes_pixel", "empty_figure", "pick_figure", "profile_figure", "cloud_figure", "frame_figure",
-           "histogram_figure", "spectrum_figure", "display_image", "QUALITY_COLOURS", "HISTOGRAM_BINS"]
+           "histogram_figure", "spectrum_figure", "region_fit_figure", "display_image", "QUALITY_COLOURS", "HISTOGRAM_BINS"]
 
 #: Colour of each patch quality in the camera preview (see :mod:`app.gui.camera_panel`).
 QUALITY_COLOURS = {"ok": "#2e9e44", "noisy": "#e0a800", "dark": "#2f6fd0", "clipped": "#d0312d"}
@@ -235,6 +235,23 @@ def spectrum_figure(fig: Figure, wavelengths: np.ndarray, mean: np.ndarray, unce
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
+
+
+def region_fit_figure(fig: Figure, half_angle_deg: np.ndarray, observed: np.ndarray, predicted: np.ndarray | None,
+                      title: str) -> None:
+    """A region's observations (R, G, B signal) against the half-vector angle, with the fitted model's values."""
+    ax = fig.add_subplot(111)
+    order = np.argsort(half_angle_deg)
+    for c, colour in enumerate(("#c0392b", "#2e9e44", "#1f5fa8")):
+        ax.scatter(half_angle_deg, observed[:, c], s=4, color=colour, alpha=0.35, lw=0,
+                   label="observed R, G, B" if c == 1 else None)
+        if predicted is not None:
+            ax.plot(half_angle_deg[order], predicted[order, c], ".", ms=1.5, color=colour, alpha=0.9,
+                    label="fitted model" if c == 1 else None)
+    style(ax, title, "angle between the normal and the half vector (deg)", "signal (white diffuser = 1)")
+    ax.set_yscale("symlog", linthresh=1e-3)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
 
 
 def pick_figure(fig: Figure, a: np.ndarray, b: np.ndarray, picks_a: np.ndarray, picks_b: np.ndarray, i: int, j: int,

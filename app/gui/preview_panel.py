@@ -1,5 +1,11 @@
 """Preview panel: the renderer's image of the session's mesh with a chosen material, under a chosen light.
 
+When the session's materials were measured on the mesh (``kogei fit-materials``, the batch's
+``materials`` step), the material list starts with "measured (on the mesh)": the object with its
+regions' fitted materials (``products/object-mesh.ply``).  A click on the object then shows the
+clicked region's observations against its fitted model (:func:`app.workflows.object_materials.
+region_observations`) under the image.
+
 A thin shell over :func:`app.workflows.scene_build.build_job` and
 :func:`render.renderer.render` (what ``kogei render`` runs).  Dragging the
 image orbits the camera about the mesh's centre; while dragging a small
@@ -49,7 +55,10 @@ from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane, ProcessJob
 
-__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view"]
+__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "MEASURED"]
+
+#: The material choice that renders the regions' measured materials.
+MEASURED = "measured (on the mesh)"
 
 
 def orbit_eye(center: np.ndarray, distance: float, azimuth_deg: float, elevation_deg: float) -> np.ndarray:
@@ -63,6 +72,45 @@ def light_vector(azimuth_deg: float, elevation_deg: float) -> tuple[float, float
     """Direction toward a directional light (unit vector, rounded to 12 digits)."""
     v = orbit_eye(np.zeros(3), 1.0, azimuth_deg, elevation_deg)
     return tuple(float(round(c, 12)) + 0.0 for c in v)
+
+
+def click_ray(view: dict[str, Any], x_px: float, y_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ray (origin, unit direction; mesh frame, mm) through image pixel ``(x_px, y_px)`` of a rendered view.
+
+    ``view`` holds the render's camera (``eye``, ``target``, ``up``, ``fov_deg`` vertical) and its
+    ``srgb8`` image (for the size); pixel (0, 0) is the top-left pixel's corner.
+
+    Examples
+    --------
+    >>> v = {"eye": np.array([0.0, -10, 0]), "target": np.zeros(3), "up": np.array([0.0, 0, 1]), "fov_deg": 40.0,
+    ...      "srgb8": np.zeros((30, 40, 3), np.uint8)}
+    >>> o, d = click_ray(v, 20.0, 15.0)
+    >>> np.round(d, 6).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    h, w = view["srgb8"].shape[:2]
+    eye, target = np.asarray(view["eye"], float), np.asarray(view["target"], float)
+    fwd = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(fwd, np.asarray(view["up"], float))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    half = math.tan(math.radians(float(view["fov_deg"])) / 2)
+    sx = (2 * x_px / w - 1) * half * w / h
+    sy = (1 - 2 * y_px / h) * half
+    d = fwd + sx * right + sy * up
+    return eye, d / np.linalg.norm(d)
+
+
+def _region_plot_data(session: str, origin: np.ndarray, direction: np.ndarray) -> dict[str, Any] | None:
+    """The clicked region's observations against its model, or None when the click missed the object."""
+    from app.workflows.object_materials import face_region_at, region_observations
+
+    region = face_region_at(session, origin, direction)
+    if region is None:
+        return None
+    if region < 0:
+        return {"region": {"index": -1, "material": "not measured", "confidence": 0.0}}
+    return region_observations(session, region)
 
 
 def _render_final(args: dict[str, Any], message: Callable[[str], None]) -> dict[str, Any]:
@@ -110,6 +158,7 @@ class _ImageView(QLabel):
 
     dragged = Signal(float, float)
     released = Signal()
+    clicked = Signal(float, float)
 
     def __init__(self) -> None:
         super().__init__()
@@ -121,18 +170,34 @@ class _ImageView(QLabel):
 
     def mousePressEvent(self, e: Any) -> None:  # noqa: N802
         self._last = e.position().toPoint()
+        self._moved = False
 
     def mouseMoveEvent(self, e: Any) -> None:  # noqa: N802
         if self._last is None:
             return
         p = e.position().toPoint()
         d = p - self._last
+        if abs(d.x()) + abs(d.y()) < 2 and not self._moved:
+            return
+        self._moved = True
         self._last = p
         self.dragged.emit(float(d.x()), float(d.y()))
 
     def mouseReleaseEvent(self, e: Any) -> None:  # noqa: N802
-        self._last = None
-        self.released.emit()
+        moved, self._last = getattr(self, "_moved", True), None
+        if moved:
+            self.released.emit()
+        else:
+            p = e.position()
+            self.clicked.emit(float(p.x()), float(p.y()))
+
+    def image_point(self, x: float, y: float, size: tuple[int, int]) -> tuple[float, float] | None:
+        """Widget point -> pixel of the shown image of ``size`` (width, height), or None outside it."""
+        w, h = size
+        scale = min(self.width() / w, self.height() / h)
+        x0, y0 = (self.width() - w * scale) / 2, (self.height() - h * scale) / 2
+        u, v = (x - x0) / scale, (y - y0) / scale
+        return (u, v) if 0 <= u < w and 0 <= v < h else None
 
 
 class PreviewPanel(Panel):
@@ -143,11 +208,13 @@ class PreviewPanel(Panel):
     #: Stillness (ms) after which the image is refined.
     settle_ms = 350
 
-    def __init__(self, lane: Lane, session_root: Callable[[], Path | None], parent: QWidget | None = None) -> None:
+    def __init__(self, lane: Lane, session_root: Callable[[], Path | None], drawer: Any = None,
+                 parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.lane = lane
         self.session_root = session_root
         self.mesh_path: str | None = None
+        self.object_mesh: str | None = None
         self.bounds: tuple[np.ndarray, np.ndarray] | None = None
         self.image: np.ndarray | None = None
         self.last: dict[str, Any] | None = None
@@ -155,11 +222,24 @@ class PreviewPanel(Panel):
         self._busy = False
         self._waiting: tuple[str, dict[str, Any]] | None = None
         outer = QHBoxLayout(self)
+        left = QVBoxLayout()
+        outer.addLayout(left, 1)
         self.view = _ImageView()
         self.view.setText("no mesh yet: process the session, or open a mesh")
         self.view.dragged.connect(self._drag)
         self.view.released.connect(self._settle_later)
-        outer.addWidget(self.view, 1)
+        self.view.clicked.connect(self.safe(self._clicked))
+        left.addWidget(self.view, 3)
+        self.region_plot = None
+        if drawer is not None:
+            from app.gui.figures import empty_figure
+            from app.gui.plots import PlotImage
+
+            self.region_plot = PlotImage(drawer)
+            self.region_plot.setMinimumHeight(180)
+            self.region_plot.plot(empty_figure, title="Region observations",
+                                  hint="render the measured object and click a point of it")
+            left.addWidget(self.region_plot, 2)
 
         side = QVBoxLayout()
         outer.addLayout(side, 0)
@@ -177,7 +257,8 @@ class PreviewPanel(Panel):
         from processing.materials.presets import list_materials
 
         self.material = QComboBox()
-        self.material.addItems(list_materials())
+        self.material.addItems([MEASURED, *list_materials()])
+        self.material.model().item(0).setEnabled(False)
         self.material.setCurrentText("nami-shibuichi")
         self.illuminant = QComboBox()
         self.illuminant.addItems(["D65", "A", "custom CCT"])
@@ -237,13 +318,22 @@ class PreviewPanel(Panel):
 
     # ------------------------------------------------------------ mesh
     def mesh_changed(self) -> None:
-        """Use the open session's ``products/mesh.ply`` (after processing)."""
+        """Use the open session's ``products/mesh.ply`` (after processing), and its measured materials if any."""
         from app.errors import UsageError
 
         root = self.session_root()
         mesh = None if root is None else root / "products" / "mesh.ply"
         if mesh is None or not mesh.exists():
             raise UsageError("the session has no mesh yet: process it on the Processing tab")
+        measured = root / "products" / "object-mesh.ply"
+        self.object_mesh = str(measured) if measured.exists() else None
+        self.material.model().item(0).setEnabled(self.object_mesh is not None)
+        if self.object_mesh is not None:
+            self.material.blockSignals(True)
+            self.material.setCurrentText(MEASURED)
+            self.material.blockSignals(False)
+        elif self.material.currentText() == MEASURED:
+            self.material.setCurrentText("nami-shibuichi")
         self.set_mesh(str(mesh))
 
     def _open_mesh(self) -> None:
@@ -305,7 +395,9 @@ class PreviewPanel(Panel):
             size, preset = (max(64, w // 4), max(48, h // 4)), "draft"
         else:
             size, preset = (w, h), self.preset.currentText()
-        args = {"mesh": self.mesh_path, "material": self.material.currentText(),
+        measured = self.material.currentText() == MEASURED and self.object_mesh is not None
+        args = {"mesh": self.object_mesh if measured else self.mesh_path,
+                "material": "nami-shibuichi" if measured else self.material.currentText(),
                 "illuminant": self.illuminant_name(),
                 "light": light_vector(self.light_az.value(), self.light_el.value()),
                 "azimuth_deg": self.azimuth.value(), "elevation_deg": self.elevation.value(),
@@ -347,7 +439,8 @@ class PreviewPanel(Panel):
         target = self.view.size()
         self.view.setPixmap(pix.scaled(target, Qt.AspectRatioMode.KeepAspectRatio,
                                        Qt.TransformationMode.SmoothTransformation))
-        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {args['material']} under "
+        shown = MEASURED if args["mesh"] == self.object_mesh else args["material"]
+        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {shown} under "
                           f"{args['illuminant']}, {secs:.2f} s")
         self.rendered.emit(kind)
 
@@ -358,6 +451,41 @@ class PreviewPanel(Panel):
     def _done(self) -> None:
         self._busy = False
         self._next()
+
+    def _clicked(self, x: float, y: float) -> None:
+        """A click on the measured object: plot the clicked region's observations against its model."""
+        if self.last is None or self.region_plot is None:
+            return
+        img = self.last["srgb8"]
+        point = self.view.image_point(x, y, (img.shape[1], img.shape[0]))
+        root = self.session_root()
+        if point is None or root is None or self.object_mesh is None or self.material.currentText() != MEASURED:
+            self.info.setText("click the measured object (material: measured (on the mesh)) to see its region's "
+                              "observations")
+            return
+        origin, direction = click_ray(self.last, *point)
+
+        def work(ctx: JobContext) -> dict[str, Any] | None:
+            return _region_plot_data(str(root), origin, direction)
+
+        self.info.setText("reading the clicked region's observations…")
+        self.lane.run(work, "region observations", succeeded=self._region_shown,
+                      failed=lambda text, exc: self.error.emit(f"preview: region: {text}"))
+
+    def _region_shown(self, data: dict[str, Any] | None) -> None:
+        from app.gui.figures import empty_figure, region_fit_figure
+
+        if data is None:
+            self.info.setText("the click missed the object")
+            return
+        reg = data["region"]
+        title = f"region {reg['index']}: {reg['material']} (confidence {float(reg.get('confidence') or 0):.2f})"
+        if "observed" not in data or len(data["observed"]) == 0:
+            self.region_plot.plot(empty_figure, title=title, hint=reg.get("reason") or "no observation to show")
+        else:
+            self.region_plot.plot(region_fit_figure, half_angle_deg=data["half_angle_deg"],
+                                  observed=data["observed"], predicted=data["predicted"], title=title)
+        self.info.setText(title)
 
     def _save(self) -> None:
         from app.errors import UsageError

@@ -619,6 +619,14 @@ def _materials(ctx: _Context) -> Section:
     return Section("materials", title, body, bool(figs))
 
 
+def _object_materials(ctx: _Context) -> Section:
+    from app.report.object_section import object_materials_section
+
+    kit = {"table": _table, "kv": _kv, "img": _img, "missing": _missing}
+    body, shown = object_materials_section(ctx, kit)
+    return Section("object-materials", "Materials on the mesh", body, shown)
+
+
 def _renders(ctx: _Context) -> Section:
     rec = ctx.products.get("renders")
     if not rec:
@@ -677,6 +685,7 @@ def report_sections(session_dir: str | os.PathLike[str]) -> list[Section]:
         ("coverage", "Coverage and filled holes", lambda: _coverage(ctx, rep)),
         ("chart", "Colour chart", lambda: _chart(ctx)),
         ("spectra", "Spectra with uncertainty vs model spectra", lambda: _spectra(ctx)),
+        ("object-materials", "Materials on the mesh", lambda: _object_materials(ctx)),
         ("materials", "Material map and confidences", lambda: _materials(ctx)),
         ("renders", "Renders under D65 and A", lambda: _renders(ctx)),
         ("timing", "Timing of every step", lambda: _timing(ctx, rep)),

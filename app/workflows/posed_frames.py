@@ -45,7 +45,7 @@ from app.workflows.station_calibration import (
     session_lamp_calibration,
 )
 
-__all__ = ["project_session", "frame_outline", "posed_frame_names", "FRAME_POSES", "OBSERVATIONS", "PROJECTION_REPORT", "OVERLAYS", "MIN_IOU"]
+__all__ = ["project_session", "frame_outline", "posed_frame_names", "calibrated_images", "session_mesh", "read_frame_poses", "FRAME_POSES", "OBSERVATIONS", "PROJECTION_REPORT", "OVERLAYS", "MIN_IOU"]
 
 FRAME_POSES = "products/frame-poses.json"
 OBSERVATIONS = "products/observations.npz"
@@ -144,6 +144,36 @@ class _Images(Sequence):
         g = self.gains.get(int(rec.get("pass") or 0))
         rgb = img.rgb if g is None else img.rgb * g.astype(np.float32)
         return rgb
+
+
+def calibrated_images(root: Path, manifest: dict[str, Any], frames: list[tuple[str, dict[str, Any]]], mode: str,
+                      note: Callable[[str], None] | None = None) -> Sequence:
+    """The frames' chart-normalised linear camera RGB, decoded one at a time (a lazy sequence).
+
+    Each pass's frames are divided per channel by its chart's neutral gains, as the observations are.
+    """
+    return _Images(root, frames, _chart_gains(root, manifest, note or (lambda text: None)), mode)
+
+
+def session_mesh(root: Path, manifest: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(vertices, triangles, vertex_normals)`` of the session's ``products/mesh.ply`` (vertex order kept)."""
+    return _mesh(root, manifest)
+
+
+def read_frame_poses(root: Path, manifest: dict[str, Any]) -> list[Any]:
+    """The :class:`~processing.appearance.frame_poses.FramePose` of every posed frame, in the file's order.
+
+    Raises :class:`UsageError` when the session's frames are not posed or the file is damaged.
+    """
+    from processing.appearance.frame_poses import AppearanceError, FramePose
+
+    doc = _frame_poses_doc(root, manifest)
+    if doc is None:
+        raise UsageError(f"session {root}: its frames are not posed on the mesh; run kogei project {root}")
+    try:
+        return [FramePose.from_dict(f) for f in doc.get("frames") or []]
+    except (AppearanceError, TypeError, KeyError) as exc:
+        raise UsageError(f"session {root}: {FRAME_POSES}: {exc}; run kogei project {root} again") from None
 
 
 def _frame_poses(root: Path, frames: list[tuple[str, dict[str, Any]]], poses: dict[int, np.ndarray], calib: Any,

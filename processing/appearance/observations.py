@@ -36,7 +36,7 @@ from processing.appearance.frame_poses import AppearanceError, FramePose
 from processing.appearance.projection import mesh_arrays, project_points, raycasting_scene
 from processing.appearance.visibility import visible_vertices
 
-__all__ = ["Observations", "observe", "per_vertex_counts", "bilinear", "write_observations", "read_observations",
+__all__ = ["Observations", "observe", "per_vertex_counts", "select_frames", "bilinear", "write_observations", "read_observations",
            "OBSERVATIONS_SCHEMA", "OBSERVATIONS_VERSION"]
 
 OBSERVATIONS_SCHEMA = "kogei.observations"
@@ -131,6 +131,48 @@ def per_vertex_counts(obs: Observations) -> NDArray[np.int64]:
         ``(n_vertices,)`` int64.
     """
     return np.diff(obs.offsets)
+
+
+def select_frames(obs: Observations, keep: ArrayLike) -> Observations:
+    """The observations of some frames only (e.g. leaving held-out frames out of a fit).
+
+    Parameters
+    ----------
+    obs
+        The observations.
+    keep
+        ``(K,)`` bool per frame of ``obs.frame_names``: True to keep its observations.
+
+    Returns
+    -------
+    Observations
+        Same vertices, frames and lamps; only the rows of kept frames, still sorted by vertex.
+
+    Raises
+    ------
+    AppearanceError
+        ``keep`` does not hold one flag per frame.
+
+    Examples
+    --------
+    >>> obs = Observations(2, ("a", "b"), (), np.array([0, 2, 3]), vertex=np.array([0, 0, 1], np.int32),
+    ...     frame=np.array([0, 1, 1], np.int32), uv_px=np.zeros((3, 2), np.float32),
+    ...     signal=np.zeros((3, 3), np.float32), sigma=np.ones((3, 3), np.float32), clipped=np.zeros(3, bool),
+    ...     normal=np.zeros((3, 3), np.float32), view_dir=np.zeros((3, 3), np.float32),
+    ...     light_dir=np.zeros((3, 0, 3), np.float32), half_angle_deg=np.zeros((3, 0), np.float32),
+    ...     distance_mm=np.ones(3, np.float32))
+    >>> select_frames(obs, [False, True]).offsets.tolist()
+    [0, 1, 2]
+    """
+    flags = np.asarray(keep, dtype=bool).reshape(-1)
+    if flags.size != len(obs.frame_names):
+        raise AppearanceError(f"select_frames: keep has {flags.size} flags for {len(obs.frame_names)} frames; "
+                              "give one per frame")
+    rows = flags[obs.frame]
+    cat = {name: getattr(obs, name)[rows] for name in _ROW_ARRAYS}
+    offsets = np.zeros(obs.n_vertices + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cat["vertex"], minlength=obs.n_vertices), out=offsets[1:])
+    return Observations(obs.n_vertices, obs.frame_names, obs.lamp_names, offsets, **cat)
 
 
 def bilinear(image: NDArray[np.float32], uv_px: NDArray[np.float64]) -> NDArray[np.float32]:

@@ -1,0 +1,443 @@
+"""The digitised object: materials measured on the mesh, written as products, checked on held-out photos.
+
+:func:`measure_object` is what ``kogei fit-materials``, the batch's ``materials`` step (for a session
+whose photos are posed), the window and the demo call.  From the observations of a projected session
+(``products/observations.npz``, ``products/frame-poses.json``: ``kogei project``) it
+
+1. holds out every :data:`HOLDOUT_EVERY`-th frame of each pass (by table angle: the frames whose
+   index in the pass is a multiple of it) -- they are never used by the fit;
+2. splits the surface into regions of one material from all views of every vertex
+   (:func:`processing.appearance.surface_segmentation.segment_surface`);
+3. fits every candidate material to each region's observations at their true normal, view and
+   light directions and chooses by likelihood (:func:`processing.materials.forward_fit.fit_region`),
+   and fits the paper's baseline -- one material for the whole object -- the same way;
+4. writes ``products/object-mesh.ply`` (the mesh with a material index per face),
+   ``products/object-materials.json`` (per region: material, confidence, parameters with
+   uncertainties, area, observations) and ``products/object-scene.toml`` (a ``kogei render`` scene
+   of the object in the booth);
+5. renders the held-out frames with the calibrated camera and lamp, compares them with the photos in
+   CIELAB (mean and p95 CIEDE2000 over object pixels), for the measured materials and the baseline,
+   and writes the error maps and photo | render | error triptychs under ``products/validation/``.
+
+docs/object-materials.md describes the products and how to read the figures.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.errors import UsageError
+
+__all__ = ["measure_object", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "holdout_flags", "OBJECT_MATERIALS",
+           "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY"]
+
+OBJECT_MATERIALS = "products/object-materials.json"
+OBJECT_MESH = "products/object-mesh.ply"
+OBJECT_SCENE = "products/object-scene.toml"
+VALIDATION_DIR = "products/validation"
+#: Every n-th frame of a pass is held out of the fit and used to validate it.
+HOLDOUT_EVERY = 4
+#: Spectral grid of the fit (nm).
+_GRID = (400.0, 700.0, 10.0)
+
+
+def holdout_flags(records: list[dict[str, Any]], every: int) -> np.ndarray:
+    """True for the frames held out: those whose index within their pass is a multiple of ``every``.
+
+    ``records`` are the frames' capture records (``pass``, ``index``) in the observations' frame order;
+    ``every = 0`` holds nothing out.
+
+    Examples
+    --------
+    >>> holdout_flags([{"pass": 1, "index": i} for i in range(6)], 4).tolist()
+    [True, False, False, False, True, False]
+    """
+    if not isinstance(every, int) or isinstance(every, bool) or every < 0 or every == 1:
+        raise UsageError(f"--holdout-every must be 0 (no validation) or an integer >= 2, got {every!r}")
+    if every == 0:
+        return np.zeros(len(records), dtype=bool)
+    firsts: dict[int, int] = {}
+    for rec in records:
+        p = int(rec.get("pass") or 0)
+        firsts[p] = min(firsts.get(p, 1 << 30), int(rec.get("index") or 0))
+    return np.array([(int(r.get("index") or 0) - firsts[int(r.get("pass") or 0)]) % every == 0 for r in records])
+
+
+def _load_inputs(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
+    """Observations, frame poses (in the observations' frame order), their records, the mesh and the lamp."""
+    from app.session_paths import confined_file
+    from app.workflows.posed_frames import read_frame_poses, session_mesh
+    from app.workflows.station_calibration import session_lamp_calibration
+    from processing.appearance.frame_poses import AppearanceError
+    from processing.appearance.observations import read_observations
+
+    products = manifest.get("products") or {}
+    if not isinstance(products.get("observations"), dict) or not isinstance(products.get("frame_poses"), dict):
+        raise UsageError(f"session {root} has no photos posed on its mesh (products/observations.npz); calibrate "
+                         "the camera and the lamp (kogei calibrate --camera ... / --lamp ...), then run "
+                         f"'kogei process {root} --camera-calibration BOARD --lamp-calibration LAMP'")
+    try:
+        obs = read_observations(confined_file(root, products["observations"].get("file"), "products.observations"))
+    except (FileNotFoundError, AppearanceError) as exc:
+        raise UsageError(f"session {root}: {exc}; run kogei project {root} again") from None
+    if not obs.lamp_names:
+        raise UsageError(f"session {root}: its observations carry no lamp (no lamp calibration when it was "
+                         f"projected); run kogei calibrate --lamp LAMP_SESSION ..., then kogei process {root} "
+                         "--lamp-calibration LAMP_SESSION")
+    poses = {p.name: p for p in read_frame_poses(root, manifest)}
+    missing = [n for n in obs.frame_names if n not in poses]
+    if missing:
+        raise UsageError(f"session {root}: frames {', '.join(missing[:3])} are observed but not posed; run kogei "
+                         f"project {root} again")
+    captures = manifest.get("captures") or {}
+    lamps = session_lamp_calibration(root, manifest)
+    spectrum = next((lp.spectrum for lp in lamps.lamps if lp.spectrum is not None), None) if lamps else None
+    return {"obs": obs, "frames": [poses[n] for n in obs.frame_names], "mesh": session_mesh(root, manifest),
+            "records": [captures.get(n) or {} for n in obs.frame_names], "spectrum": spectrum}
+
+
+def _forward_model(spectrum: Any, note: Callable[[str], None]) -> Any:
+    """The forward model of the fit: the model camera and the lamp's spectrum (D65 when not measured)."""
+    from processing.camera.response import camera_sensitivities
+    from processing.materials.forward_fit import ForwardModel
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
+
+    grid = SpectralGrid(*_GRID)
+    if spectrum is None:
+        note("the lamp calibration states no lamp spectrum: the fit assumes D65 (kogei calibrate --lamp ... "
+             "--lamp-spectrum NAME|CCT)")
+        spectrum = "D65"
+    return ForwardModel(camera_sensitivities(grid), light_spectrum(spectrum, grid), grid), spectrum
+
+
+def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVERY, model_error: float = 0.02,
+                   max_regions: int = 8, validate: bool = True, decode: str = "demosaic",
+                   message: Callable[[str], None] | None = None,
+                   cancel: Callable[[], bool] | None = None) -> dict[str, Any]:
+    """Segment the mesh, fit each region's material, write the object's products and validate them.
+
+    Parameters
+    ----------
+    session_dir
+        A session projected by ``kogei project`` (or ``kogei process`` with camera and lamp
+        calibrations).
+    holdout_every
+        Every n-th frame of a pass is held out of the fit and used for validation (0: none).
+    model_error
+        Relative error of the forward model added to the noise (0.02 = 2 %).
+    max_regions
+        Most regions of one material the segmentation may find.
+    validate
+        Render the held-out frames and compare them with the photos.
+    decode
+        How the held-out photos are decoded (``demosaic`` or ``bin2x2``), as when they were projected.
+    message
+        Called with progress lines.
+    cancel
+        Polled between steps; True stops with :class:`UsageError` ("cancelled"), writing nothing.
+
+    Returns
+    -------
+    dict
+        The materials document (also ``products/object-materials.json``).
+    """
+    from app.session import Session, SessionError
+
+    note = message or (lambda text: None)
+    stop = cancel or (lambda: False)
+    if not (isinstance(model_error, (int, float)) and math.isfinite(model_error) and 0 <= model_error <= 0.5):
+        raise UsageError(f"--model-error must be a relative level in [0, 0.5] (0.02 = 2 %), got {model_error!r}")
+    if not (isinstance(max_regions, int) and 1 <= max_regions <= 32):
+        raise UsageError(f"--max-regions must be an integer in [1, 32], got {max_regions!r}")
+    root = Path(session_dir)
+    try:
+        session = Session.open(root)
+    except SessionError as exc:
+        raise UsageError(str(exc)) from None
+    with session:
+        data = _load_inputs(root, session.manifest)
+        held = holdout_flags(data["records"], holdout_every)
+        if held.all():
+            raise UsageError(f"session {root}: every frame would be held out; use --holdout-every >= 2 or 0")
+        doc = _fit(data, held, model_error, max_regions, note, stop)
+        _check_cancel(stop)
+        _write_products(session, root, data, doc)
+        if validate and held.any():
+            doc["validation"] = _validate(session, root, data, doc, held, decode, note, stop)
+        elif validate:
+            doc["validation"] = {"frames": [], "note": "no frame held out (--holdout-every 0): not validated"}
+        _record(session, doc)
+    return doc
+
+
+def _check_cancel(stop: Callable[[], bool]) -> None:
+    if stop():
+        raise UsageError("cancelled: no product written")
+
+
+def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions: int,
+         note: Callable[[str], None], stop: Callable[[], bool]) -> dict[str, Any]:
+    """Segmentation, per-region fits and the one-material baseline, as the materials document."""
+    from processing.appearance.observations import select_frames
+    from processing.appearance.surface_segmentation import segment_surface
+    from processing.materials.forward_fit import fit_region, region_samples
+
+    v, t, _ = data["mesh"]
+    obs = select_frames(data["obs"], ~held)
+    model, spectrum = _forward_model(data["spectrum"], note)
+    t0 = time.perf_counter()
+    note(f"segmenting the surface from {len(obs)} observations in {int((~held).sum())} frames "
+         f"({int(held.sum())} held out)")
+    seg = segment_surface(obs, v, t, max_regions=max_regions)
+    t_seg = time.perf_counter() - t0
+    _check_cancel(stop)
+    areas = _face_areas(v, t)
+    regions, t1 = [], time.perf_counter()
+    for r in range(seg.n_regions):
+        _check_cancel(stop)
+        ids = np.flatnonzero(seg.vertex_region == r)
+        fit = fit_region(region_samples(obs, v, data["frames"], ids, triangles=t), model, model_error=model_error)
+        faces = seg.face_region == r
+        regions.append({"index": r, **fit.to_dict(), "area_mm2": round(float(areas[faces].sum()), 3),
+                        "faces": int(faces.sum()), "vertices": int(ids.size)})
+        note(f"region {r}: {fit.material} (confidence {fit.confidence:.2f}), {int(faces.sum())} faces, "
+             f"{fit.n_lit} lit observations")
+    measured = np.flatnonzero(seg.vertex_region >= 0)
+    base = fit_region(region_samples(obs, v, data["frames"], measured, triangles=t), model, model_error=model_error)
+    t_fit = time.perf_counter() - t1
+    unmeasured = seg.face_region < 0
+    return {"schema": "kogei.object_materials", "version": 1, "mesh": OBJECT_MESH, "light_spectrum": spectrum,
+            "model_error": model_error, "segmentation": {"method": seg.method, "regions": seg.n_regions,
+                                                          "features": list(seg.feature_names)},
+            "regions": regions, "baseline": {**base.to_dict(), "note": "one material for the whole object"},
+            "not_measured": {"faces": int(unmeasured.sum()), "area_mm2": round(float(areas[unmeasured].sum()), 3)},
+            "area_mm2": round(float(areas.sum()), 3),
+            "frames": {"fit": [n for n, h in zip(obs.frame_names, held) if not h],
+                       "held_out": [n for n, h in zip(obs.frame_names, held) if h]},
+            "timings_s": {"segmentation": round(t_seg, 3), "fit": round(t_fit, 3)},
+            "_face_region": seg.face_region}
+
+
+def _face_areas(v: np.ndarray, t: np.ndarray) -> np.ndarray:
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+def _specs(doc: dict[str, Any]) -> list[str | None]:
+    return [r.get("spec") for r in doc["regions"]]
+
+
+def _write_products(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any]) -> None:
+    """``object-mesh.ply`` and ``object-scene.toml`` (the materials document is written by :func:`_record`)."""
+    from app.session_paths import check_not_symlink
+    from render.material_mesh import write_material_ply
+
+    v, t, n = data["mesh"]
+    tmp = check_not_symlink(root, ".incoming/object-mesh.ply", "object mesh staging file")
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    write_material_ply(tmp, v, t, n, doc["_face_region"], _specs(doc))
+    check_not_symlink(root, OBJECT_MESH, "products.object_mesh")
+    info = session.adopt_file(tmp, OBJECT_MESH)
+    doc["mesh_sha256"] = info.sha256
+    first = data["frames"][0]
+    scene = object_scene_toml(v, first, doc["light_spectrum"])
+    session.write_file(OBJECT_SCENE, scene.encode())
+
+
+def object_scene_toml(vertices: np.ndarray, frame: Any, spectrum: Any) -> str:
+    """A ``kogei render`` scene of the measured object in the booth, seen as by ``frame``'s camera.
+
+    The camera sits where the frame's camera was (field of view from its intrinsics), the lamp
+    where the frame's lamp was (a point light whose irradiance is 1 at the object's centre, as the
+    chart-normalised signal); the booth is dark (no sky).
+    """
+    centre = vertices.mean(axis=0)
+    eye = frame.camera_centre_mm
+    fy, h = float(frame.K[1, 1]), float(frame.image_size[1])
+    fov = math.degrees(2 * math.atan(h / 2 / fy))
+    up = -np.asarray(frame.mesh_to_camera)[1, :3]           # the camera's y axis points down
+    lines = ["# The measured object in the booth (kogei fit-materials); render with: kogei render object-scene.toml",
+             "[render]", f'illuminant = "{spectrum}"', "", "[camera]", f"eye = {_vec(eye)}",
+             f"target = {_vec(centre)}", f"up = {_vec(up)}", f"fov = {fov:.4f}", "", "[sky]", 'kind = "none"', ""]
+    for lamp in frame.lamps:
+        if lamp.kind == "point":
+            d = float(np.linalg.norm(np.asarray(lamp.vector) - centre))
+            lines += ["[[light]]", 'kind = "point"', f"position = {_vec(lamp.vector)}", f"intensity = {d * d:.6g}", ""]
+        else:
+            lines += ["[[light]]", 'kind = "directional"', f"direction = {_vec(lamp.vector)}", "intensity = 1.0", ""]
+    lines += ["[[object]]", f'mesh = "{Path(OBJECT_MESH).name}"', ""]
+    return "\n".join(lines)
+
+
+def _vec(x: Any) -> str:
+    return "[" + ", ".join(f"{float(c):.6g}" for c in np.asarray(x).reshape(3)) + "]"
+
+
+def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any], held: np.ndarray, decode: str,
+              note: Callable[[str], None], stop: Callable[[], bool]) -> dict[str, Any]:
+    """Render the held-out frames with the measured materials and with the baseline; compare with the photos."""
+    from app.workflows.holdout_validation import validate_frames
+    from app.workflows.posed_frames import calibrated_images
+    from processing.camera.response import camera_sensitivities
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
+
+    v, t, n = data["mesh"]
+    names = [nm for nm, h in zip(data["obs"].frame_names, held) if h]
+    frames = [f for f, h in zip(data["frames"], held) if h]
+    records = [(nm, r) for nm, r, h in zip(data["obs"].frame_names, data["records"], held) if h]
+    photos = calibrated_images(root, session.manifest, records, decode, note)
+    grid = SpectralGrid(*_GRID)
+    note(f"validating on {len(frames)} held-out frames ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''})")
+    result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
+                             light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), grid=grid,
+                             cancel=stop)
+    return _write_validation(session, result)
+
+
+def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
+    """Write the validation's PNGs under ``products/validation/`` and keep the figures (no image bytes)."""
+    out = {k: v for k, v in result.items() if k != "frames"}
+    frames = []
+    for entry in result.get("frames", []):
+        row = {}
+        for key, value in entry.items():
+            if isinstance(value, (bytes, bytearray)):
+                rel = f"{VALIDATION_DIR}/{str(entry['frame']).replace('/', '_')}-{key.replace('_png', '')}.png"
+                session.write_file(rel, bytes(value))
+                row[key.replace("_png", "")] = rel
+            else:
+                row[key] = value
+        frames.append(row)
+    out["frames"] = frames
+    return out
+
+
+def _record(session: Any, doc: dict[str, Any]) -> None:
+    """Write the materials document and reference the products from the manifest."""
+    face_region = doc.pop("_face_region")
+    doc["faces"] = int(face_region.size)
+    blob = (json.dumps(doc, indent=1, allow_nan=False) + "\n").encode()
+    info = session.write_file(OBJECT_MATERIALS, blob)
+    products = dict(session.manifest.get("products") or {})
+    products["object_materials"] = {"file": OBJECT_MATERIALS, "sha256": info.sha256, "bytes": info.bytes}
+    products["object_mesh"] = {"file": OBJECT_MESH, "sha256": doc.get("mesh_sha256")}
+    products["object_scene"] = {"file": OBJECT_SCENE}
+    session.update("products", products)
+    named = ", ".join(f"{r['material']}" for r in doc["regions"])
+    val = doc.get("validation") or {}
+    de = val.get("mean_de2000")
+    session.event("materials measured", f"{len(doc['regions'])} regions ({named})"
+                  + ("" if de is None else f"; held-out mean dE00 {de:.2f} (one material: "
+                                           f"{val.get('baseline_mean_de2000', float('nan')):.2f})"))
+
+
+def read_object_materials(session_dir: str | Path) -> dict[str, Any]:
+    """The session's ``products/object-materials.json`` (checksum checked).
+
+    Raises :class:`UsageError` when the session has no measured materials or the file is damaged.
+    """
+    import hashlib
+
+    from app.session import Session
+    from app.session_paths import MAX_JSON_BYTES, read_confined_bytes
+
+    root = Path(session_dir)
+    ref = (Session.read(root).get("products") or {}).get("object_materials")
+    if not isinstance(ref, dict):
+        raise UsageError(f"session {root} has no materials measured on its mesh; run kogei fit-materials {root}")
+    blob = read_confined_bytes(root, ref.get("file"), "products.object_materials.file", MAX_JSON_BYTES)
+    if isinstance(ref.get("sha256"), str) and hashlib.sha256(blob).hexdigest() != ref["sha256"]:
+        raise UsageError(f"session {root}: {ref.get('file')} does not match its checksum; run kogei fit-materials "
+                         f"{root} again")
+    doc = json.loads(blob)
+    if not isinstance(doc, dict) or doc.get("schema") != "kogei.object_materials" or not isinstance(
+            doc.get("regions"), list):
+        raise UsageError(f"session {root}: {ref.get('file')} is not a kogei object materials file; run kogei "
+                         f"fit-materials {root} again")
+    return doc
+
+
+def _vertex_regions(triangles: np.ndarray, face_region: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Region of each vertex: the region of most of its faces (-1 where none is measured)."""
+    n_regions = int(face_region.max()) + 1 if face_region.size and face_region.max() >= 0 else 0
+    votes = np.zeros((n_vertices, n_regions + 1))
+    np.add.at(votes, (triangles.ravel(), np.repeat(np.where(face_region >= 0, face_region, n_regions), 3)), 1.0)
+    best = np.argmax(votes[:, :n_regions], axis=1) if n_regions else np.zeros(n_vertices, dtype=np.int64)
+    measured = votes[:, :n_regions].sum(axis=1) > 0 if n_regions else np.zeros(n_vertices, dtype=bool)
+    return np.where(measured, best, -1)
+
+
+def face_region_at(session_dir: str | Path, origin_mm: Any, direction: Any) -> int | None:
+    """The region index of the measured object's face hit by a ray (mesh frame), or None for a miss.
+
+    Used by the window: a click on the rendered object becomes a ray from the view's camera.
+    """
+    import open3d as o3d
+
+    from render.material_mesh import read_material_mesh
+
+    root = Path(session_dir)
+    read_object_materials(root)
+    mesh = read_material_mesh(root / OBJECT_MESH)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                        o3d.core.Tensor(mesh.triangles.astype(np.uint32)))
+    ray = np.concatenate([np.asarray(origin_mm, np.float32).reshape(3), np.asarray(direction, np.float32).reshape(3)])
+    ans = scene.cast_rays(o3d.core.Tensor(ray[None, :]))
+    if not np.isfinite(ans["t_hit"].numpy()[0]):
+        return None
+    return int(mesh.face_material[int(ans["primitive_ids"].numpy()[0])])
+
+
+def region_observations(session_dir: str | Path, region: int, *, max_points: int = 3000) -> dict[str, Any]:
+    """A region's observations (fit frames) against its fitted model, for a plot.
+
+    Parameters
+    ----------
+    session_dir
+        A session whose materials were measured (``kogei fit-materials``).
+    region
+        The region index.
+    max_points
+        At most this many observations are returned (an even subsample).
+
+    Returns
+    -------
+    dict
+        ``half_angle_deg (n,)``, ``observed (n, 3)``, ``predicted (n, 3)`` (None when the region has no
+        fitted material), ``region`` (its record in the materials file).
+    """
+    from processing.appearance.observations import select_frames
+    from processing.materials.forward_fit import region_samples
+    from processing.materials.presets import get_material
+    from render.material_mesh import read_material_mesh
+
+    root = Path(session_dir)
+    doc = read_object_materials(root)
+    rec = next((r for r in doc["regions"] if r.get("index") == region), None)
+    if rec is None:
+        raise UsageError(f"session {root}: no region {region}; regions: 0..{len(doc['regions']) - 1}")
+    from app.session import Session
+
+    data = _load_inputs(root, Session.read(root))
+    mesh = read_material_mesh(root / OBJECT_MESH)
+    fit = set((doc.get("frames") or {}).get("fit") or [])
+    obs = select_frames(data["obs"], np.array([n in fit for n in data["obs"].frame_names]))
+    ids = np.flatnonzero(_vertex_regions(mesh.triangles, mesh.face_material, len(mesh.vertices)) == region)
+    samples = region_samples(obs, mesh.vertices, data["frames"], ids, triangles=mesh.triangles)
+    keep = np.linspace(0, len(samples.signal) - 1, min(max_points, len(samples.signal))).astype(np.int64) \
+        if len(samples.signal) else np.zeros(0, dtype=np.int64)
+    half = np.degrees(np.arccos(np.clip(samples.cos_h[keep], -1.0, 1.0)))
+    predicted = None
+    if rec.get("spec"):
+        model, _ = _forward_model(doc.get("light_spectrum"), lambda text: None)
+        predicted = model.predict(get_material(rec["spec"]), samples)[keep]
+    return {"region": rec, "half_angle_deg": half, "observed": np.asarray(samples.signal)[keep],
+            "predicted": predicted}

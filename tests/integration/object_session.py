@@ -1,0 +1,92 @@
+"""A scan session of a simulated object with several materials, posed with the station's *true* camera and lamp.
+
+The session holds the object's own mesh as ``products/mesh.ply`` (so the truth per face is exact),
+a process report with one registered pass (identity pose), a camera calibration and a lamp
+calibration that are the simulated station's truth, a colour-chart frame (the classic 24-patch
+chart laid out on the backdrop) and RAW frames of the object at many table angles, rendered by the
+simulated camera.  :func:`app.workflows.posed_frames.project_session` has not run yet.  What the
+materials-on-the-mesh chain measures on it is the segmentation, the fit and the validation, not the
+calibration or the registration.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["build_object_session", "SIZE"]
+
+SIZE = (480, 320)
+
+
+def _camera_json(world, calibrated_size: tuple[int, int]) -> dict:
+    """A camera calibration JSON holding the simulated camera's truth at ``calibrated_size``."""
+    from mocks.world import World
+
+    full = World(world.vertices, world.triangles, world.region, world.region_names, world.materials,
+                 width=calibrated_size[0], height=calibrated_size[1], mesh_source=world.mesh_source)
+    r2c = full.room_to_camera()
+    return {"schema": "kogei.camera_calibration", "version": 1, "image_size": list(calibrated_size),
+            "K": full.camera_intrinsics().tolist(), "dist": [0.0] * 5, "gauge_to_camera": r2c.tolist(),
+            "room_to_camera": r2c.tolist(), "view_rms_px": {}, "rms_px": 0.05, "stds": {}, "board": {},
+            "dropped_views": [], "gauge_cov": None, "held": []}
+
+
+def _lamp_json(world) -> dict:
+    truth = world.lamp_truth()
+    lamp = {"name": "lamp1", "kind": truth["kind"], "position_mm": truth.get("position_mm"),
+            "direction": truth.get("direction"), "covariance": np.zeros((3, 3)).tolist(), "spectrum": world.light,
+            "n_observations": 12, "rms_deg": 0.05}
+    return {"schema": "kogei.lamp_calibration", "version": 1, "sphere_radius_mm": 20.0, "lamps": [lamp],
+            "frames": {"names": [], "sphere_rms_px": [], "ray_miss_deg": [], "circle_miss_mm": []}}
+
+
+def build_object_session(root: Path, world, angles_deg) -> dict:
+    """Write the session (not yet projected) under ``root``; returns the world and the mesh for checks.
+
+    ``world`` is a :class:`mocks.world.World` (its size is the frames' size; its chart layout must be
+    one ``kogei`` detects, e.g. ``"classic24"``); the mesh is the world's mesh in its table pose.
+    """
+    import open3d as o3d
+
+    from app.session import Session
+    from app.workflows.station_calibration import install_station_calibration
+    from mocks.camera_sim import simulate_raw, write_raw
+    from processing.geometry.mesh_ply import write_mesh_ply
+
+    m = world.pose
+    v = world.vertices @ m[:3, :3].T + m[:3, 3]
+    t = world.triangles
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(t.astype(np.int32)))
+    mesh.compute_vertex_normals()
+    plan = {"kind": "scan", "steps": 4, "passes": 1, "camera_angles_deg": [float(a) for a in angles_deg],
+            "chart": True, "lasers": [1], "camera": True, "chart_frames": 1}
+    s = Session.create(root, plan=plan)
+    try:
+        stage = root / ".incoming"
+        stage.mkdir(exist_ok=True)
+        write_mesh_ply(stage / "mesh.ply", v, t, np.asarray(mesh.vertex_normals))
+        info = s.adopt_file(stage / "mesh.ply", "products/mesh.ply")
+        report = {"passes": [{"pass": 1, "registered": True, "pose": np.eye(4).tolist()}]}
+        rep = s.write_file("products/process-report.json", json.dumps(report).encode())
+        s.update("products", {"mesh": {"file": "products/mesh.ply", "sha256": info.sha256},
+                              "process_report": {"file": "products/process-report.json", "sha256": rep.sha256}})
+        install_station_calibration(s, "camera_calibration", _camera_json(world, (2 * world.width, 2 * world.height)))
+        install_station_calibration(s, "lamp_calibration", _lamp_json(world))
+        chart = world.frame("chart")
+        path = write_raw(stage / "chart.dng", simulate_raw(chart.radiance, chart.grid, chart.light, seed=99))
+        fi = s.adopt_file(path, "passes/p01/raw/chart.dng")
+        s.add_capture("p01/chart", kind="chart", status="done", index=0, file=fi.path, sha256=fi.sha256,
+                      bytes=fi.bytes, **{"pass": 1})
+        for k, angle in enumerate(angles_deg):
+            frame = world.frame("object", float(angle))
+            raw = simulate_raw(frame.radiance, frame.grid, frame.light, seed=k)
+            path = write_raw(stage / f"frame_{k:02d}.dng", raw)
+            fi = s.adopt_file(path, f"passes/p01/raw/frame_{k:02d}.dng")
+            s.add_capture(f"p01/frame/{k:02d}", kind="frame", status="done", index=k, angle_deg=float(angle),
+                          file=fi.path, sha256=fi.sha256, bytes=fi.bytes, **{"pass": 1})
+    finally:
+        s.close()
+    return {"world": world, "vertices": v, "triangles": t}
