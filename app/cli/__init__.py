@@ -28,6 +28,7 @@ COMMANDS = {
     "project": "project",
     "register": "register", "gui": "gui", "chart": "chart", "batch": "batch", "report": "report",
     "cloth": "cloth", "spectral": "spectral", "identify": "identify",
+    "export": "export",
 }
 
 
