@@ -493,10 +493,22 @@ def _checked_path(path: str | os.PathLike[str]) -> Path:
     return p
 
 
+def _declares_face_material(path: Path) -> bool:
+    """Whether a PLY's header has a property named ``material`` (any format; False for no PLY header)."""
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER_BYTES)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        return False
+    lines = head[:end].decode("ascii", "replace").splitlines()
+    return any(ln.split()[:1] == ["property"] and ln.split()[-1:] == ["material"] for ln in lines)
+
+
 def material_mesh_or_none(path: str | os.PathLike[str]) -> MaterialMesh | None:
     """The mesh with its per-face materials, or None when the file carries none.
 
-    A PLY carries them when its faces have an integer ``material`` property; a
+    A PLY carries them when its header declares a ``material`` property (then
+    it is read strictly); a
     glTF file when it has more than one primitive or a material whose spec is
     known (``extras.kogei`` or a material name that is a spec).  OBJ, STL and
     OFF files never do.
@@ -521,7 +533,7 @@ def material_mesh_or_none(path: str | os.PathLike[str]) -> MaterialMesh | None:
         return None
     p = _checked_path(p)
     if p.suffix.lower() == ".ply":
-        return _read_ply(p)
+        return _read_ply(p) if _declares_face_material(p) else None
     mesh = _read_gltf(p)
     regions = np.unique(mesh.face_material)
     if len(regions) < 2 and not any(mesh.specs[int(r)] for r in regions if r >= 0):
