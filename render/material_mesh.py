@@ -362,7 +362,22 @@ def _gltf_json(path: Path) -> dict:
         raise MeshError(f"'{name}': the glTF JSON cannot be read ({exc}); the file is damaged") from None
     if not isinstance(doc, dict):
         raise MeshError(f"'{name}': the glTF JSON is not an object; the file is damaged")
+    _check_uris(doc, name)
     return doc
+
+
+def _check_uris(doc: dict, name: str) -> None:
+    """Refuse buffers and images outside the file's folder: absolute paths, ``..``, URLs other than ``data:``."""
+    for key in ("buffers", "images"):
+        items = doc.get(key, [])
+        for item in items if isinstance(items, list) else []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if uri is None or (isinstance(uri, str) and uri.startswith("data:")):
+                continue
+            parts = uri.replace("\\", "/").split("/") if isinstance(uri, str) else [".."]
+            if not uri or uri.startswith("/") or ":" in uri or ".." in parts:
+                raise MeshError(f"'{name}': {key[:-1]} uri {str(uri)[:60]!r} points outside the file's folder; "
+                                "keep buffers and images next to the .gltf (or use a .glb)")
 
 
 def _kogei_extras(mat: dict) -> dict:

@@ -5,8 +5,8 @@ regions' answers) and ``products/object-mesh.ply`` (the mesh with a region per
 face, :mod:`render.material_mesh`) and writes a binary glTF (``.glb``, through
 trimesh) that any viewer shows:
 
-* one glTF mesh with one triangle primitive per region that has faces (faces
-  of no region, -1, form one more primitive of the neutral grey material);
+* one glTF mesh per region that has faces, each one triangle primitive (faces
+  of no region, -1, form one more, of the neutral grey material);
   positions in metres (glTF 2.0, section 3.4; the session's millimetres /
   1000), the session's vertex normals;
 * per region a ``pbrMetallicRoughness`` material named by the region's answer

@@ -54,9 +54,9 @@ def session(tmp_path_factory):
 def _expected_base_colour(reflectance_on_400_700_by_5):
     """Linear sRGB of a reflectance under D65 (colour-science's CIE 1931 2-degree observer), white Y = 1."""
     sd = colour.SpectralDistribution(dict(zip(np.arange(400, 701, 5), reflectance_on_400_700_by_5)))
-    d65 = colour.SDS_ILLUMINANTS["D65"]
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     shape = colour.SpectralShape(400, 700, 5)
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
     xyz = colour.sd_to_XYZ(sd, cmfs, d65, shape=shape, method="Integration") / 100.0
     white = colour.sd_to_XYZ(colour.SpectralDistribution(dict(zip(np.arange(400, 701, 5), np.ones(61)))),
                              cmfs, d65, shape=shape, method="Integration") / 100.0
@@ -137,3 +137,11 @@ def test_export_errors_are_one_line(session, tmp_path, capsys):
     assert main(["export", str(root), "--gltf", str(tmp_path / "c.gltf")]) == 2
     assert "*.glb" in capsys.readouterr().err
     assert not list(tmp_path.glob("*.tmp*"))
+
+
+def test_exported_json_is_valid_against_the_gltf_schema(session, tmp_path):
+    pytest.importorskip("jsonschema")
+    root, _ = session
+    out = tmp_path / "object.glb"
+    assert main(["export", str(root), "--gltf", str(out)]) == 0
+    trimesh.exchange.gltf.validate(_glb_json(out))       # raises on a schema violation

@@ -188,3 +188,23 @@ def test_damaged_glb_is_refused(tmp_path):
     (tmp_path / "bad.glb").write_bytes(bytes(data[:20]) + text + bytes(data[20 + chunk:]))
     with pytest.raises(MeshError, match="bad.glb': a primitive uses a material beyond"):
         read_material_mesh(tmp_path / "bad.glb")
+
+
+@pytest.mark.parametrize("uri", ["../secret.bin", "/etc/passwd", "http://example.com/a.bin", "a/../../b.bin"])
+def test_gltf_buffers_outside_the_folder_are_refused(tmp_path, uri):
+    path = tmp_path / "ext.gltf"
+    path.write_text(json.dumps({"asset": {"version": "2.0"}, "buffers": [{"uri": uri, "byteLength": 36}],
+                                "meshes": [], "materials": []}))
+    with pytest.raises(MeshError, match="points outside the file's folder"):
+        read_material_mesh(path)
+
+
+def test_gltf_with_a_sibling_buffer_is_read(tmp_path):
+    s = trimesh.creation.box(extents=(0.01, 0.02, 0.03))
+    s.visual = TextureVisuals(material=PBRMaterial(name="copper"))
+    files = trimesh.exchange.gltf.export_gltf(trimesh.Scene(s))
+    for fname, data in files.items():
+        (tmp_path / fname).write_bytes(data)
+    m = read_material_mesh(tmp_path / "model.gltf")
+    assert m.specs == ("copper",) and len(m.triangles) == 12
+    assert np.allclose(m.vertices.max(axis=0) - m.vertices.min(axis=0), [10.0, 20.0, 30.0], atol=1e-4)
