@@ -29,6 +29,9 @@ trimesh) that any viewer shows:
     ``group``, ``parameters``, ``uncertainties`` (1 sigma), ``measured``
     and the region's counts.
 
+  The scene's ``extras.kogei`` holds the materials file's ``validation``
+  (the held-out photo comparison).
+
   A region without a measured material gets a neutral grey (base colour 0.5,
   metallic 0, roughness 1) with ``extras.kogei.measured = false``.
 
@@ -254,6 +257,10 @@ def export_gltf(session_dir: str | os.PathLike[str], out_path: str | os.PathLike
 
     def post(tree: dict[str, Any]) -> None:
         tree["materials"] = materials
+        for sc in tree.get("scenes", []):
+            sc["extras"] = {"kogei": {"schema": doc["schema"], "version": doc["version"],
+                                      "units": "metres (session millimetres / 1000)",
+                                      "validation": doc.get("validation", {})}}
         for m in tree.get("meshes", []):
             region = (m.get("extras") or {}).get("kogei", {}).get("region")
             for prim in m.get("primitives", []):

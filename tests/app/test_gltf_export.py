@@ -47,7 +47,7 @@ def session(tmp_path_factory):
     regions = [dict(r, faces=int(np.count_nonzero(fm == r["index"]))) for r in REGIONS]
     (root / "products/object-materials.json").write_text(json.dumps(
         {"schema": "kogei.object_materials", "version": 1, "mesh": "products/object-mesh.ply",
-         "regions": regions, "validation": {}}))
+         "regions": regions, "validation": {"median_delta_e00": 2.1}}))
     return root, fm
 
 
@@ -103,6 +103,7 @@ def test_export_writes_one_pbr_primitive_per_region(session, tmp_path, capsys):
     assert by_index[0]["name"] == "gold" and by_index[0]["extras"]["kogei"]["spec"] == SPECS[0]
     assert by_index[0]["extras"]["kogei"]["uncertainties"] == {"roughness": 0.004}
     assert by_index[1]["extras"]["kogei"]["confidence"] == 0.8
+    assert doc["scenes"][0]["extras"]["kogei"]["validation"] == {"median_delta_e00": 2.1}
 
 
 def test_exported_file_reads_back_with_trimesh_and_the_project_reader(session, tmp_path):
