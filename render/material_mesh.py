@@ -228,7 +228,7 @@ def _ply_elements(lines: list[str], name: str) -> tuple[list[tuple[str, int, lis
             comments.append(ln)
         elif words[0] == "element" and len(words) == 3 and words[2].isdigit():
             elements.append((words[1], int(words[2]), []))
-        elif words[0] == "property" and elements:
+        elif words[0] == "property" and elements and len(words) >= 3:
             elements[-1][2].append(words[1:])
         elif words[0] not in ("obj_info",):
             raise MeshError(f"'{name}': PLY header line {ln[:60]!r} is not understood; the header is damaged")
@@ -237,7 +237,7 @@ def _ply_elements(lines: list[str], name: str) -> tuple[list[tuple[str, int, lis
 
 def _scalar(words: list[str], name: str) -> str:
     """The little-endian NumPy type of a scalar PLY property."""
-    if len(words) != 2 or words[0] not in _PLY_TYPES:
+    if len(words) != 2 or words[0] not in _PLY_TYPES or not words[1].isidentifier():
         raise MeshError(f"'{name}': PLY property {' '.join(words)!r} is not a scalar of a known type")
     return "<" + _PLY_TYPES[words[0]]
 
@@ -247,7 +247,7 @@ def _record_dtypes(elements: list, name: str) -> tuple[np.dtype, np.dtype]:
     if [e[0] for e in elements] != ["vertex", "face"]:
         raise MeshError(f"'{name}': expected the elements 'vertex' then 'face', got "
                         f"{', '.join(e[0] for e in elements) or 'none'}")
-    vfields = [(w[1], _scalar(w, name)) for w in elements[0][2]]
+    vfields = [(w[-1], _scalar(w, name)) for w in elements[0][2]]
     if not {"x", "y", "z"} <= {f for f, _ in vfields}:
         raise MeshError(f"'{name}': the vertices have no x, y, z properties")
     ffields = []
@@ -258,7 +258,7 @@ def _record_dtypes(elements: list, name: str) -> tuple[np.dtype, np.dtype]:
                 raise MeshError(f"'{name}': face list property {' '.join(w)!r} is not understood")
             ffields += [("count", "<" + _PLY_TYPES[w[1]]), ("index", "<" + _PLY_TYPES[w[2]], (3,))]
         else:
-            ffields.append((w[1], _scalar(w, name)))
+            ffields.append((w[-1], _scalar(w, name)))
     if "index" not in [f[0] for f in ffields]:
         raise MeshError(f"'{name}': the faces have no vertex_indices list")
     try:
@@ -471,9 +471,10 @@ def _read_gltf(path: Path) -> MaterialMesh:
     except Exception as exc:  # trimesh raises many kinds for a damaged file
         raise MeshError(f"'{name}' could not be read as glTF: {exc}") from None
     geoms = [g for g in scene.geometry.values() if isinstance(g, trimesh.Trimesh)]
-    if [len(g.faces) for g in geoms] != [c for _, c in prims] or not geoms:
+    if [len(g.faces) for g in geoms] != [c for _, c in prims] or not geoms or any(
+            len(g.faces) and (g.faces.min() < 0 or g.faces.max() >= len(g.vertices)) for g in geoms):
         raise MeshError(f"'{name}': its {len(prims)} triangle primitives do not match the {len(geoms)} meshes "
-                        "read from it (or there are none); the file is damaged")
+                        "read from it, index vertices it does not have, or there are none; the file is damaged")
     region = {id(g): (remap[m] if m >= 0 else -1) for g, (m, _) in zip(geoms, prims)}
     parts_v, parts_n, parts_t, parts_m, offset = [], [], [], [], 0
     for node in scene.graph.nodes_geometry:
@@ -489,6 +490,8 @@ def _read_gltf(path: Path) -> MaterialMesh:
         parts_t.append(np.asarray(g.faces, dtype=np.int64) + offset)
         parts_m.append(np.full(len(g.faces), region[id(g)], dtype=np.int64))
         offset += len(v)
+    if not parts_v:
+        raise MeshError(f"'{name}': no node of its scene shows a triangle mesh; the file is damaged")
     v = np.concatenate(parts_v)
     if not np.all(np.isfinite(v)):
         raise MeshError(f"'{name}': vertices hold NaN or infinite coordinates")

@@ -208,3 +208,32 @@ def test_gltf_with_a_sibling_buffer_is_read(tmp_path):
     m = read_material_mesh(tmp_path / "model.gltf")
     assert m.specs == ("copper",) and len(m.triangles) == 12
     assert np.allclose(m.vertices.max(axis=0) - m.vertices.min(axis=0), [10.0, 20.0, 30.0], atol=1e-4)
+
+
+def test_random_damage_is_a_mesh_error_or_a_valid_mesh(tmp_path):
+    """300 PLY and 300 GLB files with 1-3 random bytes changed (and some cut short): never another exception."""
+    v, t, n, fm = _sphere()
+    write_material_ply(tmp_path / "a.ply", v, t, n, fm, SPECS)
+    _glb(tmp_path / "a.glb", ["gold", "urushi-red"])
+    rng = np.random.default_rng(7)
+    outcomes = {"ok": 0, "error": 0}
+    for suffix in (".ply", ".glb"):
+        base = (tmp_path / f"a{suffix}").read_bytes()
+        for _ in range(300):
+            data = bytearray(base)
+            for k in rng.integers(0, min(len(data), 2500), size=rng.integers(1, 4)):
+                data[k] = int(rng.integers(0, 256))
+            if rng.random() < 0.2:
+                data = data[: int(rng.integers(0, len(data)))]
+            path = tmp_path / f"x{suffix}"
+            path.write_bytes(bytes(data))
+            try:
+                m = read_material_mesh(path)
+            except MeshError as exc:
+                assert "\n" not in str(exc) and str(path) in str(exc)
+                outcomes["error"] += 1
+            else:
+                assert m.face_material.min() >= -1 and m.face_material.max() < m.n_regions
+                assert m.triangles.max() < len(m.vertices) and np.all(np.isfinite(m.vertices))
+                outcomes["ok"] += 1
+    assert outcomes["error"] > 100
