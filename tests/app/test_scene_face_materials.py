@@ -114,3 +114,19 @@ def test_glb_primitives_render_with_their_materials(ply, tmp_path):
     top, bottom, _ = _halves(ply, "two.glb")
     assert _yellow(top), top
     assert _red(bottom), bottom
+
+
+def test_dropped_zero_area_triangles_take_their_region_with_them(tmp_path):
+    v, t, n, fm = _sphere()
+    t2 = np.vstack([[0, 0, 1], t])                      # a zero-area triangle first, region 1
+    fm2 = np.concatenate([[1], fm])
+    write_material_ply(tmp_path / "degenerate.ply", v, t2, n, fm2, ["gold", "urushi-red"])
+    scene = tmp_path / "s.toml"
+    scene.write_text(SCENE.format(mesh="degenerate.ply", extra=""))
+    with pytest.warns(UserWarning, match="dropped 1 zero-area"):
+        job = build_job(load_scene_file(scene))
+    obj = job.scene.objects[0]
+    assert obj.mesh.n_triangles == len(t)
+    # regions 0, 1 and the grey (index 2) of the faces of no region, in the file's order
+    assert np.array_equal(obj.material_index, np.where(fm < 0, 2, fm))
+    assert [m.name for m in obj.materials][-1].startswith("not measured")
