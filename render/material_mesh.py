@@ -512,21 +512,26 @@ def _checked_path(path: str | os.PathLike[str]) -> Path:
 
 
 def _declares_face_material(path: Path) -> bool:
-    """Whether a PLY's header has a property named ``material`` (any format; False for no PLY header)."""
+    """Whether a PLY's header gives its faces a property ``material`` (any format; False for no PLY header)."""
     with open(path, "rb") as fh:
         head = fh.read(_HEADER_BYTES)
     end = head.find(b"end_header")
     if not head.startswith(b"ply") or end < 0:
         return False
-    lines = head[:end].decode("ascii", "replace").splitlines()
-    return any(ln.split()[:1] == ["property"] and ln.split()[-1:] == ["material"] for ln in lines)
+    element = None
+    for words in (ln.split() for ln in head[:end].decode("ascii", "replace").splitlines()):
+        if words[:1] == ["element"]:
+            element = words[1:2]
+        elif words[:1] == ["property"] and words[-1:] == ["material"] and element == ["face"]:
+            return True
+    return False
 
 
 def material_mesh_or_none(path: str | os.PathLike[str]) -> MaterialMesh | None:
     """The mesh with its per-face materials, or None when the file carries none.
 
-    A PLY carries them when its header declares a ``material`` property (then
-    it is read strictly); a
+    A PLY carries them when its header declares a face property ``material``
+    (then it is read strictly); a
     glTF file when it has more than one primitive or a material whose spec is
     known (``extras.kogei`` or a material name that is a spec).  OBJ, STL and
     OFF files never do.

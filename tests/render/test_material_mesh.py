@@ -72,6 +72,11 @@ def test_a_ply_without_face_materials_is_none_or_an_error(tmp_path):
     assert material_mesh_or_none(path) is None
     with pytest.raises(MeshError, match="no 'material' property"):
         read_material_mesh(path)
+    text = tmp_path / "vertexmat.ply"                  # ASCII, 'material' on the vertices: not per-face
+    text.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                    "property float z\nproperty int material\nelement face 1\n"
+                    "property list uchar int vertex_indices\nend_header\n0 0 0 1\n1 0 0 1\n0 1 0 1\n3 0 1 2\n")
+    assert material_mesh_or_none(text) is None
 
 
 def _damage(tmp_path, edit):
