@@ -314,14 +314,51 @@ class World:
                    ("sphere",), {"sphere": "urushi-red"}, mesh_source=f"sphere:{radius_mm:g}:{offset_mm:g}", **kwargs)
 
     @classmethod
-    def from_mesh_file(cls, path: str | os.PathLike[str], material: str = "nami-shibuichi",
-                       **kwargs: Any) -> World:
-        """Any mesh file :func:`render.meshio.load_mesh` reads, as one region of ``material``."""
+    def from_mesh_file(cls, path: str | os.PathLike[str], material: str = "nami-shibuichi", *,
+                       region_materials: dict[str, str] | None = None, **kwargs: Any) -> World:
+        """Any mesh file :func:`render.meshio.load_mesh` reads; per-face materials when the file has them.
+
+        A file with per-face materials (:func:`render.material_mesh.material_mesh_or_none`: a PLY
+        with a face ``material`` property, a glTF with a primitive per material) gives one region per
+        region of the file, named by the file's names (``region-<i>`` for a PLY, the material names
+        of a glTF, made unique with ``#2``, ...), each of the file's spec; a region without a spec,
+        and the faces of no region (``"no region"``), are ``material``.  glTF positions are metres
+        and become millimetres.  Any other file is one region ``"object"`` of ``material``.
+        ``region_materials`` (region name -> spec) overrides regions by name.
+
+        Examples
+        --------
+        >>> import tempfile, pathlib
+        >>> from render.material_mesh import write_material_ply
+        >>> p = pathlib.Path(tempfile.mkdtemp()) / "two.ply"
+        >>> write_material_ply(p, [[0, 0, 0], [9, 0, 0], [0, 9, 0], [9, 9, 0]], [[0, 1, 2], [1, 3, 2]],
+        ...                    [[0, 0, 1]] * 4, [0, 1], ["gold", None])
+        >>> w = World.from_mesh_file(p, "copper")
+        >>> w.region.tolist(), w.materials
+        ([0, 1], {'region-0': 'gold', 'region-1': 'copper'})
+        """
+        from render.material_mesh import material_mesh_or_none
         from render.meshio import load_mesh
 
-        mesh = load_mesh(path)
-        return cls(mesh.vertices, mesh.triangles, np.zeros(len(mesh.triangles), np.int64), ("object",),
-                   {"object": material}, mesh_source=os.fspath(path), **kwargs)
+        overrides = dict(region_materials or {})
+        per_face = material_mesh_or_none(path)
+        if per_face is None:
+            mesh = load_mesh(path)
+            return cls(mesh.vertices, mesh.triangles, np.zeros(len(mesh.triangles), np.int64), ("object",),
+                       {"object": overrides.get("object", material)}, mesh_source=os.fspath(path), **kwargs)
+        names = _unique_names(per_face.names)
+        materials = {name: spec or material for name, spec in zip(names, per_face.specs)}
+        region = per_face.face_material.copy()
+        if np.any(region < 0):
+            names.append(_unique_names([*names, "no region"])[-1])
+            materials[names[-1]] = material
+            region[region < 0] = len(names) - 1
+        unknown = sorted(set(overrides) - set(names))
+        if unknown:
+            raise WorldError(f"{os.fspath(path)}: no region(s) {', '.join(unknown)}; regions: {', '.join(names)}")
+        materials.update(overrides)
+        return cls(per_face.vertices, per_face.triangles, region, tuple(names), materials,
+                   mesh_source=os.fspath(path), **kwargs)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> World:
@@ -359,8 +396,9 @@ class World:
                 raise WorldError(f"mesh {source!r}: use 'hawk:<triangles>' or a mesh file path") from None
             world = cls.hawk(n, materials=data.pop("materials", None), **world_settings(data))
         else:
-            material = data.pop("materials", {}).get("object", "nami-shibuichi")
-            world = cls.from_mesh_file(source, material, **world_settings(data))
+            materials = data.pop("materials", None) or {}
+            world = cls.from_mesh_file(source, materials.get("object", "nami-shibuichi"),
+                                       region_materials=materials, **world_settings(data))
         return world
 
     def to_dict(self) -> dict[str, Any]:
@@ -628,6 +666,24 @@ def world_settings(data: dict[str, Any]) -> dict[str, Any]:
             out[key] = tuple(float(v) for v in out[key])
     if "pose" in out:
         out["pose"] = np.asarray(out["pose"], dtype=np.float64)
+    return out
+
+
+def _unique_names(names: Any) -> list[str]:
+    """``names`` with repeats made unique: ``gold``, ``gold #2``, ...
+
+    Examples
+    --------
+    >>> _unique_names(["gold", "gold", "red"])
+    ['gold', 'gold #2', 'red']
+    """
+    out: list[str] = []
+    for name in names:
+        candidate, k = name, 1
+        while candidate in out:
+            k += 1
+            candidate = f"{name} #{k}"
+        out.append(candidate)
     return out
 
 

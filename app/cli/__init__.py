@@ -28,6 +28,7 @@ COMMANDS = {
     "project": "project", "fit-materials": "fit_materials",
     "register": "register", "gui": "gui", "chart": "chart", "batch": "batch", "report": "report",
     "cloth": "cloth", "spectral": "spectral", "identify": "identify",
+    "export": "export",
 }
 
 

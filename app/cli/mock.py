@@ -70,12 +70,16 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "8 mm, markers 6 mm) for camera calibration, 960 x 640 frames, placements 1, 2, 3 flat "
                         "and on 40 and 55 degree wedges, or every placement at TILT degrees (0 = flat, < 90); "
                         "a chrome ball for lamp calibration, radius R mm (default 20) OFF mm from the axis "
-                        "(default 35), 960 x 640 frames; or a mesh file (PLY/OBJ/STL/glTF, millimetres)")
+                        "(default 35), 960 x 640 frames; or a mesh file (PLY/OBJ/STL/glTF, millimetres; glTF in metres); "
+                        "a mesh with per-face materials (a PLY with a face 'material' property such as "
+                        "products/object-mesh.ply, a glTF with a primitive per material such as kogei export "
+                        "writes) keeps them, one region each")
     p.add_argument("--triangles", type=int, default=None, metavar="N",
                    help="triangle count of the hawk mesh (default 4000)")
     p.add_argument("--material", default=None, metavar="SPEC",
                    help="material of every region, e.g. gold or nami-shibuichi:roughness=0.2 (see 'kogei materials'); "
-                        "default: the hawk's own materials, nami-shibuichi for a mesh file")
+                        "default: the hawk's own materials, nami-shibuichi for a mesh file; for a mesh with per-face "
+                        "materials only the faces without one")
     p.add_argument("--faults", action="append", default=[], metavar="SPEC",
                    help="faults switched on at start, DEVICE.NAME=VALUE[,...], e.g. "
                         "turntable.garbage_replies=3,profiler.corrupt_frames=2,camera.busy=1; repeatable")

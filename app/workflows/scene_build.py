@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,7 +17,12 @@ from app.errors import UsageError
 from app.workflows.scene_spec import ObjectSpec, SceneSpec, check_procedural_args
 from processing.common.rotation import rotation_xyz_deg as rotation_matrix  # about x, then y, then z (degrees)
 
-__all__ = ["RenderJob", "build_job", "object_mesh", "rotation_matrix", "DEFAULT_LIGHT"]
+__all__ = ["RenderJob", "build_job", "object_mesh", "rotation_matrix", "DEFAULT_LIGHT", "neutral_grey",
+           "NEUTRAL_GREY_REFLECTANCE", "face_material_object"]
+
+#: Reflectance of the neutral grey given to faces without a measured material (no region, or a region
+#: whose spec is unknown): a Lambertian surface of flat spectral reflectance.
+NEUTRAL_GREY_REFLECTANCE = 0.5
 
 #: Key light used when none is given: above, to the left of and in front of a
 #: camera that looks along the default view direction.
@@ -53,6 +59,41 @@ def _plane_arrays(size: float, divisions: int = 8) -> tuple[NDArray, NDArray, ND
     return v, t, normals
 
 
+def neutral_grey():
+    """The Lambertian grey (:data:`NEUTRAL_GREY_REFLECTANCE`, flat spectrum) of faces without a measured material."""
+    from processing.materials.dielectric_model import PigmentReflectance
+    from processing.materials.lobes import Lobe, Material
+
+    flat = PigmentReflectance([300.0, 1000.0], [NEUTRAL_GREY_REFLECTANCE] * 2)
+    return Material("not measured (neutral grey)", (Lobe("lambert", 1.0, flat),), family="dielectric",
+                    description="faces without a measured material")
+
+
+def face_material_object(mesh, overrides: dict[str, str], where: str) -> tuple[list, NDArray[np.int64]]:
+    """Materials and per-triangle index of a :class:`render.material_mesh.MaterialMesh`.
+
+    ``overrides`` maps a region's name or index (``"0"``; ``"-1"`` for the faces of
+    no region) to a material spec.  Regions without a spec and faces of no region
+    get :func:`neutral_grey` (the last material) unless overridden.
+    """
+    n = mesh.n_regions
+    keys = {str(i): [i] for i in range(-1, n)}
+    for i, name in enumerate(mesh.names):
+        keys.setdefault(name, []).append(i)
+    unknown = sorted(set(overrides) - set(keys))
+    if unknown:
+        raise UsageError(f"{where}: the mesh has no region(s) {', '.join(unknown)}; regions: "
+                         + ", ".join(f"{i} ({name})" for i, name in enumerate(mesh.names)) + ", -1 (no region)")
+    materials: list = list(mesh.specs) + [None]
+    for key, spec in overrides.items():
+        for i in keys[key]:
+            materials[i] = spec
+    grey = neutral_grey()
+    materials = [grey if m is None else m for m in materials]
+    index = np.where(mesh.face_material < 0, n, mesh.face_material).astype(np.int64)
+    return materials, index
+
+
 def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
     """Build the :class:`render.scene.SceneObject` of one object spec."""
     from processing.materials.presets import get_material
@@ -62,10 +103,17 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
     region_index = None
     tangents = None
     if obj.mesh is not None:
-        base = load_mesh(obj.mesh)
-        v, t, n = base.vertices, base.triangles, base.vertex_normals
+        from render.material_mesh import material_mesh_or_none
+
         name = str(obj.mesh)
-        materials = [obj.material]
+        per_face = material_mesh_or_none(obj.mesh) if Path(obj.mesh).is_file() else None
+        if per_face is not None:
+            v, t, n = per_face.vertices, per_face.triangles, per_face.normals
+            materials, region_index = face_material_object(per_face, obj.region_materials, f"object {name}")
+        else:
+            base = load_mesh(obj.mesh)
+            v, t, n = base.vertices, base.triangles, base.vertex_normals
+            materials = [obj.material]
     else:
         kind = (obj.procedural or "").lower()
         # specs built by the GUI or the demo pass the same checks as a scene file's
@@ -109,10 +157,10 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
     n = np.asarray(n) @ rot.T
     if tangents is not None:
         tangents = tangents @ rot.T
-    resolved = [get_material(m) for m in materials]
-    mesh = make_mesh(v, t, n, source=name)
-    return SceneObject(mesh, resolved, material_index=region_index,
-                       material_index_on="triangle" if region_index is not None else None, name=name,
+    resolved = [get_material(m) if isinstance(m, str) else m for m in materials]
+    # the index goes through make_mesh so that dropped zero-area triangles take their entries with them
+    mesh = make_mesh(v, t, n, region_index, "triangle" if region_index is not None else None, source=name)
+    return SceneObject(mesh, resolved, name=name,
                        tangents=tangents, weave_angle_deg=float(obj.weave_angle_deg or 0.0))
 
 

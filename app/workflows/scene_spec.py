@@ -47,7 +47,13 @@ class ObjectSpec:
 
     ``material`` is a material spec string (``"gold:roughness=0.2"``);
     ``region_materials`` maps region names of a procedural object (the hawk)
-    to material spec strings and overrides ``material`` region by region.
+    to material spec strings and overrides ``material`` region by region.  For
+    a mesh file with per-face materials (a PLY with a face ``material``
+    property, a glTF with a primitive per material,
+    :mod:`render.material_mesh`) the file's own specs are used and
+    ``region_materials`` keys are region names or indices (``"0"``; ``"-1"``
+    for the faces of no region); faces without a material render in a neutral
+    grey and ``material`` is not used.
     """
 
     mesh: Path | None = None
