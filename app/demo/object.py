@@ -79,12 +79,9 @@ def material_agreement(doc: dict[str, Any], face_region: np.ndarray, face_area: 
 
 def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray) -> dict[str, Any]:
     """Check the measured materials against the truth, export ``hawk.glb`` and render the measured object."""
-    from app.workflows.gltf_export import export_gltf
-    from app.workflows.object_materials import OBJECT_MESH, read_object_materials
-    from render.material_mesh import read_material_mesh
+    from app.workflows.gltf_export import export_gltf, read_object_model
 
-    doc = read_object_materials(session)
-    mesh = read_material_mesh(session / OBJECT_MESH)
+    doc, mesh = read_object_model(session)
     v, t = mesh.vertices, mesh.triangles
     area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
     truth = true_face_materials(v, t, world, object_to_mesh)

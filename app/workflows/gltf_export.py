@@ -46,7 +46,6 @@ References
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -55,12 +54,11 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
+from app.workflows.object_materials import OBJECT_MATERIALS, OBJECT_MESH
 
-__all__ = ["export_gltf", "pbr_factors", "OBJECT_MATERIALS", "OBJECT_MESH", "NEUTRAL_GREY",
-           "read_object_materials"]
+__all__ = ["export_gltf", "pbr_factors", "NEUTRAL_GREY",
+           "read_object_model"]
 
-OBJECT_MATERIALS = "products/object-materials.json"
-OBJECT_MESH = "products/object-mesh.ply"
 #: Base colour of a region without a measured material (linear, sRGB primaries).
 NEUTRAL_GREY = (0.5, 0.5, 0.5)
 
@@ -111,60 +109,35 @@ def pbr_factors(spec: str) -> dict[str, Any]:
             "roughness": float(min(1.0, roughness))}
 
 
-def _region_list(doc: Any, where: str) -> list[dict[str, Any]]:
-    """The regions of an object-materials document, checked: indices 0..R-1 in order, specs strings or None."""
-    if not isinstance(doc, dict) or doc.get("schema") != "kogei.object_materials" or doc.get("version") != 1:
-        raise UsageError(f"{where}: not a kogei.object_materials version 1 document; rerun kogei fit-materials")
-    regions = doc.get("regions")
-    if not isinstance(regions, list) or not regions:
-        raise UsageError(f"{where}: 'regions' must be a non-empty list; rerun kogei fit-materials")
-    for i, r in enumerate(regions):
-        if not isinstance(r, dict) or r.get("index") != i:
-            raise UsageError(f"{where}: region {i} is not a table with index {i}; the file is damaged")
-        if r.get("spec") is not None and not isinstance(r.get("spec"), str):
-            raise UsageError(f"{where}: region {i} spec must be a string or null, got {r.get('spec')!r}")
-        if not isinstance(r.get("material", ""), str):
-            raise UsageError(f"{where}: region {i} material must be a string")
-    return regions
-
-
-def read_object_materials(session_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], Any]:
+def read_object_model(session_dir: str | os.PathLike[str]) -> tuple[dict[str, Any], Any]:
     """A measured session's materials document and its mesh (:class:`render.material_mesh.MaterialMesh`).
 
     Raises :class:`UsageError` naming the session when it has not been
-    measured (``run kogei fit-materials SESSION first``) or its files are
+    measured (``run kogei fit-materials SESSION``) or its files are
     damaged or disagree (region counts).
     """
-    from app.session_paths import MAX_JSON_BYTES, MAX_PRODUCT_BYTES, confined_file, read_confined_bytes
+    from app.session_paths import MAX_PRODUCT_BYTES, confined_file
+    from app.workflows.object_materials import read_object_materials
     from render.errors import MeshError
     from render.material_mesh import read_material_mesh
 
     root = Path(session_dir)
     if not root.is_dir():
         raise UsageError(f"{root}: no such session folder")
-    try:
-        raw = read_confined_bytes(root, OBJECT_MATERIALS, "materials file", MAX_JSON_BYTES)
-    except FileNotFoundError:
-        raise UsageError(f"{root}: the session has no {OBJECT_MATERIALS}; run kogei fit-materials {root} "
-                         "first") from None
+    doc = read_object_materials(root)
     where = str(root / OBJECT_MATERIALS)
-    try:
-        doc = json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"{where}: not valid JSON ({exc}); rerun kogei fit-materials") from None
-    regions = _region_list(doc, where)
     rel = doc.get("mesh", OBJECT_MESH)
     try:
         mesh_path = confined_file(root, rel, "materials file mesh", MAX_PRODUCT_BYTES)
     except FileNotFoundError:
-        raise UsageError(f"{where}: its mesh {rel!r} is missing; run kogei fit-materials {root} first") from None
+        raise UsageError(f"{where}: its mesh {rel!r} is missing; run kogei fit-materials {root} again") from None
     try:
         mesh = read_material_mesh(mesh_path)
     except MeshError as exc:
         raise UsageError(str(exc)) from None
-    if mesh.n_regions != len(regions):
-        raise UsageError(f"{where}: {len(regions)} regions but {mesh_path} declares {mesh.n_regions}; the files "
-                         "belong to different runs, rerun kogei fit-materials")
+    if mesh.n_regions != len(doc["regions"]):
+        raise UsageError(f"{where}: {len(doc['regions'])} regions but {mesh_path} declares {mesh.n_regions}; the "
+                         "files belong to different runs, rerun kogei fit-materials")
     return doc, mesh
 
 
@@ -249,7 +222,7 @@ def export_gltf(session_dir: str | os.PathLike[str], out_path: str | os.PathLike
 
     from processing.common.files import atomic_write_bytes
 
-    doc, mesh = read_object_materials(session_dir)
+    doc, mesh = read_object_model(session_dir)
     out = _check_out(out_path, force)
     regions = doc["regions"]
     scene, order = _scene(mesh, len(regions))

@@ -35,8 +35,11 @@ REGIONS = [
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    root = tmp_path_factory.mktemp("sess")
-    (root / "products").mkdir()
+    from app.session import Session
+
+    root = tmp_path_factory.mktemp("sess") / "session"
+    Session.create(root, plan={"kind": "scan", "steps": 4, "passes": 1}).close()
+    (root / "products").mkdir(exist_ok=True)
     s = trimesh.creation.icosphere(3, radius=20.0)
     v, t = np.asarray(s.vertices), np.asarray(s.faces)
     c = v[t].mean(axis=1)
@@ -45,9 +48,11 @@ def session(tmp_path_factory):
     fm[np.abs(c[:, 1]) < 1.0] = -1
     write_material_ply(root / "products/object-mesh.ply", v, t, np.asarray(s.vertex_normals), fm, SPECS)
     regions = [dict(r, faces=int(np.count_nonzero(fm == r["index"]))) for r in REGIONS]
-    (root / "products/object-materials.json").write_text(json.dumps(
-        {"schema": "kogei.object_materials", "version": 1, "mesh": "products/object-mesh.ply",
-         "regions": regions, "validation": {"median_delta_e00": 2.1}}))
+    blob = json.dumps({"schema": "kogei.object_materials", "version": 1, "mesh": "products/object-mesh.ply",
+                       "regions": regions, "validation": {"median_delta_e00": 2.1}}).encode()
+    with Session.open(root) as sess:
+        info = sess.write_file("products/object-materials.json", blob)
+        sess.update("products", {"object_materials": {"file": info.path, "sha256": info.sha256}})
     return root, fm
 
 
@@ -123,10 +128,15 @@ def test_exported_file_reads_back_with_trimesh_and_the_project_reader(session, t
 
 def test_export_errors_are_one_line(session, tmp_path, capsys):
     root, _ = session
+    from app.session import Session
+
     empty = tmp_path / "empty"
     empty.mkdir()
     assert main(["export", str(empty), "--gltf", str(tmp_path / "a.glb")]) == 2
-    assert f"run kogei fit-materials {empty} first" in capsys.readouterr().err
+    assert "is not a kogei session" in capsys.readouterr().err
+    Session.create(tmp_path / "unmeasured", plan={"kind": "scan", "steps": 4, "passes": 1}).close()
+    assert main(["export", str(tmp_path / "unmeasured"), "--gltf", str(tmp_path / "a.glb")]) == 2
+    assert f"run kogei fit-materials {tmp_path / 'unmeasured'}" in capsys.readouterr().err
     out = tmp_path / "b.glb"
     out.write_bytes(b"old")
     assert main(["export", str(root), "--gltf", str(out)]) == 2
