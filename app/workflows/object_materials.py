@@ -190,6 +190,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
     from processing.materials.forward_fit import fit_region, region_samples
 
     v, t, _ = data["mesh"]
+    d_ref = _reference_distance(data)
     obs = select_frames(data["obs"], ~held)
     model, spectrum = _forward_model(data["spectrum"], note)
     t0 = time.perf_counter()
@@ -203,17 +204,18 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
     for r in range(seg.n_regions):
         _check_cancel(stop)
         ids = np.flatnonzero(seg.vertex_region == r)
-        fit = fit_region(region_samples(obs, v, data["frames"], ids, triangles=t), model, model_error=model_error)
+        fit = fit_region(region_samples(obs, v, data["frames"], ids, triangles=t, reference_mm=d_ref), model, model_error=model_error)
         faces = seg.face_region == r
         regions.append({"index": r, **fit.to_dict(), "area_mm2": round(float(areas[faces].sum()), 3),
                         "faces": int(faces.sum()), "vertices": int(ids.size)})
         note(f"region {r}: {fit.material} (confidence {fit.confidence:.2f}), {int(faces.sum())} faces, "
              f"{fit.n_lit} lit observations")
     measured = np.flatnonzero(seg.vertex_region >= 0)
-    base = fit_region(region_samples(obs, v, data["frames"], measured, triangles=t), model, model_error=model_error)
+    base = fit_region(region_samples(obs, v, data["frames"], measured, triangles=t, reference_mm=d_ref), model, model_error=model_error)
     t_fit = time.perf_counter() - t1
     unmeasured = seg.face_region < 0
     return {"schema": "kogei.object_materials", "version": 1, "mesh": OBJECT_MESH, "light_spectrum": spectrum,
+            "irradiance_reference_mm": d_ref,
             "model_error": model_error, "segmentation": {"method": seg.method, "regions": seg.n_regions,
                                                           "features": list(seg.feature_names)},
             "regions": regions, "baseline": {**base.to_dict(), "note": "one material for the whole object"},
@@ -223,6 +225,18 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
                        "held_out": [n for n, h in zip(obs.frame_names, held) if h]},
             "timings_s": {"segmentation": round(t_seg, 3), "fit": round(t_fit, 3)},
             "_face_region": seg.face_region}
+
+
+def _reference_distance(data: dict[str, Any]) -> float | None:
+    """``d_ref`` of the point lamp's relative irradiance ``(d_ref / d)^2``: first frame's lamp to the mesh centroid.
+
+    The fit's amplitudes are relative to this irradiance, so the validation's renders use the same one
+    (None for a distant lamp).
+    """
+    lamp = data["frames"][0].lamps[0]
+    if lamp.kind != "point":
+        return None
+    return float(np.linalg.norm(np.asarray(lamp.vector) - data["mesh"][0].mean(axis=0)))
 
 
 def _face_areas(v: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -296,9 +310,22 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
     grid = SpectralGrid(*_GRID)
     note(f"validating on {len(frames)} held-out frames ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''})")
     result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
-                             light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), grid=grid,
-                             cancel=stop)
+                             light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), 1.0,
+                             irradiance_ref_mm=doc["irradiance_reference_mm"], grid=grid,
+                             clip_level=_clip_level(photos))
     return _write_validation(session, result)
+
+
+def _clip_level(photos: Any) -> Any:
+    """The photos' clip level per channel in signal units: the white level times the chart gain.
+
+    With several passes the smallest gain of each channel over the held-out frames' passes is used
+    (a pixel is never compared when it may be clipped).
+    """
+    from app.workflows.station_calibration import CLIP_LEVEL
+
+    gains = [photos.gains.get(int(rec.get("pass") or 0)) for _, rec in photos.frames]
+    return CLIP_LEVEL * np.min([np.ones(3) if g is None else np.asarray(g, dtype=np.float64) for g in gains], axis=0)
 
 
 def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:

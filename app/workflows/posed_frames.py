@@ -279,8 +279,8 @@ def _project(session: Any, root: Path, manifest: dict[str, Any], frames: list[tu
                                 "frame_poses": {"file": FRAME_POSES, "sha256": info.sha256, "bytes": info.bytes}})
     noise = _noise_model(frames, gains)
     images = _Images(root, frames, gains, mode)
-    obs = observe(posed, mesh, images, noise=noise,
-                  clip_level=CLIP_LEVEL, max_view_deg=max_view_deg, edge_margin_px=edge_margin_px)
+    obs = observe(posed, mesh, images, noise=noise, clip_level=_clip_levels(frames, gains),
+                  max_view_deg=max_view_deg, edge_margin_px=edge_margin_px)
     tmp = check_not_symlink(root, ".incoming/observations.npz", "observations staging file")
     tmp.parent.mkdir(parents=True, exist_ok=True)
     write_observations(tmp, obs)
@@ -324,6 +324,16 @@ def _mesh(root: Path, manifest: dict[str, Any]) -> tuple[np.ndarray, np.ndarray,
 def _mean(values: list[Any]) -> float | None:
     vals = [float(v) for v in values if v is not None]
     return float(np.mean(vals)) if vals else None
+
+
+def _clip_levels(frames: list[tuple[str, dict[str, Any]]], gains: dict[int, np.ndarray]) -> np.ndarray:
+    """Per frame, the signal at which it clips: :data:`CLIP_LEVEL` of the white level times the pass's chart gain.
+
+    The signal is raw camera RGB (1.0 = the white level) times per-channel gains; one level per frame
+    serves all channels, so the smallest gain sets it (a channel is never taken for unclipped when it is not).
+    """
+    return np.array([CLIP_LEVEL * float(np.min(gains[p])) if (p := int(rec.get("pass") or 0)) in gains else CLIP_LEVEL
+                     for _, rec in frames])
 
 
 def _noise_model(frames: list[tuple[str, dict[str, Any]]], gains: dict[int, np.ndarray]) -> np.ndarray:

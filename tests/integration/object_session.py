@@ -43,11 +43,13 @@ def _lamp_json(world) -> dict:
             "frames": {"names": [], "sphere_rms_px": [], "ray_miss_deg": [], "circle_miss_mm": []}}
 
 
-def build_object_session(root: Path, world, angles_deg) -> dict:
+def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0.0025) -> dict:
     """Write the session (not yet projected) under ``root``; returns the world and the mesh for checks.
 
     ``world`` is a :class:`mocks.world.World` (its size is the frames' size; its chart layout must be
     one ``kogei`` detects, e.g. ``"classic24"``); the mesh is the world's mesh in its table pose.
+    ``exposure_s`` is short enough that metal highlights stay below the white level, as a
+    photographer exposes for them (the chart frame takes the same exposure).
     """
     import open3d as o3d
 
@@ -76,13 +78,13 @@ def build_object_session(root: Path, world, angles_deg) -> dict:
         install_station_calibration(s, "camera_calibration", _camera_json(world, (2 * world.width, 2 * world.height)))
         install_station_calibration(s, "lamp_calibration", _lamp_json(world))
         chart = world.frame("chart")
-        path = write_raw(stage / "chart.dng", simulate_raw(chart.radiance, chart.grid, chart.light, seed=99))
+        path = write_raw(stage / "chart.dng", simulate_raw(chart.radiance, chart.grid, chart.light, exposure_s=exposure_s, seed=99))
         fi = s.adopt_file(path, "passes/p01/raw/chart.dng")
         s.add_capture("p01/chart", kind="chart", status="done", index=0, file=fi.path, sha256=fi.sha256,
                       bytes=fi.bytes, **{"pass": 1})
         for k, angle in enumerate(angles_deg):
             frame = world.frame("object", float(angle))
-            raw = simulate_raw(frame.radiance, frame.grid, frame.light, seed=k)
+            raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure_s, seed=k)
             path = write_raw(stage / f"frame_{k:02d}.dng", raw)
             fi = s.adopt_file(path, f"passes/p01/raw/frame_{k:02d}.dng")
             s.add_capture(f"p01/frame/{k:02d}", kind="frame", status="done", index=k, angle_deg=float(angle),
