@@ -424,7 +424,8 @@ class SpectraPanel(Panel):
                        pixels=res["pixels"],
                        title=f"({res['x']}, {res['y']}): {ident.material}, confidence {ident.confidence:.2f}")
         self.state.setText(f"pixel ({res['x']}, {res['y']}): {ident.material} (confidence {ident.confidence:.2f}, "
-                           f"runner-up {ident.runner_up})")
+                           f"runner-up {ident.runner_up}, best {res['model_name']} at reduced chi-square "
+                           f"{ident.misfit:.3g})")
         self.analysed.emit(res)
 
     def make_map(self) -> None:
