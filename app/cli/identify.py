@@ -12,8 +12,8 @@ docs/colour-pipeline.md, "Command line").
   crop or a frame filled by one material.  Segmenting an object into
   materials is left to the labels, which the capture's mesh provides.
 * ``--model-error`` defaults to
-  :data:`processing.materials.identification.DEFAULT_MODEL_ERROR` (2 % of each
-  channel), the same as the batch's materials step and the colour demo.
+  :data:`processing.materials.identification.DEFAULT_MODEL_ERROR` (1.75 % of
+  each channel), the same as the batch's materials step and the colour demo.
 * Each region prints its misfit (the best candidate's reduced chi-square: about
   1 when it fits to the noise); beyond
   :data:`processing.materials.confidence.MAX_MISFIT` the region reads

@@ -22,7 +22,8 @@ highlight geometry (15 deg): there a lacquer shows its pigment, as most of a
 lacquered region's pixels do, while a metal's Fresnel colour hardly changes
 between half-angles of 7.5 and 20 deg (on this scene, modelling at 15 deg
 turns the pupil's black urushi into a shibuichi and leaves the rest as they
-are).  A model error of 2 % is added to the noise of a region's mean:
+are).  A model error
+(:data:`processing.materials.identification.DEFAULT_MODEL_ERROR`, 1.75 %) is added to the noise of a region's mean:
 across a region the Fresnel colour changes a little with the angle and
 urushi mixes pigment and gloss in varying proportions, which the one-geometry
 candidates do not follow; without it thousands of pooled pixels would make
@@ -240,7 +241,7 @@ def _pooled(results: list[Any], method: str) -> Any:
 
 def _region_row(world: Any, rep: Any, shapes: dict[int, dict[str, list[float]]]) -> dict[str, Any]:
     """One region's identification beside the world's true material and alloy composition."""
-    from processing.materials.identification import NO_FIT
+    from processing.materials.identification import NEUTRAL_METAL
     from processing.materials.presets import get_material
 
     region = world.region_names[rep.label - 1]
@@ -252,8 +253,9 @@ def _region_row(world: Any, rep: Any, shapes: dict[int, dict[str, list[float]]])
         "region": region,
         "true_material": true,
         "material": rep.material,
-        # "no candidate fits" names no material: never right, even with the truth among the best listed
-        "correct": rep.material != NO_FIT and (rep.material == true or (true in rep.group)),
+        # right: the material named, or a neutral-metal group holding it ("no candidate fits" names none, and
+        # the contenders listed beside a named material do not make it right)
+        "correct": rep.material == true or (rep.material == NEUTRAL_METAL and true in rep.group),
         "confidence": rep.confidence,
         "chi2": rep.chi2,
         "misfit": rep.misfit,
