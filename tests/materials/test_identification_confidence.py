@@ -111,6 +111,15 @@ def test_the_demo_hawks_large_regions_fit_nothing_without_a_model_error():
             assert truth in r.group or truth == "urushi-black"      # the cere's black urushi is listed nowhere
 
 
+def test_the_batch_hawks_lead_that_is_not_there_reads_no_candidate_fits(cands):
+    # the batch's materials step on the simulated session of tests.app.batch_session (a hawk of gold and red
+    # urushi, no lead): a 10-pixel cluster, mean model-camera values below, read "lead" at 0.97 before (chi-square
+    # 262 on 2 degrees of freedom)
+    r = identify_material(np.tile([0.30078004078532106, 0.8512422541331034, 0.511536818742752], (10, 1)), cands)
+    assert r.material == NO_FIT and r.misfit > MAX_MISFIT
+    assert r.confidence < 0.5 and "lead" in r.group      # listed as the least bad, not named
+
+
 def test_misfit_is_the_best_candidates_chi_square_over_two_degrees_of_freedom(cands):
     r = identify_material(np.tile(_metal_rgb("copper") * [1.0, 1.03, 0.97], (30, 1)), cands)
     assert r.misfit == pytest.approx(float(r.chi2.min()) / 2.0, rel=1e-12)
