@@ -39,6 +39,7 @@ from app.errors import UsageError
 from app.session_paths import MAX_JSON_BYTES, check_not_symlink, confined_file, read_confined_bytes
 from processing.common.png import png_bytes
 from processing.errors import InputError
+from processing.materials.identification import DEFAULT_MODEL_ERROR
 
 __all__ = ["materials_inputs", "materials_params", "materials_run", "estimate_frame", "largest_material",
            "material_colour", "METHOD", "LIGHT_DEG", "MODEL_ERROR", "MATERIALS_FILE"]
@@ -47,8 +48,9 @@ __all__ = ["materials_inputs", "materials_params", "materials_run", "estimate_fr
 METHOD = "rootpoly"
 #: Light angle from the normal at which candidates are modelled (``kogei identify``'s default).
 LIGHT_DEG = 30.0
-#: Relative model error of the candidates: a region pools many pixels at varying angles (app.demo.colour).
-MODEL_ERROR = 0.02
+#: Relative model error of the candidates: a region pools many pixels at varying angles (app.demo.colour);
+#: the one default of every identification (``kogei identify``'s too).
+MODEL_ERROR = DEFAULT_MODEL_ERROR
 MATERIALS_FILE = "products/materials.json"
 MAPS_DIR = "products/materials"
 _BACKDROP_COLOUR = (40, 40, 40)
@@ -76,7 +78,7 @@ def materials_params(options: Any) -> dict[str, Any]:
 
 
 def material_colour(name: str | None) -> tuple[int, int, int]:
-    """8-bit sRGB of a material on the map: its colour under D65; grey for a neutral metal, magenta for none.
+    """8-bit sRGB of a material on the map: its colour under D65; grey for a neutral metal, magenta for none or no fit.
 
     Examples
     --------
@@ -84,9 +86,9 @@ def material_colour(name: str | None) -> tuple[int, int, int]:
     (255, 0, 255)
     """
     from app.workflows.materials import preset_srgb
-    from processing.materials.identification import NEUTRAL_METAL
+    from processing.materials.identification import NEUTRAL_METAL, NO_FIT
 
-    if name is None:
+    if name is None or name == NO_FIT:
         return _UNIDENTIFIED_COLOUR
     if name == NEUTRAL_METAL:
         return (190, 190, 198)
@@ -102,13 +104,13 @@ def largest_material(regions: list[dict[str, Any]]) -> tuple[str, int] | None:
     ...                   {"material": "copper", "pixels": 7}, {"material": None, "pixels": 50}])
     ('copper', 13)
     """
-    from processing.materials.identification import NEUTRAL_METAL
+    from processing.materials.identification import NEUTRAL_METAL, NO_FIT
     from processing.materials.presets import get_material
 
     totals: dict[str, int] = {}
     for reg in regions:
         name = reg.get("material")
-        if name is None or name == NEUTRAL_METAL or get_material(name).family not in _RENDERABLE:
+        if name is None or name in (NEUTRAL_METAL, NO_FIT) or get_material(name).family not in _RENDERABLE:
             continue
         totals[name] = totals.get(name, 0) + int(reg["pixels"])
     if not totals:
@@ -158,12 +160,13 @@ def _identify_merged(result: Any, labels: NDArray[np.int64]) -> tuple[NDArray[np
     Returns the merged labels, their reports and how many clusters each merged region holds.
     """
     from app.workflows.identification import identify_result
+    from processing.materials.identification import NO_FIT
 
     reports = identify_result(result, labels, light_deg=LIGHT_DEG, model_error=MODEL_ERROR)
     groups: dict[Any, list[int]] = {}
     for rep in reports:
-        # an unidentified cluster stays on its own; identified ones group by their material
-        key = rep.material if rep.material is not None else ("none", rep.label)
+        # an unidentified cluster (or one no candidate fits) stays on its own; identified ones group by material
+        key = rep.material if rep.material not in (None, NO_FIT) else ("none", rep.label)
         groups.setdefault(key, []).append(rep.label)
     order = sorted(groups.values(), key=lambda g: -sum(int((labels == v).sum()) for v in g))
     lut = np.zeros(int(labels.max()) + 1, np.int64)

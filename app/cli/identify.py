@@ -11,6 +11,13 @@ docs/colour-pipeline.md, "Command line").
 * Without ``--regions`` the whole unmasked image is one region: meant for a
   crop or a frame filled by one material.  Segmenting an object into
   materials is left to the labels, which the capture's mesh provides.
+* ``--model-error`` defaults to
+  :data:`processing.materials.identification.DEFAULT_MODEL_ERROR` (1.75 % of
+  each channel), the same as the batch's materials step and the colour demo.
+* Each region prints its misfit (the best candidate's reduced chi-square: about
+  1 when it fits to the noise); beyond
+  :data:`processing.materials.confidence.MAX_MISFIT` the region reads
+  "no candidate fits (best: tin, reduced chi-square 3400)" rather than a name.
 """
 
 from __future__ import annotations
@@ -24,6 +31,8 @@ import numpy as np
 from app.errors import UsageError
 from app.workflows.identification import identify_result, read_labels
 from app.workflows.spectral import load_result
+from processing.materials.confidence import MAX_MISFIT, NO_FIT
+from processing.materials.identification import DEFAULT_MODEL_ERROR
 
 __all__ = ["add_parser", "run"]
 
@@ -42,8 +51,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--light-deg", type=float, default=30.0,
                    help="angle of the light from the surface normal at which candidates are modelled (degrees)")
     p.add_argument("--noise", type=float, default=0.01, help="relative noise per pixel (0.01 = 1 %%)")
-    p.add_argument("--model-error", type=float, default=0.0,
-                   help="relative error of the candidate models, added in quadrature to the noise of a region's mean")
+    p.add_argument("--model-error", type=float, default=DEFAULT_MODEL_ERROR,
+                   help="relative error of the candidate models (a fraction of each channel: 0.02 = 2 %%), added in "
+                        "quadrature to the noise of a region's mean (default: %(default)s, as in the batch and the "
+                        f"demo); a region whose best candidate's reduced chi-square exceeds {MAX_MISFIT:g} reads "
+                        "'no candidate fits'")
     p.add_argument("--min-level", type=float, default=0.005,
                    help="leave out pixels darker than this fraction of a white diffuser lit like the chart (shadows)")
     p.add_argument("--json", action="store_true", help="print the regions as JSON")
@@ -83,8 +95,12 @@ def _identify(args: argparse.Namespace) -> int:
         if r.material is None:
             print(f"region {r.label}: {r.pixels} pixels, not identified: {r.note}")
             continue
-        line = (f"region {r.label}: {r.material} (confidence {r.confidence:.2f}; runner-up {r.runner_up}), "
-                f"{r.pixels} pixels")
+        if r.material == NO_FIT:
+            print(f"region {r.label}: {NO_FIT} (best: {r.group[0]}, reduced chi-square {r.misfit:.3g}), "
+                  f"{r.pixels} pixels")
+            continue
+        line = (f"region {r.label}: {r.material} (confidence {r.confidence:.2f}; runner-up {r.runner_up}; "
+                f"reduced chi-square {r.misfit:.3g}), {r.pixels} pixels")
         if len(r.group) > 1:
             line += f"; cannot tell apart {', '.join(r.group)}"
         if r.alloy_weights:

@@ -22,7 +22,8 @@ highlight geometry (15 deg): there a lacquer shows its pigment, as most of a
 lacquered region's pixels do, while a metal's Fresnel colour hardly changes
 between half-angles of 7.5 and 20 deg (on this scene, modelling at 15 deg
 turns the pupil's black urushi into a shibuichi and leaves the rest as they
-are).  A model error of 2 % is added to the noise of a region's mean:
+are).  A model error
+(:data:`processing.materials.identification.DEFAULT_MODEL_ERROR`, 1.75 %) is added to the noise of a region's mean:
 across a region the Fresnel colour changes a little with the angle and
 urushi mixes pigment and gloss in varying proportions, which the one-geometry
 candidates do not follow; without it thousands of pooled pixels would make
@@ -113,7 +114,7 @@ def colour_demo(
     size: tuple[int, int] = (600, 400),
     angles: tuple[float, ...] = (-25.0, 0.0, 25.0),
     method: str = "rootpoly",
-    model_error: float = 0.02,
+    model_error: float | None = None,
     object_exposure: float = 0.25,
     light_direction: tuple[float, float, float] = LIGHT_DIRECTION,
     light_deg: float | None = 40.0,
@@ -134,7 +135,8 @@ def colour_demo(
     method
         Spectral estimator (default rootpoly, the best one-shot method in docs/BENCHMARKS.md).
     model_error
-        Relative model error of the candidates (see the module text).
+        Relative model error of the candidates (see the module text); None:
+        :data:`processing.materials.identification.DEFAULT_MODEL_ERROR`, as ``kogei identify`` and the batch.
     object_exposure
         Exposure of the object frames relative to the chart's (metal highlights are many times
         brighter than the chart's white; the chart's values are scaled by the files' exposure times).
@@ -155,7 +157,10 @@ def colour_demo(
     """
     from app.workflows.identification import identify_result, usable_regions
     from mocks.world import World
+    from processing.materials.identification import DEFAULT_MODEL_ERROR
 
+    if model_error is None:
+        model_error = DEFAULT_MODEL_ERROR
     t0 = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -236,6 +241,7 @@ def _pooled(results: list[Any], method: str) -> Any:
 
 def _region_row(world: Any, rep: Any, shapes: dict[int, dict[str, list[float]]]) -> dict[str, Any]:
     """One region's identification beside the world's true material and alloy composition."""
+    from processing.materials.identification import NEUTRAL_METAL
     from processing.materials.presets import get_material
 
     region = world.region_names[rep.label - 1]
@@ -247,9 +253,12 @@ def _region_row(world: Any, rep: Any, shapes: dict[int, dict[str, list[float]]])
         "region": region,
         "true_material": true,
         "material": rep.material,
-        "correct": rep.material == true or (true in rep.group),
+        # right: the material named, or a neutral-metal group holding it ("no candidate fits" names none, and
+        # the contenders listed beside a named material do not make it right)
+        "correct": rep.material == true or (rep.material == NEUTRAL_METAL and true in rep.group),
         "confidence": rep.confidence,
         "chi2": rep.chi2,
+        "misfit": rep.misfit,
         "runner_up": rep.runner_up,
         "group": list(rep.group),
         "pixels": rep.pixels,
@@ -330,7 +339,7 @@ def _spectrum_axes(ax: Any, reg: dict[str, Any], wl: NDArray[np.float64], cos_d:
     ax.fill_between(wl, est - spread, est + spread, color="0.82", label="estimate +- spread over pixels")
     ax.plot(wl, est, "k-", label="estimate")
     for name, style in ((reg["material"], "r--"), (reg["true_material"], "b:")):
-        if name == "neutral metal":
+        if name in ("neutral metal", "no candidate fits"):
             continue
         model = model_spectrum(name, wl, cos_d)
         # brightness depends on gloss and angles, not on the material: compare the shapes
@@ -358,8 +367,8 @@ def _map_axes(axes: Any, regions: list[dict[str, Any]], labels: NDArray[np.int64
     colours = [(0.1, 0.1, 0.1)]
     for reg in regions:
         name = reg["material"]
-        if name is None or name == "neutral metal":
-            colours.append((0.75, 0.75, 0.78) if name else (1.0, 0.0, 1.0))
+        if name is None or name in ("neutral metal", "no candidate fits"):
+            colours.append((0.75, 0.75, 0.78) if name == "neutral metal" else (1.0, 0.0, 1.0))
         else:
             colours.append(tuple(np.asarray(preset_srgb(name)) / 255.0))
     lut = np.zeros(labels.max() + 1, dtype=np.int64)

@@ -27,7 +27,7 @@ A display over the colour pipeline's workflow (docs/colour-pipeline.md):
    colour of the frame's rim), and blocks left less than half full.
 
 Both identifications allow the candidates the same model error as the batch
-``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 2 %): the
+``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 1.75 %): the
 shibuichi alloys, shakudo and bronze differ by 0.005-0.02 in camera
 chromaticity, about what one block of a highlight varies by on polished
 metal, so a block map tells families apart (gold, copper-rich, silver-rich,
@@ -424,7 +424,8 @@ class SpectraPanel(Panel):
                        pixels=res["pixels"],
                        title=f"({res['x']}, {res['y']}): {ident.material}, confidence {ident.confidence:.2f}")
         self.state.setText(f"pixel ({res['x']}, {res['y']}): {ident.material} (confidence {ident.confidence:.2f}, "
-                           f"runner-up {ident.runner_up})")
+                           f"runner-up {ident.runner_up}, best {res['model_name']} at reduced chi-square "
+                           f"{ident.misfit:.3g})")
         self.analysed.emit(res)
 
     def make_map(self) -> None:

@@ -236,7 +236,7 @@ def region_spectra_figure(wavelengths: Sequence[float], regions: Sequence[dict[s
     material, so the shapes are compared (as in ``app.demo.colour``).
     """
     from app.demo.colour import model_spectrum
-    from processing.materials.identification import NEUTRAL_METAL
+    from processing.materials.identification import NEUTRAL_METAL, NO_FIT
 
     plt = _plt()
     wl = np.asarray(wavelengths, dtype=np.float64)
@@ -251,7 +251,7 @@ def region_spectra_figure(wavelengths: Sequence[float], regions: Sequence[dict[s
         scale = max(float(est.mean()), 1e-9)
         ax.fill_between(wl, (est - unc) / scale, (est + unc) / scale, color="0.82", label="estimate +- uncertainty")
         ax.plot(wl, est / scale, "k-", label="estimate")
-        if reg["material"] != NEUTRAL_METAL:
+        if reg["material"] not in (NEUTRAL_METAL, NO_FIT):
             model = model_spectrum(reg["material"], wl, cos_d)
             ax.plot(wl, model / max(float(model.mean()), 1e-9), "r--", label=f"{reg['material']} (model)")
         ax.set_title(f"{reg['region']}: {reg['material']} ({reg['confidence']:.2f}), {reg['pixels']} px", fontsize=8)

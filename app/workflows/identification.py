@@ -6,8 +6,15 @@ the alloys, urushi) is forward-modelled into the model camera and compared
 with the region's values in that camera (the ``camera`` array of a
 :class:`app.workflows.spectral.SpectralResult`, i.e. after the chart
 transform), with a free brightness; the answer comes with a confidence (the
-posterior probability), the runner-up, and for a metal or alloy the Ag, Cu, Au
-weights of the alloy model.  The region's mean reflectance and its uncertainty
+posterior tempered by the best candidate's misfit,
+:func:`processing.materials.confidence.decide`), the runner-up, the misfit
+(reduced chi-square of the best candidate), and for a metal or alloy the Ag,
+Cu, Au weights of the alloy model.  When even the best candidate misses the
+region by more than the noise and model error allow (misfit above
+:data:`processing.materials.confidence.MAX_MISFIT`) the material is
+``"no candidate fits"`` and ``group`` lists the best few candidates.  The
+model error defaults to
+:data:`processing.materials.identification.DEFAULT_MODEL_ERROR`.  The region's mean reflectance and its uncertainty
 (:func:`processing.spectral.estimation.estimator.region_spectra`, with the
 estimate's error on the chart as the method error) ride along.
 ``kogei identify``, the batch's materials step and the colour demo call
@@ -63,8 +70,9 @@ class RegionReport:
     """One region's identification (JSON-ready through :meth:`as_dict`).
 
     ``chi2`` is the best candidate's chi-square under the noise model (c - 1 degrees of freedom
-    for c channels, the brightness being free): far above that, no candidate explains the region
-    and the confidence, a probability among the candidates, says nothing about it.
+    for c channels, the brightness being free) and ``misfit`` that chi-square over its degrees of
+    freedom: far above 1 no candidate explains the region, and beyond
+    :data:`processing.materials.confidence.MAX_MISFIT` ``material`` is ``"no candidate fits"``.
     """
 
     label: int
@@ -80,6 +88,7 @@ class RegionReport:
     uncertainty: list[float] | None
     note: str = ""
     chi2: float | None = None
+    misfit: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """The fields as a dict."""
@@ -87,9 +96,11 @@ class RegionReport:
 
 
 def _is_metal(name: str) -> bool:
-    from processing.materials.identification import NEUTRAL_METAL
+    from processing.materials.identification import NEUTRAL_METAL, NO_FIT
     from processing.materials.presets import get_material
 
+    if name == NO_FIT:
+        return False                # no material: no alloy weights either
     return name == NEUTRAL_METAL or get_material(name).family in ("metal", "alloy")
 
 
@@ -140,14 +151,24 @@ def identify_result(
     *,
     light_deg: float = 30.0,
     noise: float = 0.01,
-    model_error: float = 0.0,
+    model_error: float | None = None,
     min_level: float = 0.005,
 ) -> list[RegionReport]:
-    """Identify every region (label > 0) of ``result``; ``labels=None``: the whole unmasked image."""
-    from processing.materials.identification import candidate_set, estimate_alloy_weights, identify_material
+    """Identify every region (label > 0) of ``result``; ``labels=None``: the whole unmasked image.
+
+    ``model_error`` None: :data:`processing.materials.identification.DEFAULT_MODEL_ERROR`.
+    """
+    from processing.materials.identification import (
+        DEFAULT_MODEL_ERROR,
+        candidate_set,
+        estimate_alloy_weights,
+        identify_material,
+    )
     from processing.spectral.estimation.estimator import region_spectra
     from processing.spectral.estimation.fit import SpectralEstimationError
 
+    if model_error is None:
+        model_error = DEFAULT_MODEL_ERROR
     h, w = result.mask.shape
     lab = np.ones((h, w), np.int64) if labels is None else np.asarray(labels, dtype=np.int64)
     if lab.shape != (h, w):
@@ -188,6 +209,6 @@ def identify_result(
             r, int(px.shape[0]), found.material, float(found.confidence), found.runner_up,
             float(found.likelihood_ratio), tuple(found.group), alloy, alloy_std,
             spectra.mean[i].tolist(), spectra.uncertainty[i].tolist(),
-            chi2=float(np.min(found.chi2)),
+            chi2=float(found.chi2[found.chi2.argmin()]), misfit=float(found.misfit),
         ))
     return reports

@@ -74,12 +74,13 @@ def test_neutral_metals_are_reported_as_such_from_one_noisy_pixel_and_told_apart
     assert c.neutral.tolist() == [True, True, True, False, False]
     rng = np.random.default_rng(3)
     ag = _true_rgb("silver")
-    one = identify_material(ag * (1 + 0.01 * rng.standard_normal(3)), c, noise=0.01)
+    # the data are the candidates' own model: no model error
+    one = identify_material(ag * (1 + 0.01 * rng.standard_normal(3)), c, noise=0.01, model_error=0.0)
     assert one.material == NEUTRAL_METAL
     assert "silver" in one.group and "aluminium" in one.group
     assert one.runner_up not in one.group
     # with 0.01 % noise (10^4 pixels) silver and aluminium differ by many standard deviations
-    many = identify_material(ag * (1 + 0.01 * rng.standard_normal((10000, 3))), c, noise=0.01)
+    many = identify_material(ag * (1 + 0.01 * rng.standard_normal((10000, 3))), c, noise=0.01, model_error=0.0)
     assert many.material == "silver" and many.confidence > 0.99
 
 
@@ -91,7 +92,7 @@ def test_confidence_is_calibrated_on_a_confusable_pair():
     conf, correct = [], []
     for k in range(400):
         name = names[k % 2]
-        r = identify_material(_true_rgb(name) * (1 + 0.01 * rng.standard_normal(3)), c, noise=0.01)
+        r = identify_material(_true_rgb(name) * (1 + 0.01 * rng.standard_normal(3)), c, noise=0.01, model_error=0.0)
         conf.append(r.confidence)
         correct.append(r.material == name)
     assert 0.55 < np.mean(correct) < 0.95                       # genuinely hard, not trivial
@@ -156,7 +157,7 @@ def test_alloy_weights_recover_table_1_within_five_points(name):
         (np.zeros((0, 3)), {}, "empty"),
         (np.zeros((2, 3)), {}, "black"),
         (np.ones((2, 4)), {}, "3 channels"),
-        (np.ones((2, 3)), {"noise": 0.0}, "both 0"),
+        (np.ones((2, 3)), {"noise": 0.0, "model_error": 0.0}, "both 0"),
         (np.ones((2, 3)), {"noise": float("nan")}, "noise"),
     ],
 )
