@@ -329,21 +329,33 @@ def _clip_level(photos: Any) -> Any:
 
 
 def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
-    """Write the validation's PNGs under ``products/validation/`` and keep the figures (no image bytes)."""
-    out = {k: v for k, v in result.items() if k != "frames"}
-    frames = []
-    for entry in result.get("frames", []):
-        row = {}
-        for key, value in entry.items():
-            if isinstance(value, (bytes, bytearray)):
-                rel = f"{VALIDATION_DIR}/{str(entry['frame']).replace('/', '_')}-{key.replace('_png', '')}.png"
-                session.write_file(rel, bytes(value))
-                row[key.replace("_png", "")] = rel
-            else:
-                row[key] = value
-        frames.append(row)
-    out["frames"] = frames
+    """Write the validation's PNGs under ``products/validation/``; the figures (no image bytes) for the document."""
+    overall = result["overall"]
+    out = {**_figures(overall["measured"], overall["baseline"]), "n_frames": overall["n_frames"],
+           "n_skipped": overall["n_skipped"], "regions": overall["regions"], "baseline_spec": result["baseline_spec"],
+           "camera_to_xyz": result["camera_to_xyz"], "frames": []}
+    for entry in result["frames"]:
+        row: dict[str, Any] = {"frame": entry["name"], "seconds": round(float(entry.get("seconds", 0.0)), 3)}
+        if "skipped" in entry:
+            row["skipped"] = entry["skipped"]
+        else:
+            row.update(_figures(entry["measured"], entry["baseline"]))
+            row["clipped_pixels"] = entry.get("clipped_pixels")
+        for key in ("triptych_png", "error_map_png", "baseline_error_map_png"):
+            if isinstance(entry.get(key), (bytes, bytearray)):
+                rel = f"{VALIDATION_DIR}/{str(entry['name']).replace('/', '_')}-{key[:-4].replace('_', '-')}.png"
+                session.write_file(rel, bytes(entry[key]))
+                row[key[:-4]] = rel
+        out["frames"].append(row)
     return out
+
+
+def _figures(measured: dict[str, Any], baseline: dict[str, Any]) -> dict[str, Any]:
+    """Flat figures of one comparison: measured and baseline mean / p95 / median CIEDE2000 and pixels."""
+    return {"mean_de2000": measured.get("mean_de2000"), "p95_de2000": measured.get("p95_de2000"),
+            "median_de2000": measured.get("median_de2000"), "pixels": measured.get("n_pixels"),
+            "baseline_mean_de2000": baseline.get("mean_de2000"), "baseline_p95_de2000": baseline.get("p95_de2000"),
+            "baseline_median_de2000": baseline.get("median_de2000")}
 
 
 def _record(session: Any, doc: dict[str, Any]) -> None:
