@@ -1,0 +1,424 @@
+"""Regions of one material on the scanned surface, from every view of every vertex.
+
+A metal is dark away from its highlights and a black lacquer is dark except in
+its highlight, so one photo cannot tell materials apart: :func:`vertex_features`
+summarises *all* the observations of a vertex in a few numbers that a material
+fixes and the geometry does not (docs/appearance.md, "Regions of one material
+on the surface"):
+
+* ``body_log`` and ``body_r``, ``body_b``: the level (log10) and chromaticity of
+  the median signal / (cos_i * irradiance) of the lit observations away from the
+  highlight (half angle > ``body_half_deg``) -- the diffuse albedo;
+* ``colour_r``, ``colour_b``: chromaticity of the sum of the lit signals, which
+  the brightest views dominate -- a metal's colour even where only the tail of
+  its lobe was seen;
+* ``spec_r``, ``spec_b``: chromaticity of the brightest unclipped observation near
+  the mirror direction (half angle < ``spec_half_deg``), NaN where none was seen;
+* ``peak_log``: log10 of the largest signal / irradiance (clipped ones included).
+
+:func:`segment_surface` clusters these features with a diagonal Gaussian
+mixture (EM, the number of components by BIC, Schwarz 1978), merges components
+closer than a Bhattacharyya distance, makes the labels spatially coherent with a
+Potts model on the mesh's edge graph solved by iterated conditional modes
+(Besag 1986), and merges regions smaller than ``min_region_share`` of the
+measured area into the neighbour they share most edges with.  Vertices without
+a lit observation are -1 ("not measured").
+
+References
+----------
+Besag, J. (1986). On the statistical analysis of dirty pictures. J. R. Stat.
+Soc. B 48(3), 259-302. doi:10.1111/j.2517-6161.1986.tb01412.x
+
+Dempster, A. P., Laird, N. M., Rubin, D. B. (1977). Maximum likelihood from
+incomplete data via the EM algorithm. J. R. Stat. Soc. B 39(1), 1-22.
+doi:10.1111/j.2517-6161.1977.tb01600.x
+
+Schwarz, G. (1978). Estimating the dimension of a model. Ann. Statist. 6(2),
+461-464. doi:10.1214/aos/1176344136
+
+Lensch, H. P. A., Kautz, J., Goesele, M., Heidrich, W., Seidel, H.-P. (2003).
+Image-based reconstruction of spatial appearance and geometric detail. ACM
+TOG 22(2), 234-257. doi:10.1145/636886.636891
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from processing.appearance import _surface_features as sf
+from processing.errors import InputError
+
+__all__ = ["SegmentationError", "SurfaceSegmentation", "VertexFeatures", "vertex_features", "segment_surface",
+           "FEATURE_NAMES"]
+
+#: Names of the columns of :attr:`VertexFeatures.values`.
+FEATURE_NAMES = ("body_log", "body_r", "body_b", "colour_r", "colour_b", "spec_r", "spec_b", "peak_log")
+_LEVEL_FLOOR = 1e-4      # signal level read as "black": log10 floor and chromaticity regulariser
+_MIN_COS_I = 0.1         # lit: the lamp at most ~84 deg from the normal
+_SIGNIFICANT = 5.0       # a signal counts when it exceeds this many noise standard deviations
+
+
+class SegmentationError(InputError):
+    """Observations or mesh unusable for the segmentation; the message names the argument."""
+
+
+@dataclass(frozen=True)
+class VertexFeatures:
+    """Per-vertex summaries of all the observations of each vertex.
+
+    Attributes
+    ----------
+    values
+        ``(V, F)`` float64; NaN where not available (no lit observation; ``spec_*``: no highlight seen).
+    names
+        Column names (:data:`FEATURE_NAMES`).
+    measured
+        ``(V,)`` bool: the vertex has at least one lit observation.
+    n_lit
+        ``(V,)`` int64 lit observations per vertex.
+    """
+
+    values: NDArray[np.float64]
+    names: tuple[str, ...]
+    measured: NDArray[np.bool_]
+    n_lit: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class SurfaceSegmentation:
+    """Regions of one material on the mesh.
+
+    Attributes
+    ----------
+    vertex_region
+        ``(V,)`` int32 region 0..R-1 (by decreasing area), -1 = not measured (no lit observation).
+    face_region
+        ``(T,)`` int32: the majority of the measured corners; -1 only when no corner is measured.
+    n_regions
+        R.
+    features
+        ``(V, F)`` float32 features (NaN where unmeasured).
+    feature_names
+        Names of the feature columns.
+    method
+        One line: features, clustering and smoothing used.
+    """
+
+    vertex_region: NDArray[np.int32]
+    face_region: NDArray[np.int32]
+    n_regions: int
+    features: NDArray[np.float32]
+    feature_names: tuple[str, ...]
+    method: str
+
+
+def _check_inputs(obs, vertices: ArrayLike, triangles: ArrayLike | None) -> tuple[NDArray, NDArray | None]:
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
+        raise SegmentationError(f"vertices: shape {v.shape}; give finite (V, 3) millimetres")
+    if not hasattr(obs, "offsets") or not hasattr(obs, "signal"):
+        raise SegmentationError("obs: not an Observations; give processing.appearance.observations.Observations")
+    if obs.n_vertices != len(v):
+        raise SegmentationError(f"vertices: {len(v)} rows but obs covers {obs.n_vertices} vertices; "
+                                "give the mesh the observations were made on")
+    if len(obs.vertex) == 0:
+        raise SegmentationError("obs: no observations; observe the mesh in at least one frame first")
+    if triangles is None:
+        return v, None
+    t = np.asarray(triangles)
+    if t.ndim != 2 or t.shape[1] != 3 or t.size == 0 or not np.issubdtype(t.dtype, np.integer) \
+            or t.min() < 0 or t.max() >= len(v):
+        raise SegmentationError(f"triangles: shape {t.shape}; give (T, 3) integer indices into vertices, T >= 1")
+    return v, t.astype(np.int64)
+
+
+def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None, lamp: int = 0,
+                    body_half_deg: float = 22.0, spec_half_deg: float = 12.0) -> VertexFeatures:
+    """Summaries of every vertex's observations that a material fixes (see the module docstring).
+
+    Parameters
+    ----------
+    obs
+        :class:`processing.appearance.observations.Observations` of the mesh.
+    vertices
+        ``(V, 3)`` mesh vertices in M (mm), V = ``obs.n_vertices``.
+    frames
+        The frames' :class:`~processing.appearance.frame_poses.FramePose` (for the point lamp's
+        ``1/d^2`` irradiance); None: irradiance 1 (the chromaticities do not depend on it).
+    lamp
+        Which lamp's geometry (``light_dir``, ``half_angle_deg``) to use.
+    body_half_deg
+        Half angle (deg) beyond which an observation counts as "away from the highlight".
+    spec_half_deg
+        Half angle (deg) below which an observation counts as "in the highlight".
+
+    Returns
+    -------
+    VertexFeatures
+    """
+    v, _ = _check_inputs(obs, vertices, None)
+    nv, vert = obs.n_vertices, obs.vertex.astype(np.intp)
+    cos_i = np.einsum("ij,ij->i", obs.normal, obs.light_dir[:, lamp]).astype(np.float64)
+    half = obs.half_angle_deg[:, lamp].astype(np.float64)
+    irr = sf.irradiance(v[vert], obs.frame, frames, lamp)
+    sig = obs.signal.astype(np.float64) / irr[:, None]
+    var = (obs.sigma.astype(np.float64) / irr[:, None]) ** 2
+    lit = cos_i > _MIN_COS_I
+    n_lit = np.bincount(vert[lit], minlength=nv)
+    measured = n_lit > 0
+    out = np.full((nv, len(FEATURE_NAMES)), np.nan)
+    ok = lit & ~obs.clipped
+    body = ok & (half > body_half_deg)
+    out[:, 0:3] = _body_features(sig[body] / cos_i[body, None], var[body] / cos_i[body, None] ** 2, vert[body], nv)
+    s_ok, v_ok = sf.group_sum(sig[ok], vert[ok], nv), sf.group_sum(var[ok], vert[ok], nv)
+    strong = s_ok.mean(axis=1) > _SIGNIFICANT * np.sqrt(v_ok.mean(axis=1))
+    out[strong, 3:5] = sf.chromaticity(s_ok[strong], 0.0)
+    spec = ok & (half < spec_half_deg)
+    best = sf.group_argmax(sig[spec].sum(axis=1), vert[spec], nv)
+    seen = best >= 0
+    bsig, bvar = sig[spec][best[seen]], var[spec][best[seen]]
+    seen[seen] = bsig.mean(axis=1) > _SIGNIFICANT * np.sqrt(bvar.mean(axis=1))
+    out[seen, 5:7] = sf.chromaticity(sig[spec][best[seen]], 0.0)
+    peak = sf.group_argmax(sig[lit].mean(axis=1), vert[lit], nv)
+    has = peak >= 0
+    psig, pvar = sig[lit][peak[has]].mean(axis=1), var[lit][peak[has]].mean(axis=1)
+    has[has] = psig > _SIGNIFICANT * np.sqrt(pvar)
+    out[has, 7] = np.log10(sig[lit][peak[has]].mean(axis=1))
+    out[~measured] = np.nan
+    return VertexFeatures(out, FEATURE_NAMES, measured, n_lit.astype(np.int64))
+
+
+def _body_features(diffuse: NDArray[np.float64], var: NDArray[np.float64], vert: NDArray[np.intp],
+                   nv: int) -> NDArray[np.float64]:
+    """log10 level (floored at the noise) and chromaticity (NaN unless significant) of the median diffuse signal."""
+    rgb = np.stack([sf.group_median(diffuse[:, c], vert, nv) for c in range(3)], axis=1)
+    n = np.bincount(vert, minlength=nv)
+    noise = 1.25 * np.sqrt(sf.group_sum(var.mean(axis=1), vert, nv) / np.maximum(n, 1) ** 2)
+    out = np.full((nv, 3), np.nan)
+    has = n > 0
+    level = rgb[has].mean(axis=1)
+    out[has, 0] = np.log10(np.maximum(level, np.maximum(_SIGNIFICANT * noise[has], _LEVEL_FLOOR)))
+    strong = np.zeros(nv, bool)
+    strong[has] = level > _SIGNIFICANT * noise[has]
+    out[strong, 1:3] = sf.chromaticity(rgb[strong], 0.0)
+    return out
+
+
+#: Features the mixture clusters on and their scales (one scale unit ~ a just-relevant difference).
+_CLUSTER_FEATURES = (0, 1, 2, 3, 4, 5, 6)
+_SCALES = np.array([0.15, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01])
+_VAR_FLOOR = 0.25        # (scale units)^2: features closer than half a scale unit are not told apart
+_CONFIDENT_NATS = 2.0    # a vertex's own features decide its label when the runner-up is this much less likely
+_UNARY_CAP_NATS = 4.0    # at most this much data cost per vertex, so neighbours can overrule an outlier
+_MERGE_BHATTACHARYYA = 1.5  # mixture components closer than this are one material
+_FIT_SAMPLE = 20_000     # vertices the mixture is fitted on (a seeded random subset)
+
+
+def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], mu: NDArray[np.float64],
+                      var: NDArray[np.float64], weight: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n, K)`` log(weight_k * N(x | mu_k, diag var_k)) over each row's available features."""
+    m = mask.astype(np.float64)
+    out = np.empty((len(x), len(mu)))
+    for k in range(len(mu)):
+        d2 = np.where(mask, (x - mu[k]) ** 2, 0.0) / var[k]
+        out[:, k] = -0.5 * (d2.sum(axis=1) + m @ np.log(2 * np.pi * var[k])) + np.log(weight[k])
+    return out
+
+
+def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], k: int, rng: np.random.Generator,
+                 iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
+    """Diagonal Gaussian mixture with missing features (EM, Dempster et al. 1977); k-means++ start."""
+    from scipy.cluster.vq import kmeans2
+
+    fill = np.where(mask, x, np.nanmean(np.where(mask, x, np.nan), axis=0))
+    _, lab = kmeans2(fill, k, minit="++", seed=rng, iter=20)
+    resp = np.eye(k)[lab]
+    m = mask.astype(np.float64)
+    xz = np.where(mask, x, 0.0)
+    ll_total = -np.inf
+    for _ in range(iterations):
+        nk = resp.sum(axis=0) + 1e-9
+        wsum = resp.T @ m + 1e-9
+        mu = (resp.T @ xz) / wsum
+        var = np.maximum((resp.T @ (xz ** 2)) / wsum - mu ** 2, _VAR_FLOOR)
+        ll = _component_loglik(x, mask, mu, var, nk / nk.sum())
+        top = ll.max(axis=1, keepdims=True)
+        lse = top[:, 0] + np.log(np.exp(ll - top).sum(axis=1))
+        resp = np.exp(ll - lse[:, None])
+        new_total = float(lse.sum())
+        if new_total - ll_total < 1e-4 * len(x):
+            break
+        ll_total = new_total
+    nk = resp.sum(axis=0) + 1e-9
+    return mu, var, nk / nk.sum(), float(lse.sum())
+
+
+def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], max_k: int,
+                    seed: int) -> tuple[NDArray, NDArray, NDArray]:
+    """The mixture with the smallest BIC for k = 1..max_k, then components closer than the merge distance joined."""
+    best = None
+    n_obs = float(mask.sum())
+    for k in range(1, min(max_k, len(x)) + 1):
+        mu, var, w, ll = _fit_mixture(x, mask, k, np.random.default_rng(seed))
+        bic = -2.0 * ll + (k * 2 * x.shape[1] + k - 1) * np.log(max(n_obs, 2.0))
+        if best is None or bic < best[0]:
+            best = (bic, mu, var, w)
+    return _merge_components(*best[1:])
+
+
+def _merge_components(mu: NDArray, var: NDArray, w: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """Join the closest pair (Bhattacharyya distance) while it is below the merge distance; moment-matched."""
+    mu, var, w = list(mu), list(var), list(w)
+    while len(mu) > 1:
+        best = (np.inf, 0, 0)
+        for i in range(len(mu)):
+            for j in range(i + 1, len(mu)):
+                v = 0.5 * (var[i] + var[j])
+                d = 0.125 * np.sum((mu[i] - mu[j]) ** 2 / v) + 0.5 * np.sum(np.log(v / np.sqrt(var[i] * var[j])))
+                best = min(best, (d, i, j))
+        d, i, j = best
+        if d >= _MERGE_BHATTACHARYYA:
+            break
+        wi, wj = w[i], w[j]
+        m = (wi * mu[i] + wj * mu[j]) / (wi + wj)
+        s = (wi * (var[i] + mu[i] ** 2) + wj * (var[j] + mu[j] ** 2)) / (wi + wj) - m ** 2
+        mu[i], var[i], w[i] = m, np.maximum(s, _VAR_FLOOR), wi + wj
+        del mu[j], var[j], w[j]
+    return np.array(mu), np.array(var), np.array(w)
+
+
+def _neighbour_votes(adj, labels: NDArray[np.intp], k: int) -> NDArray[np.float64]:
+    """``(V, k)`` number of neighbours carrying each label (-1 labels do not vote)."""
+    from scipy import sparse
+
+    has = labels >= 0
+    onehot = sparse.csr_matrix((np.ones(int(has.sum())), (np.flatnonzero(has), labels[has])),
+                               shape=(len(labels), k))
+    return np.asarray((adj @ onehot).todense())
+
+
+def _spatial_labels(cost: NDArray[np.float64], adj, smoothness: float, rng: np.random.Generator,
+                    sweeps: int = 12) -> NDArray[np.intp]:
+    """Potts labels: confident vertices keep their best label, the rest grow from them, then ICM (Besag 1986).
+
+    ``cost`` is ``(V, K)`` data cost in nats (minimum 0 per row, capped), ``adj`` the measured vertices' graph.
+    """
+    v, k = cost.shape
+    order = np.sort(cost, axis=1)
+    second = order[:, 1] if k > 1 else np.full(v, np.inf)
+    labels = np.where(second >= _CONFIDENT_NATS, np.argmin(cost, axis=1), -1)
+    for _ in range(v):                                   # grow the confident labels into the undecided vertices
+        todo = labels < 0
+        if not todo.any():
+            break
+        votes = _neighbour_votes(adj, labels, k)[todo]
+        reach = votes.sum(axis=1) > 0
+        if not reach.any():
+            labels[todo] = np.argmin(cost[todo], axis=1)   # an island without a confident vertex
+            break
+        idx = np.flatnonzero(todo)[reach]
+        labels[idx] = np.argmin(cost[idx] - smoothness * votes[reach], axis=1)
+    for _ in range(sweeps):                              # iterated conditional modes, half the vertices a sweep
+        total = cost - smoothness * _neighbour_votes(adj, labels, k)
+        new = np.argmin(total, axis=1)
+        change = (new != labels) & (rng.random(v) < 0.5)
+        if not change.any():
+            break
+        labels[change] = new[change]
+    return labels
+
+
+def _merge_small(labels: NDArray[np.intp], area: NDArray[np.float64], adj, share: float,
+                 k: int) -> NDArray[np.intp]:
+    """Give every region smaller than ``share`` of the area to the neighbour it shares most edges with."""
+    labels = labels.copy()
+    total = float(area.sum())
+    while True:
+        sizes = np.bincount(labels, weights=area, minlength=k)
+        small = np.flatnonzero((sizes > 0) & (sizes < share * total))
+        if len(small) == 0 or np.count_nonzero(sizes) <= 1:
+            return labels
+        lab = small[np.argmin(sizes[small])]
+        members = labels == lab
+        votes = _neighbour_votes(adj, labels, k)[members].sum(axis=0)
+        votes[lab] = -1.0
+        if votes.max() <= 0:                             # an isolated part: the largest region takes it
+            votes = np.where(np.arange(k) == lab, -1.0, sizes)
+        labels[members] = int(np.argmax(votes))
+
+
+def _face_labels(vertex_region: NDArray[np.int32], triangles: NDArray[np.int64]) -> NDArray[np.int32]:
+    """Majority label of each face's measured corners (the first measured corner breaks a three-way tie)."""
+    c = vertex_region[triangles]
+    out = np.where(c[:, 0] >= 0, c[:, 0], np.where(c[:, 1] >= 0, c[:, 1], c[:, 2]))
+    pair = (c[:, 1] == c[:, 2]) & (c[:, 1] >= 0)
+    out = np.where(pair, c[:, 1], out)
+    return out.astype(np.int32)
+
+
+def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regions: int = 8,
+                    min_region_share: float = 0.002, smoothness: float = 1.0, seed: int = 0,
+                    frames: Sequence | None = None) -> SurfaceSegmentation:
+    """Regions of one material on the mesh from all the observations of every vertex.
+
+    Parameters
+    ----------
+    obs
+        :class:`processing.appearance.observations.Observations` of the mesh.
+    vertices, triangles
+        The mesh in M: ``(V, 3)`` mm (V = ``obs.n_vertices``) and ``(T, 3)`` indices.
+    max_regions
+        Most mixture components (materials) tried; the BIC picks the number, close ones are merged.
+    min_region_share
+        Regions smaller than this share of the measured area join the neighbour they share most edges with.
+    smoothness
+        Potts weight (nats per disagreeing neighbour); 0 labels every vertex by its own features.
+    seed
+        Seed of the mixture's start and of the ICM's random half-sweeps.
+    frames
+        Optional frame poses for the point lamp's ``1/d^2`` (see :func:`vertex_features`).
+
+    Returns
+    -------
+    SurfaceSegmentation
+        Regions numbered by decreasing area; -1 where no lit observation exists.
+    """
+    v, t = _check_inputs(obs, vertices, triangles)
+    if not (isinstance(max_regions, (int, np.integer)) and max_regions >= 1):
+        raise SegmentationError(f"max_regions: {max_regions!r}; give an integer >= 1")
+    if not (0.0 <= min_region_share < 1.0 and smoothness >= 0.0):
+        raise SegmentationError(f"min_region_share {min_region_share!r} / smoothness {smoothness!r}; "
+                                "give a share in [0, 1) and a weight >= 0")
+    feats = vertex_features(obs, v, frames=frames)
+    meas = np.flatnonzero(feats.measured)
+    if len(meas) == 0:
+        raise SegmentationError("obs: no vertex is lit in any observation; capture with the lamp on the object")
+    rng = np.random.default_rng(seed)
+    x = feats.values[meas][:, _CLUSTER_FEATURES]
+    x = (x - np.nanmedian(x, axis=0, keepdims=True)) / _SCALES
+    mask = np.isfinite(x)
+    informative = mask[:, 1:].any(axis=1)
+    pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
+    fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
+    mu, var, w = _select_mixture(np.nan_to_num(x[fit]), mask[fit], int(max_regions), seed)
+    ll = _component_loglik(np.nan_to_num(x), mask, mu, var, w)
+    cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
+    adj = sf.adjacency(t, len(v))[meas][:, meas]
+    labels = _spatial_labels(cost, adj, float(smoothness), rng)
+    area = sf.vertex_areas(v, t)[meas]
+    labels = _merge_small(labels, area, adj, float(min_region_share), len(mu))
+    sizes = np.bincount(labels, weights=area, minlength=len(mu))
+    used = np.flatnonzero(sizes > 0)
+    rank = np.full(len(mu), -1)
+    rank[used[np.argsort(-sizes[used], kind="stable")]] = np.arange(len(used))
+    vertex_region = np.full(len(v), -1, dtype=np.int32)
+    vertex_region[meas] = rank[labels]
+    method = (f"features {', '.join(FEATURE_NAMES[i] for i in _CLUSTER_FEATURES)} from all lit views; "
+              f"diagonal Gaussian mixture (EM, BIC over k<={max_regions}, {len(mu)} after merging); "
+              f"Potts ICM smoothness {smoothness:g}; regions < {min_region_share:g} of the area merged")
+    return SurfaceSegmentation(vertex_region, _face_labels(vertex_region, t), len(used),
+                               feats.values.astype(np.float32), feats.names, method)
