@@ -6,15 +6,26 @@ summarises *all* the observations of a vertex in a few numbers that a material
 fixes and the geometry does not (docs/appearance.md, "Regions of one material
 on the surface"):
 
-* ``body_log`` and ``body_r``, ``body_b``: the level (log10) and chromaticity of
-  the median signal / (cos_i * irradiance) of the lit observations away from the
-  highlight (half angle > ``body_half_deg``) -- the diffuse albedo;
-* ``colour_r``, ``colour_b``: chromaticity of the sum of the lit signals, which
-  the brightest views dominate -- a metal's colour even where only the tail of
-  its lobe was seen;
+* ``body_asinh`` and ``body_r``, ``body_b``: the level and chromaticity of the
+  median signal / (cos_i * irradiance) of the lit observations away from the
+  highlight (half angle > ``body_half_deg``) -- the diffuse albedo; the level as
+  ``asinh(level / 1e-3)``, linear near black (where a metal and a black lacquer
+  differ by a few noise standard deviations, which the mixture takes into account
+  per vertex) and logarithmic above;
+* ``colour_r``, ``colour_b``: chromaticity of the sum of the lit signals less the
+  body (``cos_i * body``) where that excess is 4 times the body's part (views
+  next to a clipped pixel only where no other view gives it), which the brightest views dominate -- the colour of
+  the specular reflection (a metal's colour, a dielectric's lamp-white) even where
+  only the tail of the lobe was seen;
 * ``spec_r``, ``spec_b``: chromaticity of the brightest unclipped observation near
-  the mirror direction (half angle < ``spec_half_deg``), NaN where none was seen;
-* ``peak_log``: log10 of the largest signal / irradiance (clipped ones included).
+  the mirror direction (half angle < ``spec_half_deg``) less the body, where
+  that excess is 4 times the body under it;
+* ``peak_log``: log10 of the largest lit signal / irradiance less the body
+  (clipped ones included): the highlight's strength (reported, not clustered on:
+  how close a view came to the mirror direction depends on the geometry).
+
+A feature is NaN where it is not measured: no lit observation, or a signal
+below ``5`` noise standard deviations (a chromaticity of noise is no colour).
 
 :func:`segment_surface` clusters these features with a diagonal Gaussian
 mixture (EM, the number of components by BIC, Schwarz 1978), merges components
@@ -56,10 +67,11 @@ __all__ = ["SegmentationError", "SurfaceSegmentation", "VertexFeatures", "vertex
            "FEATURE_NAMES"]
 
 #: Names of the columns of :attr:`VertexFeatures.values`.
-FEATURE_NAMES = ("body_log", "body_r", "body_b", "colour_r", "colour_b", "spec_r", "spec_b", "peak_log")
-_LEVEL_FLOOR = 1e-4      # signal level read as "black": log10 floor and chromaticity regulariser
+FEATURE_NAMES = ("body_asinh", "body_r", "body_b", "colour_r", "colour_b", "spec_r", "spec_b", "peak_log")
+_LEVEL_FLOOR = 1e-3      # body level below which the asinh scale is linear
 _MIN_COS_I = 0.1         # lit: the lamp at most ~84 deg from the normal
 _SIGNIFICANT = 5.0       # a signal counts when it exceeds this many noise standard deviations
+_OVER_BODY = 4.0         # a highlight's colour counts when it is this many times the body under it
 
 
 class SegmentationError(InputError):
@@ -80,12 +92,15 @@ class VertexFeatures:
         ``(V,)`` bool: the vertex has at least one lit observation.
     n_lit
         ``(V,)`` int64 lit observations per vertex.
+    body_sd
+        ``(V,)`` noise standard deviation of ``body_asinh`` (NaN where it is NaN).
     """
 
     values: NDArray[np.float64]
     names: tuple[str, ...]
     measured: NDArray[np.bool_]
     n_lit: NDArray[np.int64]
+    body_sd: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -137,7 +152,7 @@ def _check_inputs(obs, vertices: ArrayLike, triangles: ArrayLike | None) -> tupl
 
 
 def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None, lamp: int = 0,
-                    body_half_deg: float = 22.0, spec_half_deg: float = 12.0) -> VertexFeatures:
+                    body_half_deg: float = 25.0, spec_half_deg: float = 12.0) -> VertexFeatures:
     """Summaries of every vertex's observations that a material fixes (see the module docstring).
 
     Parameters
@@ -173,44 +188,60 @@ def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None,
     out = np.full((nv, len(FEATURE_NAMES)), np.nan)
     ok = lit & ~obs.clipped
     body = ok & (half > body_half_deg)
-    out[:, 0:3] = _body_features(sig[body] / cos_i[body, None], var[body] / cos_i[body, None] ** 2, vert[body], nv)
-    s_ok, v_ok = sf.group_sum(sig[ok], vert[ok], nv), sf.group_sum(var[ok], vert[ok], nv)
-    strong = s_ok.mean(axis=1) > _SIGNIFICANT * np.sqrt(v_ok.mean(axis=1))
-    out[strong, 3:5] = sf.chromaticity(s_ok[strong], 0.0)
-    spec = ok & (half < spec_half_deg)
-    best = sf.group_argmax(sig[spec].sum(axis=1), vert[spec], nv)
-    seen = best >= 0
-    bsig, bvar = sig[spec][best[seen]], var[spec][best[seen]]
-    seen[seen] = bsig.mean(axis=1) > _SIGNIFICANT * np.sqrt(bvar.mean(axis=1))
-    out[seen, 5:7] = sf.chromaticity(sig[spec][best[seen]], 0.0)
-    peak = sf.group_argmax(sig[lit].mean(axis=1), vert[lit], nv)
-    has = peak >= 0
-    psig, pvar = sig[lit][peak[has]].mean(axis=1), var[lit][peak[has]].mean(axis=1)
-    has[has] = psig > _SIGNIFICANT * np.sqrt(pvar)
-    out[has, 7] = np.log10(sig[lit][peak[has]].mean(axis=1))
+    out[:, 0:3], body_sd, body_rgb = _body_features(sig[body] / cos_i[body, None],
+                                                     var[body] / cos_i[body, None] ** 2, vert[body], nv)
+    excess = sig - np.maximum(cos_i, 0.0)[:, None] * np.nan_to_num(body_rgb)[vert]   # the highlight alone
+    out[:, 3:5] = _highlight_colour(excess, sig, var, vert, ok, nv)
+    fallback = np.isnan(out[:, 3])          # only views next to a clipped pixel: their colour, rather than none
+    out[fallback, 3:5] = _highlight_colour(excess, sig, var, vert, lit, nv)[fallback]
+    for cols, rows in (((5, 6), ok & (half < spec_half_deg)), ((7,), lit)):
+        best = sf.group_argmax(excess[rows].sum(axis=1), vert[rows], nv)
+        seen = best >= 0
+        value = excess[rows][best[seen]]
+        sd = np.sqrt(var[rows][best[seen]].mean(axis=1))
+        body_part = sig[rows][best[seen]].mean(axis=1) - value.mean(axis=1)
+        keep = (value.mean(axis=1) > _SIGNIFICANT * sd) & (value.mean(axis=1) > _OVER_BODY * body_part)
+        seen[seen] = keep
+        out[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity(value[keep], 0.0) if len(cols) == 2
+                                           else np.log10(value[keep].mean(axis=1))[:, None])
     out[~measured] = np.nan
-    return VertexFeatures(out, FEATURE_NAMES, measured, n_lit.astype(np.int64))
+    body_sd[~measured] = np.nan
+    return VertexFeatures(out, FEATURE_NAMES, measured, n_lit.astype(np.int64), body_sd)
+
+
+def _highlight_colour(excess: NDArray[np.float64], sig: NDArray[np.float64], var: NDArray[np.float64],
+                      vert: NDArray[np.intp], rows: NDArray[np.bool_], nv: int) -> NDArray[np.float64]:
+    """``(nv, 2)`` chromaticity of the summed excess over the body of ``rows``; NaN unless significant and dominant."""
+    s_ex, s_var = sf.group_sum(excess[rows], vert[rows], nv), sf.group_sum(var[rows], vert[rows], nv)
+    level = s_ex.mean(axis=1)
+    s_body = sf.group_sum(sig[rows].mean(axis=1), vert[rows], nv) - level
+    strong = (level > _SIGNIFICANT * np.sqrt(s_var.mean(axis=1))) & (level > _OVER_BODY * s_body)
+    out = np.full((nv, 2), np.nan)
+    out[strong] = sf.chromaticity(s_ex[strong], 0.0)
+    return out
 
 
 def _body_features(diffuse: NDArray[np.float64], var: NDArray[np.float64], vert: NDArray[np.intp],
-                   nv: int) -> NDArray[np.float64]:
-    """log10 level (floored at the noise) and chromaticity (NaN unless significant) of the median diffuse signal."""
+                   nv: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Asinh level, chromaticity (NaN unless significant), the level's noise sd and the median diffuse RGB."""
     rgb = np.stack([sf.group_median(diffuse[:, c], vert, nv) for c in range(3)], axis=1)
     n = np.bincount(vert, minlength=nv)
     noise = 1.25 * np.sqrt(sf.group_sum(var.mean(axis=1), vert, nv) / np.maximum(n, 1) ** 2)
     out = np.full((nv, 3), np.nan)
     has = n > 0
     level = rgb[has].mean(axis=1)
-    out[has, 0] = np.log10(np.maximum(level, np.maximum(_SIGNIFICANT * noise[has], _LEVEL_FLOOR)))
+    out[has, 0] = np.arcsinh(level / _LEVEL_FLOOR)
+    sd = np.full(nv, np.nan)
+    sd[has] = noise[has] / _LEVEL_FLOOR / np.sqrt(1.0 + (level / _LEVEL_FLOOR) ** 2)
     strong = np.zeros(nv, bool)
     strong[has] = level > _SIGNIFICANT * noise[has]
     out[strong, 1:3] = sf.chromaticity(rgb[strong], 0.0)
-    return out
+    return out, sd, rgb
 
 
 #: Features the mixture clusters on and their scales (one scale unit ~ a just-relevant difference).
 _CLUSTER_FEATURES = (0, 1, 2, 3, 4, 5, 6)
-_SCALES = np.array([0.15, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01])
+_SCALES = np.array([0.5, 0.02, 0.02, 0.02, 0.02, 0.02, 0.02])
 _VAR_FLOOR = 0.25        # (scale units)^2: features closer than half a scale unit are not told apart
 _CONFIDENT_NATS = 2.0    # a vertex's own features decide its label when the runner-up is this much less likely
 _UNARY_CAP_NATS = 4.0    # at most this much data cost per vertex, so neighbours can overrule an outlier
@@ -218,19 +249,23 @@ _MERGE_BHATTACHARYYA = 1.5  # mixture components closer than this are one materi
 _FIT_SAMPLE = 20_000     # vertices the mixture is fitted on (a seeded random subset)
 
 
-def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], mu: NDArray[np.float64],
-                      var: NDArray[np.float64], weight: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(n, K)`` log(weight_k * N(x | mu_k, diag var_k)) over each row's available features."""
-    m = mask.astype(np.float64)
+def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64],
+                      mu: NDArray[np.float64], var: NDArray[np.float64],
+                      weight: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n, K)`` log(weight_k * N(x | mu_k, diag(var_k + extra))) over each row's available features.
+
+    ``extra`` is each row's own measurement variance (the convolution of the component with the noise).
+    """
     out = np.empty((len(x), len(mu)))
     for k in range(len(mu)):
-        d2 = np.where(mask, (x - mu[k]) ** 2, 0.0) / var[k]
-        out[:, k] = -0.5 * (d2.sum(axis=1) + m @ np.log(2 * np.pi * var[k])) + np.log(weight[k])
+        v = var[k] + extra
+        d2 = np.where(mask, (x - mu[k]) ** 2 / v + np.log(2 * np.pi * v), 0.0)
+        out[:, k] = -0.5 * d2.sum(axis=1) + np.log(weight[k])
     return out
 
 
-def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], k: int, rng: np.random.Generator,
-                 iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
+def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], k: int,
+                 rng: np.random.Generator, iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
     """Diagonal Gaussian mixture with missing features (EM, Dempster et al. 1977); k-means++ start."""
     from scipy.cluster.vq import kmeans2
 
@@ -244,8 +279,8 @@ def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], k: int, rng: n
         nk = resp.sum(axis=0) + 1e-9
         wsum = resp.T @ m + 1e-9
         mu = (resp.T @ xz) / wsum
-        var = np.maximum((resp.T @ (xz ** 2)) / wsum - mu ** 2, _VAR_FLOOR)
-        ll = _component_loglik(x, mask, mu, var, nk / nk.sum())
+        var = np.maximum((resp.T @ (xz ** 2 - extra * m)) / wsum - mu ** 2, _VAR_FLOOR)
+        ll = _component_loglik(x, mask, extra, mu, var, nk / nk.sum())
         top = ll.max(axis=1, keepdims=True)
         lse = top[:, 0] + np.log(np.exp(ll - top).sum(axis=1))
         resp = np.exp(ll - lse[:, None])
@@ -257,13 +292,13 @@ def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], k: int, rng: n
     return mu, var, nk / nk.sum(), float(lse.sum())
 
 
-def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], max_k: int,
+def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], max_k: int,
                     seed: int) -> tuple[NDArray, NDArray, NDArray]:
     """The mixture with the smallest BIC for k = 1..max_k, then components closer than the merge distance joined."""
     best = None
     n_obs = float(mask.sum())
     for k in range(1, min(max_k, len(x)) + 1):
-        mu, var, w, ll = _fit_mixture(x, mask, k, np.random.default_rng(seed))
+        mu, var, w, ll = _fit_mixture(x, mask, extra, k, np.random.default_rng(seed))
         bic = -2.0 * ll + (k * 2 * x.shape[1] + k - 1) * np.log(max(n_obs, 2.0))
         if best is None or bic < best[0]:
             best = (bic, mu, var, w)
@@ -401,11 +436,13 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     x = feats.values[meas][:, _CLUSTER_FEATURES]
     x = (x - np.nanmedian(x, axis=0, keepdims=True)) / _SCALES
     mask = np.isfinite(x)
+    extra = np.zeros_like(x)
+    extra[:, 0] = np.nan_to_num(feats.body_sd[meas] / _SCALES[0]) ** 2
     informative = mask[:, 1:].any(axis=1)
     pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
     fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
-    mu, var, w = _select_mixture(np.nan_to_num(x[fit]), mask[fit], int(max_regions), seed)
-    ll = _component_loglik(np.nan_to_num(x), mask, mu, var, w)
+    mu, var, w = _select_mixture(np.nan_to_num(x[fit]), mask[fit], extra[fit], int(max_regions), seed)
+    ll = _component_loglik(np.nan_to_num(x), mask, extra, mu, var, w)
     cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
     adj = sf.adjacency(t, len(v))[meas][:, meas]
     labels = _spatial_labels(cost, adj, float(smoothness), rng)
