@@ -86,7 +86,22 @@ def group_median(values: NDArray[np.float64], group: NDArray[np.intp], n_groups:
 
 
 def group_sum(values: NDArray[np.float64], group: NDArray[np.intp], n_groups: int) -> NDArray[np.float64]:
-    """Sum of ``(n,)`` or ``(n, C)`` values per group."""
+    """Sum of ``(n,)`` or ``(n, C)`` values per group.
+
+    Parameters
+    ----------
+    values
+        ``(n,)`` or ``(n, C)``.
+    group
+        ``(n,)`` group index.
+    n_groups
+        Number of groups.
+
+    Returns
+    -------
+    ndarray
+        ``(n_groups,)`` or ``(n_groups, C)`` (0 for empty groups).
+    """
     if values.ndim == 1:
         return np.bincount(group, weights=values, minlength=n_groups)
     return np.stack([np.bincount(group, weights=values[:, c], minlength=n_groups)
@@ -94,7 +109,22 @@ def group_sum(values: NDArray[np.float64], group: NDArray[np.intp], n_groups: in
 
 
 def group_argmax(values: NDArray[np.float64], group: NDArray[np.intp], n_groups: int) -> NDArray[np.intp]:
-    """Index (into ``values``) of each group's maximum; -1 for empty groups."""
+    """Index (into ``values``) of each group's maximum.
+
+    Parameters
+    ----------
+    values
+        ``(n,)``.
+    group
+        ``(n,)`` group index.
+    n_groups
+        Number of groups.
+
+    Returns
+    -------
+    ndarray
+        ``(n_groups,)`` intp; -1 for empty groups.
+    """
     out = np.full(n_groups, -1, dtype=np.intp)
     if len(values) == 0:
         return out
@@ -108,7 +138,17 @@ def group_argmax(values: NDArray[np.float64], group: NDArray[np.intp], n_groups:
 def chromaticity(rgb: NDArray[np.float64], floor: float) -> NDArray[np.float64]:
     """``(r, b) = (R, B) / (R + G + B)`` regularised toward neutral: ``floor`` is added to every channel.
 
-    A signal far below ``floor`` reads neutral (1/3, 1/3) instead of the noise's colour.
+    Parameters
+    ----------
+    rgb
+        ``(n, 3)``; negative values count as 0.
+    floor
+        Added to every channel: a signal far below it reads neutral (1/3, 1/3).
+
+    Returns
+    -------
+    ndarray
+        ``(n, 2)``.
     """
     x = np.maximum(rgb, 0.0) + floor
     s = x.sum(axis=1, keepdims=True)
@@ -116,14 +156,38 @@ def chromaticity(rgb: NDArray[np.float64], floor: float) -> NDArray[np.float64]:
 
 
 def vertex_areas(vertices: NDArray[np.float64], triangles: NDArray[np.int64]) -> NDArray[np.float64]:
-    """A third of the area of every triangle at each vertex (mm^2)."""
+    """A third of the area of every triangle at each vertex.
+
+    Parameters
+    ----------
+    vertices, triangles
+        ``(V, 3)`` mm and ``(T, 3)`` indices.
+
+    Returns
+    -------
+    ndarray
+        ``(V,)`` mm^2.
+    """
     a, b, c = (vertices[triangles[:, i]] for i in range(3))
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     return np.bincount(triangles.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
 
 
 def adjacency(triangles: NDArray[np.int64], n_vertices: int):
-    """Symmetric 0/1 vertex adjacency (``scipy.sparse.csr_matrix``) of the mesh's edges."""
+    """Symmetric 0/1 vertex adjacency of the mesh's edges.
+
+    Parameters
+    ----------
+    triangles
+        ``(T, 3)`` indices.
+    n_vertices
+        V.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+        ``(V, V)``, 1 where two vertices share an edge.
+    """
     from scipy import sparse
 
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
