@@ -70,6 +70,11 @@ def group_median(values: NDArray[np.float64], group: NDArray[np.intp], n_groups:
     -------
     ndarray
         ``(n_groups,)``.
+
+    Examples
+    --------
+    >>> group_median(np.array([3.0, 1.0, 2.0, 5.0]), np.array([0, 0, 0, 2]), 3).tolist()
+    [2.0, nan, 5.0]
     """
     out = np.full(n_groups, np.nan)
     if len(values) == 0:
@@ -149,6 +154,11 @@ def chromaticity(rgb: NDArray[np.float64], floor: float) -> NDArray[np.float64]:
     -------
     ndarray
         ``(n, 2)``.
+
+    Examples
+    --------
+    >>> chromaticity(np.array([[2.0, 1.0, 1.0]]), 0.0).tolist()
+    [[0.5, 0.25]]
     """
     x = np.maximum(rgb, 0.0) + floor
     s = x.sum(axis=1, keepdims=True)

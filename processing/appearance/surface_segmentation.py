@@ -13,8 +13,7 @@ on the surface"):
   differ by a few noise standard deviations, which the mixture takes into account
   per vertex) and logarithmic above;
 * ``colour_r``, ``colour_b``: chromaticity of the sum of the lit signals less the
-  body (``cos_i * body``) where that excess is 4 times the body's part (views
-  next to a clipped pixel only where no other view gives it), which the brightest views dominate -- the colour of
+  body (``cos_i * body``) where that excess is 4 times the body's part, which the brightest views dominate -- the colour of
   the specular reflection (a metal's colour, a dielectric's lamp-white) even where
   only the tail of the lobe was seen;
 * ``spec_r``, ``spec_b``: chromaticity of the brightest unclipped observation near
@@ -192,8 +191,6 @@ def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None,
                                                      var[body] / cos_i[body, None] ** 2, vert[body], nv)
     excess = sig - np.maximum(cos_i, 0.0)[:, None] * np.nan_to_num(body_rgb)[vert]   # the highlight alone
     out[:, 3:5] = _highlight_colour(excess, sig, var, vert, ok, nv)
-    fallback = np.isnan(out[:, 3])          # only views next to a clipped pixel: their colour, rather than none
-    out[fallback, 3:5] = _highlight_colour(excess, sig, var, vert, lit, nv)[fallback]
     for cols, rows in (((5, 6), ok & (half < spec_half_deg)), ((7,), lit)):
         best = sf.group_argmax(excess[rows].sum(axis=1), vert[rows], nv)
         seen = best >= 0
