@@ -243,7 +243,7 @@ _VAR_FLOOR = 0.25        # (scale units)^2: features closer than half a scale un
 _CONFIDENT_NATS = 2.0    # a vertex's own features decide its label when the runner-up is this much less likely
 _UNARY_CAP_NATS = 4.0    # at most this much data cost per vertex, so neighbours can overrule an outlier
 _MERGE_BHATTACHARYYA = 1.5  # mixture components closer than this are one material
-_FIT_SAMPLE = 20_000     # vertices the mixture is fitted on (a seeded random subset)
+_FIT_SAMPLE = 10_000     # vertices the mixture is fitted on (a seeded random subset)
 
 
 def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64],
