@@ -175,6 +175,11 @@ def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None,
     VertexFeatures
     """
     v, _ = _check_inputs(obs, vertices, None)
+    if not 0 <= int(lamp) < obs.light_dir.shape[1]:
+        raise SegmentationError(f"lamp: {lamp!r} out of range; the observations have {obs.light_dir.shape[1]} lamp(s)")
+    if frames is not None and len(frames) != len(obs.frame_names):
+        raise SegmentationError(f"frames: {len(frames)} given for {len(obs.frame_names)} observed frames; "
+                                "give the poses the observations were made with")
     nv, vert = obs.n_vertices, obs.vertex.astype(np.intp)
     cos_i = np.einsum("ij,ij->i", obs.normal, obs.light_dir[:, lamp]).astype(np.float64)
     half = obs.half_angle_deg[:, lamp].astype(np.float64)
@@ -264,12 +269,16 @@ def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: ND
 def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], k: int,
                  rng: np.random.Generator, iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
     """Diagonal Gaussian mixture with missing features (EM, Dempster et al. 1977); k-means++ start."""
+    import warnings
+
     from scipy.cluster.vq import kmeans2
 
-    fill = np.where(mask, x, np.nanmean(np.where(mask, x, np.nan), axis=0))
-    _, lab = kmeans2(fill, k, minit="++", seed=rng, iter=20)
-    resp = np.eye(k)[lab]
     m = mask.astype(np.float64)
+    fill = np.where(mask, x, (np.where(mask, x, 0.0).sum(axis=0) / np.maximum(m.sum(axis=0), 1.0)))
+    with warnings.catch_warnings():                  # an empty k-means cluster only weakens the start
+        warnings.simplefilter("ignore", UserWarning)
+        _, lab = kmeans2(fill, k, minit="++", seed=rng, iter=20)
+    resp = np.eye(k)[lab]
     xz = np.where(mask, x, 0.0)
     ll_total = -np.inf
     for _ in range(iterations):
@@ -334,7 +343,7 @@ def _neighbour_votes(adj, labels: NDArray[np.intp], k: int) -> NDArray[np.float6
 
 
 def _spatial_labels(cost: NDArray[np.float64], adj, smoothness: float, rng: np.random.Generator,
-                    sweeps: int = 12) -> NDArray[np.intp]:
+                    sweeps: int = 20) -> NDArray[np.intp]:
     """Potts labels: confident vertices keep their best label, the rest grow from them, then ICM (Besag 1986).
 
     ``cost`` is ``(V, K)`` data cost in nats (minimum 0 per row, capped), ``adj`` the measured vertices' graph.
@@ -357,9 +366,10 @@ def _spatial_labels(cost: NDArray[np.float64], adj, smoothness: float, rng: np.r
     for _ in range(sweeps):                              # iterated conditional modes, half the vertices a sweep
         total = cost - smoothness * _neighbour_votes(adj, labels, k)
         new = np.argmin(total, axis=1)
-        change = (new != labels) & (rng.random(v) < 0.5)
-        if not change.any():
+        better = np.take_along_axis(total, new[:, None], 1)[:, 0] < np.take_along_axis(total, labels[:, None], 1)[:, 0]
+        if not better.any():
             break
+        change = better & (rng.random(v) < 0.5)
         labels[change] = new[change]
     return labels
 
@@ -431,8 +441,9 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
         raise SegmentationError("obs: no vertex is lit in any observation; capture with the lamp on the object")
     rng = np.random.default_rng(seed)
     x = feats.values[meas][:, _CLUSTER_FEATURES]
-    x = (x - np.nanmedian(x, axis=0, keepdims=True)) / _SCALES
     mask = np.isfinite(x)
+    centre = [float(np.median(col[ok])) if ok.any() else 0.0 for col, ok in zip(x.T, mask.T)]
+    x = (x - np.array(centre)) / _SCALES
     extra = np.zeros_like(x)
     extra[:, 0] = np.nan_to_num(feats.body_sd[meas] / _SCALES[0]) ** 2
     informative = mask[:, 1:].any(axis=1)

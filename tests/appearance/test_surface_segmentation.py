@@ -163,3 +163,41 @@ def test_bad_input_raises_one_line_errors(hawk):
         segment_surface(none, sim.vertices, sim.triangles)
     with pytest.raises(SegmentationError, match="max_regions"):
         segment_surface(obs, sim.vertices, sim.triangles, max_regions=0)
+
+
+def test_no_highlight_anywhere_gives_one_region_and_no_guess(hawk):
+    """Every view dark (noise only, as a metal away from its highlights): nothing tells materials apart."""
+    sim, obs, frames = hawk
+    rng = np.random.default_rng(3)
+    dark = dataclasses.replace(obs, signal=(rng.normal(0.0, 1.0, obs.signal.shape) * obs.sigma).astype(np.float32),
+                               clipped=np.zeros_like(obs.clipped))
+    seg = segment_surface(dark, sim.vertices, sim.triangles, frames=frames)
+    measured = seg.vertex_region >= 0
+    assert seg.n_regions == 1 and np.all(seg.vertex_region[measured] == 0)
+    colour = [FEATURE_NAMES.index(n) for n in ("body_r", "body_b", "colour_r", "colour_b", "spec_r", "spec_b")]
+    assert np.all(np.isnan(seg.features[:, colour]))      # a chromaticity of noise is no colour
+
+
+def test_smoothing_relabels_an_outlier_vertex():
+    """A two-material sphere with one gold vertex's views painted lacquer-red: its neighbours overrule it."""
+    sim = simulated_observations(_sphere_world(width=160, height=108, light_position_mm=(-60.0, -260.0, 120.0)),
+                                 np.arange(0.0, 360.0, 45.0), noise=False)
+    obs = sim.observations
+    lacquer = np.flatnonzero((sim.vertex_region == 0) & (np.diff(obs.offsets) > 2))
+    gold = np.flatnonzero((sim.vertex_region == 1) & (np.abs(sim.vertices[:, 0]) > 10.0) & (np.diff(obs.offsets) > 2))
+    base = segment_surface(obs, sim.vertices, sim.triangles, frames=sim.frames)
+    victim = gold[np.argmax(np.diff(obs.offsets)[gold])]
+    donor = lacquer[np.argmax(np.diff(obs.offsets)[lacquer])]
+    signal = obs.signal.copy()
+    a, b = obs.offsets[victim], obs.offsets[victim + 1]
+    signal[a:b] = np.resize(obs.signal[obs.offsets[donor]:obs.offsets[donor + 1]], (b - a, 3))
+    painted = dataclasses.replace(obs, signal=signal)
+    alone = segment_surface(painted, sim.vertices, sim.triangles, frames=sim.frames, smoothness=0.0,
+                            min_region_share=0.0)
+    smooth = segment_surface(painted, sim.vertices, sim.triangles, frames=sim.frames)
+    neighbours = np.unique(sim.triangles[np.any(sim.triangles == victim, axis=1)])
+    neighbours = neighbours[neighbours != victim]
+    assert np.all(base.vertex_region[neighbours] == base.vertex_region[victim])
+    assert alone.vertex_region[victim] != alone.vertex_region[neighbours[0]]   # its own views say lacquer
+    assert smooth.vertex_region[victim] == base.vertex_region[victim]
+    assert smooth.n_regions == 2
