@@ -183,8 +183,8 @@ def vertex_areas(vertices: NDArray[np.float64], triangles: NDArray[np.int64]) ->
     return np.bincount(triangles.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
 
 
-def adjacency(triangles: NDArray[np.int64], n_vertices: int):
-    """Symmetric 0/1 vertex adjacency of the mesh's edges.
+def adjacency(triangles: NDArray[np.int64], n_vertices: int, vertices: NDArray[np.float64] | None = None):
+    """Symmetric vertex adjacency of the mesh's edges.
 
     Parameters
     ----------
@@ -192,18 +192,21 @@ def adjacency(triangles: NDArray[np.int64], n_vertices: int):
         ``(T, 3)`` indices.
     n_vertices
         V.
+    vertices
+        ``(V, 3)`` mm: weight each edge by its length; None: weight 1.
 
     Returns
     -------
     scipy.sparse.csr_matrix
-        ``(V, V)``, 1 where two vertices share an edge.
+        ``(V, V)``, non-zero where two vertices share an edge.
     """
     from scipy import sparse
 
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    e = np.concatenate([e, e[:, ::-1]])
-    a = sparse.csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices))
-    a.data[:] = 1.0
-    a.setdiag(0)
-    a.eliminate_zeros()
-    return a
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = e[e[:, 0] != e[:, 1]]
+    w = np.ones(len(e)) if vertices is None else np.maximum(
+        np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1), 1e-9)
+    return sparse.csr_matrix((np.concatenate([w, w]), (np.concatenate([e[:, 0], e[:, 1]]),
+                                                       np.concatenate([e[:, 1], e[:, 0]]))),
+                             shape=(n_vertices, n_vertices))

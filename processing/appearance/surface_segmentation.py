@@ -342,27 +342,43 @@ def _neighbour_votes(adj, labels: NDArray[np.intp], k: int) -> NDArray[np.float6
     return np.asarray((adj @ onehot).todense())
 
 
-def _spatial_labels(cost: NDArray[np.float64], adj, smoothness: float, rng: np.random.Generator,
-                    sweeps: int = 20) -> NDArray[np.intp]:
-    """Potts labels: confident vertices keep their best label, the rest grow from them, then ICM (Besag 1986).
+def _nearest_seed_labels(cost: NDArray[np.float64], labels: NDArray[np.intp], lengths) -> NDArray[np.intp]:
+    """Labels for the undecided vertices (-1) from the geodesically nearest confident vertex (Dijkstra).
 
-    ``cost`` is ``(V, K)`` data cost in nats (minimum 0 per row, capped), ``adj`` the measured vertices' graph.
+    Only labels the vertex's own data cost allows (cost 0) are candidates; an island without any confident
+    vertex takes its cheapest label.
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    v, k = cost.shape
+    dist = np.full((v, k), np.inf)
+    for lab in range(k):
+        seeds = np.flatnonzero(labels == lab)
+        if len(seeds):
+            dist[:, lab] = dijkstra(lengths, directed=False, indices=seeds, min_only=True)
+    score = np.where(cost > 0.0, np.inf, dist)
+    score = np.where(np.isfinite(score).any(axis=1, keepdims=True), score, dist + cost)
+    todo = labels < 0
+    reach = np.isfinite(score).any(axis=1)
+    out = labels.copy()
+    out[todo & reach] = np.argmin(score[todo & reach], axis=1)
+    out[todo & ~reach] = np.argmin(cost[todo & ~reach], axis=1)
+    return out
+
+
+def _spatial_labels(cost: NDArray[np.float64], lengths, smoothness: float, rng: np.random.Generator,
+                    sweeps: int = 20) -> NDArray[np.intp]:
+    """Potts labels: confident vertices keep their best label, the rest take the nearest one's, then ICM.
+
+    ``cost`` is ``(V, K)`` data cost in nats (0 for the best and any label within the confidence margin,
+    capped), ``lengths`` the measured vertices' edge graph weighted by edge length (mm).  ICM: Besag (1986).
     """
     v, k = cost.shape
-    order = np.sort(cost, axis=1)
-    second = order[:, 1] if k > 1 else np.full(v, np.inf)
+    adj = lengths.copy()
+    adj.data[:] = 1.0
+    second = np.sort(cost, axis=1)[:, 1] if k > 1 else np.full(v, np.inf)
     labels = np.where(second >= _CONFIDENT_NATS, np.argmin(cost, axis=1), -1)
-    for _ in range(v):                                   # grow the confident labels into the undecided vertices
-        todo = labels < 0
-        if not todo.any():
-            break
-        votes = _neighbour_votes(adj, labels, k)[todo]
-        reach = votes.sum(axis=1) > 0
-        if not reach.any():
-            labels[todo] = np.argmin(cost[todo], axis=1)   # an island without a confident vertex
-            break
-        idx = np.flatnonzero(todo)[reach]
-        labels[idx] = np.argmin(cost[idx] - smoothness * votes[reach], axis=1)
+    labels = _nearest_seed_labels(cost, labels, lengths)
     for _ in range(sweeps):                              # iterated conditional modes, half the vertices a sweep
         total = cost - smoothness * _neighbour_votes(adj, labels, k)
         new = np.argmin(total, axis=1)
@@ -452,8 +468,11 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     mu, var, w = _select_mixture(np.nan_to_num(x[fit]), mask[fit], extra[fit], int(max_regions), seed)
     ll = _component_loglik(np.nan_to_num(x), mask, extra, mu, var, w)
     cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
-    adj = sf.adjacency(t, len(v))[meas][:, meas]
-    labels = _spatial_labels(cost, adj, float(smoothness), rng)
+    cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
+    lengths = sf.adjacency(t, len(v), v)[meas][:, meas]
+    adj = lengths.copy()
+    adj.data[:] = 1.0
+    labels = _spatial_labels(cost, lengths, float(smoothness), rng)
     area = sf.vertex_areas(v, t)[meas]
     labels = _merge_small(labels, area, adj, float(min_region_share), len(mu))
     sizes = np.bincount(labels, weights=area, minlength=len(mu))
