@@ -248,6 +248,7 @@ _VAR_FLOOR = 0.25        # (scale units)^2: features closer than half a scale un
 _CONFIDENT_NATS = 2.0    # a vertex's own features decide its label when the runner-up is this much less likely
 _UNARY_CAP_NATS = 4.0    # at most this much data cost per vertex, so neighbours can overrule an outlier
 _MERGE_BHATTACHARYYA = 1.5  # mixture components closer than this are one material
+_MIN_COMPONENT_WEIGHT = 0.01  # share of the fitted vertices below which a component is dropped
 _FIT_SAMPLE = 10_000     # vertices the mixture is fitted on (a seeded random subset)
 
 
@@ -308,7 +309,11 @@ def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDAr
         bic = -2.0 * ll + (k * 2 * x.shape[1] + k - 1) * np.log(max(n_obs, 2.0))
         if best is None or bic < best[0]:
             best = (bic, mu, var, w)
-    return _merge_components(*best[1:])
+    mu, var, w = _merge_components(*best[1:])
+    keep = w >= _MIN_COMPONENT_WEIGHT                # an outlier component (broad, a few vertices) is no material
+    if not keep.any():
+        keep = w == w.max()
+    return mu[keep], var[keep], w[keep] / w[keep].sum()
 
 
 def _merge_components(mu: NDArray, var: NDArray, w: NDArray) -> tuple[NDArray, NDArray, NDArray]:
@@ -366,18 +371,22 @@ def _nearest_seed_labels(cost: NDArray[np.float64], labels: NDArray[np.intp], le
     return out
 
 
-def _spatial_labels(cost: NDArray[np.float64], lengths, smoothness: float, rng: np.random.Generator,
-                    sweeps: int = 20) -> NDArray[np.intp]:
+def _spatial_labels(cost: NDArray[np.float64], informative: NDArray[np.bool_], lengths, smoothness: float,
+                    rng: np.random.Generator, sweeps: int = 20) -> NDArray[np.intp]:
     """Potts labels: confident vertices keep their best label, the rest take the nearest one's, then ICM.
 
     ``cost`` is ``(V, K)`` data cost in nats (0 for the best and any label within the confidence margin,
-    capped), ``lengths`` the measured vertices' edge graph weighted by edge length (mm).  ICM: Besag (1986).
+    capped); only ``informative`` vertices (a significant colour) can be confident; ``lengths`` is the
+    measured vertices' edge graph weighted by edge length (mm).  ICM: Besag (1986).
     """
     v, k = cost.shape
     adj = lengths.copy()
     adj.data[:] = 1.0
     second = np.sort(cost, axis=1)[:, 1] if k > 1 else np.full(v, np.inf)
-    labels = np.where(second >= _CONFIDENT_NATS, np.argmin(cost, axis=1), -1)
+    labels = np.where((second >= _CONFIDENT_NATS) & informative, np.argmin(cost, axis=1), -1)
+    # a highlight lights a patch: a confident vertex without a confident neighbour of its label is noise
+    support = np.take_along_axis(_neighbour_votes(adj, labels, k), np.maximum(labels, 0)[:, None], 1)[:, 0]
+    labels[support < 1] = -1
     labels = _nearest_seed_labels(cost, labels, lengths)
     for _ in range(sweeps):                              # iterated conditional modes, half the vertices a sweep
         total = cost - smoothness * _neighbour_votes(adj, labels, k)
@@ -466,13 +475,15 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
     fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
     mu, var, w = _select_mixture(np.nan_to_num(x[fit]), mask[fit], extra[fit], int(max_regions), seed)
-    ll = _component_loglik(np.nan_to_num(x), mask, extra, mu, var, w)
+    # likelihood without the mixture weights: the Potts model is the spatial prior, and a small material's
+    # weight must not claim the vertices whose features cannot tell it from a large one
+    ll = _component_loglik(np.nan_to_num(x), mask, extra, mu, var, np.ones(len(w)))
     cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
     cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
     lengths = sf.adjacency(t, len(v), v)[meas][:, meas]
     adj = lengths.copy()
     adj.data[:] = 1.0
-    labels = _spatial_labels(cost, lengths, float(smoothness), rng)
+    labels = _spatial_labels(cost, informative, lengths, float(smoothness), rng)
     area = sf.vertex_areas(v, t)[meas]
     labels = _merge_small(labels, area, adj, float(min_region_share), len(mu))
     sizes = np.bincount(labels, weights=area, minlength=len(mu))
