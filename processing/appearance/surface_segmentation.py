@@ -475,9 +475,10 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
     fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
     mu, var, w = _select_mixture(np.nan_to_num(x[fit]), mask[fit], extra[fit], int(max_regions), seed)
-    # likelihood without the mixture weights: the Potts model is the spatial prior, and a small material's
-    # weight must not claim the vertices whose features cannot tell it from a large one
-    ll = _component_loglik(np.nan_to_num(x), mask, extra, mu, var, np.ones(len(w)))
+    # the mixture's posterior where a colour was measured; the likelihood alone (a flat prior) where only the
+    # body level was: there a large material's weight must not claim what the features cannot tell apart
+    ll = _component_loglik(np.nan_to_num(x), mask, extra, mu, var, w)
+    ll[~informative] -= np.log(w)
     cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
     cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
     lengths = sf.adjacency(t, len(v), v)[meas][:, meas]
