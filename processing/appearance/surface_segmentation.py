@@ -12,10 +12,11 @@ on the surface"):
   ``asinh(level / 1e-3)``, linear near black (where a metal and a black lacquer
   differ by a few noise standard deviations, which the mixture takes into account
   per vertex) and logarithmic above;
-* ``colour_r``, ``colour_b``: chromaticity of the sum of the lit signals less the
-  body (``cos_i * body``) where that excess is 4 times the body's part, which the brightest views dominate -- the colour of
-  the specular reflection (a metal's colour, a dielectric's lamp-white) even where
-  only the tail of the lobe was seen;
+* ``colour_r``, ``colour_b``: chromaticity of the sum of the unclipped lit
+  signals less the body (``cos_i * body``) where that excess is 4 times the
+  body's part; the brightest views dominate it -- the colour of the specular
+  reflection (a metal's colour, a dielectric's lamp-white) even where only the
+  tail of the lobe was seen;
 * ``spec_r``, ``spec_b``: chromaticity of the brightest unclipped observation near
   the mirror direction (half angle < ``spec_half_deg``) less the body, where
   that excess is 4 times the body under it;
@@ -27,12 +28,15 @@ A feature is NaN where it is not measured: no lit observation, or a signal
 below ``5`` noise standard deviations (a chromaticity of noise is no colour).
 
 :func:`segment_surface` clusters these features with a diagonal Gaussian
-mixture (EM, the number of components by BIC, Schwarz 1978), merges components
-closer than a Bhattacharyya distance, makes the labels spatially coherent with a
-Potts model on the mesh's edge graph solved by iterated conditional modes
-(Besag 1986), and merges regions smaller than ``min_region_share`` of the
-measured area into the neighbour they share most edges with.  Vertices without
-a lit observation are -1 ("not measured").
+mixture that marginalises missing features (EM, Dempster et al. 1977; the number
+of components by BIC, Schwarz 1978), merges components closer than a
+Bhattacharyya distance, labels the vertices whose colour decides it (with a
+neighbour of the same label), gives every other vertex the label of the
+geodesically nearest such vertex that its own features allow, relaxes a Potts
+model on the mesh's edge graph by iterated conditional modes (Besag 1986), and
+merges regions smaller than ``min_region_share`` of the measured area into the
+neighbour they share most edges with.  Vertices without a lit observation are
+-1 ("not measured").
 
 References
 ----------
@@ -495,6 +499,6 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     vertex_region[meas] = rank[labels]
     method = (f"features {', '.join(FEATURE_NAMES[i] for i in _CLUSTER_FEATURES)} from all lit views; "
               f"diagonal Gaussian mixture (EM, BIC over k<={max_regions}, {len(mu)} after merging); "
-              f"Potts ICM smoothness {smoothness:g}; regions < {min_region_share:g} of the area merged")
+              f"seeds filled geodesically, Potts ICM smoothness {smoothness:g}; regions < {min_region_share:g} of the area merged")
     return SurfaceSegmentation(vertex_region, _face_labels(vertex_region, t), len(used),
                                feats.values.astype(np.float32), feats.names, method)
