@@ -320,6 +320,18 @@ def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDAr
     return mu[keep], var[keep], w[keep] / w[keep].sum()
 
 
+def _body_block(body: NDArray[np.float64], has: NDArray[np.bool_], extra: NDArray[np.float64],
+                mu: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n, K)`` cost cap where a vertex's body level is 2 nats from a component's at the floor variance.
+
+    A mixture component that absorbed varied vertices has a broad body variance; judged at the floor
+    variance plus the vertex's noise, a black metal is never taken for a black lacquer by its neighbours.
+    """
+    d = 0.5 * (body[:, None] - mu[None, :]) ** 2 / (_VAR_FLOOR + extra[:, None])
+    d -= d.min(axis=1, keepdims=True)
+    return np.where(has[:, None] & (d >= _CONFIDENT_NATS), _UNARY_CAP_NATS, 0.0)
+
+
 def _merge_components(mu: NDArray, var: NDArray, w: NDArray) -> tuple[NDArray, NDArray, NDArray]:
     """Join the closest pair (Bhattacharyya distance) while it is below the merge distance; moment-matched."""
     mu, var, w = list(mu), list(var), list(w)
@@ -485,6 +497,7 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     ll[~informative] -= np.log(w)
     cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
     cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
+    cost = np.maximum(cost, _body_block(x[:, 0], mask[:, 0], extra[:, 0], mu[:, 0]))
     lengths = sf.adjacency(t, len(v), v)[meas][:, meas]
     adj = lengths.copy()
     adj.data[:] = 1.0
