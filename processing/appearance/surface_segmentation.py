@@ -443,6 +443,28 @@ def _face_labels(vertex_region: NDArray[np.int32], triangles: NDArray[np.int64])
     return out.astype(np.int32)
 
 
+def _data_cost(feats: VertexFeatures, meas: NDArray[np.intp], max_regions: int, seed: int,
+               rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """``(n, K)`` data cost (nats) of the measured vertices per mixture component, and which have a colour."""
+    x = feats.values[meas][:, _CLUSTER_FEATURES]
+    mask = np.isfinite(x)
+    centre = [float(np.median(col[ok])) if ok.any() else 0.0 for col, ok in zip(x.T, mask.T)]
+    x = np.nan_to_num((x - np.array(centre)) / _SCALES)
+    extra = np.zeros_like(x)
+    extra[:, 0] = np.nan_to_num(feats.body_sd[meas] / _SCALES[0]) ** 2
+    informative = mask[:, 1:].any(axis=1)
+    pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
+    fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
+    mu, var, w = _select_mixture(x[fit], mask[fit], extra[fit], max_regions, seed)
+    # the mixture's posterior where a colour was measured; the likelihood alone (a flat prior) where only the
+    # body level was: there a large material's weight must not claim what the features cannot tell apart
+    ll = _component_loglik(x, mask, extra, mu, var, w)
+    ll[~informative] -= np.log(w)
+    cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
+    cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
+    return np.maximum(cost, _body_block(x[:, 0], mask[:, 0], extra[:, 0], mu[:, 0])), informative
+
+
 def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regions: int = 8,
                     min_region_share: float = 0.002, smoothness: float = 1.0, seed: int = 0,
                     frames: Sequence | None = None) -> SurfaceSegmentation:
@@ -481,37 +503,23 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     if len(meas) == 0:
         raise SegmentationError("obs: no vertex is lit in any observation; capture with the lamp on the object")
     rng = np.random.default_rng(seed)
-    x = feats.values[meas][:, _CLUSTER_FEATURES]
-    mask = np.isfinite(x)
-    centre = [float(np.median(col[ok])) if ok.any() else 0.0 for col, ok in zip(x.T, mask.T)]
-    x = (x - np.array(centre)) / _SCALES
-    extra = np.zeros_like(x)
-    extra[:, 0] = np.nan_to_num(feats.body_sd[meas] / _SCALES[0]) ** 2
-    informative = mask[:, 1:].any(axis=1)
-    pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
-    fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
-    mu, var, w = _select_mixture(np.nan_to_num(x[fit]), mask[fit], extra[fit], int(max_regions), seed)
-    # the mixture's posterior where a colour was measured; the likelihood alone (a flat prior) where only the
-    # body level was: there a large material's weight must not claim what the features cannot tell apart
-    ll = _component_loglik(np.nan_to_num(x), mask, extra, mu, var, w)
-    ll[~informative] -= np.log(w)
-    cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
-    cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
-    cost = np.maximum(cost, _body_block(x[:, 0], mask[:, 0], extra[:, 0], mu[:, 0]))
+    cost, informative = _data_cost(feats, meas, int(max_regions), seed, rng)
     lengths = sf.adjacency(t, len(v), v)[meas][:, meas]
     adj = lengths.copy()
     adj.data[:] = 1.0
     labels = _spatial_labels(cost, informative, lengths, float(smoothness), rng)
     area = sf.vertex_areas(v, t)[meas]
-    labels = _merge_small(labels, area, adj, float(min_region_share), len(mu))
-    sizes = np.bincount(labels, weights=area, minlength=len(mu))
+    k = cost.shape[1]
+    labels = _merge_small(labels, area, adj, float(min_region_share), k)
+    sizes = np.bincount(labels, weights=area, minlength=k)
     used = np.flatnonzero(sizes > 0)
-    rank = np.full(len(mu), -1)
+    rank = np.full(k, -1)
     rank[used[np.argsort(-sizes[used], kind="stable")]] = np.arange(len(used))
     vertex_region = np.full(len(v), -1, dtype=np.int32)
     vertex_region[meas] = rank[labels]
     method = (f"features {', '.join(FEATURE_NAMES[i] for i in _CLUSTER_FEATURES)} from all lit views; "
-              f"diagonal Gaussian mixture (EM, BIC over k<={max_regions}, {len(mu)} after merging); "
-              f"seeds filled geodesically, Potts ICM smoothness {smoothness:g}; regions < {min_region_share:g} of the area merged")
+              f"diagonal Gaussian mixture (EM, BIC over k<={max_regions}, {k} after merging); "
+              f"seeds filled geodesically, Potts ICM smoothness {smoothness:g}; "
+              f"regions < {min_region_share:g} of the area merged")
     return SurfaceSegmentation(vertex_region, _face_labels(vertex_region, t), len(used),
                                feats.values.astype(np.float32), feats.names, method)
