@@ -16,6 +16,8 @@ Modules
     Per (vertex, frame) signal, noise, clipping and geometry; the checked ``.npz`` file.
 :mod:`~processing.appearance.silhouette`
     Mesh and object masks of a frame, their IoU and boundary offset, outlines for overlays.
+:mod:`~processing.appearance.surface_segmentation`
+    Regions of one material on the surface from every view of every vertex (mixture + Potts smoothing).
 
 This front door imports nothing heavy (Open3D, OpenCV): import the modules
 themselves, e.g. ``from processing.appearance.visibility import visible_vertices``.
@@ -50,6 +52,8 @@ _LAZY = {
     "write_observations": "observations", "read_observations": "observations",
     "mesh_mask": "silhouette", "object_mask": "silhouette", "silhouette_check": "silhouette",
     "outline_px": "silhouette",
+    "SurfaceSegmentation": "surface_segmentation", "segment_surface": "surface_segmentation",
+    "vertex_features": "surface_segmentation",
 }
 
 __all__ = ["AppearanceError", "FramePose", "MeshLamp", "camera_centre_mesh", "lamp_in_mesh", "mesh_to_camera",
