@@ -196,7 +196,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
     t0 = time.perf_counter()
     note(f"segmenting the surface from {len(obs)} observations in {int((~held).sum())} frames "
          f"({int(held.sum())} held out)")
-    seg = segment_surface(obs, v, t, max_regions=max_regions)
+    seg = segment_surface(obs, v, t, max_regions=max_regions, frames=data["frames"])
     t_seg = time.perf_counter() - t0
     _check_cancel(stop)
     areas = _face_areas(v, t)
