@@ -19,7 +19,8 @@ image a camera at the station sees:
   (:mod:`mocks.chart_scene`), which ``cv2.mcc`` can detect.
 * ``kind="object"``: the object turned by the table angle about the table's
   z axis, ray cast with Open3D (pinhole camera); per hit pixel
-  ``L = f_r(lambda) E(lambda) cos_i`` with ``f_r`` the project's spectral BRDF
+  ``L = f_r(lambda) E(lambda) cos_i`` (normals interpolated from the vertex normals: the
+  object is smooth, its mesh only samples it) with ``f_r`` the project's spectral BRDF
   (:func:`processing.materials.lobes.material_brdf`, Matsuda et al. eq. (2) for
   metals and alloys, eq. (5) for lacquer), a shadow ray toward the light,
   and a dark grey backdrop.  Direct light only: mirror lobes reflect the
@@ -588,6 +589,26 @@ class World:
         d0 = float(np.linalg.norm(lamp - np.asarray(self.camera_target_mm)))
         return to / dist[:, None], (d0 / dist) ** 2, dist
 
+    def _shading_normals(self, verts: NDArray[np.float64], prim: NDArray[np.uint32], uvs: NDArray[np.float32],
+                         flat: NDArray[np.float32]) -> NDArray[np.float64]:
+        """Normals at ray hits interpolated from the vertex normals (a smooth surface, as the object is).
+
+        Open3D's barycentric ``(u, v)`` weigh the triangle's second and third vertex.  Misses keep the
+        (unused) face normal.
+        """
+        import open3d as o3d
+
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(verts),
+                                         o3d.utility.Vector3iVector(self.triangles.astype(np.int32)))
+        vn = np.asarray(mesh.compute_vertex_normals().vertex_normals, dtype=np.float64)
+        hit = prim != o3d.t.geometry.RaycastingScene.INVALID_ID
+        out = flat.astype(np.float64)
+        tri = self.triangles[prim[hit].astype(np.int64)]
+        u, v = uvs[hit, 0:1].astype(np.float64), uvs[hit, 1:2].astype(np.float64)
+        n = (1.0 - u - v) * vn[tri[:, 0]] + u * vn[tri[:, 1]] + v * vn[tri[:, 2]]
+        out[hit] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        return out
+
     def _object_frame(self, angle: float) -> Frame:
         import open3d as o3d
 
@@ -607,7 +628,7 @@ class World:
         t = ans["t_hit"].numpy().astype(np.float64)
         hit = np.isfinite(t)
         prim = ans["primitive_ids"].numpy()
-        normal = ans["primitive_normals"].numpy().astype(np.float64)
+        normal = self._shading_normals(verts, prim, ans["primitive_uvs"].numpy(), ans["primitive_normals"].numpy())
         d = dirs.reshape(-1, 3)
         radiance = np.empty((h * w, grid.size))
         radiance[:] = BACKDROP_REFLECTANCE * e / math.pi
