@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["simulated_capture", "profiles_figure", "REFERENCE_RADIUS_MM", "REFERENCE_OFFSET_MM"]
+__all__ = ["simulated_capture", "profiles_figure", "REFERENCE_RADIUS_MM", "REFERENCE_OFFSET_MM", "SCAN_EXPOSURE_S"]
 
 #: The reference sphere of the scanner calibration: radius and distance from the axis (mm); its photos,
 #: taken at the camera's full resolution while it is scanned, tie the camera to the scanner's frame, so
@@ -28,6 +28,10 @@ __all__ = ["simulated_capture", "profiles_figure", "REFERENCE_RADIUS_MM", "REFER
 #: left the camera 0.21 mm from the truth, with these 0.14 mm).
 REFERENCE_RADIUS_MM = 20.0
 REFERENCE_OFFSET_MM = 30.0
+#: Exposure of the scan's photos (s): a white diffuser at about 14 % of the well, so the metals'
+#: gloss highlights (about 5 x a white diffuser's signal) stay below the white level, as a
+#: photographer exposes a metal object for its highlights.
+SCAN_EXPOSURE_S = 0.002
 
 
 def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: str = "gphoto2",
@@ -78,8 +82,8 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
             print(f"lamp {e['lamp']} ({e['kind']}): vs the simulation's truth {what}", file=sys.stderr)
     plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none")
     size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
-    with SimulatedStation(World.hawk(triangles, chart_layout="classic24", **size), root=out / "station",
-                          seed=seed) as st:
+    world = World.hawk(triangles, chart_layout="classic24", **size)
+    with SimulatedStation(world, root=out / "station", seed=seed, exposure_s=SCAN_EXPOSURE_S) as st:
         config: dict[str, Any] = {"turntable": {"port": str(st.turntable_path)},
                                   "profiler": {"port": str(st.profiler_path)}}
         if camera == "gphoto2":
@@ -111,7 +115,7 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
             report = run_capture(session, plan, devices, CaptureHooks(before_pass=place, progress=progress))
         finally:
             session.close()
-        truth = {"sensor_to_room": st.sensor_to_room.tolist(), "poses": poses}
+        truth = {"sensor_to_room": st.sensor_to_room.tolist(), "poses": poses, "triangles": triangles}
     seconds = time.perf_counter() - t0
     profiles = [load_pass_profiles(session_dir, p) for p in range(1, passes + 1)]
     profiles_figure(profiles, out / "capture-profiles.png")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["build_object_session", "SIZE"]
+__all__ = ["build_object_session", "tilted_pose", "SIZE"]
 
 SIZE = (480, 320)
 
@@ -43,14 +43,33 @@ def _lamp_json(world) -> dict:
             "frames": {"names": [], "sphere_rms_px": [], "ray_miss_deg": [], "circle_miss_mm": []}}
 
 
-def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0.0025) -> dict:
+def tilted_pose(tilt_deg: float, about_mm=(0.0, 0.0, 37.0), azimuth_deg: float = 0.0) -> np.ndarray:
+    """An object -> table pose tilted by ``tilt_deg`` about a horizontal axis through ``about_mm`` (a re-placement)."""
+    from processing.common.rotation import rotation_z_deg
+
+    a = np.radians(tilt_deg)
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    r = rotation_z_deg(azimuth_deg)[:3, :3] @ rx
+    c = np.asarray(about_mm, dtype=np.float64)
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = r, c - r @ c
+    return m
+
+
+def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0.0025,
+                         placements: tuple = (None,)) -> dict:
     """Write the session (not yet projected) under ``root``; returns the world and the mesh for checks.
+
+    ``placements`` are the object -> table poses of the passes (None: the world's own pose); pass 1's
+    table frame is the mesh frame M, and pass p's registered pose is ``pose_1 @ inv(pose_p)``.
 
     ``world`` is a :class:`mocks.world.World` (its size is the frames' size; its chart layout must be
     one ``kogei`` detects, e.g. ``"classic24"``); the mesh is the world's mesh in its table pose.
     ``exposure_s`` is short enough that metal highlights stay below the white level, as a
     photographer exposes for them (the chart frame takes the same exposure).
     """
+    import dataclasses
+
     import open3d as o3d
 
     from app.session import Session
@@ -58,12 +77,13 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     from mocks.camera_sim import simulate_raw, write_raw
     from processing.geometry.mesh_ply import write_mesh_ply
 
-    m = world.pose
+    poses = [np.asarray(world.pose if p is None else p, dtype=np.float64) for p in placements]
+    m = poses[0]
     v = world.vertices @ m[:3, :3].T + m[:3, 3]
     t = world.triangles
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(t.astype(np.int32)))
     mesh.compute_vertex_normals()
-    plan = {"kind": "scan", "steps": 4, "passes": 1, "camera_angles_deg": [float(a) for a in angles_deg],
+    plan = {"kind": "scan", "steps": 4, "passes": len(poses), "camera_angles_deg": [float(a) for a in angles_deg],
             "chart": True, "lasers": [1], "camera": True, "chart_frames": 1}
     s = Session.create(root, plan=plan)
     try:
@@ -71,24 +91,26 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
         stage.mkdir(exist_ok=True)
         write_mesh_ply(stage / "mesh.ply", v, t, np.asarray(mesh.vertex_normals))
         info = s.adopt_file(stage / "mesh.ply", "products/mesh.ply")
-        report = {"passes": [{"pass": 1, "registered": True, "pose": np.eye(4).tolist()}]}
+        report = {"passes": [{"pass": k + 1, "registered": True, "pose": (m @ np.linalg.inv(p)).tolist()}
+                             for k, p in enumerate(poses)]}
         rep = s.write_file("products/process-report.json", json.dumps(report).encode())
         s.update("products", {"mesh": {"file": "products/mesh.ply", "sha256": info.sha256},
                               "process_report": {"file": "products/process-report.json", "sha256": rep.sha256}})
         install_station_calibration(s, "camera_calibration", _camera_json(world, (2 * world.width, 2 * world.height)))
         install_station_calibration(s, "lamp_calibration", _lamp_json(world))
-        chart = world.frame("chart")
-        path = write_raw(stage / "chart.dng", simulate_raw(chart.radiance, chart.grid, chart.light, exposure_s=exposure_s, seed=99))
-        fi = s.adopt_file(path, "passes/p01/raw/chart.dng")
-        s.add_capture("p01/chart", kind="chart", status="done", index=0, file=fi.path, sha256=fi.sha256,
-                      bytes=fi.bytes, **{"pass": 1})
-        for k, angle in enumerate(angles_deg):
-            frame = world.frame("object", float(angle))
-            raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure_s, seed=k)
-            path = write_raw(stage / f"frame_{k:02d}.dng", raw)
-            fi = s.adopt_file(path, f"passes/p01/raw/frame_{k:02d}.dng")
-            s.add_capture(f"p01/frame/{k:02d}", kind="frame", status="done", index=k, angle_deg=float(angle),
-                          file=fi.path, sha256=fi.sha256, bytes=fi.bytes, **{"pass": 1})
+        for k, pose in enumerate(poses, start=1):
+            placed = dataclasses.replace(world, pose=pose)
+            chart = placed.frame("chart")
+            raw = simulate_raw(chart.radiance, chart.grid, chart.light, exposure_s=exposure_s, seed=100 + k)
+            fi = s.adopt_file(write_raw(stage / "chart.dng", raw), f"passes/p{k:02d}/raw/chart.dng")
+            s.add_capture(f"p{k:02d}/chart", kind="chart", status="done", index=0, file=fi.path, sha256=fi.sha256,
+                          bytes=fi.bytes, **{"pass": k})
+            for i, angle in enumerate(angles_deg, start=1):
+                frame = placed.frame("object", float(angle))
+                raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure_s, seed=1000 * k + i)
+                fi = s.adopt_file(write_raw(stage / "frame.dng", raw), f"passes/p{k:02d}/raw/frame_{i:02d}.dng")
+                s.add_capture(f"p{k:02d}/frame/{i:02d}", kind="frame", status="done", index=i,
+                              angle_deg=float(angle), file=fi.path, sha256=fi.sha256, bytes=fi.bytes, **{"pass": k})
     finally:
         s.close()
     return {"world": world, "vertices": v, "triangles": t}
