@@ -35,12 +35,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def summary_lines(doc: dict) -> list[str]:
     """The human-readable lines of a materials document (regions, baseline, validation)."""
+    from app.workflows.object_materials import answer_text
+
     lines = []
     for r in doc["regions"]:
         params = ", ".join(f"{k} {v:.3g} +- {r.get('uncertainties', {}).get(k, float('nan')):.2g}"
                            for k, v in (r.get("parameters") or {}).items())
         why = f" -- {r['reason']}" if r.get("reason") else ""
-        lines.append(f"  region {r['index']}: {r['material']} (confidence {r['confidence']:.2f}), "
+        lines.append(f"  region {r['index']}: {answer_text(r)}, "
                      f"{r['area_mm2']:.0f} mm^2, {r['n_lit']} lit of {r['n_observations']} observations"
                      + (f"; {params}" if params else "") + why)
     nm = doc.get("not_measured") or {}

@@ -4,8 +4,8 @@
 whose photos are posed), the window and the demo call.  From the observations of a projected session
 (``products/observations.npz``, ``products/frame-poses.json``: ``kogei project``) it
 
-1. holds out every :data:`HOLDOUT_EVERY`-th frame of each pass (by table angle: the frames whose
-   index in the pass is a multiple of it) -- they are never used by the fit;
+1. holds out every :data:`HOLDOUT_EVERY`-th table angle (the same angles in every pass:
+   :func:`app.workflows.holdout_validation.holdout_frames`) -- those frames are never used by the fit;
 2. splits the surface into regions of one material from all views of every vertex
    (:func:`processing.appearance.surface_segmentation.segment_surface`);
 3. fits every candidate material to each region's observations at their true normal, view and
@@ -35,39 +35,27 @@ import numpy as np
 
 from app.errors import UsageError
 
-__all__ = ["measure_object", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "holdout_flags", "OBJECT_MATERIALS",
+__all__ = ["measure_object", "answer_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
            "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY"]
 
 OBJECT_MATERIALS = "products/object-materials.json"
 OBJECT_MESH = "products/object-mesh.ply"
 OBJECT_SCENE = "products/object-scene.toml"
 VALIDATION_DIR = "products/validation"
-#: Every n-th frame of a pass is held out of the fit and used to validate it.
-HOLDOUT_EVERY = 4
+#: Every n-th table angle is held out of the fit and used to validate it (the validation's rule).
+HOLDOUT_EVERY = 4          # app.workflows.holdout_validation.HOLDOUT_EVERY (not imported: it loads Open3D)
 #: Spectral grid of the fit (nm).
 _GRID = (400.0, 700.0, 10.0)
 
 
-def holdout_flags(records: list[dict[str, Any]], every: int) -> np.ndarray:
-    """True for the frames held out: those whose index within their pass is a multiple of ``every``.
+def _held_out(names: tuple[str, ...], records: list[dict[str, Any]], every: int) -> np.ndarray:
+    """True for the frames held out of the fit (:func:`app.workflows.holdout_validation.holdout_frames`)."""
+    from app.workflows.holdout_validation import holdout_frames
 
-    ``records`` are the frames' capture records (``pass``, ``index``) in the observations' frame order;
-    ``every = 0`` holds nothing out.
-
-    Examples
-    --------
-    >>> holdout_flags([{"pass": 1, "index": i} for i in range(6)], 4).tolist()
-    [True, False, False, False, True, False]
-    """
-    if not isinstance(every, int) or isinstance(every, bool) or every < 0 or every == 1:
-        raise UsageError(f"--holdout-every must be 0 (no validation) or an integer >= 2, got {every!r}")
     if every == 0:
-        return np.zeros(len(records), dtype=bool)
-    firsts: dict[int, int] = {}
-    for rec in records:
-        p = int(rec.get("pass") or 0)
-        firsts[p] = min(firsts.get(p, 1 << 30), int(rec.get("index") or 0))
-    return np.array([(int(r.get("index") or 0) - firsts[int(r.get("pass") or 0)]) % every == 0 for r in records])
+        return np.zeros(len(names), dtype=bool)
+    held = holdout_frames(list(names), [float(r.get("angle_deg") or 0.0) for r in records], every=every)
+    return np.array([n in held for n in names])
 
 
 def _load_inputs(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
@@ -163,18 +151,46 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
         raise UsageError(str(exc)) from None
     with session:
         data = _load_inputs(root, session.manifest)
-        held = holdout_flags(data["records"], holdout_every)
+        if isinstance(holdout_every, bool) or not isinstance(holdout_every, int) or holdout_every in (1,) \
+                or holdout_every < 0:
+            raise UsageError(f"--holdout-every must be 0 (no validation) or an integer >= 2, got {holdout_every!r}")
+        held = _held_out(data["obs"].frame_names, data["records"], holdout_every)
         if held.all():
             raise UsageError(f"session {root}: every frame would be held out; use --holdout-every >= 2 or 0")
         doc = _fit(data, held, model_error, max_regions, note, stop)
         _check_cancel(stop)
         _write_products(session, root, data, doc)
-        if validate and held.any():
+        if validate and held.any() and doc["baseline"]["spec"] is None:
+            doc["validation"] = {"frames": [], "note": "no region has a fitted material: nothing to render"}
+        elif validate and held.any():
             doc["validation"] = _validate(session, root, data, doc, held, decode, note, stop)
         elif validate:
             doc["validation"] = {"frames": [], "note": "no frame held out (--holdout-every 0): not validated"}
         _record(session, doc)
     return doc
+
+
+def answer_text(region: dict[str, Any]) -> str:
+    """A region's answer for people: the material and its confidence, or why there is none.
+
+    Examples
+    --------
+    >>> answer_text({"material": "gold", "confidence": 0.934, "group": ["gold"]})
+    'gold (confidence 0.93)'
+    >>> answer_text({"material": "no candidate fits", "confidence": 0.9, "group": ["tin", "lead"], "chi2_per_dof": 41.0})
+    'no candidate fits (best: tin, reduced chi-square 41)'
+    """
+    material, group = region.get("material"), list(region.get("group") or [])
+    if material == "not measured":
+        return "not measured"
+    if material == "no candidate fits":
+        return (f"no candidate fits (best: {group[0] if group else '?'}, reduced chi-square "
+                f"{float(region.get('chi2_per_dof') or float('nan')):.3g})")
+    text = f"{material} (confidence {float(region.get('confidence') or 0.0):.2f})"
+    if material == "neutral metal":
+        return f"{text}: one of {', '.join(group)}"
+    others = [g for g in group if g != material]
+    return text + (f"; cannot be told from {', '.join(others)}" if others else "")
 
 
 def _check_cancel(stop: Callable[[], bool]) -> None:
@@ -208,23 +224,30 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         faces = seg.face_region == r
         regions.append({"index": r, **fit.to_dict(), "area_mm2": round(float(areas[faces].sum()), 3),
                         "faces": int(faces.sum()), "vertices": int(ids.size)})
-        note(f"region {r}: {fit.material} (confidence {fit.confidence:.2f}), {int(faces.sum())} faces, "
-             f"{fit.n_lit} lit observations")
-    measured = np.flatnonzero(seg.vertex_region >= 0)
-    base = fit_region(region_samples(obs, v, data["frames"], measured, triangles=t, reference_mm=d_ref), model, model_error=model_error)
+        note(f"region {r}: {answer_text(regions[-1])}, {int(faces.sum())} faces, {fit.n_lit} lit observations")
     t_fit = time.perf_counter() - t1
     unmeasured = seg.face_region < 0
     return {"schema": "kogei.object_materials", "version": 1, "mesh": OBJECT_MESH, "light_spectrum": spectrum,
             "irradiance_reference_mm": d_ref,
             "model_error": model_error, "segmentation": {"method": seg.method, "regions": seg.n_regions,
                                                           "features": list(seg.feature_names)},
-            "regions": regions, "baseline": {**base.to_dict(), "note": "one material for the whole object"},
+            "regions": regions, "baseline": _baseline(regions),
             "not_measured": {"faces": int(unmeasured.sum()), "area_mm2": round(float(areas[unmeasured].sum()), 3)},
             "area_mm2": round(float(areas.sum()), 3),
             "frames": {"fit": [n for n, h in zip(obs.frame_names, held) if not h],
                        "held_out": [n for n, h in zip(obs.frame_names, held) if h]},
             "timings_s": {"segmentation": round(t_seg, 3), "fit": round(t_fit, 3)},
             "_face_region": seg.face_region}
+
+
+def _baseline(regions: list[dict[str, Any]]) -> dict[str, Any]:
+    """The paper's one-material model: the largest fitted region's material on the whole object."""
+    fitted = [r for r in regions if r.get("spec")]
+    if not fitted:
+        return {"material": None, "spec": None, "note": "no region has a fitted material"}
+    big = max(fitted, key=lambda r: r["area_mm2"])
+    return {"material": big["material"], "spec": big["spec"], "region": big["index"],
+            "note": "the largest region's material on the whole object, as Matsuda et al. rendered the hawk"}
 
 
 def _reference_distance(data: dict[str, Any]) -> float | None:

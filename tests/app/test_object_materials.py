@@ -1,0 +1,120 @@
+"""``kogei fit-materials`` on a posed session of the simulated hawk, against the simulation's truth.
+
+The session (tests/integration/object_session.py) is the procedural hawk photographed through RAW
+files in three placements with the station's true camera and lamp, and the true mesh; what is
+measured here is the whole on-mesh chain: held-out frames, segmentation, per-region fit, products,
+validation renders, export, the batch step and the report.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from app.errors import UsageError
+from mocks.world import World
+from tests.integration.object_session import build_object_session, tilted_pose
+
+ANGLES = np.arange(0.0, 360.0, 30.0)
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    from app.workflows.object_materials import measure_object
+    from app.workflows.posed_frames import project_session
+
+    root = tmp_path_factory.mktemp("object") / "session"
+    world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
+    build_object_session(root, world, ANGLES, placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
+    project_session(root)
+    lines: list[str] = []
+    doc = measure_object(root, message=lines.append)
+    return root, world, doc, lines
+
+
+def _face_areas(v, t):
+    return 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+
+
+def test_products_are_written_and_referenced(measured):
+    from app.session import Session
+    from app.workflows.object_materials import OBJECT_MATERIALS, OBJECT_MESH, OBJECT_SCENE, read_object_materials
+    from render.material_mesh import read_material_mesh
+
+    root, world, doc, _ = measured
+    products = Session.read(root)["products"]
+    assert products["object_materials"]["file"] == OBJECT_MATERIALS
+    assert read_object_materials(root)["regions"] == doc["regions"]           # checksum checked on the way
+    mesh = read_material_mesh(root / OBJECT_MESH)
+    assert mesh.face_material.shape == (len(world.triangles),)
+    assert mesh.n_regions == len(doc["regions"])
+    assert set(np.unique(mesh.face_material)) <= set(range(-1, len(doc["regions"])))
+    for r in doc["regions"]:
+        faces = mesh.face_material == r["index"]
+        assert r["faces"] == int(faces.sum())
+        assert r["area_mm2"] == pytest.approx(float(_face_areas(mesh.vertices, mesh.triangles)[faces].sum()), rel=1e-3)
+        assert (r["spec"] is None) == (r["material"] == "not measured")      # no fit: the best one, to render
+    assert (root / OBJECT_SCENE).read_text().count("[[object]]") == 1
+
+
+def test_the_head_is_nami_shibuichi_with_its_composition_and_roughness(measured):
+    from render.material_mesh import read_material_mesh
+
+    root, world, doc, _ = measured
+    mesh = read_material_mesh(root / "products/object-mesh.ply")
+    head = world.region_names.index("head")
+    counts = [np.count_nonzero((mesh.face_material == r["index"]) & (world.region == head)) for r in doc["regions"]]
+    reg = doc["regions"][int(np.argmax(counts))]
+    assert reg["material"] == "nami-shibuichi" or "nami-shibuichi" in reg["group"]
+    assert abs(reg["parameters"]["Ag"] - 0.25) <= 0.03                   # truth 25 % (Matsuda et al., Table 1)
+    assert abs(reg["parameters"]["roughness"] - 0.15) <= 0.015           # truth 0.15: within 10 %
+
+
+def test_held_out_frames_are_validated_and_never_fitted(measured):
+    root, _, doc, _ = measured
+    fit, held = set(doc["frames"]["fit"]), set(doc["frames"]["held_out"])
+    assert held and fit and not fit & held
+    assert len(held) == 9                              # 3 of the 12 angles, in each of the 3 passes
+    val = doc["validation"]
+    assert {f["frame"] for f in val["frames"]} == held
+    assert val["mean_de2000"] < val["baseline_mean_de2000"]
+    for f in val["frames"]:
+        if "skipped" not in f:
+            for key in ("triptych", "error_map", "baseline_error_map"):
+                assert (root / f[key]).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_cli_export_and_bad_input(measured, tmp_path, capsys):
+    from app.session import Session
+    from app.workflows.object_materials import measure_object
+
+    root, _, doc, _ = measured
+    out = tmp_path / "hawk.glb"
+    assert main(["export", str(root), "--gltf", str(out)]) == 0
+    assert out.read_bytes()[:4] == b"glTF"
+    bare = tmp_path / "bare"
+    Session.create(bare, plan={"kind": "scan", "steps": 4, "passes": 1}).close()
+    assert main(["fit-materials", str(bare)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no photos posed on its mesh" in err[0] and "kogei calibrate" in err[0]
+    with pytest.raises(UsageError, match="--holdout-every"):
+        measure_object(root, holdout_every=1)
+    with pytest.raises(UsageError, match="--model-error"):
+        measure_object(root, model_error=float("nan"))
+    before = json.loads((root / "products/object-materials.json").read_text())
+    with pytest.raises(UsageError, match="cancelled"):
+        measure_object(root, cancel=lambda: True)
+    assert json.loads((root / "products/object-materials.json").read_text()) == before
+
+
+def test_report_shows_the_materials_on_the_mesh(measured):
+    from app.report.html import build_report
+
+    root, _, doc, _ = measured
+    html = build_report(root)
+    assert "Materials on the mesh" in html and "Held-out photos" in html
+    assert html.count("data:image/png;base64,") >= 3
+    assert doc["regions"][0]["material"] in html
