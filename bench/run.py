@@ -388,6 +388,15 @@ def posed_section() -> list[str]:
     return section(json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
+def object_section() -> list[str]:
+    """Materials on the mesh against the truth, held-out photos, speed, confidence calibration (bench/object_bench.py)."""
+    from bench.object_bench import section
+
+    proc = subprocess.run([sys.executable, "-m", "bench.object_bench", "--case", "all"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=5400, check=True)
+    return section(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
 #: Sections of docs/BENCHMARKS.md: ``--only NAME`` key -> (heading prefix, builder).
 SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
@@ -399,6 +408,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "batch": ("## Batch reprocessing", batch_section),
     "gui": ("## Capture station window", gui_section),
     "posed": ("## Posed photos", posed_section),
+    "object": ("## Materials on the mesh", object_section),
 }
 
 
