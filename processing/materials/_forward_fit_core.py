@@ -131,15 +131,17 @@ def _columns(basis: Basis, geo: NDArray[np.float64], shade: NDArray[np.float64])
     return np.stack(cols, axis=1)
 
 
-_CACHE: dict[tuple[int, float], NDArray[np.float64]] = {}
+_CACHE: dict[float, NDArray[np.float64]] = {}
+_OWNER: list = [None]       # the samples the cache belongs to (held, so no other object can match them)
 
 
 def _lobe(samples, roughness: float) -> NDArray[np.float64]:
     """``pi * irr * cos_i * D G / (4 cos_i cos_o)``, cached for the samples last fitted."""
-    key = (id(samples), float(roughness))
+    if _OWNER[0] is not samples or len(_CACHE) > 256:
+        _CACHE.clear()
+        _OWNER[0] = samples
+    key = float(roughness)
     if key not in _CACHE:
-        if len(_CACHE) > 256 or any(k[0] != key[0] for k in _CACHE):
-            _CACHE.clear()
         s = samples
         _CACHE[key] = np.pi * s.irradiance * s.cos_i * microfacet_lobe(s.cos_i, s.cos_o, s.cos_h, s.cos_d, roughness)
     return _CACHE[key]

@@ -103,7 +103,8 @@ def _answer_fit(names: Sequence[str], d, fits, bases) -> tuple[str, int]:
     return names[best], best
 
 
-def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Sequence[bool], n_obs: int, n_lit: int):
+def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Sequence[bool], n_obs: int, n_lit: int,
+               independent: float):
     """The :class:`RegionFit` of the candidates' fits.
 
     Parameters
@@ -114,6 +115,9 @@ def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Se
         Whether each candidate is a neutral metal.
     n_obs, n_lit
         Observations fitted and highlight observations among them.
+    independent
+        Observations counted as independent evidence: chi-squares and degrees of freedom are scaled by
+        ``min(1, independent / n_obs)`` before :func:`decide`, uncertainties by its inverse square root.
 
     Returns
     -------
@@ -122,9 +126,12 @@ def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Se
     from processing.materials.forward_fit import RegionFit
 
     names = [f.name for f in fits]
-    d = decide(names, [f.chi2 for f in fits], [f.dof for f in fits], [f.n_params for f in fits], neutral=neutral)
+    f_ind = min(1.0, float(independent) / max(n_obs, 1))
+    d = decide(names, [f.chi2 * f_ind for f in fits], [max(f.dof * f_ind, 1.0) for f in fits],
+               [f.n_params for f in fits], neutral=neutral)
     base, i = _answer_fit(names, d, fits, bases)
     p, u = _values(fits[i], bases[i])
+    u = {k: v / np.sqrt(f_ind) for k, v in u.items()}
     material = d.answer if d.answer in (NEUTRAL_METAL, NO_FIT, "alloy") else base
     cands = tuple({"name": n, "chi2": float(f.chi2), "dof": int(f.dof), "posterior": float(q)}
                   for n, f, q in zip(names, fits, d.posterior))

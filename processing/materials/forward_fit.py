@@ -42,7 +42,7 @@ from processing.materials.presets import get_material
 from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError",
-           "region_samples", "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG"]
+           "region_samples", "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
 
 #: The free Ag/Cu/Au alloy candidate.
 ALLOY = "alloy"
@@ -52,6 +52,8 @@ SURFACE_CANDIDATES: tuple[str, ...] = (
     "nami-shibuichi", "shiro-shibuichi", "jo-shibuichi", "nami-shibuichi-uchi-sanbu", "nami-shibuichi-soto-sanbu",
     "shakudo", "bronze", ALLOY, "urushi-black", "urushi-red",
 )
+#: Observations of a region counted as independent evidence (tuned on bench/surface_fit_bench.py).
+INDEPENDENT = 400.0
 #: Fewest lit observations within :data:`HIGHLIGHT_DEG` of the mirror direction a fit needs.
 MIN_HIGHLIGHTS = 12
 _ALLOY_METALS = ("Ag", "Cu", "Au")
@@ -276,8 +278,8 @@ def _subsample(samples: RegionSamples, max_samples: int, seed: int) -> RegionSam
 
 
 def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Sequence[str] = SURFACE_CANDIDATES,
-               model_error: float = 0.02, normal_error_deg: float = 0.5, max_samples: int = 20_000,
-               seed: int = 0) -> RegionFit:
+               model_error: float = 0.02, normal_error_deg: float = 0.5, independent: float = INDEPENDENT,
+               max_samples: int = 20_000, seed: int = 0) -> RegionFit:
     """The region's material among ``candidates``, its parameters and an honest confidence.
 
     Parameters
@@ -294,6 +296,10 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
     normal_error_deg
         RMS error of the mesh normals: a common-mode (same in every channel) brightness error
         ``normal_error * d ln D / d theta_h`` of the gloss lobe is added to each observation's covariance.
+    independent
+        Observations counted as independent evidence (:data:`INDEPENDENT`): beyond it the errors of
+        the normals, the colour calibration and the camera, which are shared across a region, stop
+        averaging down, so the chi-squares given to ``decide`` are scaled by ``independent / n``.
     max_samples
         Largest number of observations fitted (all within 25 deg of the mirror direction are kept
         first, the rest sampled at random with ``seed``).
@@ -327,4 +333,4 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
     fits = [fit_candidate(b, fitted, w(y), w) for b, _ in bases]
     from processing.materials._forward_fit_report import region_fit
 
-    return region_fit(fits, [b for b, _ in bases], [n for _, n in bases], len(fitted), n_hl)
+    return region_fit(fits, [b for b, _ in bases], [n for _, n in bases], len(fitted), n_hl, independent)

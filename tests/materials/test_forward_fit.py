@@ -60,7 +60,9 @@ def test_gold_sphere_is_gold_with_its_roughness(model):
 
 def test_nami_shibuichi_sphere_gives_its_silver_share(model):
     _, _, f = _fit("nami-shibuichi", model)
-    assert f.material == "nami-shibuichi" and f.confidence >= 0.9
+    # right, but not sure: soto-sanbu (Ag 22.7 %) is within the evidence a region's shared errors allow
+    # (bench/surface_fit_bench.py: grades 2-5 points of Ag apart are confused at stated 0.5-0.8)
+    assert f.material == "nami-shibuichi" and f.confidence >= 0.5 and "nami-shibuichi" in f.group
     assert abs(f.parameters["Ag"] - 0.25) <= 0.03                # Table 1: Ag 25 %, +-3 percentage points
     assert abs(f.parameters["roughness"] - 0.15) <= 0.015       # preset 0.15, tolerance 10 %
     assert f.spec.startswith("nami-shibuichi:Ag=")
