@@ -205,9 +205,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--case", choices=("calibration", "speed", "all"), default="all")
     ap.add_argument("--renders", type=int, default=10)
     ap.add_argument("--triangles", type=int, default=200_000)
+    ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args(argv)
     if a.case == "calibration":
-        out: dict[str, Any] = calibration_case(a.renders)
+        out: dict[str, Any] = calibration_case(a.renders, a.seed)
     elif a.case == "speed":
         out = speed_case(a.triangles)
     else:

@@ -24,7 +24,7 @@ __all__ = ["Basis", "CandidateFit", "Whitener", "fit_candidate", "ROUGHNESS_RANG
 ROUGHNESS_RANGE = (0.02, 0.8)
 #: Observations closer than this to the mirror direction are not fitted (the mirror spike there
 #: depends on normal errors far below a scanned mesh's accuracy, and is usually clipped).
-MIRROR_EXCLUDE_DEG = 3.0
+MIRROR_EXCLUDE_DEG = 5.0
 _GRID = np.geomspace(ROUGHNESS_RANGE[0], ROUGHNESS_RANGE[1], 18)
 
 
@@ -219,7 +219,7 @@ def common_mode_error(provisional: Sequence[Basis], samples, y: NDArray[np.float
     """``(n, 3)`` achromatic error of each prediction from a normal error of ``normal_error_rad``.
 
     A normal off by ``delta`` moves the gloss lobe by ``delta * d ln D / d theta_h`` (Beckmann:
-    ``2 tan / (s^2 cos^2) - 4 tan``) in every channel alike.  The lobe's roughness ``s`` and its share of the
+    ``2 tan / (s^2 cos^2) - 4 tan``) and the diffuse lobe by ``delta * tan theta_i``, in every channel alike.  The lobe's roughness ``s`` and its share of the
     signal come from the best of the ``provisional`` candidates fitted with channel noise only.
 
     Parameters
@@ -249,6 +249,8 @@ def common_mode_error(provisional: Sequence[Basis], samples, y: NDArray[np.float
     x = _columns(b, geo, np.pi * samples.irradiance * samples.cos_i).reshape(n, 3, -1)
     m = len(b.gloss_colours)
     spec = x[:, :, :m] @ f.amplitudes[:m]
+    diffuse = x[:, :, m:] @ f.amplitudes[m:]
     t = np.sqrt(np.maximum(1.0 - samples.cos_h ** 2, 0.0)) / np.maximum(samples.cos_h, 1e-6)
     slope = np.abs(2.0 * t / (f.roughness ** 2 * np.maximum(samples.cos_h, 1e-6) ** 2) - 4.0 * t)
-    return (normal_error_rad * slope)[:, None] * np.abs(spec)
+    t_i = np.sqrt(np.maximum(1.0 - samples.cos_i ** 2, 0.0)) / np.maximum(samples.cos_i, 1e-6)
+    return normal_error_rad * (slope[:, None] * np.abs(spec) + np.minimum(t_i, 10.0)[:, None] * np.abs(diffuse))
