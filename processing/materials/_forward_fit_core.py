@@ -233,7 +233,7 @@ def common_mode_error(provisional: Sequence[Basis], samples, y: NDArray[np.float
     var
         ``(n, 3)`` channel variances.
     normal_error_rad
-        RMS error of the mesh normals.
+        RMS error of the mesh normals; the samples' ``facet_rad`` (when known) is added in quadrature.
 
     Returns
     -------
@@ -253,4 +253,6 @@ def common_mode_error(provisional: Sequence[Basis], samples, y: NDArray[np.float
     t = np.sqrt(np.maximum(1.0 - samples.cos_h ** 2, 0.0)) / np.maximum(samples.cos_h, 1e-6)
     slope = np.abs(2.0 * t / (f.roughness ** 2 * np.maximum(samples.cos_h, 1e-6) ** 2) - 4.0 * t)
     t_i = np.sqrt(np.maximum(1.0 - samples.cos_i ** 2, 0.0)) / np.maximum(samples.cos_i, 1e-6)
-    return normal_error_rad * (slope[:, None] * np.abs(spec) + np.minimum(t_i, 10.0)[:, None] * np.abs(diffuse))
+    facet = 0.0 if samples.facet_rad is None else samples.facet_rad
+    delta = np.sqrt(normal_error_rad ** 2 + facet ** 2)[..., None] if np.ndim(facet) else normal_error_rad
+    return delta * (slope[:, None] * np.abs(spec) + np.minimum(t_i, 10.0)[:, None] * np.abs(diffuse))

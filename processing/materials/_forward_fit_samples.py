@@ -48,6 +48,9 @@ class RegionSamples:
         Observations dropped because the lamp is below the surface or hidden by the mesh.
     clipped_highlight
         Clipped observations within :data:`HIGHLIGHT_DEG` of the mirror direction.
+    facet_rad
+        ``(n,)`` RMS angle between the vertex normal and the normals of its triangles (radians; the
+        normal error of a faceted mesh), or None when the triangles were not given.
     """
 
     signal: NDArray[np.float64]
@@ -63,6 +66,7 @@ class RegionSamples:
     n_gathered: int = 0
     n_shadowed: int = 0
     clipped_highlight: int = 0
+    facet_rad: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return int(len(self.cos_i))
@@ -82,7 +86,7 @@ class RegionSamples:
         return RegionSamples(self.signal[keep], self.sigma[keep], self.cos_i[keep], self.cos_o[keep],
                              self.cos_h[keep], self.cos_d[keep], self.irradiance[keep], self.vertex[keep],
                              self.frame[keep], self.clipped_share, self.n_gathered, self.n_shadowed,
-                             self.clipped_highlight)
+                             self.clipped_highlight, None if self.facet_rad is None else self.facet_rad[keep])
 
 
 def _gather(offsets: NDArray[np.int64], vertex_ids: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -104,6 +108,36 @@ def _lamp_table(frames: Sequence, lamp: int) -> tuple[NDArray[np.float64], NDArr
         raise FitError(f"frames: every frame needs a lamp number {lamp} in .lamps (FramePose)") from None
     return (np.array([np.asarray(m.vector, dtype=np.float64) for m in lamps]).reshape(-1, 3),
             np.array([m.kind == "point" for m in lamps], dtype=bool))
+
+
+def _facet_rad(vertices: NDArray[np.float64], triangles: ArrayLike, vertex: NDArray[np.int64],
+               normal: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per observation the RMS angle (radians) between its normal and the normals of its vertex's triangles."""
+    t = np.asarray(triangles, dtype=np.int64)
+    fn = np.cross(vertices[t[:, 1]] - vertices[t[:, 0]], vertices[t[:, 2]] - vertices[t[:, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    vn = np.zeros_like(vertices)
+    vn[vertex] = normal
+    corner = t.reshape(-1)
+    cos = np.einsum("ij,ij->i", vn[corner], np.repeat(fn, 3, axis=0))
+    ang2 = np.arccos(np.clip(np.abs(cos), -1.0, 1.0)) ** 2
+    total = np.bincount(corner, weights=ang2, minlength=len(vertices))
+    count = np.bincount(corner, minlength=len(vertices))
+    return np.sqrt(total / np.maximum(count, 1))[vertex]
+
+
+def _inner(ids: NDArray[np.int64], triangles: ArrayLike, n_vertices: int) -> NDArray[np.int64]:
+    """``ids`` less the region's border vertices (those sharing a triangle with a vertex outside), unless
+    fewer than half would remain: a border vertex's pixels mix both sides of the border."""
+    t = np.asarray(triangles, dtype=np.int64)
+    inside = np.zeros(n_vertices, dtype=bool)
+    inside[ids] = True
+    tin = inside[t]
+    mixed = tin.any(axis=1) & ~tin.all(axis=1)
+    border = np.zeros(n_vertices, dtype=bool)
+    border[t[mixed][tin[mixed]]] = True
+    keep = ids[~border[ids]]
+    return keep if 2 * keep.size >= ids.size else ids
 
 
 def _occluded(points: NDArray[np.float64], normals: NDArray[np.float64], toward: NDArray[np.float64],
@@ -147,7 +181,10 @@ def region_samples(obs, vertices: ArrayLike, frames: Sequence, vertex_ids: Array
         Drop observations with a clipped channel (their share is reported).
     triangles
         ``(T, 3)`` the mesh's triangles: when given, observations whose lamp the mesh hides
-        (self-shadow) are dropped, so they are not fitted as a dark material.
+        (self-shadow) are dropped, so they are not fitted as a dark material, and each observation
+        gets the RMS angle between its normal and its vertex's triangles' (``facet_rad``); the
+        region's border vertices are left out (their pixels mix both sides of the border) unless
+        that would leave fewer than half of them.
     reference_mm
         ``d_ref`` of the irradiance ``(d_ref / d)^2``; None: the distance from frame 0's lamp to the
         centroid of ``vertices`` (the same for every region of a mesh, so amplitudes compare).
@@ -169,6 +206,8 @@ def region_samples(obs, vertices: ArrayLike, frames: Sequence, vertex_ids: Array
                        f"(vertices has {len(verts)})")
     if not 0 <= lamp < len(obs.lamp_names):
         raise FitError(f"lamp={lamp}: the observations have {len(obs.lamp_names)} lamp(s)")
+    if triangles is not None and ids.size:
+        ids = _inner(ids, triangles, len(verts))
     idx = _gather(np.asarray(obs.offsets, dtype=np.int64), ids)
     vec, point = _lamp_table(frames, lamp)
     n = obs.normal[idx].astype(np.float64)
@@ -192,6 +231,7 @@ def region_samples(obs, vertices: ArrayLike, frames: Sequence, vertex_ids: Array
     share = float((lit & clipped).sum() / max(int(lit.sum()), 1))
     hl = int((lit & clipped & (cos_h > np.cos(np.radians(HIGHLIGHT_DEG)))).sum())
     k = np.flatnonzero(keep)
+    facet = None if triangles is None else _facet_rad(verts, triangles, obs.vertex[idx[k]].astype(np.int64), n[k])
     return RegionSamples(obs.signal[idx[k]].astype(np.float64), obs.sigma[idx[k]].astype(np.float64), cos_i[k],
                          cos_o[k], cos_h[k], cos_d[k], irr[k], obs.vertex[idx[k]].astype(np.int64), fr[k], share,
-                         int(idx.size), int((~lit).sum()), hl)
+                         int(idx.size), int((~lit).sum()), hl, facet)

@@ -87,7 +87,7 @@ class ForwardModel:
     >>> g = SpectralGrid(400, 700, 10)
     >>> fm = ForwardModel(camera_sensitivities(g), light_spectrum("D65", g), g)
     >>> fm.colour(ConductorFresnel({"Au": 1.0}), [1.0]).round(2).tolist()   # gold at normal incidence
-    [[0.91, 0.68, 0.41]]
+    [[0.86, 0.66, 0.45]]
     """
 
     def __init__(self, sensitivities: ArrayLike, light: ArrayLike, grid: SpectralGrid) -> None:
