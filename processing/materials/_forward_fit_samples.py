@@ -127,8 +127,10 @@ def _facet_rad(vertices: NDArray[np.float64], triangles: ArrayLike, vertex: NDAr
 
 
 def _inner(ids: NDArray[np.int64], triangles: ArrayLike, n_vertices: int) -> NDArray[np.int64]:
-    """``ids`` less the region's border vertices (those sharing a triangle with a vertex outside), unless
-    fewer than half would remain: a border vertex's pixels mix both sides of the border."""
+    """``ids`` less the region's border vertices, unless fewer than half would remain.
+
+    A border vertex shares a triangle with a vertex outside; its pixels mix both sides of the border.
+    """
     t = np.asarray(triangles, dtype=np.int64)
     inside = np.zeros(n_vertices, dtype=bool)
     inside[ids] = True
