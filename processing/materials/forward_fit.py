@@ -1,0 +1,336 @@
+"""A region of the mesh fitted by forward modelling at its observations' true angles.
+
+Every observation of a region (a vertex seen in one frame, lit by the lamp) is predicted by
+
+    m_c = k * irr * cos_i * pi * sum_l f_r(l; cos_i, cos_o, cos_h, cos_d) E(l) s_c(l) / sum_l E(l) s_c(l)
+
+(the chart-normalised camera signal of docs/appearance.md), with ``f_r`` the candidate material's
+BRDF (:func:`processing.materials.lobes.material_brdf`).  Each candidate of
+:data:`SURFACE_CANDIDATES` -- the pure metals, the named alloys, a free Ag/Cu/Au alloy and the two
+urushi lacquers -- is fitted with its gloss roughness (Beckmann RMS slope, a bounded 1-D search)
+and its lobe amplitudes (linear at fixed roughness: NNLS), the amplitudes absorbing the lamp scale
+``k``.  The Fresnel term's change of colour with ``cos_d`` over all observations is what separates
+the neutral metals.  The choice among candidates and its confidence come from
+:func:`processing.materials.confidence.decide`; a region without highlight observations is
+:data:`NOT_MEASURED` with a reason saying what to capture.  docs/materials.md, section "Fitting a
+region on the mesh", states the model, the weights and the limits.
+
+References
+----------
+.. [1] Matsuda, Tanaka, Ichikawa, Mochizuki, Muroya, Kitamura, "CG reproduction of a craft object
+   based on a light reflection model", IPSJ technical report (no DOI), eq. (1)-(5).
+.. [2] Lawson, C. L., Hanson, R. J. (1974). Solving Least Squares Problems, Prentice-Hall, ch. 23
+   (NNLS). doi:10.1137/1.9781611971217
+.. [3] Schwarz, G. (1978). Estimating the dimension of a model. Ann. Statist. 6(2), 461-464.
+   doi:10.1214/aos/1176344136
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from processing.materials._forward_fit_core import MIRROR_EXCLUDE_DEG, Basis, Whitener, common_mode_error, fit_candidate
+from processing.materials._forward_fit_samples import HIGHLIGHT_DEG, FitError, RegionSamples, region_samples
+from processing.materials.confidence import NOT_MEASURED
+from processing.materials.lobes import Material, material_brdf
+from processing.materials.metal_model import ConductorFresnel
+from processing.materials.presets import get_material
+from processing.spectral.spectra import SpectralGrid
+
+__all__ = ["SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError",
+           "region_samples", "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
+
+#: The free Ag/Cu/Au alloy candidate.
+ALLOY = "alloy"
+#: Candidates of a surface fit: pure metals, named alloys, the free alloy, the lacquers.
+SURFACE_CANDIDATES: tuple[str, ...] = (
+    "gold", "silver", "copper", "aluminium", "platinum", "iron", "zinc", "lead", "tin",
+    "nami-shibuichi", "shiro-shibuichi", "jo-shibuichi", "nami-shibuichi-uchi-sanbu", "nami-shibuichi-soto-sanbu",
+    "shakudo", "bronze", ALLOY, "urushi-black", "urushi-red",
+)
+#: Observations of a region counted as independent evidence (tuned on bench/surface_fit_bench.py).
+INDEPENDENT = 400.0
+#: Fewest lit observations within :data:`HIGHLIGHT_DEG` of the mirror direction a fit needs.
+MIN_HIGHLIGHTS = 12
+_ALLOY_METALS = ("Ag", "Cu", "Au")
+_NEUTRAL_RATIO = 1.10
+_TABLE = np.linspace(0.0, 1.0, 257)
+#: Smallest noise standard deviation (relative to the chart's white) an observation is trusted to.
+_SIGMA_FLOOR = 1e-4
+
+
+class ForwardModel:
+    """The camera and the lamp that turn a BRDF into chart-normalised camera RGB.
+
+    Parameters
+    ----------
+    sensitivities
+        ``(L, 3)`` camera sensitivities on ``grid``.
+    light
+        ``(L,)`` lamp spectrum on ``grid``.
+    grid
+        The :class:`processing.spectral.spectra.SpectralGrid`.
+
+    Raises
+    ------
+    FitError
+        Shapes that do not match the grid, or a channel with no signal under the light.
+
+    Examples
+    --------
+    >>> from processing.camera.response import camera_sensitivities
+    >>> from processing.spectral.spectra import light_spectrum
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> fm = ForwardModel(camera_sensitivities(g), light_spectrum("D65", g), g)
+    >>> fm.colour(ConductorFresnel({"Au": 1.0}), [1.0]).round(2).tolist()   # gold at normal incidence
+    [[0.86, 0.66, 0.45]]
+    """
+
+    def __init__(self, sensitivities: ArrayLike, light: ArrayLike, grid: SpectralGrid) -> None:
+        s = np.asarray(sensitivities, dtype=np.float64)
+        e = np.asarray(light, dtype=np.float64).reshape(-1)
+        self.grid, self.wavelengths = grid, np.asarray(grid.wavelengths, dtype=np.float64)
+        if s.shape != (self.wavelengths.size, 3) or e.shape != (self.wavelengths.size,):
+            raise FitError(f"sensitivities must be ({self.wavelengths.size}, 3) and light ({self.wavelengths.size},) "
+                           f"on the grid, got {s.shape} and {e.shape}")
+        white = e @ s
+        if not np.all(np.isfinite(white)) or np.any(white <= 0):
+            raise FitError("a camera channel sees nothing of the light: check the sensitivities and the spectrum")
+        self._weights = e[:, None] * s / white[None, :]
+        self._tables: dict[str, NDArray[np.float64]] = {}
+
+    def colour(self, spectral, cos_d: ArrayLike) -> NDArray[np.float64]:
+        """Camera colour ``(n, 3)`` of a spectral factor at ``cos_d`` (white = 1).
+
+        Parameters
+        ----------
+        spectral
+            A :class:`processing.materials.lobes.SpectralFactor`.
+        cos_d
+            ``(n,)`` cosines between light and half vector.
+
+        Returns
+        -------
+        ndarray
+            ``(n, 3)``.
+        """
+        c = np.asarray(cos_d, dtype=np.float64).reshape(-1)
+        return spectral.reflectance(c, self.wavelengths) @ self._weights
+
+    def table_colour(self, key: str, spectral, cos_d: NDArray[np.float64]) -> NDArray[np.float64]:
+        """:meth:`colour` through a cached table over cos_d (linear interpolation, 257 nodes).
+
+        Parameters
+        ----------
+        key
+            Cache key naming ``spectral``.
+        spectral
+            The spectral factor.
+        cos_d
+            ``(n,)`` cosines.
+
+        Returns
+        -------
+        ndarray
+            ``(n, 3)``.
+        """
+        if key not in self._tables:
+            self._tables[key] = self.colour(spectral, _TABLE)
+        t = self._tables[key]
+        return np.stack([np.interp(cos_d, _TABLE, t[:, c]) for c in range(3)], axis=1)
+
+    def predict(self, material: Material, samples: RegionSamples) -> NDArray[np.float64]:
+        """Predicted chart-normalised signal ``(n, 3)`` of ``material`` at the samples (k = 1).
+
+        Parameters
+        ----------
+        material
+            The material (e.g. ``get_material(fit.spec)``).
+        samples
+            The observations' geometry.
+
+        Returns
+        -------
+        ndarray
+            ``(n, 3)``.
+        """
+        s = samples
+        f = material_brdf(material, s.cos_i, s.cos_o, s.cos_h, s.cos_d, self.wavelengths)
+        return (f @ self._weights) * (np.pi * s.irradiance * s.cos_i)[:, None]
+
+
+@dataclass(frozen=True)
+class RegionFit:
+    """The material of one region, its parameters and how sure the fit is.
+
+    Attributes
+    ----------
+    material
+        A preset name, ``"alloy"``, ``"neutral metal"``, ``"no candidate fits"`` or ``"not measured"``.
+    confidence
+        Probability the answer is right (0 when not measured).
+    group
+        The candidates the answer stands for.
+    spec
+        A :func:`processing.materials.presets.get_material` spec reproducing the fit (None when not
+        measured); gloss, mirror and diffuse are relative to the chart's white.
+    parameters, uncertainties
+        Fitted parameters and their 1-sigma uncertainties.
+    chi2_per_dof
+        Reduced chi-square of the answer's fit.
+    n_observations
+        Observations fitted.
+    n_lit
+        Lit, unclipped observations within :data:`HIGHLIGHT_DEG` of the mirror direction.
+    candidates
+        Per candidate: name, chi2, dof, posterior.
+    reason
+        Why not measured and what to capture ("" otherwise).
+    """
+
+    material: str
+    confidence: float
+    group: tuple[str, ...]
+    spec: str | None
+    parameters: dict[str, float] = field(default_factory=dict)
+    uncertainties: dict[str, float] = field(default_factory=dict)
+    chi2_per_dof: float = float("nan")
+    n_observations: int = 0
+    n_lit: int = 0
+    candidates: tuple[dict, ...] = ()
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict of every field (NaN as None, tuples as lists).
+
+        Returns
+        -------
+        dict
+        """
+        d = asdict(self)
+        d["group"], d["candidates"] = list(self.group), [dict(c) for c in self.candidates]
+        if not np.isfinite(d["chi2_per_dof"]):
+            d["chi2_per_dof"] = None
+        return d
+
+
+def _preset(name: str) -> Material:
+    return get_material(name)
+
+
+def _basis(name: str, model: ForwardModel, cos_d: NDArray[np.float64]) -> tuple[Basis, bool]:
+    """A candidate's linear structure and whether it is a neutral metal."""
+    if name == ALLOY:
+        cols = np.stack([model.table_colour(m, ConductorFresnel({m: 1.0}), cos_d) for m in _ALLOY_METALS])
+        return Basis(ALLOY, cols, None, 0.3 / 0.7, 0.01), False
+    mat = _preset(name)
+    p = mat.parameters
+    ratio = float(p["mirror"]) / max(float(p["gloss"]), 1e-9)
+    if mat.family == "dielectric":
+        diff, gl = mat.lobes[0].spectral, mat.lobes[1].spectral
+        col = model.table_colour(f"{name}:fresnel", gl, cos_d)[None]
+        dc = model.colour(diff, [0.5])[0]
+        return Basis(name, col, dc, ratio, float(p["mirror_roughness"])), False
+    spectral = mat.lobes[0].spectral
+    col = model.table_colour(name, spectral, cos_d)
+    c1 = model.colour(spectral, [1.0])[0]
+    return Basis(name, col[None], None, ratio, float(p["mirror_roughness"])), bool(c1.max() <= _NEUTRAL_RATIO * c1.min())
+
+
+def _not_measured(samples: RegionSamples, n_hl: int, n_fit: int) -> RegionFit | None:
+    """A NOT_MEASURED answer with what to capture, or None when the region can be fitted."""
+    if n_hl >= MIN_HIGHLIGHTS:
+        return None
+    if samples.n_gathered == 0:
+        why = "no observation: no frame saw the region; add table angles or a placement that shows it"
+    elif len(samples) == 0 and samples.clipped_share >= 0.999:
+        why = "every lit observation clipped: lower the exposure"
+    elif len(samples) == 0:
+        why = ("no lit observation: the lamp never reaches the region (facing away or shadowed); "
+               "add a second placement or lamp")
+    elif samples.clipped_highlight >= max(MIN_HIGHLIGHTS - n_hl, 1) and samples.clipped_highlight > n_hl:
+        why = f"every highlight clipped ({samples.clipped_highlight} clipped, {n_hl} usable): lower the exposure"
+    elif float(np.median(samples.cos_o)) < np.cos(np.radians(70.0)):
+        why = "seen only at grazing angles (median view over 70 deg from the normal): add a placement facing it"
+    else:
+        why = (f"no observation within {HIGHLIGHT_DEG:g} deg of the mirror direction ({n_hl} < {MIN_HIGHLIGHTS}): "
+               "add table angles or a second placement so its highlights are seen")
+    return RegionFit(NOT_MEASURED, 0.0, (), None, n_observations=n_fit, n_lit=n_hl, reason=why)
+
+
+def _subsample(samples: RegionSamples, max_samples: int, seed: int) -> RegionSamples:
+    """All samples within 25 deg of the mirror direction plus a random share of the rest, at most max_samples."""
+    keep = samples.cos_h < np.cos(np.radians(MIRROR_EXCLUDE_DEG))
+    idx = np.flatnonzero(keep)
+    if idx.size <= max_samples:
+        return samples.subset(idx)
+    rng = np.random.default_rng(seed)
+    near = idx[samples.cos_h[idx] >= np.cos(np.radians(25.0))]
+    rest = np.setdiff1d(idx, near)
+    if near.size >= max_samples:
+        return samples.subset(np.sort(rng.choice(near, max_samples, replace=False)))
+    pick = rng.choice(rest, max_samples - near.size, replace=False)
+    return samples.subset(np.sort(np.concatenate([near, pick])))
+
+
+def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Sequence[str] = SURFACE_CANDIDATES,
+               model_error: float = 0.02, normal_error_deg: float = 0.5, independent: float = INDEPENDENT,
+               max_samples: int = 20_000, seed: int = 0) -> RegionFit:
+    """The region's material among ``candidates``, its parameters and an honest confidence.
+
+    Parameters
+    ----------
+    samples
+        The region's observations (:func:`region_samples`).
+    model
+        Camera and lamp (:class:`ForwardModel`).
+    candidates
+        Preset names and/or :data:`ALLOY` (at least two).
+    model_error
+        Relative model error added to every observation's noise: ``sigma^2 = sigma_obs^2 +
+        (model_error * signal)^2``.
+    normal_error_deg
+        RMS error of the mesh normals: a common-mode (same in every channel) brightness error
+        ``normal_error * d ln D / d theta_h`` of the gloss lobe is added to each observation's covariance.
+    independent
+        Observations counted as independent evidence (:data:`INDEPENDENT`): beyond it the errors of
+        the normals, the colour calibration and the camera, which are shared across a region, stop
+        averaging down, so the chi-squares given to ``decide`` are scaled by ``independent / n``.
+    max_samples
+        Largest number of observations fitted (all within 25 deg of the mirror direction are kept
+        first, the rest sampled at random with ``seed``).
+    seed
+        Seed of that sampling.
+
+    Returns
+    -------
+    RegionFit
+
+    Raises
+    ------
+    FitError
+        Fewer than two candidates, an unknown candidate or a negative model error.
+    """
+    if len(candidates) < 2:
+        raise FitError("candidates: give at least two materials to choose among")
+    if not (np.isfinite(model_error) and model_error >= 0):
+        raise FitError(f"model_error must be >= 0 (relative), got {model_error!r}")
+    fitted = _subsample(samples, int(max_samples), seed)
+    n_hl = int((fitted.cos_h >= np.cos(np.radians(HIGHLIGHT_DEG))).sum())
+    early = _not_measured(samples, n_hl, len(fitted))
+    if early is not None:
+        return early
+    y = fitted.signal.reshape(-1)
+    var = np.maximum(fitted.sigma, _SIGMA_FLOOR) ** 2 + (model_error * np.maximum(fitted.signal, 0.0)) ** 2
+    provisional = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
+    common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg))
+    w = Whitener.of(var, common)
+    bases = [_basis(c, model, fitted.cos_d) for c in candidates]
+    fits = [fit_candidate(b, fitted, w(y), w) for b, _ in bases]
+    from processing.materials._forward_fit_report import region_fit
+
+    return region_fit(fits, [b for b, _ in bases], [n for _, n in bases], len(fitted), n_hl, independent)

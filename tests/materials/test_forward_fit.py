@@ -1,0 +1,126 @@
+"""Forward fit of mesh regions against simulated spheres of known material (truth: the World's specs)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from mocks.observation_sim import simulated_observations
+from mocks.world import World
+from processing.camera.response import camera_sensitivities
+from processing.materials.confidence import NO_FIT, NOT_MEASURED, decide
+from processing.materials.forward_fit import ForwardModel, fit_region, region_samples
+from processing.materials.presets import get_material
+from processing.spectral.spectra import light_spectrum
+
+ANGLES = np.arange(0.0, 360.0, 20.0)
+EXPOSURE_S = 0.0005          # highlights unclipped (the default 0.01 s clips every metal highlight)
+
+
+def _sphere(material: str, camera: str):
+    m = o3d.geometry.TriangleMesh.create_sphere(radius=30.0, resolution=50)
+    v = np.asarray(m.vertices) + [0.0, 0.0, 37.0]
+    t = np.asarray(m.triangles)
+    w = World(v, t, np.zeros(len(t), int), ("body",), {"body": material},
+              light_position_mm=(-150.0, -250.0, 300.0), width=240, height=160)
+    return simulated_observations(w, ANGLES, exposure_s=EXPOSURE_S, sensitivities=camera)
+
+
+@pytest.fixture(scope="module")
+def model():
+    from processing.spectral.spectra import SpectralGrid
+
+    g = SpectralGrid(400, 700, 10)
+    return ForwardModel(camera_sensitivities(g), light_spectrum("D65", g), g)
+
+
+_CACHE: dict = {}
+
+
+def _fit(material: str, model, camera: str = "Nikon 5100 (NPL)"):
+    key = (material, camera)
+    if key not in _CACHE:
+        sim = _sphere(material, camera)
+        s = region_samples(sim.observations, sim.vertices, sim.frames, np.arange(len(sim.vertices)),
+                           triangles=sim.triangles)
+        _CACHE[key] = (sim, s, fit_region(s, model))
+    return _CACHE[key]
+
+
+def test_gold_sphere_is_gold_with_its_roughness(model):
+    _, _, f = _fit("gold", model)
+    assert f.material == "gold" and f.confidence >= 0.9
+    assert abs(f.parameters["roughness"] - 0.10) <= 0.010       # preset 0.10, tolerance 10 %
+    assert f.uncertainties["roughness"] > 0 and f.reason == ""
+    json.dumps(f.to_dict())
+
+
+def test_nami_shibuichi_sphere_gives_its_silver_share(model):
+    _, _, f = _fit("nami-shibuichi", model)
+    # right, but not sure: soto-sanbu (Ag 22.7 %) is within the evidence a region's shared errors allow
+    # (bench/surface_fit_bench.py: grades 2-5 points of Ag apart are confused at stated 0.5-0.8)
+    assert f.material == "nami-shibuichi" and f.confidence >= 0.5 and "nami-shibuichi" in f.group
+    assert abs(f.parameters["Ag"] - 0.25) <= 0.03                # Table 1: Ag 25 %, +-3 percentage points
+    assert abs(f.parameters["roughness"] - 0.15) <= 0.015       # preset 0.15, tolerance 10 %
+    assert f.spec.startswith("nami-shibuichi:Ag=")
+
+
+def test_urushi_black_sphere_is_urushi_black(model):
+    _, _, f = _fit("urushi-black", model)
+    assert f.material == "urushi-black" and f.confidence >= 0.9
+    assert f.parameters["diffuse"] > 0
+
+
+@pytest.mark.parametrize("metal", ["silver", "aluminium", "tin"])
+def test_neutral_metals_are_told_or_grouped_never_wrong(model, metal):
+    _, _, f = _fit(metal, model)
+    d = decide([c["name"] for c in f.candidates], [1.0] * len(f.candidates), [1] * len(f.candidates),
+               [1] * len(f.candidates))
+    assert d.answer  # decide accepts the candidates' names
+    if f.material == "neutral metal":
+        assert metal in f.group
+    else:
+        assert f.material == metal
+    assert f.confidence >= 0.9
+
+
+def test_spec_reproduces_the_fitted_brightness(model):
+    sim, s, f = _fit("gold", model)
+    pred = model.predict(get_material(f.spec), s)
+    # the highlights' flanks the fit uses (the mirror spike's 5 degrees are not fitted)
+    hl = (s.cos_h > np.cos(np.radians(15.0))) & (s.cos_h < np.cos(np.radians(5.0)))
+    ratio = np.median(s.signal[hl].sum(axis=1) / np.maximum(pred[hl].sum(axis=1), 1e-9))
+    assert abs(ratio - 1.0) < 0.05                                 # within 5 % on the highlights
+
+
+def test_region_without_highlights_is_not_measured(model):
+    sim, _, _ = _fit("gold", model)
+    obs = sim.observations
+    lit = obs.half_angle_deg[:, 0] < 20.0                          # truth geometry, not the fit
+    seen = np.bincount(obs.vertex[lit], minlength=obs.n_vertices) > 0
+    ids = np.flatnonzero(~seen & (np.diff(obs.offsets) > 0))
+    s = region_samples(obs, sim.vertices, sim.frames, ids, triangles=sim.triangles)
+    assert len(s) > 100
+    f = fit_region(s, model)
+    assert f.material == NOT_MEASURED and f.spec is None and "mirror direction" in f.reason
+
+
+def test_camera_mismatch_is_not_a_confident_wrong_answer(model):
+    # the data are the Nikon's; the model believes in a camera whose sensitivities sit 15 nm to the red
+    from processing.spectral.spectra import SpectralGrid
+
+    g = SpectralGrid(400, 700, 10)
+    s0 = camera_sensitivities(g)
+    shifted = np.stack([np.interp(g.wavelengths - 15.0, g.wavelengths, s0[:, c]) for c in range(3)], axis=1)
+    wrong_camera = ForwardModel(shifted + 1e-6, light_spectrum("D65", g), g)
+    # (a shibuichi grade is NOT safe under this mismatch: the Ag share biases by ~5 points and a
+    # neighbouring grade is answered confidently; docs/materials.md says so)
+    for metal in ("gold", "urushi-black"):
+        _, s, right = _fit(metal, model)
+        f = fit_region(s, wrong_camera)
+        confident_wrong = f.material not in (NO_FIT, metal) and f.confidence >= 0.9
+        assert not confident_wrong, (metal, f.material, f.confidence, f.chi2_per_dof)
+        assert f.chi2_per_dof > right.chi2_per_dof                  # the mismatch shows as misfit
