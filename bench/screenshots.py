@@ -209,6 +209,58 @@ def posed_screenshot(session: Path, out: Path, frame: int = 20) -> Path:
     return path
 
 
+def measured_screenshot(session: Path, out: Path) -> Path:
+    """The Preview tab rendering a session's measured object, with a clicked region's observations
+    against its fitted model (``preview-measured.png``).  ``session`` has materials on its mesh
+    (``kogei fit-materials``), e.g. ``out/demo/capture/session`` after ``make demo``.
+    """
+    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+    from PySide6.QtCore import QSettings
+    from PySide6.QtWidgets import QApplication
+
+    from app.gui.main_window import MainWindow
+
+    app = QApplication.instance() or QApplication([])
+
+    def wait(pred: Callable[[], bool], what: str, timeout_s: float = 180.0) -> None:
+        end = time.monotonic() + timeout_s
+        while not pred():
+            if time.monotonic() > end:
+                raise TimeoutError(f"screenshots: timed out waiting for {what}")
+            app.processEvents()
+            time.sleep(0.01)
+
+    with tempfile.TemporaryDirectory(prefix="kogei-screenshots-") as tmp:
+        w = MainWindow(QSettings(str(Path(tmp) / "settings.ini"), QSettings.Format.IniFormat))
+        w.resize(1360, 900)
+        w.show()
+        try:
+            w.session.open_session(str(session))
+            w.tabs.setCurrentWidget(w.preview)
+            w.preview.mesh_changed()
+            wait(lambda: w.preview.last_kind == "final" and not w.preview._busy, "the measured object's render")
+            img = w.preview.last["srgb8"]
+            ys, xs = np.nonzero(w.preview.last["mask"] > 0.99)
+            pick = int(np.argmin((ys - ys.mean()) ** 2 + (xs - xs.mean()) ** 2))
+            h, wd = img.shape[:2]
+            view = w.preview.view
+            scale = min(view.width() / wd, view.height() / h)
+            x0, y0 = (view.width() - wd * scale) / 2, (view.height() - h * scale) / 2
+            w.preview._clicked(x0 + (xs[pick] + 0.5) * scale, y0 + (ys[pick] + 0.5) * scale)
+            wait(lambda: w.preview.info.text().startswith("region"), "the clicked region's observations")
+            wait(lambda: not w.preview.region_plot.busy, "the region plot")
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                app.processEvents()
+                time.sleep(0.01)
+            out.mkdir(parents=True, exist_ok=True)
+            path = out / "preview-measured.png"
+            w.grab().save(str(path))
+        finally:
+            w.close()
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.screenshots", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/screenshots")
@@ -216,7 +268,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--posed", default=None, metavar="SESSION",
                         help="only the Camera tab with the mesh outline on a frame of this projected session "
                              "(e.g. out/demo/capture/session after make demo)")
+    parser.add_argument("--measured", default=None, metavar="SESSION",
+                        help="only the Preview tab with the measured object and a clicked region's observations "
+                             "(a session after kogei fit-materials, e.g. out/demo/capture/session)")
     args = parser.parse_args(argv)
+    if args.measured:
+        print(f"wrote {measured_screenshot(Path(args.measured), Path(args.out))}")
+        return 0
     if args.posed:
         print(f"wrote {posed_screenshot(Path(args.posed), Path(args.out))}")
         return 0

@@ -56,7 +56,7 @@ def run():
     photos = _LazyPhotos([sim.images[i] for i in idx])
     d0 = float(np.linalg.norm(np.subtract(w.light_position_mm, w.camera_target_mm)))
     specs = [sim.materials[n] for n in sim.region_names]
-    result = validate_frames([sim.frames[i] for i in idx], photos, sim.vertices, sim.triangles, None,
+    result = validate_frames([sim.frames[i] for i in idx], photos, sim.vertices, sim.triangles, sim.normals,
                              sim.face_region, specs, "nami-shibuichi", w.light_spectrum(), sim.sensitivities,
                              SIM_SCALE, irradiance_ref_mm=d0, grid=w.grid, clip_level=clip)
     return sim, idx, photos, result, (w, specs, d0)
@@ -108,7 +108,7 @@ def test_frames_carry_figures_and_pngs(run):
 
 def test_wrong_photos_are_refused_in_one_line(run):
     sim, idx, _, _, (w, specs, d0) = run
-    args = (sim.vertices, sim.triangles, None, sim.face_region, specs, "nami-shibuichi", w.light_spectrum(),
+    args = (sim.vertices, sim.triangles, sim.normals, sim.face_region, specs, "nami-shibuichi", w.light_spectrum(),
             sim.sensitivities, SIM_SCALE)
     with pytest.raises(UsageError, match="one photo per frame"):
         validate_frames([sim.frames[idx[0]]], [], *args, grid=w.grid)
@@ -124,7 +124,7 @@ def test_wrong_photos_are_refused_in_one_line(run):
 
 def test_a_frame_without_measured_pixels_is_skipped_not_guessed(run):
     sim, idx, _, _, (w, _, d0) = run
-    res = validate_frames([sim.frames[idx[0]]], [sim.images[idx[0]]], sim.vertices, sim.triangles, None,
+    res = validate_frames([sim.frames[idx[0]]], [sim.images[idx[0]]], sim.vertices, sim.triangles, sim.normals,
                           sim.face_region, [None] * len(sim.region_names), "nami-shibuichi", w.light_spectrum(),
                           sim.sensitivities, SIM_SCALE, irradiance_ref_mm=d0, grid=w.grid)
     assert res["frames"][0]["skipped"] and "measured" not in res["frames"][0]

@@ -1,11 +1,11 @@
 """render_signal against the simulated camera's photos of the same world (true materials, camera and lamp).
 
 Truth: ``mocks.observation_sim.simulated_observations(..., noise=False).images``,
-rendered by ``mocks.world.World`` independently (its own pinhole rays, flat
-face normals, its own lamp).  The simulation's images put a white diffuser
-facing the lamp at 1/pi (it divides by the lamp's own camera signal, not by the
-diffuser's), so the renderer's lamp scale for those images is 1/pi; the
-simulated sensor also saturates, so clipped pixels are left out.
+rendered by ``mocks.world.World`` independently (its own pinhole rays, normals
+interpolated from the vertex normals, its own lamp).  The simulation's images put
+a white diffuser facing the lamp at 1, as the chart calibration does, so the
+renderer's lamp scale is 1; the simulated sensor also saturates, so clipped
+pixels are left out.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def test_rendered_signal_equals_the_simulated_photo(sim):
     w, s, clip, d0 = sim
     specs = [s.materials[n] for n in s.region_names]
     for k, frame in enumerate(s.frames):
-        sig, mask = render_signal(s.vertices, s.triangles, None, s.face_region, specs, frame, w.light_spectrum(),
+        sig, mask = render_signal(s.vertices, s.triangles, s.normals, s.face_region, specs, frame, w.light_spectrum(),
                                   sensitivities=s.sensitivities, scale=SIM_SCALE, irradiance_ref_mm=d0, grid=w.grid)
         img, obj = s.images[k], s.labels[k] >= 0
         assert sig.shape == img.shape and sig.dtype == np.float32
@@ -61,7 +61,7 @@ def test_regions_without_material_are_nan_and_outside_the_mask(sim):
     specs = [s.materials[n] for n in s.region_names]
     specs[1] = None                                                       # the beak: not measured
     frame = s.frames[0]
-    sig, mask = render_signal(s.vertices, s.triangles, None, s.face_region, specs, frame, w.light_spectrum(),
+    sig, mask = render_signal(s.vertices, s.triangles, s.normals, s.face_region, specs, frame, w.light_spectrum(),
                               sensitivities=s.sensitivities, scale=SIM_SCALE, irradiance_ref_mm=d0, grid=w.grid)
     faces = pixel_faces(s.vertices, s.triangles, frame)
     beak = (faces >= 0) & (s.face_region[np.maximum(faces, 0)] == 1)
@@ -74,7 +74,7 @@ def test_regions_without_material_are_nan_and_outside_the_mask(sim):
 def test_bad_inputs_are_refused(sim):
     w, s, _, _ = sim
     frame = s.frames[0]
-    args = (s.vertices, s.triangles, None, s.face_region, ["gold"] * 5, frame, "D65")
+    args = (s.vertices, s.triangles, s.normals, s.face_region, ["gold"] * 5, frame, "D65")
     with pytest.raises(RenderInputError, match="face_material"):
         render_signal(*args[:3], s.face_region[:-1], *args[4:])
     with pytest.raises(RenderInputError, match="face_material"):
@@ -96,7 +96,7 @@ def test_distorted_frame_outline_matches_the_mesh_mask(sim):
     distorted = FramePose(f.name, f.pass_index, f.table_angle_deg, f.image_size, f.K,
                           np.array([-0.6, 0.2, 0.002, -0.001, 0.0]), f.mesh_to_camera, f.lamps)
     specs = [s.materials[n] for n in s.region_names]
-    _, mask = render_signal(s.vertices, s.triangles, None, s.face_region, specs, distorted, w.light_spectrum(),
+    _, mask = render_signal(s.vertices, s.triangles, s.normals, s.face_region, specs, distorted, w.light_spectrum(),
                             sensitivities=s.sensitivities, scale=SIM_SCALE, irradiance_ref_mm=d0, grid=w.grid)
     truth = mesh_mask((s.vertices, s.triangles), distorted)
     undistorted = s.labels[0] >= 0
