@@ -12,6 +12,8 @@ Modules
 - ``albedo``: directional albedo, the hemispherical integral of BRDF * cos_i.
 - ``presets``: the registry of named materials and their spec strings.
 - ``identification``: a region's material and alloy weights from camera values.
+- ``confidence``: the one rule from candidates' misfits to an answer and an honest confidence.
+- ``forward_fit``: a region of the mesh fitted at its observations' true angles.
 - ``segmentation``: an object's pixels split into regions without ground truth.
 
 docs/materials.md describes the models, presets, parameters and sources.
@@ -45,6 +47,18 @@ from processing.materials.alloys import (
     alloy_names,
     alloy_weights,
 )
+from processing.materials.confidence import (
+    AMBIGUOUS_LR,
+    MAX_MISFIT,
+    NO_FIT,
+    NOT_MEASURED,
+    ConfidenceError,
+    Decision,
+    Reliability,
+    decide,
+    is_right,
+    reliability_table,
+)
 from processing.materials.dielectric_model import (
     URUSHI_INDEX,
     DielectricFresnel,
@@ -53,9 +67,23 @@ from processing.materials.dielectric_model import (
     urushi_black_reflectance,
     urushi_red_reflectance,
 )
+from processing.materials.forward_fit import (
+    ALLOY,
+    HIGHLIGHT_DEG,
+    INDEPENDENT,
+    MIN_HIGHLIGHTS,
+    SURFACE_CANDIDATES,
+    FitError,
+    ForwardModel,
+    RegionFit,
+    RegionSamples,
+    fit_region,
+    region_samples,
+)
 from processing.materials.fresnel import fresnel_conductor, fresnel_dielectric
 from processing.materials.identification import (
     DEFAULT_CANDIDATES,
+    DEFAULT_MODEL_ERROR,
     NEUTRAL_METAL,
     AlloyEstimate,
     CandidateSet,
@@ -135,8 +163,14 @@ __all__ = [
     # presets
     "MaterialError", "ParameterInfo", "list_materials", "material_parameters", "get_material",
     "parse_material_spec", "preset_source",
+    # confidence
+    "Decision", "decide", "NO_FIT", "NOT_MEASURED", "MAX_MISFIT", "AMBIGUOUS_LR", "is_right", "reliability_table",
+    "Reliability", "ConfidenceError",
+    # forward_fit
+    "SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError", "region_samples",
+    "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT",
     # identification
-    "DEFAULT_CANDIDATES", "NEUTRAL_METAL", "CandidateSet", "Identification", "AlloyEstimate", "candidate_set",
+    "DEFAULT_CANDIDATES", "DEFAULT_MODEL_ERROR", "NEUTRAL_METAL", "CandidateSet", "Identification", "AlloyEstimate", "candidate_set",
     "identify_material", "identify_regions", "estimate_alloy_weights",
     # segmentation
     "Segmentation", "SegmentationError", "border_backdrop", "segment_regions",
