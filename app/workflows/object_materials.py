@@ -190,7 +190,8 @@ def answer_text(region: dict[str, Any]) -> str:
     if material == "neutral metal":
         return f"{text}: one of {', '.join(group)}"
     others = [g for g in group if g != material]
-    return text + (f"; cannot be told from {', '.join(others)}" if others else "")
+    listed = ", ".join(others[:3]) + (f" and {len(others) - 3} others" if len(others) > 3 else "")
+    return text + (f"; cannot be told from {listed}" if others else "")
 
 
 def _check_cancel(stop: Callable[[], bool]) -> None:
