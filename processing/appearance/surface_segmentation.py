@@ -26,10 +26,14 @@ on the surface"):
 
 A feature is NaN where it is not measured: no lit observation, or a signal
 below ``5`` noise standard deviations (a chromaticity of noise is no colour).
+Every feature carries its noise standard deviation (first-order propagation of
+the observations' sigma), which the mixture adds to a component's variance: a
+faint highlight's colour is weak evidence, a bright one strong.
 
 :func:`segment_surface` clusters these features with a diagonal Gaussian
-mixture that marginalises missing features (EM, Dempster et al. 1977; the number
-of components by BIC, Schwarz 1978), merges components closer than a
+mixture that marginalises missing features (EM, Dempster et al. 1977, started
+from k-means++ and from a greedy split of the k-1 fit, Verbeek et al. 2003; the
+number of components by BIC, Schwarz 1978), merges components closer than a
 Bhattacharyya distance, labels the vertices whose colour decides it (with a
 neighbour of the same label), gives every other vertex the label of the
 geodesically nearest such vertex that its own features allow, relaxes a Potts
@@ -49,6 +53,10 @@ doi:10.1111/j.2517-6161.1977.tb01600.x
 
 Schwarz, G. (1978). Estimating the dimension of a model. Ann. Statist. 6(2),
 461-464. doi:10.1214/aos/1176344136
+
+Verbeek, J. J., Vlassis, N., Kröse, B. (2003). Efficient greedy learning of
+Gaussian mixture models. Neural Computation 15(2), 469-485.
+doi:10.1162/089976603762553004
 
 Lensch, H. P. A., Kautz, J., Goesele, M., Heidrich, W., Seidel, H.-P. (2003).
 Image-based reconstruction of spatial appearance and geometric detail. ACM
@@ -97,6 +105,8 @@ class VertexFeatures:
         ``(V,)`` int64 lit observations per vertex.
     body_sd
         ``(V,)`` noise standard deviation of ``body_asinh`` (NaN where it is NaN).
+    sd
+        ``(V, F)`` noise standard deviation of every feature (NaN where the feature is NaN; ``peak_log``: 0).
     """
 
     values: NDArray[np.float64]
@@ -104,6 +114,7 @@ class VertexFeatures:
     measured: NDArray[np.bool_]
     n_lit: NDArray[np.int64]
     body_sd: NDArray[np.float64]
+    sd: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -194,37 +205,44 @@ def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None,
     n_lit = np.bincount(vert[lit], minlength=nv)
     measured = n_lit > 0
     out = np.full((nv, len(FEATURE_NAMES)), np.nan)
+    sd = np.full_like(out, np.nan)
     ok = lit & ~obs.clipped
     body = ok & (half > body_half_deg)
-    out[:, 0:3], body_sd, body_rgb = _body_features(sig[body] / cos_i[body, None],
-                                                     var[body] / cos_i[body, None] ** 2, vert[body], nv)
+    out[:, 0:3], sd[:, 0:3], body_rgb = _body_features(sig[body] / cos_i[body, None],
+                                                        var[body] / cos_i[body, None] ** 2, vert[body], nv)
     excess = sig - np.maximum(cos_i, 0.0)[:, None] * np.nan_to_num(body_rgb)[vert]   # the highlight alone
-    out[:, 3:5] = _highlight_colour(excess, sig, var, vert, ok, nv)
+    out[:, 3:5], sd[:, 3:5] = _highlight_colour(excess, sig, var, vert, ok, nv)
     for cols, rows in (((5, 6), ok & (half < spec_half_deg)), ((7,), lit)):
         best = sf.group_argmax(excess[rows].sum(axis=1), vert[rows], nv)
         seen = best >= 0
-        value = excess[rows][best[seen]]
-        sd = np.sqrt(var[rows][best[seen]].mean(axis=1))
+        value, value_var = excess[rows][best[seen]], var[rows][best[seen]]
         body_part = sig[rows][best[seen]].mean(axis=1) - value.mean(axis=1)
-        keep = (value.mean(axis=1) > _SIGNIFICANT * sd) & (value.mean(axis=1) > _OVER_BODY * body_part)
+        keep = (value.mean(axis=1) > _SIGNIFICANT * np.sqrt(value_var.mean(axis=1))) \
+            & (value.mean(axis=1) > _OVER_BODY * body_part)
         seen[seen] = keep
         out[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity(value[keep], 0.0) if len(cols) == 2
                                            else np.log10(value[keep].mean(axis=1))[:, None])
+        sd[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity_sd(value[keep], value_var[keep])
+                                          if len(cols) == 2 else 0.0)
     out[~measured] = np.nan
-    body_sd[~measured] = np.nan
-    return VertexFeatures(out, FEATURE_NAMES, measured, n_lit.astype(np.int64), body_sd)
+    sd[~measured] = np.nan
+    return VertexFeatures(out, FEATURE_NAMES, measured, n_lit.astype(np.int64), sd[:, 0].copy(), sd)
 
 
 def _highlight_colour(excess: NDArray[np.float64], sig: NDArray[np.float64], var: NDArray[np.float64],
-                      vert: NDArray[np.intp], rows: NDArray[np.bool_], nv: int) -> NDArray[np.float64]:
-    """``(nv, 2)`` chromaticity of the summed excess over the body of ``rows``; NaN unless significant and dominant."""
+                      vert: NDArray[np.intp], rows: NDArray[np.bool_], nv: int) -> tuple[NDArray, NDArray]:
+    """``(nv, 2)`` chromaticity of the summed excess over the body of ``rows`` and its noise sd.
+
+    NaN unless significant and dominant.
+    """
     s_ex, s_var = sf.group_sum(excess[rows], vert[rows], nv), sf.group_sum(var[rows], vert[rows], nv)
     level = s_ex.mean(axis=1)
     s_body = sf.group_sum(sig[rows].mean(axis=1), vert[rows], nv) - level
     strong = (level > _SIGNIFICANT * np.sqrt(s_var.mean(axis=1))) & (level > _OVER_BODY * s_body)
-    out = np.full((nv, 2), np.nan)
+    out, sd = np.full((nv, 2), np.nan), np.full((nv, 2), np.nan)
     out[strong] = sf.chromaticity(s_ex[strong], 0.0)
-    return out
+    sd[strong] = sf.chromaticity_sd(s_ex[strong], s_var[strong])
+    return out, sd
 
 
 def _body_features(diffuse: NDArray[np.float64], var: NDArray[np.float64], vert: NDArray[np.intp],
@@ -242,7 +260,11 @@ def _body_features(diffuse: NDArray[np.float64], var: NDArray[np.float64], vert:
     strong = np.zeros(nv, bool)
     strong[has] = level > _SIGNIFICANT * noise[has]
     out[strong, 1:3] = sf.chromaticity(rgb[strong], 0.0)
-    return out, sd, rgb
+    sds = np.full((nv, 3), np.nan)
+    sds[:, 0] = sd
+    noise_var = np.repeat((noise[strong] ** 2)[:, None], 3, axis=1)
+    sds[strong, 1:3] = sf.chromaticity_sd(rgb[strong], noise_var)
+    return out, sds, rgb
 
 
 #: Features the mixture clusters on and their scales (one scale unit ~ a just-relevant difference).
@@ -271,19 +293,10 @@ def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: ND
     return out
 
 
-def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], k: int,
-                 rng: np.random.Generator, iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
-    """Diagonal Gaussian mixture with missing features (EM, Dempster et al. 1977); k-means++ start."""
-    import warnings
-
-    from scipy.cluster.vq import kmeans2
-
+def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64],
+                 resp: NDArray[np.float64], iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
+    """Diagonal Gaussian mixture with missing features (EM, Dempster et al. 1977) from responsibilities ``resp``."""
     m = mask.astype(np.float64)
-    fill = np.where(mask, x, (np.where(mask, x, 0.0).sum(axis=0) / np.maximum(m.sum(axis=0), 1.0)))
-    with warnings.catch_warnings():                  # an empty k-means cluster only weakens the start
-        warnings.simplefilter("ignore", UserWarning)
-        _, lab = kmeans2(fill, k, minit="++", seed=rng, iter=20)
-    resp = np.eye(k)[lab]
     xz = np.where(mask, x, 0.0)
     ll_total = -np.inf
     for _ in range(iterations):
@@ -303,13 +316,44 @@ def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray
     return mu, var, nk / nk.sum(), float(lse.sum())
 
 
+def _starts(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], k: int, previous,
+            seed: int) -> list[NDArray[np.float64]]:
+    """Initial responsibilities for k components: k-means++ (two seeds) and a greedy split.
+
+    The greedy start keeps the k-1 fit and gives a new component the vertices it explains worst (greedy
+    mixture learning, Verbeek et al. 2003).
+    """
+    import warnings
+
+    from scipy.cluster.vq import kmeans2
+
+    m = mask.astype(np.float64)
+    fill = np.where(mask, x, (np.where(mask, x, 0.0).sum(axis=0) / np.maximum(m.sum(axis=0), 1.0)))
+    out = []
+    for s in (seed, seed + 1):
+        with warnings.catch_warnings():              # an empty k-means cluster only weakens the start
+            warnings.simplefilter("ignore", UserWarning)
+            _, lab = kmeans2(fill, k, minit="++", seed=np.random.default_rng(s), iter=20)
+        out.append(np.eye(k)[lab])
+    if previous is not None:
+        mu, var, w = previous
+        ll = _component_loglik(x, mask, extra, mu, var, w)
+        lab = np.argmax(ll, axis=1)
+        worst = ll.max(axis=1) <= np.quantile(ll.max(axis=1), 0.02)
+        lab[worst] = k - 1
+        out.append(np.eye(k)[lab])
+    return out
+
+
 def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], max_k: int,
                     seed: int) -> tuple[NDArray, NDArray, NDArray]:
     """The mixture with the smallest BIC for k = 1..max_k, then components closer than the merge distance joined."""
-    best = None
+    best, previous = None, None
     n_obs = float(mask.sum())
     for k in range(1, min(max_k, len(x)) + 1):
-        mu, var, w, ll = _fit_mixture(x, mask, extra, k, np.random.default_rng(seed))
+        fits = [_fit_mixture(x, mask, extra, r) for r in _starts(x, mask, extra, k, previous, seed)]
+        mu, var, w, ll = max(fits, key=lambda f: f[3])
+        previous = (mu, var, w)
         bic = -2.0 * ll + (k * 2 * x.shape[1] + k - 1) * np.log(max(n_obs, 2.0))
         if best is None or bic < best[0]:
             best = (bic, mu, var, w)
@@ -450,8 +494,7 @@ def _data_cost(feats: VertexFeatures, meas: NDArray[np.intp], max_regions: int, 
     mask = np.isfinite(x)
     centre = [float(np.median(col[ok])) if ok.any() else 0.0 for col, ok in zip(x.T, mask.T)]
     x = np.nan_to_num((x - np.array(centre)) / _SCALES)
-    extra = np.zeros_like(x)
-    extra[:, 0] = np.nan_to_num(feats.body_sd[meas] / _SCALES[0]) ** 2
+    extra = np.nan_to_num(feats.sd[meas][:, _CLUSTER_FEATURES] / _SCALES) ** 2
     informative = mask[:, 1:].any(axis=1)
     pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
     fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
