@@ -304,6 +304,7 @@ def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray
         wsum = resp.T @ m + 1e-9
         mu = (resp.T @ xz) / wsum
         var = np.maximum((resp.T @ (xz ** 2 - extra * m)) / wsum - mu ** 2, _VAR_FLOOR)
+        var[:, 0] = _VAR_FLOOR      # one material has one body level: its spread is the vertices' own noise
         ll = _component_loglik(x, mask, extra, mu, var, nk / nk.sum())
         top = ll.max(axis=1, keepdims=True)
         lse = top[:, 0] + np.log(np.exp(ll - top).sum(axis=1))
