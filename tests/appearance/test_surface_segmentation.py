@@ -85,7 +85,7 @@ def test_hawk_regions_match_the_true_materials(hawk):
     # the black lacquer (cere) and the gold beak each come out as a region of their own material
     votes = {m: area[correct & (truth == names.index(m))].sum() / area[measured & (truth == names.index(m))].sum()
              for m in ("gold", "urushi-black")}
-    assert votes["gold"] >= 0.7 and votes["urushi-black"] >= 0.9, votes   # measured 0.83 and 1.0
+    assert votes["gold"] >= 0.7 and votes["urushi-black"] >= 0.9, votes   # measured 0.78 and 1.0
     # every vertex without a lit observation (and only those) is "not measured"
     feats = vertex_features(obs, sim.vertices, frames=frames)
     assert np.array_equal(measured, feats.measured)
