@@ -28,7 +28,9 @@ A feature is NaN where it is not measured: no lit observation, or a signal
 below ``5`` noise standard deviations (a chromaticity of noise is no colour).
 Every feature carries its noise standard deviation (first-order propagation of
 the observations' sigma), which the mixture adds to a component's variance: a
-faint highlight's colour is weak evidence, a bright one strong.
+faint highlight's colour is weak evidence, a bright one strong; each view's
+channels also carry a 3 % error beyond the noise (demosaicing a highlight a few
+pixels wide), so no colour is known better than ~1 %.
 
 :func:`segment_surface` clusters these features with a diagonal Gaussian
 mixture that marginalises missing features (EM, Dempster et al. 1977, started
@@ -82,6 +84,7 @@ FEATURE_NAMES = ("body_asinh", "body_r", "body_b", "colour_r", "colour_b", "spec
 _LEVEL_FLOOR = 1e-3      # body level below which the asinh scale is linear
 _MIN_COS_I = 0.1         # lit: the lamp at most ~84 deg from the normal
 _SIGNIFICANT = 5.0       # a signal counts when it exceeds this many noise standard deviations
+_CHROMA_ERROR = 0.03     # relative error of a view's channels beyond the noise (demosaicing a small highlight)
 _OVER_BODY = 4.0         # a highlight's colour counts when it is this many times the body under it
 
 
@@ -222,7 +225,8 @@ def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None,
         seen[seen] = keep
         out[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity(value[keep], 0.0) if len(cols) == 2
                                            else np.log10(value[keep].mean(axis=1))[:, None])
-        sd[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity_sd(value[keep], value_var[keep])
+        sd[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity_sd(value[keep], value_var[keep]
+                                                             + (_CHROMA_ERROR * np.maximum(value[keep], 0.0)) ** 2)
                                           if len(cols) == 2 else 0.0)
     out[~measured] = np.nan
     sd[~measured] = np.nan
@@ -241,7 +245,8 @@ def _highlight_colour(excess: NDArray[np.float64], sig: NDArray[np.float64], var
     strong = (level > _SIGNIFICANT * np.sqrt(s_var.mean(axis=1))) & (level > _OVER_BODY * s_body)
     out, sd = np.full((nv, 2), np.nan), np.full((nv, 2), np.nan)
     out[strong] = sf.chromaticity(s_ex[strong], 0.0)
-    sd[strong] = sf.chromaticity_sd(s_ex[strong], s_var[strong])
+    s_model = sf.group_sum((_CHROMA_ERROR * np.maximum(excess[rows], 0.0)) ** 2, vert[rows], nv)
+    sd[strong] = sf.chromaticity_sd(s_ex[strong], s_var[strong] + s_model[strong])
     return out, sd
 
 
