@@ -280,6 +280,8 @@ _CONFIDENT_NATS = 2.0    # a vertex's own features decide its label when the run
 _UNARY_CAP_NATS = 4.0    # at most this much data cost per vertex, so neighbours can overrule an outlier
 _MERGE_BHATTACHARYYA = 1.5  # mixture components closer than this are one material
 _MIN_COMPONENT_WEIGHT = 0.01  # share of the fitted vertices below which a component is dropped
+_MIN_SEEDS = 8           # confident vertices a region needs: fewer are a few off-colour views, no material
+_DROPPED = 1e6           # data cost of a forbidden label
 _FIT_SAMPLE = 10_000     # vertices the mixture is fitted on (a seeded random subset)
 
 
@@ -437,6 +439,21 @@ def _nearest_seed_labels(cost: NDArray[np.float64], labels: NDArray[np.intp], le
     return out
 
 
+def _drop_unfounded(cost: NDArray[np.float64], seeds: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Forbid (cost :data:`_DROPPED`) every label with fewer than :data:`_MIN_SEEDS` seeds.
+
+    A handful of confident vertices (a few off-colour views) cannot found a material of their own; the
+    label with the most seeds is always kept.
+    """
+    k = cost.shape[1]
+    count = np.bincount(seeds[seeds >= 0], minlength=k)
+    weak = count < _MIN_SEEDS
+    weak[np.argmax(count)] = False
+    out = cost.copy()
+    out[:, weak] = _DROPPED
+    return out
+
+
 def _spatial_labels(cost: NDArray[np.float64], informative: NDArray[np.bool_], lengths, smoothness: float,
                     rng: np.random.Generator, sweeps: int = 20) -> NDArray[np.intp]:
     """Potts labels: confident vertices keep their best label, the rest take the nearest one's, then ICM.
@@ -453,6 +470,8 @@ def _spatial_labels(cost: NDArray[np.float64], informative: NDArray[np.bool_], l
     # a highlight lights a patch: a confident vertex without a confident neighbour of its label is noise
     support = np.take_along_axis(_neighbour_votes(adj, labels, k), np.maximum(labels, 0)[:, None], 1)[:, 0]
     labels[support < 1] = -1
+    cost = _drop_unfounded(cost, labels)
+    labels[(labels >= 0) & (cost[np.arange(v), np.maximum(labels, 0)] >= _DROPPED)] = -1
     labels = _nearest_seed_labels(cost, labels, lengths)
     for _ in range(sweeps):                              # iterated conditional modes, half the vertices a sweep
         total = cost - smoothness * _neighbour_votes(adj, labels, k)

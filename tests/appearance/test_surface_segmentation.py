@@ -242,11 +242,15 @@ def test_realistic_session_regions(realistic_session):
     share = area[correct].sum() / area[measured].sum()
     print(f"realistic: {seg.n_regions} regions, share {share:.3f}, per material "
           f"{ {m: round(float(area[correct & (truth == i)].sum() / area[measured & (truth == i)].sum()), 3) for i, m in enumerate(names)} }")
-    # measured 0.940 (the 8000-triangle, 18-angle session: 0.961); the brief's goal 0.95 is not reached here:
-    # head vertices next to the beak take its colour in the 240 x 160 frames and join the gold region
+    # measured 0.940 (the 8000-triangle, 360 x 240, 18-angle session: 0.966).  Not 0.95 here: the chart of
+    # pass 1 is not found in this 240 x 160 build ("partly outside the frame"), so its frames keep raw camera
+    # RGB and its highlights found a head region of their own colour (97 faces)
     assert share >= 0.93
     region_of = {m: np.bincount(seg.face_region[measured & (truth == names.index(m))],
                                 weights=area[measured & (truth == names.index(m))], minlength=seg.n_regions)
                  for m in ("gold", "urushi-black")}
-    assert np.argmax(region_of["gold"]) != np.argmax(region_of["urushi-black"])
+    assert np.argmax(region_of["gold"]) != np.argmax(region_of["urushi-black"])   # the beak is not the lacquer
+    per = {m: area[correct & (truth == names.index(m))].sum() / area[measured & (truth == names.index(m))].sum()
+           for m in ("gold", "urushi-black")}
+    assert per["gold"] >= 0.6 and per["urushi-black"] >= 0.9, per            # measured 0.687 and 0.984
     assert 2 <= seg.n_regions <= 6
