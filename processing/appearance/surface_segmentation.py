@@ -373,13 +373,22 @@ def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDAr
 
 
 def _body_block(body: NDArray[np.float64], has: NDArray[np.bool_], extra: NDArray[np.float64],
-                mu: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(n, K)`` cost cap where a vertex's body level is 2 nats from a component's at the floor variance.
+                mu: NDArray[np.float64], centre: float) -> NDArray[np.float64]:
+    """``(n, K)`` cost cap where a vertex's body level is 2 nats from a component's, judged in linear units.
 
-    A mixture component that absorbed varied vertices has a broad body variance; judged at the floor
-    variance plus the vertex's noise, a black metal is never taken for a black lacquer by its neighbours.
+    ``body``, ``extra`` and ``mu`` are the scaled asinh level, its noise variance and the components'
+    levels; ``centre`` the asinh level subtracted before scaling.  The asinh scale compresses a black
+    lacquer's level (a few 1e-3) while a metal vertex's noise is taken at its level near 0, so the distance
+    is measured on the linear level: a vertex's noise (its asinh sd times cosh) plus the component's spread
+    at the floor variance.  A black metal is never taken for a black lacquer by its neighbours, nor the
+    reverse, even where the asinh distance alone would not decide.
     """
-    d = 0.5 * (body[:, None] - mu[None, :]) ** 2 / (_VAR_FLOOR + extra[:, None])
+    half = 0.5 * _SCALES[0]
+    level = body * _SCALES[0] + centre
+    level_mu = mu * _SCALES[0] + centre
+    noise = np.sqrt(extra) * _SCALES[0] * np.cosh(level)
+    spread = np.sqrt(_VAR_FLOOR) * half * 2.0 * np.cosh(level_mu)
+    d = 0.5 * (np.sinh(level)[:, None] - np.sinh(level_mu)[None, :]) ** 2 / (noise[:, None] ** 2 + spread[None, :] ** 2)
     d -= d.min(axis=1, keepdims=True)
     return np.where(has[:, None] & (d >= _CONFIDENT_NATS), _UNARY_CAP_NATS, 0.0)
 
@@ -530,7 +539,7 @@ def _data_cost(feats: VertexFeatures, meas: NDArray[np.intp], max_regions: int, 
     ll[~informative] -= np.log(w)
     cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
     cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
-    return np.maximum(cost, _body_block(x[:, 0], mask[:, 0], extra[:, 0], mu[:, 0])), informative
+    return np.maximum(cost, _body_block(x[:, 0], mask[:, 0], extra[:, 0], mu[:, 0], centre[0])), informative
 
 
 def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regions: int = 8,
