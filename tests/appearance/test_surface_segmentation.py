@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -205,7 +206,8 @@ def test_smoothing_relabels_an_outlier_vertex():
 
 @pytest.fixture(scope="module")
 def realistic_session(tmp_path_factory):
-    """A session as the station records it (~20 s): RAW frames, chart-calibrated, one distant lamp, the hawk in
+    """A session as the station records it (~15 s): RAW frames, chart-calibrated (a laid-out classic24 chart the
+    chain detects in every pass), one distant lamp, the hawk in
     three placements (upright, tilted +35 deg, tilted -35 deg about another azimuth) x 12 table angles, projected on
     the true mesh; every fourth frame held out as the app does."""
     from app.session import Session
@@ -215,10 +217,12 @@ def realistic_session(tmp_path_factory):
     from tests.integration.object_session import build_object_session, tilted_pose
 
     root = tmp_path_factory.mktemp("realistic")
-    world = World.hawk(4_000, width=240, height=160)
+    world = World.hawk(4_000, width=240, height=160, chart_layout="classic24")
     build_object_session(root, world, np.arange(0.0, 360.0, 30.0),
                          placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
     project_session(root)
+    report = json.loads((root / "products" / "projection-report.json").read_text())
+    assert report["chart_calibrated_passes"] == [1, 2, 3]      # else a pass's frames keep raw camera RGB
     data = _load_inputs(root, Session.read(root))
     v, t, _ = data["mesh"]
     obs = select_frames(data["obs"], ~holdout_flags(data["records"], 4))
@@ -242,15 +246,14 @@ def test_realistic_session_regions(realistic_session):
     share = area[correct].sum() / area[measured].sum()
     print(f"realistic: {seg.n_regions} regions, share {share:.3f}, per material "
           f"{ {m: round(float(area[correct & (truth == i)].sum() / area[measured & (truth == i)].sum()), 3) for i, m in enumerate(names)} }")
-    # measured 0.940 (the 8000-triangle, 360 x 240, 18-angle session: 0.966).  Not 0.95 here: the chart of
-    # pass 1 is not found in this 240 x 160 build ("partly outside the frame"), so its frames keep raw camera
-    # RGB and its highlights found a head region of their own colour (97 faces)
-    assert share >= 0.93
+    # measured 0.958 with seed 0 (0.940 with seeds 1 and 2, where the gold region takes head vertices next to the
+    # beak); the 8000-triangle, 360 x 240, 18-angle session: 0.964-0.968
+    assert share >= 0.95
     region_of = {m: np.bincount(seg.face_region[measured & (truth == names.index(m))],
                                 weights=area[measured & (truth == names.index(m))], minlength=seg.n_regions)
                  for m in ("gold", "urushi-black")}
     assert np.argmax(region_of["gold"]) != np.argmax(region_of["urushi-black"])   # the beak is not the lacquer
     per = {m: area[correct & (truth == names.index(m))].sum() / area[measured & (truth == names.index(m))].sum()
            for m in ("gold", "urushi-black")}
-    assert per["gold"] >= 0.6 and per["urushi-black"] >= 0.9, per            # measured 0.687 and 0.984
+    assert per["gold"] >= 0.6 and per["urushi-black"] >= 0.9, per            # measured 0.74 and 0.922
     assert 2 <= seg.n_regions <= 6
