@@ -37,7 +37,8 @@ mixture that marginalises missing features (EM, Dempster et al. 1977, started
 from k-means++ and from a greedy split of the k-1 fit, Verbeek et al. 2003; the
 number of components by BIC, Schwarz 1978), merges components closer than a
 Bhattacharyya distance, labels the vertices whose colour decides it (with a
-neighbour of the same label), gives every other vertex the label of the
+neighbour of the same label; a label needs 8 such seeds, the body level judged
+on its linear scale keeps metals and black lacquers apart), gives every other vertex the label of the
 geodesically nearest such vertex that its own features allow, relaxes a Potts
 model on the mesh's edge graph by iterated conditional modes (Besag 1986), and
 merges regions smaller than ``min_region_share`` of the measured area into the
@@ -282,6 +283,7 @@ _MERGE_BHATTACHARYYA = 1.5  # mixture components closer than this are one materi
 _MIN_COMPONENT_WEIGHT = 0.01  # share of the fitted vertices below which a component is dropped
 _MIN_SEEDS = 8           # confident vertices a region needs: fewer are a few off-colour views, no material
 _DROPPED = 1e6           # data cost of a forbidden label
+_KMEANS_STARTS = 6       # k-means++ starts per k (besides the greedy one): EM's local optima vary with the start
 _FIT_SAMPLE = 10_000     # vertices the mixture is fitted on (a seeded random subset)
 
 
@@ -326,7 +328,7 @@ def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray
 
 def _starts(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], k: int, previous,
             seed: int) -> list[NDArray[np.float64]]:
-    """Initial responsibilities for k components: k-means++ (two seeds) and a greedy split.
+    """Initial responsibilities for k components: k-means++ (:data:`_KMEANS_STARTS` seeds) and a greedy split.
 
     The greedy start keeps the k-1 fit and gives a new component the vertices it explains worst (greedy
     mixture learning, Verbeek et al. 2003).
@@ -338,7 +340,7 @@ def _starts(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.f
     m = mask.astype(np.float64)
     fill = np.where(mask, x, (np.where(mask, x, 0.0).sum(axis=0) / np.maximum(m.sum(axis=0), 1.0)))
     out = []
-    for s in (seed, seed + 1):
+    for s in range(seed, seed + _KMEANS_STARTS):
         with warnings.catch_warnings():              # an empty k-means cluster only weakens the start
             warnings.simplefilter("ignore", UserWarning)
             _, lab = kmeans2(fill, k, minit="++", seed=np.random.default_rng(s), iter=20)
