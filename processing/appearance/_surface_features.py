@@ -12,8 +12,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["irradiance", "group_median", "group_sum", "group_argmax", "chromaticity", "vertex_areas",
-           "adjacency"]
+__all__ = ["irradiance", "group_median", "group_sum", "group_argmax", "chromaticity", "chromaticity_sd",
+           "vertex_areas", "adjacency"]
 
 
 def irradiance(vertex_pos: NDArray[np.float64], frame: NDArray[np.int32], frames: Sequence | None,
@@ -163,6 +163,37 @@ def chromaticity(rgb: NDArray[np.float64], floor: float) -> NDArray[np.float64]:
     x = np.maximum(rgb, 0.0) + floor
     s = x.sum(axis=1, keepdims=True)
     return (x / s)[:, [0, 2]]
+
+
+def chromaticity_sd(rgb: NDArray[np.float64], var: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Noise standard deviation of :func:`chromaticity` (floor 0) by first-order propagation.
+
+    Parameters
+    ----------
+    rgb
+        ``(n, 3)`` signal; negative values count as 0.
+    var
+        ``(n, 3)`` noise variance of each channel.
+
+    Returns
+    -------
+    ndarray
+        ``(n, 2)`` standard deviations of ``(r, b)``; inf where the signal sums to 0.
+
+    Examples
+    --------
+    >>> chromaticity_sd(np.array([[1.0, 1.0, 1.0]]), np.array([[0.09, 0.09, 0.09]])).round(4).tolist()
+    [[0.0816, 0.0816]]
+    """
+    x = np.maximum(rgb, 0.0)
+    s = x.sum(axis=1)
+    ok = s > 0.0
+    out = np.full((len(x), 2), np.inf)
+    r, b = x[ok, 0] / s[ok], x[ok, 2] / s[ok]
+    v = var[ok]
+    out[ok, 0] = np.sqrt((1 - r) ** 2 * v[:, 0] + r ** 2 * (v[:, 1] + v[:, 2])) / s[ok]
+    out[ok, 1] = np.sqrt((1 - b) ** 2 * v[:, 2] + b ** 2 * (v[:, 0] + v[:, 1])) / s[ok]
+    return out
 
 
 def vertex_areas(vertices: NDArray[np.float64], triangles: NDArray[np.int64]) -> NDArray[np.float64]:

@@ -26,12 +26,19 @@ on the surface"):
 
 A feature is NaN where it is not measured: no lit observation, or a signal
 below ``5`` noise standard deviations (a chromaticity of noise is no colour).
+Every feature carries its noise standard deviation (first-order propagation of
+the observations' sigma), which the mixture adds to a component's variance: a
+faint highlight's colour is weak evidence, a bright one strong; each view's
+channels also carry a 3 % error beyond the noise (demosaicing a highlight a few
+pixels wide), so no colour is known better than ~1 %.
 
 :func:`segment_surface` clusters these features with a diagonal Gaussian
-mixture that marginalises missing features (EM, Dempster et al. 1977; the number
-of components by BIC, Schwarz 1978), merges components closer than a
+mixture that marginalises missing features (EM, Dempster et al. 1977, started
+from k-means++ and from a greedy split of the k-1 fit, Verbeek et al. 2003; the
+number of components by BIC, Schwarz 1978), merges components closer than a
 Bhattacharyya distance, labels the vertices whose colour decides it (with a
-neighbour of the same label), gives every other vertex the label of the
+neighbour of the same label; a label needs 8 such seeds, the body level judged
+on its linear scale keeps metals and black lacquers apart), gives every other vertex the label of the
 geodesically nearest such vertex that its own features allow, relaxes a Potts
 model on the mesh's edge graph by iterated conditional modes (Besag 1986), and
 merges regions smaller than ``min_region_share`` of the measured area into the
@@ -49,6 +56,10 @@ doi:10.1111/j.2517-6161.1977.tb01600.x
 
 Schwarz, G. (1978). Estimating the dimension of a model. Ann. Statist. 6(2),
 461-464. doi:10.1214/aos/1176344136
+
+Verbeek, J. J., Vlassis, N., Kröse, B. (2003). Efficient greedy learning of
+Gaussian mixture models. Neural Computation 15(2), 469-485.
+doi:10.1162/089976603762553004
 
 Lensch, H. P. A., Kautz, J., Goesele, M., Heidrich, W., Seidel, H.-P. (2003).
 Image-based reconstruction of spatial appearance and geometric detail. ACM
@@ -74,6 +85,7 @@ FEATURE_NAMES = ("body_asinh", "body_r", "body_b", "colour_r", "colour_b", "spec
 _LEVEL_FLOOR = 1e-3      # body level below which the asinh scale is linear
 _MIN_COS_I = 0.1         # lit: the lamp at most ~84 deg from the normal
 _SIGNIFICANT = 5.0       # a signal counts when it exceeds this many noise standard deviations
+_CHROMA_ERROR = 0.03     # relative error of a view's channels beyond the noise (demosaicing a small highlight)
 _OVER_BODY = 4.0         # a highlight's colour counts when it is this many times the body under it
 
 
@@ -97,6 +109,8 @@ class VertexFeatures:
         ``(V,)`` int64 lit observations per vertex.
     body_sd
         ``(V,)`` noise standard deviation of ``body_asinh`` (NaN where it is NaN).
+    sd
+        ``(V, F)`` noise standard deviation of every feature (NaN where the feature is NaN; ``peak_log``: 0).
     """
 
     values: NDArray[np.float64]
@@ -104,6 +118,7 @@ class VertexFeatures:
     measured: NDArray[np.bool_]
     n_lit: NDArray[np.int64]
     body_sd: NDArray[np.float64]
+    sd: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -194,37 +209,46 @@ def vertex_features(obs, vertices: ArrayLike, *, frames: Sequence | None = None,
     n_lit = np.bincount(vert[lit], minlength=nv)
     measured = n_lit > 0
     out = np.full((nv, len(FEATURE_NAMES)), np.nan)
+    sd = np.full_like(out, np.nan)
     ok = lit & ~obs.clipped
     body = ok & (half > body_half_deg)
-    out[:, 0:3], body_sd, body_rgb = _body_features(sig[body] / cos_i[body, None],
-                                                     var[body] / cos_i[body, None] ** 2, vert[body], nv)
+    out[:, 0:3], sd[:, 0:3], body_rgb = _body_features(sig[body] / cos_i[body, None],
+                                                        var[body] / cos_i[body, None] ** 2, vert[body], nv)
     excess = sig - np.maximum(cos_i, 0.0)[:, None] * np.nan_to_num(body_rgb)[vert]   # the highlight alone
-    out[:, 3:5] = _highlight_colour(excess, sig, var, vert, ok, nv)
+    out[:, 3:5], sd[:, 3:5] = _highlight_colour(excess, sig, var, vert, ok, nv)
     for cols, rows in (((5, 6), ok & (half < spec_half_deg)), ((7,), lit)):
         best = sf.group_argmax(excess[rows].sum(axis=1), vert[rows], nv)
         seen = best >= 0
-        value = excess[rows][best[seen]]
-        sd = np.sqrt(var[rows][best[seen]].mean(axis=1))
+        value, value_var = excess[rows][best[seen]], var[rows][best[seen]]
         body_part = sig[rows][best[seen]].mean(axis=1) - value.mean(axis=1)
-        keep = (value.mean(axis=1) > _SIGNIFICANT * sd) & (value.mean(axis=1) > _OVER_BODY * body_part)
+        keep = (value.mean(axis=1) > _SIGNIFICANT * np.sqrt(value_var.mean(axis=1))) \
+            & (value.mean(axis=1) > _OVER_BODY * body_part)
         seen[seen] = keep
         out[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity(value[keep], 0.0) if len(cols) == 2
                                            else np.log10(value[keep].mean(axis=1))[:, None])
+        sd[seen, cols[0]:cols[-1] + 1] = (sf.chromaticity_sd(value[keep], value_var[keep]
+                                                             + (_CHROMA_ERROR * np.maximum(value[keep], 0.0)) ** 2)
+                                          if len(cols) == 2 else 0.0)
     out[~measured] = np.nan
-    body_sd[~measured] = np.nan
-    return VertexFeatures(out, FEATURE_NAMES, measured, n_lit.astype(np.int64), body_sd)
+    sd[~measured] = np.nan
+    return VertexFeatures(out, FEATURE_NAMES, measured, n_lit.astype(np.int64), sd[:, 0].copy(), sd)
 
 
 def _highlight_colour(excess: NDArray[np.float64], sig: NDArray[np.float64], var: NDArray[np.float64],
-                      vert: NDArray[np.intp], rows: NDArray[np.bool_], nv: int) -> NDArray[np.float64]:
-    """``(nv, 2)`` chromaticity of the summed excess over the body of ``rows``; NaN unless significant and dominant."""
+                      vert: NDArray[np.intp], rows: NDArray[np.bool_], nv: int) -> tuple[NDArray, NDArray]:
+    """``(nv, 2)`` chromaticity of the summed excess over the body of ``rows`` and its noise sd.
+
+    NaN unless significant and dominant.
+    """
     s_ex, s_var = sf.group_sum(excess[rows], vert[rows], nv), sf.group_sum(var[rows], vert[rows], nv)
     level = s_ex.mean(axis=1)
     s_body = sf.group_sum(sig[rows].mean(axis=1), vert[rows], nv) - level
     strong = (level > _SIGNIFICANT * np.sqrt(s_var.mean(axis=1))) & (level > _OVER_BODY * s_body)
-    out = np.full((nv, 2), np.nan)
+    out, sd = np.full((nv, 2), np.nan), np.full((nv, 2), np.nan)
     out[strong] = sf.chromaticity(s_ex[strong], 0.0)
-    return out
+    s_model = sf.group_sum((_CHROMA_ERROR * np.maximum(excess[rows], 0.0)) ** 2, vert[rows], nv)
+    sd[strong] = sf.chromaticity_sd(s_ex[strong], s_var[strong] + s_model[strong])
+    return out, sd
 
 
 def _body_features(diffuse: NDArray[np.float64], var: NDArray[np.float64], vert: NDArray[np.intp],
@@ -242,7 +266,11 @@ def _body_features(diffuse: NDArray[np.float64], var: NDArray[np.float64], vert:
     strong = np.zeros(nv, bool)
     strong[has] = level > _SIGNIFICANT * noise[has]
     out[strong, 1:3] = sf.chromaticity(rgb[strong], 0.0)
-    return out, sd, rgb
+    sds = np.full((nv, 3), np.nan)
+    sds[:, 0] = sd
+    noise_var = np.repeat((noise[strong] ** 2)[:, None], 3, axis=1)
+    sds[strong, 1:3] = sf.chromaticity_sd(rgb[strong], noise_var)
+    return out, sds, rgb
 
 
 #: Features the mixture clusters on and their scales (one scale unit ~ a just-relevant difference).
@@ -253,6 +281,9 @@ _CONFIDENT_NATS = 2.0    # a vertex's own features decide its label when the run
 _UNARY_CAP_NATS = 4.0    # at most this much data cost per vertex, so neighbours can overrule an outlier
 _MERGE_BHATTACHARYYA = 1.5  # mixture components closer than this are one material
 _MIN_COMPONENT_WEIGHT = 0.01  # share of the fitted vertices below which a component is dropped
+_MIN_SEEDS = 8           # confident vertices a region needs: fewer are a few off-colour views, no material
+_DROPPED = 1e6           # data cost of a forbidden label
+_KMEANS_STARTS = 6       # k-means++ starts per k (besides the greedy one): EM's local optima vary with the start
 _FIT_SAMPLE = 10_000     # vertices the mixture is fitted on (a seeded random subset)
 
 
@@ -271,19 +302,10 @@ def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: ND
     return out
 
 
-def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], k: int,
-                 rng: np.random.Generator, iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
-    """Diagonal Gaussian mixture with missing features (EM, Dempster et al. 1977); k-means++ start."""
-    import warnings
-
-    from scipy.cluster.vq import kmeans2
-
+def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64],
+                 resp: NDArray[np.float64], iterations: int = 60) -> tuple[NDArray, NDArray, NDArray, float]:
+    """Diagonal Gaussian mixture with missing features (EM, Dempster et al. 1977) from responsibilities ``resp``."""
     m = mask.astype(np.float64)
-    fill = np.where(mask, x, (np.where(mask, x, 0.0).sum(axis=0) / np.maximum(m.sum(axis=0), 1.0)))
-    with warnings.catch_warnings():                  # an empty k-means cluster only weakens the start
-        warnings.simplefilter("ignore", UserWarning)
-        _, lab = kmeans2(fill, k, minit="++", seed=rng, iter=20)
-    resp = np.eye(k)[lab]
     xz = np.where(mask, x, 0.0)
     ll_total = -np.inf
     for _ in range(iterations):
@@ -291,6 +313,7 @@ def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray
         wsum = resp.T @ m + 1e-9
         mu = (resp.T @ xz) / wsum
         var = np.maximum((resp.T @ (xz ** 2 - extra * m)) / wsum - mu ** 2, _VAR_FLOOR)
+        var[:, 0] = _VAR_FLOOR      # one material has one body level: its spread is the vertices' own noise
         ll = _component_loglik(x, mask, extra, mu, var, nk / nk.sum())
         top = ll.max(axis=1, keepdims=True)
         lse = top[:, 0] + np.log(np.exp(ll - top).sum(axis=1))
@@ -303,13 +326,44 @@ def _fit_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray
     return mu, var, nk / nk.sum(), float(lse.sum())
 
 
+def _starts(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], k: int, previous,
+            seed: int) -> list[NDArray[np.float64]]:
+    """Initial responsibilities for k components: k-means++ (:data:`_KMEANS_STARTS` seeds) and a greedy split.
+
+    The greedy start keeps the k-1 fit and gives a new component the vertices it explains worst (greedy
+    mixture learning, Verbeek et al. 2003).
+    """
+    import warnings
+
+    from scipy.cluster.vq import kmeans2
+
+    m = mask.astype(np.float64)
+    fill = np.where(mask, x, (np.where(mask, x, 0.0).sum(axis=0) / np.maximum(m.sum(axis=0), 1.0)))
+    out = []
+    for s in range(seed, seed + _KMEANS_STARTS):
+        with warnings.catch_warnings():              # an empty k-means cluster only weakens the start
+            warnings.simplefilter("ignore", UserWarning)
+            _, lab = kmeans2(fill, k, minit="++", seed=np.random.default_rng(s), iter=20)
+        out.append(np.eye(k)[lab])
+    if previous is not None:
+        mu, var, w = previous
+        ll = _component_loglik(x, mask, extra, mu, var, w)
+        lab = np.argmax(ll, axis=1)
+        worst = ll.max(axis=1) <= np.quantile(ll.max(axis=1), 0.02)
+        lab[worst] = k - 1
+        out.append(np.eye(k)[lab])
+    return out
+
+
 def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64], max_k: int,
                     seed: int) -> tuple[NDArray, NDArray, NDArray]:
     """The mixture with the smallest BIC for k = 1..max_k, then components closer than the merge distance joined."""
-    best = None
+    best, previous = None, None
     n_obs = float(mask.sum())
     for k in range(1, min(max_k, len(x)) + 1):
-        mu, var, w, ll = _fit_mixture(x, mask, extra, k, np.random.default_rng(seed))
+        fits = [_fit_mixture(x, mask, extra, r) for r in _starts(x, mask, extra, k, previous, seed)]
+        mu, var, w, ll = max(fits, key=lambda f: f[3])
+        previous = (mu, var, w)
         bic = -2.0 * ll + (k * 2 * x.shape[1] + k - 1) * np.log(max(n_obs, 2.0))
         if best is None or bic < best[0]:
             best = (bic, mu, var, w)
@@ -321,13 +375,22 @@ def _select_mixture(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDAr
 
 
 def _body_block(body: NDArray[np.float64], has: NDArray[np.bool_], extra: NDArray[np.float64],
-                mu: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(n, K)`` cost cap where a vertex's body level is 2 nats from a component's at the floor variance.
+                mu: NDArray[np.float64], centre: float) -> NDArray[np.float64]:
+    """``(n, K)`` cost cap where a vertex's body level is 2 nats from a component's, judged in linear units.
 
-    A mixture component that absorbed varied vertices has a broad body variance; judged at the floor
-    variance plus the vertex's noise, a black metal is never taken for a black lacquer by its neighbours.
+    ``body``, ``extra`` and ``mu`` are the scaled asinh level, its noise variance and the components'
+    levels; ``centre`` the asinh level subtracted before scaling.  The asinh scale compresses a black
+    lacquer's level (a few 1e-3) while a metal vertex's noise is taken at its level near 0, so the distance
+    is measured on the linear level: a vertex's noise (its asinh sd times cosh) plus the component's spread
+    at the floor variance.  A black metal is never taken for a black lacquer by its neighbours, nor the
+    reverse, even where the asinh distance alone would not decide.
     """
-    d = 0.5 * (body[:, None] - mu[None, :]) ** 2 / (_VAR_FLOOR + extra[:, None])
+    half = 0.5 * _SCALES[0]
+    level = body * _SCALES[0] + centre
+    level_mu = mu * _SCALES[0] + centre
+    noise = np.sqrt(extra) * _SCALES[0] * np.cosh(level)
+    spread = np.sqrt(_VAR_FLOOR) * half * 2.0 * np.cosh(level_mu)
+    d = 0.5 * (np.sinh(level)[:, None] - np.sinh(level_mu)[None, :]) ** 2 / (noise[:, None] ** 2 + spread[None, :] ** 2)
     d -= d.min(axis=1, keepdims=True)
     return np.where(has[:, None] & (d >= _CONFIDENT_NATS), _UNARY_CAP_NATS, 0.0)
 
@@ -387,6 +450,21 @@ def _nearest_seed_labels(cost: NDArray[np.float64], labels: NDArray[np.intp], le
     return out
 
 
+def _drop_unfounded(cost: NDArray[np.float64], seeds: NDArray[np.intp]) -> NDArray[np.float64]:
+    """Forbid (cost :data:`_DROPPED`) every label with fewer than :data:`_MIN_SEEDS` seeds.
+
+    A handful of confident vertices (a few off-colour views) cannot found a material of their own; the
+    label with the most seeds is always kept.
+    """
+    k = cost.shape[1]
+    count = np.bincount(seeds[seeds >= 0], minlength=k)
+    weak = count < _MIN_SEEDS
+    weak[np.argmax(count)] = False
+    out = cost.copy()
+    out[:, weak] = _DROPPED
+    return out
+
+
 def _spatial_labels(cost: NDArray[np.float64], informative: NDArray[np.bool_], lengths, smoothness: float,
                     rng: np.random.Generator, sweeps: int = 20) -> NDArray[np.intp]:
     """Potts labels: confident vertices keep their best label, the rest take the nearest one's, then ICM.
@@ -403,6 +481,8 @@ def _spatial_labels(cost: NDArray[np.float64], informative: NDArray[np.bool_], l
     # a highlight lights a patch: a confident vertex without a confident neighbour of its label is noise
     support = np.take_along_axis(_neighbour_votes(adj, labels, k), np.maximum(labels, 0)[:, None], 1)[:, 0]
     labels[support < 1] = -1
+    cost = _drop_unfounded(cost, labels)
+    labels[(labels >= 0) & (cost[np.arange(v), np.maximum(labels, 0)] >= _DROPPED)] = -1
     labels = _nearest_seed_labels(cost, labels, lengths)
     for _ in range(sweeps):                              # iterated conditional modes, half the vertices a sweep
         total = cost - smoothness * _neighbour_votes(adj, labels, k)
@@ -450,8 +530,7 @@ def _data_cost(feats: VertexFeatures, meas: NDArray[np.intp], max_regions: int, 
     mask = np.isfinite(x)
     centre = [float(np.median(col[ok])) if ok.any() else 0.0 for col, ok in zip(x.T, mask.T)]
     x = np.nan_to_num((x - np.array(centre)) / _SCALES)
-    extra = np.zeros_like(x)
-    extra[:, 0] = np.nan_to_num(feats.body_sd[meas] / _SCALES[0]) ** 2
+    extra = np.nan_to_num(feats.sd[meas][:, _CLUSTER_FEATURES] / _SCALES) ** 2
     informative = mask[:, 1:].any(axis=1)
     pool = np.flatnonzero(informative) if informative.any() else np.arange(len(x))
     fit = pool if len(pool) <= _FIT_SAMPLE else np.sort(rng.choice(pool, _FIT_SAMPLE, replace=False))
@@ -462,7 +541,7 @@ def _data_cost(feats: VertexFeatures, meas: NDArray[np.intp], max_regions: int, 
     ll[~informative] -= np.log(w)
     cost = np.minimum(ll.max(axis=1, keepdims=True) - ll, _UNARY_CAP_NATS)
     cost[cost < _CONFIDENT_NATS] = 0.0        # within the margin the features do not decide: the neighbours do
-    return np.maximum(cost, _body_block(x[:, 0], mask[:, 0], extra[:, 0], mu[:, 0])), informative
+    return np.maximum(cost, _body_block(x[:, 0], mask[:, 0], extra[:, 0], mu[:, 0], centre[0])), informative
 
 
 def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regions: int = 8,

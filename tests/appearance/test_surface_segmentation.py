@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -85,7 +86,7 @@ def test_hawk_regions_match_the_true_materials(hawk):
     # the black lacquer (cere) and the gold beak each come out as a region of their own material
     votes = {m: area[correct & (truth == names.index(m))].sum() / area[measured & (truth == names.index(m))].sum()
              for m in ("gold", "urushi-black")}
-    assert votes["gold"] >= 0.7 and votes["urushi-black"] >= 0.9, votes   # measured 0.83 and 1.0
+    assert votes["gold"] >= 0.7 and votes["urushi-black"] >= 0.9, votes   # measured 0.78 and 1.0
     # every vertex without a lit observation (and only those) is "not measured"
     feats = vertex_features(obs, sim.vertices, frames=frames)
     assert np.array_equal(measured, feats.measured)
@@ -201,3 +202,57 @@ def test_smoothing_relabels_an_outlier_vertex():
     assert alone.vertex_region[victim] != alone.vertex_region[neighbours[0]]   # its own views say lacquer
     assert smooth.vertex_region[victim] == base.vertex_region[victim]
     assert smooth.n_regions == 2
+
+
+@pytest.fixture(scope="module")
+def realistic_session(tmp_path_factory):
+    """A session as the station records it (~15 s): RAW frames, chart-calibrated (a laid-out classic24 chart the
+    chain detects in every pass), one distant lamp, the hawk in
+    three placements (upright, tilted +35 deg, tilted -35 deg about another azimuth) x 12 table angles, projected on
+    the true mesh; every fourth frame held out as the app does."""
+    from app.session import Session
+    from app.workflows.object_materials import _load_inputs, holdout_flags
+    from app.workflows.posed_frames import project_session
+    from processing.appearance.observations import select_frames
+    from tests.integration.object_session import build_object_session, tilted_pose
+
+    root = tmp_path_factory.mktemp("realistic")
+    world = World.hawk(4_000, width=240, height=160, chart_layout="classic24")
+    build_object_session(root, world, np.arange(0.0, 360.0, 30.0),
+                         placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
+    project_session(root)
+    report = json.loads((root / "products" / "projection-report.json").read_text())
+    assert report["chart_calibrated_passes"] == [1, 2, 3]      # else a pass's frames keep raw camera RGB
+    data = _load_inputs(root, Session.read(root))
+    v, t, _ = data["mesh"]
+    obs = select_frames(data["obs"], ~holdout_flags(data["records"], 4))
+    return world, v, t, obs, data["frames"]
+
+
+def test_realistic_session_regions(realistic_session):
+    """The full chain's inputs: most of the measured area lies in a region of its own material, and the gold beak
+    and the black lacquer (cere, pupils) are different regions."""
+    world, v, t, obs, frames = realistic_session
+    seg = segment_surface(obs, v, t, max_regions=8, frames=frames)
+    names = sorted(set(world.materials.values()))
+    truth = np.array([names.index(world.materials[r]) for r in world.region_names])[np.asarray(world.region)]
+    a, b, c = (v[t[:, i]] for i in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    measured = seg.face_region >= 0
+    votes = np.zeros((seg.n_regions, len(names)))
+    np.add.at(votes, (seg.face_region[measured], truth[measured]), area[measured])
+    majority = np.argmax(votes, axis=1)
+    correct = measured & (majority[np.maximum(seg.face_region, 0)] == truth)
+    share = area[correct].sum() / area[measured].sum()
+    print(f"realistic: {seg.n_regions} regions, share {share:.3f}, per material "
+          f"{ {m: round(float(area[correct & (truth == i)].sum() / area[measured & (truth == i)].sum()), 3) for i, m in enumerate(names)} }")
+    # measured 0.958 with seed 0 (seeds 1, 2: 0.956, 0.959); the 8000-triangle, 360 x 240, 18-angle session: 0.964
+    assert share >= 0.95
+    region_of = {m: np.bincount(seg.face_region[measured & (truth == names.index(m))],
+                                weights=area[measured & (truth == names.index(m))], minlength=seg.n_regions)
+                 for m in ("gold", "urushi-black")}
+    assert np.argmax(region_of["gold"]) != np.argmax(region_of["urushi-black"])   # the beak is not the lacquer
+    per = {m: area[correct & (truth == names.index(m))].sum() / area[measured & (truth == names.index(m))].sum()
+           for m in ("gold", "urushi-black")}
+    assert per["gold"] >= 0.6 and per["urushi-black"] >= 0.9, per            # measured 0.74 and 0.922
+    assert 2 <= seg.n_regions <= 6
