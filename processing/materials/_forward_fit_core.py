@@ -25,6 +25,9 @@ ROUGHNESS_RANGE = (0.02, 0.8)
 #: Observations closer than this to the mirror direction are not fitted (the mirror spike there
 #: depends on normal errors far below a scanned mesh's accuracy, and is usually clipped).
 MIRROR_EXCLUDE_DEG = 5.0
+#: Whether a vertex's facet angle (its normal against its triangles') counts as a normal error.  Off:
+#: an object is smooth and a scanned mesh samples it finely; the term only modelled flat-shaded renders.
+USE_FACETS = False
 _GRID = np.geomspace(ROUGHNESS_RANGE[0], ROUGHNESS_RANGE[1], 18)
 
 
@@ -253,6 +256,6 @@ def common_mode_error(provisional: Sequence[Basis], samples, y: NDArray[np.float
     t = np.sqrt(np.maximum(1.0 - samples.cos_h ** 2, 0.0)) / np.maximum(samples.cos_h, 1e-6)
     slope = np.abs(2.0 * t / (f.roughness ** 2 * np.maximum(samples.cos_h, 1e-6) ** 2) - 4.0 * t)
     t_i = np.sqrt(np.maximum(1.0 - samples.cos_i ** 2, 0.0)) / np.maximum(samples.cos_i, 1e-6)
-    facet = 0.0 if samples.facet_rad is None else samples.facet_rad
+    facet = 0.0 if samples.facet_rad is None or not USE_FACETS else samples.facet_rad
     delta = np.sqrt(normal_error_rad ** 2 + facet ** 2)[..., None] if np.ndim(facet) else normal_error_rad
     return delta * (slope[:, None] * np.abs(spec) + np.minimum(t_i, 10.0)[:, None] * np.abs(diffuse))

@@ -125,7 +125,7 @@ def _checked(name: str, values: ArrayLike, m: int) -> NDArray[np.float64]:
 
 
 def decide(names: Sequence[str], chi2: ArrayLike, dof: ArrayLike, n_params: ArrayLike, *,
-           neutral: ArrayLike | None = None) -> Decision:
+           neutral: ArrayLike | None = None, max_misfit: float = MAX_MISFIT) -> Decision:
     """The answer and an honest confidence from every candidate's chi-square.
 
     Parameters
@@ -142,6 +142,9 @@ def decide(names: Sequence[str], chi2: ArrayLike, dof: ArrayLike, n_params: Arra
         ``(m,)`` free parameters of each candidate (the brightness counts).
     neutral
         ``(m,)`` True for neutral metals (their colour within 10 % of the light's); None: none is.
+    max_misfit
+        Largest reduced chi-square of an answer (:data:`MAX_MISFIT` for one image's three channels; a
+        fit pooling hundreds of independent observations states its own, smaller one).
 
     Returns
     -------
@@ -180,7 +183,7 @@ def decide(names: Sequence[str], chi2: ArrayLike, dof: ArrayLike, n_params: Arra
     post = np.exp(-np.minimum(delta, 700.0))
     post /= post.sum()
     order = [int(i) for i in np.argsort(delta, kind="stable")]
-    if misfit > MAX_MISFIT:
+    if misfit > max_misfit:
         return Decision(NO_FIT, float(post[best]), tuple(names[i] for i in order[:_LISTED]), best, post, misfit)
     close = [i for i in order if delta[i] < math.log(AMBIGUOUS_LR)]
     if len(close) > 1 and all(neu[i] for i in close):

@@ -80,7 +80,17 @@ def test_held_out_frames_are_validated_and_never_fitted(measured):
     assert len(held) == 9                              # 3 of the 12 angles, in each of the 3 passes
     val = doc["validation"]
     assert {f["frame"] for f in val["frames"]} == held
-    assert val["mean_de2000"] < val["baseline_mean_de2000"]
+    # Where the baseline (the largest region's material everywhere) is not the region's own material, the
+    # measured materials predict the photos better (measured: 6.6 against 8.0 mean CIEDE2000); on the baseline's
+    # own region the two renders are the same.
+    base = str(doc["baseline"]["region"])
+    others = {k: r for k, r in val["regions"].items() if k != base and r["measured"]["n_pixels"]}
+    n = sum(r["measured"]["n_pixels"] for r in others.values())
+    assert n > 1000
+    measured_de = sum(r["measured"]["mean_de2000"] * r["measured"]["n_pixels"] for r in others.values()) / n
+    baseline_de = sum(r["baseline"]["mean_de2000"] * r["baseline"]["n_pixels"] for r in others.values()) / n
+    assert measured_de < 0.9 * baseline_de
+    assert val["regions"][base]["measured"] == val["regions"][base]["baseline"]
     for f in val["frames"]:
         if "skipped" not in f:
             for key in ("triptych", "error_map", "baseline_error_map"):

