@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["session_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
+__all__ = ["session_case", "normals_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
 
 TARGETS = {"share_right": 0.95, "ag_pts": 3.0, "roughness_rel": 0.10, "mean_de2000": 2.0, "baseline_ratio": 3.0,
            "fit_s": 60.0, "large_s": 300.0, "large_gb": 4.0, "ece": 0.05, "high_accuracy": 0.90}
@@ -67,6 +67,65 @@ def _agreement(session: Path, doc: dict[str, Any], truth: dict[str, Any]) -> dic
                      "roughness_error_rel": None if params.get("roughness") is None else
                      round(params["roughness"] / _HEAD["roughness"] - 1.0, 4)}
     return agree
+
+
+def _true_normals(v: np.ndarray, world: Any, pose: np.ndarray) -> np.ndarray:
+    """The simulated object's smooth normal at the point of it nearest to each scanned vertex (mesh frame)."""
+    import open3d as o3d
+
+    wv = world.vertices @ pose[:3, :3].T + pose[:3, 3]
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(wv),
+                                     o3d.utility.Vector3iVector(world.triangles.astype(np.int32)))
+    wn = np.asarray(mesh.compute_vertex_normals().vertex_normals)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(wv.astype(np.float32)), o3d.core.Tensor(world.triangles.astype(np.uint32)))
+    cp = scene.compute_closest_points(o3d.core.Tensor(np.asarray(v, np.float32)))
+    tri = world.triangles[cp["primitive_ids"].numpy().astype(np.int64)]
+    uv = cp["primitive_uvs"].numpy().astype(np.float64)
+    n = (1 - uv[:, :1] - uv[:, 1:]) * wn[tri[:, 0]] + uv[:, :1] * wn[tri[:, 1]] + uv[:, 1:] * wn[tri[:, 2]]
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def normals_case(work: Path) -> dict[str, Any]:
+    """Each true region of the ``session`` case fitted with the scanned mesh's normals and with the true ones.
+
+    What the fit can do when the geometry is right, and how far the scanned normals are off.
+    """
+    import dataclasses
+
+    from app.demo.object import true_face_materials
+    from app.session import Session
+    from app.workflows.object_materials import _forward_model, _held_out, _load_inputs, _reference_distance
+    from mocks.world import World
+    from processing.appearance.observations import select_frames
+    from processing.materials.forward_fit import fit_region, region_samples
+
+    summary = json.loads((work / "summary.json").read_text())
+    truth, session = summary["simulation_truth"], Path(summary["session"])
+    data = _load_inputs(session, Session.read(session))
+    v, t, n = data["mesh"]
+    world = World.hawk(int(truth.get("triangles", 20_000)))
+    pose = np.asarray({str(k): p for k, p in truth["poses"].items()}["1"])
+    faces = np.asarray(true_face_materials(v, t, world, pose))
+    names = sorted(set(faces.tolist()))
+    votes = np.zeros((len(v), len(names)))
+    np.add.at(votes, (t.ravel(), np.repeat([names.index(f) for f in faces], 3)), 1.0)
+    vertex_truth = np.argmax(votes, axis=1)
+    true_n = _true_normals(v, world, pose)
+    error = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", true_n, n), -1.0, 1.0)))
+    obs = select_frames(data["obs"], ~_held_out(data["obs"].frame_names, data["records"], 4))
+    model, _ = _forward_model(data["spectrum"], lambda text: None)
+    d_ref = _reference_distance(data)
+    rows = []
+    for label, o, tri in (("scanned", obs, t), ("true", dataclasses.replace(obs, normal=true_n[obs.vertex].astype(
+            np.float32)), None)):
+        for k, name in enumerate(names):
+            ids = np.flatnonzero(vertex_truth == k)
+            fit = fit_region(region_samples(o, v, data["frames"], ids, triangles=tri, reference_mm=d_ref), model)
+            rows.append({"normals": label, "truth": name, "answer": fit.material, "confidence": fit.confidence,
+                         "group": list(fit.group), "parameters": fit.parameters, "misfit": fit.chi2_per_dof})
+    return {"normal_error_deg": {"median": float(np.median(error)), "p90": float(np.percentile(error, 90))},
+            "rows": rows}
 
 
 def session_case(work: Path) -> dict[str, Any]:
@@ -139,11 +198,18 @@ def reliability_case(out: Path | None = None) -> dict[str, Any]:
     mesh = calibration_case()
     t_mesh = time.perf_counter() - t0
     single = single_image_reliability(n_regions=4000, seed=0)
-    table = mesh.get("reliability") or {}
-    if out is not None and table:
-        out.write_text(json.dumps({**table, "source": "simulated regions of bench.surface_fit_bench"}, indent=1)
-                       + "\n")
+    if out is not None:
+        out.write_text(json.dumps(_on_mesh_table(mesh), indent=1) + "\n")
     return {"on_mesh": mesh, "on_mesh_s": round(t_mesh, 1), "single_image": single}
+
+
+def _on_mesh_table(mesh: dict[str, Any]) -> dict[str, Any]:
+    """The on-mesh reliability table in the report's form (``stated``, ``observed``, ``count``, ``ece``)."""
+    bins = mesh["bins"]
+    return {"edges": [round(0.1 * i, 1) for i in range(len(bins["count"]) + 1)], "count": bins["count"],
+            "stated": bins["stated"], "observed": bins["observed"], "ece": mesh["ece"],
+            "high_accuracy": mesh["high_accuracy"], "high_count": mesh["high_count"],
+            "source": f"{mesh['regions']} simulated regions of bench.surface_fit_bench"}
 
 
 def trade_case(work: Path) -> dict[str, Any]:
@@ -176,6 +242,8 @@ def _every_second(data: dict[str, Any], held: np.ndarray) -> np.ndarray:
 
 def section(results: dict[str, Any]) -> list[str]:
     """The Markdown of docs/BENCHMARKS.md's "Materials on the mesh" section."""
+    from app.workflows.object_materials import answer_text
+
     s, lines = results["session"], ["## Materials on the mesh", ""]
     a, v, h = s["agreement"], s["validation"], s["agreement"]["head"]
     lines += [
@@ -188,7 +256,7 @@ def section(results: dict[str, Any]) -> list[str]:
         "| figure | measured | target |",
         "|---|---:|---:|",
         f"| area-weighted share of the mesh with the right material | {100 * a['share_right']:.1f} % | >= 95 % |",
-        f"| head (nami-shibuichi): answer | {h['material']} ({(h['confidence'] or 0):.2f}) | nami-shibuichi |",
+        f"| head (nami-shibuichi): answer | {_head_answer(s, h, answer_text)} | nami-shibuichi |",
         f"| head: Ag share error | {h['Ag_error_pts']} points | within +-3 points |",
         f"| head: roughness error | {100 * (h['roughness_error_rel'] or float('nan')):.1f} % | within 10 % |",
         f"| held-out photos: mean / p95 CIEDE2000, measured materials | {v['mean_de2000']:.2f} / "
@@ -226,14 +294,19 @@ def section(results: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
+def _head_answer(s: dict[str, Any], head: dict[str, Any], answer_text: Any) -> str:
+    reg = next((r for r in s["regions"] if r.get("material") == head["material"]
+                and r.get("confidence") == head["confidence"]), None)
+    return answer_text(reg) if reg else str(head["material"])
+
+
 def _reliability_lines(rel: dict[str, Any]) -> list[str]:
     out = []
-    for key, title in (("on_mesh", "On the mesh (simulated regions, `bench/surface_fit_bench.py`)"),
-                       ("single_image", "One image (`bench/reliability.py`)")):
-        r = rel.get(key) or {}
-        table = r.get("reliability") or r
-        if not table.get("count"):
-            continue
+    tables = (("On the mesh (simulated regions, `bench/surface_fit_bench.py`)", _on_mesh_table(rel["on_mesh"])),
+              ("One image (`bench/reliability.py`)", {**rel["single_image"]["table"],
+                                                       **{k: rel["single_image"][k] for k in
+                                                          ("ece", "high_accuracy", "high_count")}}))
+    for title, table in tables:
         out += [f"{title}: ECE {table['ece']:.3f} (target <= 0.05); right among answers stated >= 0.9: "
                 f"{100 * table['high_accuracy']:.1f} % of {table['high_count']} (target >= 90 %).", "",
                 "| stated | answers | mean stated | share right |", "|---|---:|---:|---:|"]
@@ -243,12 +316,16 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
                 out.append(f"| {edges[i]:.1f}-{edges[i + 1]:.1f} | {n} | {table['stated'][i]:.3f} | "
                            f"{table['observed'][i]:.3f} |")
         out.append("")
+    m = rel["on_mesh"]
+    out += [f"On the mesh, {m['no_fit']} of {m['regions']} regions answered \"no candidate fits\" (abstentions); "
+            f"all answers right {100 * m['accuracy']:.1f} %; the nami-shibuichi Ag share's median error "
+            f"{100 * m['nami_shibuichi_ag_abs_err_median']:.1f} points.", ""]
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", required=True, choices=["session", "large", "trade", "reliability", "all"])
+    ap.add_argument("--case", required=True, choices=["session", "normals", "large", "trade", "reliability", "all"])
     ap.add_argument("--work", default="out/bench-object")
     args = ap.parse_args(argv)
     work = Path(args.work)
@@ -256,10 +333,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.case == "all":
         from bench.common import ROOT
 
-        out = {"session": session_case(work), "trade": trade_case(work), "large": large_case(),
+        out = {"session": session_case(work), "normals": normals_case(work), "trade": trade_case(work),
+               "large": large_case(),
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
         out = session_case(work)
+    elif args.case == "normals":
+        out = normals_case(work)
     elif args.case == "trade":
         out = trade_case(work)
     elif args.case == "large":

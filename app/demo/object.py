@@ -100,8 +100,8 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
               f"object: {val['baseline_mean_de2000']:.2f} (p95 {val['baseline_p95_de2000']:.2f})", file=sys.stderr)
     t0 = time.perf_counter()
     glb = export_gltf(session, out / "hawk.glb")
-    print(f"glTF: {out / 'hawk.glb'} ({glb.get('primitives', '?')} primitives, {time.perf_counter() - t0:.1f} s)",
-          file=sys.stderr)
+    print(f"glTF: {out / 'hawk.glb'} ({len(glb['regions'])} primitives, PBR metallic-roughness, "
+          f"{time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return {"agreement": agree, "regions": [{k: r.get(k) for k in ("index", "material", "confidence", "parameters",
                                                                    "uncertainties", "area_mm2")}
                                             for r in doc["regions"]],

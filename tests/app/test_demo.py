@@ -64,6 +64,14 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     assert "<img" in html and 'src="http' not in html
     assert "Every photo posed on the mesh" in html and "alt='overlays of every posed frame'" in html
     assert "held at nominal values (long lens)</th><td>cx, cy, k2, p1, p2" in html
+    # materials measured on the mesh: regions with answers, held-out photos compared, exported, rendered
+    obj = summary["object"]
+    assert obj["regions"] and all(r["material"] for r in obj["regions"])
+    assert 0.0 <= obj["agreement"]["share_right"] <= 1.0
+    assert obj["validation"]["mean_de2000"] > 0 and obj["validation"]["baseline_mean_de2000"] > 0
+    assert (out / "hawk.glb").read_bytes()[:4] == b"glTF"
+    assert np.asarray(Image.open(out / "hawk-measured.png")).std() > 5
+    assert "Materials on the mesh" in html and "Held-out photos" in html
     # the hawk's materials from RAW frames calibrated by the chart, against the simulation's truth
     regions = {r["region"]: r for r in summary["colour"]["regions"]}
     assert regions["beak"]["true_material"] == "gold" and regions["beak"]["material"] == "gold"
