@@ -478,8 +478,10 @@ class PreviewPanel(Panel):
         if data is None:
             self.info.setText("the click missed the object")
             return
+        from app.workflows.object_materials import answer_text
+
         reg = data["region"]
-        title = f"region {reg['index']}: {reg['material']} (confidence {float(reg.get('confidence') or 0):.2f})"
+        title = f"region {reg['index']}: {answer_text(reg)}"
         if "observed" not in data or len(data["observed"]) == 0:
             self.region_plot.plot(empty_figure, title=title, hint=reg.get("reason") or "no observation to show")
         else:
