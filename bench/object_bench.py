@@ -251,7 +251,8 @@ def section(results: dict[str, Any]) -> list[str]:
         "photo posed with the calibrated camera and lamp; `bench/object_bench.py`, case `session`): the",
         "materials on the mesh against the simulation's truth per face, the held-out photos (every 4th",
         "table angle, never fitted) against renders of the measured materials and of the paper's",
-        "one-material baseline (the largest region's material on the whole object).",
+        "one-material baseline (the largest region's material on the whole object).  "
+        f"Measured {time.strftime('%Y-%m-%d')}.",
         "",
         "| figure | measured | target |",
         "|---|---:|---:|",
@@ -270,13 +271,14 @@ def section(results: dict[str, Any]) -> list[str]:
         "Per true material, share of its area with the right answer: "
         + ", ".join(f"{k} {100 * x:.0f} %" for k, x in a["per_true_material"].items()) + ".",
         "",
-        "| region | answer | confidence | parameters | area (mm2) | lit / all observations |",
-        "|---:|---|---:|---|---:|---|",
+        "| region | answer | parameters of the best candidate | area (mm2) | lit / all observations |",
+        "|---:|---|---|---:|---|",
     ]
     for r in s["regions"]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
-        lines.append(f"| {r['index']} | {r['material']} | {r['confidence']:.2f} | {p} | {r['area_mm2']:.0f} | "
+        lines.append(f"| {r['index']} | {answer_text(r)} | {p} | {r['area_mm2']:.0f} | "
                      f"{r['n_lit']} / {r['n_observations']} |")
+    lines += _normals_lines(results.get("normals"), answer_text)
     big = results.get("large")
     if big:
         lines += ["", f"Large: the hawk at {big['triangles']:,} triangles, 24 table angles at 960 x 640 "
@@ -292,6 +294,23 @@ def section(results: dict[str, Any]) -> list[str]:
     if rel:
         lines += ["", "### Material confidence", ""] + _reliability_lines(rel)
     return lines + [""]
+
+
+def _normals_lines(nc: dict[str, Any] | None, answer_text: Any) -> list[str]:
+    """The ``normals`` case: each true region with the scanned and with the true normals."""
+    if not nc:
+        return []
+    e = nc["normal_error_deg"]
+    lines = ["", f"Why (case `normals`): the scanned mesh's normals are a median {e['median']:.1f} deg (p90 "
+                 f"{e['p90']:.1f} deg) off the simulated object's.  Each true region fitted to the same observations "
+                 "with the scanned normals and with the true ones:", "",
+             "| true material | normals | answer | reduced chi-square | parameters |", "|---|---|---|---:|---|"]
+    for r in nc["rows"]:
+        p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
+        text = answer_text({"material": r["answer"], "confidence": r["confidence"], "group": r["group"],
+                            "chi2_per_dof": r["misfit"]})
+        lines.append(f"| {r['truth']} | {r['normals']} | {text} | {r['misfit']:.2f} | {p} |")
+    return lines
 
 
 def _head_answer(s: dict[str, Any], head: dict[str, Any], answer_text: Any) -> str:
