@@ -16,22 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
+from tests.integration.posed_session import _camera_json
+
 __all__ = ["build_object_session", "tilted_pose", "SIZE"]
 
 SIZE = (480, 320)
-
-
-def _camera_json(world, calibrated_size: tuple[int, int]) -> dict:
-    """A camera calibration JSON holding the simulated camera's truth at ``calibrated_size``."""
-    from mocks.world import World
-
-    full = World(world.vertices, world.triangles, world.region, world.region_names, world.materials,
-                 width=calibrated_size[0], height=calibrated_size[1], mesh_source=world.mesh_source)
-    r2c = full.room_to_camera()
-    return {"schema": "kogei.camera_calibration", "version": 1, "image_size": list(calibrated_size),
-            "K": full.camera_intrinsics().tolist(), "dist": [0.0] * 5, "gauge_to_camera": r2c.tolist(),
-            "room_to_camera": r2c.tolist(), "view_rms_px": {}, "rms_px": 0.05, "stds": {}, "board": {},
-            "dropped_views": [], "gauge_cov": None, "held": []}
 
 
 def _lamp_json(world) -> dict:
