@@ -44,6 +44,8 @@ __all__ = ["BatchOptions", "Step", "STEPS", "STEP_NAMES", "UNAVAILABLE_STEPS", "
 
 #: Material of the render step when the session holds no identified materials (stated in the report).
 DEFAULT_MATERIAL = "nami-shibuichi"
+#: The render step's "material" when the session's materials were measured on the mesh (per face).
+MEASURED = "measured on the mesh"
 RENDER_ILLUMINANTS = ("D65", "A")
 RENDER_SIZE = (320, 240)
 RENDERS = "products/renders"
@@ -135,7 +137,8 @@ def _geometry_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]
 def _render_inputs(root: Path, manifest: dict[str, Any], options: BatchOptions) -> dict[str, str]:
     products = manifest.get("products") or {}
     materials = ((products.get("materials") or {}).get("report") or {}).get("sha256", "none")
-    return {"mesh": (products.get("mesh") or {}).get("sha256", "none"), "materials": materials}
+    return {"mesh": (products.get("mesh") or {}).get("sha256", "none"), "materials": materials,
+            "object_materials": (products.get("object_materials") or {}).get("sha256", "none")}
 
 
 def render_material(root: Path) -> tuple[str, str]:
@@ -144,7 +147,10 @@ def render_material(root: Path) -> tuple[str, str]:
     Regions are found in the RAW frames, not on the mesh (the camera's pose relative to the table is not
     recorded), so one material stands for the whole mesh.
     """
-    largest = ((_manifest(root).get("products") or {}).get("materials") or {}).get("largest")
+    products = _manifest(root).get("products") or {}
+    if isinstance(products.get("object_mesh"), dict) and isinstance(products.get("object_materials"), dict):
+        return MEASURED, "measured on the mesh: each region with its fitted material (products/object-mesh.ply)"
+    largest = (products.get("materials") or {}).get("largest")
     if largest and largest.get("material"):
         return largest["material"], (f"identified: the material covering the largest identified area "
                                      f"({largest['pixels']} pixels of the object frames), for the whole mesh")
@@ -172,12 +178,13 @@ def render_session_mesh(root: Path, illuminant: str, size: tuple[int, int], pres
     from render.renderer import render
 
     products = _manifest(root).get("products") or {}
-    mesh = products.get("mesh")
+    mesh = products.get("object_mesh") if material == MEASURED else products.get("mesh")
     if not mesh:
         raise UsageError(f"session {root} has no mesh; run 'kogei batch {root} --steps geometry' "
                          f"(or 'kogei process {root}') first")
     path = confined_file(root, mesh.get("file") if isinstance(mesh, dict) else None, "products.mesh.file")
-    spec = SceneSpec(objects=[ObjectSpec(mesh=path, material=material)], illuminant=illuminant, size=size,
+    spec = SceneSpec(objects=[ObjectSpec(mesh=path, material=DEFAULT_MATERIAL if material == MEASURED else material)],
+                     illuminant=illuminant, size=size,
                      preset=preset)
     try:
         job = build_job(spec)

@@ -128,3 +128,15 @@ def test_report_shows_the_materials_on_the_mesh(measured):
     assert "Materials on the mesh" in html and "Held-out photos" in html
     assert html.count("data:image/png;base64,") >= 3
     assert doc["regions"][0]["material"] in html
+
+
+def test_batch_renders_the_measured_object(measured):
+    from app.batch.runner import run_batch
+    from app.batch.steps import MEASURED, BatchOptions
+    from app.session import Session
+
+    root, _, _, _ = measured
+    result = run_batch([root], "render", options=BatchOptions(preset="draft"), workers=1).results[0]
+    assert result.status == "ok", result.reason
+    renders = Session.read(root)["products"]["renders"]
+    assert renders["material"] == MEASURED and "object-mesh.ply" in renders["material_source"]
