@@ -98,8 +98,10 @@ def test_every_step_runs_once_then_is_skipped(done):
     # the geometry step read exactly the gathered profiles of the one pass
     assert set(steps["geometry"]["inputs"]) == {"p01/profiles"}
     assert steps["geometry"]["inputs"]["p01/profiles"] == manifest["captures"]["p01/profiles"]["sha256"]
+    # no posed photos in this session: no materials on the mesh, so the render used the identified ones
     assert steps["render"]["inputs"] == {"mesh": manifest["products"]["mesh"]["sha256"],
-                                         "materials": manifest["products"]["materials"]["report"]["sha256"]}
+                                         "materials": manifest["products"]["materials"]["report"]["sha256"],
+                                         "object_materials": "none"}
     for ill in ("D65", "A"):
         img = Image.open(root / manifest["products"]["renders"]["images"][ill]["file"])
         assert img.size == (96, 72)

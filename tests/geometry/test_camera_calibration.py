@@ -86,12 +86,11 @@ def _pose_errors(room_to_camera):
 
 
 def test_intrinsics_against_truth(calibrated):
-    calib, seconds = calibrated
-    # targets: RMS <= 0.3 px, focal within 0.2 %, principal point within 3 px; 23 views in < 10 s
+    calib, _ = calibrated
+    # targets: RMS <= 0.3 px, focal within 0.2 %, principal point within 3 px (its time: bench, "Posed photos")
     assert calib.rms_px <= 0.3
     assert calib.K[0, 0] == pytest.approx(FX, rel=0.002) and calib.K[1, 1] == pytest.approx(FX, rel=0.002)
     assert np.abs(calib.K[:2, 2] - K_TRUE[:2, 2]).max() < 3.0
-    assert seconds < 10.0
     assert calib.dropped_views == () and calib.room_to_camera is None
     assert max(calib.view_rms_px.values()) < 0.3
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import cv2
 import numpy as np
 import pytest
@@ -34,20 +32,16 @@ def _grey(frame):
 
 def _detect(world, detector, placement, angle):
     world.pose = world.fixed_placement_pose(placement)
-    t0 = time.perf_counter()
     frame = world.frame("object", angle)
-    elapsed = time.perf_counter() - t0
     corners, ids, _, _ = detector[1].detectBoard(_grey(frame))
-    return frame, corners, ids, elapsed
+    return frame, corners, ids
 
 
 @pytest.mark.parametrize("placement, angles", [(1, (0.0, 20.0, -30.0)), (2, (0.0, 20.0, -30.0)),
                                                (3, (0.0, 20.0, -30.0))])
 def test_board_is_detected_at_several_table_angles(world, detector, placement, angles):
-    times = []
     for angle in angles:
-        frame, corners, ids, elapsed = _detect(world, detector, placement, angle)
-        times.append(elapsed)
+        frame, corners, ids = _detect(world, detector, placement, angle)
         assert frame.radiance.shape[:2] == (640, 960)
         assert ids is not None and len(ids) >= 15, (placement, angle)
         # detected corners lie where the true pose projects them (OpenCV's own refinement, no sub-pixel step:
@@ -57,7 +51,6 @@ def test_board_is_detected_at_several_table_angles(world, detector, placement, a
         p = (obj @ cam[:3, :3].T + cam[:3, 3]) @ world.camera_intrinsics().T
         err = np.abs(p[:, :2] / p[:, 2:] - corners.reshape(-1, 2)).max()
         assert err < (1.5 if world.tilts_deg[placement - 1] == 0 else 0.4), (placement, angle, err)
-    assert np.median(times) < 3.0
 
 
 def test_pnp_with_the_true_intrinsics_gives_the_true_pose(world, detector):
