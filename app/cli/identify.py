@@ -48,16 +48,19 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("result", metavar="RESULT.npz", help="written by 'kogei spectral estimate'")
     p.add_argument("--regions", default=None, metavar="LABELS.png",
                    help="integer label image of the result's size, 0 = ignore (default: the whole image is one region)")
-    p.add_argument("--light-deg", type=float, default=30.0,
-                   help="angle of the light from the surface normal at which candidates are modelled (degrees)")
-    p.add_argument("--noise", type=float, default=0.01, help="relative noise per pixel (0.01 = 1 %%)")
-    p.add_argument("--model-error", type=float, default=DEFAULT_MODEL_ERROR,
+    p.add_argument("--light-deg", type=float, default=30.0, metavar="DEG",
+                   help="angle of the light from the surface normal at which candidates are modelled, degrees in "
+                        "[0, 90) (default %(default)s)")
+    p.add_argument("--noise", type=float, default=0.01, metavar="FRACTION",
+                   help="relative noise per pixel, a fraction (0.01 = 1 %%) (default %(default)s)")
+    p.add_argument("--model-error", type=float, default=DEFAULT_MODEL_ERROR, metavar="FRACTION",
                    help="relative error of the candidate models (a fraction of each channel: 0.02 = 2 %%), added in "
                         "quadrature to the noise of a region's mean (default: %(default)s, as in the batch and the "
                         f"demo); a region whose best candidate's reduced chi-square exceeds {MAX_MISFIT:g} reads "
                         "'no candidate fits'")
-    p.add_argument("--min-level", type=float, default=0.005,
-                   help="leave out pixels darker than this fraction of a white diffuser lit like the chart (shadows)")
+    p.add_argument("--min-level", type=float, default=0.005, metavar="FRACTION",
+                   help="leave out pixels darker than this fraction of a white diffuser lit like the chart (shadows) "
+                        "(default %(default)s)")
     p.add_argument("--json", action="store_true", help="print the regions as JSON")
     return p
 
