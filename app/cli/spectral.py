@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import UsageError
+from app.workflows.identification import MIN_LEVEL, pixel_level
 from app.workflows.spectral import METHODS, estimate_spectral, load_result, save_result
 
 __all__ = ["add_parser", "run"]
@@ -119,12 +120,21 @@ def _run_at(args: argparse.Namespace) -> int:
         raise UsageError(f"pixel ({args.x}, {args.y}) is masked (saturated or dead in the RAW); pick another pixel")
     spectrum = res.weights[args.y, args.x].astype(np.float64) @ res.basis.T
     err = res.method_error
+    level = pixel_level(res, args.x, args.y)
+    note = ""
+    if level < MIN_LEVEL:
+        note = (f"pixel ({args.x}, {args.y}) is backdrop / below the noise floor: its brightest channel is "
+                f"{level:.2g} of a white diffuser lit like the chart (below {MIN_LEVEL:g}), so the spectrum "
+                "below is noise, not the object's; pick a pixel on the object")
     if args.json:
         print(json.dumps({"x": args.x, "y": args.y, "method": res.method,
                           "wavelengths": res.wavelengths.tolist(), "reflectance": spectrum.tolist(),
-                          "uncertainty": err}))
+                          "uncertainty": err, "level": level, "note": note}))
     else:
-        print(f"pixel ({args.x}, {args.y}), {res.method}; uncertainty +-{err:.3f} (RMS error on the chart)")
+        if note:
+            print(note)
+        print(f"pixel ({args.x}, {args.y}), {res.method}; uncertainty +-{err:.3f} (RMS error on the chart); "
+              f"level {level:.3g} of a white diffuser")
         print("nm  reflectance")
         for lam, v in zip(res.wavelengths, spectrum):
             print(f"{lam:.0f} {v:.4f}")
