@@ -16,6 +16,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from app.capture import defaults
 from app.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -71,16 +72,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="on --resume, run the commands stored in a session created by another user or machine "
                         "(--before-pass, --shutter, the gphoto2 program); without it they are shown and refused")
     p.add_argument("--steps-per-degree", type=float, default=None, metavar="STEPS",
-                   help="turntable motor steps per degree of table rotation (default 8.889 = 3200 steps per "
+                   help="turntable motor steps per degree of table rotation (default "
+                        f"{defaults.STEPS_PER_DEGREE:.4g} = {360 * defaults.STEPS_PER_DEGREE:.0f} steps per "
                         "revolution, the Horus turntable's)")
     p.add_argument("--speed", type=float, default=None, metavar="DEG_S",
-                   help="turntable speed in deg/s (default 100)")
+                   help=f"turntable speed in deg/s (default {defaults.SPEED_DEG_S:g})")
     p.add_argument("--exposure-us", type=int, default=None, metavar="US",
-                   help="laser profiler exposure in microseconds (µs; default 500)")
+                   help=f"laser profiler exposure in microseconds (µs; default {defaults.EXPOSURE_US})")
     p.add_argument("--camera-timeout", type=float, default=None, metavar="S",
-                   help="seconds to wait for each RAW frame before calling it a fault (default 60)")
+                   help=f"seconds to wait for each RAW frame before calling it a fault (default "
+                        f"{defaults.CAMERA_TIMEOUT_S:g})")
     p.add_argument("--hotfolder-stable", type=float, default=None, metavar="S",
-                   help="seconds a hot-folder file must keep its size before it is taken (default 1)")
+                   help=f"seconds a hot-folder file must keep its size before it is taken (default "
+                        f"{defaults.HOTFOLDER_STABLE_S:g})")
     p.add_argument("--reconnect-timeout", type=float, default=30.0, metavar="S",
                    help="seconds to wait for an unplugged device to come back (default 30)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -191,3 +191,16 @@ def test_output_into_a_pipe_closed_early_ends_without_a_traceback():
     err = proc.stderr.decode()
     assert "Traceback" not in err and "BrokenPipeError" not in err, err
     assert proc.returncode == 1, (proc.returncode, err)
+
+
+def test_capture_states_the_device_defaults_the_drivers_get(tmp_path):
+    """The defaults ``kogei capture --help`` states are the ones the turntable and profiler are built with."""
+    from app.capture.devices import build_devices
+
+    by_name = {_name(a): (a, parser) for path, a, parser in ACTIONS if path == "capture"}
+    devices = build_devices({"turntable": {"port": str(tmp_path / "tt")}, "profiler": {"port": str(tmp_path / "pr")}},
+                            None)
+    for option, value in (("--steps-per-degree", f"{devices.turntable.steps_per_degree:.4g}"),
+                          ("--speed", f"{devices.turntable.speed_deg_s:g}"),
+                          ("--exposure-us", str(devices.profiler.exposure_us))):
+        assert f"default {value}" in _help(*by_name[option]), (option, value)
