@@ -279,9 +279,10 @@ def _materials_inputs(root: Path, manifest: dict[str, Any], options: BatchOption
 
 def _materials_params(options: BatchOptions) -> dict[str, Any]:
     from app.batch.materials import materials_params
-    from app.workflows.object_materials import HOLDOUT_EVERY
+    from app.workflows.object_materials import FIT_MODEL_ERROR, HOLDOUT_EVERY
 
-    return {"image_only": materials_params(options), "on_mesh": {"holdout_every": HOLDOUT_EVERY, "model_error": 0.02}}
+    return {"image_only": materials_params(options),
+            "on_mesh": {"holdout_every": HOLDOUT_EVERY, "model_error": FIT_MODEL_ERROR}}
 
 
 def _materials_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]:

@@ -29,6 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from app.capture import defaults
 from app.capture.runner import CaptureDevices
 from app.errors import UsageError
 from drivers.process import run_bounded
@@ -97,7 +98,7 @@ def run_hook_command(command: str, what: str, env: dict[str, str], timeout_s: fl
 class Gphoto2Shooter:
     """A :class:`app.capture.runner.Shooter` over :class:`drivers.camera_gphoto2.Gphoto2Camera`."""
 
-    def __init__(self, staging: Path, executable: str = "gphoto2", timeout_s: float = 60.0) -> None:
+    def __init__(self, staging: Path, executable: str = "gphoto2", timeout_s: float = defaults.CAMERA_TIMEOUT_S) -> None:
         from drivers.camera_gphoto2 import Gphoto2Camera
 
         self.camera = Gphoto2Camera(staging, executable=executable, timeout_s=timeout_s)
@@ -114,7 +115,7 @@ class HotFolderShooter:
     """
 
     def __init__(self, staging: Path, folder: str, shutter: Callable[[], None] | None = None,
-                 stable_s: float = 1.0, timeout_s: float = 60.0) -> None:
+                 stable_s: float = defaults.HOTFOLDER_STABLE_S, timeout_s: float = defaults.CAMERA_TIMEOUT_S) -> None:
         from drivers.camera_hotfolder import HotFolderCamera
 
         self.camera = HotFolderCamera(folder, staging, stable_s=stable_s, timeout_s=timeout_s,
@@ -148,19 +149,19 @@ def build_devices(config: dict[str, Any], session_root: Path | None,
     if tt:
         t = SerialTransport(tt["port"], 115200, wire_log=log("turntable"), label="turntable",
                             open=False)
-        devices.turntable = Turntable(t, steps_per_degree=float(tt.get("steps_per_degree", 3200.0 / 360.0)),
-                                      speed_deg_s=float(tt.get("speed_deg_s", 100.0)))
+        devices.turntable = Turntable(t, steps_per_degree=float(tt.get("steps_per_degree", defaults.STEPS_PER_DEGREE)),
+                                      speed_deg_s=float(tt.get("speed_deg_s", defaults.SPEED_DEG_S)))
     pr = config.get("profiler")
     if pr:
         t = SerialTransport(pr["port"], int(pr.get("baudrate", 921600)), wire_log=log("profiler"),
                             label="profiler", open=False)
-        devices.profiler = LaserProfiler(t, exposure_us=int(pr.get("exposure_us", 500)))
+        devices.profiler = LaserProfiler(t, exposure_us=int(pr.get("exposure_us", defaults.EXPOSURE_US)))
     cam = config.get("camera") or {"kind": "none"}
     if cam["kind"] == "gphoto2":
-        exe, timeout = cam.get("executable", "gphoto2"), float(cam.get("timeout_s", 60.0))
+        exe, timeout = cam.get("executable", "gphoto2"), float(cam.get("timeout_s", defaults.CAMERA_TIMEOUT_S))
         devices.camera = lambda staging: Gphoto2Shooter(staging, exe, timeout)
     elif cam["kind"] == "hotfolder":
-        folder, stable, timeout = cam["folder"], float(cam.get("stable_s", 1.0)), float(cam.get("timeout_s", 60.0))
+        folder, stable, timeout = cam["folder"], float(cam.get("stable_s", defaults.HOTFOLDER_STABLE_S)), float(cam.get("timeout_s", defaults.CAMERA_TIMEOUT_S))
         devices.camera = lambda staging: HotFolderShooter(staging, folder, shutter, stable, timeout)
     devices.info = {"camera": cam}
     return devices
@@ -198,10 +199,10 @@ def check_device_config(config: Any) -> None:
                 cam = build_devices({"camera": part}, None).info["camera"]
                 if cam["kind"] == "gphoto2":
                     Gphoto2Camera(".", executable=cam.get("executable", "gphoto2"),
-                                  timeout_s=cam.get("timeout_s", 60.0))
+                                  timeout_s=cam.get("timeout_s", defaults.CAMERA_TIMEOUT_S))
                 elif cam["kind"] == "hotfolder":
-                    HotFolderCamera(cam["folder"], ".", stable_s=cam.get("stable_s", 1.0),
-                                    timeout_s=cam.get("timeout_s", 60.0))
+                    HotFolderCamera(cam["folder"], ".", stable_s=cam.get("stable_s", defaults.HOTFOLDER_STABLE_S),
+                                    timeout_s=cam.get("timeout_s", defaults.CAMERA_TIMEOUT_S))
                 elif cam["kind"] != "none":
                     raise ValueError(f"camera kind {cam['kind']!r} is not gphoto2, hotfolder or none")
             else:

@@ -16,18 +16,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("batch", help="reprocess sessions incrementally, one worker process per session",
                        description="Run the processing steps on every SESSION; a step runs again only when its "
                                    "inputs, parameters or code changed (docs/batch.md).")
-    p.add_argument("sessions", nargs="+", metavar="SESSION")
+    p.add_argument("sessions", nargs="+", metavar="SESSION", help="one or more session folders")
     p.add_argument("--steps", default=None, metavar="STEP,...",
                    help=f"steps to run, in pipeline order (default: {','.join(STEP_NAMES)})")
     p.add_argument("--preset", default="standard", choices=["draft", "standard", "reference"],
-                   help="geometry and render preset")
+                   help="speed against accuracy of the geometry and the renders: draft, standard, reference "
+                        "(default %(default)s)")
     p.add_argument("--calibration", default=None, metavar="CAL_SESSION|CAL.json",
                    help="install this scanner calibration into every session before its geometry step")
     p.add_argument("--chart", default="classic24", choices=["classic24", "sg140", "vinyl18"],
-                   help="the colour chart in the chart frames (colour step)")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes on this machine")
+                   help="the colour chart in the chart frames (colour step) (default %(default)s)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="worker processes on this machine, each with one session at a time (default %(default)s)")
     p.add_argument("--dask", default=None, metavar="tcp://SCHEDULER:8786",
-                   help="run the sessions on a Dask distributed cluster instead")
+                   help="run the sessions on a Dask distributed cluster instead (default: this machine)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 

@@ -35,8 +35,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="radius of the reference sphere (mm, from its certificate); for --lamp: of the mirror "
                         "sphere (default: the plan's)")
     p.add_argument("--sphere-height", type=float, default=None, metavar="MM",
-                   help="height of the sphere's centre above the table if the table top is not in view "
-                        "(a sphere resting on the table: its radius)")
+                   help="height of the sphere's centre above the table (mm) if the table top is not in view "
+                        "(a sphere resting on the table: its radius) (default: measured on the table top in the scan)")
     p.add_argument("--pass", dest="pass_no", type=int, default=1, metavar="N", help="which pass to use (default 1)")
     cam = p.add_argument_group("camera (--camera)")
     cam.add_argument("--camera", metavar="BOARD_SESSION", default=None,
@@ -45,9 +45,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                      help="the scanner-calibrated sphere session whose photos of the sphere tie the camera to the "
                           "scanner's frame (required with --camera)")
     cam.add_argument("--focal-mm", type=float, default=None, metavar="MM",
-                     help="manual start: the lens's focal length (mm), with --sensor-mm")
+                     help="manual start: the lens's focal length (mm), with --sensor-mm (default: found from the board "
+                          "views alone)")
     cam.add_argument("--sensor-mm", type=float, default=None, metavar="MM",
-                     help="manual start: the sensor's width (mm), with --focal-mm")
+                     help="manual start: the sensor's width (mm), with --focal-mm (default: found from the board views "
+                          "alone)")
     cam.add_argument("--max-rms", type=float, default=1.0, metavar="PX",
                      help="refuse a calibration whose reprojection RMS is above this (px, default 1.0)")
     lamp = p.add_argument_group("lamps (--lamp)")
@@ -60,7 +62,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lamp.add_argument("--lamps", type=int, default=None, metavar="N",
                       help="number of lamps (default: the most highlights seen in one frame)")
     lamp.add_argument("--lamp-spectrum", default=None, metavar="NAME|CCT",
-                      help="the lamps' spectrum: a name (D65, A, ...) or a correlated colour temperature in K")
+                      help="the lamps' spectrum: a name (D65, A, ...) or a correlated colour temperature in K (default: "
+                          "not recorded)")
     p.add_argument("--decode", choices=["demosaic", "bin2x2"], default="demosaic",
                    help="how RAW frames are decoded for --camera and --lamp (default demosaic: full resolution)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")

@@ -16,6 +16,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from app.capture import defaults
 from app.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -31,19 +32,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Drive the turntable, the laser profiler and the camera into a new session folder, or "
                     "continue an interrupted one with --resume.",
     )
-    p.add_argument("--out", metavar="SESSION", help="new session folder")
+    p.add_argument("--out", metavar="SESSION", help="new session folder (this or --resume is required)")
     p.add_argument("--resume", metavar="SESSION", help="continue an interrupted session (plan and devices are "
                                                         "read from it; ports may be overridden)")
     p.add_argument("--turntable", metavar="PORT", help="turntable serial port (path or pyserial URL)")
     p.add_argument("--laser", metavar="PORT", help="laser profiler serial port")
-    p.add_argument("--camera", metavar="SPEC", help="gphoto2, gphoto2:PATH, hotfolder:DIR or none")
+    p.add_argument("--camera", metavar="SPEC",
+                   help="gphoto2, gphoto2:PATH (the gphoto2 program to run), hotfolder:DIR or none (required with "
+                        "--out)")
     p.add_argument("--plan", choices=["scan", "swatch", "camera-calibration", "lamp-calibration"], default="scan",
                    help="scan: profiles + RAW frames (default); swatch: RAW frames at every step (cloth); "
                         "camera-calibration: a ChArUco board at every step, one pass per placement of the board "
                         "(flat, then on wedges); lamp-calibration: a mirror sphere at every step")
-    p.add_argument("--steps", type=int, default=None,
-                   help="table positions per revolution (default 200; 12 for the calibration plans)")
-    p.add_argument("--passes", type=int, default=None,
+    p.add_argument("--steps", type=int, default=None, metavar="N",
+                   help="table positions per revolution, evenly spaced (default 200, i.e. 1.8 deg apart; 12 for the "
+                        "calibration plans)")
+    p.add_argument("--passes", type=int, default=None, metavar="N",
                    help="placements of the object (default 3 for scan and camera-calibration, else 1)")
     p.add_argument("--camera-angles", default=None, metavar="DEG,DEG,...",
                    help="table angles of the RAW frames of each scan pass (default every 30 deg: 0,30,...,330)")
@@ -51,10 +55,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="camera-calibration: the ChArUco board's definition (dictionary, squares_x, squares_y, "
                         "square_mm, marker_mm); default a 7 x 5 board of 8 mm squares, DICT_5X5_100")
     p.add_argument("--sphere-radius", type=float, default=None, metavar="MM",
-                   help="lamp-calibration: the mirror sphere's radius (mm), recorded with the plan")
+                   help="lamp-calibration: the mirror sphere's radius (mm), recorded with the plan (default: none "
+                        "recorded; give it to kogei calibrate --lamp instead)")
     p.add_argument("--no-chart", action="store_true", help="do not shoot a colour-chart frame first in each pass")
-    p.add_argument("--object", default=None, metavar="NAME", help="object name for the session metadata")
-    p.add_argument("--notes", default=None, help="free text for the session metadata")
+    p.add_argument("--object", default=None, metavar="NAME",
+                   help="object name for the session metadata (default: none)")
+    p.add_argument("--notes", default=None, metavar="TEXT", help="free text for the session metadata (default: none)")
     p.add_argument("--unattended", action="store_true",
                    help="no prompts (a simulated or automated station); see --before-pass and --shutter")
     p.add_argument("--before-pass", default=None, metavar="CMD",
@@ -65,14 +71,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trust-hooks", action="store_true",
                    help="on --resume, run the commands stored in a session created by another user or machine "
                         "(--before-pass, --shutter, the gphoto2 program); without it they are shown and refused")
-    p.add_argument("--steps-per-degree", type=float, default=None, help="turntable motor steps per degree")
-    p.add_argument("--speed", type=float, default=None, metavar="DEG_S", help="turntable speed (deg/s)")
-    p.add_argument("--exposure-us", type=int, default=None, help="laser profiler exposure (microseconds)")
-    p.add_argument("--camera-timeout", type=float, default=None, metavar="S", help="seconds per RAW frame")
+    p.add_argument("--steps-per-degree", type=float, default=None, metavar="STEPS",
+                   help="turntable motor steps per degree of table rotation (default "
+                        f"{defaults.STEPS_PER_DEGREE:.4g} = {360 * defaults.STEPS_PER_DEGREE:.0f} steps per "
+                        "revolution, the Horus turntable's)")
+    p.add_argument("--speed", type=float, default=None, metavar="DEG_S",
+                   help=f"turntable speed in deg/s (default {defaults.SPEED_DEG_S:g})")
+    p.add_argument("--exposure-us", type=int, default=None, metavar="US",
+                   help=f"laser profiler exposure in microseconds (µs; default {defaults.EXPOSURE_US})")
+    p.add_argument("--camera-timeout", type=float, default=None, metavar="S",
+                   help=f"seconds to wait for each RAW frame before calling it a fault (default "
+                        f"{defaults.CAMERA_TIMEOUT_S:g})")
     p.add_argument("--hotfolder-stable", type=float, default=None, metavar="S",
-                   help="seconds a hot-folder file must keep its size before it is taken (default 1)")
+                   help=f"seconds a hot-folder file must keep its size before it is taken (default "
+                        f"{defaults.HOTFOLDER_STABLE_S:g})")
     p.add_argument("--reconnect-timeout", type=float, default=30.0, metavar="S",
-                   help="how long to wait for an unplugged device to come back (default 30)")
+                   help="seconds to wait for an unplugged device to come back (default 30)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

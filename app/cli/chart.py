@@ -38,14 +38,22 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                     "camera RGB of each patch and reject clipped, uneven or mis-ordered charts.",
     )
     p.add_argument("raw", metavar="RAW", help="the chart frame (DNG, CR2, NEF, ARW, ...)")
-    p.add_argument("--chart", default="classic24", choices=["classic24", "sg140", "vinyl18"])
+    p.add_argument("--chart", default="classic24", choices=["classic24", "sg140", "vinyl18"],
+                   help="the chart's type: classic24 (ColorChecker Classic, 24 patches), sg140 (ColorChecker "
+                        "Digital SG, 140), vinyl18 (the 18-patch vinyl chart of OpenCV mcc) (default %(default)s)")
     p.add_argument("--chart-corners", default=None, metavar="x1,y1,x2,y2,x3,y3,x4,y4",
-                   help="the chart's outer corners in sensor pixels, top-left (next to patch 1) first, clockwise")
-    p.add_argument("--mode", default="bin2x2", choices=["bin2x2", "demosaic"])
-    p.add_argument("--inset", type=float, default=0.6, help="fraction of each patch's side sampled")
-    p.add_argument("--trim", type=float, default=0.1, help="fraction cut from each end for the trimmed mean")
-    p.add_argument("--json", default=None, metavar="OUT.json", help="write the patch statistics here")
-    p.add_argument("--quiet", action="store_true")
+                   help="the chart's outer corners in sensor pixels, top-left (next to patch 1) first, clockwise "
+                        "(default: found by OpenCV mcc)")
+    p.add_argument("--mode", default="bin2x2", choices=["bin2x2", "demosaic"],
+                   help="RAW decoding: bin2x2 (each 2x2 Bayer cell is one pixel: half the width and height) or "
+                        "demosaic (full resolution) (default %(default)s)")
+    p.add_argument("--inset", type=float, default=0.6, metavar="FRACTION",
+                   help="fraction of each patch's side sampled, centred, in (0, 1] (default %(default)s)")
+    p.add_argument("--trim", type=float, default=0.1, metavar="FRACTION",
+                   help="fraction of the samples cut from each end for the trimmed mean, in [0, 0.5) "
+                        "(default %(default)s)")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write the patch statistics here (default: not written)")
+    p.add_argument("--quiet", action="store_true", help="print nothing when the chart is usable")
     return p
 
 

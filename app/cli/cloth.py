@@ -21,7 +21,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("cloth", help="woven cloth: fit the cloth model to a swatch capture")
     csub = p.add_subparsers(dest="cloth_command", required=True, metavar="ACTION")
     f = csub.add_parser("fit", help="fit the cloth model to a swatch session (kogei capture --plan swatch)")
-    f.add_argument("session", metavar="SESSION")
+    f.add_argument("session", metavar="SESSION", help="a swatch session folder (kogei capture --plan swatch)")
     f.add_argument("--geometry", default=None, metavar="FILE.json",
                    help="the set-up: camera pose, light direction, swatch size (default SESSION/swatch.json)")
     f.add_argument("--yarn", default="silk", choices=["silk", "cotton", "satin"],
@@ -31,8 +31,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "and keep the best")
     f.add_argument("--pixels", type=int, default=160, metavar="N",
                    help="swatch pixels fitted (spread over the swatch; default 160)")
-    f.add_argument("--out", default=None, metavar="DIR", help="where to write cloth-fit.json and cloth-fit.png")
-    f.add_argument("--quiet", action="store_true")
+    f.add_argument("--out", default=None, metavar="DIR", help="where to write cloth-fit.json and cloth-fit.png (default SESSION/cloth-fit)")
+    f.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
 def run(args: argparse.Namespace) -> int:

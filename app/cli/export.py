@@ -28,7 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "material each (base colour from the measured spectra under D65), the exact "
                                    "material spec, parameters and uncertainties under extras.kogei.  See "
                                    "docs/export.md.")
-    p.add_argument("session", metavar="SESSION")
+    p.add_argument("session", metavar="SESSION", help="a session whose materials were fitted (kogei fit-materials)")
     p.add_argument("--gltf", required=True, metavar="OUT.glb", help="the .glb file to write (atomically)")
     p.add_argument("--force", action="store_true", help="replace OUT.glb if it exists")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")

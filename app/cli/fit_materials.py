@@ -7,6 +7,8 @@ import argparse
 import json
 import sys
 
+from app.workflows.object_materials import FIT_MODEL_ERROR, HOLDOUT_EVERY
+
 __all__ = ["add_parser", "run", "summary_lines"]
 
 
@@ -19,18 +21,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "compared with the photos (CIEDE2000), next to the one-material baseline.  Writes "
                                    "products/object-mesh.ply, object-materials.json, object-scene.toml and "
                                    "validation/.")
-    p.add_argument("session", metavar="SESSION")
-    p.add_argument("--holdout-every", type=int, default=4, metavar="N",
-                   help="hold every N-th frame of each pass out of the fit and validate on it (default 4; 0: none)")
-    p.add_argument("--model-error", type=float, default=0.02, metavar="REL",
-                   help="relative error of the forward model added to the noise (default 0.02 = 2 %%)")
+    p.add_argument("session", metavar="SESSION", help="a session processed and projected (kogei process, kogei project)")
+    p.add_argument("--holdout-every", type=int, default=HOLDOUT_EVERY, metavar="N",
+                   help="hold every N-th frame of each pass out of the fit and validate on it (0: none) "
+                        "(default %(default)s)")
+    p.add_argument("--model-error", type=float, default=FIT_MODEL_ERROR, metavar="FRACTION",
+                   help="relative error of the forward model added to each observation's noise, a fraction "
+                        "(0.02 = 2 %%) (default %(default)s, as the batch's materials step)")
     p.add_argument("--max-regions", type=int, default=8, metavar="N",
                    help="most regions of one material the segmentation may find (default 8)")
     p.add_argument("--no-validate", action="store_true", help="skip rendering and comparing the held-out frames")
     p.add_argument("--decode", choices=["demosaic", "bin2x2"], default="demosaic",
                    help="RAW decoding of the held-out photos (default demosaic, as kogei project)")
     p.add_argument("--json", action="store_true", help="print the materials document as JSON")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
 def summary_lines(doc: dict) -> list[str]:

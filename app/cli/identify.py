@@ -7,7 +7,9 @@ docs/colour-pipeline.md, "Command line").
 
 * ``--regions``: a single-channel 8- or 16-bit PNG of the estimate's size
   (half the sensor's in ``bin2x2`` mode), one integer label per region, 0
-  for pixels to ignore.
+  for pixels to ignore.  For a ``bin2x2`` estimate a label image drawn on the
+  photo at full resolution is resampled nearest-neighbour, and the output
+  says so (a ``notes`` line, in ``--json`` the ``notes`` list).
 * Without ``--regions`` the whole unmasked image is one region: meant for a
   crop or a frame filled by one material.  Segmenting an object into
   materials is left to the labels, which the capture's mesh provides.
@@ -29,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import UsageError
-from app.workflows.identification import identify_result, read_labels
+from app.workflows.identification import MIN_LEVEL, identify_result, read_labels
 from app.workflows.spectral import load_result
 from processing.materials.confidence import MAX_MISFIT, NO_FIT
 from processing.materials.identification import DEFAULT_MODEL_ERROR
@@ -47,17 +49,21 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("result", metavar="RESULT.npz", help="written by 'kogei spectral estimate'")
     p.add_argument("--regions", default=None, metavar="LABELS.png",
-                   help="integer label image of the result's size, 0 = ignore (default: the whole image is one region)")
-    p.add_argument("--light-deg", type=float, default=30.0,
-                   help="angle of the light from the surface normal at which candidates are modelled (degrees)")
-    p.add_argument("--noise", type=float, default=0.01, help="relative noise per pixel (0.01 = 1 %%)")
-    p.add_argument("--model-error", type=float, default=DEFAULT_MODEL_ERROR,
+                   help="integer label image of the result's size, or of the photo's for a bin2x2 result (then "
+                        "resampled nearest-neighbour), 0 = ignore (default: the whole image is one region)")
+    p.add_argument("--light-deg", type=float, default=30.0, metavar="DEG",
+                   help="angle of the light from the surface normal at which candidates are modelled, degrees in "
+                        "[0, 90) (default %(default)s)")
+    p.add_argument("--noise", type=float, default=0.01, metavar="FRACTION",
+                   help="relative noise per pixel, a fraction (0.01 = 1 %%) (default %(default)s)")
+    p.add_argument("--model-error", type=float, default=DEFAULT_MODEL_ERROR, metavar="FRACTION",
                    help="relative error of the candidate models (a fraction of each channel: 0.02 = 2 %%), added in "
                         "quadrature to the noise of a region's mean (default: %(default)s, as in the batch and the "
                         f"demo); a region whose best candidate's reduced chi-square exceeds {MAX_MISFIT:g} reads "
                         "'no candidate fits'")
-    p.add_argument("--min-level", type=float, default=0.005,
-                   help="leave out pixels darker than this fraction of a white diffuser lit like the chart (shadows)")
+    p.add_argument("--min-level", type=float, default=MIN_LEVEL, metavar="FRACTION",
+                   help="leave out pixels darker than this fraction of a white diffuser lit like the chart (shadows) "
+                        "(default %(default)s)")
     p.add_argument("--json", action="store_true", help="print the regions as JSON")
     return p
 
@@ -83,14 +89,18 @@ def _identify(args: argparse.Namespace) -> int:
     if not 0 <= args.light_deg < 90:
         raise UsageError(f"--light-deg {args.light_deg!r}: give an angle in [0, 90) degrees from the normal")
     result = load_result(Path(args.result))
-    labels = None if args.regions is None else read_labels(Path(args.regions), result.mask.shape)
+    notes: list[str] = []
+    labels = None if args.regions is None else read_labels(Path(args.regions), result.mask.shape,
+                                                           mode=result.metadata.get("mode"), note=notes.append)
     reports = identify_result(result, labels, light_deg=args.light_deg, noise=args.noise,
                               model_error=args.model_error, min_level=args.min_level)
     if args.json:
         print(json.dumps({"result": str(args.result), "method": result.method,
-                          "wavelengths": result.wavelengths.tolist(),
+                          "wavelengths": result.wavelengths.tolist(), "notes": notes,
                           "regions": [r.as_dict() for r in reports]}))
         return 0
+    for line in notes:
+        print(line)
     for r in reports:
         if r.material is None:
             print(f"region {r.label}: {r.pixels} pixels, not identified: {r.note}")

@@ -12,7 +12,9 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Add ``kogei materials`` to the subcommands."""
     p = sub.add_parser("materials", help="list material presets, or the parameters of one")
-    p.add_argument("name", nargs="?", help="a preset name (optionally with overrides)")
+    p.add_argument("name", nargs="?", metavar="NAME[:KEY=VALUE,...]",
+                   help="a preset name, optionally with overrides, e.g. gold:roughness=0.2 (default: list every "
+                        "preset)")
 
 
 def run(args: argparse.Namespace) -> int:

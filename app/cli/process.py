@@ -13,8 +13,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("process", help="profiles of a captured session -> registered, watertight mesh + report",
                        description="Turn a session's profiles into point clouds, register the passes, mesh the "
                                    "merged cloud and write products/mesh.ply and products/process-report.json.")
-    p.add_argument("session", metavar="SESSION")
-    p.add_argument("--preset", default="standard", choices=["draft", "standard", "reference"])
+    p.add_argument("session", metavar="SESSION", help="a scan session folder (kogei capture)")
+    p.add_argument("--preset", default="standard", choices=["draft", "standard", "reference"],
+                   help="speed against accuracy of the registration and the mesh: draft, standard, reference "
+                        "(docs/processing.md) (default %(default)s)")
     p.add_argument("--calibration", default=None, metavar="CAL_SESSION|CAL.json",
                    help="install this scanner calibration into the session first")
     p.add_argument("--camera-calibration", default=None, metavar="BOARD_SESSION|FILE.json",
@@ -25,7 +27,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-project", action="store_true",
                    help="mesh only: do not pose and project the frames even if the session is camera-calibrated")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -18,15 +18,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                    "geometry, and the silhouette IoU of the projected mesh against the photo.  "
                                    "Writes products/frame-poses.json, observations.npz, projection-report.json and "
                                    "overlays/.")
-    p.add_argument("session", metavar="SESSION")
+    p.add_argument("session", metavar="SESSION", help="a processed, camera-calibrated session (kogei process)")
     p.add_argument("--decode", choices=["demosaic", "bin2x2"], default="demosaic",
                    help="RAW decoding: demosaic (full resolution, default) or bin2x2 (a quarter of the pixels)")
     p.add_argument("--max-view-deg", type=float, default=75.0, metavar="DEG",
-                   help="largest angle between a vertex's normal and the view that counts as seen (default 75)")
+                   help="largest angle between a vertex's normal and the view that counts as seen, degrees "
+                        "(default 75)")
     p.add_argument("--edge-margin", type=float, default=2.0, metavar="PX",
                    help="leave out observations this close to a silhouette or depth edge (px, default 2)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
 def run(args: argparse.Namespace) -> int:

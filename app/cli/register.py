@@ -54,16 +54,18 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, metavar="MERGED.ply", help="write the merged cloud here")
     p.add_argument("--poses", default=None, metavar="POSES.json",
                    help="write the poses and pairwise metrics here")
-    p.add_argument("--preset", default="standard", choices=["draft", "standard", "reference"])
+    p.add_argument("--preset", default="standard", choices=["draft", "standard", "reference"],
+                   help="speed against accuracy of the registration: draft, standard, reference (docs/processing.md) "
+                        "(default %(default)s)")
     p.add_argument("--pairs", default="all", choices=["all", "sequential"],
-                   help="register every pair (default) or consecutive pairs plus last-to-first")
+                   help="all: register every pair (default); sequential: consecutive pairs plus last-to-first")
     p.add_argument("--picks", default=None, metavar="PICKS.json",
                    help='manual picks: [{"pair": [i, j], "points": [[[x,y,z], ...], [[x,y,z], ...]]}], '
                         "3 or more corresponding points on input i and input j (0-based)")
     p.add_argument("--drop-invalid", action="store_true",
                    help="drop NaN / infinite points instead of refusing the file")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random subsampling")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the random subsampling (default %(default)s)")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
     return p
 
 

@@ -70,27 +70,38 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="render a mesh or a TOML scene spectrally to an sRGB PNG (and float XYZ TIFF)",
         description="Render MESH (PLY/OBJ/STL/glTF) or a TOML scene file.",
     )
-    p.add_argument("scene", metavar="MESH|SCENE.toml")
+    p.add_argument("scene", metavar="MESH|SCENE.toml",
+                   help="a mesh (PLY, OBJ, STL, glTF; coordinates in mm) or a TOML scene file (docs/scene-file.md)")
     p.add_argument("--material", default=None,
                    help="preset name with optional overrides, e.g. gold:roughness=0.2,mirror=0 "
                         "(see 'kogei materials'); default gold")
     p.add_argument("--light", action="append", default=[], metavar="SPEC",
-                   help="directional:DX,DY,DZ (toward the light) or point:X,Y,Z; optional @SPECTRUM "
-                        "and *INTENSITY; repeatable")
-    p.add_argument("--illuminant", default=None, help="D65, A, D50, F2, ..., a CCT such as 3200K, or a CSV file")
+                   help="directional:DX,DY,DZ (a direction toward the light, any length) or point:X,Y,Z (a "
+                        "position in mm); optional @SPECTRUM (as --illuminant) and *INTENSITY (relative; 1 = the "
+                        "default key light); repeatable (default: one directional light from above left front)")
+    p.add_argument("--illuminant", default=None, metavar="NAME|CCT|CSV",
+                   help="spectrum of the lights and the sky: a CIE name (D65, A, D50, F2, ...), a correlated colour "
+                        "temperature in kelvin such as 3200K, or a CSV of (wavelength nm, relative power) "
+                        "(default D65, or the scene file's)")
     p.add_argument("--sky", default=None, choices=["uniform", "gradient", "none"],
                    help="environment seen in mirror reflections (default gradient)")
-    p.add_argument("--eye", default=None, metavar="X,Y,Z")
-    p.add_argument("--target", default=None, metavar="X,Y,Z")
-    p.add_argument("--up", default=None, metavar="X,Y,Z")
-    p.add_argument("--fov", type=float, default=None, metavar="DEG", help="vertical field of view")
-    p.add_argument("--size", default=None, metavar="WxH", help="image size, default 800x600")
-    p.add_argument("--preset", default=None, choices=["draft", "standard", "reference"])
+    p.add_argument("--eye", default=None, metavar="X,Y,Z",
+                   help="camera position in the mesh's coordinates, mm (default: framed to show the whole scene)")
+    p.add_argument("--target", default=None, metavar="X,Y,Z",
+                   help="point the camera looks at, mm (default: the centre of the scene's bounding box)")
+    p.add_argument("--up", default=None, metavar="X,Y,Z",
+                   help="direction that is up in the image, unitless (default 0,0,1: +z)")
+    p.add_argument("--fov", type=float, default=None, metavar="DEG",
+                   help="vertical field of view in degrees, between 0 and 180 (default 35)")
+    p.add_argument("--size", default=None, metavar="WxH", help="image size in pixels (default 800x600)")
+    p.add_argument("--preset", default=None, choices=["draft", "standard", "reference"],
+                   help="speed against accuracy: draft (a quick look), standard, reference (slowest, the noise "
+                        "floor); docs/rendering.md measures each (default standard, or the scene file's)")
     p.add_argument("--weave-angle", type=float, default=None, metavar="DEG",
-                   help="weave orientation for cloth materials")
-    p.add_argument("--out", required=True, metavar="IMG.png")
+                   help="turn the yarn directions of cloth materials about the normal, degrees (default 0, or the scene file's)")
+    p.add_argument("--out", required=True, metavar="IMG.png", help="the sRGB PNG to write (required)")
     p.add_argument("--xyz", default=None, metavar="IMG.tiff", help="also write float32 CIE XYZ")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="do not print the size and time of the render")
 
 
 def run(args: argparse.Namespace) -> int:

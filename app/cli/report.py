@@ -13,7 +13,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="one self-contained HTML report of everything a session holds",
                        description="Write an HTML report (plots embedded) of the session: metadata, capture log, "
                                    "calibration, registration, mesh, coverage, colour, materials, renders, timing.")
-    p.add_argument("session", metavar="SESSION")
+    p.add_argument("session", metavar="SESSION", help="a session folder, at any stage of its processing")
     p.add_argument("--out", default=None, metavar="FILE.html",
                    help="where to write it (default: SESSION/products/report.html, recorded in the session)")
 

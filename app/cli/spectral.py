@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import UsageError
+from app.workflows.identification import MIN_LEVEL, pixel_level
 from app.workflows.spectral import METHODS, estimate_spectral, load_result, save_result
 
 __all__ = ["add_parser", "run"]
@@ -42,30 +43,42 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="estimator (default rootpoly; twolight needs --second and --second-chart)")
     e.add_argument("--second", default=None, metavar="IMAGE2", help="the same view under the second light (twolight)")
     e.add_argument("--second-chart", default=None, metavar="CHART2", help="the chart under the second light (twolight)")
-    e.add_argument("--chart-type", default="classic24", choices=["classic24", "sg140", "vinyl18"])
+    e.add_argument("--chart-type", default="classic24", choices=["classic24", "sg140", "vinyl18"],
+                   help="the chart's type: classic24 (ColorChecker Classic, 24 patches), sg140 (ColorChecker "
+                        "Digital SG, 140), vinyl18 (the 18-patch vinyl chart of OpenCV mcc) (default %(default)s)")
     e.add_argument("--chart-reflectances", default=None, metavar="CSV",
                    help="the chart's patch reflectances (nm, one column per patch in reading order); "
                         "default: ColorChecker N Ohta for classic24")
     e.add_argument("--chart-corners", default=None, metavar="x1,y1,x2,y2,x3,y3,x4,y4",
-                   help="the chart's outer corners in sensor pixels, top-left (next to patch 1) first, clockwise")
+                   help="the chart's outer corners in sensor pixels, top-left (next to patch 1) first, clockwise "
+                        "(default: found by OpenCV mcc)")
     e.add_argument("--second-chart-corners", default=None, metavar="x1,y1,...", help="corners in CHART2")
     e.add_argument("--patches", default=None, metavar="LIST",
                    help="patches used for the calibration, 1-based, e.g. 1-18 or 1,2,5-9 (default: every usable one)")
-    e.add_argument("--mode", default="bin2x2", choices=["bin2x2", "demosaic"])
-    e.add_argument("--light", default="D65", help="light of IMAGE and CHART (CIE name, CCT such as 3200K, or CSV)")
-    e.add_argument("--second-light", default="A", help="light of IMAGE2 and CHART2 (twolight)")
+    e.add_argument("--mode", default="bin2x2", choices=["bin2x2", "demosaic"],
+                   help="RAW decoding: bin2x2 (each 2x2 Bayer cell is one pixel: the result is half the sensor's "
+                        "width and height) or demosaic (full resolution) (default %(default)s)")
+    e.add_argument("--light", default="D65", metavar="NAME|CCT|CSV",
+                   help="light of IMAGE and CHART: a CIE name, a correlated colour temperature in kelvin such as "
+                        "3200K, or a CSV of (wavelength nm, relative power) (default %(default)s)")
+    e.add_argument("--second-light", default="A", metavar="NAME|CCT|CSV",
+                   help="light of IMAGE2 and CHART2 (twolight), as --light (default %(default)s)")
     e.add_argument("--camera", default="Nikon 5100 (NPL)",
-                   help="model camera: a colour-science camera name or a CSV of sensitivities (nm, r, g, b)")
-    e.add_argument("--database", default="training", help="training reflectances: 'training' or a CSV")
-    e.add_argument("--noise", type=float, default=0.01, help="relative noise of the camera values (0.01 = 1 %%)")
-    e.add_argument("--out", required=True, metavar="RESULT.npz")
-    e.add_argument("--quiet", action="store_true")
+                   help="model camera: a colour-science camera name or a CSV of sensitivities (nm, r, g, b) "
+                        "(default %(default)s)")
+    e.add_argument("--database", default="training", metavar="training|CSV",
+                   help="training reflectances: 'training' (the built-in set) or a CSV (nm, one column per sample) "
+                        "(default %(default)s)")
+    e.add_argument("--noise", type=float, default=0.01, metavar="FRACTION",
+                   help="relative noise of the camera values, a fraction (0.01 = 1 %%) (default %(default)s)")
+    e.add_argument("--out", required=True, metavar="RESULT.npz", help="the result to write (required)")
+    e.add_argument("--quiet", action="store_true", help="do not print the summary")
     a = ss.add_parser("at", help="the spectrum at one pixel of a RESULT.npz",
                       description="Print the reflectance at pixel (X, Y) of RESULT (image coordinates of the "
                                   "estimate: half the sensor's in bin2x2 mode) with its uncertainty.")
-    a.add_argument("result", metavar="RESULT.npz")
-    a.add_argument("x", type=int, metavar="X")
-    a.add_argument("y", type=int, metavar="Y")
+    a.add_argument("result", metavar="RESULT.npz", help="written by 'kogei spectral estimate'")
+    a.add_argument("x", type=int, metavar="X", help="column of the pixel in the result, 0 at the left (px)")
+    a.add_argument("y", type=int, metavar="Y", help="row of the pixel in the result, 0 at the top (px)")
     a.add_argument("--json", action="store_true", help="print JSON instead of a table")
     return p
 
@@ -107,12 +120,21 @@ def _run_at(args: argparse.Namespace) -> int:
         raise UsageError(f"pixel ({args.x}, {args.y}) is masked (saturated or dead in the RAW); pick another pixel")
     spectrum = res.weights[args.y, args.x].astype(np.float64) @ res.basis.T
     err = res.method_error
+    level = pixel_level(res, args.x, args.y)
+    note = ""
+    if level < MIN_LEVEL:
+        note = (f"pixel ({args.x}, {args.y}) is backdrop / below the noise floor: its brightest channel is "
+                f"{level:.2g} of a white diffuser lit like the chart (below {MIN_LEVEL:g}), so the spectrum "
+                "below is noise, not the object's; pick a pixel on the object")
     if args.json:
         print(json.dumps({"x": args.x, "y": args.y, "method": res.method,
                           "wavelengths": res.wavelengths.tolist(), "reflectance": spectrum.tolist(),
-                          "uncertainty": err}))
+                          "uncertainty": err, "level": level, "note": note}))
     else:
-        print(f"pixel ({args.x}, {args.y}), {res.method}; uncertainty +-{err:.3f} (RMS error on the chart)")
+        if note:
+            print(note)
+        print(f"pixel ({args.x}, {args.y}), {res.method}; uncertainty +-{err:.3f} (RMS error on the chart); "
+              f"level {level:.3g} of a white diffuser")
         print("nm  reflectance")
         for lam, v in zip(res.wavelengths, spectrum):
             print(f"{lam:.0f} {v:.4f}")

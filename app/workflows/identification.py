@@ -31,6 +31,7 @@ region with no such pixel is reported with ``material`` None and the reason.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,14 +42,25 @@ from numpy.typing import NDArray
 from app.errors import UsageError
 from app.workflows.spectral import SpectralResult
 
-__all__ = ["ALLOY_METALS", "RegionReport", "read_labels", "identify_result", "usable_regions", "white_response"]
+__all__ = ["ALLOY_METALS", "MIN_LEVEL", "RegionReport", "read_labels", "binned_labels", "identify_result",
+           "usable_regions", "white_response", "pixel_level"]
 
 #: Metals of the alloy model (Matsuda et al., eq. (3)-(4); Table 1's shibuichi and shakudo are Ag-Cu-Au).
 ALLOY_METALS = ("Ag", "Cu", "Au")
 
+#: Pixels whose brightest channel is below this fraction of a white diffuser lit like the chart hold noise,
+#: not colour (backdrop, shadow, a glossy metal away from its highlights): identification leaves them out.
+MIN_LEVEL = 0.005
 
-def read_labels(path: Path, shape: tuple[int, int]) -> NDArray[np.int64]:
-    """Read a label PNG and check it against the result's ``(H, W)``; errors are :class:`UsageError`."""
+
+def read_labels(path: Path, shape: tuple[int, int], *, mode: str | None = None,
+                note: Callable[[str], None] | None = None) -> NDArray[np.int64]:
+    """Read a label PNG and check it against the result's ``(H, W)``; errors are :class:`UsageError`.
+
+    A result estimated in ``bin2x2`` ``mode`` is half the sensor's size: a label image drawn at the
+    photo's full resolution (``2H`` or ``2H + 1`` rows, likewise columns) is resampled to the
+    result nearest-neighbour (:func:`binned_labels`), and ``note`` is told so.
+    """
     import cv2
 
     if not path.is_file():
@@ -59,10 +71,34 @@ def read_labels(path: Path, shape: tuple[int, int]) -> NDArray[np.int64]:
     if lab.ndim != 2 or lab.dtype.kind not in "iu":
         raise UsageError(f"--regions {path}: a {lab.shape[2] if lab.ndim == 3 else ''}-channel {lab.dtype} image; "
                          "give a single-channel (grey) 8- or 16-bit PNG with one integer label per region")
+    if lab.shape != shape and mode == "bin2x2" and all(n // 2 == m for n, m in zip(lab.shape, shape)):
+        if note is not None:
+            note(f"--regions {path.name}: {lab.shape[1]} x {lab.shape[0]} pixels (the photo's full resolution), "
+                 f"resampled nearest-neighbour to the 2x2-binned result's {shape[1]} x {shape[0]}")
+        return binned_labels(lab.astype(np.int64), shape)
     if lab.shape != shape:
+        full = (f" or {2 * shape[1]} x {2 * shape[0]} (the photo's full resolution, resampled)"
+                if mode == "bin2x2" else "")
         raise UsageError(f"--regions {path}: {lab.shape[1]} x {lab.shape[0]} pixels, but the result is "
-                         f"{shape[1]} x {shape[0]} (in bin2x2 mode the result is half the sensor's size)")
+                         f"{shape[1]} x {shape[0]} (mode {mode or 'unknown'}); give a label image of "
+                         f"{shape[1]} x {shape[0]}{full}")
     return lab.astype(np.int64)
+
+
+def binned_labels(labels: NDArray[np.int64], shape: tuple[int, int]) -> NDArray[np.int64]:
+    """Labels at the sensor's resolution -> a 2x2-binned result's ``(H, W)``, nearest-neighbour.
+
+    Result pixel ``(i, j)`` is the Bayer cell of sensor rows ``2i, 2i + 1`` and columns ``2j, 2j + 1``;
+    it takes the label of the cell's top-left photosite (labels are categories: never averaged).
+
+    Examples
+    --------
+    >>> full = np.repeat(np.repeat(np.array([[1, 2], [3, 0]]), 2, axis=0), 2, axis=1)
+    >>> binned_labels(np.pad(full, ((0, 1), (0, 1))), (2, 2)).tolist()
+    [[1, 2], [3, 0]]
+    """
+    h, w = shape
+    return np.ascontiguousarray(labels[0:2 * h:2, 0:2 * w:2])
 
 
 @dataclass(frozen=True)
@@ -124,7 +160,27 @@ def white_response(result: SpectralResult) -> NDArray[np.float64]:
                       dtype=np.float64)
 
 
-def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_level: float = 0.005) -> NDArray[np.int64]:
+def pixel_level(result: SpectralResult, x: int, y: int) -> float:
+    """Brightest channel of pixel ``(x, y)`` as a fraction of a white diffuser lit like the chart.
+
+    Below :data:`MIN_LEVEL` the pixel is backdrop or shadow: its estimated spectrum is noise.
+
+    Examples
+    --------
+    >>> from processing.camera.response import camera_sensitivities
+    >>> from processing.spectral.spectra import SpectralGrid
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> r = SpectralResult(np.zeros((1, 2, 3), np.float32), np.eye(31, 3), g.wavelengths, np.ones((1, 2), bool),
+    ...                    np.zeros((1, 2, 3), np.float32), camera_sensitivities(g), np.ones((1, 31)), "demo")
+    >>> r.camera[0, 1] = white_response(r) / 2
+    >>> pixel_level(r, 0, 0), round(pixel_level(r, 1, 0), 6)
+    (0.0, 0.5)
+    """
+    white = white_response(result)
+    return float(np.max(result.camera[y, x].astype(np.float64) / white))
+
+
+def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_level: float = MIN_LEVEL) -> NDArray[np.int64]:
     """``labels`` with 0 where a pixel is masked or darker than ``min_level`` of a white diffuser (module text).
 
     Examples
@@ -152,7 +208,7 @@ def identify_result(
     light_deg: float = 30.0,
     noise: float = 0.01,
     model_error: float | None = None,
-    min_level: float = 0.005,
+    min_level: float = MIN_LEVEL,
 ) -> list[RegionReport]:
     """Identify every region (label > 0) of ``result``; ``labels=None``: the whole unmasked image.
 

@@ -36,7 +36,7 @@ import numpy as np
 from app.errors import UsageError
 
 __all__ = ["measure_object", "answer_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
-           "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY"]
+           "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY", "FIT_MODEL_ERROR"]
 
 OBJECT_MATERIALS = "products/object-materials.json"
 OBJECT_MESH = "products/object-mesh.ply"
@@ -44,6 +44,9 @@ OBJECT_SCENE = "products/object-scene.toml"
 VALIDATION_DIR = "products/validation"
 #: Every n-th table angle is held out of the fit and used to validate it (the validation's rule).
 HOLDOUT_EVERY = 4          # app.workflows.holdout_validation.HOLDOUT_EVERY (not imported: it loads Open3D)
+#: Relative error of the forward model added to each observation's noise (0.02 = 2 %), the one default of
+#: ``kogei fit-materials --model-error`` and the batch's materials step on the mesh (docs/materials.md, "Weights").
+FIT_MODEL_ERROR = 0.02
 #: Spectral grid of the fit (nm).
 _GRID = (400.0, 700.0, 10.0)
 
@@ -105,7 +108,7 @@ def _forward_model(spectrum: Any, note: Callable[[str], None]) -> Any:
     return ForwardModel(camera_sensitivities(grid), light_spectrum(spectrum, grid), grid), spectrum
 
 
-def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVERY, model_error: float = 0.02,
+def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVERY, model_error: float = FIT_MODEL_ERROR,
                    max_regions: int = 8, validate: bool = True, decode: str = "demosaic",
                    message: Callable[[str], None] | None = None,
                    cancel: Callable[[], bool] | None = None) -> dict[str, Any]:
@@ -119,7 +122,7 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
     holdout_every
         Every n-th frame of a pass is held out of the fit and used for validation (0: none).
     model_error
-        Relative error of the forward model added to the noise (0.02 = 2 %).
+        Relative error of the forward model added to the noise (0.02 = 2 %); default :data:`FIT_MODEL_ERROR`.
     max_regions
         Most regions of one material the segmentation may find.
     validate

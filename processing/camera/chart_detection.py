@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.camera.chart_layout import ChartLayout, chart_layout
+from processing.camera.chart_layout import ChartLayout, chart_layout, chart_type_hint
 from processing.camera.raw_decode import RawImage, preview_srgb8
 from processing.errors import InputError
 
@@ -397,7 +397,8 @@ def _best_checker(small: NDArray[np.uint8], chart: str, sensor_size: tuple[int, 
     if not checkers:
         raise ChartNotFoundError(
             f"no {chart} chart found in the {sensor_size[0]} x {sensor_size[1]} image; check that the whole chart is in "
-            f"view, lit evenly and not over- or under-exposed, or {_CORNERS_HINT}"
+            f"view, lit evenly and not over- or under-exposed, and that it is {chart_type_hint(chart)}, or "
+            f"{_CORNERS_HINT}"
         )
     return min(checkers, key=lambda ch: ch.getCost())
 

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from processing.errors import InputError
 
-__all__ = ["CHARTS", "ChartLayout", "ChartLayoutError", "chart_layout", "reference_srgb8", "reference_lab"]
+__all__ = ["CHARTS", "chart_type_hint", "ChartLayout", "ChartLayoutError", "chart_layout", "reference_srgb8", "reference_lab"]
 
 #: Names of the charts :func:`chart_layout` knows.
 CHARTS = ("classic24", "sg140", "vinyl18")
@@ -143,6 +143,18 @@ def _uniform(n: int) -> tuple[tuple[float, float], ...]:
 
 
 @functools.cache
+def chart_type_hint(name: str) -> str:
+    """The chart type named with the other types, for messages that suspect the wrong type was given.
+
+    Examples
+    --------
+    >>> chart_type_hint("sg140")
+    'an sg140 chart (other types: classic24, vinyl18)'
+    """
+    article = "an" if name[:1] in "aeiosx" else "a"
+    return f"{article} {name} chart (other types: {', '.join(c for c in CHARTS if c != name)})"
+
+
 def chart_layout(name: str) -> ChartLayout:
     """The layout of chart ``name`` (one of :data:`CHARTS`).
 

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.camera.chart_detection import ChartDetection
-from processing.camera.chart_layout import chart_layout, reference_lab
+from processing.camera.chart_layout import chart_layout, chart_type_hint, reference_lab
 from processing.camera.raw_decode import RawImage
 from processing.errors import InputError
 
@@ -343,29 +343,75 @@ def check_patches(
         raise ChartRejectedError(f"samples.mean must be ({n}, 3) finite values for {samples.chart}")
     usable = np.ones(n, bool)
     problems: list[str] = []
+    faults: dict[str, list[tuple[str, float]]] = {kind: [] for kind in _ADVICE}
     for k in range(n):
         if samples.clipped[k] > max_clipped:
-            usable[k] = False
-            problems.append(f"{layout.label(k)} is {100 * samples.clipped[k]:.0f}% clipped: lower the exposure")
+            kind, pct = "clipped", 100 * float(samples.clipped[k])
         elif samples.nonuniformity[k] > max_nonuniformity:
-            usable[k] = False
-            problems.append(
-                f"{layout.label(k)} is not uniform ({100 * samples.nonuniformity[k]:.0f}% difference across it: "
-                "glare or a shadow); light the chart evenly and tilt it away from specular reflection"
-            )
+            kind, pct = "not uniform", 100 * float(samples.nonuniformity[k])
         elif np.any(mean[k] <= 0):
-            usable[k] = False
-            problems.append(f"{layout.label(k)} has no signal in some channel: raise the exposure")
+            kind, pct = "without signal", 0.0
+        else:
+            continue
+        usable[k] = False
+        faults[kind].append((layout.label(k), pct))
+        problems.append(_one_patch(kind, layout.label(k), pct) + _ADVICE[kind])
     if usable.mean() < min_usable:
-        uneven = sum("not uniform" in p for p in problems)
-        extra = ("; if the chart is evenly lit, its corners are misplaced or in the wrong order"
-                 if uneven > len(problems) / 2 else "")
-        raise ChartRejectedError(
-            f"the {samples.chart} chart is unusable ({int(usable.sum())} of {n} patches usable): "
-            + "; ".join(problems) + extra
-        )
+        raise ChartRejectedError(_rejection(samples.chart, int(usable.sum()), n, faults))
     _check_order(layout, ref, mean, usable, neutral_concordance, hue_tolerance_deg, hue_agreement)
     return ChartCheck(usable, problems)
+
+
+#: What to do about each kind of unusable patch (the text after the patches' description).
+_ADVICE = {
+    "clipped": ": lower the exposure",
+    "not uniform": "; light the chart evenly and tilt it away from specular reflection",
+    "without signal": ": raise the exposure",
+}
+
+#: How a group of unusable patches is described.
+_KIND_TEXT = {"clipped": "clipped", "not uniform": "not uniform (glare or a shadow)",
+              "without signal": "with no signal in some channel"}
+
+#: Patches named one by one (the worst first) in a rejection message; the rest are counted.
+_NAMED = 3
+
+
+def _one_patch(kind: str, label: str, pct: float) -> str:
+    """What is wrong with one patch, e.g. ``"patch 19 (white 9.5) is 100% clipped"``."""
+    if kind == "clipped":
+        return f"{label} is {pct:.0f}% clipped"
+    if kind == "not uniform":
+        return f"{label} is not uniform ({pct:.0f}% difference across it: glare or a shadow)"
+    return f"{label} has no signal in some channel"
+
+
+def _rejection(chart: str, usable: int, n: int, faults: dict[str, list[tuple[str, float]]]) -> str:
+    """One short line: why the chart is unusable, a few patches named per kind, and what to do.
+
+    Examples
+    --------
+    >>> faults = {"clipped": [("patch 19 (white 9.5)", 100.0)], "without signal": [],
+    ...           "not uniform": [(f"patch {k}", 40.0) for k in range(1, 11)]}
+    >>> print(_rejection("sg140", 129, 140, faults))  # doctest: +NORMALIZE_WHITESPACE
+    the sg140 chart is unusable (129 of 140 patches usable): patch 19 (white 9.5) is 100% clipped: lower the
+    exposure; patch 1 40%, patch 2 40%, patch 3 40% and 7 more not uniform (glare or a shadow);
+    light the chart evenly and tilt it away from specular reflection; if it is evenly lit, it may not be an
+    sg140 chart (other types: classic24, vinyl18), or its corners are misplaced or in the wrong order
+    """
+    parts = []
+    for kind, found in faults.items():
+        if len(found) == 1:
+            parts.append(_one_patch(kind, *found[0]) + _ADVICE[kind])
+        elif found:
+            worst = sorted(found, key=lambda f: -f[1])[:_NAMED]
+            named = ", ".join(label if kind == "without signal" else f"{label} {pct:.0f}%" for label, pct in worst)
+            more = f" and {len(found) - _NAMED} more" if len(found) > _NAMED else ""
+            parts.append(f"{named}{more} {_KIND_TEXT[kind]}{_ADVICE[kind]}")
+    hint = ""
+    if len(faults["not uniform"]) > sum(map(len, faults.values())) / 2:
+        hint = f"; if it is evenly lit, it may not be {chart_type_hint(chart)}, or its corners are misplaced or in the wrong order"
+    return f"the {chart} chart is unusable ({usable} of {n} patches usable): " + "; ".join(parts) + hint
 
 
 def _check_order(layout, ref: NDArray[np.float64], mean: NDArray[np.float64], usable: NDArray[np.bool_],
@@ -374,7 +420,8 @@ def _check_order(layout, ref: NDArray[np.float64], mean: NDArray[np.float64], us
     chroma = np.hypot(ref[:, 1], ref[:, 2])
     neutral = np.flatnonzero((chroma < 5) & usable & np.all(mean > 0, axis=1))
     hint = (f"the chart is rotated or mirrored against the corners given: list them starting at the chart's "
-            f"top-left as printed (the corner next to {layout.label(0)}), clockwise")
+            f"top-left as printed (the corner next to {layout.label(0)}), clockwise; or it is not "
+            f"{chart_type_hint(layout.name)}")
     if len(neutral) >= 2:
         lum = mean[neutral].sum(axis=1)
         li = ref[neutral, 0]

@@ -54,3 +54,14 @@ def test_bad_inputs_exit_2(tmp_path, capsys):
     assert "no classic24 chart found" in capsys.readouterr().err
     assert main(["chart", str(blank.path), "--chart-corners", "1,2,3"]) == 2
     assert "need 8 numbers" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("wrong", ["sg140", "vinyl18"])
+def test_the_wrong_chart_type_is_one_short_line_that_suggests_the_others(shot, capsys, wrong):
+    """A ColorChecker frame read as another chart: one short line that names the other chart types."""
+    corners = ",".join(f"{v:.2f}" for v in shot.frame.chart_corners.ravel())
+    for extra in ([], ["--chart-corners", corners]):
+        assert main(["chart", str(shot.path), "--chart", wrong, *extra]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and len(err) < 450, err
+        assert "other types: classic24" in err, err

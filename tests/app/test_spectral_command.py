@@ -119,9 +119,28 @@ def test_spectral_at_prints_the_pixel_spectrum_with_its_uncertainty(shots, capsy
     assert len(got["reflectance"]) == 31 and got["wavelengths"][0] == 400
     assert np.sqrt(np.mean((np.array(got["reflectance"]) - truth.reflectance[k]) ** 2)) < 0.08
     assert got["uncertainty"] == load_result(path).metadata["chart_rmse"] > 0
+    assert got["note"] == "" and got["level"] > 0.1     # an orange tile: no backdrop note
     assert main(["spectral", "at", str(path), str(x), str(y)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2 + 31 and lines[-1].startswith("700 ")
+
+
+def test_spectral_at_says_when_a_pixel_is_backdrop(shots, tmp_path, capsys):
+    """A pixel darker than the noise floor (a black backdrop) is named as such, not printed as a bare spectrum."""
+    import dataclasses
+
+    from app.workflows.spectral import save_result
+
+    res = load_result(_estimate(shots, "rootpoly"))
+    camera = res.camera.copy()
+    camera[3, 5] = 0.0                                  # a black backdrop: no signal in any channel
+    dark = save_result(dataclasses.replace(res, camera=camera), tmp_path / "dark.npz")
+    assert main(["spectral", "at", str(dark), "5", "3"]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith("pixel (5, 3) is backdrop / below the noise floor"), first
+    assert main(["spectral", "at", str(dark), "5", "3", "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert got["level"] == 0.0 and "backdrop" in got["note"]
 
 
 @pytest.mark.parametrize("method", ["rootpoly", "twolight"])
@@ -264,6 +283,27 @@ def test_bad_results_pixels_and_labels_are_refused(shots, tmp_path, capsys):
     _fails(capsys, ["identify", path, "--regions", str(rgb)], "single-channel")
     blank = write_labels(tmp_path / "blank.png", np.zeros((h, w), np.int64))
     _fails(capsys, ["identify", path, "--regions", str(blank)], "no region")
+
+
+def test_labels_drawn_on_the_full_resolution_photo_are_resampled_and_said_so(shots, tmp_path, capsys):
+    """A bin2x2 result is half the sensor's size; labels drawn on the photo itself are resampled, not refused."""
+    path = str(_estimate(shots, "rootpoly"))
+    h, w = shots["truth"].labels.shape
+    # the board's sensor image is its binned radiance repeated 2 x 2, so these are its labels on the photo
+    full = np.repeat(np.repeat(shots["truth"].labels, 2, axis=0), 2, axis=1)
+    on_photo = write_labels(tmp_path / "photo-labels.png", full)
+    assert main(["identify", path, "--regions", str(shots["labels"]), "--json"]) == 0
+    binned = json.loads(capsys.readouterr().out)
+    assert main(["identify", path, "--regions", str(on_photo), "--json"]) == 0
+    resampled = json.loads(capsys.readouterr().out)
+    assert binned["notes"] == [] and resampled["regions"] == binned["regions"]
+    (note,) = resampled["notes"]
+    assert f"{2 * w} x {2 * h}" in note and "resampled nearest-neighbour" in note and f"{w} x {h}" in note
+    assert main(["identify", path, "--regions", str(on_photo)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == note and out[1].startswith("region 1: ")
+    odd = write_labels(tmp_path / "odd.png", np.ones((2 * h + 3, 2 * w), np.int64))
+    _fails(capsys, ["identify", path, "--regions", str(odd)], "odd.png", f"{w} x {h}", f"or {2 * w} x {2 * h}")
 
 
 # ---------------------------------------------------------------------------------------------- settings and extremes

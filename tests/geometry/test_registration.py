@@ -13,6 +13,7 @@ of that spacing (the tolerances below), not by the noise.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -513,7 +514,25 @@ def test_bad_normals_and_arguments_get_clear_errors():
         register_passes([GOOD, GOOD], pairs="every")
     with pytest.raises(RegistrationError, match="1 names for 2 clouds"):
         register_passes([GOOD, GOOD], names=["a"])
-    with pytest.raises(RegistrationError, match=r"give pair \(1, 0\) as \(0, 1\)"):
+    with pytest.raises(RegistrationError, match=r"give the pair pass 1 - pass 2 in that order, with the points on pass 1"):
         register_passes([GOOD, GOOD], picks={(1, 0): (GOOD[:3], GOOD[:3])})
-    with pytest.raises(RegistrationError, match="not one of the registered pairs"):
+    with pytest.raises(RegistrationError, match=r"pair of indices \(0, 5\) is not one of the registered pairs "
+                                                r"\(pass 1 - pass 2, pass 2 - pass 3, pass 1 - pass 3\)"):
         register_passes([GOOD, GOOD, GOOD], pairs="sequential", picks={(0, 5): (GOOD[:3], GOOD[:3])})
+
+
+def test_messages_number_passes_from_1_throughout():
+    """A pass no verified pair reaches is reported with 1-based pass numbers only, as its pairs are."""
+    rng = np.random.default_rng(2)
+    d = rng.normal(size=(1500, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    bump = 1 + 0.3 * np.exp(-8 * np.sum((d - [0.5, 0.7, 0.5]) ** 2, axis=1))
+    blob = d * [30, 20, 12] * ((1 + 0.2 * d[:, 0]) * bump)[:, None]
+    turn = np.eye(4)
+    turn[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    sphere = d * 25.0                                  # no pose of a sphere is better than another
+    res = register_passes([blob, transform_points(turn, blob), sphere], preset="draft")
+    assert [p.registered for p in res.poses] == [True, True, False]
+    reason = res.poses[2].reason
+    assert reason.startswith("pass 3 is not connected to pass 1 by verified pairs (pass 1 - pass 3: "), reason
+    assert "pass 2 - pass 3: " in reason and "pass 0" not in reason and not re.search(r"pair \d", reason), reason

@@ -52,7 +52,8 @@ def register_passes(
         ``j``; that pair is registered from the picks (see
         :func:`register_from_picks`) instead of the global search.
     names
-        Names of the passes for messages (default ``"pass 0"``, ...).
+        Names of the passes for messages (default ``"pass 1"``, ``"pass 2"``, ...: messages count
+        from 1, the arrays and ``picks`` from 0).
     seed
         Seed of the random subsampling.
 
@@ -95,7 +96,7 @@ def register_passes(
     if n == 0:
         raise RegistrationError("register_passes: no clouds given; pass one point cloud per pass")
     if names is None:
-        names = [f"pass {k}" for k in range(n)]
+        names = [f"pass {k + 1}" for k in range(n)]
     if len(names) != n:
         raise RegistrationError(f"names: {len(names)} names for {n} clouds")
     if normals is None:
@@ -110,9 +111,11 @@ def register_passes(
         if key not in pair_list:
             if (key[1], key[0]) in pair_list:
                 raise RegistrationError(
-                    f"picks: give pair {key} as {(key[1], key[0])} (i < j) with (points_on_i, points_on_j)"
+                    f"picks: give the pair {names[key[1]]} - {names[key[0]]} in that order, with the points on "
+                    f"{names[key[1]]} first"
                 )
-            raise RegistrationError(f"picks: pair {key} is not one of the registered pairs {pair_list}")
+            named = ", ".join(f"{names[i]} - {names[j]}" for i, j in pair_list)
+            raise RegistrationError(f"picks: {_pair_name(names, key)} is not one of the registered pairs ({named})")
     rng = np.random.default_rng(seed)
     results: list[PairResult] = []
     for i, j in pair_list:
@@ -131,6 +134,14 @@ def register_passes(
         poses=tuple(poses), pairs=tuple(results), consistency=consistency, preset=p,
         seconds=time.perf_counter() - start,
     )
+
+
+def _pair_name(names: Sequence[str], key: tuple[int, int]) -> str:
+    """A picked pair by its passes' names, or by its indices when they name no pass."""
+    i, j = key
+    if all(isinstance(k, int) and 0 <= k < len(names) for k in key):
+        return f"the pair {names[i]} - {names[j]}"
+    return f"the pair of indices {key}"
 
 
 def _pair_list(n: int, pairs: str) -> list[tuple[int, int]]:
@@ -264,7 +275,8 @@ def _pass_poses(
             out.append(PassPose(k, pose[k], True, "ok"))
             continue
         tried = [r for r in results if k in (r.source, r.target)]
-        why = "; ".join(f"pair {r.target}-{r.source}: {r.reason}" for r in tried if not r.verified)
+        why = "; ".join(f"{clouds[r.target].name} - {clouds[r.source].name}: {r.reason}"
+                        for r in tried if not r.verified)
         out.append(PassPose(
             k, None, False,
             f"{clouds[k].name} is not connected to {clouds[0].name} by verified pairs"
