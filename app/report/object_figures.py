@@ -74,7 +74,8 @@ def mesh_views(vertices: np.ndarray, triangles: np.ndarray, face_rgb: np.ndarray
 
 
 def material_views_figure(vertices: np.ndarray, triangles: np.ndarray, face_region: np.ndarray,
-                          regions: Sequence[dict[str, Any]], colours: Sequence[tuple[int, int, int]]) -> bytes:
+                          regions: Sequence[dict[str, Any]], colours: Sequence[tuple[int, int, int]],
+                          labels: Sequence[str] | None = None) -> bytes:
     """The material map on the mesh from four sides, with a legend (PNG bytes).
 
     Parameters
@@ -86,7 +87,9 @@ def material_views_figure(vertices: np.ndarray, triangles: np.ndarray, face_regi
     regions
         The regions (``index``, ``material``, ``confidence``, ``area_mm2``), in index order.
     colours
-        sRGB of each region's material.
+        sRGB of each region on the map.
+    labels
+        Legend text of each region (default: index, material, confidence and area).
 
     Returns
     -------
@@ -100,20 +103,21 @@ def material_views_figure(vertices: np.ndarray, triangles: np.ndarray, face_regi
     face_rgb = table[np.where(fr >= 0, fr, len(colours))]
     images = mesh_views(vertices, triangles, face_rgb)
     plt = _plt()
-    fig, axes = plt.subplots(1, len(images) + 1, figsize=(2.4 * (len(images) + 1.6), 2.7),
-                             gridspec_kw={"width_ratios": [1] * len(images) + [1.6]}, constrained_layout=True)
+    fig, axes = plt.subplots(1, len(images) + 1, figsize=(2.4 * (len(images) + 2.2), 2.9),
+                             gridspec_kw={"width_ratios": [1] * len(images) + [2.2]}, constrained_layout=True)
     for i, (ax, img) in enumerate(zip(axes[:-1], images)):
         ax.imshow(img)
         ax.set_title(f"view {i + 1}", fontsize=9)
         ax.axis("off")
     legend = axes[-1]
     legend.axis("off")
-    rows = [(np.array(c) / 255.0, f"{r['index']}: {r['material']} ({r['confidence']:.2f}), {r['area_mm2']:.0f} mm²")
-            for r, c in zip(regions, colours)]
+    if labels is None:
+        labels = [f"{r['index']}: {r['material']} ({r['confidence']:.2f}), {r['area_mm2']:.0f} mm²" for r in regions]
+    rows = [(np.array(c) / 255.0, text) for text, c in zip(labels, colours)]
     if np.any(fr < 0):
         rows.append((np.array(NOT_MEASURED_RGB) / 255.0, "not measured"))
     for k, (c, text) in enumerate(rows):
-        y = 0.95 - k * 0.11
+        y = 0.95 - k * min(0.11, 0.95 / max(len(rows), 1))
         legend.add_patch(plt.Rectangle((0.0, y - 0.035), 0.09, 0.07, color=c, transform=legend.transAxes))
         legend.text(0.13, y, text, fontsize=8, va="center", transform=legend.transAxes)
     return png_of(fig)

@@ -1,0 +1,222 @@
+"""The report's "At a glance" box: what was measured, how well, and what is uncertain, in plain words.
+
+:func:`glance` reads the same checked products as the sections below it (the process report, the
+scanner calibration, the colour chart, the materials, the validation, the renders) and states each
+figure once, with a badge: **good**, **check** (uncertain, or a stand-in) or **poor** (unreliable).
+Every material answer goes through :func:`app.report.readable.verdict`, so a region that fits
+nothing is never summarised as a confident name, and renders are always said to show either the
+measured materials or a one-material stand-in.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from app.report.readable import verdict
+
+__all__ = ["Glance", "glance", "material_verdicts", "render_materials_text"]
+
+
+@dataclass
+class Glance:
+    """Rows ``(topic, text, badge)`` and the uncertain points of the summary box."""
+
+    rows: list[tuple[str, str, str]] = field(default_factory=list)
+    uncertain: list[str] = field(default_factory=list)
+
+    def html(self) -> str:
+        """The box's HTML."""
+        badge = {"good": "good", "check": "check", "poor": "poor", "none": "missing"}
+        rows = "".join(f"<tr><th>{html.escape(t)}</th><td><span class='badge {b}'>{badge[b]}</span></td>"
+                       f"<td>{html.escape(text)}</td></tr>" for t, text, b in self.rows)
+        unc = "".join(f"<li>{html.escape(u)}</li>" for u in self.uncertain) or "<li>nothing flagged</li>"
+        return (f"<div class='glance' id='summary'><h2>At a glance</h2><table class='glance'>{rows}</table>"
+                f"<h3>What is uncertain</h3><ul class='uncertain'>{unc}</ul></div>")
+
+
+def material_verdicts(ctx: Any) -> tuple[str, list[tuple[str, Any, dict[str, Any]]]]:
+    """``(kind, [(name, Verdict, region), ...])``: the on-mesh regions, else the image-only ones, else none.
+
+    ``kind`` is ``"mesh"``, ``"image"`` or ``""``.
+    """
+    doc = ctx.product_json("object_materials")
+    if doc is not None:
+        return "mesh", [(f"region {r.get('index')}", verdict(r.get("material"), r.get("confidence"),
+                                                             r.get("chi2_per_dof"), r.get("group"), r.get("reason") or ""),
+                         r) for r in doc.get("regions") or [] if isinstance(r, dict)]
+    mat = _materials_doc(ctx)
+    if mat is not None:
+        return "image", [(str(r.get("region")), verdict(r.get("material"), r.get("confidence"), r.get("misfit"),
+                                                        r.get("group") or _group(r), r.get("note") or ""), r)
+                         for r in mat.get("regions") or [] if isinstance(r, dict)]
+    return "", []
+
+
+def _group(r: dict[str, Any]) -> list[str]:
+    return [r["material"]] if r.get("material") else []
+
+
+def _materials_doc(ctx: Any) -> dict[str, Any] | None:
+    from app.session_paths import MAX_JSON_BYTES
+
+    rec = (ctx.products.get("materials") or {}).get("report")
+    blob = ctx.product_bytes(rec, "products.materials.report", MAX_JSON_BYTES)
+    doc = None if blob is None else json.loads(blob)
+    return doc if isinstance(doc, dict) else None
+
+
+def render_materials_text(ctx: Any, force_measured: bool = False) -> tuple[str, bool]:
+    """What the renders' materials are, in words, and whether they are the measured ones (else a stand-in).
+
+    ``force_measured``: describe the materials measured on the mesh whatever the render step used (the
+    held-out renders always use them).
+    """
+    from app.batch.steps import MEASURED
+
+    rec = ctx.products.get("renders") or {}
+    material = rec.get("material")
+    if force_measured or material == MEASURED:
+        kind, regions = material_verdicts(ctx)
+        parts = [f"{name}: {v.answer}" + ("" if v.level == "reliable" else f" ({v.label})")
+                 + (f", drawn as its closest match {str(r['spec']).split(':')[0]}"
+                    if v.answer == "no candidate fits" and r.get("spec") else "")
+                 for name, v, r in regions if v.level != "missing"]
+        missing = any(v.level == "missing" for _, v, _ in regions)
+        text = ("the measured materials, region by region (" + "; ".join(parts) + ")"
+                + ("; faces not measured in neutral grey" if missing else ""))
+        return text, True
+    return f"a stand-in -- one material, {material}, for the whole object, not the object's own materials", False
+
+
+def _num(value: Any) -> float | None:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def glance(ctx: Any, rep: dict[str, Any] | None) -> Glance:
+    """The summary of a session (see the module docstring)."""
+    g = Glance()
+    m = ctx.manifest
+    obj = m.get("object") or {}
+    what = ", ".join(f"{k}: {v}" for k, v in obj.items() if k != "name")
+    caps = m.get("captures") or {}
+    photos = sum(1 for c in caps.values() if c.get("kind") == "frame")
+    g.rows.append(("Object", f"{obj.get('name') or 'no name given'}" + (f" ({what})" if what else "")
+                   + f"; capture {m.get('status') or 'not started'}, {len(caps)} files"
+                   + (f" including {photos} photo{'s' if photos != 1 else ''}" if photos else ""), "good" if caps else "none"))
+    _shape(ctx, rep, g)
+    _colour(ctx, g)
+    _materials(ctx, g)
+    _renders(ctx, g)
+    if ctx.problems:
+        g.uncertain.insert(0, f"{len(ctx.problems)} problem(s) with the session's files: see 'Problems found'")
+    return g
+
+
+def _shape(ctx: Any, rep: dict[str, Any] | None, g: Glance) -> None:
+    cal = ctx.calibration()
+    if rep is None or not isinstance(rep.get("mesh"), dict):
+        g.rows.append(("Shape", "not measured yet (the session has not been processed)", "none"))
+        g.uncertain.append("no 3-D shape: the session has not been processed")
+        return
+    mesh = rep["mesh"]
+    surf = (rep.get("surface") or {}).get("mesh") or {} if isinstance(rep.get("surface"), dict) else {}
+    passes = rep.get("passes") or []
+    registered = sum(1 for p in passes if p.get("registered"))
+    closed = bool(mesh.get("watertight"))
+    text = (f"3-D mesh of {int(mesh.get('triangles', 0)):,} triangles, "
+            + ("closed (watertight)" if closed else f"not closed ({surf.get('boundary_edges', '?')} open edges)")
+            + (f", surface {float(surf['area_mm2']):,.0f} mm²" if _num(surf.get("area_mm2")) else "")
+            + f"; {registered} of {len(passes)} placements aligned")
+    ok = closed and registered == len(passes)
+    if cal is not None and _num(cal.get("rms_mm")) is not None:
+        text += f"; scanner calibrated to {1000 * float(cal['rms_mm']):.1f} µm RMS on a reference sphere"
+    else:
+        text += "; scanner calibration not in the session"
+    g.rows.append(("Shape", text, "good" if ok else "check"))
+    if registered < len(passes):
+        g.uncertain.append(f"{len(passes) - registered} of {len(passes)} placements could not be aligned: "
+                           "their part of the shape is missing")
+    if not closed:
+        g.uncertain.append("the mesh is not closed: some of the surface was not seen by the scanner")
+
+
+def _colour(ctx: Any, g: Glance) -> None:
+    from app.session_paths import MAX_JSON_BYTES
+
+    colour = ctx.products.get("colour")
+    if not colour:
+        g.rows.append(("Colour calibration", "not done (no colour-chart step)", "none"))
+        return
+    means = []
+    for tag, files in sorted((colour.get("passes") or {}).items()):
+        blob = ctx.product_bytes(files.get("chart"), f"products.colour.passes.{tag}.chart", MAX_JSON_BYTES)
+        if blob is not None:
+            mean = _num((json.loads(blob).get("patch_errors") or {}).get("mean"))
+            if mean is not None:
+                means.append(mean)
+    if not means:
+        g.rows.append(("Colour calibration", "the chart products could not be read", "check"))
+        return
+    worst = max(means)
+    g.rows.append(("Colour calibration", f"colour chart found in {len(means)} pass(es); colours after calibration "
+                   f"differ from the chart's by mean ΔE00 {worst:.2f} in the worst pass (about 1 is the smallest "
+                   "difference most people see)", "good" if worst <= 3.0 else "check"))
+    if worst > 3.0:
+        g.uncertain.append(f"the colour calibration leaves a visible error (mean ΔE00 {worst:.2f})")
+
+
+def _materials(ctx: Any, g: Glance) -> None:
+    kind, regions = material_verdicts(ctx)
+    if not kind:
+        g.rows.append(("Materials", "not measured (the materials step has not run)", "none"))
+        g.uncertain.append("no material was measured")
+        return
+    counts = {lvl: sum(1 for _, v, _ in regions if v.level == lvl)
+              for lvl in ("reliable", "uncertain", "unreliable", "missing")}
+    where = "on the 3-D mesh" if kind == "mesh" else "in the photos only (not placed on the mesh)"
+    text = (f"{len(regions)} regions {where}: {counts['reliable']} reliable, {counts['uncertain']} uncertain, "
+            f"{counts['unreliable']} unreliable" + (f", {counts['missing']} not measured" if counts["missing"] else ""))
+    named = "; ".join(f"{name}: {v.answer} ({v.label})" for name, v, _ in regions[:8])
+    text += (f" -- {named}" if named else "") + ("; ..." if len(regions) > 8 else "")
+    badge = "poor" if counts["unreliable"] else ("check" if counts["uncertain"] or counts["missing"] else "good")
+    g.rows.append(("Materials", text, badge))
+    for name, v, _ in regions:
+        if v.level in ("unreliable", "uncertain"):
+            g.uncertain.append(f"{name} ({v.answer}) is {v.label}: {v.why}")
+    if kind == "mesh":
+        doc = ctx.product_json("object_materials") or {}
+        nm = doc.get("not_measured") or {}
+        if _num(nm.get("area_mm2")):
+            g.uncertain.append(f"{float(nm['area_mm2']):,.0f} mm² of the surface has no measured material "
+                               "(shown grey)")
+        val = doc.get("validation") or {}
+        mean, base = _num(val.get("mean_de2000")), _num(val.get("baseline_mean_de2000"))
+        if mean is not None:
+            n = len([f for f in val.get("frames") or [] if isinstance(f, dict)])
+            text = (f"renders with the measured materials differ from {n} photos not used for the fit by mean "
+                    f"ΔE00 {mean:.2f}" + ("" if base is None else f" (one material for the whole object: {base:.2f})"))
+            better = base is None or mean < base
+            g.rows.append(("Check against photos", text, "good" if better and mean <= 5.0 else "check"))
+            if not better:
+                g.uncertain.append("the measured materials predict the held-out photos no better than one material")
+        else:
+            g.rows.append(("Check against photos", val.get("note") or "not done", "none"))
+    else:
+        g.uncertain.append("the materials were identified in the photos only, not placed on the 3-D mesh "
+                           "(no camera calibration): the renders cannot show them region by region")
+
+
+def _renders(ctx: Any, g: Glance) -> None:
+    if not ctx.products.get("renders"):
+        g.rows.append(("Renders", "none (the render step has not run)", "none"))
+        return
+    text, measured = render_materials_text(ctx)
+    g.rows.append(("Renders", "show " + text, "good" if measured else "check"))
+    if not measured:
+        g.uncertain.append("the renders show " + text)
