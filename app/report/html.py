@@ -278,7 +278,7 @@ def _object(ctx: _Context) -> Section:
     obj = m.get("object") or {}
     pairs = [(k, v) for k, v in obj.items()] or [("object", "no metadata given (kogei capture --object NAME)")]
     pairs += [("session folder", _shown(ctx.root.resolve())), ("capture status", m.get("status")),
-              ("created (UTC)", m.get("created_utc")), ("last updated (UTC)", m.get("updated_utc"))]
+              ("created", _when(m.get("created_utc"))), ("last updated", _when(m.get("updated_utc")))]
     body = _lead("The object as recorded at the station, and the capture plan the station followed.")
     body += _kv(pairs)
     rows = plan_rows(m.get("plan"))
@@ -704,16 +704,17 @@ def _materials(ctx: _Context) -> Section:
     judged = _image_verdicts(doc)
     answers = list(dict.fromkeys(r["material"] for r, _ in judged if r.get("material") not in (None, NO_FIT)))
     draw = {a: palette_colour(i) for i, a in enumerate(answers)}
-    rows = []
+    rows, tech_rows = [], []
     for r, v in judged:
         alloy = ""
         if r.get("alloy_weights") and v.level != "unreliable" and _is_alloy(r.get("material")):
             alloy = ", ".join(f"{m} {100 * r['alloy_weights'][m]:.0f} ± {100 * (r.get('alloy_std') or {}).get(m, 0):.0f} %"
                               for m in r["alloy_weights"])
         rows.append([r["region"], v.answer, v.label, v.why,
-                     "" if r.get("confidence") is None else f"{r['confidence']:.2f}", r.get("runner_up") or "",
-                     misfit_number(r.get("misfit")), r["pixels"],
-                     len(r.get("frames") or []), alloy])
+                     "" if r.get("confidence") is None else f"{r['confidence']:.2f}", r["pixels"],
+                     len(r.get("frames") or [])])
+        tech_rows.append([r["region"], r.get("runner_up") or "", misfit_number(r.get("misfit")),
+                          "" if r.get("chi2") is None else f"{float(r['chi2']):.1f}", alloy])
     counts = collections.Counter(v.level for _, v in judged)
     body = _lead(f"The photos were divided into regions of similar colour and each region compared with the known "
                  f"materials (metals, alloys, lacquers). {len(judged)} regions: {counts['reliable']} reliable, "
@@ -725,13 +726,16 @@ def _materials(ctx: _Context) -> Section:
         body += _caveat(f"{len(bad)} region(s) are unreliable and must not be taken as identified: "
                         + "; ".join(f"{r['region']} ({v.answer}): {v.why}" for r, v in bad[:6])
                         + (" ..." if len(bad) > 6 else ""))
-    body += _verdict_table(["region", "answer", "verdict", "why", "confidence", "runner-up", "misfit", "pixels",
-                            "photos", "alloy (alloys only)"], rows, [v.level for _, v in judged])
+    levels = [v.level for _, v in judged]
+    body += _verdict_table(["region", "answer", "verdict", "why", "confidence", "pixels", "photos"], rows, levels)
     largest = doc.get("largest")
-    body += _details(_kv([("largest identified material", "none" if not largest else
-                           f"{largest['material']} ({largest['pixels']} pixels)"),
-                          ("misfit", "reduced chi-square of the best candidate: 1 means it matches within the "
-                                     "measurement noise; above 25 no candidate fits")]), "What the columns mean")
+    body += _details(_verdict_table(["region", "runner-up", "misfit", "chi-square", "alloy Ag, Cu, Au (alloys only)"],
+                                    tech_rows, levels)
+                     + _kv([("largest identified material", "none" if not largest else
+                             f"{largest['material']} ({largest['pixels']} pixels)"),
+                            ("misfit", "reduced chi-square of the best candidate (its chi-square over its degrees of "
+                                       "freedom): 1 means it matches within the measurement noise; above 25 no "
+                                       "candidate fits")]))
     import io
 
     from PIL import Image
@@ -816,6 +820,14 @@ def _renders(ctx: _Context) -> Section:
     body += _details(_kv([("materials", f"{rec.get('material')} ({rec.get('material_source', '')})"),
                           ("size", f"{rec['size'][0]} x {rec['size'][1]} pixels"), ("quality preset", rec.get("preset"))]))
     return Section("renders", "Renders under D65 and A", body, bool(figs))
+
+
+def _when(text: Any) -> str:
+    """A manifest time as "2026-11-28 17:47 UTC" (the text as given when it is not one)."""
+    try:
+        return _utc(str(text)).strftime("%Y-%m-%d %H:%M UTC")
+    except ValueError:
+        return str(text or "unknown")
 
 
 def _utc(text: str) -> _dt.datetime:
@@ -921,7 +933,7 @@ details{margin:0.5em 0}summary{cursor:pointer;color:#2c5d8f;font-size:0.9em}
 .glance th,.glance td{border:none;border-bottom:1px solid #dde6ef;padding:4px 8px}.glance th{background:none;width:9em}
 .badge{display:inline-block;min-width:5.5em;text-align:center;border-radius:3px;padding:0 4px;font-size:0.8em;
 font-weight:bold;color:white}.badge.good{background:#2e7d32}.badge.check{background:#b26a00}
-.badge.poor{background:#c0392b}.badge.missing{background:#888}ul.uncertain li{margin:0.2em 0}
+.badge.poor{background:#c0392b}.badge.none{background:#888}ul.uncertain li{margin:0.2em 0}
 tr.v-unreliable td{background:#fdecea}tr.v-uncertain td{background:#fff8e1}tr.v-missing td{color:#777}
 figure.render figcaption{font-size:0.85em;color:#333}
 """
@@ -946,7 +958,7 @@ def build_report(session_dir: str | os.PathLike[str]) -> str:
     held = sum(s.has_data for s in sections)
     text = ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>kogei report: {_e(name)}</title><style>{_CSS}</style></head><body>"
-            f"<h1>{_e(name)}</h1><p>kogei session report, written {_e(utc_now())} from <code>{_e(_shown(root.resolve()))}"
+            f"<h1>{_e(name)}</h1><p>kogei session report, written {_e(_when(utc_now()))} from <code>{_e(_shown(root.resolve()))}"
             f"</code>; {held} of {len(sections)} sections have data. Each section starts with what it shows in plain "
             f"words; the figures behind it are folded away under <i>Technical details</i>.</p>{box}<nav>{nav}</nav>"
             + "".join(parts) + "</body></html>\n")

@@ -50,14 +50,18 @@ def _judged(doc: dict[str, Any]) -> list[tuple[dict[str, Any], Any]]:
 
 
 def _rows(judged: list[tuple[dict[str, Any], Any]]) -> list[list[Any]]:
+    """The plain table: region, answer, verdict, why, confidence, area."""
+    return [[r.get("index"), v.answer, v.label, v.why, f"{float(r.get('confidence') or 0):.2f}",
+             f"{float(r.get('area_mm2') or 0):.0f}"] for r, v in judged]
+
+
+def _technical_rows(judged: list[tuple[dict[str, Any], Any]]) -> list[list[Any]]:
+    """The specialists' table: candidates, parameters, observations, misfit, what to capture."""
     from app.report.readable import misfit_number
 
-    return [[r.get("index"), v.answer, v.label, v.why, f"{float(r.get('confidence') or 0):.2f}",
-             ", ".join(r.get("group") or []) if len(r.get("group") or []) > 1 else "",
-             _param_text(r), f"{float(r.get('area_mm2') or 0):.0f}",
-             f"{r.get('n_lit')} / {r.get('n_observations')}",
-             misfit_number(r.get("chi2_per_dof")), r.get("reason") or ""]
-            for r, v in judged]
+    return [[r.get("index"), ", ".join(r.get("group") or []) if len(r.get("group") or []) > 1 else "",
+             _param_text(r), f"{r.get('n_lit')} / {r.get('n_observations')}",
+             misfit_number(r.get("chi2_per_dof")), r.get("reason") or ""] for r, v in judged]
 
 
 def object_materials_section(ctx: Any, kit: dict[str, Callable[..., Any]]) -> tuple[str, bool]:
@@ -95,10 +99,13 @@ def object_materials_section(ctx: Any, kit: dict[str, Callable[..., Any]]) -> tu
         body += kit["caveat"](f"{len(bad)} region(s) are unreliable and must not be taken as identified: "
                               + "; ".join(f"region {r.get('index')} ({v.answer}): {v.why}" for r, v in bad))
     body += _map(ctx, doc, judged, kit)
-    body += kit["verdict_table"](["region", "answer", "verdict", "why", "confidence", "indistinguishable from",
-                                  "parameters (± 1 sigma)", "area (mm²)", "lit / all observations", "misfit",
-                                  "what to capture"], _rows(judged), [v.level for _, v in judged])
-    body += kit["details"](kit["kv"]([
+    levels = [v.level for _, v in judged]
+    body += kit["verdict_table"](["region", "answer", "verdict", "why", "confidence", "area (mm²)"], _rows(judged),
+                                 levels)
+    technical = kit["verdict_table"](["region", "indistinguishable candidates", "parameters (± 1 sigma)",
+                                      "lit / all observations", "misfit", "what to capture"],
+                                     _technical_rows(judged), levels)
+    body += kit["details"](technical + kit["kv"]([
         ("segmentation", (doc.get("segmentation") or {}).get("method")),
         ("lamp spectrum assumed", doc.get("light_spectrum")),
         ("model error", f"{100 * float(doc.get('model_error') or 0):.1f} % (added to the noise)"),
@@ -127,7 +134,7 @@ def object_materials_section(ctx: Any, kit: dict[str, Callable[..., Any]]) -> tu
 def _map(ctx: Any, doc: dict[str, Any], judged: list[tuple[dict[str, Any], Any]],
          kit: dict[str, Callable[..., Any]]) -> str:
     """The material map on the mesh from four sides (empty when the mesh file is unreadable)."""
-    from app.report.figures import NO_MATERIAL_RGB, palette_colour
+    from app.report.figures import palette_colour
     from app.report.object_figures import material_views_figure
     from render.errors import MeshError
     from render.material_mesh import read_material_mesh
@@ -141,13 +148,13 @@ def _map(ctx: Any, doc: dict[str, Any], judged: list[tuple[dict[str, Any], Any]]
         ctx.problems.append(f"products.object_mesh: {exc}")
         return ""
     regions = [r for r, _ in judged]
-    colours = [NO_MATERIAL_RGB if v.level == "unreliable" else palette_colour(i) for i, (_, v) in enumerate(judged)]
+    colours = [palette_colour(i) for i in range(len(judged))]
     labels = [f"region {r.get('index')}: {v.answer} ({v.label})" for r, v in judged]
     png = material_views_figure(mesh.vertices, mesh.triangles, mesh.face_material, regions, colours, labels)
     return kit["img"](png, "material map on the mesh",
-                      "The object from four sides, each region in its own colour (legend: region, answer, verdict); "
-                      "black: unreliable, grey: not measured. The colours mark regions; they are not the "
-                      "materials' own colours.")
+                      "The object from four sides, each region in its own colour (legend: region, answer, verdict; "
+                      "grey: not measured). The colours only tell the regions apart; they are not the materials' "
+                      "own colours.")
 
 
 def _validation(ctx: Any, doc: dict[str, Any], kit: dict[str, Callable[..., Any]]) -> str:

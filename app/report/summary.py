@@ -29,7 +29,7 @@ class Glance:
 
     def html(self) -> str:
         """The box's HTML."""
-        badge = {"good": "good", "check": "check", "poor": "poor", "none": "missing"}
+        badge = {"good": "good", "check": "check", "poor": "poor", "none": "not done"}
         rows = "".join(f"<tr><th>{html.escape(t)}</th><td><span class='badge {b}'>{badge[b]}</span></td>"
                        f"<td>{html.escape(text)}</td></tr>" for t, text, b in self.rows)
         unc = "".join(f"<li>{html.escape(u)}</li>" for u in self.uncertain) or "<li>nothing flagged</li>"
@@ -84,7 +84,9 @@ def render_materials_text(ctx: Any, force_measured: bool = False) -> tuple[str, 
                  + (f", drawn as its closest match {str(r['spec']).split(':')[0]}"
                     if v.answer == "no candidate fits" and r.get("spec") else "")
                  for name, v, r in regions if v.level != "missing"]
-        missing = any(v.level == "missing" for _, v, _ in regions)
+        doc = ctx.product_json("object_materials") or {}
+        missing = any(v.level == "missing" for _, v, _ in regions) or bool(
+            _num((doc.get("not_measured") or {}).get("faces")))
         text = ("the measured materials, region by region (" + "; ".join(parts) + ")"
                 + ("; faces not measured in neutral grey" if missing else ""))
         return text, True
@@ -121,8 +123,13 @@ def glance(ctx: Any, rep: dict[str, Any] | None) -> Glance:
 def _shape(ctx: Any, rep: dict[str, Any] | None, g: Glance) -> None:
     cal = ctx.calibration()
     if rep is None or not isinstance(rep.get("mesh"), dict):
-        g.rows.append(("Shape", "not measured yet (the session has not been processed)", "none"))
-        g.uncertain.append("no 3-D shape: the session has not been processed")
+        if ctx.products.get("mesh"):
+            g.rows.append(("Shape", "a 3-D mesh is in the session, but its processing report holds no figures on "
+                                    "how well it was measured", "check"))
+            g.uncertain.append("the shape's accuracy is not recorded")
+        else:
+            g.rows.append(("Shape", "not measured yet (the session has not been processed)", "none"))
+            g.uncertain.append("no 3-D shape: the session has not been processed")
         return
     mesh = rep["mesh"]
     surf = (rep.get("surface") or {}).get("mesh") or {} if isinstance(rep.get("surface"), dict) else {}
@@ -217,6 +224,9 @@ def _renders(ctx: Any, g: Glance) -> None:
         g.rows.append(("Renders", "none (the render step has not run)", "none"))
         return
     text, measured = render_materials_text(ctx)
-    g.rows.append(("Renders", "show " + text, "good" if measured else "check"))
+    doubtful = measured and any(v.level == "unreliable" for _, v, _ in material_verdicts(ctx)[1])
+    g.rows.append(("Renders", "show " + text, "good" if measured and not doubtful else "check"))
+    if doubtful:
+        g.uncertain.append("the renders draw the unreliable regions with their closest candidate material")
     if not measured:
         g.uncertain.append("the renders show " + text)
