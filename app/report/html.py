@@ -4,11 +4,17 @@ docs/report.md.  The report reads the session without locking it
 (:meth:`app.session.Session.read`), checks every product it shows against the
 SHA-256 in the manifest, and draws its plots with matplotlib; images are
 embedded as base64 PNG data URIs, so the file can be mailed or archived
-alone.  Sections, in order: object and plan, capture log, scanner
-calibration, registration and pose graph, mesh views, coverage and filled
-holes, colour chart, spectra, materials, renders under D65 and A, timing.
-A section whose data the session does not hold says what is missing and
-which command produces it.
+alone.  It is written for curators as well as engineers: an "At a glance"
+box (:mod:`app.report.summary`) states what was measured, how well and what
+is uncertain; each section opens with a plain caption and folds its
+technical tables into ``<details>``; every material answer carries a verdict
+(:mod:`app.report.readable`), and every image rendered from the mesh says in
+its caption which materials it shows.  Sections, in order: object and plan,
+capture log, scanner calibration, registration and pose graph, camera and
+lamp, mesh views, coverage and filled holes, colour chart, spectra, materials
+on the mesh, material map, renders under D65 and A, timing.  A section whose
+data the session does not hold says what is missing and which command
+produces it.
 """
 
 from __future__ import annotations
@@ -373,6 +379,11 @@ def _registration(ctx: _Context, rep: dict[str, Any] | None) -> Section:
                  "into one shape. Each pair of overlapping passes is checked: its surfaces must meet within the "
                  "expected residual (RMS), overlap enough and face the same way ('normal agreement': the share of "
                  "matched points whose surface directions agree).")
+    rms = [float(pr["rmse_mm"]) for pr in reg.get("pairs") or []
+           if pr.get("verified") and isinstance(pr.get("rmse_mm"), (int, float))]
+    if rms:
+        lead += _lead(f"The aligned passes meet within {_um(max(rms))} RMS at worst "
+                      f"({len(rms)} verified pair(s)).")
     if registered < len(passes):
         lead += _caveat(f"{len(passes) - registered} pass(es) could not be aligned; their part of the shape is missing.")
     body = _table(["pass", "points", "registered", "note"], rows)
@@ -513,8 +524,8 @@ def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
         result = render_session_mesh(ctx.root, "D65", MESH_VIEW_SIZE, "draft", material=MESH_VIEW_MATERIAL,
                                      direction=direction)
         views.append(_img(png_bytes(result.srgb8), f"mesh {name}",
-                          f"{name}. Materials shown: none of the object's -- a uniform grey stand-in, to show the "
-                          "shape only.", kind="render"))
+                          f"{name}. Materials shown: none -- a uniform grey stand-in, for the shape only.",
+                          kind="render"))
     body = (_lead("The measured 3-D shape, seen from three sides. It is drawn in one neutral grey on purpose: these "
                   "views show the shape, not the object's colours or materials.")
             + "<div class='row'>" + "".join(views) + "</div>" + _details(_kv(pairs)))
@@ -542,8 +553,7 @@ def _coverage(ctx: _Context, rep: dict[str, Any] | None) -> Section:
         body += _table(["pass", "valid returns", "profiles"], rows)
         body += _img(coverage_figure(profiles), "coverage", "Range images of the passes (black: no return).")
         lead = _lead("How much of the object the laser scanner saw in each placement, and the holes left in the "
-                     "surface (places no scan reached), which were filled by smooth interpolation: the shape there "
-                     "is estimated, not measured.")
+                     "surface (places no scan reached).")
         body = lead + _details(body, "Scanner coverage per pass")
     else:
         body += _missing("no gathered profiles", "kogei capture (a scan plan)")
@@ -552,7 +562,12 @@ def _coverage(ctx: _Context, rep: dict[str, Any] | None) -> Section:
         return Section("coverage", "Coverage and filled holes", body, bool(profiles))
     holes = rep["surface"].get("holes") or {}
     items = holes.get("items") or []
-    body += _kv([("holes found", holes.get("count", len(items))), ("filled", holes.get("filled")),
+    n_holes, n_filled = holes.get("count", len(items)), holes.get("filled")
+    if n_holes:
+        body += _lead(f"{n_holes} hole(s) of {float(holes.get('total_area_mm2', 0.0)):.0f} mm² in all were found; "
+                      f"{n_filled or 0} of them were filled by smooth interpolation: there the shape is estimated, "
+                      "not measured.")
+    body += _kv([("holes found", n_holes), ("filled", n_filled),
                  ("total hole area", f"{holes.get('total_area_mm2', 0.0):.1f} mm²")])
     tech = _kv([("hole threshold", f"{holes.get('threshold_mm', float('nan')):.3f} mm")])
     if items:
@@ -710,10 +725,11 @@ def _materials(ctx: _Context) -> Section:
         if r.get("alloy_weights") and v.level != "unreliable" and _is_alloy(r.get("material")):
             alloy = ", ".join(f"{m} {100 * r['alloy_weights'][m]:.0f} ± {100 * (r.get('alloy_std') or {}).get(m, 0):.0f} %"
                               for m in r["alloy_weights"])
-        rows.append([r["region"], v.answer, v.label, v.why,
-                     "" if r.get("confidence") is None else f"{r['confidence']:.2f}", r["pixels"],
+        named = r.get("confidence") is not None and r.get("material") not in (None, NO_FIT)
+        rows.append([r["region"], v.answer, v.label, v.why, f"{r['confidence']:.2f}" if named else "-", r["pixels"],
                      len(r.get("frames") or [])])
-        tech_rows.append([r["region"], r.get("runner_up") or "", misfit_number(r.get("misfit")),
+        tech_rows.append([r["region"], "" if r.get("confidence") is None else f"{r['confidence']:.2f}",
+                          r.get("runner_up") or "", misfit_number(r.get("misfit")),
                           "" if r.get("chi2") is None else f"{float(r['chi2']):.1f}", alloy])
     counts = collections.Counter(v.level for _, v in judged)
     body = _lead(f"The photos were divided into regions of similar colour and each region compared with the known "
@@ -723,13 +739,13 @@ def _materials(ctx: _Context) -> Section:
                  "placement.")
     bad = [(r, v) for r, v in judged if v.level == "unreliable"]
     if bad:
-        body += _caveat(f"{len(bad)} region(s) are unreliable and must not be taken as identified: "
-                        + "; ".join(f"{r['region']} ({v.answer}): {v.why}" for r, v in bad[:6])
-                        + (" ..." if len(bad) > 6 else ""))
+        body += _caveat(f"{len(bad)} of {len(judged)} regions are unreliable and must not be taken as identified: "
+                        + ", ".join(f"{r['region']} ({v.answer})" for r, v in bad) + ". The table says why for each.")
     levels = [v.level for _, v in judged]
     body += _verdict_table(["region", "answer", "verdict", "why", "confidence", "pixels", "photos"], rows, levels)
     largest = doc.get("largest")
-    body += _details(_verdict_table(["region", "runner-up", "misfit", "chi-square", "alloy Ag, Cu, Au (alloys only)"],
+    body += _details(_verdict_table(["region", "best candidate's confidence", "runner-up", "misfit", "chi-square",
+                                     "alloy Ag, Cu, Au (alloys only)"],
                                     tech_rows, levels)
                      + _kv([("largest identified material", "none" if not largest else
                              f"{largest['material']} ({largest['pixels']} pixels)"),
@@ -816,6 +832,13 @@ def _renders(ctx: _Context) -> Section:
     if not measured:
         body += _caveat(f"these renders show {shown} ({rec.get('material_source') or 'no source recorded'}). They "
                         "do not show how the object's different parts really look.")
+    else:
+        from app.report.summary import material_verdicts
+
+        bad = [name for name, v, _ in material_verdicts(ctx)[1] if v.level == "unreliable"]
+        if bad:
+            body += _caveat(f"{len(bad)} region(s) have no reliable material ({', '.join(bad)}); the renders draw "
+                            "them with their closest candidate material, so there they may not look like the object.")
     body += "<div class='row'>" + "".join(figs) + "</div>"
     body += _details(_kv([("materials", f"{rec.get('material')} ({rec.get('material_source', '')})"),
                           ("size", f"{rec['size'][0]} x {rec['size'][1]} pixels"), ("quality preset", rec.get("preset"))]))
@@ -922,7 +945,7 @@ h1{font-size:1.6em;margin-bottom:0.2em}h2{border-bottom:2px solid #ddd;padding-b
 h3{font-size:1em;margin-bottom:0.3em}table{border-collapse:collapse;margin:0.5em 0;font-size:0.85em}
 td,th{border:1px solid #ddd;padding:2px 6px;text-align:left;vertical-align:top}th{background:#f4f4f4}
 table.kv th{width:14em}figure{display:inline-block;vertical-align:top;margin:0.4em 0.8em 0.4em 0}
-figcaption{font-size:0.8em;color:#555;max-width:30em}
+figcaption{font-size:0.8em;color:#555;max-width:18em}
 img{max-width:100%}.row{display:flex;flex-wrap:wrap;gap:0.5em}.missing{background:#fff8e1;border-left:4px solid #f0b400;
 padding:0.4em 0.8em}nav a{margin-right:0.8em;font-size:0.9em}code{background:#f4f4f4;padding:0 3px}
 p.lead{font-size:1em;margin:0.4em 0 0.6em;max-width:48em}

@@ -51,8 +51,15 @@ def _judged(doc: dict[str, Any]) -> list[tuple[dict[str, Any], Any]]:
 
 def _rows(judged: list[tuple[dict[str, Any], Any]]) -> list[list[Any]]:
     """The plain table: region, answer, verdict, why, confidence, area."""
-    return [[r.get("index"), v.answer, v.label, v.why, f"{float(r.get('confidence') or 0):.2f}",
-             f"{float(r.get('area_mm2') or 0):.0f}"] for r, v in judged]
+    return [[r.get("index"), v.answer, v.label, v.why, _confidence(r, v), f"{float(r.get('area_mm2') or 0):.0f}"]
+            for r, v in judged]
+
+
+def _confidence(r: dict[str, Any], v: Any) -> str:
+    """A region's confidence, or "-" when it names no material (the best candidate's is in the details)."""
+    if v.answer in ("no candidate fits", "not measured") or r.get("confidence") is None:
+        return "-"
+    return f"{float(r['confidence']):.2f}"
 
 
 def _technical_rows(judged: list[tuple[dict[str, Any], Any]]) -> list[list[Any]]:
@@ -60,7 +67,7 @@ def _technical_rows(judged: list[tuple[dict[str, Any], Any]]) -> list[list[Any]]
     from app.report.readable import misfit_number
 
     return [[r.get("index"), ", ".join(r.get("group") or []) if len(r.get("group") or []) > 1 else "",
-             _param_text(r), f"{r.get('n_lit')} / {r.get('n_observations')}",
+             f"{float(r.get('confidence') or 0):.2f}", _param_text(r), f"{r.get('n_lit')} / {r.get('n_observations')}",
              misfit_number(r.get("chi2_per_dof")), r.get("reason") or ""] for r, v in judged]
 
 
@@ -96,13 +103,15 @@ def object_materials_section(ctx: Any, kit: dict[str, Callable[..., Any]]) -> tu
         "tin, ...), which the camera cannot tell apart.")
     bad = [(r, v) for r, v in judged if v.level == "unreliable"]
     if bad:
-        body += kit["caveat"](f"{len(bad)} region(s) are unreliable and must not be taken as identified: "
-                              + "; ".join(f"region {r.get('index')} ({v.answer}): {v.why}" for r, v in bad))
+        body += kit["caveat"](f"{len(bad)} of {len(judged)} regions are unreliable and must not be taken as "
+                              "identified: " + ", ".join(f"region {r.get('index')} ({v.answer})" for r, v in bad)
+                              + ". The table says why for each.")
     body += _map(ctx, doc, judged, kit)
     levels = [v.level for _, v in judged]
     body += kit["verdict_table"](["region", "answer", "verdict", "why", "confidence", "area (mm²)"], _rows(judged),
                                  levels)
-    technical = kit["verdict_table"](["region", "indistinguishable candidates", "parameters (± 1 sigma)",
+    technical = kit["verdict_table"](["region", "closest candidates", "best candidate's confidence",
+                                      "parameters (± 1 sigma)",
                                       "lit / all observations", "misfit", "what to capture"],
                                      _technical_rows(judged), levels)
     body += kit["details"](technical + kit["kv"]([
@@ -167,17 +176,20 @@ def _validation(ctx: Any, doc: dict[str, Any], kit: dict[str, Callable[..., Any]
     base = doc.get("baseline") or {}
     frames = [f for f in val.get("frames") or [] if isinstance(f, dict)]
     mean, base_mean = float(val["mean_de2000"]), float(val.get("baseline_mean_de2000") or float("nan"))
-    html = "<h3>Check against photos never used by the fit</h3>" + kit["lead"](
+    one = base.get("material")
+    if one in ("no candidate fits", "not measured", None):
+        one = str(base.get("spec") or "none").split(":")[0]
+    html = "<h3>Held-out photos: a check against photos never used by the fit</h3>" + kit["lead"](
         f"{len(frames)} photos were kept aside. The object was rendered with the measured materials from each of "
         f"their viewpoints and compared with the photo: the colours differ by ΔE00 {mean:.2f} on average "
-        f"(about 1 is just visible). With one material ({base.get('material')}) for the whole object, as a single "
+        f"(about 1 is just visible). With one material ({one}) for the whole object, as a single "
         f"identification would render it, they differ by {base_mean:.2f}.")
     if not mean < base_mean:
         html += kit["caveat"]("the measured materials predict these photos no better than one material for the "
                               "whole object.")
     html += kit["details"](kit["kv"]([
         ("measured materials", f"mean ΔE00 {val['mean_de2000']:.2f}, 95th percentile {val['p95_de2000']:.2f}"),
-        (f"one material for the whole object ({base.get('material')})",
+        (f"one material for the whole object ({one})",
          f"mean ΔE00 {val['baseline_mean_de2000']:.2f}, 95th percentile {val['baseline_p95_de2000']:.2f}")])
         + kit["table"](["frame", "mean ΔE00", "p95 ΔE00", "one material: mean", "one material: p95", "object pixels"],
                        [[f.get("frame"), _num(f.get("mean_de2000")), _num(f.get("p95_de2000")),

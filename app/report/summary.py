@@ -17,7 +17,11 @@ from typing import Any
 
 from app.report.readable import verdict
 
-__all__ = ["Glance", "glance", "material_verdicts", "render_materials_text"]
+__all__ = ["Glance", "glance", "material_verdicts", "render_materials_text", "GOOD_DE00"]
+
+#: Largest mean CIEDE2000 called good (chart after calibration, renders against held-out photos): a
+#: difference of about 1 is just noticeable side by side, 3 is noticeable at a glance.
+GOOD_DE00 = 3.0
 
 
 @dataclass
@@ -80,9 +84,9 @@ def render_materials_text(ctx: Any, force_measured: bool = False) -> tuple[str, 
     material = rec.get("material")
     if force_measured or material == MEASURED:
         kind, regions = material_verdicts(ctx)
-        parts = [f"{name}: {v.answer}" + ("" if v.level == "reliable" else f" ({v.label})")
-                 + (f", drawn as its closest match {str(r['spec']).split(':')[0]}"
-                    if v.answer == "no candidate fits" and r.get("spec") else "")
+        parts = [f"{name}: {v.answer}" + ("" if v.level == "reliable" else f" ({v.label}"
+                 + (f"; drawn as {str(r['spec']).split(':')[0]}" if v.answer == "no candidate fits" and r.get("spec")
+                    else "") + ")")
                  for name, v, r in regions if v.level != "missing"]
         doc = ctx.product_json("object_materials") or {}
         missing = any(v.level == "missing" for _, v, _ in regions) or bool(
@@ -173,8 +177,8 @@ def _colour(ctx: Any, g: Glance) -> None:
     worst = max(means)
     g.rows.append(("Colour calibration", f"colour chart found in {len(means)} pass(es); colours after calibration "
                    f"differ from the chart's by mean ΔE00 {worst:.2f} in the worst pass (about 1 is the smallest "
-                   "difference most people see)", "good" if worst <= 3.0 else "check"))
-    if worst > 3.0:
+                   "difference most people see)", "good" if worst <= GOOD_DE00 else "check"))
+    if worst > GOOD_DE00:
         g.uncertain.append(f"the colour calibration leaves a visible error (mean ΔE00 {worst:.2f})")
 
 
@@ -189,13 +193,23 @@ def _materials(ctx: Any, g: Glance) -> None:
     where = "on the 3-D mesh" if kind == "mesh" else "in the photos only (not placed on the mesh)"
     text = (f"{len(regions)} regions {where}: {counts['reliable']} reliable, {counts['uncertain']} uncertain, "
             f"{counts['unreliable']} unreliable" + (f", {counts['missing']} not measured" if counts["missing"] else ""))
-    named = "; ".join(f"{name}: {v.answer} ({v.label})" for name, v, _ in regions[:8])
-    text += (f" -- {named}" if named else "") + ("; ..." if len(regions) > 8 else "")
+    groups = _grouped(regions)
+    named = "; ".join(f"{_names(names)}: {answer} ({label})" for (answer, label), names in groups.items())
+    text += f" -- {named}" if named else ""
     badge = "poor" if counts["unreliable"] else ("check" if counts["uncertain"] or counts["missing"] else "good")
     g.rows.append(("Materials", text, badge))
-    for name, v, _ in regions:
-        if v.level in ("unreliable", "uncertain"):
-            g.uncertain.append(f"{name} ({v.answer}) is {v.label}: {v.why}")
+    for (answer, label), names in groups.items():
+        judged = [(n, v) for n, v, _ in regions if n in names]
+        if label not in ("unreliable", "uncertain"):
+            continue
+        if len(judged) <= 2:
+            g.uncertain += [f"{n} ({v.answer}) is {v.label}: {v.why}" for n, v in judged]
+        elif answer == "no candidate fits":
+            g.uncertain.append(f"{_names(names)} ({answer}) are {label}: none of the known materials matches them "
+                               "(see 'Materials' below for each region's closest candidate)")
+        else:
+            g.uncertain.append(f"{_names(names)} ({answer}) are {label}: " + "; ".join(
+                f"{n}: {v.why}" for n, v in judged))
     if kind == "mesh":
         doc = ctx.product_json("object_materials") or {}
         nm = doc.get("not_measured") or {}
@@ -207,9 +221,10 @@ def _materials(ctx: Any, g: Glance) -> None:
         if mean is not None:
             n = len([f for f in val.get("frames") or [] if isinstance(f, dict)])
             text = (f"renders with the measured materials differ from {n} photos not used for the fit by mean "
-                    f"ΔE00 {mean:.2f}" + ("" if base is None else f" (one material for the whole object: {base:.2f})"))
+                    f"ΔE00 {mean:.2f}" + ("" if base is None else f" (one material for the whole object: {base:.2f})")
+                    + "; about 1 is just visible side by side, 3 at a glance")
             better = base is None or mean < base
-            g.rows.append(("Check against photos", text, "good" if better and mean <= 5.0 else "check"))
+            g.rows.append(("Check against photos", text, "good" if better and mean <= GOOD_DE00 else "check"))
             if not better:
                 g.uncertain.append("the measured materials predict the held-out photos no better than one material")
         else:
@@ -219,14 +234,39 @@ def _materials(ctx: Any, g: Glance) -> None:
                            "(no camera calibration): the renders cannot show them region by region")
 
 
+def _grouped(regions: list[tuple[str, Any, dict[str, Any]]]) -> dict[tuple[str, str], list[str]]:
+    """Region names per ``(answer, verdict label)``, in order of first appearance."""
+    out: dict[tuple[str, str], list[str]] = {}
+    for name, v, _ in regions:
+        out.setdefault((v.answer, v.label), []).append(name)
+    return out
+
+
+def _names(names: list[str]) -> str:
+    """Region names in words: "region 1", "regions 1, 2 and 4", "p01-r1, p01-r3" (image-only ones name their pass)."""
+    if all(n.startswith("region ") for n in names):
+        nums = [n.removeprefix("region ") for n in names]
+        if len(nums) == 1:
+            return f"region {nums[0]}"
+        return f"regions {', '.join(nums[:-1])} and {nums[-1]}"
+    return ", ".join(names)
+
+
 def _renders(ctx: Any, g: Glance) -> None:
     if not ctx.products.get("renders"):
         g.rows.append(("Renders", "none (the render step has not run)", "none"))
         return
     text, measured = render_materials_text(ctx)
-    doubtful = measured and any(v.level == "unreliable" for _, v, _ in material_verdicts(ctx)[1])
-    g.rows.append(("Renders", "show " + text, "good" if measured and not doubtful else "check"))
-    if doubtful:
-        g.uncertain.append("the renders draw the unreliable regions with their closest candidate material")
+    if measured:
+        regions = material_verdicts(ctx)[1]
+        bad = sum(1 for _, v, _ in regions if v.level == "unreliable")
+        text = (f"show the measured materials, region by region ({len(regions)} regions"
+                + (f"; {bad} of them unreliable, drawn with their closest candidate material)" if bad else ")"))
+        g.rows.append(("Renders", text, "check" if bad else "good"))
+        if bad:
+            g.uncertain.append(f"the renders draw {bad} unreliable region(s) with their closest candidate material, "
+                               "so they may not look like the object there")
+        return
+    g.rows.append(("Renders", "show " + text, "check"))
     if not measured:
         g.uncertain.append("the renders show " + text)
