@@ -833,11 +833,11 @@ def _renders(ctx: _Context) -> Section:
         body += _caveat(f"these renders show {shown} ({rec.get('material_source') or 'no source recorded'}). They "
                         "do not show how the object's different parts really look.")
     else:
-        from app.report.summary import material_verdicts
+        from app.report.summary import material_verdicts, region_names
 
         bad = [name for name, v, _ in material_verdicts(ctx)[1] if v.level == "unreliable"]
         if bad:
-            body += _caveat(f"{len(bad)} region(s) have no reliable material ({', '.join(bad)}); the renders draw "
+            body += _caveat(f"{len(bad)} region(s) have no reliable material ({region_names(bad)}); the renders draw "
                             "them with their closest candidate material, so there they may not look like the object.")
     body += "<div class='row'>" + "".join(figs) + "</div>"
     body += _details(_kv([("materials", f"{rec.get('material')} ({rec.get('material_source', '')})"),
@@ -944,9 +944,9 @@ color:#222;line-height:1.4}
 h1{font-size:1.6em;margin-bottom:0.2em}h2{border-bottom:2px solid #ddd;padding-bottom:0.2em;margin-top:1.6em}
 h3{font-size:1em;margin-bottom:0.3em}table{border-collapse:collapse;margin:0.5em 0;font-size:0.85em}
 td,th{border:1px solid #ddd;padding:2px 6px;text-align:left;vertical-align:top}th{background:#f4f4f4}
-table.kv th{width:14em}figure{display:inline-block;vertical-align:top;margin:0.4em 0.8em 0.4em 0}
-figcaption{font-size:0.8em;color:#555;max-width:18em}
-img{max-width:100%}.row{display:flex;flex-wrap:wrap;gap:0.5em}.missing{background:#fff8e1;border-left:4px solid #f0b400;
+table.kv th{width:14em}figure{display:inline-table;vertical-align:top;margin:0.4em 0.8em 0.4em 0;min-width:15em}
+figcaption{display:table-caption;caption-side:bottom;font-size:0.8em;color:#555;padding-top:2px}
+img{max-width:100%}.row{display:flex;flex-wrap:wrap;gap:0.5em;align-items:flex-start}.missing{background:#fff8e1;border-left:4px solid #f0b400;
 padding:0.4em 0.8em}nav a{margin-right:0.8em;font-size:0.9em}code{background:#f4f4f4;padding:0 3px}
 p.lead{font-size:1em;margin:0.4em 0 0.6em;max-width:48em}
 p.caveat{background:#fdecea;border-left:4px solid #c0392b;padding:0.4em 0.8em;max-width:48em}

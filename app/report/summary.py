@@ -17,7 +17,7 @@ from typing import Any
 
 from app.report.readable import verdict
 
-__all__ = ["Glance", "glance", "material_verdicts", "render_materials_text", "GOOD_DE00"]
+__all__ = ["Glance", "glance", "material_verdicts", "render_materials_text", "region_names", "GOOD_DE00"]
 
 #: Largest mean CIEDE2000 called good (chart after calibration, renders against held-out photos): a
 #: difference of about 1 is just noticeable side by side, 3 is noticeable at a glance.
@@ -84,15 +84,22 @@ def render_materials_text(ctx: Any, force_measured: bool = False) -> tuple[str, 
     material = rec.get("material")
     if force_measured or material == MEASURED:
         kind, regions = material_verdicts(ctx)
-        parts = [f"{name}: {v.answer}" + ("" if v.level == "reliable" else f" ({v.label}"
-                 + (f"; drawn as {str(r['spec']).split(':')[0]}" if v.answer == "no candidate fits" and r.get("spec")
-                    else "") + ")")
-                 for name, v, r in regions if v.level != "missing"]
+        parts, starred = [], False
+        for name, v, r in regions:
+            if v.level == "missing":
+                continue
+            drawn = str(r.get("spec") or v.answer).split(":")[0]
+            if v.answer == "no candidate fits":
+                parts.append(f"{name}: {drawn}*")
+                starred = True
+            else:
+                parts.append(f"{name}: {v.answer}" + ("" if v.level == "reliable" else f" ({v.label})"))
         doc = ctx.product_json("object_materials") or {}
         missing = any(v.level == "missing" for _, v, _ in regions) or bool(
             _num((doc.get("not_measured") or {}).get("faces")))
-        text = ("the measured materials, region by region (" + "; ".join(parts) + ")"
-                + ("; faces not measured in neutral grey" if missing else ""))
+        text = ("the measured materials, region by region -- " + "; ".join(parts)
+                + ("; faces not measured: neutral grey" if missing else "")
+                + (" (* no candidate fits: its closest candidate is drawn; unreliable)" if starred else ""))
         return text, True
     return f"a stand-in -- one material, {material}, for the whole object, not the object's own materials", False
 
@@ -194,7 +201,7 @@ def _materials(ctx: Any, g: Glance) -> None:
     text = (f"{len(regions)} regions {where}: {counts['reliable']} reliable, {counts['uncertain']} uncertain, "
             f"{counts['unreliable']} unreliable" + (f", {counts['missing']} not measured" if counts["missing"] else ""))
     groups = _grouped(regions)
-    named = "; ".join(f"{_names(names)}: {answer} ({label})" for (answer, label), names in groups.items())
+    named = "; ".join(f"{region_names(names)}: {answer} ({label})" for (answer, label), names in groups.items())
     text += f" -- {named}" if named else ""
     badge = "poor" if counts["unreliable"] else ("check" if counts["uncertain"] or counts["missing"] else "good")
     g.rows.append(("Materials", text, badge))
@@ -205,10 +212,10 @@ def _materials(ctx: Any, g: Glance) -> None:
         if len(judged) <= 2:
             g.uncertain += [f"{n} ({v.answer}) is {v.label}: {v.why}" for n, v in judged]
         elif answer == "no candidate fits":
-            g.uncertain.append(f"{_names(names)} ({answer}) are {label}: none of the known materials matches them "
+            g.uncertain.append(f"{region_names(names)} ({answer}) are {label}: none of the known materials matches them "
                                "(see 'Materials' below for each region's closest candidate)")
         else:
-            g.uncertain.append(f"{_names(names)} ({answer}) are {label}: " + "; ".join(
+            g.uncertain.append(f"{region_names(names)} ({answer}) are {label}: " + "; ".join(
                 f"{n}: {v.why}" for n, v in judged))
     if kind == "mesh":
         doc = ctx.product_json("object_materials") or {}
@@ -242,7 +249,7 @@ def _grouped(regions: list[tuple[str, Any, dict[str, Any]]]) -> dict[tuple[str, 
     return out
 
 
-def _names(names: list[str]) -> str:
+def region_names(names: list[str]) -> str:
     """Region names in words: "region 1", "regions 1, 2 and 4", "p01-r1, p01-r3" (image-only ones name their pass)."""
     if all(n.startswith("region ") for n in names):
         nums = [n.removeprefix("region ") for n in names]

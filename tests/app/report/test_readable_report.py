@@ -201,8 +201,11 @@ def test_summary_and_renders_of_the_measured_object(on_mesh):
     assert len(renders) == 2 and triptychs
     for cap in renders + triptychs:
         assert "the measured materials, region by region" in cap, cap
-        for r in regions:
-            if r["material"] != NOT_MEASURED:
+        for r in regions:                   # what is drawn: the fitted material, or the closest one, starred
+            if r["material"] == NO_FIT:
+                assert f"region {r['index']}: {r['spec'].split(':')[0]}*" in cap, (r["index"], cap)
+                assert "* no candidate fits: its closest candidate is drawn; unreliable" in cap
+            elif r["material"] != NOT_MEASURED:
                 assert f"region {r['index']}: {r['material']}" in cap, (r["index"], cap)
     for cap in captions:
         if cap not in renders + triptychs:
