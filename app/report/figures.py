@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 __all__ = ["png_of", "calibration_residuals_figure", "frame_residuals_figure", "overlay_sheet", "pose_graph_figure", "coverage_figure", "holes_figure",
-           "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure", "region_spectra_figure",
-           "material_map_figure", "material_spectra_figure", "region_map_figure", "PALETTE", "palette_colour"]
+           "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure",
+           "material_spectra_figure", "region_map_figure", "PALETTE", "palette_colour"]
 
 DPI = 100
 
@@ -248,60 +248,6 @@ def patch_error_figure(names: Sequence[str], delta_e: Sequence[float], usable: S
     ax.set_xticks(x, [str(n) for n in names], rotation=90, fontsize=6)
     ax.set_ylabel("ΔE00 after the colour fit")
     ax.set_title("patch errors (grey: excluded from the fit)", fontsize=9)
-    return png_of(fig)
-
-
-def region_spectra_figure(wavelengths: Sequence[float], regions: Sequence[dict[str, Any]], light_deg: float) -> bytes:
-    """Per identified region: estimated reflectance +- uncertainty against the material's model spectrum.
-
-    Both are divided by their mean over wavelength: a region's brightness follows gloss and angles, not the
-    material, so the shapes are compared (as in ``app.demo.colour``).
-    """
-    from app.demo.colour import model_spectrum
-    from processing.materials.identification import NEUTRAL_METAL, NO_FIT
-
-    plt = _plt()
-    wl = np.asarray(wavelengths, dtype=np.float64)
-    n = len(regions)
-    cols = min(n, 4)
-    rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False, constrained_layout=True)
-    cos_d = math.cos(math.radians(light_deg / 2))
-    for ax, reg in zip(axes.ravel(), regions):
-        est = np.asarray(reg["reflectance"], dtype=np.float64)
-        unc = np.asarray(reg["uncertainty"], dtype=np.float64)
-        scale = max(float(est.mean()), 1e-9)
-        ax.fill_between(wl, (est - unc) / scale, (est + unc) / scale, color="0.82", label="estimate +- uncertainty")
-        ax.plot(wl, est / scale, "k-", label="estimate")
-        if reg["material"] not in (NEUTRAL_METAL, NO_FIT):
-            model = model_spectrum(reg["material"], wl, cos_d)
-            ax.plot(wl, model / max(float(model.mean()), 1e-9), "r--", label=f"{reg['material']} (model)")
-        ax.set_title(f"{reg['region']}: {reg['material']} ({reg['confidence']:.2f}), {reg['pixels']} px", fontsize=8)
-        ax.set_xlabel("wavelength (nm)", fontsize=7)
-        ax.set_ylabel("reflectance / its mean", fontsize=7)
-        ax.tick_params(labelsize=6)
-        ax.legend(fontsize=5, loc="upper left")
-    for ax in axes.ravel()[n:]:
-        ax.axis("off")
-    return png_of(fig)
-
-
-def material_map_figure(image: np.ndarray, regions: Sequence[dict[str, Any]]) -> bytes:
-    """A material map (RGB, one colour per material) with a key of the materials and their confidences."""
-    from app.batch.materials import material_colour
-
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.2, 3.2), constrained_layout=True)
-    ax.imshow(image, interpolation="nearest")
-    ax.axis("off")
-    seen: dict[str, float] = {}
-    for reg in regions:
-        name = reg["material"] or "not identified"
-        seen[name] = max(seen.get(name, 0.0), reg["confidence"] or 0.0)
-    handles = [plt.Rectangle((0, 0), 1, 1, color=np.asarray(material_colour(None if n == "not identified" else n))
-                             / 255.0) for n in seen]
-    ax.legend(handles, [f"{n} ({c:.2f})" for n, c in seen.items()], fontsize=6, loc="center left",
-              bbox_to_anchor=(1.0, 0.5), title="material (confidence)", title_fontsize=7)
     return png_of(fig)
 
 

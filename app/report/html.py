@@ -691,6 +691,12 @@ def _spectra(ctx: _Context) -> Section:
                  "left, red on the right), as estimated from the photos, with its uncertainty (shaded). The "
                  "dashed red line is the shape the identified material should have; a close match supports the "
                  "identification. One plot per material, from its largest region.")
+    vague = [e["material"] for e in entries
+             if float(np.median(np.asarray(e["uncertainty"], float))) > float(np.max(np.asarray(e["reflectance"], float)))]
+    if vague:
+        body += _lead(f"For {', '.join(vague)} the uncertainty is larger than the spectrum itself (the shading fills "
+                      "the plot): the photos pin its spectrum down poorly. The identification does not rest on this "
+                      "curve; it compares the camera's colours with each candidate's directly.")
     if any(e["level"] == "unreliable" for e in entries):
         body += _caveat("titles in red are unreliable identifications: their spectra do not match the named "
                         "material (see the table below).")
