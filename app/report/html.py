@@ -75,8 +75,12 @@ def _e(value: Any) -> str:
 
 
 def _fmt(value: Any) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
     if isinstance(value, float):
-        return f"{value:.4g}"
+        return f"{value:.4g}" if np.isfinite(value) else "unknown"
     if isinstance(value, (list, tuple)) and all(isinstance(v, (int, float)) for v in value):
         return "[" + ", ".join(_fmt(v) for v in value) + "]"
     if isinstance(value, dict):
@@ -115,6 +119,17 @@ def _caveat(text: str) -> str:
 def _details(inner: str, label: str = "Technical details") -> str:
     """Tables for specialists, folded away (HTML ``<details>``)."""
     return f"<details><summary>{_e(label)}</summary>{inner}</details>" if inner else ""
+
+
+def _q(value: Any, spec: str, unit: str = "") -> str:
+    """A number formatted with ``spec`` and its unit, or "unknown" when missing or not finite."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return "unknown"
+    if not np.isfinite(v):
+        return "unknown"
+    return f"{v:{spec}}" + (f" {unit}" if unit else "")
 
 
 def _um(mm: Any) -> str:
@@ -415,9 +430,9 @@ def _camera_rows(cam: dict[str, Any]) -> list[tuple[str, Any]]:
     stds = cam.get("stds") or {}
     src = cam.get("source") or {}
     size = cam.get("image_size") or ["?", "?"]
-    return [("reprojection RMS", f"{cam.get('rms_px', float('nan')):.3f} px"),
+    return [("reprojection RMS", _q(cam.get("rms_px"), ".3f", "px")),
             ("calibrated frame size", f"{size[0]} x {size[1]} px"),
-            ("focal length", f"{k[0][0]:.1f} x {k[1][1]:.1f} px (+- {stds.get('fx_px', float('nan')):.2f} px)"),
+            ("focal length", f"{k[0][0]:.1f} x {k[1][1]:.1f} px (± {_q(stds.get('fx_px'), '.2f', 'px')})"),
             ("principal point", f"({k[0][2]:.1f}, {k[1][2]:.1f}) px"),
             ("distortion k1, k2, p1, p2, k3", ", ".join(f"{v:.4g}" for v in cam.get("dist") or [])),
             ("held at nominal values (long lens)", ", ".join(str(h) for h in cam.get("held") or []) or "none"),
@@ -425,8 +440,8 @@ def _camera_rows(cam: dict[str, Any]) -> list[tuple[str, Any]]:
             ("board coverage of the image", "not recorded" if not isinstance(src.get("coverage"), dict) else
              f"{100 * float(src['coverage'].get('fraction', 0.0)):.0f} % of a 12 x 8 grid of cells"),
             ("sphere photos tying the camera to the turntable", src.get("sphere_photos")),
-            ("axis direction +-", f"{stds.get('axis_direction_deg', float('nan')):.4f} deg"),
-            ("rotation about the axis +-", f"{stds.get('gauge_rotation_deg', float('nan')):.4f} deg")]
+            ("axis direction ±", _q(stds.get("axis_direction_deg"), ".4f", "deg")),
+            ("rotation about the axis ±", _q(stds.get("gauge_rotation_deg"), ".4f", "deg"))]
 
 
 def _lamp_rows(lamps: dict[str, Any]) -> list[list[Any]]:
@@ -439,12 +454,12 @@ def _lamp_rows(lamps: dict[str, Any]) -> list[list[Any]]:
         sd = [_math.sqrt(max(float(cov[i][i]), 0.0)) for i in range(3)]
         if lp.get("kind") == "point":
             where = "(" + ", ".join(f"{v:.1f}" for v in lp.get("position_mm") or []) + ") mm"
-            unc = "+- (" + ", ".join(f"{v:.1f}" for v in sd) + ") mm"
+            unc = "± (" + ", ".join(f"{v:.1f}" for v in sd) + ") mm"
         else:
             where = "toward (" + ", ".join(f"{v:.4f}" for v in lp.get("direction") or []) + ")"
-            unc = f"+- {_math.degrees(max(sd)):.3f} deg"
+            unc = f"± {_math.degrees(max(sd)):.3f} deg"
         rows.append([lp.get("name"), lp.get("kind"), where, unc, lp.get("n_observations"),
-                     f"{lp.get('rms_deg', float('nan')):.3f} deg", lp.get("spectrum")])
+                     _q(lp.get("rms_deg"), ".3f", "deg"), lp.get("spectrum")])
     return rows
 
 
@@ -486,7 +501,7 @@ def _posed(ctx: _Context) -> Section:
                                             f"{float(iou):.3f}; 100 % is a perfect fit)") + ".")
     body += "<h3>Every photo posed on the mesh</h3>" + _kv([
         ("frames posed", len(frames)), ("lowest silhouette IoU", proj.get("iou_min")),
-        ("mean boundary offset", f"{proj.get('offset_px_mean') or float('nan'):.2f} px"),
+        ("mean boundary offset", _q(proj.get("offset_px_mean"), ".2f", "px")),
         ("observations", f"{obs.get('count')} of {obs.get('vertices_seen')} / {obs.get('vertices')} vertices seen, "
                          f"median {obs.get('median_per_seen_vertex')} frames per seen vertex"),
         ("chart-calibrated passes", ", ".join(str(p) for p in proj.get("chart_calibrated_passes") or []) or "none")])
@@ -518,7 +533,7 @@ def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
         m = rep["surface"].get("mesh", {}) if isinstance(rep.get("surface"), dict) else {}
         pairs += [("vertices / triangles", f"{rep['mesh'].get('vertices')} / {rep['mesh'].get('triangles')}"),
                   ("watertight", rep["mesh"].get("watertight")), ("boundary edges", m.get("boundary_edges")),
-                  ("components", m.get("components")), ("area", f"{m.get('area_mm2', float('nan')):.0f} mm²")]
+                  ("components", m.get("components")), ("area", _q(m.get("area_mm2"), ".0f", "mm²"))]
     views = []
     for name, direction in MESH_VIEWS:
         result = render_session_mesh(ctx.root, "D65", MESH_VIEW_SIZE, "draft", material=MESH_VIEW_MATERIAL,
@@ -569,7 +584,7 @@ def _coverage(ctx: _Context, rep: dict[str, Any] | None) -> Section:
                       "not measured.")
     body += _kv([("holes found", n_holes), ("filled", n_filled),
                  ("total hole area", f"{holes.get('total_area_mm2', 0.0):.1f} mm²")])
-    tech = _kv([("hole threshold", f"{holes.get('threshold_mm', float('nan')):.3f} mm")])
+    tech = _kv([("hole threshold", _q(holes.get("threshold_mm"), ".3f", "mm"))])
     if items:
         tech += _table(["area (mm²)", "largest distance to data (mm)", "filled by", "closed"],
                        [[h.get("area_mm2"), h.get("max_distance_mm"), h.get("filled_by"), h.get("closed")]
@@ -701,7 +716,7 @@ def _spectra(ctx: _Context) -> Section:
         body += _caveat("titles in red are unreliable identifications: their spectra do not match the named "
                         "material (see the table below).")
     body += _img(material_spectra_figure(doc["wavelengths"], entries, doc["light_deg"]), "region spectra",
-                 "Measured reflectance (solid) +- its uncertainty (shaded, clipped to the physical range) against "
+                 "Measured reflectance (solid) ± its uncertainty (shaded, clipped to the physical range) against "
                  "the identified material's model spectrum, scaled to the same mean (dashed).")
     body += _details(_kv([("estimator", f"{doc['method']}, chart {doc['chart']}"),
                           ("candidates modelled at", f"{doc['light_deg']:.0f} deg from the normal")]))
