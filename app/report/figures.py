@@ -15,10 +15,32 @@ from typing import Any
 import numpy as np
 
 __all__ = ["png_of", "calibration_residuals_figure", "frame_residuals_figure", "overlay_sheet", "pose_graph_figure", "coverage_figure", "holes_figure",
-           "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure", "region_spectra_figure",
-           "material_map_figure"]
+           "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure",
+           "material_spectra_figure", "region_map_figure", "PALETTE", "palette_colour"]
 
 DPI = 100
+
+#: Colours of regions on maps: the Okabe-Ito palette (distinguishable with common colour-vision deficiencies;
+#: Okabe & Ito 2008, https://jfly.uni-koeln.de/color/), then further saturated colours; no greys (grey means
+#: backdrop or not measured).
+PALETTE = ((230, 159, 0), (86, 180, 233), (0, 158, 115), (240, 228, 66), (0, 114, 178), (204, 121, 167),
+           (140, 86, 75), (23, 190, 207), (188, 189, 34), (148, 103, 189), (31, 119, 180), (255, 187, 120))
+#: Map colour of a region with no trustworthy material (not identified, no candidate fits, unreliable).
+NO_MATERIAL_RGB = (200, 0, 0)
+#: Map colours of the backdrop and of object pixels not used (too dark, clipped or at an edge).
+MAP_BACKDROP_RGB = (235, 235, 235)
+MAP_UNUSED_RGB = (95, 95, 95)
+
+
+def palette_colour(i: int) -> tuple[int, int, int]:
+    """The ``i``-th map colour (cycling).
+
+    Examples
+    --------
+    >>> palette_colour(0), palette_colour(len(PALETTE))
+    ((230, 159, 0), (230, 159, 0))
+    """
+    return PALETTE[i % len(PALETTE)]
 
 
 def _plt():
@@ -57,9 +79,9 @@ def calibration_residuals_figure(step_indices: Sequence[int], step_rms_mm: Seque
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.0, 2.6), constrained_layout=True)
     ax.bar(np.asarray(step_indices), np.asarray(step_rms_mm) * 1000.0, width=0.8, color="#4a7ab5")
-    ax.axhline(rms_mm * 1000.0, color="#c0392b", lw=1, ls="--", label=f"overall RMS {rms_mm * 1000:.1f} um")
+    ax.axhline(rms_mm * 1000.0, color="#c0392b", lw=1, ls="--", label=f"overall RMS {rms_mm * 1000:.1f} µm")
     ax.set_xlabel("profile step of the sphere scan")
-    ax.set_ylabel("sphere residual RMS (um)")
+    ax.set_ylabel("sphere residual RMS (µm)")
     ax.legend(loc="upper right", fontsize=8)
     return png_of(fig)
 
@@ -212,7 +234,7 @@ def chart_overlay_figure(preview: np.ndarray, chart: dict[str, Any]) -> bytes:
                     color="white", bbox={"boxstyle": "round,pad=0.1", "fc": "black", "ec": "none", "alpha": 0.5})
     ax.set_axis_off()
     ax.set_title(f"{chart['chart']} found by {chart['method']} (confidence {chart['confidence']:.2f}); "
-                 "dots: green usable, red excluded; labels: dE00", fontsize=8)
+                 "dots: green usable, red excluded; labels: ΔE00", fontsize=8)
     return png_of(fig)
 
 
@@ -224,60 +246,97 @@ def patch_error_figure(names: Sequence[str], delta_e: Sequence[float], usable: S
     colours = ["#4a7ab5" if u else "#cccccc" for u in usable]
     ax.bar(x, delta_e, color=colours, hatch=None)
     ax.set_xticks(x, [str(n) for n in names], rotation=90, fontsize=6)
-    ax.set_ylabel("dE00 after 3x3 fit")
+    ax.set_ylabel("ΔE00 after the colour fit")
     ax.set_title("patch errors (grey: excluded from the fit)", fontsize=9)
     return png_of(fig)
 
 
-def region_spectra_figure(wavelengths: Sequence[float], regions: Sequence[dict[str, Any]], light_deg: float) -> bytes:
-    """Per identified region: estimated reflectance +- uncertainty against the material's model spectrum.
+def material_spectra_figure(wavelengths: Sequence[float], entries: Sequence[dict[str, Any]], light_deg: float) -> bytes:
+    """One plot per identified material: its estimated reflectance, the uncertainty band, the model's shape.
 
-    Both are divided by their mean over wavelength: a region's brightness follows gloss and angles, not the
-    material, so the shapes are compared (as in ``app.demo.colour``).
+    ``entries`` hold ``material``, ``title``, ``reflectance``, ``uncertainty`` (lists over ``wavelengths``)
+    and ``level`` (the verdict: an ``"unreliable"`` title is drawn in red).  The band is clipped to the
+    physical range, 0 up to 1 (or to the estimate's own peak where a glossy highlight exceeds a white
+    diffuser), and the vertical axis follows the curves, not the band, so a wide band cannot hide them.
+    The model spectrum is scaled to the estimate's mean: a region's brightness follows gloss and angles,
+    not the material, so the shapes are what is compared.
     """
     from app.demo.colour import model_spectrum
     from processing.materials.identification import NEUTRAL_METAL, NO_FIT
 
     plt = _plt()
     wl = np.asarray(wavelengths, dtype=np.float64)
-    n = len(regions)
-    cols = min(n, 4)
+    n = len(entries)
+    cols = min(n, 3)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.8 * rows), squeeze=False, constrained_layout=True)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.9 * cols, 3.1 * rows), squeeze=False, constrained_layout=True)
     cos_d = math.cos(math.radians(light_deg / 2))
-    for ax, reg in zip(axes.ravel(), regions):
-        est = np.asarray(reg["reflectance"], dtype=np.float64)
-        unc = np.asarray(reg["uncertainty"], dtype=np.float64)
-        scale = max(float(est.mean()), 1e-9)
-        ax.fill_between(wl, (est - unc) / scale, (est + unc) / scale, color="0.82", label="estimate +- uncertainty")
-        ax.plot(wl, est / scale, "k-", label="estimate")
-        if reg["material"] not in (NEUTRAL_METAL, NO_FIT):
-            model = model_spectrum(reg["material"], wl, cos_d)
-            ax.plot(wl, model / max(float(model.mean()), 1e-9), "r--", label=f"{reg['material']} (model)")
-        ax.set_title(f"{reg['region']}: {reg['material']} ({reg['confidence']:.2f}), {reg['pixels']} px", fontsize=8)
-        ax.set_xlabel("wavelength (nm)", fontsize=7)
-        ax.set_ylabel("reflectance / its mean", fontsize=7)
-        ax.tick_params(labelsize=6)
-        ax.legend(fontsize=5, loc="upper left")
+    for ax, ent in zip(axes.ravel(), entries):
+        est = np.asarray(ent["reflectance"], dtype=np.float64)
+        unc = np.asarray(ent["uncertainty"], dtype=np.float64)
+        top = max(1.0, float(est.max()))
+        lo, hi = np.clip(est - unc, 0.0, top), np.clip(est + unc, 0.0, top)
+        ax.fill_between(wl, lo, hi, color="#c6dbef", label="uncertainty (clipped to 0..1)")
+        ax.plot(wl, est, color="#08306b", lw=2, label="measured")
+        peak = float(est.max())
+        if ent["material"] not in (NEUTRAL_METAL, NO_FIT):
+            model = model_spectrum(ent["material"], wl, cos_d)
+            model = model * float(est.mean()) / max(float(model.mean()), 1e-9)
+            ax.plot(wl, model, color="#d62728", ls="--", lw=1.5, label=f"{ent['material']} (model shape)")
+            peak = max(peak, float(model.max()))
+        ax.set_ylim(0.0, max(peak * 1.35, 1e-3))
+        ax.set_xlim(float(wl[0]), float(wl[-1]))
+        ax.set_title(ent["title"], fontsize=9, color="#c0392b" if ent.get("level") == "unreliable" else "black")
+        ax.set_xlabel("wavelength (nm)", fontsize=8)
+        ax.set_ylabel("reflectance", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=7, loc="upper left")
     for ax in axes.ravel()[n:]:
         ax.axis("off")
     return png_of(fig)
 
 
-def material_map_figure(image: np.ndarray, regions: Sequence[dict[str, Any]]) -> bytes:
-    """A material map (RGB, one colour per material) with a key of the materials and their confidences."""
-    from app.batch.materials import material_colour
+def region_map_figure(image: np.ndarray, keys: Sequence[tuple[tuple[int, int, int], tuple[int, int, int], str]],
+                      backdrop_rgb: tuple[int, int, int], title: str = "") -> bytes:
+    """A material map recoloured with distinguishable colours, with one legend row per region.
 
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` uint8 map as the materials step wrote it (one colour per answer, the backdrop
+        ``backdrop_rgb``, unused pixels black).
+    keys
+        ``(colour in the map, colour to draw, legend text)`` per region.
+    backdrop_rgb
+        The backdrop's colour in ``image``.
+    title
+        Above the map.
+
+    Returns
+    -------
+    bytes
+        The PNG: backdrop light grey, object pixels not used dark grey, each region in its drawn colour.
+    """
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.2, 3.2), constrained_layout=True)
-    ax.imshow(image, interpolation="nearest")
-    ax.axis("off")
-    seen: dict[str, float] = {}
-    for reg in regions:
-        name = reg["material"] or "not identified"
-        seen[name] = max(seen.get(name, 0.0), reg["confidence"] or 0.0)
-    handles = [plt.Rectangle((0, 0), 1, 1, color=np.asarray(material_colour(None if n == "not identified" else n))
-                             / 255.0) for n in seen]
-    ax.legend(handles, [f"{n} ({c:.2f})" for n, c in seen.items()], fontsize=6, loc="center left",
-              bbox_to_anchor=(1.0, 0.5), title="material (confidence)", title_fontsize=7)
+    img = np.asarray(image, dtype=np.uint8)
+    out = np.empty_like(img)
+    out[:] = MAP_UNUSED_RGB
+    out[np.all(img == np.asarray(backdrop_rgb, np.uint8), axis=-1)] = MAP_BACKDROP_RGB
+    for src, dst, _ in keys:
+        out[np.all(img == np.asarray(src, np.uint8), axis=-1)] = dst
+    h, w = img.shape[:2]
+    fig, ax = plt.subplots(figsize=(8.4, max(2.4, 3.6 * h / w)), constrained_layout=True)
+    ax.imshow(out, interpolation="nearest")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    if title:
+        ax.set_title(title, fontsize=9)
+    seen: dict[str, tuple[int, int, int]] = {}
+    for _, dst, text in keys:
+        seen.setdefault(text, dst)
+    seen["object pixels not used (too dark or clipped)"] = MAP_UNUSED_RGB
+    seen["backdrop"] = MAP_BACKDROP_RGB
+    handles = [plt.Rectangle((0, 0), 1, 1, facecolor=np.asarray(c) / 255.0, edgecolor="#888888") for c in seen.values()]
+    ax.legend(handles, list(seen), fontsize=8, loc="center left", bbox_to_anchor=(1.0, 0.5),
+              title="region: material (verdict)", title_fontsize=8, frameon=False)
     return png_of(fig)

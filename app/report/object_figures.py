@@ -9,6 +9,7 @@ confidence against observed accuracy) with the session's regions marked on the d
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -74,7 +75,8 @@ def mesh_views(vertices: np.ndarray, triangles: np.ndarray, face_rgb: np.ndarray
 
 
 def material_views_figure(vertices: np.ndarray, triangles: np.ndarray, face_region: np.ndarray,
-                          regions: Sequence[dict[str, Any]], colours: Sequence[tuple[int, int, int]]) -> bytes:
+                          regions: Sequence[dict[str, Any]], colours: Sequence[tuple[int, int, int]],
+                          labels: Sequence[str] | None = None) -> bytes:
     """The material map on the mesh from four sides, with a legend (PNG bytes).
 
     Parameters
@@ -86,7 +88,9 @@ def material_views_figure(vertices: np.ndarray, triangles: np.ndarray, face_regi
     regions
         The regions (``index``, ``material``, ``confidence``, ``area_mm2``), in index order.
     colours
-        sRGB of each region's material.
+        sRGB of each region on the map.
+    labels
+        Legend text of each region (default: index, material, confidence and area).
 
     Returns
     -------
@@ -100,22 +104,25 @@ def material_views_figure(vertices: np.ndarray, triangles: np.ndarray, face_regi
     face_rgb = table[np.where(fr >= 0, fr, len(colours))]
     images = mesh_views(vertices, triangles, face_rgb)
     plt = _plt()
-    fig, axes = plt.subplots(1, len(images) + 1, figsize=(2.4 * (len(images) + 1.6), 2.7),
-                             gridspec_kw={"width_ratios": [1] * len(images) + [1.6]}, constrained_layout=True)
-    for i, (ax, img) in enumerate(zip(axes[:-1], images)):
-        ax.imshow(img)
-        ax.set_title(f"view {i + 1}", fontsize=9)
-        ax.axis("off")
-    legend = axes[-1]
-    legend.axis("off")
-    rows = [(np.array(c) / 255.0, f"{r['index']}: {r['material']} ({r['confidence']:.2f}), {r['area_mm2']:.0f} mm²")
-            for r, c in zip(regions, colours)]
+    if labels is None:
+        labels = [f"{r['index']}: {r['material']} ({r['confidence']:.2f}), {r['area_mm2']:.0f} mm²" for r in regions]
+    rows = [(np.array(c) / 255.0, text) for text, c in zip(labels, colours)]
     if np.any(fr < 0):
         rows.append((np.array(NOT_MEASURED_RGB) / 255.0, "not measured"))
-    for k, (c, text) in enumerate(rows):
-        y = 0.95 - k * 0.11
-        legend.add_patch(plt.Rectangle((0.0, y - 0.035), 0.09, 0.07, color=c, transform=legend.transAxes))
-        legend.text(0.13, y, text, fontsize=8, va="center", transform=legend.transAxes)
+    ncol = 1 if len(rows) <= 4 else 2
+    legend_in = 0.3 * math.ceil(len(rows) / ncol) + 0.2
+    fig = plt.figure(figsize=(2.4 * len(images), 2.5 + legend_in), constrained_layout=True)
+    grid = fig.add_gridspec(2, len(images), height_ratios=[2.5, legend_in])
+    for i, img in enumerate(images):
+        ax = fig.add_subplot(grid[0, i])
+        ax.imshow(img)
+        ax.set_title(f"view {i + 1}", fontsize=10)
+        ax.axis("off")
+    legend = fig.add_subplot(grid[1, :])
+    legend.axis("off")
+    handles = [plt.Rectangle((0, 0), 1, 1, facecolor=c, edgecolor="#666666") for c, _ in rows]
+    legend.legend(handles, [t for _, t in rows], loc="upper left", ncol=ncol, fontsize=10, frameon=False,
+                  handlelength=1.6, borderaxespad=0.0)
     return png_of(fig)
 
 
