@@ -146,6 +146,16 @@ def _uniform(n: int) -> tuple[tuple[float, float], ...]:
 def chart_type_hint(name: str) -> str:
     """The chart type named with the other types, for messages that suspect the wrong type was given.
 
+    Parameters
+    ----------
+    name
+        The chart type given (one of :data:`CHARTS`).
+
+    Returns
+    -------
+    str
+        ``"a <name> chart (other types: ...)"``.
+
     Examples
     --------
     >>> chart_type_hint("sg140")
