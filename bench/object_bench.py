@@ -8,6 +8,10 @@ Cases (each prints one JSON object; ``--work DIR`` is shared):
   with the simulation's truth (:mod:`app.demo.object`), the head's Ag share and roughness against
   the preset's, the held-out-photo CIEDE2000 of the measured materials and of the one-material
   baseline, peak memory.
+* ``photometric``: the ``session`` case with the normals refined by the photos
+  (``measure_object(..., normals="photometric")``, experimental).
+* ``normals``: each true region fitted with the scanned, the refined (when the ``photometric`` case
+  left its products) and the true normals.
 * ``large``: the procedural hawk at about 1M triangles, 24 table angles (every 15 degrees) at
   960 x 640 (simulated observations with the true camera and lamp,
   :func:`mocks.observation_sim.simulated_observations`): segmentation and fit timed, peak memory.
@@ -116,20 +120,38 @@ def normals_case(work: Path) -> dict[str, Any]:
     obs = select_frames(data["obs"], ~_held_out(data["obs"].frame_names, data["records"], 4))
     model, _ = _forward_model(data["spectrum"], lambda text: None)
     d_ref = _reference_distance(data)
-    rows = []
-    for label, o, tri in (("scanned", obs, t), ("true", dataclasses.replace(obs, normal=true_n[obs.vertex].astype(
-            np.float32)), None)):
+    rows, variants = [], [("scanned", obs, t)]
+    refined_error = None
+    mesh_file = session / "products/object-mesh.ply"
+    if mesh_file.exists():                  # the session case's products: the normals the photos refined
+        from render.material_mesh import read_material_mesh
+
+        rn = read_material_mesh(mesh_file).normals
+        if rn.shape == v.shape:
+            e = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", true_n, rn), -1.0, 1.0)))
+            moved = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", n, rn), -1.0, 1.0))) > 1e-3
+            refined_error = {"median": float(np.median(e)), "p90": float(np.percentile(e, 90)),
+                             "moved_share": float(moved.mean()),
+                             "moved_median_before": float(np.median(error[moved])) if moved.any() else None,
+                             "moved_median_after": float(np.median(e[moved])) if moved.any() else None}
+            variants.append(("refined", dataclasses.replace(obs, normal=rn[obs.vertex].astype(np.float32)), t))
+    variants.append(("true", dataclasses.replace(obs, normal=true_n[obs.vertex].astype(np.float32)), None))
+    for label, o, tri in variants:
         for k, name in enumerate(names):
             ids = np.flatnonzero(vertex_truth == k)
             fit = fit_region(region_samples(o, v, data["frames"], ids, triangles=tri, reference_mm=d_ref), model)
             rows.append({"normals": label, "truth": name, "answer": fit.material, "confidence": fit.confidence,
                          "group": list(fit.group), "parameters": fit.parameters, "misfit": fit.chi2_per_dof})
     return {"normal_error_deg": {"median": float(np.median(error)), "p90": float(np.percentile(error, 90))},
-            "rows": rows}
+            "refined_error_deg": refined_error, "rows": rows}
 
 
-def session_case(work: Path) -> dict[str, Any]:
-    """The demo chain once into ``work``, then the materials on the mesh timed and checked."""
+def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
+    """The demo chain once into ``work``, then the materials on the mesh timed and checked.
+
+    ``normals="photometric"``: with the normals refined by the photos (the ``normals`` case then
+    reads them from the products).
+    """
     from app.demo.capture import simulated_capture
     from app.workflows.object_materials import measure_object
 
@@ -141,10 +163,10 @@ def session_case(work: Path) -> dict[str, Any]:
         summary_path.write_text(json.dumps(summary, indent=1, default=str))
     session = Path(summary["session"])
     t0 = time.perf_counter()
-    doc = measure_object(session, validate=False)
+    doc = measure_object(session, validate=False, normals=normals)
     t_fit = time.perf_counter() - t0
     t0 = time.perf_counter()
-    doc = measure_object(session)
+    doc = measure_object(session, normals=normals)
     t_all = time.perf_counter() - t0
     val = doc.get("validation") or {}
     return {"fit_s": round(t_fit, 2), "with_validation_s": round(t_all, 2), "timings_s": doc.get("timings_s"),
@@ -154,7 +176,7 @@ def session_case(work: Path) -> dict[str, Any]:
             "agreement": _agreement(session, doc, summary["simulation_truth"]),
             "validation": {k: val.get(k) for k in ("mean_de2000", "p95_de2000", "baseline_mean_de2000",
                                                    "baseline_p95_de2000", "n_frames", "pixels")},
-            "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
+            "normals": doc.get("normals"), "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
             "peak_rss_mb": round(_peak_mb(), 1)}
 
 
@@ -222,12 +244,13 @@ def trade_case(work: Path) -> dict[str, Any]:
     data = _load_inputs(session, Session.read(session))
     held = _held_out(data["obs"].frame_names, data["records"], 4)
     rows = []
-    variants = {"all fitted frames": held, "every 2nd fitted angle": _every_second(data, held)}
-    for name, mask in variants.items():
+    variants = {"all fitted frames": (held, True), "every 2nd fitted angle": (_every_second(data, held), True),
+                "all fitted frames, the scanned mesh's normals (no refinement)": (held, False)}
+    for name, (mask, refine) in variants.items():
         t0 = time.perf_counter()
-        doc = _fit(data, mask, 0.02, 8, lambda text: None, lambda: False)
+        doc = _fit(data, mask, 0.02, 8, lambda text: None, lambda: False, refine=refine)
         secs = time.perf_counter() - t0
-        doc.pop("_face_region")
+        doc.pop("_face_region"), doc.pop("_normals")
         rows.append({"variant": name, "frames": int((~mask).sum()), "seconds": round(secs, 2),
                      "materials": [r["material"] for r in doc["regions"]]})
     return {"rows": rows}
@@ -278,6 +301,7 @@ def section(results: dict[str, Any]) -> list[str]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
         lines.append(f"| {r['index']} | {answer_text(r)} | {p} | {r['area_mm2']:.0f} | "
                      f"{r['n_lit']} / {r['n_observations']} |")
+    lines += _photometric_lines(results.get("photometric"), answer_text)
     lines += _normals_lines(results.get("normals"), answer_text)
     big = results.get("large")
     if big:
@@ -296,14 +320,44 @@ def section(results: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
+def _photometric_lines(p: dict[str, Any] | None, answer_text: Any) -> list[str]:
+    """The ``photometric`` case: the session with the normals refined by the photos."""
+    if not p:
+        return []
+    a, v, h, nd = p["agreement"], p["validation"], p["agreement"]["head"], p.get("normals") or {}
+    lines = ["", "With the normals refined by the photos (`measure_object(..., normals=\"photometric\")`, "
+                 f"experimental; {100 * nd.get('decided_share', 0):.0f} % of the vertices decided by their "
+                 f"highlights, median tilt {nd.get('median_tilt_deg', 0):.1f} deg, refinement "
+                 f"{nd.get('seconds', 0):.1f} s):", "",
+             "| figure | measured | target |", "|---|---:|---:|",
+             f"| area-weighted share of the mesh with the right material | {100 * a['share_right']:.1f} % | >= 95 % |",
+             f"| head: answer | {_head_answer(p, h, answer_text)} | nami-shibuichi |",
+             f"| head: Ag share error / roughness error | {h['Ag_error_pts']} points / "
+             f"{100 * (h['roughness_error_rel'] or float('nan')):.1f} % | +-3 points / 10 % |",
+             f"| held-out photos: mean / p95 CIEDE2000, measured / one material | {v['mean_de2000']:.2f} / "
+             f"{v['p95_de2000']:.2f}, {v['baseline_mean_de2000']:.2f} / {v['baseline_p95_de2000']:.2f} | mean <= 2.0 |",
+             f"| segmentation + fit + refinement + fit again | {p['fit_s']:.1f} s | <= 60 s |", "",
+             "| region | answer | parameters of the best candidate | area (mm2) |", "|---:|---|---|---:|"]
+    for r in p["regions"]:
+        par = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
+        lines.append(f"| {r['index']} | {answer_text(r)} | {par} | {r['area_mm2']:.0f} |")
+    return lines
+
+
 def _normals_lines(nc: dict[str, Any] | None, answer_text: Any) -> list[str]:
     """The ``normals`` case: each true region with the scanned and with the true normals."""
     if not nc:
         return []
     e = nc["normal_error_deg"]
+    r = nc.get("refined_error_deg")
+    refined = "" if not r else (
+        f"  Refined by the photos (`kogei fit-materials --normals photometric`, the default), they are a median "
+        f"{r['median']:.1f} deg (p90 {r['p90']:.1f} deg) off; on the {100 * r['moved_share']:.0f} % of the "
+        f"vertices the refinement moved, {r['moved_median_before']:.1f} deg before and "
+        f"{r['moved_median_after']:.1f} deg after.")
     lines = ["", f"Why (case `normals`): the scanned mesh's normals are a median {e['median']:.1f} deg (p90 "
-                 f"{e['p90']:.1f} deg) off the simulated object's.  Each true region fitted to the same observations "
-                 "with the scanned normals and with the true ones:", "",
+                 f"{e['p90']:.1f} deg) off the simulated object's.{refined}  Each true region fitted to the same "
+                 "observations with the scanned, the refined and the true normals:", "",
              "| true material | normals | answer | reduced chi-square | parameters |", "|---|---|---|---:|---|"]
     for r in nc["rows"]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
@@ -344,7 +398,8 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", required=True, choices=["session", "normals", "large", "trade", "reliability", "all"])
+    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "large", "trade",
+                                                      "reliability", "all"])
     ap.add_argument("--work", default="out/bench-object")
     args = ap.parse_args(argv)
     work = Path(args.work)
@@ -352,11 +407,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.case == "all":
         from bench.common import ROOT
 
-        out = {"session": session_case(work), "normals": normals_case(work), "trade": trade_case(work),
+        out = {"session": session_case(work), "photometric": session_case(work, "photometric"),
+               "normals": normals_case(work), "trade": trade_case(work),
                "large": large_case(),
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
         out = session_case(work)
+    elif args.case == "photometric":
+        out = session_case(work, "photometric")
     elif args.case == "normals":
         out = normals_case(work)
     elif args.case == "trade":

@@ -49,6 +49,10 @@ def summary_lines(doc: dict) -> list[str]:
         lines.append(f"  region {r['index']}: {answer_text(r)}, "
                      f"{r['area_mm2']:.0f} mm^2, {r['n_lit']} lit of {r['n_observations']} observations"
                      + (f"; {params}" if params else "") + why)
+    nd = doc.get("normals") or {}
+    if nd.get("method") == "photometric":
+        lines.append(f"  normals refined by the photos: {100 * nd['decided_share']:.0f} % of the vertices decided by "
+                     f"their highlights, median tilt {nd['median_tilt_deg']:.1f} deg")
     nm = doc.get("not_measured") or {}
     if nm.get("faces"):
         lines.append(f"  not measured: {nm['faces']} faces, {nm['area_mm2']:.0f} mm^2 (no usable observation)")

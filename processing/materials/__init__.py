@@ -14,6 +14,7 @@ Modules
 - ``identification``: a region's material and alloy weights from camera values.
 - ``confidence``: the one rule from candidates' misfits to an answer and an honest confidence.
 - ``forward_fit``: a region of the mesh fitted at its observations' true angles.
+- ``photometric_normals``: mesh normals tilted to where the photos' highlights put them.
 - ``segmentation``: an object's pixels split into regions without ground truth.
 
 docs/materials.md describes the models, presets, parameters and sources.
@@ -125,6 +126,7 @@ from processing.materials.optical_constants import (
     metal_wavelength_range,
     tin_drude_fit,
 )
+from processing.materials.photometric_normals import NormalRefinement, refine_normals
 from processing.materials.presets import (
     MaterialError,
     ParameterInfo,
@@ -169,6 +171,8 @@ __all__ = [
     # forward_fit
     "SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError", "region_samples",
     "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT",
+    # photometric_normals
+    "NormalRefinement", "refine_normals",
     # identification
     "DEFAULT_CANDIDATES", "DEFAULT_MODEL_ERROR", "NEUTRAL_METAL", "CandidateSet", "Identification", "AlloyEstimate", "candidate_set",
     "identify_material", "identify_regions", "estimate_alloy_weights",

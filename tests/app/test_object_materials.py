@@ -140,3 +140,35 @@ def test_batch_renders_the_measured_object(measured):
     assert result.status == "ok", result.reason
     renders = Session.read(root)["products"]["renders"]
     assert renders["material"] == MEASURED and "object-mesh.ply" in renders["material_source"]
+
+
+def test_refined_normals_stay_true_on_the_true_mesh(measured, tmp_path):
+    """The session's mesh is the simulated object's own: the photos must confirm its normals, not move them."""
+    import shutil
+
+    import open3d as o3d
+
+    from app.workflows.object_materials import measure_object
+    from render.material_mesh import read_material_mesh
+
+    root, world, doc, _ = measured
+    assert doc["normals"] == {"method": "mesh"}                         # the default keeps the mesh's normals
+    copy = tmp_path / "session"
+    shutil.copytree(root, copy)
+    refined = measure_object(copy, normals="photometric", validate=False)
+    nd = refined["normals"]
+    assert nd["method"] == "photometric" and nd["decided_share"] > 0.1
+    mesh = read_material_mesh(copy / "products/object-mesh.ply")
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices),
+                                  o3d.utility.Vector3iVector(mesh.triangles.astype(np.int32)))
+    true_n = np.asarray(m.compute_vertex_normals().vertex_normals)
+    tilt = np.degrees(np.arccos(np.clip((true_n * mesh.normals).sum(axis=1), -1.0, 1.0)))
+    # the views cannot place a normal better than the grid's 0.5 deg step and the noise: 1 deg median
+    assert np.median(tilt) <= 1.0 and nd["median_tilt_deg"] <= 1.0
+    head = world.region_names.index("head")
+    counts = [np.count_nonzero((mesh.face_material == r["index"]) & (world.region == head))
+              for r in refined["regions"]]
+    reg = refined["regions"][int(np.argmax(counts))]
+    assert reg["material"] == "nami-shibuichi" or "nami-shibuichi" in reg["group"]
+    with pytest.raises(UsageError, match="--normals"):
+        measure_object(copy, normals="smooth")
