@@ -244,8 +244,9 @@ def trade_case(work: Path) -> dict[str, Any]:
     data = _load_inputs(session, Session.read(session))
     held = _held_out(data["obs"].frame_names, data["records"], 4)
     rows = []
-    variants = {"all fitted frames": (held, True), "every 2nd fitted angle": (_every_second(data, held), True),
-                "all fitted frames, the scanned mesh's normals (no refinement)": (held, False)}
+    variants = {"all fitted frames, normals refined": (held, True),
+                "every 2nd fitted angle, normals refined": (_every_second(data, held), True),
+                "all fitted frames, the mesh's normals (the default)": (held, False)}
     for name, (mask, refine) in variants.items():
         t0 = time.perf_counter()
         doc = _fit(data, mask, 0.02, 8, lambda text: None, lambda: False, refine=refine)
@@ -351,7 +352,7 @@ def _normals_lines(nc: dict[str, Any] | None, answer_text: Any) -> list[str]:
     e = nc["normal_error_deg"]
     r = nc.get("refined_error_deg")
     refined = "" if not r else (
-        f"  Refined by the photos (`kogei fit-materials --normals photometric`, the default), they are a median "
+        f"  Refined by the photos (`measure_object(..., normals=\"photometric\")`, experimental), they are a median "
         f"{r['median']:.1f} deg (p90 {r['p90']:.1f} deg) off; on the {100 * r['moved_share']:.0f} % of the "
         f"vertices the refinement moved, {r['moved_median_before']:.1f} deg before and "
         f"{r['moved_median_after']:.1f} deg after.")
