@@ -126,7 +126,14 @@ from processing.materials.optical_constants import (
     metal_wavelength_range,
     tin_drude_fit,
 )
-from processing.materials.photometric_normals import NormalRefinement, refine_normals
+from processing.materials.photometric_normals import (
+    MAX_TILT_DEG,
+    MIN_DECIDING,
+    PRIOR_DEG,
+    SMOOTH_DEG,
+    NormalRefinement,
+    refine_normals,
+)
 from processing.materials.presets import (
     MaterialError,
     ParameterInfo,
@@ -172,7 +179,7 @@ __all__ = [
     "SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError", "region_samples",
     "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT",
     # photometric_normals
-    "NormalRefinement", "refine_normals",
+    "NormalRefinement", "refine_normals", "MAX_TILT_DEG", "PRIOR_DEG", "SMOOTH_DEG", "MIN_DECIDING",
     # identification
     "DEFAULT_CANDIDATES", "DEFAULT_MODEL_ERROR", "NEUTRAL_METAL", "CandidateSet", "Identification", "AlloyEstimate", "candidate_set",
     "identify_material", "identify_regions", "estimate_alloy_weights",
