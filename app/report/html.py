@@ -455,6 +455,9 @@ def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
                                      direction=direction)
         views.append(_img(png_bytes(result.srgb8), f"mesh {name}", name))
     body = _kv(pairs) + "<div class='row'>" + "".join(views) + "</div>"
+    warnings = rep.get("warnings") if rep is not None else None
+    if isinstance(warnings, list) and warnings:
+        body = "".join(f"<p class='missing'><b>Partial result:</b> {_e(str(w))}</p>" for w in warnings) + body
     return Section("mesh", "Mesh views", body, True)
 
 
