@@ -48,7 +48,7 @@ from app.errors import UsageError
 from processing.common.files import atomic_path
 from processing.errors import InputError
 
-__all__ = ["add_parser", "run", "capture_commands", "PASS_ENV", "SCAN_STEPS", "SPHERE_STEPS", "main"]
+__all__ = ["add_parser", "run", "capture_commands", "PASS_ENV", "SCAN_STEPS", "SCAN_CAMERA_ANGLES", "SPHERE_STEPS", "main"]
 
 #: Environment variable the capture command sets for its before-pass hook (the pass number).
 PASS_ENV = "KOGEI_PASS"
@@ -56,6 +56,10 @@ EXIT_FAILED = 2
 #: Table steps per revolution of the printed scan command.  The passes of the simulated hawk register at
 #: 60 steps and more (6 deg between profiles; seeds 0-3); at 36 (10 deg) two of three passes are left out.
 SCAN_STEPS = 72
+#: Table angles of the printed scan's RAW frames: four per pass keep a first simulated session quick (each
+#: frame of the fake gphoto2 is a program run of about 2 s); drop the option for the capture's own default,
+#: a frame every 30 deg, which kogei fit-materials needs (it holds out every 4th angle).
+SCAN_CAMERA_ANGLES = "0,90,180,270"
 #: Table steps of the printed reference-sphere scan (one pass, no camera; docs/processing.md, Calibration).
 SPHERE_STEPS = 90
 
@@ -126,7 +130,7 @@ def capture_commands(info: dict[str, Any], steps: int = SCAN_STEPS, passes: int 
     >>> info = {"turntable": "/s/turntable", "profiler": "/s/profiler", "gphoto2": "/s/bin/gphoto2",
     ...         "hotfolder": "/s/hot", "control": "/s/control"}
     >>> print(capture_commands(info, 8, 2, "out")["gphoto2"])
-    kogei capture --turntable /s/turntable --laser /s/profiler --camera gphoto2:/s/bin/gphoto2 --steps 8 --passes 2 --out out --unattended --before-pass 'kogei mock place --control /s/control'
+    kogei capture --turntable /s/turntable --laser /s/profiler --camera gphoto2:/s/bin/gphoto2 --steps 8 --passes 2 --camera-angles 0,90,180,270 --out out --unattended --before-pass 'kogei mock place --control /s/control'
     >>> print(capture_commands(info, session="board", plan="--plan camera-calibration")["gphoto2"])
     kogei capture --turntable /s/turntable --camera gphoto2:/s/bin/gphoto2 --plan camera-calibration --out board --unattended --before-pass 'kogei mock place --control /s/control'
     >>> print(capture_commands(info, session="cal", plan="sphere")["gphoto2"])
@@ -148,7 +152,8 @@ def capture_commands(info: dict[str, Any], steps: int = SCAN_STEPS, passes: int 
         tail = f"{plan} --out {q(session)} --unattended --before-pass {q(place)}"
     else:
         common = f"--turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
-        tail = f"--steps {steps} --passes {passes} --out {q(session)} --unattended --before-pass {q(place)}"
+        tail = (f"--steps {steps} --passes {passes} --camera-angles {SCAN_CAMERA_ANGLES} --out {q(session)} "
+                f"--unattended --before-pass {q(place)}")
     return {
         "gphoto2": f"kogei capture {common} --camera {q('gphoto2:' + info['gphoto2'])} {tail}",
         "hotfolder": (f"kogei capture {common} --camera {q('hotfolder:' + info['hotfolder'])} "
@@ -278,9 +283,11 @@ def _print_block(info: dict[str, Any], faults: str) -> None:
         f"  hot folder       {info['hotfolder']}",
         f"  control folder   {info['control']}",
         f"  station file     {info['station_file']}",
-        "capture with the gphoto2 camera:",
+        ("scan the sphere (profiles only):" if "--camera none" in cmds["gphoto2"] else
+         "capture with the gphoto2 camera:"),
         f"  {cmds['gphoto2']}",
-        "capture with the hot folder:",
+        ("or with photos of the sphere (to tie a calibrated camera to the scanner), through the hot folder:"
+         if "--camera none" in cmds["gphoto2"] else "capture with the hot folder:"),
         f"  {cmds['hotfolder']}",
         "then:",
         f"  {info['then']}",
@@ -313,7 +320,8 @@ def _serve(args: argparse.Namespace) -> int:
     if args.root is not None and Path(args.root).exists() and not Path(args.root).is_dir():
         raise UsageError(f"--root {args.root} exists and is not a folder; give a folder (created if missing)")
     world = _build_world(args)
-    station = SimulatedStation(world, root=args.root, seed=args.seed, time_scale=args.time_scale)
+    root = None if args.root is None else Path(args.root).resolve()   # the printed commands work from any folder
+    station = SimulatedStation(world, root=root, seed=args.seed, time_scale=args.time_scale)
     station.apply_faults(faults)
     stop = threading.Event()
     in_main = threading.current_thread() is threading.main_thread()

@@ -262,7 +262,7 @@ def _note_poses(usable: list[dict[str, Any]], reg: Any, note: Callable[[str], No
         e["pose"] = None if pose.transform is None else np.asarray(pose.transform).tolist()
         if not pose.registered:
             e["skipped"] = f"not registered: {pose.reason}"
-            note(f"pass {e['pass']}: {e['skipped']} (left out of the mesh; use the manual 3-point fallback)")
+            note(f"pass {e['pass']}: {e['skipped']} (left out of the mesh; use the manual 3-point registration)")
 
 
 def _merged(usable: list[dict[str, Any]], reg: Any) -> tuple[Any, Any, Any]:
@@ -326,8 +326,8 @@ def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[st
             + "; ".join(f"pass {p['pass']}: {str(p.get('skipped', 'not registered')).split(' (')[0]}"
                         for p in left_out)
             + f"); {denser}resume an incomplete pass with kogei capture --resume, re-place the object so each "
-              "placement overlaps another by about a third, or register by hand with "
-              "kogei register --picks (docs/processing.md)")
+              "placement overlaps another by about a third, or register by hand (kogei gui, Processing tab, "
+              "'Manual 3-point registration'; docs/processing.md)")
     if not report["mesh"]["watertight"]:
         warnings.append("the mesh is not watertight: parts of the object were seen in no registered pass; "
                         "capture more placements (--passes) that show the missing sides, or register the "
