@@ -266,7 +266,7 @@ def _next_command(world: Any, plan: str | None) -> str:
         radius = world.mesh_source.split(":")[1]
         return f"kogei calibrate calibration-session --sphere-radius {radius}"
     if plan is None:
-        return "kogei process kogei-session --calibration calibration-session   (after a kogei mock --world sphere scan)"
+        return "kogei process kogei-session --calibration calibration-session   # after a kogei mock --world sphere scan"
     if plan.startswith("--plan camera-calibration"):
         return "kogei calibrate --camera camera-calibration-session --scanner calibration-session"
     return "kogei calibrate --lamp lamp-calibration-session --camera-calibration camera-calibration-session"
