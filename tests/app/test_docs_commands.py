@@ -214,8 +214,7 @@ def test_slugs_follow_github():
     assert _slug("A first session, step by step") == "a-first-session-step-by-step"
 
 
-@pytest.mark.parametrize("doc", DOCUMENTS, ids=[str(d.relative_to(REPO)) for d in DOCUMENTS])
-def test_relative_links_and_anchors_resolve(doc):
+def _broken_links(doc: Path) -> list[str]:
     broken = []
     for no, target in _links(doc):
         if re.match(r"[a-z]+:", target):          # http:, https:, mailto:
@@ -226,4 +225,16 @@ def test_relative_links_and_anchors_resolve(doc):
             broken.append(f"{doc.name}:{no}: {target}: {file} does not exist")
         elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
             broken.append(f"{doc.name}:{no}: {target}: no heading #{anchor} in {dest.name}")
+    return broken
+
+
+@pytest.mark.parametrize("doc", DOCUMENTS, ids=[str(d.relative_to(REPO)) for d in DOCUMENTS])
+def test_relative_links_and_anchors_resolve(doc):
+    broken = _broken_links(doc)
     assert not broken, "\n".join(broken)
+
+
+def test_a_broken_link_or_anchor_is_caught(tmp_path):
+    (tmp_path / "a.md").write_text("# Title\n\n## Two words\n\n[ok](#two-words) [ok](a.md#title) "
+                                   "[bad](#three-words) [bad](b.md) [web](https://example.org/x#y)\n")
+    assert [b.split(": ")[1] for b in _broken_links(tmp_path / "a.md")] == ["#three-words", "b.md"]
