@@ -226,3 +226,16 @@ def test_a_pass_file_failing_its_checksum_is_skipped_and_reported(scans, tmp_pat
         assert f"pass {p}: session {session}: passes/p{p:02d}/profiles.npz is missing or fails its checksum" in err
     assert "gather the pass's profiles again" in err and "pass 3: incomplete" in err
     assert not (session / "products" / "mesh.ply").exists()
+
+
+def test_batch_names_a_partial_mesh_in_its_summary(scans, tmp_path):
+    from app.batch.runner import process_one
+    from app.batch.steps import BatchOptions
+
+    session = _copy(scans.interrupted, tmp_path / "cut-batch")
+    result = process_one(str(session), ("geometry",), BatchOptions(preset="draft", calibration=str(scans.cal)))
+    assert result.status == "ok" and result.reason.startswith("partial mesh: 1 of 3 passes left out of the mesh")
+    assert "geometry: INCOMPLETE: 1 of 3 passes left out" in (session / "batch.log").read_text()
+    # up to date on the next run, and still named
+    again = process_one(str(session), ("geometry",), BatchOptions(preset="draft", calibration=str(scans.cal)))
+    assert again.status == "skipped" and again.reason == result.reason
