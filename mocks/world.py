@@ -63,7 +63,8 @@ __all__ = [
 BACKDROP_REFLECTANCE = 0.05
 
 #: The simulated station's camera frame (width, height in pixels) as ``kogei mock``, ``kogei gui --mock`` and
-#: ``SimulatedStation()`` set it up: the hawk about 70 x 100 pixels, the chart card 168 pixels wide.
+#: ``SimulatedStation()`` set it up: the standing hawk about 140 x 158 pixels at table angle 0 (85 x 156 at 90),
+#: the chart card 168 pixels wide.
 STATION_FRAME_SIZE = (240, 160)
 #: The station's colour chart: a ColorChecker Classic lying on the backdrop, whole in the frame, which
 #: ``cv2.mcc`` finds in every pass's chart frame at :data:`STATION_FRAME_SIZE` (``World``'s own default,
