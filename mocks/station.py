@@ -112,7 +112,9 @@ class SimulatedStation:
     Parameters
     ----------
     world
-        The :class:`mocks.world.World` (default: the procedural hawk).  The
+        The :class:`mocks.world.World` (default: the procedural hawk with
+        :func:`mocks.world.station_world_settings`: 240 x 160 frames, a
+        ColorChecker Classic laid out on the backdrop).  The
         station owns it: :meth:`place` sets its ``pose``.  Its ``pose`` at
         construction is the base pose of placement 1.
     root
@@ -172,10 +174,10 @@ class SimulatedStation:
         poll_s: float = 0.02,
     ) -> None:
         from mocks.profiler_firmware import check_sensor_pose
-        from mocks.world import World
+        from mocks.world import World, station_world_settings
 
         _check_settings(seed, time_scale, exposure_s, poll_s, laser_watchdog_s, hotfolder_chunks, hotfolder_interval_s)
-        self.world = World.hawk() if world is None else world
+        self.world = World.hawk(**station_world_settings()) if world is None else world
         if not isinstance(self.world, World):
             raise ValueError(f"world must be a mocks.world.World, got {type(self.world).__name__}")
         self.seed = int(seed)

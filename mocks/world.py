@@ -54,10 +54,33 @@ __all__ = [
     "rotation_z",
     "BACKDROP_REFLECTANCE",
     "world_settings",
+    "STATION_FRAME_SIZE",
+    "STATION_CHART_LAYOUT",
+    "station_world_settings",
 ]
 
 #: Reflectance of the booth's grey backdrop and of gaps between chart patches.
 BACKDROP_REFLECTANCE = 0.05
+
+#: The simulated station's camera frame (width, height in pixels) as ``kogei mock``, ``kogei gui --mock`` and
+#: ``SimulatedStation()`` set it up: the standing hawk about 140 x 158 pixels at table angle 0 (85 x 156 at 90),
+#: the chart card 168 pixels wide.
+STATION_FRAME_SIZE = (240, 160)
+#: The station's colour chart: a ColorChecker Classic lying on the backdrop, whole in the frame, which
+#: ``cv2.mcc`` finds in every pass's chart frame at :data:`STATION_FRAME_SIZE` (``World``'s own default,
+#: ``"grid"``, fills the frame edge to edge and is reported as partly outside it).
+STATION_CHART_LAYOUT = "classic24"
+
+
+def station_world_settings() -> dict[str, Any]:
+    """The :class:`World` fields of the simulated station's camera: frame size and chart layout.
+
+    Examples
+    --------
+    >>> station_world_settings()
+    {'width': 240, 'height': 160, 'chart_layout': 'classic24'}
+    """
+    return {"width": STATION_FRAME_SIZE[0], "height": STATION_FRAME_SIZE[1], "chart_layout": STATION_CHART_LAYOUT}
 
 
 class WorldError(InputError):

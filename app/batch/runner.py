@@ -37,7 +37,7 @@ from typing import Any, Protocol
 from app.batch.steps import STEPS, BatchOptions, parse_steps, run_step, up_to_date
 from app.errors import UsageError
 
-__all__ = ["StepResult", "SessionResult", "BatchSummary", "run_batch", "process_one", "LOG_FILE",
+__all__ = ["StepResult", "SessionResult", "BatchSummary", "run_batch", "process_one", "partial_mesh_reason", "LOG_FILE",
            "EXIT_OK", "EXIT_FAILED", "EXIT_INTERRUPTED"]
 
 LOG_FILE = "batch.log"
@@ -271,9 +271,25 @@ def process_one(session: str, steps: tuple[str, ...], options: BatchOptions,
             result.status, result.reason = "failed", f"{bad[0].name}: {bad[0].reason}"
         elif all(s.status == "skipped" for s in result.steps):
             result.status = "skipped"
+    if result.status in ("ok", "skipped") and not result.reason:
+        result.reason = partial_mesh_reason(root)
     result.seconds = round(time.perf_counter() - t0, 3)
     _emit(queue, "session", session, "", result.status, result.reason)
     return result
+
+
+def partial_mesh_reason(root: Path) -> str:
+    """``"partial mesh: ..."`` when the session's mesh is a partial result (a pass left out, not watertight), else ``""``."""
+    from app.session import Session
+
+    try:
+        mesh = (Session.read(root).get("products") or {}).get("mesh") or {}
+    except (ValueError, OSError):
+        return ""
+    warnings = mesh.get("warnings") if isinstance(mesh, dict) else None
+    if not isinstance(warnings, list) or not warnings:
+        return ""
+    return "partial mesh: " + "; ".join(str(w).split(";")[0] for w in warnings)
 
 
 def _dask_task(session: str, steps: tuple[str, ...], options: BatchOptions, queue_name: str) -> SessionResult:

@@ -127,9 +127,12 @@ def _geometry_run(root: Path, options: BatchOptions, log: Log) -> dict[str, Any]
     report = process_session(root, preset=options.preset, calibration=options.calibration, message=log)
     registered = sum(1 for p in report["passes"] if p.get("registered"))
     log(f"mesh: {report['mesh']['triangles']} triangles, {registered} of {len(report['passes'])} passes registered")
+    for text in report.get("warnings") or []:
+        log(f"INCOMPLETE: {text}")        # and in the manifest, the report and the batch's summary line
     return {"products": ("mesh", "process_report"),
             "summary": {"triangles": report["mesh"]["triangles"], "watertight": report["mesh"]["watertight"],
                         "registered_passes": registered, "passes": len(report["passes"]),
+                        "complete": report.get("complete", True), "warnings": report.get("warnings", []),
                         "timings_s": report["timings_s"]}}
 
 

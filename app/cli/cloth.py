@@ -3,12 +3,17 @@
 Prints the fitted parameters with their uncertainties and the residual,
 writes ``cloth-fit.json`` and ``cloth-fit.png`` (measured vs fitted
 responses over table angle) into ``--out`` (default: ``SESSION/cloth-fit``).
+
+``kogei cloth simulate SESSION --cloth SPEC``: a swatch session from the
+simulated station (:func:`app.workflows.cloth_fit.capture_swatch_session`),
+with the set-up ``SESSION/swatch.json`` that ``kogei cloth fit`` reads.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -33,9 +38,44 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="swatch pixels fitted (spread over the swatch; default 160)")
     f.add_argument("--out", default=None, metavar="DIR", help="where to write cloth-fit.json and cloth-fit.png (default SESSION/cloth-fit)")
     f.add_argument("--quiet", action="store_true", help="no progress messages")
+    s = csub.add_parser("simulate", help="capture a swatch session of a simulated cloth swatch (for kogei cloth fit)",
+                        description="Capture a swatch session on the simulated station: a flat 80 mm swatch of a "
+                                    "cloth material turned by the table under a fixed lamp, a chart frame then one "
+                                    "RAW frame per table step, and the set-up SESSION/swatch.json.")
+    s.add_argument("session", metavar="SESSION", help="new session folder (must not exist)")
+    s.add_argument("--cloth", default="silk", metavar="SPEC",
+                   help="the swatch's material: silk, cotton, satin, tamamushi or a spec such as "
+                        "silk:a_t=0.08,a_b=0.5 (see 'kogei materials silk'); default silk")
+    s.add_argument("--steps", type=int, default=24, metavar="N", help="table steps (frames) per pass (default 24)")
+    s.add_argument("--size", default="96x72", metavar="WxH", help="frame size in pixels (default 96x72)")
+    s.add_argument("--camera", default="hotfolder", choices=["hotfolder", "gphoto2"],
+                   help="the station's hot folder (default; rendered in this process) or its fake gphoto2")
+    s.add_argument("--seed", type=int, default=1, metavar="N", help="seed of the sensor noise (default 1)")
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from app.workflows.cloth_fit import GEOMETRY_FILE, capture_swatch_session
+
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        raise UsageError(f"--size must be WxH in pixels, e.g. 96x72, got {args.size!r}") from None
+    if args.steps < 2:
+        raise UsageError(f"--steps must be at least 2, got {args.steps}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if os.path.lexists(args.session):
+        raise UsageError(f"{args.session} exists; give a new folder for the swatch session")
+    out = capture_swatch_session(args.session, args.cloth, steps=args.steps, seed=args.seed, width=width,
+                                 height=height, camera=args.camera)
+    print(f"swatch session {out}: {args.cloth}, {args.steps} frames of {width} x {height}; set-up "
+          f"{out / GEOMETRY_FILE}; next: kogei cloth fit {out}")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.cloth_command == "simulate":
+        return _simulate(args)
     from app.workflows.cloth_fit import fit_figure, fit_report, load_swatch_session
     from processing.cloth.fit import ClothFitError, choose_layers, fit_swatch
 

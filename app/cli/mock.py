@@ -48,11 +48,20 @@ from app.errors import UsageError
 from processing.common.files import atomic_path
 from processing.errors import InputError
 
-__all__ = ["add_parser", "run", "capture_commands", "PASS_ENV", "main"]
+__all__ = ["add_parser", "run", "capture_commands", "PASS_ENV", "SCAN_STEPS", "SCAN_CAMERA_ANGLES", "SPHERE_STEPS", "main"]
 
 #: Environment variable the capture command sets for its before-pass hook (the pass number).
 PASS_ENV = "KOGEI_PASS"
 EXIT_FAILED = 2
+#: Table steps per revolution of the printed scan command.  The passes of the simulated hawk register at
+#: 60 steps and more (6 deg between profiles; seeds 0-3); at 36 (10 deg) two of three passes are left out.
+SCAN_STEPS = 72
+#: Table angles of the printed scan's RAW frames: four per pass keep a first simulated session quick (each
+#: frame of the fake gphoto2 is a program run of about 2 s); drop the option for the capture's own default,
+#: a frame every 30 deg, which kogei fit-materials needs (it holds out every 4th angle).
+SCAN_CAMERA_ANGLES = "0,90,180,270"
+#: Table steps of the printed reference-sphere scan (one pass, no camera; docs/processing.md, Calibration).
+SPHERE_STEPS = 90
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -106,41 +115,54 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
-def capture_commands(info: dict[str, Any], steps: int = 36, passes: int = 3,
+def capture_commands(info: dict[str, Any], steps: int = SCAN_STEPS, passes: int = 3,
                      session: str = "kogei-session", plan: str | None = None) -> dict[str, str]:
     """The ``kogei capture`` command lines for a station's ``info()``: with gphoto2 and with the hot folder.
 
     ``plan`` is the plan's options for a calibration target (``--plan camera-calibration`` for the
     board, ``--plan lamp-calibration --sphere-radius R`` for the mirror sphere): camera only, the
-    plan's own steps and passes.
+    plan's own steps and passes.  ``plan="sphere"`` is the scanner calibration's scan of the reference
+    sphere: one pass of :data:`SPHERE_STEPS` profiles without the camera (the gphoto2 line) or with
+    photos of the sphere and no chart (the hot-folder line, for ``kogei calibrate --camera ... --scanner``).
 
     Examples
     --------
     >>> info = {"turntable": "/s/turntable", "profiler": "/s/profiler", "gphoto2": "/s/bin/gphoto2",
     ...         "hotfolder": "/s/hot", "control": "/s/control"}
     >>> print(capture_commands(info, 8, 2, "out")["gphoto2"])
-    kogei capture --turntable /s/turntable --laser /s/profiler --camera gphoto2:/s/bin/gphoto2 --steps 8 --passes 2 --out out --unattended --before-pass 'kogei mock place --control /s/control'
+    kogei capture --turntable /s/turntable --laser /s/profiler --camera gphoto2:/s/bin/gphoto2 --steps 8 --passes 2 --camera-angles 0,90,180,270 --out out --unattended --before-pass 'kogei mock place --control /s/control'
     >>> print(capture_commands(info, session="board", plan="--plan camera-calibration")["gphoto2"])
     kogei capture --turntable /s/turntable --camera gphoto2:/s/bin/gphoto2 --plan camera-calibration --out board --unattended --before-pass 'kogei mock place --control /s/control'
+    >>> print(capture_commands(info, session="cal", plan="sphere")["gphoto2"])
+    kogei capture --turntable /s/turntable --laser /s/profiler --camera none --steps 90 --passes 1 --out cal --unattended
     """
     q = shlex.quote
     place = f"kogei mock place --control {q(info['control'])}"
     shoot = f"kogei mock shoot --control {q(info['control'])}"
+    if plan == "sphere":
+        common = f"--turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
+        tail = f"--steps {SPHERE_STEPS} --passes 1 --out {q(session)} --unattended"
+        return {
+            "gphoto2": f"kogei capture {common} --camera none {tail}",
+            "hotfolder": (f"kogei capture {common} --camera {q('hotfolder:' + info['hotfolder'])} "
+                          f"--shutter {q(shoot)} --hotfolder-stable 0.2 --no-chart {tail}"),
+        }
     if plan:
         common = f"--turntable {q(info['turntable'])}"
         tail = f"{plan} --out {q(session)} --unattended --before-pass {q(place)}"
     else:
         common = f"--turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
-        tail = f"--steps {steps} --passes {passes} --out {q(session)} --unattended --before-pass {q(place)}"
+        tail = (f"--steps {steps} --passes {passes} --camera-angles {SCAN_CAMERA_ANGLES} --out {q(session)} "
+                f"--unattended --before-pass {q(place)}")
     return {
         "gphoto2": f"kogei capture {common} --camera {q('gphoto2:' + info['gphoto2'])} {tail}",
         "hotfolder": (f"kogei capture {common} --camera {q('hotfolder:' + info['hotfolder'])} "
-                      f"--shutter {q(shoot)} {tail}"),
+                      f"--shutter {q(shoot)} --hotfolder-stable 0.2 {tail}"),
     }
 
 
 def _build_world(args: argparse.Namespace) -> Any:
-    from mocks.world import World, WorldError
+    from mocks.world import World, WorldError, station_world_settings
     from processing.materials.presets import MaterialError, get_material
 
     if args.material is not None:
@@ -157,7 +179,7 @@ def _build_world(args: argparse.Namespace) -> Any:
             n = 4_000 if args.triangles is None else args.triangles
             if n < 500:
                 raise UsageError(f"--triangles must be at least 500, got {n}")
-            world = World.hawk(n)
+            world = World.hawk(n, **station_world_settings())
             if args.material is not None:
                 world.materials = {name: args.material for name in world.region_names}
             return world
@@ -169,7 +191,7 @@ def _build_world(args: argparse.Namespace) -> Any:
             except ValueError:
                 raise UsageError(f"--world {args.world}: use sphere, sphere:RADIUS_MM or "
                                  "sphere:RADIUS_MM:OFFSET_MM") from None
-            return World.calibration_sphere(radius, offset, chart_first=False)   # a calibration scan takes no chart
+            return World.calibration_sphere(radius, offset, chart_first=False, **station_world_settings())   # a calibration scan takes no chart
         if args.world == "board" or args.world.startswith("board:"):
             return _board_world(args.world)
         if args.world == "mirror-sphere" or args.world.startswith("mirror-sphere:"):
@@ -178,7 +200,7 @@ def _build_world(args: argparse.Namespace) -> Any:
         if not path.is_file():
             raise UsageError(f"--world {args.world}: no such mesh file; give 'hawk' or the path of a "
                              "PLY/OBJ/STL/glTF mesh in millimetres")
-        return World.from_mesh_file(path, args.material or "nami-shibuichi")
+        return World.from_mesh_file(path, args.material or "nami-shibuichi", **station_world_settings())
     except (WorldError, ValueError) as exc:
         if isinstance(exc, UsageError):
             raise
@@ -218,15 +240,36 @@ def _mirror_world(spec: str) -> Any:
 
 
 def _calibration_plan(world: Any) -> str | None:
-    """The capture plan options a calibration target needs (None for an object to scan)."""
+    """The capture plan options a calibration target needs ("sphere" for the reference sphere, None to scan)."""
     from mocks.board_world import BoardWorld
     from mocks.mirror_world import MirrorWorld
 
+    if str(getattr(world, "mesh_source", "")).startswith("sphere:"):
+        return "sphere"
     if isinstance(world, BoardWorld):
         return "--plan camera-calibration"
     if isinstance(world, MirrorWorld):
         return f"--plan lamp-calibration --sphere-radius {world.sphere_radius_mm:g}"
     return None
+
+
+def _session_name(plan: str | None) -> str:
+    """The ``--out`` folder of the printed capture command."""
+    if plan is None:
+        return "kogei-session"
+    return "calibration-session" if plan == "sphere" else plan.split()[1] + "-session"
+
+
+def _next_command(world: Any, plan: str | None) -> str:
+    """The command that processes the printed capture's session."""
+    if plan == "sphere":
+        radius = world.mesh_source.split(":")[1]
+        return f"kogei calibrate calibration-session --sphere-radius {radius}"
+    if plan is None:
+        return "kogei process kogei-session --calibration calibration-session   # after a kogei mock --world sphere scan"
+    if plan.startswith("--plan camera-calibration"):
+        return "kogei calibrate --camera camera-calibration-session --scanner calibration-session"
+    return "kogei calibrate --lamp lamp-calibration-session --camera-calibration camera-calibration-session"
 
 
 def _print_block(info: dict[str, Any], faults: str) -> None:
@@ -240,10 +283,14 @@ def _print_block(info: dict[str, Any], faults: str) -> None:
         f"  hot folder       {info['hotfolder']}",
         f"  control folder   {info['control']}",
         f"  station file     {info['station_file']}",
-        "capture with the gphoto2 camera:",
+        ("scan the sphere (profiles only):" if "--camera none" in cmds["gphoto2"] else
+         "capture with the gphoto2 camera:"),
         f"  {cmds['gphoto2']}",
-        "capture with the hot folder:",
+        ("or with photos of the sphere (to tie a calibrated camera to the scanner), through the hot folder:"
+         if "--camera none" in cmds["gphoto2"] else "capture with the hot folder:"),
         f"  {cmds['hotfolder']}",
+        "then:",
+        f"  {info['then']}",
         "Ctrl-C stops the station.",
     ]
     print("\n".join(lines), flush=True)
@@ -273,7 +320,8 @@ def _serve(args: argparse.Namespace) -> int:
     if args.root is not None and Path(args.root).exists() and not Path(args.root).is_dir():
         raise UsageError(f"--root {args.root} exists and is not a folder; give a folder (created if missing)")
     world = _build_world(args)
-    station = SimulatedStation(world, root=args.root, seed=args.seed, time_scale=args.time_scale)
+    root = None if args.root is None else Path(args.root).resolve()   # the printed commands work from any folder
+    station = SimulatedStation(world, root=root, seed=args.seed, time_scale=args.time_scale)
     station.apply_faults(faults)
     stop = threading.Event()
     in_main = threading.current_thread() is threading.main_thread()
@@ -289,8 +337,8 @@ def _serve(args: argparse.Namespace) -> int:
         info = {**station.info(), "station_file": str(station_file), "pid": os.getpid(),
                 "faults": format_faults(faults)}
         plan = _calibration_plan(world)
-        info["capture"] = capture_commands(info, plan=plan, session="kogei-session" if plan is None else
-                                           plan.split()[1] + "-session")
+        info["capture"] = capture_commands(info, plan=plan, session=_session_name(plan))
+        info["then"] = _next_command(world, plan)
         _write_station_file(station_file, info)
         _print_block(info, format_faults(faults))
         try:

@@ -6,13 +6,19 @@ import argparse
 import json
 import sys
 
-__all__ = ["add_parser", "run", "projection_line"]
+__all__ = ["add_parser", "run", "projection_line", "EXIT_PARTIAL"]
+
+#: Exit status of a partial result: a pass left out of the mesh or a mesh that is not watertight.
+EXIT_PARTIAL = 1
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("process", help="profiles of a captured session -> registered, watertight mesh + report",
                        description="Turn a session's profiles into point clouds, register the passes, mesh the "
-                                   "merged cloud and write products/mesh.ply and products/process-report.json.")
+                                   "merged cloud and write products/mesh.ply and products/process-report.json. "
+                                   "Exit status 0: every pass registered and the mesh watertight; 1: a partial "
+                                   "result (written, with the reason and what to capture in the report); 2: bad "
+                                   "input.")
     p.add_argument("session", metavar="SESSION", help="a scan session folder (kogei capture)")
     p.add_argument("--preset", default="standard", choices=["draft", "standard", "reference"],
                    help="speed against accuracy of the registration and the mesh: draft, standard, reference "
@@ -34,15 +40,16 @@ def run(args: argparse.Namespace) -> int:
     from app.workflows.process_session import process_session
 
     def message(text: str) -> None:
-        if not args.quiet:
+        if not args.quiet and not text.startswith("INCOMPLETE:"):     # printed once at the end, even with --quiet
             print(f"  {text}", file=sys.stderr)
 
     report = process_session(args.session, preset=args.preset, calibration=args.calibration,
                              camera_calibration=args.camera_calibration, lamp_calibration=args.lamp_calibration,
                              project=not args.no_project, message=message)
+    partial = _warn_partial(args.session, report)
     if args.json:
         print(json.dumps(report, indent=1))
-        return 0
+        return partial
     reg = report["registration"]
     print(f"session {args.session}: {sum(1 for p in report['passes'] if p.get('registered'))} of "
           f"{len(report['passes'])} passes registered"
@@ -58,7 +65,15 @@ def run(args: argparse.Namespace) -> int:
     proj = report.get("projection")
     if proj:
         print(projection_line(args.session, proj))
-    return 0
+    return partial
+
+
+def _warn_partial(session: str, report: dict) -> int:
+    """Print why a result is partial (even with --quiet) and give the exit status: 1 if partial, else 0."""
+    warnings = report.get("warnings") or []
+    for text in warnings:
+        print(f"kogei process: INCOMPLETE: {session}: {text}", file=sys.stderr)
+    return EXIT_PARTIAL if warnings else 0
 
 
 def projection_line(session: str, proj: dict) -> str:

@@ -56,13 +56,13 @@ SETTINGS_APP = "capture-station"
 
 def simulated_world(name: str, triangles: int = 4000, image_size: tuple[int, int] = (240, 160)) -> Any:
     """The :class:`mocks.world.World` of an entry of :data:`app.gui.devices_panel.SIMULATED_OBJECTS`."""
-    from mocks.world import World
+    from mocks.world import STATION_CHART_LAYOUT, World
 
     w, h = image_size
     if name == SIMULATED_OBJECTS[0]:
-        return World.hawk(triangles, width=w, height=h)
+        return World.hawk(triangles, width=w, height=h, chart_layout=STATION_CHART_LAYOUT)
     if name == SIMULATED_OBJECTS[1]:
-        return World.calibration_sphere(25.0, 60.0, width=w, height=h)
+        return World.calibration_sphere(25.0, 60.0, width=w, height=h, chart_layout=STATION_CHART_LAYOUT)
     raise ValueError(f"unknown simulated object {name!r}; choose one of: {', '.join(SIMULATED_OBJECTS)}")
 
 
@@ -246,7 +246,9 @@ class MainWindow(QMainWindow):
         if self.station is not None:
             raise ValueError("a simulated station is already running in this window")
         if world is None:
-            world = World.hawk(triangles, width=image_size[0], height=image_size[1])
+            from mocks.world import STATION_CHART_LAYOUT
+
+            world = World.hawk(triangles, width=image_size[0], height=image_size[1], chart_layout=STATION_CHART_LAYOUT)
         st = SimulatedStation(world, root=root, seed=seed, n_points=n_points)
         st.start()
         return self._attach_station(st)

@@ -544,6 +544,9 @@ def _mesh(ctx: _Context, rep: dict[str, Any] | None) -> Section:
     body = (_lead("The measured 3-D shape, seen from three sides. It is drawn in one neutral grey on purpose: these "
                   "views show the shape, not the object's colours or materials.")
             + "<div class='row'>" + "".join(views) + "</div>" + _details(_kv(pairs)))
+    warnings = rep.get("warnings") if rep is not None else None
+    if isinstance(warnings, list) and warnings:
+        body = "".join(f"<p class='missing'><b>Partial result:</b> {_e(str(w))}</p>" for w in warnings) + body
     return Section("mesh", "Mesh views", body, True)
 
 

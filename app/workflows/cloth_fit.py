@@ -70,7 +70,9 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
     out = Path(out)
     if out.exists():
         shutil.rmtree(out)
-    station_dir = out.parent / (out.name + "-station")
+    import tempfile
+
+    station_dir = Path(tempfile.mkdtemp(prefix="kogei-swatch-station-"))   # nothing written beside ``out``
     world = SwatchWorld.swatch(cloth, width=width, height=height)
     pass_lights = [tuple(float(v) for v in world.light_direction)] if lights is None else \
         [tuple(float(v) for v in d) for d in lights]

@@ -30,9 +30,12 @@ import numpy as np
 from app.errors import UsageError
 from app.session_paths import UnsafeSessionPath, check_not_symlink, confined_file
 
-__all__ = ["process_session", "PRESETS", "MIN_PASS_POINTS"]
+__all__ = ["process_session", "incomplete_warnings", "PRESETS", "MIN_PASS_POINTS", "MIN_STEPS_HINT"]
 
 PRESETS = ("draft", "standard", "reference")
+#: Table steps per revolution below which a left-out pass is blamed on too sparse profiles (the simulated
+#: hawk's passes register from 60 steps, 6 deg apart; at 36 two of three were left out).
+MIN_STEPS_HINT = 60
 #: A pass with fewer usable points than this is skipped (it cannot be registered reliably).
 MIN_PASS_POINTS = 500
 REPORT = "products/process-report.json"
@@ -202,6 +205,10 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
         mesh_info = _adopt_mesh(session, root, surf)
         timings["total"] = time.perf_counter() - t_all
         report = _report(root, preset, manifest, passes, reg, surf, mesh_info, timings)
+        report["warnings"] = incomplete_warnings(report, manifest.get("plan") or {})
+        report["complete"] = not report["warnings"]
+        for text in report["warnings"]:
+            note(f"INCOMPLETE: {text}")
         _record_products(session, manifest, preset, report, passes, surf, mesh_info)
         posed = bool(session.manifest.get("camera_calibration"))
     if project and posed:
@@ -255,7 +262,7 @@ def _note_poses(usable: list[dict[str, Any]], reg: Any, note: Callable[[str], No
         e["pose"] = None if pose.transform is None else np.asarray(pose.transform).tolist()
         if not pose.registered:
             e["skipped"] = f"not registered: {pose.reason}"
-            note(f"pass {e['pass']}: {e['skipped']} (left out of the mesh; use the manual 3-point fallback)")
+            note(f"pass {e['pass']}: {e['skipped']} (left out of the mesh; use the manual 3-point registration)")
 
 
 def _merged(usable: list[dict[str, Any]], reg: Any) -> tuple[Any, Any, Any]:
@@ -294,6 +301,40 @@ def _adopt_mesh(session: Any, root: Path, surf: Any) -> Any:
     return session.adopt_file(tmp, MESH)
 
 
+def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[str]:
+    """Why a processed session is a partial result, each with what to capture or do; empty when complete.
+
+    A pass left out of the mesh (skipped or not registered) or a mesh that is not watertight makes the
+    result partial: ``kogei process`` then exits 1 and the report and the manifest say so.
+
+    Examples
+    --------
+    >>> rep = {"passes": [{"pass": 1, "registered": True}, {"pass": 2, "skipped": "not registered: far"}],
+    ...        "mesh": {"watertight": True}}
+    >>> incomplete_warnings(rep, {"steps": 36})[0][:60]
+    '1 of 2 passes left out of the mesh (pass 2: not registered: '
+    """
+    warnings: list[str] = []
+    left_out = [p for p in report["passes"] if not p.get("registered")]
+    if left_out:
+        n = len(report["passes"])
+        steps = plan.get("steps")
+        denser = (f"capture again with at least {MIN_STEPS_HINT} steps per revolution (this session has {steps}); "
+                  if isinstance(steps, int) and steps < MIN_STEPS_HINT else "")
+        warnings.append(
+            f"{len(left_out)} of {n} passes left out of the mesh ("
+            + "; ".join(f"pass {p['pass']}: {str(p.get('skipped', 'not registered')).split(' (')[0]}"
+                        for p in left_out)
+            + f"); {denser}resume an incomplete pass with kogei capture --resume, re-place the object so each "
+              "placement overlaps another by about a third, or register by hand (kogei gui, Processing tab, "
+              "'Manual 3-point registration'; docs/processing.md)")
+    if not report["mesh"]["watertight"]:
+        warnings.append("the mesh is not watertight: parts of the object were seen in no registered pass; "
+                        "capture more placements (--passes) that show the missing sides, or register the "
+                        "left-out passes")
+    return warnings
+
+
 def _report(root: Path, preset: str, manifest: dict[str, Any], passes: list[dict[str, Any]], reg: Any, surf: Any,
             mesh_info: Any, timings: dict[str, float]) -> dict[str, Any]:
     """The process report (``products/process-report.json``)."""
@@ -324,11 +365,13 @@ def _record_products(session: Any, manifest: dict[str, Any], preset: str, report
     blob = (json.dumps(report, indent=1, default=_json_default, allow_nan=False) + "\n").encode()
     rep_info = session.write_file(REPORT, blob)
     products = dict(manifest.get("products") or {})
-    products["mesh"] = {"file": MESH, "sha256": mesh_info.sha256, "bytes": mesh_info.bytes, "preset": preset}
+    products["mesh"] = {"file": MESH, "sha256": mesh_info.sha256, "bytes": mesh_info.bytes, "preset": preset,
+                        "complete": report["complete"], "warnings": report["warnings"]}
     products["process_report"] = {"file": REPORT, "sha256": rep_info.sha256, "bytes": rep_info.bytes}
     session.update("products", products)
     session.event("processed", f"{preset}: mesh {len(surf.triangles)} triangles, "
-                               f"{sum(1 for e in passes if e.get('registered'))} of {len(passes)} passes")
+                               f"{sum(1 for e in passes if e.get('registered'))} of {len(passes)} passes"
+                               + ("" if report["complete"] else "; INCOMPLETE: " + "; ".join(report["warnings"])))
 
 
 def _json_default(value: Any) -> Any:

@@ -56,3 +56,20 @@ def test_the_printed_capture_commands_use_the_calibration_plans():
                                                                                       height=64)))["hotfolder"]
     assert "--plan lamp-calibration --sphere-radius 18" in mirror and "--shutter" in mirror
     assert _calibration_plan(World.hawk(2000)) is None
+
+
+def test_the_sphere_world_prints_the_scanner_calibration_scan():
+    """kogei mock --world sphere suggests the one-pass, camera-less scan of docs/processing.md and the calibrate step."""
+    from app.cli.mock import _calibration_plan, _next_command, _session_name, capture_commands
+    from mocks.world import World
+
+    sphere = World.calibration_sphere(20.0, 40.0, chart_first=False)
+    plan = _calibration_plan(sphere)
+    info = {"turntable": "/s/t", "profiler": "/s/p", "gphoto2": "/s/g", "hotfolder": "/s/h", "control": "/s/c"}
+    cmds = capture_commands(info, plan=plan, session=_session_name(plan))
+    assert cmds["gphoto2"] == ("kogei capture --turntable /s/t --laser /s/p --camera none --steps 90 --passes 1 "
+                               "--out calibration-session --unattended")
+    assert "--no-chart" in cmds["hotfolder"] and "--camera hotfolder:/s/h" in cmds["hotfolder"]
+    assert _next_command(sphere, plan) == "kogei calibrate calibration-session --sphere-radius 20"
+    hawk_then = _next_command(World.hawk(2000), None)
+    assert hawk_then.startswith("kogei process kogei-session --calibration calibration-session")

@@ -80,7 +80,8 @@ def test_capture_command_lines_quote_paths():
             "hotfolder": "/a b/hot", "control": "/a b/control"}
     cmds = capture_commands(info, steps=12, passes=2, session="s")
     assert cmds["gphoto2"] == ("kogei capture --turntable '/a b/turntable' --laser '/a b/profiler' "
-                               "--camera 'gphoto2:/a b/bin/gphoto2' --steps 12 --passes 2 --out s --unattended "
+                               "--camera 'gphoto2:/a b/bin/gphoto2' --steps 12 --passes 2 --camera-angles 0,90,180,270 --out s "
+                               "--unattended "
                                "--before-pass 'kogei mock place --control '\"'\"'/a b/control'\"'\"''")
     assert "--camera 'hotfolder:/a b/hot' --shutter 'kogei mock shoot --control '\"'\"'/a b/control'\"'\"''" \
         in cmds["hotfolder"]

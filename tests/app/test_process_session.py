@@ -136,7 +136,7 @@ def test_process_registers_all_passes_and_meshes_the_true_surface(scans, tmp_pat
     assert len(reg["pairs"]) == 3 and all(pr["verified"] for pr in reg["pairs"])
     assert reg["consistency"]["max_rotation_deg"] < POSE_DEG and reg["consistency"]["max_displacement_mm"] < POSE_MM
     assert {"holes", "points", "mesh", "timings_s"} <= set(report["surface"])
-    assert report["mesh"]["watertight"] is True
+    assert report["mesh"]["watertight"] is True and report["complete"] is True and report["warnings"] == []
     assert report["mesh"]["triangles"] == len(mesh.triangles)
     assert {"points", "registration", "surface", "total"} <= set(report["timings_s"])
 
@@ -154,8 +154,14 @@ def test_an_interrupted_pass_is_skipped_and_reported(scans, tmp_path, capsys):
     session = _copy(scans.interrupted, tmp_path / "cut")
     code = main(["process", str(session), "--preset", "draft", "--calibration", str(scans.cal), "--json"])
     out = capsys.readouterr()
-    assert code == 0, out.err
+    assert code == 1, out.err                # a partial result is not a success
     report = json.loads(out.out)
+    assert report["complete"] is False and len(report["warnings"]) == 1
+    assert "1 of 3 passes left out of the mesh (pass 3: incomplete" in report["warnings"][0]
+    assert f"kogei process: INCOMPLETE: {session}: 1 of 3 passes left out" in out.err
+    assert "kogei capture --resume" in out.err
+    mesh_product = Session.read(session)["products"]["mesh"]
+    assert mesh_product["complete"] is False and mesh_product["warnings"] == report["warnings"]
     p3 = report["passes"][2]
     assert p3["pass"] == 3 and "registered" not in p3
     assert "incomplete" in p3["skipped"] and f"41 of {STEPS}" in p3["skipped"] and "resume" in p3["skipped"]
@@ -220,3 +226,16 @@ def test_a_pass_file_failing_its_checksum_is_skipped_and_reported(scans, tmp_pat
         assert f"pass {p}: session {session}: passes/p{p:02d}/profiles.npz is missing or fails its checksum" in err
     assert "gather the pass's profiles again" in err and "pass 3: incomplete" in err
     assert not (session / "products" / "mesh.ply").exists()
+
+
+def test_batch_names_a_partial_mesh_in_its_summary(scans, tmp_path):
+    from app.batch.runner import process_one
+    from app.batch.steps import BatchOptions
+
+    session = _copy(scans.interrupted, tmp_path / "cut-batch")
+    result = process_one(str(session), ("geometry",), BatchOptions(preset="draft", calibration=str(scans.cal)))
+    assert result.status == "ok" and result.reason.startswith("partial mesh: 1 of 3 passes left out of the mesh")
+    assert "geometry: INCOMPLETE: 1 of 3 passes left out" in (session / "batch.log").read_text()
+    # up to date on the next run, and still named
+    again = process_one(str(session), ("geometry",), BatchOptions(preset="draft", calibration=str(scans.cal)))
+    assert again.status == "skipped" and again.reason == result.reason
