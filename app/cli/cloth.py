@@ -49,7 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--steps", type=int, default=24, metavar="N", help="table steps (frames) per pass (default 24)")
     s.add_argument("--size", default="96x72", metavar="WxH", help="frame size in pixels (default 96x72)")
     s.add_argument("--camera", default="hotfolder", choices=["hotfolder", "gphoto2"],
-                   help="the station's hot folder (default; rendered in this process) or its fake gphoto2")
+                   help="the station's hot folder (rendered in this process) or its fake gphoto2 (default %(default)s)")
     s.add_argument("--seed", type=int, default=1, metavar="N", help="seed of the sensor noise (default 1)")
 
 
