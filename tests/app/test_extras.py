@@ -70,7 +70,8 @@ def test_headless_commands_run_without_qt_and_dask(no_extras, sessions, tmp_path
     cal = sessions.cal
     a = copy_session(sessions.raw, tmp_path / "a")
     proc, attempts = _kogei(no_extras, tmp_path, "process", a, "--preset", "draft", "--calibration", cal, "--quiet")
-    assert proc.returncode == 0, proc.stderr
+    # a one-pass scan: an open mesh, which kogei process reports as a partial result (exit 1)
+    assert proc.returncode == 0 or (proc.returncode == 1 and "INCOMPLETE" in proc.stderr), proc.stderr
     assert (a / "products/mesh.ply").is_file()
 
     proc, attempts2 = _kogei(no_extras, tmp_path, "render", a / "products/mesh.ply", "--size", "64x48",

@@ -220,8 +220,12 @@ def test_a_version_1_session_processed_today_has_no_camera_poses_and_reports(tmp
         manifest["plan"].pop(key, None)
     (root / MANIFEST).write_text(json.dumps(manifest))
 
-    assert main(["process", str(root), "--preset", "draft"]) == 0, capsys.readouterr().err
-    assert "no camera calibration" in capsys.readouterr().err
+    from app.cli.process import EXIT_PARTIAL
+
+    code = main(["process", str(root), "--preset", "draft"])
+    err = capsys.readouterr().err
+    assert code in (0, EXIT_PARTIAL), err                # one pass of a sphere may mesh open: reported, not failed
+    assert "no camera calibration" in err
     manifest = Session.read(root)
     assert manifest["version"] == 2 and manifest["camera_calibration"] is None
     assert "frame_poses" not in manifest["products"] and "observations" not in manifest["products"]
