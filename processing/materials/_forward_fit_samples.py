@@ -110,6 +110,19 @@ def _lamp_table(frames: Sequence, lamp: int) -> tuple[NDArray[np.float64], NDArr
             np.array([m.kind == "point" for m in lamps], dtype=bool))
 
 
+def _lamp_irradiance(vec: NDArray[np.float64], point: NDArray[np.bool_], frame: NDArray[np.int64],
+                    pos: NDArray[np.float64], vertices: NDArray[np.float64],
+                    reference_mm: float | None) -> NDArray[np.float64]:
+    """Per observation the lamp's relative irradiance ``(d_ref / d)^2`` (1 for a distant lamp).
+
+    ``vec``/``point`` per frame (:func:`_lamp_table`), ``frame`` and ``pos`` (mm) per observation;
+    ``d_ref`` is ``reference_mm``, or the distance from frame 0's lamp to the centroid of ``vertices``.
+    """
+    dist = np.linalg.norm(vec[frame] - pos, axis=1)
+    d_ref = float(np.linalg.norm(vec[0] - vertices.mean(axis=0))) if reference_mm is None else float(reference_mm)
+    return np.where(point[frame], (d_ref / np.maximum(dist, 1e-9)) ** 2, 1.0)
+
+
 def _facet_rad(vertices: NDArray[np.float64], triangles: ArrayLike, vertex: NDArray[np.int64],
                normal: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per observation the RMS angle (radians) between its normal and the normals of its vertex's triangles."""
@@ -221,9 +234,7 @@ def region_samples(obs, vertices: ArrayLike, frames: Sequence, vertex_ids: Array
     cos_h, cos_d = np.clip(np.einsum("ij,ij->i", n, h), 0, 1), np.clip(np.einsum("ij,ij->i", h, li), 0, 1)
     fr = obs.frame[idx].astype(np.int64)
     pos = verts[obs.vertex[idx]]
-    dist = np.linalg.norm(vec[fr] - pos, axis=1)
-    d_ref = float(np.linalg.norm(vec[0] - verts.mean(axis=0))) if reference_mm is None else float(reference_mm)
-    irr = np.where(point[fr], (d_ref / np.maximum(dist, 1e-9)) ** 2, 1.0)
+    irr = _lamp_irradiance(vec, point, fr, pos, verts, reference_mm)
     lit = (cos_i > 0) & (cos_o > 0)
     if triangles is not None and lit.any():
         s = np.flatnonzero(lit)

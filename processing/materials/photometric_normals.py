@@ -41,7 +41,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.materials._forward_fit_samples import HIGHLIGHT_DEG, FitError, _lamp_table, _occluded
+from processing.appearance._surface_features import adjacency
+from processing.materials._forward_fit_samples import (
+    HIGHLIGHT_DEG,
+    FitError,
+    _lamp_irradiance,
+    _lamp_table,
+    _occluded,
+)
 from processing.materials.lobes import Material, lobe_geometry
 
 __all__ = ["NormalRefinement", "refine_normals", "MAX_TILT_DEG", "PRIOR_DEG", "SMOOTH_DEG", "MIN_DECIDING"]
@@ -139,9 +146,9 @@ def _views(obs, verts: NDArray[np.float64], triangles: NDArray[np.int64] | None,
     li = obs.light_dir[:, lamp].astype(np.float64)
     vd = obs.view_dir.astype(np.float64)
     keep &= (np.einsum("ij,ij->i", n, li) > 0.05) & (np.einsum("ij,ij->i", n, vd) > 0.05)
-    h = li + vd
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
-    keep &= np.einsum("ij,ij->i", n, h) >= np.cos(np.radians(min(reach_deg, 89.0)))
+    half = li + vd
+    half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
+    keep &= np.einsum("ij,ij->i", n, half) >= np.cos(np.radians(min(reach_deg, 89.0)))
     idx = np.flatnonzero(keep)
     vec, point = _lamp_table(frames, lamp)
     fr = obs.frame[idx].astype(np.int64)
@@ -150,12 +157,9 @@ def _views(obs, verts: NDArray[np.float64], triangles: NDArray[np.int64] | None,
     if triangles is not None and idx.size:
         lit = ~_occluded(pos, n[idx], vec[fr], point[fr], verts, triangles)
         idx, fr, vx, pos = idx[lit], fr[lit], vx[lit], pos[lit]
-    d_ref = float(np.linalg.norm(vec[0] - verts.mean(axis=0))) if reference_mm is None else float(reference_mm)
-    dist = np.linalg.norm(vec[fr] - pos, axis=1)
-    irr = np.where(point[fr], (d_ref / np.maximum(dist, 1e-9)) ** 2, 1.0)
+    irr = _lamp_irradiance(vec, point, fr, pos, verts, reference_mm)
     light, view = li[idx], vd[idx]
-    h = light + view
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    h = half[idx]
     cos_d = np.clip(np.einsum("ij,ij->i", h, light), 0.0, 1.0)
     y = obs.signal[idx].astype(np.float64)
     var = np.maximum(obs.sigma[idx].astype(np.float64), 1e-4) ** 2 + (_MODEL_ERROR * np.maximum(y, 0.0)) ** 2
@@ -188,12 +192,6 @@ def _data_cost(views: _Views, m: NDArray[np.float64], n_vertices: int) -> NDArra
     r2 = ((views.signal - pred) ** 2 * views.inv_var).sum(axis=1)
     rho = _CAUCHY ** 2 * np.log1p(r2 / _CAUCHY ** 2)
     return np.bincount(views.vertex, weights=rho, minlength=n_vertices)
-
-
-def _edges(triangles: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    return np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]])
 
 
 def _tilted(n0: NDArray[np.float64], t1: NDArray[np.float64], t2: NDArray[np.float64],
@@ -305,7 +303,8 @@ def refine_normals(obs, vertices: ArrayLike, triangles: ArrayLike, normals: Arra
                    max_tilt_deg + _VIEW_REACH_DEG)
     active = np.bincount(views.vertex, minlength=nv) > 0
     t1, t2 = _frames(n0)
-    src, dst = _edges(tris)
+    graph = adjacency(tris, nv).tocoo()
+    src, dst = graph.row.astype(np.int64), graph.col.astype(np.int64)
     prior, smooth = np.radians(prior_deg), np.radians(smooth_deg)
     ab = _search(views, n0, t1, t2, np.zeros((nv, 2)), _grid(min(_COARSE_STEP_DEG, max_tilt_deg), max_tilt_deg),
                  src, dst, prior, smooth, active, iterations)
