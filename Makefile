@@ -25,6 +25,7 @@ demo: $(STAMP)
 	$(VENV)/bin/kogei demo --out out/demo
 
 bench: $(STAMP)
+	$(PY) -m pip install -q -e '.[bench]'
 	$(PY) -m bench.run --out docs/BENCHMARKS.md
 	$(PY) -m bench.unseen_figure --out docs/images/hawk-unseen.png
 

@@ -29,7 +29,7 @@ ALLOWED = {
     "drivers": {"drivers"},
 }
 QT = ("PySide6", "PyQt5", "PyQt6", "shiboken6")
-COLOUR = {"camera", "spectral", "materials", "cloth"}
+COLOUR = {"camera", "spectral", "materials", "cloth", "lighting"}
 BASE = {"common", "errors"}
 
 
