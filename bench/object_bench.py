@@ -61,6 +61,21 @@ def _agreement(session: Path, doc: dict[str, Any], truth: dict[str, Any]) -> dic
     poses = {str(k): p for k, p in truth["poses"].items()}          # int keys in memory, str after JSON
     faces = true_face_materials(v, t, world, np.asarray(poses["1"]))
     agree = material_agreement(doc, mesh.face_material, area, faces)
+    truth_arr = np.asarray(faces, dtype=str)
+    per_region = []
+    for r in doc["regions"]:
+        sel = mesh.face_material == r["index"]
+        names, where = np.unique(truth_arr[sel], return_inverse=True)
+        if not names.size:
+            continue
+        major = str(names[np.argmax(np.bincount(where, weights=area[sel]))])
+        named = set(r.get("group") or []) if r["material"] == "neutral metal" else {r["material"]}
+        per_region.append({"index": r["index"], "majority_truth": major, "right": major in named,
+                           "confidence": r.get("confidence")})
+    agree["regions"] = per_region
+    agree["confident_wrong"] = [x["index"] for x in per_region
+                                if not x["right"] and (x["confidence"] or 0) >= 0.9
+                                and doc["regions"][x["index"]]["material"] not in ("no candidate fits", "not measured")]
     head = np.array([f == "nami-shibuichi" for f in faces])
     counts = [float(area[(mesh.face_material == r["index"]) & head].sum()) for r in doc["regions"]]
     reg = doc["regions"][int(np.argmax(counts))] if doc["regions"] else {}
@@ -102,6 +117,7 @@ def normals_case(work: Path) -> dict[str, Any]:
     from app.workflows.object_materials import _forward_model, _held_out, _load_inputs, _reference_distance
     from mocks.world import World
     from processing.appearance.observations import select_frames
+    from processing.appearance.shading_normals import SMOOTHING_CELLS, smoothed_normals
     from processing.materials.forward_fit import fit_region, region_samples
 
     summary = json.loads((work / "summary.json").read_text())
@@ -117,10 +133,13 @@ def normals_case(work: Path) -> dict[str, Any]:
     vertex_truth = np.argmax(votes, axis=1)
     true_n = _true_normals(v, world, pose)
     error = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", true_n, n), -1.0, 1.0)))
+    shading = smoothed_normals(v, t, n, SMOOTHING_CELLS * data["cell_mm"])
+    shading_error = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", true_n, shading), -1.0, 1.0)))
     obs = select_frames(data["obs"], ~_held_out(data["obs"].frame_names, data["records"], 4))
     model, _ = _forward_model(data["spectrum"], lambda text: None)
     d_ref = _reference_distance(data)
-    rows, variants = [], [("scanned", obs, t)]
+    rows = []
+    variants = [("scanned", obs, t), ("shading", dataclasses.replace(obs, normal=shading[obs.vertex].astype(np.float32)), t)]
     refined_error = None
     mesh_file = session / "products/object-mesh.ply"
     if mesh_file.exists():                  # the session case's products: the normals the photos refined
@@ -143,6 +162,9 @@ def normals_case(work: Path) -> dict[str, Any]:
             rows.append({"normals": label, "truth": name, "answer": fit.material, "confidence": fit.confidence,
                          "group": list(fit.group), "parameters": fit.parameters, "misfit": fit.chi2_per_dof})
     return {"normal_error_deg": {"median": float(np.median(error)), "p90": float(np.percentile(error, 90))},
+            "shading_error_deg": {"median": float(np.median(shading_error)),
+                                  "p90": float(np.percentile(shading_error, 90)),
+                                  "smoothing_mm": SMOOTHING_CELLS * data["cell_mm"]},
             "refined_error_deg": refined_error, "rows": rows}
 
 
@@ -293,15 +315,19 @@ def section(results: dict[str, Any]) -> list[str]:
         f"| with the validation renders | {s['with_validation_s']:.1f} s | |",
         "",
         "Per true material, share of its area with the right answer: "
-        + ", ".join(f"{k} {100 * x:.0f} %" for k, x in a["per_true_material"].items()) + ".",
+        + ", ".join(f"{k} {100 * x:.0f} %" for k, x in a["per_true_material"].items()) + ".  Regions named "
+        "with a confidence >= 0.9 whose largest true material is not the answer (target: none): "
+        + (", ".join(str(i) for i in a.get("confident_wrong", [])) or "none") + ".",
         "",
-        "| region | answer | parameters of the best candidate | area (mm2) | lit / all observations |",
-        "|---:|---|---|---:|---|",
+        "| region | answer | largest true material | parameters of the best candidate | area (mm2) | "
+        "lit / all observations |",
+        "|---:|---|---|---|---:|---|",
     ]
+    major = {x["index"]: x["majority_truth"] for x in a.get("regions", [])}
     for r in s["regions"]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
-        lines.append(f"| {r['index']} | {answer_text(r)} | {p} | {r['area_mm2']:.0f} | "
-                     f"{r['n_lit']} / {r['n_observations']} |")
+        lines.append(f"| {r['index']} | {answer_text(r)} | {major.get(r['index'], '-')} | {p} | "
+                     f"{r['area_mm2']:.0f} | {r['n_lit']} / {r['n_observations']} |")
     lines += _photometric_lines(results.get("photometric"), answer_text)
     lines += _normals_lines(results.get("normals"), answer_text)
     big = results.get("large")
@@ -356,9 +382,13 @@ def _normals_lines(nc: dict[str, Any] | None, answer_text: Any) -> list[str]:
         f"{r['median']:.1f} deg (p90 {r['p90']:.1f} deg) off; on the {100 * r['moved_share']:.0f} % of the "
         f"vertices the refinement moved, {r['moved_median_before']:.1f} deg before and "
         f"{r['moved_median_after']:.1f} deg after.")
-    lines = ["", f"Why (case `normals`): the scanned mesh's normals are a median {e['median']:.1f} deg (p90 "
-                 f"{e['p90']:.1f} deg) off the simulated object's.{refined}  Each true region fitted to the same "
-                 "observations with the scanned, the refined and the true normals:", "",
+    sh = nc.get("shading_error_deg")
+    shading = "" if not sh else (
+        f"  The shading normals the fit uses (smoothed over {sh['smoothing_mm']:.2f} mm, two cells of the "
+        f"reconstruction) are a median {sh['median']:.1f} deg (p90 {sh['p90']:.1f} deg) off.")
+    lines = ["", f"The normals (case `normals`): the scanned mesh's vertex normals are a median {e['median']:.1f} deg "
+                 f"(p90 {e['p90']:.1f} deg) off the simulated object's.{shading}{refined}  Each true region fitted "
+                 "to the same observations with the mesh's, the shading, the refined and the true normals:", "",
              "| true material | normals | answer | reduced chi-square | parameters |", "|---|---|---|---:|---|"]
     for r in nc["rows"]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())

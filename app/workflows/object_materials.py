@@ -91,8 +91,24 @@ def _load_inputs(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
     captures = manifest.get("captures") or {}
     lamps = session_lamp_calibration(root, manifest)
     spectrum = next((lp.spectrum for lp in lamps.lamps if lp.spectrum is not None), None) if lamps else None
-    return {"obs": obs, "frames": [poses[n] for n in obs.frame_names], "mesh": session_mesh(root, manifest),
-            "records": [captures.get(n) or {} for n in obs.frame_names], "spectrum": spectrum}
+    mesh = session_mesh(root, manifest)
+    return {"obs": obs, "frames": [poses[n] for n in obs.frame_names], "mesh": mesh,
+            "records": [captures.get(n) or {} for n in obs.frame_names], "spectrum": spectrum,
+            "cell_mm": _reconstruction_cell_mm(root, manifest)}
+
+
+def _reconstruction_cell_mm(root: Path, manifest: dict[str, Any]) -> float | None:
+    """The octree cell (mm) ``kogei process`` reconstructed the mesh at (its report); None for another mesh."""
+    from app.session_paths import MAX_JSON_BYTES, read_confined_bytes
+
+    ref = (manifest.get("products") or {}).get("process_report")
+    try:
+        report = json.loads(read_confined_bytes(root, ref.get("file"), "products.process_report.file",
+                                                MAX_JSON_BYTES)) if isinstance(ref, dict) else {}
+        cell = float(report["surface"]["mesh"]["cell_mm"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return cell if math.isfinite(cell) and cell > 0 else None
 
 
 def _forward_model(spectrum: Any, note: Callable[[str], None]) -> Any:
@@ -219,10 +235,21 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
          note: Callable[[str], None], stop: Callable[[], bool], refine: bool = True) -> dict[str, Any]:
     """Segmentation, per-region fits and the one-material baseline, as the materials document."""
     from processing.appearance.observations import select_frames
+    from processing.appearance.shading_normals import SMOOTHING_CELLS, smoothed_normals
     from processing.appearance.surface_segmentation import segment_surface
+
     v, t, _ = data["mesh"]
     d_ref = _reference_distance(data)
+    # A reconstructed mesh's normals carry the iso-surface's facets; a mesh from elsewhere keeps its own.
+    sigma_mm = 0.0 if data["cell_mm"] is None else SMOOTHING_CELLS * data["cell_mm"]
+    t0 = time.perf_counter()
+    shading = smoothed_normals(v, t, data["mesh"][2], sigma_mm)
+    t_normals = time.perf_counter() - t0
+    if sigma_mm > 0:
+        note(f"shading normals: the mesh's normals smoothed over {sigma_mm:.2f} mm ({SMOOTHING_CELLS:g} cells of "
+             "its reconstruction)")
     obs = select_frames(data["obs"], ~held)
+    obs = dataclasses.replace(obs, normal=shading[obs.vertex].astype(np.float32))
     model, spectrum = _forward_model(data["spectrum"], note)
     t0 = time.perf_counter()
     note(f"segmenting the surface from {len(obs)} observations in {int((~held).sum())} frames "
@@ -233,7 +260,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
     areas = _face_areas(v, t)
     t1 = time.perf_counter()
     fits = _fit_regions(obs, v, t, data, seg, d_ref, model, model_error, stop)
-    normals_doc, vertex_normals = None, data["mesh"][2]
+    normals_doc, vertex_normals = None, shading
     if refine:
         from processing.materials.photometric_normals import refine_normals
         from processing.materials.presets import get_material
@@ -241,7 +268,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         _check_cancel(stop)
         note("refining the mesh normals from the photos (each region's material, every view near a highlight)")
         t2 = time.perf_counter()
-        ref = refine_normals(obs, v, t, data["mesh"][2], data["frames"], seg.vertex_region,
+        ref = refine_normals(obs, v, t, shading, data["frames"], seg.vertex_region,
                              [get_material(f.spec) if f.spec else None for f in fits], model, reference_mm=d_ref)
         obs = dataclasses.replace(obs, normal=ref.normals[obs.vertex].astype(np.float32))
         vertex_normals = ref.normals
@@ -270,23 +297,42 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
             "area_mm2": round(float(areas.sum()), 3),
             "frames": {"fit": [n for n, h in zip(obs.frame_names, held) if not h],
                        "held_out": [n for n, h in zip(obs.frame_names, held) if h]},
-            "normals": normals_doc or {"method": "mesh"},
-            "timings_s": {"segmentation": round(t_seg, 3), "fit": round(t_fit, 3)},
+            "normals": {**(normals_doc or {"method": "mesh"}), "smoothing_mm": round(sigma_mm, 4)},
+            "interior_margin_mm": round(_interior_margin_mm(v, data["frames"]), 4),
+            "timings_s": {"normals": round(t_normals, 3), "segmentation": round(t_seg, 3), "fit": round(t_fit, 3)},
             "_face_region": seg.face_region, "_normals": vertex_normals}
 
 
 def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, d_ref: float | None,
                  model: Any, model_error: float, stop: Callable[[], bool]) -> list[Any]:
-    """Each region's :class:`processing.materials.forward_fit.RegionFit` at the observations' normals."""
+    """Each region's :class:`processing.materials.forward_fit.RegionFit` from its interior's observations."""
+    from processing.appearance.region_interior import border_distance_mm, interior_vertices
+    from processing.materials.confidence import NOT_MEASURED
     from processing.materials.forward_fit import fit_region, region_samples
 
+    distance = border_distance_mm(seg.vertex_region, v, t)
+    margin = _interior_margin_mm(v, data["frames"])
     fits = []
     for r in range(seg.n_regions):
         _check_cancel(stop)
-        ids = np.flatnonzero(seg.vertex_region == r)
-        fits.append(fit_region(region_samples(obs, v, data["frames"], ids, triangles=t, reference_mm=d_ref), model,
-                               model_error=model_error))
+        every = np.flatnonzero(seg.vertex_region == r)
+        ids = interior_vertices(every, distance, margin)
+        fit = fit_region(region_samples(obs, v, data["frames"], ids, triangles=t, reference_mm=d_ref), model,
+                         model_error=model_error)
+        if fit.material == NOT_MEASURED and len(ids) < len(every):     # a small region: its interior saw too little
+            fit = fit_region(region_samples(obs, v, data["frames"], every, triangles=t, reference_mm=d_ref), model,
+                             model_error=model_error)
+        fits.append(fit)
     return fits
+
+
+def _interior_margin_mm(vertices: np.ndarray, frames: list[Any]) -> float:
+    """:data:`~processing.appearance.region_interior.MARGIN_PIXELS` photo pixels on the object (median frame), mm."""
+    from processing.appearance.region_interior import MARGIN_PIXELS
+
+    centre = vertices.mean(axis=0)
+    pixel_mm = [float(np.linalg.norm(f.camera_centre_mm - centre) / f.K[0, 0]) for f in frames]
+    return MARGIN_PIXELS * float(np.median(pixel_mm)) if pixel_mm else 0.0
 
 
 def _baseline(regions: list[dict[str, Any]]) -> dict[str, Any]:

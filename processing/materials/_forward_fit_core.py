@@ -18,7 +18,7 @@ from scipy.optimize import minimize_scalar, nnls
 from processing.materials.microfacet import microfacet_lobe
 
 __all__ = ["Basis", "CandidateFit", "Whitener", "fit_candidate", "ROUGHNESS_RANGE", "MIRROR_EXCLUDE_DEG",
-           "common_mode_error"]
+           "common_mode_error", "robust_weights", "CAUCHY_SCALE"]
 
 #: Search range of the gloss lobe's Beckmann RMS slope.
 ROUGHNESS_RANGE = (0.02, 0.8)
@@ -29,6 +29,9 @@ MIRROR_EXCLUDE_DEG = 5.0
 #: an object is smooth and a scanned mesh samples it finely; the term only modelled flat-shaded renders.
 USE_FACETS = False
 _GRID = np.geomspace(ROUGHNESS_RANGE[0], ROUGHNESS_RANGE[1], 18)
+#: Scale of the Cauchy weights in units of the median observation's misfit: an observation missed by
+#: 3 times the typical residual counts half.
+CAUCHY_SCALE = 3.0
 
 
 @dataclass(frozen=True)
@@ -116,6 +119,10 @@ class Whitener:
         norm = np.linalg.norm(a, axis=1)
         v = a / np.maximum(norm, 1e-300)[:, None]
         return cls(inv, v, 1.0 - 1.0 / np.sqrt(1.0 + norm ** 2))
+
+    def scaled(self, s: NDArray[np.float64]) -> Whitener:
+        """The same whitening with observation ``i`` weighted by ``s[i]`` (its whitened values times ``s``)."""
+        return Whitener(self.inv_sd * s[:, None], self.v, self.beta)
 
     def __call__(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Whiten ``(n * 3,)`` or ``(n * 3, p)`` flattened values."""
@@ -259,3 +266,56 @@ def common_mode_error(provisional: Sequence[Basis], samples, y: NDArray[np.float
     facet = 0.0 if samples.facet_rad is None or not USE_FACETS else samples.facet_rad
     delta = np.sqrt(normal_error_rad ** 2 + facet ** 2)[..., None] if np.ndim(facet) else normal_error_rad
     return delta * (slope[:, None] * np.abs(spec) + np.minimum(t_i, 10.0)[:, None] * np.abs(diffuse))
+
+
+def robust_weights(provisional: Sequence[Basis], samples, y: NDArray[np.float64], w: Whitener,
+                   iterations: int = 2) -> NDArray[np.float64]:
+    """``(n,)`` Cauchy weights of the observations against the best provisional fit (IRLS).
+
+    A region's observations include a few from its neighbours (segmentation is never exact at a
+    boundary) and a few the model cannot follow (a highlight on a crease the mesh rounds off); by
+    squares they pull every candidate's fit.  Each observation's whitened residual ``r`` (three
+    channels) under the best of the ``provisional`` candidates gets the weight
+    ``1 / (1 + |r|^2 / (3 c^2 m))`` with ``m`` the median of ``|r|^2 / 3`` and ``c`` :data:`CAUCHY_SCALE`
+    (a robust scale, so a region all of whose observations miss keeps its misfit); the provisional
+    fit is repeated with the weights ``iterations`` times.  The weights are normalised to a mean of 1:
+    they move trust from the outliers to the rest, and a region that no candidate fits keeps its
+    misfit.
+
+    Parameters
+    ----------
+    provisional
+        Candidates of the provisional fit (a metal and a lacquer).
+    samples
+        The fitted samples.
+    y
+        ``(n * 3,)`` signal (not whitened).
+    w
+        The observations' :class:`Whitener`.
+    iterations
+        Reweighting passes (>= 1).
+
+    Returns
+    -------
+    ndarray
+        ``(n,)`` weights, mean 1.
+
+    References
+    ----------
+    .. [1] Holland, P. W., Welsch, R. E. (1977). Robust regression using iteratively reweighted
+       least-squares. Communications in Statistics - Theory and Methods 6(9), 813-827.
+       doi:10.1080/03610927708827533
+    """
+    n = len(samples)
+    weights = np.ones(n)
+    for _ in range(max(int(iterations), 1)):
+        ws = w.scaled(np.sqrt(weights))
+        fits = [fit_candidate(b, samples, ws(y), ws) for b in provisional]
+        k = int(np.argmin([f.chi2 for f in fits]))
+        x = _columns(provisional[k], _geometry(samples, fits[k].roughness, provisional[k]),
+                     np.pi * samples.irradiance * samples.cos_i)
+        e = (w(y - x @ fits[k].amplitudes).reshape(n, 3) ** 2).mean(axis=1)
+        scale = CAUCHY_SCALE ** 2 * max(float(np.median(e)), 1e-12)
+        weights = 1.0 / (1.0 + e / scale)
+        weights /= weights.mean()
+    return weights

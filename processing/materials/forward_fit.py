@@ -33,7 +33,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.materials._forward_fit_core import MIRROR_EXCLUDE_DEG, Basis, Whitener, common_mode_error, fit_candidate
+from processing.materials._forward_fit_core import (
+    MIRROR_EXCLUDE_DEG,
+    Basis,
+    Whitener,
+    common_mode_error,
+    fit_candidate,
+    robust_weights,
+)
 from processing.materials._forward_fit_samples import HIGHLIGHT_DEG, FitError, RegionSamples, region_samples
 from processing.materials.confidence import NOT_MEASURED
 from processing.materials.lobes import Material, material_brdf
@@ -279,7 +286,7 @@ def _subsample(samples: RegionSamples, max_samples: int, seed: int) -> RegionSam
 
 def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Sequence[str] = SURFACE_CANDIDATES,
                model_error: float = 0.02, normal_error_deg: float = 0.5, independent: float = INDEPENDENT,
-               max_samples: int = 20_000, seed: int = 0) -> RegionFit:
+               max_samples: int = 20_000, seed: int = 0, robust: bool = True) -> RegionFit:
     """The region's material among ``candidates``, its parameters and an honest confidence.
 
     Parameters
@@ -305,6 +312,10 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
         first, the rest sampled at random with ``seed``).
     seed
         Seed of that sampling.
+    robust
+        Weigh the observations by their Cauchy weights against a provisional fit
+        (:func:`processing.materials._forward_fit_core.robust_weights`), so that a few observations
+        of a neighbouring material or of geometry the mesh lacks do not pull the fit.
 
     Returns
     -------
@@ -329,6 +340,8 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
     provisional = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
     common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg))
     w = Whitener.of(var, common)
+    if robust:
+        w = w.scaled(np.sqrt(robust_weights(provisional, fitted, y, w)))
     bases = [_basis(c, model, fitted.cos_d) for c in candidates]
     fits = [fit_candidate(b, fitted, w(y), w) for b, _ in bases]
     from processing.materials._forward_fit_report import region_fit

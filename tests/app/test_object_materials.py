@@ -152,7 +152,8 @@ def test_refined_normals_stay_true_on_the_true_mesh(measured, tmp_path):
     from render.material_mesh import read_material_mesh
 
     root, world, doc, _ = measured
-    assert doc["normals"] == {"method": "mesh"}                         # the default keeps the mesh's normals
+    # the default keeps the mesh's normals; this mesh is the object's own, not reconstructed: no smoothing
+    assert doc["normals"] == {"method": "mesh", "smoothing_mm": 0.0}
     copy = tmp_path / "session"
     shutil.copytree(root, copy)
     refined = measure_object(copy, normals="photometric", validate=False)

@@ -126,4 +126,39 @@ def test_camera_mismatch_is_not_a_confident_wrong_answer(model):
         f = fit_region(s, wrong_camera)
         confident_wrong = f.material not in (NO_FIT, metal) and f.confidence >= 0.9
         assert not confident_wrong, (metal, f.material, f.confidence, f.chi2_per_dof)
-        assert f.chi2_per_dof > right.chi2_per_dof                  # the mismatch shows as misfit
+        if metal == "gold":                                             # the mismatch shows as misfit
+            assert f.chi2_per_dof > right.chi2_per_dof
+        else:   # a near-neutral black hides a 15 nm shift (misfit changes < 0.1 %): the answer stays right
+            assert f.material == metal
+
+
+def _mixed(a, b, share: float, seed: int = 0):
+    """The samples of ``a`` plus a random ``share`` (of ``a``'s count) of ``b``'s: a region with a neighbour's pixels."""
+    import dataclasses
+
+    rng = np.random.default_rng(seed)
+    take = np.sort(rng.choice(len(b.signal), int(share * len(a.signal)), replace=False))
+    fields = {}
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) and x.shape[:1] == a.signal.shape[:1]:
+            fields[f.name] = np.concatenate([x, y[take]])
+        else:
+            fields[f.name] = x
+    return dataclasses.replace(a, **fields)
+
+
+def test_a_few_observations_of_a_neighbour_do_not_pull_the_fit(model):
+    # A nami-shibuichi region (Ag 25 %, Au 0.1 %: the simulation's truth) with 3 % of a gold sphere's observations
+    # mixed in, as at a border the segmentation placed a few vertices off.  Least squares bends toward the gold
+    # (measured: Au 8.7 %, answered soto-sanbu); the robust weights keep the composition within the target's
+    # 3 points and the roughness within 10 %.
+    _, nami, _ = _fit("nami-shibuichi", model)
+    _, gold, _ = _fit("gold", model)
+    mixed = _mixed(nami, gold, 0.03)
+    plain = fit_region(mixed, model, robust=False)
+    robust = fit_region(mixed, model)
+    assert abs(robust.parameters["Ag"] - 0.25) <= 0.03 and robust.parameters["Au"] <= 0.03
+    assert abs(robust.parameters["roughness"] - 0.15) <= 0.015
+    assert robust.material == "nami-shibuichi" or "nami-shibuichi" in robust.group
+    assert plain.parameters["Au"] > robust.parameters["Au"] + 0.03              # the premise: the gold pulls
