@@ -197,9 +197,56 @@ def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
                                                "chi2_per_dof")} for r in doc["regions"]],
             "agreement": _agreement(session, doc, summary["simulation_truth"]),
             "validation": {k: val.get(k) for k in ("mean_de2000", "p95_de2000", "baseline_mean_de2000",
-                                                   "baseline_p95_de2000", "n_frames", "pixels")},
+                                                   "baseline_p95_de2000", "noise_floor_mean_de2000", "n_frames",
+                                                   "pixels")},
             "normals": doc.get("normals"), "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
             "peak_rss_mb": round(_peak_mb(), 1)}
+
+
+def floor_case(work: Path) -> dict[str, Any]:
+    """The held-out comparison with the simulation's true materials on the scanned mesh: the best any fit can do.
+
+    Rendered at the shading normals the fit uses and at the simulated object's own normals, with the
+    noise floor (the true-material rendering against itself plus the sensor's noise).
+    """
+    from app.demo.object import true_face_materials
+    from app.session import Session
+    from app.workflows.holdout_validation import validate_frames
+    from app.workflows.object_materials import _GRID, _clip_level, _held_out, _load_inputs, _reference_distance
+    from app.workflows.posed_frames import calibrated_images, noise_model
+    from mocks.world import World
+    from processing.appearance.shading_normals import SMOOTHING_CELLS, smoothed_normals
+    from processing.camera.response import camera_sensitivities
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
+
+    summary = json.loads((work / "summary.json").read_text())
+    truth, root = summary["simulation_truth"], Path(summary["session"])
+    data = _load_inputs(root, Session.read(root))
+    v, t, n = data["mesh"]
+    world = World.hawk(int(truth.get("triangles", 20_000)))
+    pose = np.asarray({str(k): p for k, p in truth["poses"].items()}["1"])
+    faces = true_face_materials(v, t, world, pose)
+    names = sorted(set(faces))
+    face_region = np.array([names.index(f) for f in faces])
+    held = _held_out(data["obs"].frame_names, data["records"], 4)
+    frames = [f for f, h in zip(data["frames"], held) if h]
+    records = [(nm, r) for nm, r, h in zip(data["obs"].frame_names, data["records"], held) if h]
+    photos = calibrated_images(root, Session.read(root), records, "demosaic")
+    grid = SpectralGrid(*_GRID)
+    spectrum = data["spectrum"] if data["spectrum"] is not None else "D65"
+    head = max(set(faces), key=faces.count)
+    out = {}
+    for label, normals in (("shading", smoothed_normals(v, t, n, SMOOTHING_CELLS * data["cell_mm"])),
+                           ("true", _true_normals(v, world, pose))):
+        res = validate_frames(frames, photos, v, t, normals, face_region, names, head,
+                              light_spectrum(spectrum, grid), camera_sensitivities(grid), 1.0,
+                              irradiance_ref_mm=_reference_distance(data), grid=grid, clip_level=_clip_level(photos),
+                              images=False, noise=noise_model(records, photos.gains))
+        o = res["overall"]
+        out[label] = {"mean_de2000": o["measured"]["mean_de2000"], "p95_de2000": o["measured"]["p95_de2000"],
+                      "baseline_mean_de2000": o["baseline"]["mean_de2000"],
+                      "noise_floor_mean_de2000": o["noise_floor"]["mean_de2000"]}
+    return out
 
 
 def large_case(triangles: int = 1_000_000) -> dict[str, Any]:
@@ -311,6 +358,7 @@ def section(results: dict[str, Any]) -> list[str]:
         f"| held-out photos: mean / p95 CIEDE2000, one material ({s['baseline']['material']}) | "
         f"{v['baseline_mean_de2000']:.2f} / {v['baseline_p95_de2000']:.2f} | |",
         f"| baseline / measured mean CIEDE2000 | {v['baseline_mean_de2000'] / v['mean_de2000']:.2f} | >= 3 |",
+        *_floor_rows(results.get("floor"), v),
         f"| segmentation + fit, demo session | {s['fit_s']:.1f} s | <= 60 s |",
         f"| with the validation renders | {s['with_validation_s']:.1f} s | |",
         "",
@@ -345,6 +393,20 @@ def section(results: dict[str, Any]) -> list[str]:
     if rel:
         lines += ["", "### Material confidence", ""] + _reliability_lines(rel)
     return lines + [""]
+
+
+def _floor_rows(f: dict[str, Any] | None, v: dict[str, Any]) -> list[str]:
+    """Rows of the ``floor`` case: what the simulation's true materials score on the same comparison."""
+    rows = []
+    if v.get("noise_floor_mean_de2000") is not None:
+        rows.append(f"| noise floor: the measured rendering against itself with the sensor's noise | "
+                    f"{v['noise_floor_mean_de2000']:.2f} | |")
+    if f:
+        rows += [f"| the simulation's true materials on the scanned mesh, shading normals: mean CIEDE2000 "
+                 f"(one material: {f['shading']['baseline_mean_de2000']:.2f}) | {f['shading']['mean_de2000']:.2f} | |",
+                 f"| the same at the simulated object's own normals (one material: "
+                 f"{f['true']['baseline_mean_de2000']:.2f}) | {f['true']['mean_de2000']:.2f} | |"]
+    return rows
 
 
 def _photometric_lines(p: dict[str, Any] | None, answer_text: Any) -> list[str]:
@@ -429,8 +491,8 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "large", "trade",
-                                                      "reliability", "all"])
+    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "floor", "large",
+                                                      "trade", "reliability", "all"])
     ap.add_argument("--work", default="out/bench-object")
     args = ap.parse_args(argv)
     work = Path(args.work)
@@ -439,7 +501,7 @@ def main(argv: list[str] | None = None) -> int:
         from bench.common import ROOT
 
         out = {"session": session_case(work), "photometric": session_case(work, "photometric"),
-               "normals": normals_case(work), "trade": trade_case(work),
+               "normals": normals_case(work), "floor": floor_case(work), "trade": trade_case(work),
                "large": large_case(),
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
@@ -448,6 +510,8 @@ def main(argv: list[str] | None = None) -> int:
         out = session_case(work, "photometric")
     elif args.case == "normals":
         out = normals_case(work)
+    elif args.case == "floor":
+        out = floor_case(work)
     elif args.case == "trade":
         out = trade_case(work)
     elif args.case == "large":

@@ -62,6 +62,9 @@ def summary_lines(doc: dict) -> list[str]:
                      f"{val['mean_de2000']:.2f}, p95 {val['p95_de2000']:.2f}; one material for the whole object "
                      f"({doc['baseline'].get('material')}): mean {val['baseline_mean_de2000']:.2f}, p95 "
                      f"{val['baseline_p95_de2000']:.2f}")
+        if val.get("noise_floor_mean_de2000") is not None:
+            lines.append(f"  the photos' own noise alone would give about {val['noise_floor_mean_de2000']:.2f} "
+                         "(a perfect model against photos with the sensor's noise, from the nominal noise model)")
     elif val.get("note"):
         lines.append(f"held-out photos: {val['note']}")
     return lines

@@ -97,7 +97,8 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
     if val.get("mean_de2000") is not None:
         print(f"held-out photos ({len(val['frames'])} frames never used by the fit): mean CIEDE2000 "
               f"{val['mean_de2000']:.2f} (p95 {val['p95_de2000']:.2f}); the paper's one material for the whole "
-              f"object: {val['baseline_mean_de2000']:.2f} (p95 {val['baseline_p95_de2000']:.2f})", file=sys.stderr)
+              f"object: {val['baseline_mean_de2000']:.2f} (p95 {val['baseline_p95_de2000']:.2f}); the photos' noise "
+              f"alone: about {val.get('noise_floor_mean_de2000') or float('nan'):.2f}", file=sys.stderr)
     t0 = time.perf_counter()
     glb = export_gltf(session, out / "hawk.glb")
     print(f"glTF: {out / 'hawk.glb'} ({len(glb['regions'])} primitives, PBR metallic-roughness, "

@@ -184,6 +184,10 @@ def _validation(ctx: Any, doc: dict[str, Any], kit: dict[str, Callable[..., Any]
         f"their viewpoints and compared with the photo: the colours differ by ΔE00 {mean:.2f} on average "
         f"(about 1 is just visible). With one material ({one}) for the whole object, as a single "
         f"identification would render it, they differ by {base_mean:.2f}.")
+    if val.get("noise_floor_mean_de2000") is not None:
+        html += kit["lead"](f"A perfect model would not reach 0: the photos' own sensor noise alone gives about ΔE00 "
+                            f"{float(val['noise_floor_mean_de2000']):.2f} on the same comparison (estimated from the "
+                            "camera's nominal noise).")
     if not mean < base_mean:
         html += kit["caveat"]("the measured materials predict these photos no better than one material for the "
                               "whole object.")

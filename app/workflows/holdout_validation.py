@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 from app.errors import UsageError
-from processing.appearance.photo_comparison import ImageComparison, camera_to_xyz_matrix, compare_images
+from processing.appearance.photo_comparison import ImageComparison, camera_to_xyz_matrix, compare_images, noise_floor
 from processing.common.png import png_bytes
 from processing.errors import InputError
 from render.photo_signal import SIGNAL_GRID, pixel_faces, render_signal
@@ -200,9 +200,13 @@ def _compare_frame(frame: Any, photo: NDArray[Any], mesh: tuple, specs: Sequence
                 "seconds": time.perf_counter() - t0}, None, None
     res_m = compare_images(photo, measured, usable, matrix, edge_margin_px=margin)
     res_b = compare_images(photo, base, usable, matrix, edge_margin_px=margin)
+    floor = None if options["noise"] is None else noise_floor(measured, usable, matrix, options["noise"],
+                                                                edge_margin_px=margin)
     faces = pixel_faces(vertices, triangles, frame)
     region = np.where(faces >= 0, np.asarray(face_material)[np.maximum(faces, 0)], -1)
     entry = {"name": frame.name, "measured": res_m.to_dict(), "baseline": res_b.to_dict(),
+             **({} if floor is None else {"noise_floor": floor.to_dict(),
+                                          "_floor_map": floor.error_map[np.isfinite(floor.error_map)].astype(np.float64)}),
              "regions": _by_region(region, res_m.error_map, res_b.error_map),
              "clipped_pixels": int(np.sum(mask & ~usable)), "seconds": time.perf_counter() - t0}
     if options["images"]:
@@ -216,7 +220,8 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
                     normals: ArrayLike | None, face_material: ArrayLike, specs: Sequence[str | None],
                     baseline_spec: str, light_spectrum: Any, sensitivities: Any, scale: float, *,
                     irradiance_ref_mm: float | None = None, grid: Any = SIGNAL_GRID, edge_margin_px: int = 2,
-                    clip_level: float | ArrayLike | None = None, images: bool = True) -> dict[str, Any]:
+                    clip_level: float | ArrayLike | None = None, images: bool = True,
+                    noise: ArrayLike | None = None) -> dict[str, Any]:
     """Render held-out frames with the measured materials and with one baseline material; CIEDE2000 to the photos.
 
     Parameters
@@ -239,6 +244,11 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
         pixels at or above it are left out.  None: keep all.
     images
         Add the PNGs (error maps, triptych) per frame.
+    noise
+        ``(K, 2)`` per frame (or one ``(2,)``) the photos' noise model ``(a, b)`` (variance
+        ``a + b * signal``): each frame and the pool then also get ``"noise_floor"``, the figures of
+        the measured rendering against itself plus that noise
+        (:func:`processing.appearance.photo_comparison.noise_floor`) -- what a perfect model scores.
 
     Returns
     -------
@@ -263,10 +273,13 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
         matrix = camera_to_xyz_matrix(sens, light, grid)
         spectra = {"light": light, "sensitivities": sens, "grid": grid}
         options = {"scale": scale, "irradiance_ref_mm": irradiance_ref_mm, "edge_margin_px": edge_margin_px,
-                   "clip_level": clip_level, "images": images}
+                   "clip_level": clip_level, "images": images, "noise": None}
+        ab = None if noise is None else np.broadcast_to(np.asarray(noise, dtype=np.float64), (len(frames), 2))
         mesh = (vertices, triangles, normals, face_material)
         out, de_m, de_b, regions = [], [], [], []
+        floors = []
         for i, frame in enumerate(frames):
+            options["noise"] = None if ab is None else ab[i]
             entry, res_m, res_b = _compare_frame(frame, photos[i], mesh, specs, baseline_spec, spectra, matrix, options)
             if res_m is None:
                 out.append(entry)
@@ -276,9 +289,12 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
             out.append(entry)
             de_m.append(res_m.error_map[np.isfinite(res_m.error_map)].astype(np.float64))
             de_b.append(res_b.error_map[np.isfinite(res_b.error_map)].astype(np.float64))
+            if "noise_floor" in entry:
+                floors.append(entry.pop("_floor_map"))
     except InputError as exc:
         raise UsageError(f"held-out validation: {exc}") from None
     return {"frames": out, "overall": {"measured": _pooled(de_m), "baseline": _pooled(de_b), "n_frames": len(de_m),
+                                      **({"noise_floor": _pooled(floors)} if floors else {}),
                                       "n_skipped": len(out) - len(de_m),
                                       "regions": _region_figures(regions)},
             "baseline_spec": baseline_spec, "camera_to_xyz": matrix.tolist()}

@@ -416,7 +416,7 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
               note: Callable[[str], None], stop: Callable[[], bool]) -> dict[str, Any]:
     """Render the held-out frames with the measured materials and with the baseline; compare with the photos."""
     from app.workflows.holdout_validation import validate_frames
-    from app.workflows.posed_frames import calibrated_images
+    from app.workflows.posed_frames import calibrated_images, noise_model
     from processing.camera.response import camera_sensitivities
     from processing.spectral.spectra import SpectralGrid, light_spectrum
 
@@ -430,7 +430,7 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
     result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
                              light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), 1.0,
                              irradiance_ref_mm=doc["irradiance_reference_mm"], grid=grid,
-                             clip_level=_clip_level(photos))
+                             clip_level=_clip_level(photos), noise=noise_model(records, photos.gains))
     return _write_validation(session, result)
 
 
@@ -449,7 +449,9 @@ def _clip_level(photos: Any) -> Any:
 def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
     """Write the validation's PNGs under ``products/validation/``; the figures (no image bytes) for the document."""
     overall = result["overall"]
+    floor = overall.get("noise_floor") or {}
     out = {**_figures(overall["measured"], overall["baseline"]), "n_frames": overall["n_frames"],
+           "noise_floor_mean_de2000": floor.get("mean_de2000"), "noise_floor_p95_de2000": floor.get("p95_de2000"),
            "n_skipped": overall["n_skipped"], "regions": overall["regions"], "baseline_spec": result["baseline_spec"],
            "camera_to_xyz": result["camera_to_xyz"], "frames": []}
     for entry in result["frames"]:

@@ -45,7 +45,7 @@ from app.workflows.station_calibration import (
     session_lamp_calibration,
 )
 
-__all__ = ["project_session", "frame_outline", "posed_frame_names", "calibrated_images", "session_mesh", "read_frame_poses", "FRAME_POSES", "OBSERVATIONS", "PROJECTION_REPORT", "OVERLAYS", "MIN_IOU"]
+__all__ = ["project_session", "frame_outline", "posed_frame_names", "calibrated_images", "noise_model", "session_mesh", "read_frame_poses", "FRAME_POSES", "OBSERVATIONS", "PROJECTION_REPORT", "OVERLAYS", "MIN_IOU"]
 
 FRAME_POSES = "products/frame-poses.json"
 OBSERVATIONS = "products/observations.npz"
@@ -277,7 +277,7 @@ def _project(session: Any, root: Path, manifest: dict[str, Any], frames: list[tu
     info = session.write_file(FRAME_POSES, blob.encode())
     session.update("products", {**(session.manifest.get("products") or {}),
                                 "frame_poses": {"file": FRAME_POSES, "sha256": info.sha256, "bytes": info.bytes}})
-    noise = _noise_model(frames, gains)
+    noise = noise_model(frames, gains)
     images = _Images(root, frames, gains, mode)
     obs = observe(posed, mesh, images, noise=noise, clip_level=_clip_levels(frames, gains),
                   max_view_deg=max_view_deg, edge_margin_px=edge_margin_px)
@@ -336,7 +336,7 @@ def _clip_levels(frames: list[tuple[str, dict[str, Any]]], gains: dict[int, np.n
                      for _, rec in frames])
 
 
-def _noise_model(frames: list[tuple[str, dict[str, Any]]], gains: dict[int, np.ndarray]) -> np.ndarray:
+def noise_model(frames: list[tuple[str, dict[str, Any]]], gains: dict[int, np.ndarray]) -> np.ndarray:
     """``(a, b)`` of ``sigma^2 = a + b * signal`` per frame, in the units of the signal observed.
 
     A nominal sensor, since the files do not carry the gain: a 14-bit sensor's typical read noise

@@ -40,8 +40,8 @@ from scipy import ndimage
 
 from processing.errors import InputError
 
-__all__ = ["ImageComparison", "PhotoComparisonError", "compare_images", "camera_to_xyz_matrix", "signal_to_lab",
-           "MIN_SIGNAL"]
+__all__ = ["ImageComparison", "PhotoComparisonError", "compare_images", "noise_floor", "camera_to_xyz_matrix",
+           "signal_to_lab", "MIN_SIGNAL"]
 
 #: Lowest signal accepted (sensor noise around black); values in [MIN_SIGNAL, 0) count as 0.
 MIN_SIGNAL = -0.05
@@ -200,6 +200,61 @@ def compare_images(photo_signal: ArrayLike, render_signal: ArrayLike, mask: Arra
     error_map[sel] = de
     return ImageComparison(float(np.mean(de)), float(np.percentile(de, 95)), float(np.median(de)), int(de.size),
                            error_map)
+
+
+def noise_floor(render_signal: ArrayLike, mask: ArrayLike, camera_to_xyz: ArrayLike, noise_ab: ArrayLike, *,
+                white_xyz: ArrayLike | None = None, edge_margin_px: int = 2, seed: int = 0) -> ImageComparison:
+    """CIEDE2000 between a rendering and the same rendering with the sensor's noise: what a perfect model scores.
+
+    A photo carries shot and read noise, so even the true materials on the true shape do not reach
+    0; this is the comparison :func:`compare_images` would report for them, pixel by pixel, with
+    noise of variance ``a + b * signal`` per channel (the noise model of the observations) drawn
+    with ``seed``.
+
+    Parameters
+    ----------
+    render_signal
+        ``(H, W, 3)`` chart-normalised linear camera RGB.
+    mask
+        ``(H, W)`` bool: the compared pixels (before erosion).
+    camera_to_xyz
+        ``(3, 3)`` camera RGB -> XYZ.
+    noise_ab
+        ``(a, b)`` of the noise variance ``a + b * signal`` (signal units).
+    white_xyz, edge_margin_px
+        As in :func:`compare_images`.
+    seed
+        Seed of the noise.
+
+    Returns
+    -------
+    ImageComparison
+
+    Raises
+    ------
+    PhotoComparisonError
+        A negative or non-finite noise model, and the errors of :func:`compare_images`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from processing.camera.response import camera_sensitivities
+    >>> from processing.spectral.spectra import SpectralGrid, light_spectrum
+    >>> g = SpectralGrid(400, 700, 10)
+    >>> m = camera_to_xyz_matrix(camera_sensitivities(g), light_spectrum("D65", g), g)
+    >>> grey = np.full((20, 20, 3), 0.18)
+    >>> [round(noise_floor(grey, np.ones((20, 20), bool), m, ab).mean_de2000, 1)
+    ...  for ab in ((0.0, 0.0), (1e-8, 1e-6), (1e-5, 1e-4))]         # noiseless, 0.24 % and 2.4 % of the grey
+    [0.0, 0.3, 3.3]
+    """
+    ab = np.asarray(noise_ab, dtype=np.float64).reshape(-1)
+    if ab.shape != (2,) or not np.all(np.isfinite(ab)) or np.any(ab < 0):
+        raise PhotoComparisonError(f"noise_ab must be two finite values a, b >= 0 (variance a + b * signal), "
+                                   f"got {np.asarray(noise_ab).tolist()!r}")
+    rend = _checked_image(render_signal, "render_signal", None)
+    sd = np.sqrt(ab[0] + ab[1] * np.maximum(rend, 0.0))
+    noisy = rend + sd * np.random.default_rng(seed).standard_normal(rend.shape)
+    return compare_images(noisy, rend, mask, camera_to_xyz, white_xyz=white_xyz, edge_margin_px=edge_margin_px)
 
 
 def camera_to_xyz_matrix(sensitivities: ArrayLike, light: ArrayLike, grid: Any,

@@ -130,3 +130,28 @@ def test_a_frame_without_measured_pixels_is_skipped_not_guessed(run):
     assert res["frames"][0]["skipped"] and "measured" not in res["frames"][0]
     assert res["overall"]["n_frames"] == 0 and res["overall"]["n_skipped"] == 1
     assert res["overall"]["measured"]["mean_de2000"] is None
+
+
+def test_the_noise_floor_is_what_a_perfect_model_scores(run):
+    # Photos that are the true rendering plus sensor noise of variance a + b * signal: the measured figure is then
+    # the noise's own, and an independent draw of the same noise (the floor) must give the same figure.
+    from render.photo_signal import render_signal
+
+    sim, idx, _, _, (w, specs, d0) = run
+    frame = sim.frames[idx[0]]
+    clean, _ = render_signal(sim.vertices, sim.triangles, sim.normals, sim.face_region, specs, frame,
+                             w.light_spectrum(), sensitivities=sim.sensitivities, scale=SIM_SCALE, grid=w.grid,
+                             irradiance_ref_mm=d0)
+    ab = (1e-6, 2e-4)
+    noisy = clean + np.sqrt(ab[0] + ab[1] * np.maximum(clean, 0.0)) * np.random.default_rng(11).standard_normal(
+        clean.shape)
+    args = (sim.vertices, sim.triangles, sim.normals, sim.face_region, specs, "nami-shibuichi", w.light_spectrum(),
+            sim.sensitivities, SIM_SCALE)
+    res = validate_frames([frame], [noisy], *args, irradiance_ref_mm=d0, grid=w.grid, images=False, noise=ab)
+    floor, measured = res["overall"]["noise_floor"]["mean_de2000"], res["overall"]["measured"]["mean_de2000"]
+    assert floor > 0.3                                         # the noise is visible
+    assert measured == pytest.approx(floor, rel=0.1)
+    exact = validate_frames([frame], [clean], *args, irradiance_ref_mm=d0, grid=w.grid, images=False, noise=ab)
+    assert exact["overall"]["measured"]["mean_de2000"] < 0.05 < exact["overall"]["noise_floor"]["mean_de2000"]
+    assert "noise_floor" not in validate_frames([frame], [clean], *args, irradiance_ref_mm=d0, grid=w.grid,
+                                                images=False)["overall"]

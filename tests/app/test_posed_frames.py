@@ -291,11 +291,11 @@ def test_the_noise_model_follows_the_chart_gain():
     """A signal scaled by g has its variance scaled by g^2: a -> a g^2 (read noise), b -> b g (shot noise)."""
     import numpy as np
 
-    from app.workflows.posed_frames import _noise_model
+    from app.workflows.posed_frames import noise_model
 
     frames = [("p01/frame/00", {"pass": 1}), ("p02/frame/00", {"pass": 2})]
-    raw = _noise_model(frames, {})
-    scaled = _noise_model(frames, {1: np.array([1.5, 2.0, 2.5])})
+    raw = noise_model(frames, {})
+    scaled = noise_model(frames, {1: np.array([1.5, 2.0, 2.5])})
     signal = 0.3
     var_raw = raw[0, 0] + raw[0, 1] * signal          # variance of a raw value of 0.3
     var_scaled = scaled[0, 0] + scaled[0, 1] * (2.0 * signal)   # the same value times the mean gain 2
