@@ -144,13 +144,14 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
     max_regions
         Most regions of one material the segmentation may find.
     normals
-        ``"mesh"``: the scanned mesh's normals; ``"photometric"`` (experimental): after a first fit,
-        tilt each vertex normal to where its region's highlights put it
+        ``"mesh"``: the mesh's normals (smoothed over two cells of the reconstruction when ``kogei
+        process`` built the mesh: the shading normals); ``"photometric"`` (experimental): after a
+        first fit, tilt each vertex normal to where its region's highlights put it
         (:func:`processing.materials.photometric_normals.refine_normals`), then fit again and write the
-        refined normals with the object.  On the demo's scan it halves the normals' error where
-        highlights decide them and lowers the held-out error, but the fit's confidence does not yet
-        account for the error left, and a region can then be named with a confidence it has not
-        earned (docs/materials.md, "Normals refined by the photos"), so it is not the default.
+        refined normals with the object.  On the demo's scan it makes every true region's fit right
+        but leaves the session's answers (limited by the segmentation) as they are, at a slightly
+        higher held-out error and about 20 s more (docs/materials.md, "Normals refined by the
+        photos"), so it is not the default.
     validate
         Render the held-out frames and compare them with the photos.
     decode
