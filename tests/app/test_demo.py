@@ -67,7 +67,10 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     # materials measured on the mesh: regions with answers, held-out photos compared, exported, rendered
     obj = summary["object"]
     assert obj["regions"] and all(r["material"] for r in obj["regions"])
-    assert 0.0 <= obj["agreement"]["share_right"] <= 1.0
+    # measured 0.85 of the area with the simulation's true material (the head nami-shibuichi, the lacquer urushi-black;
+    # the eye rings and most of the beak are not separated from their neighbours)
+    assert obj["agreement"]["share_right"] >= 0.75
+    assert obj["agreement"]["per_true_material"]["nami-shibuichi"] >= 0.8
     assert obj["validation"]["mean_de2000"] > 0 and obj["validation"]["baseline_mean_de2000"] > 0
     assert (out / "hawk.glb").read_bytes()[:4] == b"glTF"
     assert np.asarray(Image.open(out / "hawk-measured.png")).std() > 5
