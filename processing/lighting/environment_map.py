@@ -375,7 +375,8 @@ def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
 
     try:
         with OpenEXR.File(str(path)) as f:
-            header = f.header()
+            # the header's attributes are copied while the file is open: closing it empties the dict
+            raw = f.header().get(HEADER_KEY)
             channels = f.channels()
             if "RGB" in channels:
                 rgb = np.asarray(channels["RGB"].pixels, dtype=np.float32)
@@ -393,7 +394,6 @@ def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
         raise EnvironmentMapError(f"{path}: not a readable OpenEXR file ({exc}); "
                                   "export the map again as .exr or .hdr") from None
     meta = None
-    raw = header.get(HEADER_KEY)
     if raw is not None:
         try:
             meta = json.loads(raw if isinstance(raw, str) else raw.decode())
