@@ -171,6 +171,7 @@ class ProbeWorld(MirrorWorld):
         >>> w.frame("object").radiance.shape[:2], w.shows_chart
         ((64, 96), True)
         """
+        kwargs.setdefault("chart_layout", "classic24")
         base = MirrorWorld.mirror_sphere(radius_mm, 0.0, **kwargs)
         fields = {f: getattr(base, f) for f in base.__dataclass_fields__}
         fields.update(environment=environment)

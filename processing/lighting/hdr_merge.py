@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 
 from processing.errors import InputError
 
-__all__ = ["HdrMergeError", "HdrImage", "exposure_scale", "frame_weights", "merge_brackets",
+__all__ = ["HdrMergeError", "HdrImage", "exposure_scale", "exposure_settings", "frame_weights", "merge_brackets",
            "MAX_SATURATED_FRACTION"]
 
 #: Largest share of pixels saturated in every frame before the merge is refused.
@@ -155,8 +155,26 @@ def frame_weights(peak: NDArray[np.floating], usable: NDArray[np.bool_], exposur
     return np.where(usable, w / exposure, 0.0).astype(np.float32)
 
 
-def _settings(img, f_number: float | None) -> tuple[float, float, float]:
-    """``(t, N, S)`` of a decoded frame, or a one-line error naming the file and the missing value."""
+def exposure_settings(img, f_number: float | None = None) -> tuple[float, float, float]:
+    """``(t, N, S)`` of a decoded frame, or a one-line error naming the file and the missing value.
+
+    Parameters
+    ----------
+    img
+        A decoded frame (:class:`processing.camera.raw_decode.RawImage`).
+    f_number
+        The aperture to use when the file records none.
+
+    Returns
+    -------
+    tuple
+        Exposure time (s), aperture, ISO.
+
+    Raises
+    ------
+    HdrMergeError
+        The file records no exposure time, aperture (and none given) or ISO.
+    """
     t, n, s = float(img.exposure_time), float(img.f_number), float(img.iso)
     if not n > 0 and f_number is not None:
         n = float(f_number)
@@ -232,7 +250,7 @@ def merge_brackets(paths: Sequence[str | os.PathLike[str]], *, mode: str = "demo
     all_saturated = None
     for p in files:
         img = decode(p, mode=mode)
-        t, n, s = _settings(img, f_number)
+        t, n, s = exposure_settings(img, f_number)
         scale = exposure_scale(t, n, s)
         if num is None:
             num = np.zeros(img.rgb.shape, np.float32)
