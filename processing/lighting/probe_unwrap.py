@@ -98,6 +98,16 @@ def default_map_height(radius_px: float) -> int:
     Around the sphere's centre one pixel of the photo spans about ``90 / radius_px`` degrees of
     direction, and a map of H rows has ``180 / H`` degrees per row: H = radius keeps both near 2 px/row.
 
+    Parameters
+    ----------
+    radius_px
+        The sphere's radius in the photo (px).
+
+    Returns
+    -------
+    int
+        Rows of the map.
+
     Examples
     --------
     >>> default_map_height(300.0), default_map_height(3.0)

@@ -245,3 +245,17 @@ def test_a_coarser_grid_reads_the_same_luminance(tmp_path):
     d = env.directions()[1:3]
     # every other sample of D65 times the basis: the 10 nm quadrature differs by up to 2.2 % (measured)
     assert np.allclose(coarse.luminance(d), env.luminance(d), rtol=0.03)
+
+
+def test_colours_outside_srgb_round_trip_through_exr(tmp_path):
+    # a saturated narrow-band green has negative linear sRGB; the file then holds the map's own coefficients
+    grid = REFERENCE_GRID
+    basis = np.stack([np.exp(-0.5 * ((grid.wavelengths - 510.0) / 8.0) ** 2), light_spectrum("D65", grid) * 0.01,
+                      light_spectrum("A", grid) * 0.01])
+    c = np.zeros((4, 8, 3), np.float32)
+    c[..., 0], c[..., 1] = 1.0, 0.1
+    env = EnvironmentMap(c, basis, grid, source="green")
+    assert env.to_linear_srgb().min() < 0
+    back = read_environment(write_environment(tmp_path / "g.exr", env))
+    d = env.directions()
+    assert np.allclose(back.spectral_radiance(d), env.spectral_radiance(d), rtol=1e-6, atol=1e-9)
