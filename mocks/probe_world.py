@@ -218,54 +218,97 @@ class ProbeWorld(MirrorWorld):
         rel = points + rays * t[:, None] - centre
         return (denom < 0) & (t > 0) & (np.abs(rel @ axes[0]) <= hw) & (np.abs(rel @ axes[1]) <= hh)
 
-    def _object_frame(self, angle: float) -> Frame:
-        """The ball in the room: mirrored room and card, supersampled; the card elsewhere."""
-        env, grid = self.environment, self.grid
-        h, w, s = self.height, self.width, int(self.supersample)
+    def _ball_pixels(self, angle: float) -> NDArray[np.intp]:
+        """Flat indices of the pixels whose centre ray passes within the ball's radius + 2 pixel footprints."""
+        centre, r = self.sphere_centre_mm(angle), float(self.sphere_radius_mm)
+        eye, _ = self._camera_axes()
+        k = self.camera_intrinsics()
+        oc = eye - centre
+        _, dirs = self._rays(1)
+        along = dirs.reshape(-1, 3) @ oc
+        footprint = 2.0 * float(np.linalg.norm(oc)) / k[0, 0]
+        return np.flatnonzero((along < 0) & ((oc @ oc) - along * along < (r + footprint) ** 2))
+
+    def _ball_samples(self, angle: float, pixels: NDArray[np.intp]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """For flat pixel indices: mean environment coefficients ``(N, K)`` of their rays (chrome applied),
+        the weight of the card's radiance ``(N,)`` (rays missing the ball: 1, mirrored into the card: the
+        chrome's reflectance) and the share of rays on the ball ``(N,)``."""
+        env = self.environment
+        w, s = self.width, int(self.supersample)
         centre, r = self.sphere_centre_mm(angle), float(self.sphere_radius_mm)
         eye, axes = self._camera_axes()
         k = self.camera_intrinsics()
-        card = BACKDROP_REFLECTANCE * self.light_spectrum() / math.pi
         oc = eye - centre
-        _, dirs = self._rays(1)
-        d1 = dirs.reshape(-1, 3)
-        along = d1 @ oc
-        footprint = 2.0 * float(np.linalg.norm(oc)) / k[0, 0]
-        near = np.flatnonzero((along < 0) & ((oc @ oc) - along * along < (r + footprint) ** 2))
+        sub = (np.arange(s) + 0.5) / s - 0.5
+        du, dv = (g.ravel() for g in np.meshgrid(sub, sub))
+        x = ((pixels % w)[:, None] + du[None, :] - k[0, 2]) / k[0, 0]
+        y = ((pixels // w)[:, None] + dv[None, :] - k[1, 2]) / k[1, 1]
+        d = axes[2] + x.reshape(-1, 1) * axes[0] + y.reshape(-1, 1) * axes[1]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        b = d @ oc
+        disc = b * b - (oc @ oc - r * r)
+        hit = (disc > 0) & (b < 0)
+        t = -b[hit] - np.sqrt(disc[hit])
+        p = eye + d[hit] * t[:, None]
+        n = (p - centre) / r
+        refl = d[hit] - 2.0 * np.einsum("ij,ij->i", d[hit], n)[:, None] * n
+        on_card = self._card_hits(p, refl)
         kk = env.coefficients.shape[2]
-        coeff = np.zeros((near.size, kk))          # mean environment coefficients of the ball's rays
-        card_share = np.ones(near.size)            # share of the pixel's rays that end on the card
+        c = np.zeros((len(d), kk))
+        hit_idx = np.flatnonzero(hit)
+        c[hit_idx[~on_card]] = CHROME_REFLECTANCE * env.lookup(refl[~on_card])
+        card = (~hit).astype(np.float64)
+        card[hit_idx[on_card]] = CHROME_REFLECTANCE
+        return (c.reshape(-1, s * s, kk).mean(axis=1), card.reshape(-1, s * s).mean(axis=1),
+                hit.reshape(-1, s * s).mean(axis=1))
+
+    def _object_frame(self, angle: float) -> Frame:
+        """The ball in the room: mirrored room and card, supersampled; the card elsewhere."""
+        env, grid = self.environment, self.grid
+        h, w = self.height, self.width
+        card = BACKDROP_REFLECTANCE * self.light_spectrum() / math.pi
+        near = self._ball_pixels(angle)
+        radiance = np.broadcast_to(card, (h * w, grid.size)).copy()
         cover = np.zeros(h * w)
         if near.size:
-            sub = (np.arange(s) + 0.5) / s - 0.5
-            du, dv = (g.ravel() for g in np.meshgrid(sub, sub))
-            x = ((near % w)[:, None] + du[None, :] - k[0, 2]) / k[0, 0]
-            y = ((near // w)[:, None] + dv[None, :] - k[1, 2]) / k[1, 1]
-            d = axes[2] + x.reshape(-1, 1) * axes[0] + y.reshape(-1, 1) * axes[1]
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            b = d @ oc
-            disc = b * b - (oc @ oc - r * r)
-            hit = (disc > 0) & (b < 0)
-            t = -b[hit] - np.sqrt(disc[hit])
-            p = eye + d[hit] * t[:, None]
-            n = (p - centre) / r
-            refl = d[hit] - 2.0 * np.einsum("ij,ij->i", d[hit], n)[:, None] * n
-            on_card = self._card_hits(p, refl)
-            c = np.zeros((len(d), kk))
-            c[np.flatnonzero(hit)[~on_card]] = CHROME_REFLECTANCE * env.lookup(refl[~on_card])
-            card_ray = ~hit
-            card_ray[np.flatnonzero(hit)[on_card]] = True
-            coeff = c.reshape(-1, s * s, kk).mean(axis=1)
-            card_share = card_ray.reshape(-1, s * s).mean(axis=1)
-            chrome_card = np.zeros(len(d), bool)
-            chrome_card[np.flatnonzero(hit)[on_card]] = True
-            card_share = card_share - (1.0 - CHROME_REFLECTANCE) * chrome_card.reshape(-1, s * s).mean(axis=1)
-            cover[near] = hit.reshape(-1, s * s).mean(axis=1)
-        radiance = np.broadcast_to(card, (h * w, grid.size)).copy()
-        if near.size:
+            coeff, card_share, cover[near] = self._ball_samples(angle, near)
             radiance[near] = coeff @ env.basis + card_share[:, None] * card[None, :]
         labels = np.where(cover > 0.5, 0, -1).astype(np.int16).reshape(h, w)
         return Frame(radiance.reshape(h, w, grid.size), grid, self.light_spectrum(), labels, "object", angle)
+
+    def camera_signal(self, sensitivities: NDArray[np.float64], angle: float = 0.0,
+                      chunk: int = 1 << 17) -> NDArray[np.float32]:
+        """``(H, W, 3)`` camera channel signal of the object frame (radiance x sensitivity x nm, see
+        :func:`mocks.camera_sim.channel_signal`) without the spectral image: for large frames.
+
+        Parameters
+        ----------
+        sensitivities
+            ``(L, 3)`` the camera's sensitivities on the world's grid.
+        angle
+            Table angle.
+        chunk
+            Pixels per block.
+
+        Returns
+        -------
+        ndarray
+            float32 signal, equal to ``channel_signal(frame("object").radiance)`` to rounding.
+        """
+        env, grid = self.environment, self.grid
+        h, w = self.height, self.width
+        s_step = np.asarray(sensitivities, dtype=np.float64) * grid.step
+        card = (BACKDROP_REFLECTANCE * self.light_spectrum() / math.pi) @ s_step
+        basis_sig = env.basis @ s_step                                      # (K, 3)
+        out = np.empty((h * w, 3), np.float32)
+        out[:] = card
+        near = self._ball_pixels(angle)
+        for i in range(0, near.size, chunk):
+            idx = near[i:i + chunk]
+            coeff, card_share, _ = self._ball_samples(angle, idx)
+            out[idx] = coeff @ basis_sig + card_share[:, None] * card[None, :]
+        return out.reshape(h, w, 3)
 
 
 def write_probe_shots(world: ProbeWorld, folder: str | os.PathLike[str], *,

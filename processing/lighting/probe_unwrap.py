@@ -57,6 +57,7 @@ __all__ = ["ProbeUnwrapError", "ProbeUnwrap", "mirror_points", "unwrap_probe", "
 _ITERATIONS = 8
 _SUPERSAMPLE = 3
 _RING_DEG = 5.0
+_CHUNK_DIRECTIONS = 1 << 20
 
 
 class ProbeUnwrapError(InputError):
@@ -219,21 +220,26 @@ def unwrap_probe(hdr_rgb: ArrayLike, sphere_centre_camera_mm: ArrayLike, radius_
     if not 4 <= h <= 4096:
         raise ProbeUnwrapError(f"height must be 4..4096 rows, got {height!r}")
     toward = (eye - centre) / np.linalg.norm(eye - centre)
-    dirs = _subpixel_directions(h)                                     # (S, H, W, 3)
-    p = mirror_points(dirs.reshape(-1, 3), centre, radius_mm, eye)
-    px, _ = cv2.projectPoints(p, cv2.Rodrigues(rot)[0], trans.copy(), k, np.asarray(dist, np.float64))
-    px = px.reshape(_SUPERSAMPLE ** 2 * h, 2 * h, 2).astype(np.float32)
-    samples = cv2.remap(img, px[..., 0], px[..., 1], cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=(-1.0, -1.0, -1.0)).reshape(-1, 3)
-    inside = (samples >= 0).all(axis=1).reshape(_SUPERSAMPLE ** 2, h, 2 * h)
-    rgb = (np.maximum(samples, 0.0).reshape(_SUPERSAMPLE ** 2, h, 2 * h, 3).mean(axis=0)
-           / np.float32(reflectance)).astype(np.float32)
+    rgb = np.empty((h, 2 * h, 3), np.float32)
+    inside = np.empty((h, 2 * h), bool)
+    rows = max(1, _CHUNK_DIRECTIONS // (2 * h * _SUPERSAMPLE ** 2))
+    rvec = cv2.Rodrigues(rot)[0]
+    for r0 in range(0, h, rows):
+        r1 = min(h, r0 + rows)
+        dirs = _subpixel_directions(h, r0, r1)                         # (S, r1 - r0, W, 3)
+        p = mirror_points(dirs.reshape(-1, 3), centre, radius_mm, eye)
+        px, _ = cv2.projectPoints(p, rvec, trans.copy(), k, np.asarray(dist, np.float64))
+        px = px.reshape(-1, 2 * h, 2).astype(np.float32)
+        samples = cv2.remap(img, px[..., 0], px[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                            borderValue=(-1.0, -1.0, -1.0)).reshape(_SUPERSAMPLE ** 2, r1 - r0, 2 * h, 3)
+        inside[r0:r1] = (samples >= 0).all(axis=3).all(axis=0)
+        rgb[r0:r1] = np.maximum(samples, 0.0).mean(axis=0) / np.float32(reflectance)
     centre_dirs = pixel_directions(h, 2 * h)
     cos_cam = centre_dirs @ toward
-    observed = inside.all(axis=0) & (cos_cam < math.cos(math.radians(camera_mask_deg))) \
+    observed = inside & (cos_cam < math.cos(math.radians(camera_mask_deg))) \
         & (cos_cam > -math.cos(math.radians(back_mask_deg)))
     notes = []
-    lost = int((~inside.all(axis=0)).sum())
+    lost = int((~inside).sum())
     if lost:
         notes.append(f"{lost} map pixels fall outside the photo")
     if not observed.any():
@@ -243,11 +249,17 @@ def unwrap_probe(hdr_rgb: ArrayLike, sphere_centre_camera_mm: ArrayLike, radius_
     return ProbeUnwrap(rgb, observed, toward, centre, radius_px, notes)
 
 
-def _subpixel_directions(h: int) -> NDArray[np.float64]:
-    """``(S * S, H, 2H, 3)`` unit directions at ``S x S`` points across every map pixel."""
+def _subpixel_directions(h: int, r0: int = 0, r1: int | None = None) -> NDArray[np.float64]:
+    """``(S * S, r1 - r0, 2H, 3)`` unit directions at ``S x S`` points across the map pixels of rows r0..r1."""
     s = _SUPERSAMPLE
-    fine = pixel_directions(h * s, 2 * h * s)                          # (sH, 2sH, 3)
-    return fine.reshape(h, s, 2 * h, s, 3).transpose(1, 3, 0, 2, 4).reshape(s * s, h, 2 * h, 3)
+    r1 = h if r1 is None else r1
+    theta = np.pi * (np.arange(r0 * s, r1 * s) + 0.5) / (h * s)
+    phi = 2.0 * np.pi * (np.arange(2 * h * s) + 0.5) / (2 * h * s)
+    st = np.sin(theta)[:, None]
+    fine = np.stack(np.broadcast_arrays(st * np.cos(phi)[None, :], st * np.sin(phi)[None, :],
+                                        np.cos(theta)[:, None] + 0.0 * phi[None, :]), axis=-1)
+    n = r1 - r0
+    return fine.reshape(n, s, 2 * h, s, 3).transpose(1, 3, 0, 2, 4).reshape(s * s, n, 2 * h, 3)
 
 
 def _fill_caps(rgb: NDArray[np.float32], observed: NDArray[np.bool_], cos_cam: NDArray[np.float64],
