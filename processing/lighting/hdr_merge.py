@@ -40,6 +40,7 @@ Examples
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -56,7 +57,8 @@ __all__ = ["HdrMergeError", "HdrImage", "exposure_scale", "exposure_settings", "
 #: Largest share of pixels saturated in every frame before the merge is refused.
 MAX_SATURATED_FRACTION = 0.5
 _FLOOR_WEIGHT = 1e-4
-_BLOCK_PIXELS = 1 << 20
+_BLOCK_PIXELS = 1 << 18
+_TABLE_SIZE = 4096
 
 
 class HdrMergeError(InputError):
@@ -127,8 +129,23 @@ def exposure_scale(exposure_time_s: float, f_number: float, iso: float) -> float
     return float(average_luminance(float(f_number), float(exposure_time_s), float(iso)))
 
 
+@functools.lru_cache(maxsize=1)
+def _weight_table() -> NDArray[np.float32]:
+    """colour-hdri's double sigmoid plus the floor, tabulated at 4096 steps over [0, 1]."""
+    from colour_hdri import double_sigmoid_anchored_function
+
+    with np.errstate(divide="ignore"):         # its sigmoid divides by zero exactly at the anchors (limit 0)
+        w = double_sigmoid_anchored_function(np.linspace(0.0, 1.0, _TABLE_SIZE))
+    table = (np.nan_to_num(w, nan=0.0) + _FLOOR_WEIGHT).astype(np.float32)
+    table.setflags(write=False)
+    return table
+
+
 def frame_weights(peak: NDArray[np.floating], usable: NDArray[np.bool_], exposure: float) -> NDArray[np.float32]:
     """Merge weights of one frame's pixels from their largest channel.
+
+    colour-hdri's :func:`colour_hdri.double_sigmoid_anchored_function` is tabulated once at 4096
+    steps over [0, 1] (its largest step is below 0.1 % of the weight's range) and looked up.
 
     Parameters
     ----------
@@ -149,10 +166,11 @@ def frame_weights(peak: NDArray[np.floating], usable: NDArray[np.bool_], exposur
     >>> [round(float(w), 4) for w in frame_weights(np.array([0.01, 0.5, 0.99]), np.ones(3, bool), 1.0)]
     [0.0001, 1.0001, 0.0001]
     """
-    from colour_hdri import double_sigmoid_anchored_function
-
-    w = double_sigmoid_anchored_function(np.clip(np.asarray(peak, dtype=np.float64), 0.0, 1.0)) + _FLOOR_WEIGHT
-    return np.where(usable, w / exposure, 0.0).astype(np.float32)
+    p = np.clip(np.asarray(peak, dtype=np.float32), 0.0, 1.0)
+    idx = (p * np.float32(_TABLE_SIZE - 1) + np.float32(0.5)).astype(np.intp)
+    w = _weight_table()[idx]
+    w *= np.asarray(usable, dtype=np.float32) * np.float32(1.0 / exposure)
+    return w
 
 
 def exposure_settings(img, f_number: float | None = None) -> tuple[float, float, float]:
@@ -201,7 +219,8 @@ def _accumulate(img, exposure: float, num: NDArray[np.float32], den: NDArray[np.
         sl = slice(r0, min(h, r0 + rows))
         rgb = img.rgb[sl]
         usable = ~(img.saturated[sl] | img.dead[sl])
-        wt = frame_weights(rgb.max(axis=2), usable, exposure)
+        peak = np.maximum(np.maximum(rgb[..., 0], rgb[..., 1]), rgb[..., 2])     # faster than max(axis=2)
+        wt = frame_weights(peak, usable, exposure)
         useful += int(np.count_nonzero(wt > _FLOOR_WEIGHT / exposure * 1.5))
         num[sl] += rgb * (wt * np.float32(exposure))[..., None]
         den[sl] += wt
