@@ -144,18 +144,25 @@ class ProbeWorld(MirrorWorld):
     Attributes (besides :class:`mocks.mirror_world.MirrorWorld`'s)
     ---------------------------------------------------------------
     environment
-        The room's radiance (room frame), on the world's grid.
+        The room's radiance (room frame), on the world's grid; None: :func:`room_environment`.
     card_distance_mm
         Distance of the grey card behind the ball's centre along the camera's axis.
+    room_height, lamp_light
+        The rows and the lamps' spectrum of :func:`room_environment` when ``environment`` is None.
     """
 
     environment: EnvironmentMap | None = None
     card_distance_mm: float = 150.0
+    room_height: int = 128
+    lamp_light: str = "D65"
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        # a copy of a world (dataclasses.replace) hands its room over: still the room of its settings
+        self._own_room = self.environment is None or (
+            self.environment.source == "simulated room" and self.environment.height == int(self.room_height))
         if self.environment is None:
-            self.environment = room_environment(128, self.grid)
+            self.environment = room_environment(int(self.room_height), self.grid, self.lamp_light)
         if self.environment.grid != self.grid:
             raise WorldError(f"environment: its grid {self.environment.grid} differs from the world's {self.grid}")
         if not (math.isfinite(self.card_distance_mm) and self.card_distance_mm > self.sphere_radius_mm):
@@ -172,9 +179,11 @@ class ProbeWorld(MirrorWorld):
         ((64, 96), True)
         """
         kwargs.setdefault("chart_layout", "classic24")
+        own = {k: kwargs.pop(k) for k in ("card_distance_mm", "room_height", "lamp_light", "supersample")
+               if k in kwargs}
         base = MirrorWorld.mirror_sphere(radius_mm, 0.0, **kwargs)
         fields = {f: getattr(base, f) for f in base.__dataclass_fields__}
-        fields.update(environment=environment)
+        fields.update(environment=environment, **own)
         if environment is not None:
             fields["spectral_step"] = environment.grid.step
         return cls(**fields)
@@ -195,9 +204,44 @@ class ProbeWorld(MirrorWorld):
         """Luminance of a white diffuser on the table in the room's light (``Y(E / pi)``)."""
         return float(spectra_to_xyz(self.light_spectrum() / math.pi, self.grid)[1])
 
+    @property
+    def f_number(self) -> float:
+        """The aperture the simulated lens records in the probe's frames."""
+        return PROBE_F_NUMBER
+
     def to_dict(self) -> dict[str, Any]:
-        """Not serialisable: the environment is an array (photograph it with :func:`write_probe_shots`)."""
-        raise WorldError("a probe world's environment is an array; write its frames with write_probe_shots")
+        """The mirror world's mapping plus ``"probe"`` (the simulated room; the fake gphoto2's configuration).
+
+        Examples
+        --------
+        >>> w = ProbeWorld.probe(20.0, width=96, height=64, room_height=16)
+        >>> v = ProbeWorld.from_dict(w.to_dict())
+        >>> bool(np.array_equal(v.environment.coefficients, w.environment.coefficients))
+        True
+        """
+        if not self._own_room:
+            raise WorldError("a probe world with a given environment map cannot be serialised; write its frames "
+                             "with write_probe_shots")
+        out = super().to_dict()
+        out["probe"] = {"card_distance_mm": float(self.card_distance_mm), "room_height": int(self.room_height),
+                        "lamp_light": str(self.lamp_light)}
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ProbeWorld:
+        """Rebuild from :meth:`to_dict`."""
+        from mocks.world import world_settings
+
+        data = dict(data)
+        spec = data.pop("probe")
+        mirror = data.pop("mirror")
+        data.pop("mesh", None)
+        data.pop("materials", None)
+        if not isinstance(spec, dict) or not isinstance(mirror, dict):
+            raise WorldError(f"world 'probe' entry must map card_distance_mm, room_height and lamp_light, got {spec!r}")
+        return cls.probe(float(mirror["sphere_radius_mm"]), supersample=int(mirror.get("supersample", 3)),
+                         card_distance_mm=float(spec["card_distance_mm"]), room_height=int(spec["room_height"]),
+                         lamp_light=str(spec["lamp_light"]), **world_settings(data))
 
     def _card(self) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
         """The card's centre (room, mm), its normal toward the camera, its half width and height (mm)."""

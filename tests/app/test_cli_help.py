@@ -36,6 +36,7 @@ UNITS: dict[tuple[str, str], str] = {
     ("capture", "--steps"): r"per revolution",
     ("capture", "--camera-angles"): _DEG,
     ("capture", "--sphere-radius"): _MM,
+    ("capture", "--brackets"): _S,
     ("capture", "--steps-per-degree"): r"steps per degree",
     ("capture", "--speed"): r"\bdeg/s\b",
     ("capture", "--exposure-us"): r"(microseconds|µs)",
