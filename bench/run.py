@@ -397,6 +397,15 @@ def object_section() -> list[str]:
     return section(json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
+def probe_section() -> list[str]:
+    """Light probe: 7 brackets of 24 MP merged, unwrapped and compared with the room's truth (bench/probe_bench.py)."""
+    from bench.probe_bench import section
+
+    proc = subprocess.run([sys.executable, "-m", "bench.probe_bench"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=3600, check=True)
+    return section(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
 #: Sections of docs/BENCHMARKS.md: ``--only NAME`` key -> (heading prefix, builder).
 SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
@@ -409,6 +418,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "gui": ("## Capture station window", gui_section),
     "posed": ("## Posed photos", posed_section),
     "object": ("## Materials on the mesh", object_section),
+    "probe": ("## Light probe", probe_section),
 }
 
 
