@@ -13,7 +13,9 @@ frame is shot (lasers off), then one full revolution of ``steps`` profiles
 with the lasers re-asserted on every step; RAW frames are shot (lasers off)
 at the camera angles, each snapped to the nearest step.  A ``swatch`` plan
 (a flat fabric sample, Yasuda et al. section 4) shoots only RAW frames, at
-every step angle.  At the end of a pass its profiles are gathered into one
+every step angle.  A ``probe`` plan shoots the chart, then exposure brackets of a
+mirror sphere at one table angle, setting each frame's shutter speed first (a light probe,
+docs/lighting.md; each frame's record keeps its ``shutter``).  At the end of a pass its profiles are gathered into one
 ``profiles.npz`` (``angles_deg``, ``x_mm``, ``z_mm``; NaN = no return).
 
 Device faults are recovered where that is safe -- a vanished port is

@@ -20,6 +20,9 @@ from processing.lighting.environment_map import read_environment
 
 SIZE = (240, 160)
 
+# the fixture captures 8 frames through the fake gphoto2 program (one process each): about a minute
+pytestmark = pytest.mark.slow
+
 
 def test_plan_probe_actions_and_round_trip():
     plan = CapturePlan("probe", sphere_radius_mm=20.0)
