@@ -20,9 +20,9 @@ with
 * a pixel saturated in every frame keeps the shortest exposure's values, a lower bound, and is
   reported in :attr:`HdrImage.saturated`.
 
-The frames are decoded one at a time and merged in blocks of rows into two float32 sums (weighted
-values and weights), never stacked: the memory is the two sums plus one decoded frame (about
-2.4 GB for 24-megapixel frames demosaicked at full resolution; ``bin2x2`` a quarter of it).
+The frames are decoded one at a time (the next one in a second thread while the current one is
+summed) and merged in blocks of rows into two float32 sums (weighted values and weights), never
+stacked: the memory is the two sums, the shortest frame and two decoded frames.
 
 References
 ----------
@@ -43,6 +43,7 @@ from __future__ import annotations
 import functools
 import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -229,7 +230,7 @@ def _accumulate(img, exposure: float, num: NDArray[np.float32], den: NDArray[np.
 
 def merge_brackets(paths: Sequence[str | os.PathLike[str]], *, mode: str = "demosaic", f_number: float | None = None,
                    max_saturated_fraction: float = MAX_SATURATED_FRACTION,
-                   decode: Callable | None = None) -> HdrImage:
+                   decode: Callable | None = None, prefetch: bool = True) -> HdrImage:
     """Merge exposure brackets of one view into a linear HDR image (see the module's description).
 
     Parameters
@@ -244,6 +245,8 @@ def merge_brackets(paths: Sequence[str | os.PathLike[str]], *, mode: str = "demo
         Refuse when more than this share of the pixels is saturated in every frame.
     decode
         The decoder (default :func:`processing.camera.raw_decode.decode_raw`), ``decode(path, mode=mode)``.
+    prefetch
+        Decode the next frame in a second thread while the current one is summed (two frames in memory).
 
     Returns
     -------
@@ -267,26 +270,19 @@ def merge_brackets(paths: Sequence[str | os.PathLike[str]], *, mode: str = "demo
     exposures, settings, notes = [], [], []
     shortest: tuple[float, NDArray[np.float32] | None] = (np.inf, None)
     all_saturated = None
-    for p in files:
-        img = decode(p, mode=mode)
-        t, n, s = exposure_settings(img, f_number)
-        scale = exposure_scale(t, n, s)
-        if num is None:
-            num = np.zeros(img.rgb.shape, np.float32)
-            den = np.zeros(img.shape, np.float32)
-            all_saturated = img.saturated.copy()
-        elif img.shape != num.shape[:2]:
-            raise HdrMergeError(f"{p}: {img.shape[1]} x {img.shape[0]} pixels, but {files[0]} has "
-                                f"{num.shape[1]} x {num.shape[0]}; merge frames of one view and one decode mode")
-        else:
-            all_saturated &= img.saturated
-        if _accumulate(img, scale, num, den) == 0:
-            notes.append(f"{p.name}: no pixel well exposed (t = {t:g} s)")
-        if scale > shortest[0] or shortest[1] is None:        # the largest L is the shortest exposure
-            shortest = (scale, img.rgb if shortest[1] is None else _copy_into(shortest[1], img.rgb))
-        exposures.append(scale)
-        settings.append((t, n, s))
-        del img
+    pool = ThreadPoolExecutor(max_workers=1) if prefetch and len(files) > 1 else None
+    pending = pool.submit(decode, files[0], mode=mode) if pool is not None else None
+    try:
+        for i, p in enumerate(files):
+            img = pending.result() if pending is not None else decode(p, mode=mode)
+            if pool is not None:            # the next frame decodes while this one is summed
+                pending = pool.submit(decode, files[i + 1], mode=mode) if i + 1 < len(files) else None
+            shortest, all_saturated, num, den = _add_frame(img, p, files[0], f_number, num, den, all_saturated,
+                                                           shortest, exposures, settings, notes)
+            del img
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
     frac = float(all_saturated.mean())
     if frac > max_saturated_fraction:
         short = files[int(np.argmax(exposures))]
@@ -294,6 +290,29 @@ def merge_brackets(paths: Sequence[str | os.PathLike[str]], *, mode: str = "demo
                             "shortest exposure); add shorter exposures or stop the lens down")
     out = _finish(num, den, shortest)
     return HdrImage(out, all_saturated, tuple(files), tuple(exposures), tuple(settings), mode, notes)
+
+
+def _add_frame(img, p: Path, first: Path, f_number: float | None, num, den, all_saturated, shortest,
+               exposures: list, settings: list, notes: list):
+    """Sum one decoded frame into the merge; returns the updated shortest frame, masks and sums."""
+    t, n, s = exposure_settings(img, f_number)
+    scale = exposure_scale(t, n, s)
+    if num is None:
+        num = np.zeros(img.rgb.shape, np.float32)
+        den = np.zeros(img.shape, np.float32)
+        all_saturated = img.saturated.copy()
+    elif img.shape != num.shape[:2]:
+        raise HdrMergeError(f"{p}: {img.shape[1]} x {img.shape[0]} pixels, but {first} has "
+                            f"{num.shape[1]} x {num.shape[0]}; merge frames of one view and one decode mode")
+    else:
+        all_saturated &= img.saturated
+    if _accumulate(img, scale, num, den) == 0:
+        notes.append(f"{p.name}: no pixel well exposed (t = {t:g} s)")
+    if scale > shortest[0] or shortest[1] is None:        # the largest L is the shortest exposure
+        shortest = (scale, img.rgb if shortest[1] is None else _copy_into(shortest[1], img.rgb))
+    exposures.append(scale)
+    settings.append((t, n, s))
+    return shortest, all_saturated, num, den
 
 
 def _copy_into(buffer: NDArray[np.float32], rgb: NDArray[np.float32]) -> NDArray[np.float32]:
