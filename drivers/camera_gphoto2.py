@@ -3,9 +3,9 @@
 gphoto2 (libgphoto2's command-line front end, http://gphoto.org/doc/manual/)
 fires the camera and downloads the new file with::
 
-    gphoto2 --capture-image-and-download --filename PATTERN
+    gphoto2 [--set-config-value shutterspeed=T] --capture-image-and-download --filename PATTERN
 
-where ``PATTERN`` may use gphoto2's codes (``%f`` the camera's file name
+(``T`` sets the frame's exposure first, for exposure brackets) where ``PATTERN`` may use gphoto2's codes (``%f`` the camera's file name
 without extension, ``%C`` its extension, ``%n`` a running number, ``%%``).
 :class:`Gphoto2Camera` runs it without a shell in a fresh private folder
 inside the destination (so the download lands on the destination's
