@@ -210,10 +210,11 @@ class CapturePanel(Panel):
         plan = QGroupBox("Scan plan")
         f = QFormLayout(plan)
         self.kind = QComboBox()
-        self.kind.addItems(["scan", "swatch", "camera-calibration", "lamp-calibration"])
+        self.kind.addItems(["scan", "swatch", "camera-calibration", "lamp-calibration", "probe"])
         self.kind.setToolTip("scan: profiles + RAW frames; swatch: RAW frames of a cloth swatch at every step; "
                              "camera-calibration: a ChArUco board at every step, flat then on wedges; "
-                             "lamp-calibration: a mirror sphere at every step")
+                             "lamp-calibration: a mirror sphere at every step; probe: the colour chart, then 7 "
+                             "exposure brackets of a mirror sphere (a light probe for kogei probe)")
         self.steps = QSpinBox()
         self.steps.setRange(1, 100_000)
         self.steps.setValue(200)
