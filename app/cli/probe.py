@@ -46,8 +46,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--sphere-reflectance", type=float, default=0.6, metavar="R",
                    help="the sphere's mirror reflectance, the fraction of light it reflects, 0-1 (default %(default)s)")
     p.add_argument("--light", default="D65", metavar="NAME_OR_CCT",
-                   help="the light's spectrum where the chart lies (a name such as D65 or A, or a CCT in K) "
-                        "(default %(default)s)")
+                   help="the light's spectrum where the chart lies: a name such as D65 or A, a CCT in K, or a CSV "
+                        "file of a measured spectrum (wavelength_nm, value) (default %(default)s)")
     p.add_argument("--method", default="wiener", choices=["wiener", "paper"],
                    help="the spectral estimator (linear in camera RGB) (default %(default)s)")
     p.add_argument("--decode", default="demosaic", choices=["demosaic", "bin2x2"],
