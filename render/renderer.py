@@ -52,6 +52,7 @@ from processing.spectral.spectra import SpectralGrid
 from render.backends import SpectralBackend, TableBackend
 from render.calibrated_camera import CalibratedCamera
 from render.camera import Camera
+from render.environment import EnvironmentPlan
 from render.errors import RenderCancelled, RenderInputError
 from render.integrator import ShadingContext, light_samples, shade
 from render.presets import PRESETS, RenderSettings
@@ -182,12 +183,13 @@ class _Triangles:
 
 @dataclass(eq=False)
 class _Lighting:
-    """The lights scaled to the key light's exposure, the XYZ normalisation and the sky radiance."""
+    """The lights scaled to the key light's exposure, the XYZ normalisation, the sky radiance and the environment."""
 
     lights: tuple[LightPlan, ...]
     k: float
     white: NDArray[np.float64]
     sky_radiance: NDArray[np.float64]
+    environment: EnvironmentPlan | None = None
 
 
 def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -> RenderSettings:
@@ -221,6 +223,7 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
     lighting = _lighting(scene, grid, lo, hi)
     plans = tuple(plan_material(m) for m in materials)
     backend = _backend(settings, grid, lighting, scene.sky, plans) if backends else None
+    environment = lighting.environment
     tracer = _Tracer(raycaster, timings)
     ctx = ShadingContext(
         lights=lighting.lights,
@@ -233,6 +236,8 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
         cast=tracer.cast,
         occluded=tracer.occluded,
         make_hits=functools.partial(_make_hits, triangles),
+        environment=environment,
+        environment_samples=settings.environment_samples,
     )
     timings["setup"] = time.perf_counter() - t0
     timings["bvh_build"] = _build_acceleration(raycaster, camera)
@@ -343,22 +348,34 @@ def _lighting(scene: Scene, grid: SpectralGrid, lo: NDArray[np.float64], hi: NDA
     from processing.spectral.display import white_xyz, xyz_scale
 
     spectra = [resolve_spectrum(light.spectrum, grid, f"light {i} spectrum") for i, light in enumerate(scene.lights)]
-    key_irradiance = _key_irradiance(scene, lo, hi)
-    k = xyz_scale(spectra[0], grid)
-    white = white_xyz(spectra[0], grid)
+    env = scene.environment
+    if spectra:
+        key_irradiance = _key_irradiance(scene, lo, hi)
+        k = xyz_scale(spectra[0], grid)
+        white = white_xyz(spectra[0], grid)
+        key_spectrum = spectra[0]
+    else:
+        # no lights: the environment alone; the white (and the unit of a synthetic sky) is the spectrum of
+        # its basis rows together (D65 for an sRGB map)
+        key_irradiance = 1.0
+        key_spectrum = EnvironmentPlan.build(env, grid, 1.0).white_basis
+        k = xyz_scale(key_spectrum, grid)
+        white = white_xyz(key_spectrum, grid)
     lights = tuple(
         LightPlan(light.kind, np.asarray(light.vector, dtype=np.float64), e * (light.intensity / key_irradiance))
         for light, e in zip(scene.lights, spectra)
     )
     sky = scene.sky
-    sky_spec = resolve_spectrum(sky.spectrum, grid, "sky spectrum") if sky.spectrum is not None else spectra[0]
-    return _Lighting(lights, k, white, sky_spec / math.pi)
+    sky_spec = resolve_spectrum(sky.spectrum, grid, "sky spectrum") if sky.spectrum is not None else key_spectrum
+    plan = None if env is None else EnvironmentPlan.build(env, grid, k)
+    return _Lighting(lights, k, white, sky_spec / math.pi, plan)
 
 
 def _backend(settings: RenderSettings, grid: SpectralGrid, lighting: _Lighting, sky: Sky,
              plans: tuple[MaterialPlan, ...]) -> SpectralBackend | TableBackend:
     """The colour backend of the settings: angular tables, or per-sample spectra."""
-    spectral = SpectralBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans)
+    spectral = SpectralBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans,
+                               environment=lighting.environment)
     if settings.use_tables:
         return TableBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans,
                             settings.table_size, spectral)
@@ -630,6 +647,12 @@ def _shade_samples(
         if miss.size:
             scale = ctx.sky.radiance_scale(np.take(rays, miss, axis=0)[:, 3:])
             backend.add(colour, miss, backend.background(scale))
+    if ctx.environment is not None:
+        miss = np.flatnonzero(~hit)
+        if miss.size:
+            dirs = np.ascontiguousarray(np.take(rays, miss, axis=0)[:, 3:].T)
+            dirs *= _F32(1.0) / np.sqrt(dot3(dirs, dirs))
+            backend.add(colour, miss, backend.env_background(ctx.environment.lookup(dirs)))
     if rows.size:
         hits = ctx.make_hits(rays, answer, rows)
         if settings.adaptive_samples:
@@ -895,12 +918,13 @@ def render(
     t_display = time.perf_counter()
     timings = prep.timings
     timings["shading"] = (t_display - t_loop) - timings["primary_rays"] - timings["shadow_rays"] - timings["mirror_rays"]
-    srgb8 = _display(xyz, mask, prep.white, ctx.sky.is_black)
+    background_black = ctx.sky.is_black and ctx.environment is None
+    srgb8 = _display(xyz, mask, prep.white, background_black)
     t_end = time.perf_counter()
     timings["display"] = t_end - t_display
     timings["total"] = t_end - t_start
     stats = _render_stats(prep, scene, refined, primary_total, hits_total, len(tiles))
-    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not ctx.sky.is_black, refined)
+    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not background_black, refined)
 
 
 def _render_tile(
@@ -957,6 +981,7 @@ def _render_stats(prep: _Prepared, scene: Scene, refined: NDArray[np.bool_], pri
         "shadow_rays": ctx.stats.get("shadow_rays", 0),
         "mirror_rays": ctx.stats.get("mirror_rays", 0),
         "secondary_hits": ctx.stats.get("secondary_hits", 0),
+        "environment_rays": ctx.stats.get("environment_rays", 0),
         "refined_pixels": n_refined,
         "refined_fraction": n_refined / refined.size,
         "triangles": prep.n_triangles,

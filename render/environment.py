@@ -1,0 +1,233 @@
+"""Image-based lighting: an environment map prepared for shading.
+
+:class:`EnvironmentPlan` holds what the integrator (:mod:`render.integrator`)
+needs of a :class:`~processing.lighting.environment_map.EnvironmentMap`:
+
+* the **basis spectra on the render's grid**, divided by the renderer's XYZ
+  normalisation ``k``, so that a direction's spectral radiance in render
+  units is ``coefficients(d) @ basis`` (spectra stay ``K`` coefficients
+  until they meet a lobe's table or BRDF).  The map's luminance is the
+  render's luminance: a white Lambertian surface under a uniform map of
+  luminance ``Y`` renders with ``Y``, whatever the key light;
+* **importance sampling** of the map: a pixel is drawn with probability
+  proportional to its luminance times its solid angle (one CDF over all
+  pixels), then a direction uniformly in solid angle within the pixel; the
+  density of a direction is ``P(pixel) / Omega(pixel)`` (Pharr, Jakob and
+  Humphreys 2016, section 14.2.4).  Radiance for these samples is the
+  pixel's own (piecewise constant, the same function the density follows);
+* the **cosine-prefiltered map**: ``(1/pi) int L(w) max(0, n . w) dw`` for
+  normals ``n`` on a coarse grid, bilinear in between: the radiance a
+  white Lambertian surface facing ``n`` reflects when nothing occludes it
+  (used by the ``draft`` preset and for the mirror bounce's secondary hits);
+* bilinear **lookups** for mirror reflections and the background.
+
+References
+----------
+Debevec, P. (1998). Rendering synthetic objects into real scenes.
+SIGGRAPH 98, 189-198. doi:10.1145/280814.280864
+Veach, E., & Guibas, L. J. (1995). Optimally combining sampling techniques
+for Monte Carlo rendering. SIGGRAPH 95, 419-428. doi:10.1145/218380.218498
+Pharr, M., Jakob, W., & Humphreys, G. (2016). Physically Based Rendering,
+3rd ed., section 14.2.4 (infinite area lights). doi:10.1016/C2013-0-15557-2
+
+Examples
+--------
+>>> from processing.lighting.environment_map import uniform_environment
+>>> from processing.spectral.spectra import SpectralGrid
+>>> plan = EnvironmentPlan.build(uniform_environment(0.5, height=8), SpectralGrid(400, 700, 10), k=1.0)
+>>> n = np.array([[0.0], [0.0], [1.0]], dtype=np.float32)
+>>> plan.irradiance(n).ravel().round(3).tolist()      # a uniform map: its own radiance
+[0.5, 0.5, 0.5]
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from processing.lighting.environment_map import EnvironmentMap, direction_pixels
+from processing.spectral.display import spectra_to_xyz
+from processing.spectral.spectra import SpectralGrid, resample
+
+__all__ = ["EnvironmentPlan", "IRRADIANCE_HEIGHT", "IRRADIANCE_SOURCE_HEIGHT"]
+
+_F32 = np.float32
+
+#: Rows of the cosine-prefiltered map (its width is twice that); the cosine
+#: lobe is smooth, bilinear interpolation between 16 x 32 normals keeps the
+#: error below 0.5 % of the mean (measured in tests/render/test_render_environment.py).
+IRRADIANCE_HEIGHT = 16
+
+#: Rows of the area-averaged copy of the map the prefiltering integrates (power kept).
+IRRADIANCE_SOURCE_HEIGHT = 32
+
+
+def _row_solid_angles(height: int, width: int) -> NDArray[np.float64]:
+    edges = np.pi * np.arange(height + 1) / height
+    return (np.cos(edges[:-1]) - np.cos(edges[1:])) * (2.0 * np.pi / width)
+
+
+def _area_average(coefficients: NDArray[np.float32], height: int) -> NDArray[np.float64]:
+    """The map reduced to ``height x 2 height`` pixels by solid-angle-weighted averaging (power kept)."""
+    h, w, k = coefficients.shape
+    if h <= height:
+        return coefficients.astype(np.float64)
+    width = 2 * height
+    omega = _row_solid_angles(h, w)
+    ti = (np.arange(h) * height) // h
+    tj = (np.arange(w) * width) // w
+    target = (ti[:, None] * width + tj[None, :]).ravel()
+    wgt = np.repeat(omega, w)
+    out = np.empty((height * width, k))
+    total = np.bincount(target, weights=wgt, minlength=height * width)
+    for c in range(k):
+        out[:, c] = np.bincount(target, weights=coefficients[..., c].ravel() * wgt, minlength=height * width)
+    out /= total[:, None]
+    return out.reshape(height, width, k)
+
+
+@dataclass(frozen=True, eq=False)
+class EnvironmentPlan:
+    """An environment map prepared for shading (see the module notes).
+
+    Attributes
+    ----------
+    environment
+        The map (rotation and intensity are its own).
+    basis
+        ``(K, L)`` radiance of a unit coefficient on the render grid, divided by ``k``.
+    cdf
+        ``(H W,)`` cumulative pixel probabilities (luminance x solid angle), last = 1.
+    pixel_pdf
+        ``(H, W)`` density in 1/sr of a direction inside each pixel.
+    irradiance_map
+        The cosine-prefiltered coefficients as an :class:`EnvironmentMap` (intensity 1, the same rotation).
+    white_basis
+        ``(L,)`` the spectrum of a unit coefficient in every basis row (the white of a scene without lights).
+    """
+
+    environment: EnvironmentMap
+    basis: NDArray[np.float64]
+    cdf: NDArray[np.float64]
+    pixel_pdf: NDArray[np.float64]
+    irradiance_map: EnvironmentMap
+    white_basis: NDArray[np.float64]
+
+    @classmethod
+    def build(cls, env: EnvironmentMap, grid: SpectralGrid, k: float) -> EnvironmentPlan:
+        """Prepare ``env`` for a render on ``grid`` whose XYZ normalisation is ``k``.
+
+        Parameters
+        ----------
+        env
+            The environment map.
+        grid
+            The render's wavelength grid.
+        k
+            The render's XYZ scale (rendered radiance times ``k`` is shown XYZ).
+
+        Returns
+        -------
+        EnvironmentPlan
+            The plan.
+        """
+        b = resample(env.grid.wavelengths, env.basis, grid)
+        # keep each basis spectrum's luminance exact on a coarser grid
+        y_src = spectra_to_xyz(env.basis, env.grid)[:, 1]
+        y_dst = spectra_to_xyz(b, grid)[:, 1]
+        b = b * np.where(y_dst > 0, y_src / np.where(y_dst > 0, y_dst, 1.0), 1.0)[:, None]
+        lum = env.pixel_luminance() * _row_solid_angles(env.height, env.width)[:, None]
+        total = float(lum.sum())
+        if total > 0:
+            cdf = np.cumsum(lum.ravel()) / total
+            pdf = lum / total / _row_solid_angles(env.height, env.width)[:, None]
+        else:
+            cdf = np.arange(1, lum.size + 1) / lum.size
+            pdf = np.full(lum.shape, 1.0 / (4.0 * math.pi))
+        cdf[-1] = 1.0
+        irr = _cosine_prefilter(env)
+        irr_map = EnvironmentMap(irr.astype(np.float32), env.basis, env.grid, source=env.source,
+                                 rotation_deg=env.rotation_deg, intensity=1.0)
+        return cls(env, b / k, cdf, pdf, irr_map, b.sum(axis=0))
+
+    @property
+    def channels(self) -> int:
+        """Number of basis spectra K."""
+        return int(self.basis.shape[0])
+
+    def lookup(self, directions: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Coefficients ``(K, m)`` along ``(3, m)`` unit directions, bilinear (mirror rays, background)."""
+        return np.ascontiguousarray(self.environment.lookup(np.asarray(directions, np.float64).T).T, dtype=_F32)
+
+    def irradiance(self, normals: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Cosine-weighted mean coefficients ``(K, m)`` over the hemispheres of ``(3, m)`` unit normals."""
+        return np.ascontiguousarray(self.irradiance_map.lookup(np.asarray(normals, np.float64).T).T, dtype=_F32)
+
+    def _pixels(self, directions: NDArray[np.float32]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        env = self.environment
+        r, c = direction_pixels(np.asarray(directions, np.float64).T, env.height, env.width, env.rotation_deg)
+        i = np.clip(np.floor(r + 0.5).astype(np.intp), 0, env.height - 1)
+        j = np.mod(np.floor(c + 0.5).astype(np.intp), env.width)
+        return i, j
+
+    def pdf(self, directions: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Density ``(m,)`` in 1/sr with which :meth:`sample` draws ``(3, m)`` unit directions."""
+        i, j = self._pixels(directions)
+        return self.pixel_pdf[i, j].astype(_F32)
+
+    def radiance_nearest(self, directions: NDArray[np.float32]) -> NDArray[np.float32]:
+        """Coefficients ``(K, m)`` of the pixels holding ``(3, m)`` directions (piecewise constant)."""
+        i, j = self._pixels(directions)
+        env = self.environment
+        return np.ascontiguousarray((env.coefficients[i, j] * _F32(env.intensity)).T)
+
+    def sample(self, m: int, rng: np.random.Generator) -> tuple[NDArray[np.float32], NDArray[np.float32],
+                                                                  NDArray[np.float32]]:
+        """Draw ``m`` directions by luminance: ``(3, m)`` directions, ``(m,)`` densities, ``(K, m)`` coefficients.
+
+        Parameters
+        ----------
+        m
+            Number of directions.
+        rng
+            Random generator.
+
+        Returns
+        -------
+        tuple of ndarray
+            Directions, their densities in 1/sr and the coefficients of their pixels.
+        """
+        env = self.environment
+        u = rng.random((3, m))
+        flat = np.minimum(np.searchsorted(self.cdf, u[0], side="right"), self.cdf.size - 1)
+        i, j = np.divmod(flat, env.width)
+        h, w = env.height, env.width
+        z0 = np.cos(np.pi * i / h)
+        z1 = np.cos(np.pi * (i + 1) / h)
+        z = z0 + (z1 - z0) * u[1]
+        phi = 2.0 * np.pi * (j + u[2]) / w + math.radians(env.rotation_deg)
+        s = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+        d = np.stack([s * np.cos(phi), s * np.sin(phi), z]).astype(_F32)
+        coeff = np.ascontiguousarray((env.coefficients[i, j] * _F32(env.intensity)).T)
+        return d, self.pixel_pdf[i, j].astype(_F32), coeff
+
+
+def _cosine_prefilter(env: EnvironmentMap) -> NDArray[np.float64]:
+    """``(h, 2h, K)``: ``(1/pi) int L(w) max(0, n . w) dw`` for the pixel-centre normals of a coarse map.
+
+    The source is the map area-averaged to ``IRRADIANCE_SOURCE_HEIGHT`` rows (power kept); intensity applied.
+    """
+    src = _area_average(env.coefficients, IRRADIANCE_SOURCE_HEIGHT) * env.intensity
+    hs, ws, k = src.shape
+    from processing.lighting.environment_map import pixel_directions
+
+    d_src = pixel_directions(hs, ws).reshape(-1, 3)
+    w_src = np.repeat(_row_solid_angles(hs, ws), ws)
+    h = min(IRRADIANCE_HEIGHT, env.height)
+    d_out = pixel_directions(h, 2 * h).reshape(-1, 3)
+    kernel = np.maximum(d_out @ d_src.T, 0.0) * (w_src / math.pi)[None, :]
+    out = kernel @ src.reshape(-1, k)
+    return out.reshape(h, 2 * h, k)
