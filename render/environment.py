@@ -10,11 +10,16 @@ needs of a :class:`~processing.lighting.environment_map.EnvironmentMap`:
   render's luminance: a white Lambertian surface under a uniform map of
   luminance ``Y`` renders with ``Y``, whatever the key light;
 * **importance sampling** of the map: a pixel is drawn with probability
-  proportional to its luminance times its solid angle (one CDF over all
-  pixels), then a direction uniformly in solid angle within the pixel; the
-  density of a direction is ``P(pixel) / Omega(pixel)`` (Pharr, Jakob and
-  Humphreys 2016, section 14.2.4).  Radiance for these samples is the
-  pixel's own (piecewise constant, the same function the density follows);
+  proportional to its luminance above the map's mean luminance times its
+  solid angle (one CDF over all pixels), then a direction uniformly in
+  solid angle within the pixel; the density of a direction is
+  ``P(pixel) / Omega(pixel)`` (Pharr, Jakob and Humphreys 2016, section
+  14.2.4).  Subtracting the mean is the MIS compensation of Karlik et al.
+  (2019): the BRDF samples the integrator combines with these take the
+  uniform part of the light, so a uniform map is sampled by the BRDF alone
+  (no noise in the furnace) and a sun by the map.  Radiance for these
+  samples is the pixel's own (piecewise constant, the same function the
+  density follows);
 * the **cosine-prefiltered map**: ``(1/pi) int L(w) max(0, n . w) dw`` for
   normals ``n`` on a coarse grid, bilinear in between: the radiance a
   white Lambertian surface facing ``n`` reflects when nothing occludes it
@@ -27,6 +32,9 @@ Debevec, P. (1998). Rendering synthetic objects into real scenes.
 SIGGRAPH 98, 189-198. doi:10.1145/280814.280864
 Veach, E., & Guibas, L. J. (1995). Optimally combining sampling techniques
 for Monte Carlo rendering. SIGGRAPH 95, 419-428. doi:10.1145/218380.218498
+Karlik, O., Sik, M., Vevoda, P., Skrivanek, T., & Krivanek, J. (2019). MIS
+compensation: optimizing sampling techniques in multiple importance
+sampling. ACM TOG 38(6), 151. doi:10.1145/3355089.3356565
 Pharr, M., Jakob, W., & Humphreys, G. (2016). Physically Based Rendering,
 3rd ed., section 14.2.4 (infinite area lights). doi:10.1016/C2013-0-15557-2
 
@@ -100,9 +108,11 @@ class EnvironmentPlan:
     basis
         ``(K, L)`` radiance of a unit coefficient on the render grid, divided by ``k``.
     cdf
-        ``(H W,)`` cumulative pixel probabilities (luminance x solid angle), last = 1.
+        ``(H W,)`` cumulative pixel probabilities (luminance above the mean x solid angle), last = 1.
     pixel_pdf
         ``(H, W)`` density in 1/sr of a direction inside each pixel.
+    samples_map
+        False when no pixel is above the mean (a uniform map): only the BRDF is sampled.
     irradiance_map
         The cosine-prefiltered coefficients as an :class:`EnvironmentMap` (intensity 1, the same rotation).
     white_basis
@@ -115,6 +125,7 @@ class EnvironmentPlan:
     pixel_pdf: NDArray[np.float64]
     irradiance_map: EnvironmentMap
     white_basis: NDArray[np.float64]
+    samples_map: bool = True
 
     @classmethod
     def build(cls, env: EnvironmentMap, grid: SpectralGrid, k: float) -> EnvironmentPlan:
@@ -134,14 +145,14 @@ class EnvironmentPlan:
         EnvironmentPlan
             The plan.
         """
-        b = resample(env.grid.wavelengths, env.basis, grid)
-        # keep each basis spectrum's luminance exact on a coarser grid
-        y_src = spectra_to_xyz(env.basis, env.grid)[:, 1]
-        y_dst = spectra_to_xyz(b, grid)[:, 1]
-        b = b * np.where(y_dst > 0, y_src / np.where(y_dst > 0, y_dst, 1.0), 1.0)[:, None]
-        lum = env.pixel_luminance() * _row_solid_angles(env.height, env.width)[:, None]
+        b = cls.basis_on_grid(env, grid)
+        omega = _row_solid_angles(env.height, env.width)[:, None]
+        y = env.pixel_luminance()
+        mean = float((y * omega).sum() / (4.0 * math.pi))
+        lum = np.maximum(y - mean, 0.0) * omega
         total = float(lum.sum())
-        if total > 0:
+        samples_map = total > 1e-6 * mean * 4.0 * math.pi
+        if samples_map:
             cdf = np.cumsum(lum.ravel()) / total
             pdf = lum / total / _row_solid_angles(env.height, env.width)[:, None]
         else:
@@ -151,7 +162,15 @@ class EnvironmentPlan:
         irr = _cosine_prefilter(env)
         irr_map = EnvironmentMap(irr.astype(np.float32), env.basis, env.grid, source=env.source,
                                  rotation_deg=env.rotation_deg, intensity=1.0)
-        return cls(env, b / k, cdf, pdf, irr_map, b.sum(axis=0))
+        return cls(env, b / k, cdf, pdf, irr_map, b.sum(axis=0), samples_map)
+
+    @staticmethod
+    def basis_on_grid(env: EnvironmentMap, grid: SpectralGrid) -> NDArray[np.float64]:
+        """``(K, L)``: the map's basis resampled to ``grid``, each row keeping its luminance."""
+        b = resample(env.grid.wavelengths, env.basis, grid)
+        y_src = spectra_to_xyz(env.basis, env.grid)[:, 1]
+        y_dst = spectra_to_xyz(b, grid)[:, 1]
+        return b * np.where(y_dst > 0, y_src / np.where(y_dst > 0, y_dst, 1.0), 1.0)[:, None]
 
     @property
     def channels(self) -> int:
@@ -184,8 +203,8 @@ class EnvironmentPlan:
         env = self.environment
         return np.ascontiguousarray((env.coefficients[i, j] * _F32(env.intensity)).T)
 
-    def sample(self, m: int, rng: np.random.Generator) -> tuple[NDArray[np.float32], NDArray[np.float32],
-                                                                  NDArray[np.float32]]:
+    def sample(self, m: int, rng: np.random.Generator, stratum: tuple[int, int] = (0, 1)
+               ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
         """Draw ``m`` directions by luminance: ``(3, m)`` directions, ``(m,)`` densities, ``(K, m)`` coefficients.
 
         Parameters
@@ -194,6 +213,9 @@ class EnvironmentPlan:
             Number of directions.
         rng
             Random generator.
+        stratum
+            ``(s, n)``: draw from the s-th of n equal slices of the luminance CDF
+            (stratified sampling over n calls; the density is that of the whole map).
 
         Returns
         -------
@@ -202,6 +224,7 @@ class EnvironmentPlan:
         """
         env = self.environment
         u = rng.random((3, m))
+        u[0] = (stratum[0] + u[0]) / stratum[1]
         flat = np.minimum(np.searchsorted(self.cdf, u[0], side="right"), self.cdf.size - 1)
         i, j = np.divmod(flat, env.width)
         h, w = env.height, env.width

@@ -7,8 +7,8 @@ spectral part comes from one of the backends of :mod:`render.backends`.
 
 An environment map (:mod:`render.environment`) lights the non-mirror lobes
 of the primary hits by Monte Carlo integration when ``environment_samples``
-is above 0: half the directions drawn from the map's luminance, half from
-the lobes' BRDF (cosine for Lambert lobes, Beckmann normals for microfacet
+is above 0: half the directions drawn from the map's luminance above its
+mean (:mod:`render.environment`), half from the lobes' BRDF (cosine for Lambert lobes, Beckmann normals for microfacet
 lobes), combined by the balance heuristic of multiple importance sampling
 (Veach and Guibas 1995, doi:10.1145/218380.218498), each with a shadow ray
 when ``shadows`` is set.  With no samples (and on the mirror bounce's
@@ -84,6 +84,11 @@ class ShadingContext:
     environment_samples
         Directions per primary hit for the environment light of the
         non-mirror lobes (0: the prefiltered map, unoccluded).
+    environment_term
+        The sampled environment light of the last primary :func:`shade`
+        call (its colours, included in what it returned), or None: the
+        renderer leaves its Monte Carlo noise out of the adaptive
+        anti-aliasing decision.
     """
 
     lights: tuple[LightPlan, ...]
@@ -99,6 +104,7 @@ class ShadingContext:
     stats: dict[str, float] = field(default_factory=dict)
     environment: EnvironmentPlan | None = None
     environment_samples: int = 0
+    environment_term: NDArray | None = None
 
     def count(self, key: str, value: float) -> None:
         """Add ``value`` to the count ``key`` of :attr:`stats`.
@@ -224,6 +230,8 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
     if m == 0:
         return out
     per_light = [light_samples(ctx, hits, i) for i in range(len(ctx.lights))]
+    sampled_env = ctx.environment is not None and ctx.environment_samples > 0 and depth == ctx.mirror_bounces
+    env_out = backend.zeros(m) if sampled_env else None
     if len(ctx.plans) > 1:
         materials = np.flatnonzero(np.bincount(hits.material, minlength=len(ctx.plans)))
     else:
@@ -267,14 +275,17 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
         # ---- environment map through the non-mirror lobes
         if ctx.environment is not None and plan.sky_groups:
             sub = hits if sel is None else hits.take(sel)
-            if ctx.environment_samples > 0 and depth == ctx.mirror_bounces:
-                _environment_light(ctx, sub, sel, out, backend, mat, rng)
+            if sampled_env:
+                _environment_light(ctx, sub, sel, env_out, backend, mat, rng)
             else:
                 irr = ctx.environment.irradiance(sub.shading_normal)
                 backend.add(out, sel, backend.env_diffuse(mat, sub.cos_o, irr))
         # ---- mirror lobes
         for j, lobe in enumerate(plan.mirrors):
             _mirror(ctx, hits if sel is None else hits.take(sel), sel, out, backend, mat, j, lobe, depth, rng)
+    if sampled_env:
+        out += env_out
+        ctx.environment_term = env_out
     return out
 
 
@@ -359,10 +370,14 @@ def _group_weights(plan_groups) -> NDArray[np.float64]:
 
 
 def _sample_brdf(groups, probabilities: NDArray[np.float64], normal: NDArray[np.float32], view: NDArray[np.float32],
-                 rng: np.random.Generator) -> NDArray[np.float32]:
-    """One direction ``(3, m)`` per hit from the mixture of the lobe groups' sampling densities."""
+                 rng: np.random.Generator, stratum: tuple[int, int] = (0, 1)) -> NDArray[np.float32]:
+    """One direction ``(3, m)`` per hit from the mixture of the lobe groups' sampling densities.
+
+    ``stratum`` ``(s, n)`` restricts the cosine directions to the s-th of n rings of equal probability.
+    """
     m = normal.shape[1]
     u = rng.random((3, m), dtype=_F32)
+    u[1] = (_F32(stratum[0]) + u[1]) * _F32(1.0 / stratum[1])
     # cosine-weighted hemisphere (Lambert and anisotropic groups; Malley's method)
     t, b = orthonormal_basis(normal)
     r = np.sqrt(u[1])
@@ -415,7 +430,7 @@ def _environment_light(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | N
     groups = plan.sky_groups
     probabilities = _group_weights(groups)
     total = ctx.environment_samples
-    n_light = (total + 1) // 2
+    n_light = total // 2 if env.samples_map else 0
     n_brdf = total - n_light
     m = len(sub)
     ns, v, co = sub.shading_normal, sub.view, sub.cos_o
@@ -426,10 +441,10 @@ def _environment_light(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | N
         tb = (sub.tangent, cross3(ns, sub.tangent))
     for s in range(total):
         if s < n_light:
-            d, pdf_l, coeff = env.sample(m, rng)
+            d, pdf_l, coeff = env.sample(m, rng, (s, n_light))
         else:
-            d = _sample_brdf(groups, probabilities, ns, v, rng)
-            pdf_l = env.pdf(d)
+            d = _sample_brdf(groups, probabilities, ns, v, rng, (s - n_light, n_brdf))
+            pdf_l = env.pdf(d) if n_light else np.zeros(m, _F32)
             coeff = None
         ci = dot3(ns, d)
         pdf_b = _brdf_pdf(groups, probabilities, ns, v, d, ci) if n_brdf else np.zeros(m, _F32)

@@ -154,6 +154,9 @@ class RenderSettings:
         object.__setattr__(self, "adaptive_samples", _whole(self.adaptive_samples, "adaptive_samples", 0, 4096))
         object.__setattr__(self, "environment_samples",
                            _whole(self.environment_samples, "environment_samples", 0, 4096))
+        if self.environment_samples == 1:
+            raise RenderInputError("render setting environment_samples must be 0 (prefiltered map) or at least 2 "
+                                   "(half from the map, half from the BRDF), got 1")
         if self.adaptive_samples:
             if self.samples_per_pixel < 2:
                 raise RenderInputError(

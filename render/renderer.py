@@ -358,7 +358,7 @@ def _lighting(scene: Scene, grid: SpectralGrid, lo: NDArray[np.float64], hi: NDA
         # no lights: the environment alone; the white (and the unit of a synthetic sky) is the spectrum of
         # its basis rows together (D65 for an sRGB map)
         key_irradiance = 1.0
-        key_spectrum = EnvironmentPlan.build(env, grid, 1.0).white_basis
+        key_spectrum = EnvironmentPlan.basis_on_grid(env, grid).sum(axis=0)
         k = xyz_scale(key_spectrum, grid)
         white = white_xyz(key_spectrum, grid)
     lights = tuple(
@@ -634,8 +634,11 @@ def _refine_chunks(count: int, samples: int, use_tables: bool) -> list[slice]:
 
 def _shade_samples(
     prep: _Prepared, rays: NDArray[np.float32], rng: np.random.Generator, settings: RenderSettings
-) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.int64]]:
-    """Cast and shade primary ``rays``: sample XYZ ``(n, 3)``, hit flags and surface keys (-1: miss)."""
+) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.int64], NDArray[np.float32]]:
+    """Cast and shade primary ``rays``: sample XYZ, hit flags, surface keys, XYZ without sampled environment light.
+
+    The XYZ are ``(n, 3)``, keys -1 for a miss; the last is what adaptive anti-aliasing compares.
+    """
     ctx, backend = prep.ctx, prep.backend
     answer = _cast_primary(prep, rays)
     hit = np.isfinite(answer["t_hit"])
@@ -660,8 +663,16 @@ def _shade_samples(
             if len(prep.tri_offset) > 1:
                 surface += prep.n_materials * np.take(answer["geometry_ids"], rows).astype(np.int32)
             key[rows] = surface
+        ctx.environment_term = None
         backend.add(colour, rows, shade(ctx, hits, backend, settings.mirror_bounces, rng))
-    return backend.to_xyz(colour), hit, key
+        if settings.adaptive_samples and ctx.environment_term is not None:
+            # the sampled environment light's noise would refine nearly every pixel: decide without it
+            steady = colour.copy()
+            backend.add(steady, rows, -ctx.environment_term)
+            ctx.environment_term = None
+            return backend.to_xyz(colour), hit, key, backend.to_xyz(steady)
+    xyz = backend.to_xyz(colour)
+    return xyz, hit, key, xyz
 
 
 def _tile_rngs(settings: RenderSettings, number: int) -> tuple[np.random.Generator, ...]:
@@ -935,7 +946,7 @@ def _render_tile(
     spp, extra = settings.samples_per_pixel, settings.adaptive_samples
     rng_base, rng_refine, rng_shade = _tile_rngs(settings, number)
     rays = camera.rays(x0, x1, y0, y1, spp, rng_base, settings.jitter)
-    sample_xyz, hit, key = _shade_samples(prep, rays, rng_shade, settings)
+    sample_xyz, hit, key, steady_xyz = _shade_samples(prep, rays, rng_shade, settings)
     primary_total = rays.shape[0]
     hits_total = int(np.count_nonzero(hit))
     nx = x1 - x0
@@ -943,11 +954,11 @@ def _render_tile(
     cover = _pixel_fraction(hit, spp)
     if not extra:
         return pixel, cover, None, primary_total, hits_total
-    todo = np.flatnonzero(pixels_to_refine(sample_xyz, key, spp, prep.white, settings.adaptive_threshold))
+    todo = np.flatnonzero(pixels_to_refine(steady_xyz, key, spp, prep.white, settings.adaptive_threshold))
     for part in _refine_chunks(todo.size, extra, settings.use_tables):
         idx = todo[part]
         more = camera.pixel_rays(x0 + idx % nx, y0 + idx // nx, extra, rng_refine, settings.jitter)
-        more_xyz, more_hit, _ = _shade_samples(prep, more, rng_shade, settings)
+        more_xyz, more_hit, _, _ = _shade_samples(prep, more, rng_shade, settings)
         primary_total += more.shape[0]
         hits_total += int(np.count_nonzero(more_hit))
         pixel[idx] = _pixel_mean(more_xyz, extra)
