@@ -15,6 +15,7 @@ from app.workflows.scene_spec import (
     SceneSpec,
     check_path_text,
     load_scene_file,
+    parse_environment,
     parse_light,
     parse_size,
     parse_vector,
@@ -47,6 +48,9 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
         spec.illuminant = args.illuminant
     if args.sky:
         spec.sky.kind = args.sky
+        spec.sky_given = True
+    if args.environment is not None:
+        spec.environment = parse_environment(args.environment)
     if args.size:
         spec.size = parse_size(args.size)
     if args.preset:
@@ -85,6 +89,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(default D65, or the scene file's)")
     p.add_argument("--sky", default=None, choices=["uniform", "gradient", "none"],
                    help="environment seen in mirror reflections (default gradient)")
+    p.add_argument("--environment", default=None, metavar="MAP",
+                   help="light the scene with an environment map: FILE.exr or FILE.hdr (equirectangular, 2:1, z up) "
+                        "with optional :rotate=DEG,intensity=X, or the analytic daylight sky "
+                        "sky:cct=K,sun_elevation=DEG,sun_azimuth=DEG,type=clear|intermediate|overcast|1-15,sun=X,"
+                        "sun_cct=K,luminance=Y,ground=R,height=ROWS (and rotate, intensity); it replaces the default "
+                        "light and sky unless --light or --sky are given (docs/lighting.md)")
     p.add_argument("--eye", default=None, metavar="X,Y,Z",
                    help="camera position in the mesh's coordinates, mm (default: framed to show the whole scene)")
     p.add_argument("--target", default=None, metavar="X,Y,Z",
