@@ -6,6 +6,9 @@ environment_map
     :class:`~processing.lighting.environment_map.EnvironmentMap` (equirectangular
     spectral-basis radiance in the table frame), reading and writing ``.exr`` /
     ``.hdr`` files, sRGB upsampling by Mallett and Yuksel (2019).
+daylight_sky
+    :func:`~processing.lighting.daylight_sky.daylight_sky`: an outdoor sky
+    (CIE general sky luminance, CIE daylight spectra, a sun disc, a ground).
 
 docs/lighting.md describes the frame, the units and the file format.
 
