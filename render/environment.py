@@ -51,6 +51,7 @@ Examples
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,6 +96,11 @@ def _area_average(coefficients: NDArray[np.float32], height: int) -> NDArray[np.
         out[:, c] = np.bincount(target, weights=coefficients[..., c].ravel() * wgt, minlength=height * width)
     out /= total[:, None]
     return out.reshape(height, width, k)
+
+
+#: Plans already built, per map and (grid, k): a re-render of the same scene (the window's preview)
+#: does not integrate the map again.
+_PLANS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,6 +169,15 @@ class EnvironmentPlan:
         irr_map = EnvironmentMap(irr.astype(np.float32), env.basis, env.grid, source=env.source,
                                  rotation_deg=env.rotation_deg, intensity=1.0)
         return cls(env, b / k, cdf, pdf, irr_map, b.sum(axis=0), samples_map)
+
+    @classmethod
+    def cached(cls, env: EnvironmentMap, grid: SpectralGrid, k: float) -> EnvironmentPlan:
+        """:meth:`build`, remembered for as long as ``env`` lives (same arguments: the same plan)."""
+        per_map = _PLANS.setdefault(env, {})
+        key = (grid.start, grid.stop, grid.step, float(k))
+        if key not in per_map:
+            per_map[key] = cls.build(env, grid, k)
+        return per_map[key]
 
     @staticmethod
     def basis_on_grid(env: EnvironmentMap, grid: SpectralGrid) -> NDArray[np.float64]:

@@ -367,7 +367,7 @@ def _lighting(scene: Scene, grid: SpectralGrid, lo: NDArray[np.float64], hi: NDA
     )
     sky = scene.sky
     sky_spec = resolve_spectrum(sky.spectrum, grid, "sky spectrum") if sky.spectrum is not None else key_spectrum
-    plan = None if env is None else EnvironmentPlan.build(env, grid, k)
+    plan = None if env is None else EnvironmentPlan.cached(env, grid, k)
     return _Lighting(lights, k, white, sky_spec / math.pi, plan)
 
 
