@@ -195,7 +195,7 @@ def _white():
 
 def compare(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
     """Mean / p95 CIEDE2000 per pixel and of 4 x 4 pixel blocks, chromaticity difference of the means,
-    mean per-pixel u'v' difference and the ratio of the mean luminances."""
+    mean per-pixel u'v' difference (pixels above 1 % of the white) and the ratio of the mean luminances."""
     from processing.spectral.display import delta_e00
 
     de = np.asarray(delta_e00(a[mask], b[mask], _white()))
@@ -210,6 +210,7 @@ def compare(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
         return np.stack([4 * x[..., 0] / d, 9 * x[..., 1] / d], axis=-1)
 
     mean_a, mean_b = a[mask].mean(axis=0), b[mask].mean(axis=0)
+    lit = mask & (a[..., 1] > 0.01) & (b[..., 1] > 0.01)      # chromaticity of pixels that are not black
     # 4 x 4 pixel blocks inside the mask: the noise of both renders falls 4 times, what stays is systematic
     h, w = (mask.shape[0] // 4) * 4, (mask.shape[1] // 4) * 4
 
@@ -221,7 +222,7 @@ def compare(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> dict:
     return {"de_mean": float(de.mean()), "de_p95": float(np.percentile(de, 95)),
             "de_mean_4x4": float(de_blocks.mean()),
             "dxy_mean_colour": float(np.linalg.norm(xy(mean_a) - xy(mean_b))),
-            "duv_pixel_mean": float(np.linalg.norm(uv(a[mask]) - uv(b[mask]), axis=-1).mean()),
+            "duv_pixel_mean": float(np.linalg.norm(uv(a[lit]) - uv(b[lit]), axis=-1).mean()),
             "y_ratio": float(mean_a[1] / mean_b[1])}
 
 

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from processing.lighting.environment_map import EnvironmentMap, direction_pixels
+from processing.lighting.environment_map import EnvironmentMap
 from processing.spectral.display import spectra_to_xyz
 from processing.spectral.spectra import SpectralGrid, resample
 
@@ -101,6 +101,7 @@ def _area_average(coefficients: NDArray[np.float32], height: int) -> NDArray[np.
 #: Plans already built, per map and (grid, k): a re-render of the same scene (the window's preview)
 #: does not integrate the map again.
 _PLANS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_PREFILTERED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,6 +120,9 @@ class EnvironmentPlan:
         ``(H, W)`` density in 1/sr of a direction inside each pixel.
     samples_map
         False when no pixel is above the mean (a uniform map): only the BRDF is sampled.
+    coefficients_t, pixel_pdf_flat, row_cos
+        float32 copies for sampling: ``(K, H W)`` coefficients (intensity applied), ``(H W,)``
+        densities, ``(H + 1,)`` cosines of the row edges.
     irradiance_map
         The cosine-prefiltered coefficients as an :class:`EnvironmentMap` (intensity 1, the same rotation).
     white_basis
@@ -132,6 +136,9 @@ class EnvironmentPlan:
     irradiance_map: EnvironmentMap
     white_basis: NDArray[np.float64]
     samples_map: bool = True
+    coefficients_t: NDArray[np.float32] | None = None
+    pixel_pdf_flat: NDArray[np.float32] | None = None
+    row_cos: NDArray[np.float32] | None = None
 
     @classmethod
     def build(cls, env: EnvironmentMap, grid: SpectralGrid, k: float) -> EnvironmentPlan:
@@ -165,10 +172,16 @@ class EnvironmentPlan:
             cdf = np.arange(1, lum.size + 1) / lum.size
             pdf = np.full(lum.shape, 1.0 / (4.0 * math.pi))
         cdf[-1] = 1.0
-        irr = _cosine_prefilter(env)
+        irr = _PREFILTERED.get(env)
+        if irr is None:
+            irr = _PREFILTERED[env] = _cosine_prefilter(env)
         irr_map = EnvironmentMap(irr.astype(np.float32), env.basis, env.grid, source=env.source,
                                  rotation_deg=env.rotation_deg, intensity=1.0)
-        return cls(env, b / k, cdf, pdf, irr_map, b.sum(axis=0), samples_map)
+        coeff_t = np.ascontiguousarray((env.coefficients.reshape(-1, env.coefficients.shape[2])
+                                        * _F32(env.intensity)).T, dtype=_F32)
+        row_cos = np.cos(np.pi * np.arange(env.height + 1) / env.height).astype(_F32)
+        return cls(env, b / k, cdf, pdf, irr_map, b.sum(axis=0), samples_map, coeff_t,
+                   pdf.ravel().astype(_F32), row_cos)
 
     @classmethod
     def cached(cls, env: EnvironmentMap, grid: SpectralGrid, k: float) -> EnvironmentPlan:
@@ -200,27 +213,36 @@ class EnvironmentPlan:
         """Cosine-weighted mean coefficients ``(K, m)`` over the hemispheres of ``(3, m)`` unit normals."""
         return np.ascontiguousarray(self.irradiance_map.lookup(np.asarray(normals, np.float64).T).T, dtype=_F32)
 
-    def _pixels(self, directions: NDArray[np.float32]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    def pixel_index(self, directions: NDArray[np.float32]) -> NDArray[np.intp]:
+        """Flat index ``row * W + column`` ``(m,)`` of the pixels holding ``(3, m)`` unit directions."""
         env = self.environment
-        r, c = direction_pixels(np.asarray(directions, np.float64).T, env.height, env.width, env.rotation_deg)
-        i = np.clip(np.floor(r + 0.5).astype(np.intp), 0, env.height - 1)
-        j = np.mod(np.floor(c + 0.5).astype(np.intp), env.width)
-        return i, j
+        d = np.asarray(directions, dtype=_F32)
+        h, w = env.height, env.width
+        theta = np.arccos(np.clip(d[2], _F32(-1.0), _F32(1.0)))
+        i = np.minimum((theta * _F32(h / math.pi)).astype(np.intp), h - 1)
+        phi = np.arctan2(d[1], d[0]) - _F32(math.radians(env.rotation_deg))
+        j = np.mod(np.floor(phi * _F32(w / (2.0 * math.pi))).astype(np.intp), w)
+        return i * w + j
+
+    def pdf_of(self, index: NDArray[np.intp]) -> NDArray[np.float32]:
+        """Density ``(m,)`` in 1/sr of :meth:`sample` inside the pixels ``index`` (flat)."""
+        return np.take(self.pixel_pdf_flat, index)
+
+    def radiance_of(self, index: NDArray[np.intp]) -> NDArray[np.float32]:
+        """Coefficients ``(K, m)`` of the pixels ``index`` (flat; intensity applied)."""
+        return np.take(self.coefficients_t, index, axis=1)
 
     def pdf(self, directions: NDArray[np.float32]) -> NDArray[np.float32]:
         """Density ``(m,)`` in 1/sr with which :meth:`sample` draws ``(3, m)`` unit directions."""
-        i, j = self._pixels(directions)
-        return self.pixel_pdf[i, j].astype(_F32)
+        return self.pdf_of(self.pixel_index(directions))
 
     def radiance_nearest(self, directions: NDArray[np.float32]) -> NDArray[np.float32]:
         """Coefficients ``(K, m)`` of the pixels holding ``(3, m)`` directions (piecewise constant)."""
-        i, j = self._pixels(directions)
-        env = self.environment
-        return np.ascontiguousarray((env.coefficients[i, j] * _F32(env.intensity)).T)
+        return self.radiance_of(self.pixel_index(directions))
 
     def sample(self, m: int, rng: np.random.Generator, stratum: tuple[int, int] = (0, 1)
-               ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
-        """Draw ``m`` directions by luminance: ``(3, m)`` directions, ``(m,)`` densities, ``(K, m)`` coefficients.
+               ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.intp]]:
+        """Draw ``m`` directions by luminance: ``(3, m)`` directions, ``(m,)`` densities, ``(m,)`` pixels.
 
         Parameters
         ----------
@@ -235,22 +257,20 @@ class EnvironmentPlan:
         Returns
         -------
         tuple of ndarray
-            Directions, their densities in 1/sr and the coefficients of their pixels.
+            Directions, their densities in 1/sr and the flat indices of their pixels
+            (:meth:`radiance_of` gives their coefficients).
         """
         env = self.environment
-        u = rng.random((3, m))
-        u[0] = (stratum[0] + u[0]) / stratum[1]
-        flat = np.minimum(np.searchsorted(self.cdf, u[0], side="right"), self.cdf.size - 1)
+        u0 = (stratum[0] + rng.random(m)) / stratum[1]
+        flat = np.minimum(np.searchsorted(self.cdf, u0, side="right"), self.cdf.size - 1)
         i, j = np.divmod(flat, env.width)
-        h, w = env.height, env.width
-        z0 = np.cos(np.pi * i / h)
-        z1 = np.cos(np.pi * (i + 1) / h)
-        z = z0 + (z1 - z0) * u[1]
-        phi = 2.0 * np.pi * (j + u[2]) / w + math.radians(env.rotation_deg)
-        s = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-        d = np.stack([s * np.cos(phi), s * np.sin(phi), z]).astype(_F32)
-        coeff = np.ascontiguousarray((env.coefficients[i, j] * _F32(env.intensity)).T)
-        return d, self.pixel_pdf[i, j].astype(_F32), coeff
+        u = rng.random((2, m), dtype=_F32)
+        z0 = np.take(self.row_cos, i)
+        z = z0 + (np.take(self.row_cos, i + 1) - z0) * u[0]
+        phi = (j.astype(_F32) + u[1]) * _F32(2.0 * math.pi / env.width) + _F32(math.radians(env.rotation_deg))
+        s = np.sqrt(np.maximum(_F32(1.0) - z * z, _F32(0.0)))
+        d = np.stack([s * np.cos(phi), s * np.sin(phi), z])
+        return d, self.pdf_of(flat), flat
 
 
 def _cosine_prefilter(env: EnvironmentMap) -> NDArray[np.float64]:
@@ -266,6 +286,7 @@ def _cosine_prefilter(env: EnvironmentMap) -> NDArray[np.float64]:
     w_src = np.repeat(_row_solid_angles(hs, ws), ws)
     h = min(IRRADIANCE_HEIGHT, env.height)
     d_out = pixel_directions(h, 2 * h).reshape(-1, 3)
-    kernel = np.maximum(d_out @ d_src.T, 0.0) * (w_src / math.pi)[None, :]
-    out = kernel @ src.reshape(-1, k)
+    kernel = np.maximum(d_out.astype(_F32) @ d_src.T.astype(_F32), _F32(0.0))
+    kernel *= (w_src / math.pi).astype(_F32)[None, :]
+    out = (kernel @ src.reshape(-1, k).astype(_F32)).astype(np.float64)
     return out.reshape(h, 2 * h, k)

@@ -370,16 +370,18 @@ def _group_weights(plan_groups) -> NDArray[np.float64]:
 
 
 def _sample_brdf(groups, probabilities: NDArray[np.float64], normal: NDArray[np.float32], view: NDArray[np.float32],
-                 rng: np.random.Generator, stratum: tuple[int, int] = (0, 1)) -> NDArray[np.float32]:
+                 frame: tuple[NDArray[np.float32], NDArray[np.float32]], rng: np.random.Generator,
+                 stratum: tuple[int, int] = (0, 1)) -> NDArray[np.float32]:
     """One direction ``(3, m)`` per hit from the mixture of the lobe groups' sampling densities.
 
-    ``stratum`` ``(s, n)`` restricts the cosine directions to the s-th of n rings of equal probability.
+    ``frame`` is :func:`orthonormal_basis` of ``normal``; ``stratum`` ``(s, n)`` restricts the cosine
+    directions to the s-th of n rings of equal probability.
     """
     m = normal.shape[1]
     u = rng.random((3, m), dtype=_F32)
     u[1] = (_F32(stratum[0]) + u[1]) * _F32(1.0 / stratum[1])
     # cosine-weighted hemisphere (Lambert and anisotropic groups; Malley's method)
-    t, b = orthonormal_basis(normal)
+    t, b = frame
     r = np.sqrt(u[1])
     phi = _F32(2.0 * math.pi) * u[2]
     d = t * (r * np.cos(phi))
@@ -439,13 +441,14 @@ def _environment_light(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | N
         if sub.tangent is None:
             raise InputError(f"material {plan.material.name!r} is anisotropic but the hits carry no tangents")
         tb = (sub.tangent, cross3(ns, sub.tangent))
+    frame = orthonormal_basis(ns)
     for s in range(total):
         if s < n_light:
-            d, pdf_l, coeff = env.sample(m, rng, (s, n_light))
+            d, pdf_l, pixel = env.sample(m, rng, (s, n_light))
         else:
-            d = _sample_brdf(groups, probabilities, ns, v, rng, (s - n_light, n_brdf))
-            pdf_l = env.pdf(d) if n_light else np.zeros(m, _F32)
-            coeff = None
+            d = _sample_brdf(groups, probabilities, ns, v, frame, rng, (s - n_light, n_brdf))
+            pixel = env.pixel_index(d)
+            pdf_l = env.pdf_of(pixel) if n_light else np.zeros(m, _F32)
         ci = dot3(ns, d)
         pdf_b = _brdf_pdf(groups, probabilities, ns, v, d, ci) if n_brdf else np.zeros(m, _F32)
         denom = _F32(n_light) * pdf_l + _F32(n_brdf) * pdf_b
@@ -468,7 +471,7 @@ def _environment_light(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | N
         _normalise(h)
         ns_r = _take(ns, key)
         ci_r = _take(ci, key)
-        coeff_r = env.radiance_nearest(d_r) if coeff is None else (coeff if all_rows else np.take(coeff, rows, axis=1))
+        coeff_r = env.radiance_of(pixel if all_rows else np.take(pixel, rows))
         scale = _F32(1.0) / _take(denom, key)
         tangential = None
         if tb is not None:
