@@ -232,3 +232,51 @@ def test_sampled_and_prefiltered_agree_for_lambert_under_a_sun() -> None:
     blocks = lambda x: x.reshape(12, 4, 12, 4).mean(axis=(1, 3))  # noqa: E731
     full = blocks(inside.astype(float)) == 1.0
     assert np.percentile(np.abs(blocks(a)[full] / blocks(b)[full] - 1), 95) < 0.03
+
+
+# --------------------------------------------------------------------------- the sampling of the map
+def _plan(env):
+    from processing.spectral.spectra import SpectralGrid
+    from render.environment import EnvironmentPlan
+
+    return EnvironmentPlan.build(env, SpectralGrid(400, 700, 10), 1.0)
+
+
+def test_map_density_is_normalised_and_followed_by_the_samples() -> None:
+    """The density integrates to 1 over the sphere (1e-6) and is proportional to the luminance above
+    the mean; 200 000 draws land in each pixel in proportion to its probability (chi-square with
+    H W - 1 degrees of freedom within 5 standard deviations), inside the pixel they were drawn from,
+    with the density reported for that pixel."""
+    from processing.lighting.environment_map import pixel_directions
+
+    env = smooth_map(height=8, rotation_deg=40.0)
+    plan = _plan(env)
+    assert float((plan.pixel_pdf * env.solid_angles()).sum()) == pytest.approx(1.0, abs=1e-6)
+    y = env.pixel_luminance()
+    excess = np.maximum(y - (y * env.solid_angles()).sum() / (4 * np.pi), 0)
+    nonzero = excess > 0
+    ratio = plan.pixel_pdf[nonzero] / excess[nonzero]
+    assert np.ptp(ratio) / ratio.mean() < 1e-6
+    n = 200_000
+    d, pdf, pixel = plan.sample(n, np.random.default_rng(3))
+    assert np.allclose(np.linalg.norm(d, axis=0), 1.0, atol=1e-5)
+    # float32 directions on a pixel's edge may fall in the neighbour: at most 1e-4 of them
+    assert np.mean(plan.pixel_index(d) != pixel) < 1e-4
+    assert np.allclose(pdf, plan.pdf_of(pixel))
+    p = (plan.pixel_pdf * env.solid_angles()).ravel()
+    counts = np.bincount(pixel, minlength=p.size)
+    seen = p > 0
+    assert counts[~seen].sum() == 0
+    chi2 = float((((counts - n * p) ** 2)[seen] / (n * p[seen])).sum())
+    dof = int(seen.sum()) - 1
+    assert abs(chi2 - dof) < 5 * math.sqrt(2 * dof)
+    # every pixel centre maps to its own pixel
+    centres = pixel_directions(8, 16, 40.0).reshape(-1, 3).T.astype(np.float32)
+    assert np.array_equal(plan.pixel_index(centres), np.arange(128))
+
+
+def test_a_uniform_map_is_left_to_the_brdf() -> None:
+    """No pixel is above the mean of a uniform map: the plan says so and the integrator draws every
+    direction from the BRDF (MIS compensation)."""
+    assert not _plan(uniform_environment(1.0, height=8)).samples_map
+    assert _plan(smooth_map(height=8)).samples_map
