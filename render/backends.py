@@ -46,7 +46,40 @@ ALBEDO_TABLE_SIZE = 65
 ALBEDO_GRAZING_COS = 1e-4
 
 # --------------------------------------------------------------------------- backends
+def _lobe_key(lobe: Lobe) -> tuple:
+    """The lobe group a lobe belongs to (as :func:`render.shading.plan_material` groups them)."""
+    if lobe.kind == "lambert":
+        return ("lambert", 0.0, "", 0.0)
+    if lobe.kind == "anisotropic":
+        return ("anisotropic", float(lobe.roughness), "smith", float(lobe.roughness_b))
+    return ("microfacet", float(lobe.roughness), lobe.shadowing, 0.0)
+
+
+def _group_key(group) -> tuple:
+    return (group.kind, float(group.roughness), group.shadowing, float(group.roughness_b))
+
+
+#: Directional albedo spectra already computed, per (lobe, nodes, grid): materials built from the
+#: same preset share them, and a re-render does not integrate them again.  Only lobes whose spectral
+#: factor has a value repr (ConductorFresnel, ...) are remembered; the default repr names an object.
+_ALBEDO_CACHE: dict[tuple, NDArray[np.float64]] = {}
+
+
 def _albedo_spectra(lobe: Lobe, cos_o: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
+    """Directional albedo ``(N, L)`` of one lobe including its weight, remembered (see ``_ALBEDO_CACHE``)."""
+    text = repr(lobe.spectral)
+    if " object at 0x" in text:
+        return _albedo_spectra_uncached(lobe, cos_o, grid)
+    key = (lobe.kind, lobe.weight, lobe.roughness, lobe.roughness_b, lobe.shadowing, text,
+           cos_o.tobytes(), grid.start, grid.stop, grid.step)
+    if key not in _ALBEDO_CACHE:
+        if len(_ALBEDO_CACHE) > 256:
+            _ALBEDO_CACHE.clear()
+        _ALBEDO_CACHE[key] = _albedo_spectra_uncached(lobe, cos_o, grid)
+    return _ALBEDO_CACHE[key]
+
+
+def _albedo_spectra_uncached(lobe: Lobe, cos_o: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
     """Directional albedo ``(N, L)`` of one lobe including its weight.
 
     A Lambert lobe's albedo is its weight times its reflectance at every
@@ -113,6 +146,8 @@ class SpectralBackend:
         self.albedo: list[AngleTable | None] = []
         # directional albedo spectra of the non-mirror lobes (environment maps use them unscaled)
         self.albedo_spectra: list[AngleTable | None] = []
+        # per sky group of each material (environment maps light each group through its own prefiltered map)
+        self.group_albedo_spectra: list[list[AngleTable]] = []
         self.env_materials: list[Material | None] = []
         nodes = np.linspace(0.0, 1.0, albedo_size)
         nodes[0] = ALBEDO_GRAZING_COS
@@ -121,10 +156,13 @@ class SpectralBackend:
             if (sky.is_black and environment is None) or not plan.sky_lobes:
                 self.albedo.append(None)
                 self.albedo_spectra.append(None)
+                self.group_albedo_spectra.append([])
                 continue
-            total = np.zeros((albedo_size, grid.size))
+            per_group = {_group_key(g): np.zeros((albedo_size, grid.size)) for g in plan.sky_groups}
             for lobe in plan.sky_lobes:
-                total += _albedo_spectra(lobe, nodes, grid)
+                per_group[_lobe_key(lobe)] += _albedo_spectra(lobe, nodes, grid)
+            total = sum(per_group.values())
+            self.group_albedo_spectra.append([AngleTable(v) for v in per_group.values()])
             self.albedo_spectra.append(AngleTable(total))
             self.albedo.append(None if sky.is_black else AngleTable(total * sky_radiance))
 
@@ -301,8 +339,8 @@ class SpectralBackend:
         f *= self.env_radiance(coeff)
         return f
 
-    def env_diffuse(self, mat: int, cos_o: Vec, irradiance: NDArray[np.float32]) -> NDArray[np.float64]:
-        """Unoccluded environment light of the non-mirror lobes: albedo(cos_o) times the prefiltered map.
+    def env_diffuse(self, mat: int, cos_o: Vec, prefiltered: list[NDArray[np.float32]]) -> NDArray[np.float64]:
+        """Unoccluded environment light of the non-mirror lobes: each group's albedo(cos_o) times its prefiltered map.
 
         Parameters
         ----------
@@ -310,16 +348,21 @@ class SpectralBackend:
             Global material number.
         cos_o
             ``(n,)`` cosines of the view direction.
-        irradiance
-            ``(K, n)`` cosine-weighted mean coefficients over each hemisphere.
+        prefiltered
+            ``(K, n)`` coefficients per lobe group of the material's non-mirror lobes: the
+            cosine-weighted mean over each hemisphere (Lambert, cloth) or the map prefiltered by
+            the lobe around the mirrored direction (microfacet lobes).
 
         Returns
         -------
         ndarray
             float64 ``(n, L)``.
         """
-        out = self.albedo_spectra[mat].lookup(cos_o).astype(np.float64)
-        out *= self.env_radiance(irradiance)
+        out = np.zeros((len(cos_o), self.channels))
+        for table, coeff in zip(self.group_albedo_spectra[mat], prefiltered):
+            term = table.lookup(cos_o).astype(np.float64)
+            term *= self.env_radiance(coeff)
+            out += term
         return out
 
     def mirror_env(self, mat: int, j: int, cos_d: Vec, coeff: NDArray[np.float32], factor: Vec) -> NDArray[np.float64]:
@@ -453,7 +496,7 @@ class TableBackend:
         self.background_xyz = (k * spectra_to_xyz(sky_radiance, grid)).astype(_F32)
         env = spectral.environment
         self.env_tables: list[list[AngleTable]] = []
-        self.env_albedo_tables: list[AngleTable | None] = []
+        self.env_albedo_tables: list[list[AngleTable]] = []
         self.env_mirror_tables: list[list[AngleTable]] = []
         if env is not None:
             # every table holds the K basis spectra side by side: (N, 3 K) channels
@@ -471,9 +514,9 @@ class TableBackend:
                         table = t if table is None else table + t
                     per_group.append(table)
                 self.env_tables.append(per_group)
-                alb = spectral.albedo_spectra[mat]
-                self.env_albedo_tables.append(None if alb is None else AngleTable(np.concatenate(
-                    [k * spectra_to_xyz(alb.values * b, grid) for b in env.basis], axis=1)))
+                self.env_albedo_tables.append([AngleTable(np.concatenate(
+                    [k * spectra_to_xyz(alb.values * b, grid) for b in env.basis], axis=1))
+                    for alb in spectral.group_albedo_spectra[mat]])
                 self.env_mirror_tables.append([stacked(lobe.spectral, 1.0) for lobe in plan.mirrors])
             self.env_xyz = (k * spectra_to_xyz(env.basis, grid)).astype(_F32)      # (K, 3)
 
@@ -679,12 +722,12 @@ class TableBackend:
             out += self._combine(stacked, coeff * g)
         return out
 
-    def env_diffuse(self, mat: int, cos_o: Vec, irradiance: NDArray[np.float32]) -> NDArray[np.float32]:
+    def env_diffuse(self, mat: int, cos_o: Vec, prefiltered: list[NDArray[np.float32]]) -> NDArray[np.float32]:
         """Unoccluded environment light of the non-mirror lobes from the albedo tables (see the spectral backend).
 
         Parameters
         ----------
-        mat, cos_o, irradiance
+        mat, cos_o, prefiltered
             As for :meth:`SpectralBackend.env_diffuse`.
 
         Returns
@@ -692,7 +735,12 @@ class TableBackend:
         ndarray
             float32 XYZ ``(3, n)``.
         """
-        return self._combine(self.env_albedo_tables[mat].lookup_channels(cos_o), irradiance)
+        tables = self.env_albedo_tables[mat]
+        index = table_index(cos_o, tables[0].size)
+        out = self.zeros(len(cos_o))
+        for table, coeff in zip(tables, prefiltered):
+            out += self._combine(table.lookup_channels(index=index), coeff)
+        return out
 
     def mirror_env(self, mat: int, j: int, cos_d: Vec, coeff: NDArray[np.float32], factor: Vec) -> NDArray[np.float32]:
         """XYZ of the environment seen in mirror lobe ``j`` (see the spectral backend).

@@ -23,7 +23,9 @@ needs of a :class:`~processing.lighting.environment_map.EnvironmentMap`:
 * the **cosine-prefiltered map**: ``(1/pi) int L(w) max(0, n . w) dw`` for
   normals ``n`` on a coarse grid, bilinear in between: the radiance a
   white Lambertian surface facing ``n`` reflects when nothing occludes it
-  (used by the ``draft`` preset and for the mirror bounce's secondary hits);
+  (used by the ``draft`` preset and for the mirror bounce's secondary hits),
+  and, for glossy lobes, the map prefiltered by the lobe around the mirrored
+  direction (the split-sum approximation);
 * bilinear **lookups** for mirror reflections and the background.
 
 References
@@ -35,6 +37,8 @@ for Monte Carlo rendering. SIGGRAPH 95, 419-428. doi:10.1145/218380.218498
 Karlik, O., Sik, M., Vevoda, P., Skrivanek, T., & Krivanek, J. (2019). MIS
 compensation: optimizing sampling techniques in multiple importance
 sampling. ACM TOG 38(6), 151. doi:10.1145/3355089.3356565
+Karis, B. (2013). Real shading in Unreal Engine 4. SIGGRAPH 2013 course
+Physically Based Shading in Theory and Practice (split-sum approximation; no DOI).
 Pharr, M., Jakob, W., & Humphreys, G. (2016). Physically Based Rendering,
 3rd ed., section 14.2.4 (infinite area lights). doi:10.1016/C2013-0-15557-2
 
@@ -102,6 +106,7 @@ def _area_average(coefficients: NDArray[np.float32], height: int) -> NDArray[np.
 #: does not integrate the map again.
 _PLANS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _PREFILTERED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_GLOSSY: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,6 +218,23 @@ class EnvironmentPlan:
         """Cosine-weighted mean coefficients ``(K, m)`` over the hemispheres of ``(3, m)`` unit normals."""
         return np.ascontiguousarray(self.irradiance_map.lookup(np.asarray(normals, np.float64).T).T, dtype=_F32)
 
+    def glossy(self, directions: NDArray[np.float32], roughness: float) -> NDArray[np.float32]:
+        """Coefficients ``(K, m)`` of the map prefiltered by a Beckmann lobe of ``roughness`` around ``(3, m)`` directions.
+
+        The kernel is the lobe's spread of mirrored directions at normal incidence: a
+        direction at angle ``theta`` from the mirrored one has its half vector
+        ``theta / 2`` from the normal, weight ``exp(-tan^2(theta / 2) / sigma^2)``
+        (normalised over the sphere).  With the lobe's directional albedo this is the
+        split-sum approximation (Karis 2013) the ``draft`` preset uses for glossy lobes.
+        """
+        env = self.environment
+        per_map = _GLOSSY.setdefault(env, {})
+        sigma = float(roughness)
+        if sigma not in per_map:
+            per_map[sigma] = EnvironmentMap(_lobe_prefilter(env, sigma).astype(np.float32), env.basis, env.grid,
+                                            source=env.source, rotation_deg=env.rotation_deg, intensity=1.0)
+        return np.ascontiguousarray(per_map[sigma].lookup(np.asarray(directions, np.float64).T).T, dtype=_F32)
+
     def pixel_index(self, directions: NDArray[np.float32]) -> NDArray[np.intp]:
         """Flat index ``row * W + column`` ``(m,)`` of the pixels holding ``(3, m)`` unit directions."""
         env = self.environment
@@ -289,4 +311,32 @@ def _cosine_prefilter(env: EnvironmentMap) -> NDArray[np.float64]:
     kernel = np.maximum(d_out.astype(_F32) @ d_src.T.astype(_F32), _F32(0.0))
     kernel *= (w_src / math.pi).astype(_F32)[None, :]
     out = (kernel @ src.reshape(-1, k).astype(_F32)).astype(np.float64)
+    return out.reshape(h, 2 * h, k)
+
+
+def _lobe_prefilter(env: EnvironmentMap, sigma: float) -> NDArray[np.float64]:
+    """``(h, 2h, K)``: the map averaged with the weight ``exp(-tan^2(theta / 2) / sigma^2)`` around each pixel centre.
+
+    ``h`` follows the lobe's width (16 rows for sigma >= 0.19, up to 64 for sharper lobes); the source is the
+    map area-averaged to the same height (intensity applied).
+    """
+    h = int(min(64, max(16, math.ceil(3.0 / max(sigma, 1e-3)))))
+    h = min(h, env.height)
+    src = _area_average(env.coefficients, h) * env.intensity
+    hs, ws, k = src.shape
+    from processing.lighting.environment_map import pixel_directions
+
+    d_src = pixel_directions(hs, ws).reshape(-1, 3).astype(_F32)
+    w_src = np.repeat(_row_solid_angles(hs, ws), ws).astype(_F32)
+    d_out = pixel_directions(h, 2 * h).reshape(-1, 3).astype(_F32)
+    flat = src.reshape(-1, k).astype(_F32)
+    out = np.empty((d_out.shape[0], k))
+    for start in range(0, d_out.shape[0], 512):                      # bounded memory: 512 x hs ws at a time
+        c = np.clip(d_out[start:start + 512] @ d_src.T, _F32(-1.0), _F32(1.0))
+        # tan^2(theta / 2) = (1 - cos theta) / (1 + cos theta)
+        with np.errstate(divide="ignore", over="ignore", under="ignore"):
+            t2 = (_F32(1.0) - c) / np.maximum(_F32(1.0) + c, _F32(1e-12))
+            kernel = np.exp(-t2 / _F32(sigma * sigma)) * w_src[None, :]
+        total = kernel.sum(axis=1, keepdims=True)
+        out[start:start + 512] = (kernel @ flat) / np.maximum(total, _F32(1e-30))
     return out.reshape(h, 2 * h, k)

@@ -278,8 +278,7 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
             if sampled_env:
                 _environment_light(ctx, sub, sel, env_out, backend, mat, rng)
             else:
-                irr = ctx.environment.irradiance(sub.shading_normal)
-                backend.add(out, sel, backend.env_diffuse(mat, sub.cos_o, irr))
+                backend.add(out, sel, backend.env_diffuse(mat, sub.cos_o, _prefiltered(ctx, sub, plan)))
         # ---- mirror lobes
         for j, lobe in enumerate(plan.mirrors):
             _mirror(ctx, hits if sel is None else hits.take(sel), sel, out, backend, mat, j, lobe, depth, rng)
@@ -296,15 +295,8 @@ def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: N
     co = sub.cos_o
     weight = _F32(lobe.weight)
     if depth <= 0:
-        if ctx.sky.is_black and ctx.environment is None:
-            return
         r = _reflect(sub.view, sub.shading_normal, co)
-        if not ctx.sky.is_black:
-            factor = ctx.sky.radiance_scale(r.T).astype(_F32) * weight
-            backend.add(out, sel, backend.mirror_sky(mat, j, co, factor))
-        if ctx.environment is not None:
-            backend.add(out, sel, backend.mirror_env(mat, j, co, ctx.environment.lookup(r),
-                                                     np.full(len(sub), weight, dtype=_F32)))
+        _mirror_surroundings(ctx, backend, out, sel, mat, j, r, co, np.full(len(sub), weight, dtype=_F32))
         return
     n_rays = ctx.mirror_rays if ctx.mirror_rays > 0 else 1
     for _ in range(n_rays):
@@ -337,19 +329,11 @@ def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: N
         target = rows if sel is None else sel[rows]
         cd_rows = _take(cd, key)
         w_rows = _take(w, key)
-        if not ctx.sky.is_black:
-            miss = np.flatnonzero(~hit)
-            if miss.size:
-                factor = ctx.sky.radiance_scale(np.take(r_rows, miss, axis=1).T).astype(_F32)
-                factor *= np.take(w_rows, miss)
-                idx = None if (sel is None and miss.size == len(sub)) else target[miss]
-                backend.add(out, idx, backend.mirror_sky(mat, j, np.take(cd_rows, miss), factor))
-        if ctx.environment is not None:
-            miss = np.flatnonzero(~hit)
-            if miss.size:
-                idx = None if (sel is None and miss.size == len(sub)) else target[miss]
-                coeff = ctx.environment.lookup(np.take(r_rows, miss, axis=1))
-                backend.add(out, idx, backend.mirror_env(mat, j, np.take(cd_rows, miss), coeff, np.take(w_rows, miss)))
+        miss = np.flatnonzero(~hit)
+        if miss.size:
+            idx = None if (sel is None and miss.size == len(sub)) else target[miss]
+            _mirror_surroundings(ctx, backend, out, idx, mat, j, np.take(r_rows, miss, axis=1),
+                                 np.take(cd_rows, miss), np.take(w_rows, miss))
         hit_rows = np.flatnonzero(hit)
         if hit_rows.size:
             second = ctx.make_hits(rays, answer, hit_rows)
@@ -360,6 +344,38 @@ def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: N
             product *= radiance
             product *= np.take(w_rows, hit_rows).astype(np.float64)[:, None]
             backend.add(out, target[hit_rows], backend.from_spectral(product))
+
+
+def _prefiltered(ctx: ShadingContext, sub: Hits, plan: MaterialPlan) -> list[NDArray[np.float32]]:
+    """Prefiltered environment coefficients ``(K, m)`` per non-mirror lobe group of ``plan``.
+
+    The cosine-prefiltered map at the normal for Lambert and cloth groups, the map prefiltered by
+    the lobe around the mirrored view for microfacet groups.
+    """
+    env = ctx.environment
+    out = []
+    irr = r = None
+    for group in plan.sky_groups:
+        if group.kind == "microfacet":
+            if r is None:
+                r = _reflect(sub.view, sub.shading_normal, sub.cos_o)
+            out.append(env.glossy(r, group.roughness))
+        else:
+            if irr is None:
+                irr = env.irradiance(sub.shading_normal)
+            out.append(irr)
+    return out
+
+
+def _mirror_surroundings(ctx: ShadingContext, backend: SpectralBackend | TableBackend, out: NDArray,
+                         idx: NDArray[np.intp] | None, mat: int, j: int, r: NDArray[np.float32],
+                         cd: NDArray[np.float32], w: NDArray[np.float32]) -> None:
+    """Add the sky and the environment map seen along mirrored rays ``r`` (3, n) with weights ``w`` to rows ``idx``."""
+    if not ctx.sky.is_black:
+        factor = ctx.sky.radiance_scale(r.T).astype(_F32) * w
+        backend.add(out, idx, backend.mirror_sky(mat, j, cd, factor))
+    if ctx.environment is not None:
+        backend.add(out, idx, backend.mirror_env(mat, j, cd, ctx.environment.lookup(r), w))
 
 
 # --------------------------------------------------------------------------- environment light
