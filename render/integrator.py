@@ -12,8 +12,9 @@ mean (:mod:`render.environment`), half from the lobes' BRDF (cosine for Lambert 
 lobes), combined by the balance heuristic of multiple importance sampling
 (Veach and Guibas 1995, doi:10.1145/218380.218498), each with a shadow ray
 when ``shadows`` is set.  With no samples (and on the mirror bounce's
-secondary hits) they take the lobes' directional albedo times the
-cosine-prefiltered map, unoccluded.  Mirror lobes see the map along their
+secondary hits) each lobe group takes its directional albedo times the
+map prefiltered by the group (the cosine lobe at the normal, or a glossy
+lobe around the mirrored view: the split-sum approximation), unoccluded.  Mirror lobes see the map along their
 mirrored rays where those miss the scene.
 """
 

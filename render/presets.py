@@ -109,8 +109,8 @@ class RenderSettings:
         Directions per primary hit with which an environment map lights the
         non-mirror lobes (half from the map's luminance, half from the
         BRDF, multiple importance sampling, a shadow ray each when
-        ``shadows``); 0: the lobes' albedo times the cosine-prefiltered
-        map, without occlusion by the scene.
+        ``shadows``); 0: each lobe group's albedo times the map
+        prefiltered by it, without occlusion by the scene.
     adaptive_threshold
         When the base samples of a pixel disagree: they hit different
         objects or materials, some hit and some miss, or their colours
