@@ -70,8 +70,9 @@ __all__ = ["EnvironmentPlan", "IRRADIANCE_HEIGHT", "IRRADIANCE_SOURCE_HEIGHT"]
 _F32 = np.float32
 
 #: Rows of the cosine-prefiltered map (its width is twice that); the cosine
-#: lobe is smooth, bilinear interpolation between 16 x 32 normals keeps the
-#: error below 0.5 % of the mean (measured in tests/render/test_render_environment.py).
+#: lobe is smooth: a Lambertian sphere under a sky with a sun agrees with the
+#: sampled integral to 0.04 % in the mean and 1.4 % (95th percentile) in 4 x 4
+#: pixel blocks (tests/render/test_render_environment.py).
 IRRADIANCE_HEIGHT = 16
 
 #: Rows of the area-averaged copy of the map the prefiltering integrates (power kept).
