@@ -212,8 +212,29 @@ class EnvironmentPlan:
         return int(self.basis.shape[0])
 
     def lookup(self, directions: NDArray[np.float32]) -> NDArray[np.float32]:
-        """Coefficients ``(K, m)`` along ``(3, m)`` unit directions, bilinear (mirror rays, background)."""
-        return np.ascontiguousarray(self.environment.lookup(np.asarray(directions, np.float64).T).T, dtype=_F32)
+        """Coefficients ``(K, m)`` along ``(3, m)`` unit directions, bilinear (mirror rays, background).
+
+        The float32 counterpart of :meth:`EnvironmentMap.lookup` (clamped at the poles, wrapping in azimuth).
+        """
+        env = self.environment
+        d = np.asarray(directions, dtype=_F32)
+        h, w = env.height, env.width
+        r = np.arccos(np.clip(d[2], _F32(-1.0), _F32(1.0))) * _F32(h / math.pi) - _F32(0.5)
+        r = np.clip(r, _F32(0.0), _F32(h - 1))
+        c = (np.arctan2(d[1], d[0]) - _F32(math.radians(env.rotation_deg))) * _F32(w / (2.0 * math.pi)) - _F32(0.5)
+        r0 = np.minimum(r.astype(np.intp), h - 2) if h > 1 else np.zeros(r.shape, np.intp)
+        fr = r - r0.astype(_F32)
+        c0f = np.floor(c)
+        fc = c - c0f
+        c0 = np.mod(c0f.astype(np.intp), w)
+        c1 = np.mod(c0 + 1, w)
+        top, bottom = r0 * w, (r0 + 1) * w
+        m = self.coefficients_t
+        out = np.take(m, top + c0, axis=1) * ((_F32(1.0) - fc) * (_F32(1.0) - fr))
+        out += np.take(m, top + c1, axis=1) * (fc * (_F32(1.0) - fr))
+        out += np.take(m, bottom + c0, axis=1) * ((_F32(1.0) - fc) * fr)
+        out += np.take(m, bottom + c1, axis=1) * (fc * fr)
+        return out
 
     def irradiance(self, normals: NDArray[np.float32]) -> NDArray[np.float32]:
         """Cosine-weighted mean coefficients ``(K, m)`` over the hemispheres of ``(3, m)`` unit normals."""
