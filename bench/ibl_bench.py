@@ -46,7 +46,7 @@ CACHE = ROOT / "out" / "bench"
 
 
 # --------------------------------------------------------------------------- the scene
-def test_map_luminance(height: int = MAP_HEIGHT) -> np.ndarray:
+def sample_map_luminance(height: int = MAP_HEIGHT) -> np.ndarray:
     """``(H, 2H)`` luminance of the test map: a sky gradient, a dark ground, a soft window and a small lamp."""
     from processing.lighting.environment_map import pixel_directions
 
@@ -60,10 +60,10 @@ def test_map_luminance(height: int = MAP_HEIGHT) -> np.ndarray:
     return y
 
 
-def test_environment(height: int = MAP_HEIGHT):
+def sample_environment(height: int = MAP_HEIGHT):
     from processing.lighting.environment_map import EnvironmentMap, srgb_basis
 
-    y = test_map_luminance(height)
+    y = sample_map_luminance(height)
     rgb = np.repeat(y[..., None], 3, axis=-1).astype(np.float32)      # grey: D65 times Y in both renderers
     return EnvironmentMap(rgb, srgb_basis(), source=f"test map {height} rows")
 
@@ -142,7 +142,7 @@ def mitsuba_render(directional: bool, spp: int, seed: int = 0, size=SIZE) -> np.
         scene_dict["sun"] = {"type": "directional", "direction": d.tolist(),
                              "irradiance": {"type": "d65", "scale": math.pi}}
     else:
-        rgb = np.repeat(test_map_luminance(MAP_HEIGHT)[..., None], 3, axis=-1).astype(np.float32)
+        rgb = np.repeat(sample_map_luminance(MAP_HEIGHT)[..., None], 3, axis=-1).astype(np.float32)
         scene_dict["env"] = {"type": "envmap", "bitmap": mi.Bitmap(rgb), "to_world": mi.ScalarTransform4f(_ENV_TO_WORLD)}
     scene = mi.load_dict(scene_dict)
     return np.asarray(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
@@ -238,7 +238,7 @@ def case_mitsuba() -> dict:
 
     camera = kogei_camera()
     rows = []
-    env = test_environment()
+    env = sample_environment()
     ref_env, t_ref_env = mitsuba_reference(False)
     other_env, _ = mitsuba_reference(False, seed=1)
     ref_sun, t_ref_sun = mitsuba_reference(True)
@@ -278,7 +278,7 @@ def case_trade() -> dict:
     rows = []
     mask = None
     for height in (32, 128, MAP_HEIGHT, 1024):
-        env = test_environment(height)
+        env = sample_environment(height)
         for samples in (2, 4, 8, 16, 32):
             if height != MAP_HEIGHT and samples != 8:
                 continue
@@ -289,7 +289,7 @@ def case_trade() -> dict:
             mask = _interior(res.mask) if mask is None else mask
             rows.append({"map_height": height, "environment_samples": samples, "seconds": secs,
                          **compare(res.xyz.astype(np.float64), ref, mask)})
-    draft = render(kogei_scene(test_environment()), camera, get_preset("draft"))
+    draft = render(kogei_scene(sample_environment()), camera, get_preset("draft"))
     rows.append({"map_height": MAP_HEIGHT, "environment_samples": 0, "preset": "draft",
                  "seconds": draft.timings["total"], **compare(draft.xyz.astype(np.float64), ref, mask)})
     return {"size": list(SIZE), "rows": rows, "peak_rss_mb": peak_rss_mb()}
@@ -303,7 +303,7 @@ def case_speed(repeats: int = 3) -> dict:
     from render.scene import Scene, Sky
 
     tri = HAWK_PRESET_TRIANGLES["reference"]
-    env = test_environment()
+    env = sample_environment()
     out = {}
     job = _hawk_job((1024, 1024), "standard", tri, material="gold:mirror=0", sky="none")
     n_tri = sum(o.mesh.n_triangles for o in job.scene.objects)
