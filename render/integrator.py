@@ -8,13 +8,14 @@ spectral part comes from one of the backends of :mod:`render.backends`.
 An environment map (:mod:`render.environment`) lights the non-mirror lobes
 of the primary hits by Monte Carlo integration when ``environment_samples``
 is above 0: half the directions drawn from the map's luminance above its
-mean (:mod:`render.environment`), half from the lobes' BRDF (cosine for Lambert lobes, Beckmann normals for microfacet
-lobes), combined by the balance heuristic of multiple importance sampling
-(Veach and Guibas 1995, doi:10.1145/218380.218498), each with a shadow ray
-when ``shadows`` is set.  With no samples (and on the mirror bounce's
-secondary hits) each lobe group takes its directional albedo times the
-map prefiltered by the group (the cosine lobe at the normal, or a glossy
-lobe around the mirrored view: the split-sum approximation), unoccluded.  Mirror lobes see the map along their
+mean, half from the lobes' BRDF (cosine for Lambert and cloth lobes,
+Beckmann normals for microfacet lobes), combined by the balance heuristic
+of multiple importance sampling (Veach and Guibas 1995,
+doi:10.1145/218380.218498), each with a shadow ray when ``shadows`` is set.
+With no samples (and on the mirror bounce's secondary hits) each lobe group
+takes its directional albedo times the map prefiltered by the group (the
+cosine lobe at the normal, or a glossy lobe around the mirrored view: the
+split-sum approximation), unoccluded.  Mirror lobes see the map along their
 mirrored rays where those miss the scene.
 """
 
