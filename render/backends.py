@@ -144,9 +144,8 @@ class SpectralBackend:
         self.channels = grid.size
         self.environment = environment
         self.albedo: list[AngleTable | None] = []
-        # directional albedo spectra of the non-mirror lobes (environment maps use them unscaled)
-        self.albedo_spectra: list[AngleTable | None] = []
-        # per sky group of each material (environment maps light each group through its own prefiltered map)
+        # directional albedo spectra (unscaled) of each non-mirror lobe group of each material: an
+        # environment map lights each group through its own prefiltered map
         self.group_albedo_spectra: list[list[AngleTable]] = []
         self.env_materials: list[Material | None] = []
         nodes = np.linspace(0.0, 1.0, albedo_size)
@@ -155,7 +154,6 @@ class SpectralBackend:
             self.env_materials.append(Material(plan.material.name, plan.sky_lobes) if plan.sky_lobes else None)
             if (sky.is_black and environment is None) or not plan.sky_lobes:
                 self.albedo.append(None)
-                self.albedo_spectra.append(None)
                 self.group_albedo_spectra.append([])
                 continue
             per_group = {_group_key(g): np.zeros((albedo_size, grid.size)) for g in plan.sky_groups}
@@ -163,7 +161,6 @@ class SpectralBackend:
                 per_group[_lobe_key(lobe)] += _albedo_spectra(lobe, nodes, grid)
             total = sum(per_group.values())
             self.group_albedo_spectra.append([AngleTable(v) for v in per_group.values()])
-            self.albedo_spectra.append(AngleTable(total))
             self.albedo.append(None if sky.is_black else AngleTable(total * sky_radiance))
 
     def zeros(self, n: int) -> NDArray[np.float64]:
