@@ -228,4 +228,6 @@ def build_job(spec: SceneSpec, *, default_hawk_triangles: int = 250_000) -> Rend
         settings = get_preset(spec.preset)
     except (KeyError, ValueError) as exc:
         raise UsageError(f"--preset: {exc}") from None
+    if spec.environment_samples is not None:
+        settings = settings.replace(environment_samples=spec.environment_samples)
     return RenderJob(scene, camera, settings)

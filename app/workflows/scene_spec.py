@@ -120,6 +120,7 @@ class SceneSpec:
     size: tuple[int, int] = (800, 600)
     preset: str = "standard"
     environment: EnvironmentSpec | None = None
+    environment_samples: int | None = None  # None: the preset's
     sky_given: bool = False                # a sky was asked for (else an environment replaces the default one)
 
 
@@ -500,7 +501,7 @@ def _read_toml(path: Path) -> dict[str, Any]:
 def _read_render(spec: SceneSpec, render: dict[str, Any], path: Path) -> None:
     """The ``[render]`` table into ``spec``: size, preset, illuminant."""
     where = f"{path} [render]"
-    _check_keys(render, {"size", "preset", "illuminant"}, where)
+    _check_keys(render, {"size", "preset", "illuminant", "environment_samples"}, where)
     size = _string(render, "size", where)
     if size is not None:
         try:
@@ -509,6 +510,10 @@ def _read_render(spec: SceneSpec, render: dict[str, Any], path: Path) -> None:
             raise UsageError(f"{where} size: {str(exc).removeprefix('--size: ')}") from None
     spec.preset = _string(render, "preset", where, spec.preset, PRESET_NAMES)
     spec.illuminant = _string(render, "illuminant", where, spec.illuminant)
+    samples = _whole(render, "environment_samples", where, 0, 4096)
+    if samples == 1:
+        raise UsageError(f"{where} environment_samples: expected 0 (prefiltered map) or 2 to 4096, got 1")
+    spec.environment_samples = samples
 
 
 def _read_camera(cam: dict[str, Any], path: Path) -> CameraSpec:

@@ -140,3 +140,18 @@ def test_bad_scene_file_environment(tmp_path, probe, capsys, table, fragment):
     scene = _sphere_scene(tmp_path, table.format(probe=probe))
     line = _one_line_error(capsys, "render", scene, "--size", "16x16", "--out", tmp_path / "x.png")
     assert fragment in line
+
+
+def test_environment_samples_option(tmp_path, probe, capsys):
+    code, _, err = _run(capsys, "render", _sphere_scene(tmp_path), "--environment", str(probe), "--preset", "standard",
+                        "--environment-samples", "2", "--size", "16x16", "--out", tmp_path / "s.png", "--quiet")
+    assert code == 0, err
+    for bad in ("1", "-3", "5000"):
+        line = _one_line_error(capsys, "render", _sphere_scene(tmp_path), "--environment", str(probe),
+                               "--environment-samples", bad, "--size", "16x16", "--out", tmp_path / "x.png")
+        assert "--environment-samples" in line
+    scene = _sphere_scene(tmp_path, f'[environment]\nfile = "{probe}"\n')
+    text = open(scene).read().replace('preset = "draft"', 'preset = "draft"\nenvironment_samples = 1')
+    open(scene, "w").write(text)
+    assert "environment_samples" in _one_line_error(capsys, "render", scene, "--size", "16x16",
+                                                     "--out", tmp_path / "x.png")
