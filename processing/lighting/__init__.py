@@ -14,6 +14,9 @@ probe_unwrap
     room frame with the calibrated camera; the unseen caps marked and filled.
 probe_spectral
     The probe's camera RGB made spectral by the chart-calibrated estimator.
+daylight_sky
+    :func:`~processing.lighting.daylight_sky.daylight_sky`: an outdoor sky
+    (CIE general sky luminance, CIE daylight spectra, a sun disc, a ground).
 
 docs/lighting.md describes the frame, the units, the file format and the light probe.
 
