@@ -113,8 +113,13 @@ class SpectralScene:
 
 
 def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = "D65", method: str = "wiener",
-                    chart: str = "classic24") -> SpectralScene:
-    """Decode the frame, estimate it through the chart exactly as ``kogei spectral estimate`` does, model the candidates."""
+                    chart: str = "classic24", corners: str | None = None,
+                    materials: list[str] | None = None) -> SpectralScene:
+    """Decode the frame, estimate it through the chart exactly as ``kogei spectral estimate`` does, model the candidates.
+
+    ``corners``: the chart's outer corners marked by hand (``--chart-corners``' text) instead of looking for it;
+    ``materials``: the candidate materials (default every preset).
+    """
     from app.workflows.chart import measure_chart
     from app.workflows.spectral import estimate_from_chart, estimator_setup
     from processing.camera.raw_decode import decode_raw, preview_srgb8
@@ -124,12 +129,14 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
         raise ValueError(f"chart {chart!r}: the spectra are calibrated with the ColorChecker Classic (classic24)")
     setup = estimator_setup(light=light, chart_type=chart)
     obj = decode_raw(frame, mode="bin2x2")
-    est = estimate_from_chart([obj], [measure_chart(Path(chart_frame), chart=chart)], setup, method=method,
+    est = estimate_from_chart([obj], [measure_chart(Path(chart_frame), chart=chart, corners=corners)], setup,
+                              method=method,
                               image_name=f"{frame}", chart_name=f"{chart_frame}")
     # black subtraction leaves read noise of either sign around 0
     rgb = np.maximum(obj.rgb, 0.0)
     return SpectralScene(Path(frame), Path(chart_frame), preview_srgb8(obj), rgb, est,
-                         candidate_set(setup.sensitivities, setup.lights[0], setup.grid, light_deg=LIGHT_DEG),
+                         candidate_set(setup.sensitivities, setup.lights[0], setup.grid,
+                                       light_deg=LIGHT_DEG, **({} if materials is None else {"names": materials})),
                          est.chart_rmse, int(est.usable.sum()), light, ~est.mask)
 
 
@@ -288,6 +295,7 @@ class SpectraPanel(Panel):
         self.scene: SpectralScene | None = None
         self.last: dict[str, Any] | None = None
         self.map: tuple[np.ndarray, dict[int, str]] | None = None
+        self.manual_corners: dict[str, str] = {}
         outer = QHBoxLayout(self)
         left = QVBoxLayout()
         outer.addLayout(left, 0)
@@ -321,6 +329,12 @@ class SpectraPanel(Panel):
         self.frames.setMinimumContentsLength(14)
         self.list_button = refresh = QPushButton("List the session's frames")
         refresh.clicked.connect(self.safe(self.list_frames))
+        self.frames.setToolTip("the session's object frames (pass / frame number)")
+        self.frames.currentIndexChanged.connect(lambda i: self._follow_pass())
+        self.chart_frames = QComboBox()
+        self.chart_frames.setMinimumContentsLength(14)
+        self.chart_frames.setToolTip("the chart frame that calibrates the colours: by default the object frame's own "
+                                     "pass's (the Camera tab lists the same ones)")
         self.light = QComboBox()
         self.light.addItems(["D65", "A", "D50", "F2"])
         self.light.setEditable(True)
@@ -343,6 +357,7 @@ class SpectraPanel(Panel):
         self.map_button.clicked.connect(self.safe(self.make_map))
         f.addRow(refresh)
         f.addRow("Object frame", self.frames)
+        f.addRow("Chart frame", self.chart_frames)
         f.addRow("Light of the shot", self.light)
         f.addRow("Method", self.method)
         f.addRow(self.load_button)
@@ -363,8 +378,28 @@ class SpectraPanel(Panel):
         frames = [k for k, r in caps.items() if r.get("kind") == "frame"]
         if not frames:
             raise UsageError(f"session {root} has no object frames (captured without the camera?)")
+        from app.gui.camera_panel import chart_frame_label, session_chart_frames
+
+        self.chart_frames.blockSignals(True)
+        self.chart_frames.clear()
+        for chart_id, number, _path in session_chart_frames(root):
+            self.chart_frames.addItem(chart_frame_label(chart_id, number), chart_id)
+        self.chart_frames.blockSignals(False)
         self.frames.clear()
         self.frames.addItems(frames)
+        self._follow_pass()
+
+    def _follow_pass(self) -> None:
+        """Choose the chart frame of the object frame's pass (its first, for a swatch pass of several)."""
+        pass_id = self.frames.currentText().split("/")[0]
+        for i in range(self.chart_frames.count()):
+            if str(self.chart_frames.itemData(i)).split("/")[0] == pass_id:
+                self.chart_frames.setCurrentIndex(i)
+                return
+
+    def set_chart_corners(self, path: str, corners: str) -> None:
+        """Corners of a chart frame marked by hand on the Camera tab: the calibration uses them for that frame."""
+        self.manual_corners[str(path)] = corners
 
     def load(self) -> None:
         from app.errors import UsageError
@@ -375,18 +410,19 @@ class SpectraPanel(Panel):
         if root is None or not cid:
             raise UsageError("list the session's frames and choose one")
         caps = Session.read(root)["captures"]
-        # a scan pass has one chart frame (pNN/chart); a swatch pass several (pNN/chart/00, ...): take the first
-        pass_id = cid.split('/')[0]
-        chart = caps.get(f"{pass_id}/chart") or caps.get(f"{pass_id}/chart/00")
-        if chart is None:
-            raise UsageError(f"{cid}: its pass has no chart frame, so the camera cannot be calibrated")
-        frame, chart_path = root / caps[cid]["file"], root / chart["file"]
+        chart_id = self.chart_frames.currentData()
+        if chart_id is None or chart_id not in caps:
+            raise UsageError(f"{cid}: the session has no chart frame, so the camera cannot be calibrated")
+        frame, chart_path = root / caps[cid]["file"], root / caps[chart_id]["file"]
         light, method = self.light.currentText().strip(), self.method.currentText()
+        corners = self.manual_corners.get(str(chart_path))
+        chart_label = self.chart_frames.currentText() + (" (corners marked by hand)" if corners else "")
+        self._chart_label = chart_label
 
         def work(ctx: JobContext) -> SpectralScene:
-            return analyse_spectra(frame, chart_path, light=light, method=method)
+            return analyse_spectra(frame, chart_path, light=light, method=method, corners=corners)
 
-        self.state.setText(f"calibrating {cid} with its pass's chart…")
+        self.state.setText(f"calibrating {cid} with the {chart_label}…")
         self.lane.run(work, "spectra", succeeded=self._loaded,
                       failed=lambda text, exc: (self.state.setText(f"failed: {text}"), self.error.emit(text)))
 
@@ -396,7 +432,8 @@ class SpectraPanel(Panel):
         self.last = None
         self.legend.setText("")
         self.image.show_rgb(scene.preview)
-        self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated on {scene.usable_patches} "
+        self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated with the "
+                           f"{getattr(self, '_chart_label', 'chart frame')} on {scene.usable_patches} "
                            f"chart patches under {scene.light} (error on the chart {scene.method_error:.3f}). Click the "
                            "object to see its spectrum.")
         self.log.emit(self.state.text())
