@@ -135,7 +135,8 @@ class MainWindow(QMainWindow):
         self.capture = CapturePanel(self.link, lambda: self.session.root, self.session.metadata,
                                     self.processing.calibration_source, self.drawer, self.devices.apply)
         self.camera = CameraPanel(self.link, self.work_lane, self.drawer, lambda: self.session.root)
-        self.spectra = SpectraPanel(self.work_lane, self.drawer, lambda: self.session.root)
+        self.spectra = SpectraPanel(self.work_lane, self.drawer, lambda: self.session.root,
+                                    catalogue=lambda: self.session.metadata().get("materials", ""))
         self.camera.corners_marked.connect(self.spectra.set_chart_corners)
         self.preview = PreviewPanel(self.work_lane, lambda: self.session.root, self.drawer)
         for panel, title in ((self.devices, "Devices"), (self.session, "Session"), (self.capture, "Capture"),
