@@ -29,6 +29,7 @@ Examples
 from __future__ import annotations
 
 import math
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -246,9 +247,16 @@ class CapturePanel(Panel):
         self.progress = QProgressBar()
         self.progress.setFormat("%v / %m  (%p%)")
         self.eta = QLabel("ETA –")
+        self.paused_label = QLabel("PAUSED — the capture holds after the current step; press Continue (F6) to go "
+                                   "on, or Abort (Esc) to stop (the session stays resumable)")
+        self.paused_label.setWordWrap(True)
+        self.paused_label.setStyleSheet("background:#fff3c4; color:#5a4300; font-weight:bold; padding:4px; "
+                                        "border:1px solid #d9a400;")
+        self.paused_label.hide()
         self.action = QLabel("idle")
         self.action.setWordWrap(True)
         v.addWidget(self.progress)
+        v.addWidget(self.paused_label)
         v.addWidget(self.eta)
         v.addWidget(self.action)
         self.prompt = QFrame()
@@ -285,6 +293,16 @@ class CapturePanel(Panel):
         self._ticks = 0
         self._timer.timeout.connect(self._refresh_plots)
         self._set_running(False)
+        self.link.state.connect(self._device_state)
+
+    def _device_state(self, name: str, state: str, detail: str) -> None:
+        """The table line follows the turntable: not connected, connected, or driven by the capture."""
+        if name != "turntable":
+            return
+        if state == "connected" and not self.position.text().startswith("table at"):
+            self.position.setText("table: connected (its position is confirmed at the first move or Zero here)")
+        elif state == "disconnected":
+            self.position.setText("table: – (connect the turntable)")
 
     # ------------------------------------------------------------ jog
     def jog(self, action: str, value: float = 0.0) -> None:
@@ -435,6 +453,8 @@ class CapturePanel(Panel):
         self.job.signals.finished.connect(self._on_finished)
         self.link.lane.submit(self.job)
         self.status_text = "running"
+        self.last_progress = None
+        self.eta.setText("ETA –")                 # nothing of the previous capture's timing
         self.position.setText("table: driven by the capture")
         self.action.setText(f"capturing into {session.root}")
         self.progress.setRange(0, len(plan.actions()))
@@ -453,11 +473,15 @@ class CapturePanel(Panel):
         if self.pause_event.is_set():
             self.pause_event.clear()
             self.pause.setText("Pause  (F6)")
+            self.status_text = "running"
+            self.paused_label.hide()
             self.action.setText("continuing")
             self.log.emit("capture continued")
         else:
             self.pause_event.set()
             self.pause.setText("Continue  (F6)")
+            self.status_text = "paused"
+            self.paused_label.show()
             self.action.setText("paused after the current step (the instruments hold their state)")
             self.log.emit("capture paused")
 
@@ -473,6 +497,8 @@ class CapturePanel(Panel):
 
     def _answer(self, go: bool) -> None:
         self.prompt.hide()
+        if self.job is not None and not self.job.done:
+            self.pause.setEnabled(True)
         self.gate.answer(go)
 
     def answer_prompt(self) -> None:
@@ -483,6 +509,9 @@ class CapturePanel(Panel):
     def _show_prompt(self, text: str) -> None:
         self._refresh_plots(both=True)          # the pass just finished, whole
         self.prompt_text.setText(text)
+        if self.pause_event.is_set():
+            self.toggle_pause()                 # the capture waits for the user anyway: one Continue, the prompt's
+        self.pause.setEnabled(False)
         self.prompt.show()
         self.prompt_go.setFocus()
         self.log.emit(text)
@@ -519,7 +548,17 @@ class CapturePanel(Panel):
     def _on_failed(self, text: str, exc: Any) -> None:
         reason = getattr(exc, "reason", "error")
         self.status_text = "cancelled" if reason == "cancelled" else "interrupted"
+        # the window resumes with Start, not with the command line the engine's message names
+        text = re.sub(r"fix the cause and run: kogei capture --resume \S+", "fix the cause and press Start to "
+                      "resume", text)
         first = text.splitlines()[0]
+        if reason == "cancelled":
+            pr = self.last_progress
+            done = f" after {pr.done} of {pr.total} steps" if pr is not None else ""
+            self.action.setText(f"stopped at your request{done}. The session is intact: press Start to resume.")
+            self.notice.emit(f"capture stopped at your request{done}; the session {self._root} is intact: press "
+                           "Start to resume")
+            return
         self.action.setText(f"stopped: {first}\nThe session is intact: fix the cause and press Start to resume.")
         self.error.emit(text)
 
@@ -527,7 +566,9 @@ class CapturePanel(Panel):
         self._timer.stop()
         self._refresh_plots(both=True)
         self.prompt.hide()
+        self.paused_label.hide()
         self.pause.setText("Pause  (F6)")
+        self.position.setText("table: – (its position is confirmed at the next move)")
         self._set_running(False)
         self.link.capture_finished(self._reconnect, interrupted=self.status_text != "complete")
         self.capture_stopped.emit(self.status_text)

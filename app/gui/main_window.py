@@ -45,7 +45,7 @@ from app.gui.session_panel import SessionPanel
 from app.gui.spectra_panel import SpectraPanel
 from app.gui.station_link import INSTRUMENTS, StationLink
 from app.gui.warm_up import freeze_heap, warm_up
-from app.gui.widgets import Banner
+from app.gui.widgets import Banner, Panel
 from app.gui.workers import Lane
 
 __all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "simulated_world"]
@@ -124,8 +124,11 @@ class MainWindow(QMainWindow):
         err_row.addWidget(self.error_line, 1)
         err_row.addWidget(self.error_dismiss)
         v.addLayout(err_row)
+        self.message_kind = ""                       # "error", "info" or "" (nothing shown)
+        self._message_source: Any = None
         self.show_error("")
         self.tabs = QTabWidget()
+        self.tabs.currentChanged.connect(self._tab_changed)
         v.addWidget(self.tabs, 1)
         self.setCentralWidget(central)
 
@@ -144,7 +147,9 @@ class MainWindow(QMainWindow):
                              (self.spectra, "Spectra and materials"), (self.preview, "Preview")):
             self.tabs.addTab(panel, title)
             if hasattr(panel, "error"):
-                panel.error.connect(self.show_error)
+                panel.error.connect(lambda text, p=panel: self.show_error(text, source=p))
+            if isinstance(panel, Panel):
+                panel.notice.connect(lambda text, p=panel: self.show_info(text, source=p))
             if hasattr(panel, "log"):
                 panel.log.connect(self.append_log)
 
@@ -179,14 +184,37 @@ class MainWindow(QMainWindow):
         self.resize(1280, 860) if not self.settings.value("geometry") else None
 
     # ------------------------------------------------------------ errors and log
-    def show_error(self, text: str) -> None:
-        """Show a readable error above the tabs ('' hides it) and write it to the log."""
+    #: Style of the message line: an error (red) or information for the user (blue).
+    MESSAGE_STYLES = {"error": "color:#7a1512; background:#fff0ef; padding:4px;",
+                      "info": "color:#123f6e; background:#eaf3fc; padding:4px;"}
+
+    def show_error(self, text: str, source: Any = None) -> None:
+        """Show a readable error above the tabs ('' hides it) and write it to the log.
+
+        ``source``: the panel it came from; the message is cleared when
+        another tab is shown (it stays in the log).
+        """
+        self._message(text, "error", source)
+
+    def show_info(self, text: str, source: Any = None) -> None:
+        """As :meth:`show_error`, for information that is not a fault (a stop the user asked for)."""
+        self._message(text, "info", source)
+
+    def _message(self, text: str, kind: str, source: Any) -> None:
         self.error_line.setText(text)
+        self.error_line.setStyleSheet(self.MESSAGE_STYLES[kind])
         self.error_line.setVisible(bool(text))
         self.error_dismiss.setVisible(bool(text))
+        self.message_kind = kind if text else ""
+        self._message_source = source if text else None
         if text:
-            self.append_log(f"ERROR: {text}")
+            self.append_log(f"{'ERROR' if kind == 'error' else 'NOTE'}: {text}")
             self.statusBar().showMessage(text.splitlines()[0], 15_000)
+
+    def _tab_changed(self, index: int) -> None:
+        # a panel's message belongs to its tab: it would read as being about the tab now shown
+        if self._message_source is not None and self.tabs.widget(index) is not self._message_source:
+            self._message("", "error", None)
 
     def append_log(self, text: str) -> None:
         import time
@@ -340,6 +368,11 @@ class MainWindow(QMainWindow):
         if manifest is not None:
             self.capture.set_plan(manifest.get("plan", {}))
         self.processing.show_station(manifest)
+        # what the tabs show of the previous session goes; the Preview shows this session's mesh if it has one
+        self.camera.refresh_charts()
+        self.spectra.forget()
+        if root and (Path(root) / "products" / "mesh.ply").exists():
+            self.run_safely(self.preview.mesh_changed)
         try:
             self.camera.refresh_posed()
         except Exception as exc:  # noqa: BLE001 - a damaged product must not stop the session from opening

@@ -109,6 +109,7 @@ class ProcessingPanel(Panel):
         self.session_root = session_root
         self.drawer = drawer                    # draws the manual registration dialog's clouds
         self.job: ProcessJob | None = None
+        self.cancelled_by_user = False
         self.report: dict[str, Any] | None = None
         self.picks: dict[tuple[int, int], tuple[Any, Any]] = {}
         outer = QVBoxLayout(self)
@@ -330,11 +331,13 @@ class ProcessingPanel(Panel):
         self.stage.setText(f"processing {root} ({self.preset.currentText()})…")
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
+        self.cancelled_by_user = False
         self.log.emit(self.stage.text())
         self.job.start()
 
     def cancel(self) -> None:
         if self.job is not None and not self.job.done:
+            self.cancelled_by_user = True
             self.job.cancel()
 
     @property
@@ -351,6 +354,9 @@ class ProcessingPanel(Panel):
 
     def _on_failed(self, text: str, detail: Any) -> None:
         self.stage.setText(f"stopped: {text.splitlines()[0]}")
+        if self.cancelled_by_user:           # what the user asked for: information, not a fault
+            self.notice.emit(f"processing {text.splitlines()[0]}; the session is as it was")
+            return
         self.error.emit(text)
 
     def _on_finished(self) -> None:

@@ -411,7 +411,7 @@ class SpectraPanel(Panel):
         self.list_button = refresh = QPushButton("List the session's frames")
         refresh.clicked.connect(self.safe(self.list_frames))
         self.frames.setToolTip("the session's object frames (pass / frame number)")
-        self.frames.currentIndexChanged.connect(lambda i: self._follow_pass())
+        self.frames.currentIndexChanged.connect(lambda i: self._frame_chosen())
         self.chart_frames = QComboBox()
         self.chart_frames.setMinimumContentsLength(14)
         self.chart_frames.setToolTip("the chart frame that calibrates the colours: by default the object frame's own "
@@ -485,6 +485,30 @@ class SpectraPanel(Panel):
         self.frames.clear()
         self.frames.addItems(frames)
         self._follow_pass()
+
+    def _empty_plot(self, hint: str = "click the object in the frame") -> None:
+        self.plot.plot(empty_figure, title="Reflectance", hint=hint, xlabel="wavelength (nm)", ylabel="reflectance")
+
+    def _frame_chosen(self) -> None:
+        """Another object frame chosen: its pass's chart, and nothing left of the previous frame's spectrum."""
+        self._follow_pass()
+        if self.last is not None:
+            self.last = None
+            self._empty_plot("calibrate the chosen frame, then click the object")
+
+    def forget(self) -> None:
+        """Another session was opened: nothing of the previous one stays on show."""
+        self._requests += 1
+        self._clicks += 1
+        self.scene = self.last = self.map = None
+        self.frames.clear()
+        self.chart_frames.clear()
+        self.legend.setText("")
+        self.image.clear()
+        self.image.image_size = None
+        self.image.setText("no frame")
+        self.state.setText("list the frames of a captured session, then calibrate")
+        self._empty_plot()
 
     def _follow_pass(self) -> None:
         """Choose the chart frame of the object frame's pass (its first, for a swatch pass of several)."""
@@ -571,8 +595,7 @@ class SpectraPanel(Panel):
         self.map = None
         self.last = None
         self.legend.setText("")
-        self.plot.plot(empty_figure, title="Reflectance", hint="click the object in the frame",
-                       xlabel="wavelength (nm)", ylabel="reflectance")
+        self._empty_plot()
         self.image.show_rgb(scene.preview)
         self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated with the "
                            f"{getattr(self, '_chart_label', 'chart frame')} on {scene.usable_patches} "

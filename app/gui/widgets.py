@@ -61,7 +61,10 @@ class Banner(QLabel):
 
 
 class Panel(QWidget):
-    """Base of the panels: ``error`` and ``log`` signals, and :meth:`safe` for button handlers.
+    """Base of the panels: ``error``, ``notice`` and ``log`` signals, and :meth:`safe` for button handlers.
+
+    ``notice`` is for what the user asked for and should know about but is not
+    a fault (a capture or a processing run stopped at the user's request).
 
     A handler wrapped by :meth:`safe` never lets an exception escape into
     Qt's event loop: its readable message goes to ``error`` (the window shows
@@ -69,6 +72,7 @@ class Panel(QWidget):
     """
 
     error = Signal(str)
+    notice = Signal(str)
     log = Signal(str)
 
     def safe(self, fn: Callable[..., Any]) -> Callable[..., None]:
