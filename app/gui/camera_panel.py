@@ -414,8 +414,12 @@ class CameraPanel(Panel):
         h, w = view.preview.shape[:2]
         if view.quads is not None and view.chart is not None:
             counts = {k: (view.qualities or []).count(k) for k in QUALITY_COLOURS}
+            from app.gui.guidance import chart_verdict
+
+            verdict = chart_verdict(view.chart.confidence, view.chart.method)
+            self.chart_verdict = verdict
             found = ("placed from the marked corners" if view.chart.method == "manual"
-                     else f"found, confidence {view.chart.confidence:.2f}")
+                     else f"found, confidence {view.chart.confidence:.2f} ({verdict.level})")
             title = (f"{view.chart.chart} chart {found}; patches: "
                      + ", ".join(f"{v} {k}" for k, v in counts.items() if v))
         else:
@@ -434,7 +438,10 @@ class CameraPanel(Panel):
                                       "light (clipped colours cannot be measured)")
         else:
             self.clip_warning.setText("")
-        self.state.setText(f"{view.path.name}: {w}x{h} preview (2x2 binned)"
+        verdict = getattr(self, "chart_verdict", None) if view.chart is not None else None
+        self.state.setToolTip(verdict.tooltip if verdict is not None else "")
+        self.state.setText((f"chart {verdict.level.upper()}: {verdict.why} · " if verdict is not None else "")
+                           + f"{view.path.name}: {w}x{h} preview (2x2 binned)"
                            + (f" · {view.posed}" if view.posed else "")
                            + (f" · chart: {view.chart_problem}; mark its four corners with \"Mark the chart's "
                               "corners\"" if view.chart_problem else ""))

@@ -186,6 +186,15 @@ class CapturePanel(Panel):
         self.zero = QPushButton("Zero here")
         self.laser_on = QPushButton("Laser on")
         self.laser_off = QPushButton("Laser off")
+        for w, tip in ((self.angle, "the table angle to go to (degrees)"),
+                       (self.go, "turn the table to the angle (Ctrl+Left / Ctrl+Right step it)"),
+                       (self.step_size, "how far one step turns the table (degrees)"),
+                       (self.minus, "turn the table back by one step (Ctrl+Left)"),
+                       (self.plus, "turn the table on by one step (Ctrl+Right)"),
+                       (self.zero, "call the table's present position 0° (Ctrl+0)"),
+                       (self.laser_on, "switch the profiler's laser line on (Ctrl+L)"),
+                       (self.laser_off, "switch the laser line off (Ctrl+Shift+L)")):
+            w.setToolTip(tip)
         self.position = QLabel("table: – (connect the turntable)")
         g.addWidget(QLabel("Angle"), 0, 0)
         g.addWidget(self.angle, 0, 1)
@@ -223,6 +232,12 @@ class CapturePanel(Panel):
         self.passes.setValue(3)
         self.camera_angles = QLineEdit(",".join(f"{a:g}" for a in range(0, 360, 30)))
         self.chart = QCheckBox("colour chart first in every pass")
+        self.chart.setToolTip("shoot a frame of the colour chart at the start of each pass: it calibrates the "
+                              "colours of that pass's photos")
+        self.steps.setToolTip("table steps per full turn: more steps, denser scan, longer capture")
+        self.passes.setToolTip("how many times the object is scanned, re-placed between passes so that every "
+                               "side is seen")
+        self.camera_angles.setToolTip("table angles (degrees, comma-separated) at which a RAW photo is taken")
         self.chart.setChecked(True)
         self.kind.currentTextChanged.connect(self._kind_defaults)
         f.addRow("Kind", self.kind)
@@ -236,8 +251,11 @@ class CapturePanel(Panel):
         v = QVBoxLayout(run)
         buttons = QHBoxLayout()
         self.start = QPushButton("Start  (F5)")
+        self.start.setToolTip("start the capture, or go on with an interrupted one where it stopped")
         self.pause = QPushButton("Pause  (F6)")
+        self.pause.setToolTip("hold the capture after the current step; press again to continue")
         self.abort = QPushButton("Abort  (Esc)")
+        self.abort.setToolTip("stop after the current step; the session stays intact and Start goes on with it")
         self.start.clicked.connect(self.safe(self.start_capture))
         self.pause.clicked.connect(self.safe(self.toggle_pause))
         self.abort.clicked.connect(self.safe(self.abort_capture))
@@ -267,7 +285,9 @@ class CapturePanel(Panel):
         self.prompt_text.setStyleSheet("font-weight:bold; border:none;")
         prow = QHBoxLayout()
         self.prompt_go = QPushButton("Continue  (Enter)")
+        self.prompt_go.setToolTip("done as asked: go on with the capture")
         self.prompt_stop = QPushButton("Stop here")
+        self.prompt_stop.setToolTip("stop the capture here; the session stays intact and Start goes on with it")
         self.prompt_go.clicked.connect(lambda: self._answer(True))
         self.prompt_stop.clicked.connect(lambda: self._answer(False))
         prow.addWidget(self.prompt_go)

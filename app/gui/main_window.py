@@ -45,7 +45,7 @@ from app.gui.session_panel import SessionPanel
 from app.gui.spectra_panel import SpectraPanel
 from app.gui.station_link import INSTRUMENTS, StationLink
 from app.gui.warm_up import freeze_heap, warm_up
-from app.gui.widgets import Banner, Panel
+from app.gui.widgets import Banner, Panel, StepStrip
 from app.gui.workers import Lane
 
 __all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "simulated_world"]
@@ -112,6 +112,10 @@ class MainWindow(QMainWindow):
 
         central = QWidget()
         v = QVBoxLayout(central)
+        from app.gui.guidance import STEPS
+
+        self.steps = StepStrip(STEPS)
+        v.addWidget(self.steps)
         self.banner = Banner()
         v.addWidget(self.banner)
         err_row = QHBoxLayout()
@@ -120,6 +124,7 @@ class MainWindow(QMainWindow):
         self.error_line.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.error_line.setStyleSheet("color:#7a1512; background:#fff0ef; padding:4px;")
         self.error_dismiss = QPushButton("Dismiss")
+        self.error_dismiss.setToolTip("hide this message (it stays in the log)")
         self.error_dismiss.clicked.connect(lambda: self.show_error(""))
         err_row.addWidget(self.error_line, 1)
         err_row.addWidget(self.error_dismiss)
@@ -174,6 +179,12 @@ class MainWindow(QMainWindow):
         self._refresh_counter = 0
         self.capture.progress.valueChanged.connect(self._maybe_refresh_session)
         self.processing.processed.connect(self._processed)
+        self.steps.step_clicked.connect(self._show_step)
+        for sig in (self.link.state, self.session.session_chosen, self.session.manifest_shown,
+                    self.capture.capture_stopped,
+                    self.processing.processed, self.spectra.map_ready, self.processing.calibration.textChanged):
+            sig.connect(lambda *_: self.update_steps())
+        self.update_steps()
         self.statusBar().showMessage("ready")
         self._log_handler = _LogHandler(self)
         logging.getLogger("kogei.gui").addHandler(self._log_handler)
@@ -358,6 +369,36 @@ class MainWindow(QMainWindow):
         return st
 
     # ------------------------------------------------------------ state
+    # ------------------------------------------------------------ guidance
+    def steps_done(self) -> dict[str, bool]:
+        """What has been done, as :func:`app.gui.guidance.current_step` reads it."""
+        root = self.session.root
+        manifest = self.session.manifest if root is not None else None
+        products = Path(root) / "products" if root is not None else None
+        return {
+            "devices": all(self.link.states.get(n) in ("connected", "capture") for n in ("turntable", "profiler")),
+            "calibrated": bool(self.processing.calibration_source())
+            or bool(products is not None and (Path(root) / "calibration.json").exists()),
+            "session": root is not None,
+            "captured": bool(manifest and manifest.get("status") == "complete"),
+            "processed": bool(products is not None and (products / "mesh.ply").exists()),
+            "materials": self.spectra.map is not None
+            or bool(products is not None and (products / "object-mesh.ply").exists()),
+        }
+
+    def update_steps(self) -> None:
+        """Highlight the next step of the strip and say what to do there."""
+        from app.gui.guidance import current_step, step_hint
+
+        step = current_step(self.steps_done())
+        self.steps.set_current(step, f"Next: {step_hint(step)}")
+
+    def _show_step(self, step: str) -> None:
+        tabs = {"Devices": self.devices, "Calibrate": self.processing, "Session": self.session,
+                "Capture": self.capture, "Process": self.processing, "Materials": self.spectra,
+                "Preview": self.preview}
+        self.tabs.setCurrentWidget(tabs[step])
+
     def _state_changed(self, name: str, state: str, detail: str) -> None:
         summary = " · ".join(f"{n}: {self.link.states.get(n)}" for n in INSTRUMENTS)
         self.statusBar().showMessage(summary, 5000)

@@ -80,6 +80,7 @@ class SessionPanel(Panel):
     """See the module docstring.  ``root`` is the open session (None if none)."""
 
     session_chosen = Signal(object)        # Path of a session folder, or None
+    manifest_shown = Signal()              # the session list was (re-)read
 
     def __init__(self, lane: Lane, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -97,8 +98,13 @@ class SessionPanel(Panel):
         form.addRow("Folder", row)
         buttons = QHBoxLayout()
         self.new_button = QPushButton("New session")
+        self.new_button.setToolTip("a new session in the folder (an empty or new one); it is written when the "
+                                   "capture starts")
         self.open_button = QPushButton("Open / resume")
+        self.open_button.setToolTip("open the session in the folder; an interrupted capture goes on with Start "
+                                    "on the Capture tab")
         self.save_meta = QPushButton("Save metadata")
+        self.save_meta.setToolTip("store the object's fields in the open session (and its report)")
         self.new_button.clicked.connect(self.safe(self.new_session))
         self.open_button.clicked.connect(self.safe(lambda: self.open_session(self.folder.text().strip())))
         self.save_meta.clicked.connect(self.safe(self.save_metadata))
@@ -118,6 +124,9 @@ class SessionPanel(Panel):
         for key, label in METADATA_FIELDS:
             edit = QLineEdit()
             edit.setMinimumWidth(260)          # a catalogue name fits whole
+            edit.setToolTip(f"{label}: kept in the session and shown in its report"
+                            + ("; e.g. 'shibuichi, gold, urushi': the Spectra tab can compare with just these"
+                               if key == "materials" else ""))
             self.meta_edits[key] = edit
             mform.addRow(label, edit)
         split.addWidget(meta)
@@ -249,6 +258,7 @@ class SessionPanel(Panel):
             if rec.get("kind") in ("chart", "frame") and cid not in self._thumbs and rec.get("file"):
                 self._thumbs.add(cid)
                 self._load_thumb(cid, self.root / rec["file"])
+        self.manifest_shown.emit()
 
     def _load_thumb(self, cid: str, path: Path) -> None:
         def work(ctx: JobContext) -> tuple[str, np.ndarray]:

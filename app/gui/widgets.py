@@ -14,7 +14,7 @@ from typing import Any
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QLineEdit, QPushButton, QWidget
 
-__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel", "browse_row"]
+__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel", "browse_row", "StepStrip"]
 
 #: Colour of each instrument state.
 LIGHT_COLOURS = {
@@ -91,10 +91,49 @@ class Panel(QWidget):
 
 
 def browse_row(field: QLineEdit, browse: Callable[[], None]) -> QHBoxLayout:
-    """A path field with a "Browse…" button after it that calls ``browse``."""
+    """A path field with a "Browse…" button after it that calls ``browse``; the field's tooltip is its
+    placeholder text unless it has one."""
     button = QPushButton("Browse…")
+    button.setToolTip("choose it in a file dialog")
+    if not field.toolTip():
+        field.setToolTip(field.placeholderText())
     button.clicked.connect(browse)
     row = QHBoxLayout()
     row.addWidget(field, 1)
     row.addWidget(button)
     return row
+
+
+class StepStrip(QWidget):
+    """The station's steps in a row, the next one highlighted, and one line on what to do there.
+
+    ``step_clicked(name)`` is emitted when a step is clicked (the window shows its tab).
+    """
+
+    step_clicked = Signal(str)
+
+    def __init__(self, steps: tuple[str, ...], parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        row = QHBoxLayout(self)
+        row.setContentsMargins(0, 0, 0, 0)
+        self.buttons: dict[str, QPushButton] = {}
+        for i, name in enumerate(steps):
+            if i:
+                row.addWidget(QLabel("→"))
+            b = QPushButton(name)
+            b.setFlat(True)
+            b.setToolTip(f"show the tab of the {name} step")
+            b.clicked.connect(lambda _=False, n=name: self.step_clicked.emit(n))
+            row.addWidget(b)
+            self.buttons[name] = b
+        self.hint = QLabel("")
+        self.hint.setWordWrap(True)
+        row.addWidget(self.hint, 1)
+        self.current = ""
+
+    def set_current(self, step: str, hint: str) -> None:
+        self.current = step
+        for name, b in self.buttons.items():
+            b.setStyleSheet("background:#1f5fa8; color:white; font-weight:bold; border-radius:3px; padding:2px 6px;"
+                            if name == step else "color:#444; padding:2px 6px;")
+        self.hint.setText(hint)
