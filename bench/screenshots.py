@@ -67,7 +67,12 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
         end = time.monotonic() + timeout_s
         while not pred():
             if time.monotonic() > end:
-                raise TimeoutError(f"screenshots: timed out waiting for {what}")
+                try:
+                    shown = w.error_line.text()
+                except NameError:                  # before the window exists
+                    shown = ""
+                raise TimeoutError(f"screenshots: timed out waiting for {what}"
+                                   + (f" (the window says: {shown})" if shown else ""))
             app.processEvents()
             time.sleep(0.01)
 

@@ -69,10 +69,12 @@ from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QScrollArea,
     QSizePolicy,
     QSpinBox,
     QSplitter,
@@ -84,7 +86,7 @@ from app.batch.materials import MODEL_ERROR
 from app.gui.figures import empty_figure, spectrum_figure
 from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.session_panel import rgb_to_qimage
-from app.gui.widgets import Panel
+from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import JobContext, Lane
 
 __all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "UNCERTAIN",
@@ -378,16 +380,23 @@ class SpectraPanel(Panel):
         self._requests = 0
         self._clicks = 0
         outer = QHBoxLayout(self)
-        left = QVBoxLayout()
-        outer.addLayout(left, 0)
+        # the controls, the state and the legend scroll together: in a small window nothing is cut off
+        column = QWidget()
+        left = QVBoxLayout(column)
+        left.setContentsMargins(0, 0, 0, 0)
+        scroll = QScrollArea()
+        scroll.setWidget(column)
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setFixedWidth(330)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        outer.addWidget(scroll, 0)
         left.addWidget(self._controls())
-        self.state = QLabel("list the frames of a captured session, then calibrate")
+        self.state = WrapLabel("list the frames of a captured session, then calibrate")
         self.state.setWordWrap(True)
-        self.state.setMaximumWidth(300)
         left.addWidget(self.state)
-        self.legend = QLabel("")
+        self.legend = WrapLabel("")
         self.legend.setWordWrap(True)
-        self.legend.setMaximumWidth(300)
         left.addWidget(self.legend)
         left.addStretch(1)
         split = QSplitter(Qt.Orientation.Horizontal)
@@ -441,9 +450,8 @@ class SpectraPanel(Panel):
         self.only_catalogued.setToolTip("compare with the materials the Session tab's catalogue entry names "
                                         "(e.g. 'shibuichi, gold, urushi') instead of every known material")
         self.only_catalogued.toggled.connect(self._candidates_changed)
-        self.candidates_label = QLabel("candidates: every known material")
+        self.candidates_label = WrapLabel("candidates: every known material")
         self.candidates_label.setWordWrap(True)
-        self.candidates_label.setMaximumWidth(300)
         self.list_button.setToolTip("list the open session's object frames and chart frames")
         self.load_button.setToolTip("calibrate the camera's colours with the chosen chart frame, then click the "
                                     "object to see its spectrum")

@@ -14,7 +14,7 @@ from typing import Any
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QLineEdit, QPushButton, QWidget
 
-__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel", "browse_row", "StepStrip"]
+__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel", "browse_row", "StepStrip", "WrapLabel"]
 
 #: Colour of each instrument state.
 LIGHT_COLOURS = {
@@ -137,3 +137,25 @@ class StepStrip(QWidget):
             b.setStyleSheet("background:#1f5fa8; color:white; font-weight:bold; border-radius:3px; padding:2px 6px;"
                             if name == step else "color:#444; padding:2px 6px;")
         self.hint.setText(hint)
+
+
+class WrapLabel(QLabel):
+    """A word-wrapped label that is always as tall as its text at its width (a plain wrapped QLabel in a
+    column can be given less height than its lines need, and then shows them cut)."""
+
+    def __init__(self, text: str = "", parent: QWidget | None = None) -> None:
+        super().__init__(text, parent)
+        self.setWordWrap(True)
+        self.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
+
+    def _fit(self) -> None:
+        if self.width() > 0:
+            self.setMinimumHeight(self.heightForWidth(self.width()))
+
+    def setText(self, text: str) -> None:  # noqa: N802 - Qt's name
+        super().setText(text)
+        self._fit()
+
+    def resizeEvent(self, e: Any) -> None:  # noqa: N802 - Qt's name
+        super().resizeEvent(e)
+        self._fit()
