@@ -149,8 +149,9 @@ class WrapLabel(QLabel):
         self.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
 
     def _fit(self) -> None:
-        if self.width() > 0:
-            self.setMinimumHeight(self.heightForWidth(self.width()))
+        height = self.heightForWidth(self.width()) if self.width() > 0 else -1
+        if height > 0:
+            self.setMinimumHeight(height)
 
     def setText(self, text: str) -> None:  # noqa: N802 - Qt's name
         super().setText(text)
