@@ -24,6 +24,8 @@ Examples
 ('ETA –', 'ETA 42 s', 'ETA 1 h 02 min')
 >>> parse_angles("0, 90,180")
 (0.0, 90.0, 180.0)
+>>> describe_action("p01/profile/0018"), describe_action("p02/chart"), describe_action("p03/frame/04")
+('laser profile 19', 'photo of the colour chart', 'photo 5')
 """
 
 from __future__ import annotations
@@ -63,7 +65,35 @@ from app.gui.station_link import StationLink
 from app.gui.widgets import Panel
 from app.gui.workers import Job, JobContext
 
-__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles"]
+__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles", "describe_action", "completion_text"]
+
+
+def describe_action(action: str) -> str:
+    """A capture step's id (``p01/profile/0018``) as the user reads it (numbered from 1); others unchanged."""
+    parts = action.split("/")
+    if len(parts) >= 2 and re.fullmatch(r"p\d+", parts[0]):
+        if parts[1] == "chart":
+            return "photo of the colour chart" + (f" {int(parts[2]) + 1}" if len(parts) > 2 else "")
+        if len(parts) == 3 and parts[2].isdigit():
+            what = {"profile": "laser profile", "frame": "photo"}.get(parts[1], parts[1])
+            return f"{what} {int(parts[2]) + 1}"
+    return action
+
+
+def completion_text(taken: int, skipped: int, recoveries: int, elapsed_s: float) -> str:
+    """The line shown when a capture completes, in plain words.
+
+    >>> completion_text(279, 0, 0, 56.04)
+    'complete: 279 captures in 56 s'
+    >>> completion_text(40, 20, 1, 30.0)
+    'complete: 40 captures in 30 s, 20 kept from before the interruption, 1 instrument drop-out recovered'
+    """
+    text = f"complete: {taken} captures in {elapsed_s:.0f} s"
+    if skipped:
+        text += f", {skipped} kept from before the interruption"
+    if recoveries:
+        text += f", {recoveries} instrument drop-out{'s' if recoveries > 1 else ''} recovered"
+    return text
 
 
 def format_eta(seconds: float | None) -> str:
@@ -550,7 +580,7 @@ class CapturePanel(Panel):
         self.progress.setMaximum(pr.total)
         self.progress.setValue(pr.done)
         self.eta.setText(f"{format_eta(pr.eta_s)} · elapsed {pr.elapsed_s:.0f} s")
-        self.action.setText(f"pass {pr.pass_no}: {pr.action}")
+        self.action.setText(f"pass {pr.pass_no}: {describe_action(pr.action)}")
         if "/profile/" in pr.action:
             self._pending_profile = pr.action
 
@@ -561,8 +591,7 @@ class CapturePanel(Panel):
 
     def _on_done(self, report: Any) -> None:
         self.status_text = "complete"
-        self.action.setText(f"complete: {report.taken} taken, {report.skipped} already held, "
-                            f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
+        self.action.setText(completion_text(report.taken, report.skipped, len(report.recoveries), report.elapsed_s))
         self.log.emit(f"capture complete: {self.action.text()}")
 
     def _on_failed(self, text: str, exc: Any) -> None:

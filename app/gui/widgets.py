@@ -85,7 +85,7 @@ class Panel(QWidget):
 
                 from app.gui.workers import describe_error
 
-                logging.getLogger("kogei.gui").info("handler failed:\n%s", traceback.format_exc())
+                logging.getLogger("kogei.gui").info("details of the message above:\n%s", traceback.format_exc())
                 self.error.emit(describe_error(exc))
         return slot
 

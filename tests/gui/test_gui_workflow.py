@@ -78,7 +78,7 @@ def test_pause_abort_reopen_and_resume(qtbot, tmp_path):
     m = Session.read(tmp_path / "s")
     assert m["status"] == "complete"
     assert sum(1 for r in m["captures"].values() if r["kind"] == "profile") == 60
-    assert f"{taken} already held" in w2.capture.action.text()
+    assert f"{taken} kept from before the interruption" in w2.capture.action.text()
     w2.close()
     st.stop()
 
