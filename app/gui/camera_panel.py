@@ -54,7 +54,14 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from app.gui.figures import HISTOGRAM_BINS, QUALITY_COLOURS, display_image, frame_figure, histogram_figure
+from app.gui.figures import (
+    HISTOGRAM_BINS,
+    QUALITY_COLOURS,
+    display_image,
+    empty_figure,
+    frame_figure,
+    histogram_figure,
+)
 from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.station_link import StationLink
 from app.gui.widgets import Panel
@@ -226,6 +233,8 @@ class CameraPanel(Panel):
         self.corners_button.toggled.connect(self._marking)
         self.posed_list = QComboBox()
         self.posed_list.setMinimumContentsLength(14)
+        self.posed_list.setPlaceholderText("no posed frames yet")
+        self.chart_frames.setPlaceholderText("no chart frames")
         self.posed_list.setToolTip("the session's frames posed on the mesh (after kogei process with a camera "
                                    "calibration, or kogei project)")
         self.posed_button = QPushButton("Show with the mesh outline")
@@ -242,7 +251,7 @@ class CameraPanel(Panel):
             row.addWidget(b)
         row.addStretch(1)
         outer.addLayout(row)
-        self.state = QLabel("no frame yet")
+        self.state = QLabel("no frame yet: open a chart frame of the session, a RAW file, or capture one")
         self.state.setWordWrap(True)
         outer.addWidget(self.state)
         self.clip_warning = QLabel("")
@@ -255,6 +264,9 @@ class CameraPanel(Panel):
         self.hist_plot = PlotImage(drawer)
         split.addWidget(self.image_plot)
         split.addWidget(self.hist_plot)
+        self.image_plot.plot(empty_figure, title="Frame", hint="open a chart frame of the session, a RAW file,\n"
+                                                                "or capture one")
+        self.hist_plot.plot(empty_figure, title="Linear signal", hint="the histogram of the frame's RAW signal")
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 2)
         outer.addWidget(split, 1)

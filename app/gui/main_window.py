@@ -181,7 +181,7 @@ class MainWindow(QMainWindow):
         self.processing.processed.connect(self._processed)
         self.steps.step_clicked.connect(self._show_step)
         for sig in (self.link.state, self.session.session_chosen, self.session.manifest_shown,
-                    self.capture.capture_stopped,
+                    self.capture.capture_started, self.capture.capture_stopped,
                     self.processing.processed, self.spectra.map_ready, self.processing.calibration.textChanged):
             sig.connect(lambda *_: self.update_steps())
         self.update_steps()
@@ -391,6 +391,9 @@ class MainWindow(QMainWindow):
         from app.gui.guidance import current_step, step_hint
 
         step = current_step(self.steps_done())
+        if step == "Capture" and self.capture.job is not None and not self.capture.job.done:
+            self.steps.set_current(step, "Now: the capture runs; answer its prompts to re-place the object")
+            return
         self.steps.set_current(step, f"Next: {step_hint(step)}")
 
     def _show_step(self, step: str) -> None:
