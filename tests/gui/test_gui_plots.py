@@ -138,3 +138,22 @@ def test_a_plot_is_redrawn_at_any_new_size_and_scaled_never_cropped_meanwhile(qt
     pix = plot.pixmap()
     assert (plot.width(), plot.height()) == (280, 210)
     assert pix.width() <= 280 and pix.height() <= 210 and plot.scale < 1
+
+
+def test_a_finished_jobs_result_is_not_lost_when_another_job_is_queued_before_it_is_handled(qtbot):
+    """A job is done on its pool thread before the window handles its queued result; queueing another job in
+    between must not drop the first one (and its result) from the lane."""
+    import gc
+
+    from app.gui.workers import Lane
+
+    lane = Lane(2)
+    got = []
+    lane.run(lambda ctx: 41, "first", succeeded=got.append)
+    assert lane.wait(10_000)                       # done on its thread; its result is still queued
+    lane.run(lambda ctx: 42, "second", succeeded=got.append)
+    assert lane.wait(10_000)
+    gc.collect()
+    assert lane.busy                               # results not handled yet
+    qtbot.waitUntil(lambda: not lane.busy, timeout=10_000)
+    assert sorted(got) == [41, 42]
