@@ -78,7 +78,7 @@ def test_a_whole_session_through_the_window(qtbot, tmp_path):
     _put(qtbot, w, SIMULATED_OBJECTS[0])
     _capture(qtbot, w, tmp_path / "hawk", steps=72, passes=3, angles="0,180", chart=True)
     assert Session.read(tmp_path / "hawk")["status"] == "complete"
-    assert w.steps.current == "Process"
+    qtbot.waitUntil(lambda: w.steps.current == "Process", timeout=20_000)     # the session re-read, complete
 
     # every pass's chart is found, where the world put it
     truth = chart_corners(chart_layout("classic24"), *STATION_FRAME_SIZE, w.station.world.chart_placement)
@@ -101,7 +101,7 @@ def test_a_whole_session_through_the_window(qtbot, tmp_path):
     qtbot.waitUntil(lambda: not w.processing.running, timeout=900_000)
     assert w.processing.report is not None, w.error_line.text()
     assert (tmp_path / "hawk" / "products" / "mesh.ply").exists()
-    assert w.steps.current == "Materials"
+    qtbot.waitUntil(lambda: w.steps.current == "Materials", timeout=20_000)
 
     # spectra: a frame calibrated with its own pass's chart, the map made with what can be judged
     w.tabs.setCurrentWidget(w.spectra)
