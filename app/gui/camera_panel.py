@@ -247,10 +247,16 @@ class CameraPanel(Panel):
         self.open_button.setToolTip("decode any RAW file and look for a colour chart in it")
         self.posed_button.setToolTip("show the chosen frame with the scanned mesh's outline drawn over it")
         for b in (self.shoot_button, self.open_button, self.chart_frames, self.chart_frame_button,
-                  self.corners_button, self.posed_list, self.posed_button):
+                  self.corners_button):
             row.addWidget(b)
         row.addStretch(1)
         outer.addLayout(row)
+        posed_row = QHBoxLayout()                  # a second row: the toolbar fits a 1024 px wide window
+        posed_row.addWidget(QLabel("Posed on the mesh:"))
+        posed_row.addWidget(self.posed_list)
+        posed_row.addWidget(self.posed_button)
+        posed_row.addStretch(1)
+        outer.addLayout(posed_row)
         self.state = QLabel("no frame yet: open a chart frame of the session, a RAW file, or capture one")
         self.state.setWordWrap(True)
         outer.addWidget(self.state)

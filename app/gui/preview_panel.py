@@ -41,10 +41,12 @@ from PySide6.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QScrollArea,
     QSizePolicy,
     QSpinBox,
     QVBoxLayout,
@@ -236,13 +238,20 @@ class PreviewPanel(Panel):
             from app.gui.plots import PlotImage
 
             self.region_plot = PlotImage(drawer)
-            self.region_plot.setMinimumHeight(180)
+            self.region_plot.setMinimumHeight(150)
             self.region_plot.plot(empty_figure, title="Region observations",
                                   hint="render the measured object and click a point of it")
             left.addWidget(self.region_plot, 2)
 
-        side = QVBoxLayout()
-        outer.addLayout(side, 0)
+        column = QWidget()                      # the controls scroll in a short window (700 px high)
+        side = QVBoxLayout(column)
+        side.setContentsMargins(0, 0, 0, 0)
+        scroll = QScrollArea()
+        scroll.setWidget(column)
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        outer.addWidget(scroll, 0)
         g = QGroupBox("Scene")
         f = QFormLayout(g)
         self.mesh_label = QLabel("–")
@@ -322,6 +331,7 @@ class PreviewPanel(Panel):
         self.info.setWordWrap(True)
         side.addWidget(self.info)
         side.addStretch(1)
+        scroll.setMinimumWidth(column.sizeHint().width() + 24)     # no horizontal scrolling
         self.cct.setEnabled(False)
         self.illuminant.currentTextChanged.connect(lambda t: self.cct.setEnabled(t == "custom CCT"))
         for w in (self.material, self.illuminant, self.preset, self.size):

@@ -32,12 +32,14 @@ from PySide6.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QLineEdit,
     QProgressBar,
     QPushButton,
+    QScrollArea,
     QTreeWidget,
     QTreeWidgetItem,
     QVBoxLayout,
@@ -123,7 +125,16 @@ class ProcessingPanel(Panel):
         self.cancelled_by_user = False
         self.report: dict[str, Any] | None = None
         self.picks: dict[tuple[int, int], tuple[Any, Any]] = {}
-        outer = QVBoxLayout(self)
+        # the panel scrolls when the window is too short for it (a 700 px high window)
+        inner = QWidget()
+        outer = QVBoxLayout(inner)
+        scroll = QScrollArea()
+        scroll.setWidget(inner)
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        page = QVBoxLayout(self)
+        page.setContentsMargins(0, 0, 0, 0)
+        page.addWidget(scroll)
 
         cal = QGroupBox("Scanner calibration")
         f = QFormLayout(cal)

@@ -58,3 +58,14 @@ def test_the_step_strip_follows_the_session(qtbot, tmp_path):
 def test_each_quality_figure_gets_its_thresholds_verdict_and_a_reason(verdict, level):
     assert verdict.level == level
     assert verdict.why and "pass" in verdict.thresholds and verdict.level.upper() in verdict.html()
+
+
+def test_the_window_fits_1024_by_700(qtbot, tmp_path):
+    """Every tab fits a 1024 x 700 window (the tall and wide panels scroll or wrap instead of forcing a
+    bigger window)."""
+    w = make_window(qtbot, tmp_path)
+    w.resize(1024, 700)
+    qtbot.waitUntil(lambda: w.size().width() == 1024 and w.size().height() == 700, timeout=5_000)
+    for i in range(w.tabs.count()):
+        w.tabs.setCurrentIndex(i)
+        assert w.minimumSizeHint().width() <= 1024 and w.minimumSizeHint().height() <= 700, w.tabs.tabText(i)
