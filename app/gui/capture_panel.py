@@ -53,6 +53,7 @@ from PySide6.QtWidgets import (
     QLineEdit,
     QProgressBar,
     QPushButton,
+    QScrollArea,
     QSpinBox,
     QSplitter,
     QVBoxLayout,
@@ -62,7 +63,7 @@ from PySide6.QtWidgets import (
 from app.gui.figures import cloud_figure, empty_figure, profile_figure
 from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.station_link import StationLink
-from app.gui.widgets import Panel
+from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import Job, JobContext
 
 __all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles", "describe_action", "completion_text"]
@@ -197,8 +198,15 @@ class CapturePanel(Panel):
         self._reconnect: list[str] = []
 
         outer = QHBoxLayout(self)
-        left = QVBoxLayout()
-        outer.addLayout(left, 0)
+        column = QWidget()                  # the controls scroll when the window is short (700 px high)
+        left = QVBoxLayout(column)
+        left.setContentsMargins(0, 0, 0, 0)
+        scroll = QScrollArea()
+        scroll.setWidget(column)
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        outer.addWidget(scroll, 0)
 
         jog = QGroupBox("Turntable and laser")
         g = QGridLayout(jog)
@@ -310,7 +318,7 @@ class CapturePanel(Panel):
         self.prompt = QFrame()
         self.prompt.setStyleSheet("QFrame{background:#fff6d6; border:1px solid #d9a400;}")
         pl = QVBoxLayout(self.prompt)
-        self.prompt_text = QLabel()
+        self.prompt_text = WrapLabel()
         self.prompt_text.setWordWrap(True)
         self.prompt_text.setStyleSheet("font-weight:bold; border:none;")
         prow = QHBoxLayout()
@@ -328,6 +336,7 @@ class CapturePanel(Panel):
         v.addWidget(self.prompt)
         left.addWidget(run)
         left.addStretch(1)
+        scroll.setMinimumWidth(column.sizeHint().width() + 24)     # no horizontal scrolling
 
         plots = QSplitter(Qt.Orientation.Vertical)
         self.profile_plot = PlotImage(drawer)

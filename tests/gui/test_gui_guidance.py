@@ -64,6 +64,9 @@ def test_the_window_fits_1024_by_700(qtbot, tmp_path):
     """Every tab fits a 1024 x 700 window (the tall and wide panels scroll or wrap instead of forcing a
     bigger window)."""
     w = make_window(qtbot, tmp_path)
+    w.capture.prompt_text.setText("Pass 2 of 3: Re-place the object in a new orientation and put the colour chart "
+                                  "in view of the camera, then press Continue.")
+    w.capture.prompt.show()                       # the tallest state of the Capture tab
     w.resize(1024, 700)
     qtbot.waitUntil(lambda: w.size().width() == 1024 and w.size().height() == 700, timeout=5_000)
     for i in range(w.tabs.count()):
