@@ -201,7 +201,7 @@ class CapturePanel(Panel):
         column = QWidget()                  # the controls scroll when the window is short (700 px high)
         left = QVBoxLayout(column)
         left.setContentsMargins(0, 0, 0, 0)
-        scroll = QScrollArea()
+        self.controls_scroll = scroll = QScrollArea()
         scroll.setWidget(column)
         scroll.setWidgetResizable(True)
         scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
@@ -573,6 +573,8 @@ class CapturePanel(Panel):
         self.pause.setEnabled(False)
         self.prompt.show()
         self.prompt_go.setFocus()
+        # in a short window the controls scroll: the prompt must be in view, whatever was scrolled to
+        QTimer.singleShot(0, lambda: self.controls_scroll.ensureWidgetVisible(self.prompt, 0, 8))
         self.log.emit(text)
 
     def _set_running(self, running: bool) -> None:

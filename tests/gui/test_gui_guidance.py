@@ -72,3 +72,11 @@ def test_the_window_fits_1024_by_700(qtbot, tmp_path):
     for i in range(w.tabs.count()):
         w.tabs.setCurrentIndex(i)
         assert w.minimumSizeHint().width() <= 1024 and w.minimumSizeHint().height() <= 700, w.tabs.tabText(i)
+    # a placement prompt is scrolled into view in the short window
+    w.tabs.setCurrentWidget(w.capture)
+    w.capture._show_prompt("Pass 3 of 3: Re-place the object in a new orientation, then press Continue.")
+    qtbot.wait(100)
+    go = w.capture.prompt_go
+    top_left = go.mapTo(w.capture.controls_scroll.viewport(), go.rect().topLeft())
+    bottom = top_left.y() + go.height()
+    assert 0 <= top_left.y() and bottom <= w.capture.controls_scroll.viewport().height()
