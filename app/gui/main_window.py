@@ -276,6 +276,40 @@ class MainWindow(QMainWindow):
         m.addAction(act)
         view = self.menuBar().addMenu("&View")
         view.addAction(self.log_dock.toggleViewAction())
+        help_menu = self.menuBar().addMenu("&Help")
+        act = QAction("Steps of a session", self)
+        act.triggered.connect(self.show_steps_help)
+        help_menu.addAction(act)
+        act = QAction("About kogei", self)
+        act.triggered.connect(self.show_about)
+        help_menu.addAction(act)
+
+    def steps_help_text(self) -> str:
+        """The steps of a session, each with what to do there (the Help menu)."""
+        from app.gui.guidance import STEPS, step_hint
+
+        return "\n".join(f"{i}. {step}: {step_hint(step)}" for i, step in enumerate(STEPS, start=1))
+
+    def show_steps_help(self) -> None:
+        from PySide6.QtWidgets import QMessageBox
+
+        QMessageBox.information(self, "Steps of a session", self.steps_help_text())
+
+    def about_text(self) -> str:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            v = version("kogei")
+        except PackageNotFoundError:
+            v = "(not installed)"
+        return (f"kogei {v}: the capture station for museum objects -- turntable and laser profiler scans, RAW "
+                "photos calibrated with a colour chart, spectral reflectance and metal identification, spectral "
+                "rendering.  The documentation is in the repository's README.md and docs/.")
+
+    def show_about(self) -> None:
+        from PySide6.QtWidgets import QMessageBox
+
+        QMessageBox.about(self, "About kogei", self.about_text())
 
     # ------------------------------------------------------------ simulated station
     def start_simulated_station(self, triangles: int = 4000, seed: int = 0, image_size: tuple[int, int] = (240, 160),

@@ -80,3 +80,14 @@ def test_the_window_fits_1024_by_700(qtbot, tmp_path):
     top_left = go.mapTo(w.capture.controls_scroll.viewport(), go.rect().topLeft())
     bottom = top_left.y() + go.height()
     assert 0 <= top_left.y() and bottom <= w.capture.controls_scroll.viewport().height()
+
+
+def test_the_help_menu_lists_the_steps_and_says_what_kogei_is(qtbot, tmp_path):
+    from app.gui.guidance import STEPS
+
+    w = make_window(qtbot, tmp_path)
+    menus = [a.text() for a in w.menuBar().actions()]
+    assert "&Help" in menus
+    text = w.steps_help_text()
+    assert all(f"{i}. {s}:" in text for i, s in enumerate(STEPS, start=1))
+    assert w.about_text().startswith("kogei ")
