@@ -68,6 +68,7 @@ from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane
 
 __all__ = ["CameraPanel", "FrameView", "analyse_frame", "patch_quality", "QUALITY_COLOURS", "session_chart_frames",
+           "clipping_message",
            "chart_frame_label", "corners_text", "CORNER_NAMES"]
 
 #: The chart's outer corners in the order they are clicked.
@@ -106,6 +107,33 @@ class FrameView:
     clipped: float = 0.0                   # fraction of saturated pixels
     mesh_outlines: list[np.ndarray] | None = None   # the mesh's projected outline, preview pixels
     posed: str = ""                        # "p01/frame/03: IoU 0.991" for a posed frame
+
+
+def clipping_message(clipped: float, chart_found: bool, clipped_patches: list[int]) -> tuple[str, str]:
+    """What the clipped share of a frame means, and how serious it is (``""``, ``"note"`` or ``"warn"``).
+
+    Clipped chart patches spoil the colour calibration (lower the exposure);
+    clipping elsewhere on a chart frame, or on an object frame, is mostly the
+    specular highlights of polished metal, which have no measurable colour
+    anyway and are left out of the spectra.
+
+    Examples
+    --------
+    >>> clipping_message(0.0002, True, [])
+    ('', '')
+    >>> clipping_message(0.004, True, [19])[1], clipping_message(0.004, False, [])[1]
+    ('warn', 'note')
+    """
+    if clipped <= CLIP_WARN:
+        return "", ""
+    share = f"{100 * clipped:.2f}% of the pixels are clipped"
+    if clipped_patches:
+        listed = ", ".join(str(n) for n in clipped_patches)
+        return (f"{share}, chart patch{'es' if len(clipped_patches) > 1 else ''} {listed} among them: lower the "
+                "exposure or the light (a clipped patch's colour cannot be measured)", "warn")
+    where = "none on the chart: " if chart_found else ""
+    return (f"{share} ({where}most likely the object's specular highlights, which have no measurable colour and "
+            "are left out of the spectra); lower the exposure only if the object's own colours are clipped", "note")
 
 
 def session_chart_frames(root: Path) -> list[tuple[str, int, Path]]:
@@ -451,11 +479,11 @@ class CameraPanel(Panel):
         clipped = view.clipped
         if view.histogram is not None:
             self.hist_plot.plot(histogram_figure, counts=view.histogram, clipped=clipped)
-        if clipped > CLIP_WARN:
-            self.clip_warning.setText(f"{100 * clipped:.2f}% of the pixels are clipped: lower the exposure or the "
-                                      "light (clipped colours cannot be measured)")
-        else:
-            self.clip_warning.setText("")
+        patches = [k + 1 for k, q in enumerate(view.qualities or []) if q == "clipped"]
+        text, level = clipping_message(clipped, view.chart is not None, patches)
+        self.clip_warning.setText(text)
+        self.clip_warning.setStyleSheet("color:#7a1512; font-weight:bold;" if level == "warn" else "color:#5a4300;")
+        self.clip_level = level
         verdict = getattr(self, "chart_verdict", None) if view.chart is not None else None
         self.state.setToolTip(verdict.tooltip if verdict is not None else "")
         self.state.setText((f"chart {verdict.level.upper()}: {verdict.why} · " if verdict is not None else "")
