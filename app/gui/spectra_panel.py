@@ -431,6 +431,12 @@ class SpectraPanel(Panel):
         self.light.setToolTip("the light of the shot: D65, A, a CCT such as 3200K, or a CSV file")
         self.method = QComboBox()
         self.method.addItems(["wiener", "rootpoly", "more-basis", "paper"])
+        for i, tip in enumerate((
+                "Wiener: the statistically best linear estimate, from the camera's and the light's known spectra",
+                "root-polynomial: a regression learned from the chart's 24 patches, robust to exposure",
+                "more basis: a linear regression onto more spectral shapes than the paper's three",
+                "paper: the original method, three spectral shapes and a 3 x 3 matrix (for comparison)")):
+            self.method.setItemData(i, tip, Qt.ItemDataRole.ToolTipRole)
         self.load_button = QPushButton("Calibrate with the pass's chart")
         self.load_button.clicked.connect(self.safe(self.load))
         self.block = QSpinBox()
