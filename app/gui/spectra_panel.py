@@ -706,6 +706,6 @@ class SpectraPanel(Panel):
                            f"({cov['judged']:,} of {cov['object']:,} pixels); left out: "
                            f"{100 * cov['dark'] / whole:.0f}% too dark, {100 * cov['clipped'] / whole:.0f}% clipped, "
                            f"{100 * cov['sparse'] / whole:.0f}% in blocks less than half usable. "
-                           f"{materials} materials over blocks of {self.block.value()} px, "
+                           f"{materials} material{'' if materials == 1 else 's'} over blocks of {self.block.value()} px, "
                            f"{100 * share:.0f}% of the judged area uncertain")
         self.map_ready.emit()
