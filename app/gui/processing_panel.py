@@ -40,6 +40,7 @@ from PySide6.QtWidgets import (
     QProgressBar,
     QPushButton,
     QScrollArea,
+    QSizePolicy,
     QTreeWidget,
     QTreeWidgetItem,
     QVBoxLayout,
@@ -128,7 +129,7 @@ class ProcessingPanel(Panel):
         # the panel scrolls when the window is too short for it (a 700 px high window)
         inner = QWidget()
         outer = QVBoxLayout(inner)
-        scroll = QScrollArea()
+        self.scroll_area = scroll = QScrollArea()
         scroll.setWidget(inner)
         scroll.setWidgetResizable(True)
         scroll.setFrameShape(QFrame.Shape.NoFrame)
@@ -211,6 +212,11 @@ class ProcessingPanel(Panel):
         self.pairs_tree.setColumnWidth(0, 150)
         self.summary = QLabel("")
         self.summary.setWordWrap(True)
+        for tree in (self.passes_tree, self.pairs_tree):
+            # the trees take the room there is (at least 3 rows) rather than asking for 192 px each, so the
+            # scrolled panel fits the window when it can
+            tree.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Ignored)
+            tree.setMinimumHeight(80)
         rv.addWidget(self.passes_tree, 1)
         rv.addWidget(self.pairs_tree, 1)
         rv.addWidget(self.summary)
@@ -431,6 +437,7 @@ class ProcessingPanel(Panel):
             item.setForeground(7, QBrush(QColor(VERDICT_COLOURS[verdict.level])))
             item.setToolTip(7, verdict.tooltip)
             self.pairs_tree.addTopLevelItem(item)
+        self.scroll_area.ensureWidgetVisible(self.pairs_tree)      # the verdicts in view in a short window
         c = report["registration"]["consistency"]
         m = report["mesh"]
         self.summary.setText(

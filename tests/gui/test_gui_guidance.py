@@ -91,3 +91,14 @@ def test_the_help_menu_lists_the_steps_and_says_what_kogei_is(qtbot, tmp_path):
     text = w.steps_help_text()
     assert all(f"{i}. {s}:" in text for i, s in enumerate(STEPS, start=1))
     assert w.about_text().startswith("kogei ")
+
+
+def test_the_processing_tab_needs_no_scrolling_at_the_default_size(qtbot, tmp_path):
+    """The Processing tab scrolls only when the window is short: at 1360 x 900 the residual trees take the room
+    there is instead of pushing the verdicts below the fold."""
+    w = make_window(qtbot, tmp_path)
+    w.resize(1360, 900)
+    w.tabs.setCurrentWidget(w.processing)
+    qtbot.wait(100)
+    area = w.processing.scroll_area
+    assert area.widget().height() <= area.viewport().height()
