@@ -41,10 +41,12 @@ from PySide6.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QScrollArea,
     QSizePolicy,
     QSpinBox,
     QVBoxLayout,
@@ -236,20 +238,30 @@ class PreviewPanel(Panel):
             from app.gui.plots import PlotImage
 
             self.region_plot = PlotImage(drawer)
-            self.region_plot.setMinimumHeight(180)
+            self.region_plot.setMinimumHeight(150)
             self.region_plot.plot(empty_figure, title="Region observations",
                                   hint="render the measured object and click a point of it")
             left.addWidget(self.region_plot, 2)
 
-        side = QVBoxLayout()
-        outer.addLayout(side, 0)
+        column = QWidget()                      # the controls scroll in a short window (700 px high)
+        side = QVBoxLayout(column)
+        side.setContentsMargins(0, 0, 0, 0)
+        scroll = QScrollArea()
+        scroll.setWidget(column)
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        outer.addWidget(scroll, 0)
         g = QGroupBox("Scene")
         f = QFormLayout(g)
         self.mesh_label = QLabel("–")
         self.mesh_label.setWordWrap(True)
         open_mesh = QPushButton("Open mesh…")
+        open_mesh.setToolTip("render a mesh file (PLY, OBJ, ...) instead of the session's")
         open_mesh.clicked.connect(self.safe(self._open_mesh))
         use_session = QPushButton("Use the session's mesh")
+        use_session.setToolTip("render the open session's mesh (after processing), with its measured materials "
+                               "if any")
         use_session.clicked.connect(self.safe(self.mesh_changed))
         f.addRow("Mesh", self.mesh_label)
         f.addRow(open_mesh)
@@ -272,6 +284,13 @@ class PreviewPanel(Panel):
         self.preset.setCurrentText("standard")
         self.size = QComboBox()
         self.size.addItems(["480x360", "640x480", "800x600", "160x120"])
+        self.material.setToolTip("the material to render the mesh with; 'measured' uses the materials measured "
+                                 "on the mesh")
+        self.illuminant.setToolTip("the light's spectrum: daylight (D65), incandescent (A) or a colour "
+                                   "temperature")
+        self.cct.setToolTip("the colour temperature of the custom light (kelvin)")
+        self.preset.setToolTip("render quality once the view stops moving: draft, standard or reference")
+        self.size.setToolTip("the rendered image's size in pixels")
         f.addRow("Material", self.material)
         f.addRow("Illuminant", self.illuminant)
         f.addRow("CCT", self.cct)
@@ -290,14 +309,21 @@ class PreviewPanel(Panel):
             sb.setValue(val)
             sb.setSuffix(" °")
             sb.setKeyboardTracking(False)
+        for sb, tip in ((self.light_az, "the light's direction around the object (degrees)"),
+                        (self.light_el, "the light's height above the horizon (degrees)"),
+                        (self.azimuth, "the view's direction around the object (degrees; or drag the image)"),
+                        (self.elevation, "the view's height above the horizon (degrees; or drag the image)")):
+            sb.setToolTip(tip)
         lf.addRow("Light azimuth", self.light_az)
         lf.addRow("Light elevation", self.light_el)
         lf.addRow("View azimuth (drag)", self.azimuth)
         lf.addRow("View elevation (drag)", self.elevation)
         side.addWidget(lg)
         self.render_button = QPushButton("Render")
+        self.render_button.setToolTip("render now at the chosen quality")
         self.render_button.clicked.connect(self.safe(lambda: self.request("final")))
         self.save_button = QPushButton("Save image…")
+        self.save_button.setToolTip("save the rendered image as a PNG file")
         self.save_button.clicked.connect(self.safe(self._save))
         side.addWidget(self.render_button)
         side.addWidget(self.save_button)
@@ -305,6 +331,7 @@ class PreviewPanel(Panel):
         self.info.setWordWrap(True)
         side.addWidget(self.info)
         side.addStretch(1)
+        scroll.setMinimumWidth(column.sizeHint().width() + 24)     # no horizontal scrolling
         self.cct.setEnabled(False)
         self.illuminant.currentTextChanged.connect(lambda t: self.cct.setEnabled(t == "custom CCT"))
         for w in (self.material, self.illuminant, self.preset, self.size):
