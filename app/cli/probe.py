@@ -5,7 +5,8 @@
 [--height ROWS] [--f-number N] [--camera-mask DEG] [--back-mask DEG]`` merges the brackets into linear HDR,
 finds the sphere, unwraps it into an equirectangular map in the room frame and makes it spectral with the
 chart shot in the same light (:func:`app.workflows.light_probe.build_probe`); it writes the map as OpenEXR
-and a JSON report beside it (:func:`app.workflows.light_probe.write_probe`).  SESSION_OR_FRAMES is a
+and a JSON report beside it (:func:`app.workflows.light_probe.write_probe`); from a probe session, both are
+also kept in the session's products (:func:`app.workflows.light_probe.record_probe`) for its report.  SESSION_OR_FRAMES is a
 session captured with ``kogei capture --plan probe``, a folder of RAW files or the RAW files themselves.
 docs/lighting.md describes each step.
 
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import argparse
 
-from app.workflows.light_probe import build_probe, probe_inputs, write_probe
+from app.workflows.light_probe import build_probe, probe_inputs, record_probe, write_probe
 
 __all__ = ["add_parser", "run"]
 
@@ -74,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
                          f_number=args.f_number, camera_mask_deg=args.camera_mask, back_mask_deg=args.back_mask,
                          message=say)
     exr, report = write_probe(result, args.out)
+    kept = record_probe(inputs.session, result) if inputs.session is not None else None
     if not args.quiet:
         r = result.report
         sec = r["seconds"]
@@ -81,4 +83,6 @@ def run(args: argparse.Namespace) -> int:
               f"{100 * r['map']['observed_fraction']:.0f} % of directions seen; merge {sec['merge']:.1f} s, "
               f"unwrap {sec['unwrap']:.1f} s; chart RMS reflectance error {r['spectral']['chart_rmse']:.3f}")
         print(f"{report}: the report")
+        if kept is not None:
+            print(f"{kept[0]}: kept in the session (its report shows it)")
     return 0

@@ -37,7 +37,7 @@ import numpy as np
 from app.errors import UsageError
 
 __all__ = ["ProbeResult", "ProbeInputs", "probe_inputs", "build_probe", "write_probe", "RAW_SUFFIXES",
-           "MAX_OUTLINE_RMS_PX", "FIND_WIDTH_PX"]
+           "MAX_OUTLINE_RMS_PX", "FIND_WIDTH_PX", "record_probe", "PROBE_FILE", "PROBE_REPORT_FILE"]
 
 #: File name endings taken as RAW frames in a folder.
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2")
@@ -45,6 +45,9 @@ RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2")
 MAX_OUTLINE_RMS_PX = 1.0
 #: The sphere is found on the HDR image binned to at most this width (px).
 FIND_WIDTH_PX = 2000
+#: Where a probe session keeps its map and the map's report (``products.probe``, ``products.probe_report``).
+PROBE_FILE = "products/probe.exr"
+PROBE_REPORT_FILE = "products/probe.json"
 
 
 @dataclass
@@ -56,6 +59,7 @@ class ProbeInputs:
     camera_calibration: Any = None
     sphere_radius_mm: float | None = None
     source: str = ""
+    session: Path | None = None       # the probe session the frames came from, if any
 
 
 @dataclass
@@ -161,7 +165,7 @@ def _session_inputs(root: Path, sphere_radius_mm: float | None) -> ProbeInputs:
     if not frames:
         raise UsageError(f"session {root} has no bracket frames; capture them with 'kogei capture --plan probe'")
     radius = sphere_radius_mm if sphere_radius_mm is not None else plan.get("sphere_radius_mm")
-    return ProbeInputs(frames, chart, session_camera_calibration(root, manifest), radius, str(root))
+    return ProbeInputs(frames, chart, session_camera_calibration(root, manifest), radius, str(root), root)
 
 
 def _find_sphere(hdr, calib, radius_mm: float, name: str) -> tuple[np.ndarray, float]:
@@ -297,3 +301,30 @@ def write_probe(result: ProbeResult, out: str | os.PathLike[str]) -> tuple[Path,
     with atomic_path(report_path, durable=False, make_parents=False) as tmp:
         tmp.write_text(json.dumps(result.report, indent=1), encoding="utf-8")
     return p, report_path
+
+
+def record_probe(session_root: str | os.PathLike[str], result: ProbeResult) -> tuple[Path, Path]:
+    """Keep the probe in its session: :data:`PROBE_FILE` and :data:`PROBE_REPORT_FILE`, in the manifest.
+
+    The session report (``kogei report``) shows them.  Returns both paths.
+    """
+    import tempfile
+
+    from app.session import Session, SessionError
+    from processing.lighting.environment_map import write_environment
+
+    root = Path(session_root)
+    with tempfile.TemporaryDirectory(prefix="kogei-probe-") as tmp:
+        exr = write_environment(Path(tmp) / "probe.exr", result.environment).read_bytes()
+    report = json.dumps(result.report, indent=1).encode("utf-8")
+    try:
+        with Session.open(root) as session:
+            info = session.write_file(PROBE_FILE, exr)
+            rep = session.write_file(PROBE_REPORT_FILE, report)
+            products = dict(session.manifest.get("products") or {})
+            products["probe"] = {"file": info.path, "sha256": info.sha256, "bytes": info.bytes}
+            products["probe_report"] = {"file": rep.path, "sha256": rep.sha256, "bytes": rep.bytes}
+            session.update("products", products)
+    except SessionError as exc:
+        raise UsageError(f"{exc}; or give the brackets' files instead of the session") from None
+    return root / PROBE_FILE, root / PROBE_REPORT_FILE

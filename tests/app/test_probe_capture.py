@@ -73,3 +73,30 @@ def test_kogei_probe_reads_the_session(probe_session, tmp_path, capsys):
     # the floor, straight down, in units of the chart's white (the small frame: within 5 %)
     truth = float(world.environment.luminance([[0.0, 0.0, -1.0]])[0]) / world.chart_white_luminance()
     assert abs(float(env.luminance([[0.0, 0.0, -1.0]])[0]) / truth - 1.0) < 0.05
+
+
+def test_the_session_report_shows_the_probe(probe_session, tmp_path, capsys):
+    import base64
+    import io
+    import re
+
+    from PIL import Image
+
+    root, world = probe_session
+    assert main(["probe", str(root), "--out", str(tmp_path / "room.exr")]) == 0
+    manifest = Session.read(root)
+    assert manifest["products"]["probe"]["file"] == "products/probe.exr"
+    kept, given = read_environment(root / "products" / "probe.exr"), read_environment(tmp_path / "room.exr")
+    assert np.array_equal(kept.coefficients, given.coefficients)
+    assert main(["report", str(root)]) == 0
+    html = (root / "products" / "report.html").read_text()
+    assert "<h2>Light probe</h2>" in html and "Not in this session:</b> no light probe" not in html
+    # the map's figure: a picture of the room (the lamps and the dim walls both visible), not a blank frame
+    uri = re.search(r"<img src='data:image/png;base64,([^']+)' alt='light probe map'>", html)
+    img = np.asarray(Image.open(io.BytesIO(base64.b64decode(uri.group(1)))).convert("RGB")).astype(float)
+    assert img.std() > 20
+    # the report's figures, as the probe's own report states them
+    report = json.loads((root / "products" / "probe.json").read_text())
+    assert f"{100 * report['map']['observed_fraction']:.0f} %" in html
+    assert f"chart RMS reflectance error {report['spectral']['chart_rmse']:.3f}" in html
+    assert "<th>brackets</th><td>7</td>" in html
