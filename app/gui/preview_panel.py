@@ -57,7 +57,10 @@ from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane, ProcessJob
 
-__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "MEASURED"]
+__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "MEASURED", "LIGHTINGS"]
+
+#: The Preview tab's lighting choices.
+LIGHTINGS = ("directional light", "daylight sky (sun at the light's direction)", "light probe / HDR map")
 
 #: The material choice that renders the regions' measured materials.
 MEASURED = "measured (on the mesh)"
@@ -122,8 +125,11 @@ def _render_final(args: dict[str, Any], message: Callable[[str], None]) -> dict[
 
 def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, float, float],
                 azimuth_deg: float, elevation_deg: float, size: tuple[int, int], preset: str,
-                bounds: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
+                bounds: tuple[np.ndarray, np.ndarray], environment: str | None = None) -> dict[str, Any]:
     """Render ``mesh`` from the orbit camera.
+
+    ``environment`` (the ``kogei render --environment`` text: a ``.exr`` / ``.hdr`` file or
+    ``sky:...``) lights the mesh instead of the directional ``light``.
 
     Returns
     -------
@@ -135,7 +141,7 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
     import time
 
     from app.workflows.scene_build import build_job
-    from app.workflows.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec
+    from app.workflows.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, parse_environment
     from render.renderer import render
 
     lo, hi = bounds
@@ -145,8 +151,10 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
     distance = radius / math.sin(math.radians(fov) / 2) * 1.05
     eye = orbit_eye(center, distance, azimuth_deg, elevation_deg)
     up = (0.0, 0.0, 1.0) if abs(elevation_deg) < 89.0 else (0.0, 1.0, 0.0)
+    env = None if environment is None else parse_environment(environment, "environment")
     spec = SceneSpec(objects=[ObjectSpec(mesh=Path(mesh), material=material)],
-                     lights=[LightSpec("directional", light)], illuminant=illuminant, size=size, preset=preset,
+                     lights=[] if env is not None else [LightSpec("directional", light)], illuminant=illuminant,
+                     size=size, preset=preset, environment=env,
                      camera=CameraSpec(eye=tuple(eye.tolist()), target=tuple(center.tolist()), up=up, fov_deg=fov))
     job = build_job(spec)
     t = time.perf_counter()
@@ -299,6 +307,20 @@ class PreviewPanel(Panel):
         side.addWidget(g)
         lg = QGroupBox("Light and view")
         lf = QFormLayout(lg)
+        self.lighting = QComboBox()
+        self.lighting.addItems(LIGHTINGS)
+        self.lighting.setToolTip("what lights the object: one directional light; an outdoor daylight sky whose sun "
+                                 "stands at the light's azimuth and elevation; or a measured light probe "
+                                 "(kogei probe) or another HDR environment map (.exr / .hdr)")
+        self.probe_path = QLabel("no probe chosen")
+        self.probe_path.setWordWrap(True)
+        self.probe_button = QPushButton("Choose probe…")
+        self.probe_button.setToolTip("an environment map: the .exr kogei probe writes, or a .hdr / .exr from "
+                                     "elsewhere (read as linear sRGB)")
+        self.probe_button.clicked.connect(self.safe(self._choose_probe))
+        self.probe_file: str | None = None
+        lf.addRow("Lighting", self.lighting)
+        lf.addRow(self.probe_button, self.probe_path)
         self.light_az = QDoubleSpinBox()
         self.light_el = QDoubleSpinBox()
         self.azimuth = QDoubleSpinBox()
@@ -334,8 +356,10 @@ class PreviewPanel(Panel):
         scroll.setMinimumWidth(column.sizeHint().width() + 24)     # no horizontal scrolling
         self.cct.setEnabled(False)
         self.illuminant.currentTextChanged.connect(lambda t: self.cct.setEnabled(t == "custom CCT"))
-        for w in (self.material, self.illuminant, self.preset, self.size):
+        for w in (self.material, self.illuminant, self.preset, self.size, self.lighting):
             w.currentTextChanged.connect(lambda _: self._settle_later())
+        self.lighting.currentTextChanged.connect(self._lighting_changed)
+        self._lighting_changed(self.lighting.currentText())
         for w in (self.cct, self.light_az, self.light_el, self.azimuth, self.elevation):
             w.valueChanged.connect(lambda _: self._settle_later())
         self._settle = QTimer(self)
@@ -388,6 +412,44 @@ class PreviewPanel(Panel):
         self.lane.run(work, "read mesh", succeeded=loaded,
                       failed=lambda text, exc: self.error.emit(f"preview: {path}: {text}"))
 
+    # ------------------------------------------------------------ light
+    def _lighting_changed(self, text: str) -> None:
+        probe = text == LIGHTINGS[2]
+        self.probe_button.setEnabled(probe)
+        self.probe_path.setEnabled(probe)
+        self.light_az.setEnabled(not probe)          # the directional light or the sky's sun; a probe is measured
+        self.light_el.setEnabled(not probe)
+        if probe and self.probe_file is None:
+            root = self.session_root()
+            kept = None if root is None else root / "products" / "probe.exr"
+            if kept is not None and kept.is_file():
+                self.set_probe(str(kept))
+
+    def _choose_probe(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Light probe", "", "Environment maps (*.exr *.hdr)")
+        if path:
+            self.set_probe(path)
+
+    def set_probe(self, path: str) -> None:
+        """Light the preview with the environment map ``path`` (a ``kogei probe`` .exr or a .hdr / .exr)."""
+        self.probe_file = path
+        self.probe_path.setText(path)
+        self.lighting.setCurrentText(LIGHTINGS[2])
+        self._settle_later()
+
+    def environment_text(self) -> str | None:
+        """The ``--environment`` text of the chosen lighting (None: the directional light)."""
+        from app.errors import UsageError
+
+        text = self.lighting.currentText()
+        if text == LIGHTINGS[1]:
+            return f"sky:sun_elevation={max(self.light_el.value(), 0.0):g},sun_azimuth={self.light_az.value():g}"
+        if text == LIGHTINGS[2]:
+            if self.probe_file is None:
+                raise UsageError("no light probe chosen: press 'Choose probe…' (a kogei probe .exr or a .hdr)")
+            return self.probe_file
+        return None
+
     # ------------------------------------------------------------ rendering
     def illuminant_name(self) -> str:
         text = self.illuminant.currentText()
@@ -415,6 +477,8 @@ class PreviewPanel(Panel):
 
     def request(self, kind: str) -> None:
         """Ask for a ``draft`` (small, fast) or ``final`` image of the current view."""
+        from app.errors import UsageError
+
         if self.mesh_path is None or self.bounds is None:
             return
         w, h = self._size()
@@ -429,6 +493,11 @@ class PreviewPanel(Panel):
                 "light": light_vector(self.light_az.value(), self.light_el.value()),
                 "azimuth_deg": self.azimuth.value(), "elevation_deg": self.elevation.value(),
                 "size": size, "preset": preset, "bounds": self.bounds}
+        try:
+            args["environment"] = self.environment_text()
+        except UsageError as exc:
+            self.info.setText(str(exc))
+            return
         self._waiting = (kind, args)
         self._next()
 
@@ -467,8 +536,11 @@ class PreviewPanel(Panel):
         self.view.setPixmap(pix.scaled(target, Qt.AspectRatioMode.KeepAspectRatio,
                                        Qt.TransformationMode.SmoothTransformation))
         shown = MEASURED if args["mesh"] == self.object_mesh else args["material"]
-        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {shown} under "
-                          f"{args['illuminant']}, {secs:.2f} s")
+        env = args.get("environment")
+        light = (args["illuminant"] if env is None else "the daylight sky" if env.startswith("sky:")
+                 else f"the map {Path(env.split(':rotate=')[0].split(':intensity=')[0]).name}")
+        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {shown} under {light}, "
+                          f"{secs:.2f} s")
         self.rendered.emit(kind)
 
     def _failed(self, text: str, exc: Any) -> None:
