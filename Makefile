@@ -31,6 +31,7 @@ bench: $(STAMP)
 
 screenshots: $(STAMP)
 	QT_QPA_PLATFORM=offscreen $(PY) -m bench.screenshots --out docs/screenshots
+	QT_QPA_PLATFORM=offscreen $(PY) -m bench.screenshots --out docs/screenshots/1024x700 --size 1024x700
 
 clean:
 	rm -rf out .pytest_cache .hypothesis

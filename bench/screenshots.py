@@ -1,12 +1,15 @@
 """``python -m bench.screenshots --out docs/screenshots``: drive the window through a simulated session
 and save a PNG of each main view (``make screenshots``).
 
-The window runs offscreen against the simulated station (the same as
-``kogei gui --mock``): a reference sphere is scanned and calibrated first
+The window runs offscreen against the simulated station of ``kogei gui
+--mock`` (its 240 x 160 camera frames and the ColorChecker on the backdrop;
+a finer hawk mesh): a reference sphere is scanned and calibrated first
 (through the library, as ``kogei calibrate``), then the hawk is captured in
 three placements with RAW frames, processed and previewed, every step
 through the window's own widgets.  Settings go to a temporary file, so the
-user's window settings are untouched.
+user's window settings are untouched.  ``--size 1024x700`` sets the
+window's size (default 1360 x 900), to check that nothing is cropped in a
+small window.
 """
 
 from __future__ import annotations
@@ -45,7 +48,8 @@ def _calibration(tmp: Path) -> Path:
     return tmp / "calibration"
 
 
-def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callable[[str], None] = print) -> list[Path]:
+def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callable[[str], None] = print,
+                     size: tuple[int, int] = (1360, 900)) -> list[Path]:
     """Run the session in the window and write ``devices.png``, ``session.png``, ... into ``out``."""
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     from PySide6.QtCore import QSettings
@@ -63,7 +67,12 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
         end = time.monotonic() + timeout_s
         while not pred():
             if time.monotonic() > end:
-                raise TimeoutError(f"screenshots: timed out waiting for {what}")
+                try:
+                    shown = w.error_line.text()
+                except NameError:                  # before the window exists
+                    shown = ""
+                raise TimeoutError(f"screenshots: timed out waiting for {what}"
+                                   + (f" (the window says: {shown})" if shown else ""))
             app.processEvents()
             time.sleep(0.01)
 
@@ -83,14 +92,11 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
     log("calibrating the simulated scanner (sphere scan)…")
     cal = _calibration(tmp)
     w = MainWindow(QSettings(str(tmp / "settings.ini"), QSettings.Format.IniFormat))
-    w.resize(1360, 900)
+    w.resize(*size)
     w.show()
     try:
-        from mocks.world import World
-
-        # a laid-out ColorChecker on the backdrop (mocks.chart_scene), which the chart detection finds
-        world = World.hawk(20_000, width=600, height=400, chart_layout="classic24")
-        w.start_simulated_station(world=world, n_points=400, seed=1, root=tmp / "station")
+        # the --mock station's camera and chart (mocks.world.station_world_settings), a finer hawk
+        w.start_simulated_station(triangles=20_000, n_points=400, seed=1, root=tmp / "station")
         w.devices.connect_all()
         wait(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), "the instruments")
         w.tabs.setCurrentWidget(w.devices)
@@ -136,12 +142,18 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
         w.spectra.list_frames()
         w.spectra.load()
         wait(lambda: w.spectra.scene is not None, "the spectral calibration")
-        rgb = w.spectra.scene.rgb
-        # the brightest unclipped pixel (a clipped one has no colour to measure): the metal's own colour
-        brightness = np.where(w.spectra.scene.clipped, -1.0, rgb.sum(axis=2))
-        y, x = np.unravel_index(np.argmax(brightness), rgb.shape[:2])
+        w.spectra.only_catalogued.setChecked(True)        # the catalogue entry's materials (recalibrates)
+        wait(lambda: w.spectra.scene is not None and not w.work_lane.busy, "the spectral calibration")
+        from scipy import ndimage
+
+        scene = w.spectra.scene
+        # the brightest lit, unclipped part of the object (5 x 5 pixels around the click): the metal's own colour
+        usable = ~scene.clipped & ~scene.backdrop
+        brightness = np.where(ndimage.minimum_filter(usable, 5), ndimage.uniform_filter(scene.rgb[..., 1], 5), -1.0)
+        y, x = np.unravel_index(np.argmax(brightness), brightness.shape)
         w.spectra.pick(int(x), int(y))
-        wait(lambda: w.spectra.last is not None and not w.spectra.plot.busy, "the spectrum")
+        wait(lambda: (w.spectra.last is not None or w.spectra.state.text().startswith("not measured"))
+             and not w.spectra.plot.busy, "the spectrum")
         w.spectra.make_map()
         wait(lambda: w.spectra.map is not None, "the material map")
         shot(w, "spectra")
@@ -265,6 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.screenshots", description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/screenshots")
     parser.add_argument("--steps", type=int, default=90)
+    parser.add_argument("--size", default="1360x900", metavar="WxH", help="the window's size (default 1360x900)")
     parser.add_argument("--posed", default=None, metavar="SESSION",
                         help="only the Camera tab with the mesh outline on a frame of this projected session "
                              "(e.g. out/demo/capture/session after make demo)")
@@ -278,7 +291,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.posed:
         print(f"wrote {posed_screenshot(Path(args.posed), Path(args.out))}")
         return 0
-    take_screenshots(Path(args.out), steps=args.steps)
+    try:
+        size = tuple(int(v) for v in args.size.lower().split("x"))
+        if len(size) != 2 or min(size) < 200:
+            raise ValueError
+    except ValueError:
+        parser.error(f"--size must be WxH with both at least 200, e.g. 1024x700; got {args.size!r}")
+    take_screenshots(Path(args.out), steps=args.steps, size=size)
     return 0
 
 

@@ -3,9 +3,9 @@
 gphoto2 (libgphoto2's command-line front end, http://gphoto.org/doc/manual/)
 fires the camera and downloads the new file with::
 
-    gphoto2 --capture-image-and-download --filename PATTERN
+    gphoto2 [--set-config-value shutterspeed=T] --capture-image-and-download --filename PATTERN
 
-where ``PATTERN`` may use gphoto2's codes (``%f`` the camera's file name
+(``T`` sets the frame's exposure first, for exposure brackets) where ``PATTERN`` may use gphoto2's codes (``%f`` the camera's file name
 without extension, ``%C`` its extension, ``%n`` a running number, ``%%``).
 :class:`Gphoto2Camera` runs it without a shell in a fresh private folder
 inside the destination (so the download lands on the destination's
@@ -165,9 +165,14 @@ class Gphoto2Camera:
         self.extensions = exts
         self.extra_args = tuple(str(a) for a in extra_args)
 
-    def command(self) -> list[str]:
-        """The argument vector of one capture (no shell is involved)."""
-        return [self.executable, *self.extra_args, "--capture-image-and-download", "--filename",
+    def command(self, shutter: str | None = None) -> list[str]:
+        """The argument vector of one capture (no shell is involved).
+
+        ``shutter`` (a camera shutter-speed setting such as ``"1/250"`` or ``"2"``) is set with gphoto2's
+        ``--set-config-value shutterspeed=...`` in the same invocation, before the capture.
+        """
+        setting = [] if shutter is None else ["--set-config-value", f"shutterspeed={shutter}"]
+        return [self.executable, *self.extra_args, *setting, "--capture-image-and-download", "--filename",
                 self.filename_pattern]
 
     def _resolve_executable(self) -> str:
@@ -194,8 +199,8 @@ class Gphoto2Camera:
             )
         return found
 
-    def _run(self, workdir: Path) -> tuple[int, str, str]:
-        argv = self.command()
+    def _run(self, workdir: Path, shutter: str | None = None) -> tuple[int, str, str]:
+        argv = self.command(shutter)
         argv[0] = self._resolve_executable()
         try:
             done = run_bounded(argv, timeout_s=self.timeout_s, cwd=workdir, kill_leftovers=True)
@@ -215,7 +220,7 @@ class Gphoto2Camera:
             )
         return int(done.returncode or 0), out, err
 
-    def capture(self, name: str) -> Path:
+    def capture(self, name: str, shutter: str | None = None) -> Path:
         """Fire the camera, download the RAW frame and move it to ``dest_dir/<name><ext>``.
 
         Parameters
@@ -223,6 +228,9 @@ class Gphoto2Camera:
         name
             File stem of the frame in ``dest_dir``; the RAW ending
             (lower case) is kept.
+        shutter
+            The shutter speed to set first (gphoto2's ``shutterspeed`` value, e.g. ``"1/250"``);
+            None: the camera's current setting.
 
         Returns
         -------
@@ -245,7 +253,7 @@ class Gphoto2Camera:
         workdir = Path(tempfile.mkdtemp(prefix=".gphoto2-", dir=self.dest_dir))
         keep = False
         try:
-            code, out, err = self._run(workdir)
+            code, out, err = self._run(workdir, shutter)
             text = f"{err}\n{out}"
             kind = classify_gphoto2_error(text)
             if kind == "no_camera":

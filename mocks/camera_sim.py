@@ -170,6 +170,8 @@ class RawFrame:
         ``(H, W)`` expected electrons before noise (for checks).
     make, model
         Camera identification.
+    f_number
+        The aperture written to the DNG (None: not recorded).
     """
 
     bayer: NDArray[np.uint16]
@@ -183,6 +185,7 @@ class RawFrame:
     mean_electrons: NDArray[np.float64] = field(repr=False)
     make: str = "Nikon"
     model: str = "D5100 (simulated)"
+    f_number: float | None = None
 
 
 def camera_sensitivities(grid: SpectralGrid, name: str = SENSITIVITIES) -> NDArray[np.float64]:
@@ -437,4 +440,5 @@ def write_raw(path: str | os.PathLike[str], frame: RawFrame) -> Path:
         iso=frame.iso,
         make=frame.make,
         model=frame.model,
+        f_number=frame.f_number,
     )

@@ -124,10 +124,11 @@ def _extratags(
     color_matrix: NDArray[np.float64],
     illuminant: int,
     neutral: NDArray[np.float64],
-    exposure_time: float,
+    exposure_time: float | None,
     iso: int,
     make: str,
     model: str,
+    f_number: float | None = None,
 ) -> list[tuple]:
     cm = [x for v in color_matrix.ravel() for x in _rational(v, "color_matrix entry", signed=True)]
     asn = [x for v in neutral for x in _rational(v, "as_shot_neutral entry", signed=False)]
@@ -147,9 +148,10 @@ def _extratags(
         (50721, 10, 9, tuple(cm), True),
         (50778, 3, 1, illuminant, True),
         (50728, 5, 3, tuple(asn), True),
-        (33434, 5, 1, _rational(exposure_time, "exposure_time", signed=False), True),
         (34855, 3, 1, iso, True),
-    ]
+    ] + ([] if exposure_time is None else
+         [(33434, 5, 1, _rational(exposure_time, "exposure_time", signed=False), True)]) \
+      + ([] if f_number is None else [(33437, 5, 1, _rational(f_number, "f_number", signed=False), True)])
 
 
 def dng_bytes(
@@ -161,10 +163,11 @@ def dng_bytes(
     color_matrix: ArrayLike = _DEFAULT_MATRIX,
     calibration_illuminant: str = "D65",
     as_shot_neutral: ArrayLike = (1.0, 1.0, 1.0),
-    exposure_time: float = 0.01,
+    exposure_time: float | None = 0.01,
     iso: int = 100,
     make: str = "Kogei",
     model: str = "Simulated",
+    f_number: float | None = None,
 ) -> bytes:
     """The DNG file of a Bayer mosaic as bytes (see :func:`write_dng`).
 
@@ -203,15 +206,18 @@ def dng_bytes(
     neutral = np.asarray(as_shot_neutral, dtype=np.float64)
     if neutral.shape != (3,) or not np.all(np.isfinite(neutral)) or np.any(neutral <= 0):
         raise DngWriteError(f"as_shot_neutral must be three camera-RGB values > 0, got {as_shot_neutral!r}")
-    if not (np.isfinite(float(exposure_time)) and float(exposure_time) > 0):
-        raise DngWriteError(f"exposure_time must be > 0 seconds, got {exposure_time!r}")
+    if exposure_time is not None and not (np.isfinite(float(exposure_time)) and float(exposure_time) > 0):
+        raise DngWriteError(f"exposure_time must be > 0 seconds (or None: not recorded), got {exposure_time!r}")
+    if f_number is not None and not (np.isfinite(float(f_number)) and float(f_number) > 0):
+        raise DngWriteError(f"f_number must be > 0 (or None: not recorded), got {f_number!r}")
     if isinstance(iso, bool) or not float(iso).is_integer() or not 0 < int(iso) <= 65535:
         raise DngWriteError(f"iso must be a whole number in 1..65535, got {iso!r}")
     for what, text in (("make", make), ("model", model)):
         if not isinstance(text, str) or not text.isascii() or "\x00" in text:
             raise DngWriteError(f"{what} must be an ASCII string, got {text!r}")
     tags = _extratags(cfa, black, white, cm, LIGHT_SOURCES[calibration_illuminant], neutral,
-                      float(exposure_time), int(iso), make, model)
+                      None if exposure_time is None else float(exposure_time), int(iso), make, model,
+                      None if f_number is None else float(f_number))
     buffer = io.BytesIO()
     with tifffile.TiffWriter(buffer, bigtiff=False) as tif:
         tif.write(
@@ -237,10 +243,11 @@ def write_dng(
     color_matrix: ArrayLike = _DEFAULT_MATRIX,
     calibration_illuminant: str = "D65",
     as_shot_neutral: ArrayLike = (1.0, 1.0, 1.0),
-    exposure_time: float = 0.01,
+    exposure_time: float | None = 0.01,
     iso: int = 100,
     make: str = "Kogei",
     model: str = "Simulated",
+    f_number: float | None = None,
 ) -> Path:
     """Write an uncompressed DNG 1.4 of a Bayer mosaic, atomically.
 
@@ -266,11 +273,13 @@ def write_dng(
     as_shot_neutral
         Camera RGB of the scene white, normalised as the caller likes.
     exposure_time
-        Seconds.
+        Seconds (None: the file records no exposure time, as some tethering tools write).
     iso
         ISO speed.
     make, model
         Camera make and model (UniqueCameraModel is ``"make model"``).
+    f_number
+        The lens aperture (EXIF FNumber); None: not recorded.
 
     Returns
     -------
@@ -304,6 +313,7 @@ def write_dng(
         iso=iso,
         make=make,
         model=model,
+        f_number=f_number,
     )
     target = Path(path)
     if not target.parent.is_dir():

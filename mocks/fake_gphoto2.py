@@ -3,14 +3,17 @@
 It answers the command line the camera driver uses
 (:class:`drivers.camera_gphoto2.Gphoto2Camera`)::
 
-    gphoto2 [--port PORT] --capture-image-and-download [--filename PATTERN]
+    gphoto2 [--port PORT] [--set-config-value shutterspeed=T] --capture-image-and-download [--filename PATTERN]
 
 like gphoto2 2.5 does: it prints ``New file is in location ... on the
 camera`` / ``Saving file as NAME`` / ``Deleting file ... on the camera`` and
 writes the frame into the current folder, expanding the pattern codes
 ``%f`` (the camera's file name, ``DSC_0001``...), ``%C`` (extension,
 ``dng``), ``%n`` (running number from 1), ``%%`` and the ``strftime`` date
-codes ``%Y %m %d %H %M %S``.  ``--auto-detect`` and ``--version`` answer too.
+codes ``%Y %m %d %H %M %S``.  ``--auto-detect`` and ``--version`` answer too.  ``--set-config-value shutterspeed=T`` (or
+``--set-config``) sets the exposure of that capture (``1/4000``, ``0.5``, ``1``; seconds), as a bracketed
+capture does; the configuration's ``exposure_s`` is used otherwise.  A light-probe world's frames record
+the aperture f/8.
 
 The frame is rendered from :class:`mocks.world.World` through the simulated
 camera (:mod:`mocks.camera_sim`).  State lives in a JSON configuration file
@@ -64,6 +67,7 @@ __all__ = [
     "expand_pattern",
     "install",
     "main",
+    "parse_shutter",
     "read_config",
     "update_config",
     "write_config",
@@ -300,7 +304,7 @@ def _world(data: dict[str, Any], config_path: Path) -> Any:
 
     from mocks.world import World
 
-    if "swatch" in data or "board" in data or "mirror" in data:
+    if "swatch" in data or "board" in data or "mirror" in data or "probe" in data:
         return World.from_dict(data)        # analytic or quick to build: nothing worth caching
     cache = config_path.with_name(config_path.name + ".mesh.npz")
     source = str(data.get("mesh", "hawk:4000"))
@@ -335,7 +339,7 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
     parsed = _parse_args(list(sys.argv[1:] if argv is None else argv))
     if isinstance(parsed, int):
         return parsed
-    pattern, capture, detect = parsed
+    pattern, capture, detect, exposure = parsed
     config_path = os.environ.get(CONFIG_ENV) or default_config
     if not config_path or not Path(config_path).is_file():
         sys.stderr.write(f"fake gphoto2: configuration {config_path!r} not found; set {CONFIG_ENV}\n")
@@ -353,24 +357,52 @@ def main(argv: Sequence[str] | None = None, default_config: str | None = None) -
     failed = _camera_faults(config_path, faults)
     if failed is not None:
         return failed
+    if exposure is not None:          # a bracket: its own exposure, and its own noise
+        config["exposure_s"] = exposure
+        config["bracket"] = True
     return _capture(config_path, config, pattern)
 
 
-def _parse_args(args: list[str]) -> tuple[str, bool, bool] | int:
-    """``(pattern, capture, detect)`` of the command line, or the exit status when it ends the run (--version)."""
+def parse_shutter(value: str) -> float:
+    """Seconds of a gphoto2 shutter-speed value (``1/250``, ``0.5``, ``2``, ``2s``).
+
+    >>> parse_shutter("1/4000"), parse_shutter("2s")
+    (0.00025, 2.0)
+    """
+    text = value.strip().rstrip("s")
+    num, _, den = text.partition("/")
+    seconds = float(num) / float(den) if den else float(num)
+    if not (seconds > 0 and seconds < 3600):
+        raise ValueError(value)
+    return seconds
+
+
+def _parse_args(args: list[str]) -> tuple[str, bool, bool, float | None] | int:
+    """``(pattern, capture, detect, exposure_s)`` of the command line, or the exit status that ends the run."""
     pattern = "%f.%C"
     capture = detect = False
+    exposure = None
     i = 0
     while i < len(args):
         a = args[i]
         if a == "--capture-image-and-download":
             capture = True
-        elif a in ("--filename", "--port"):
+        elif a in ("--filename", "--port", "--set-config-value", "--set-config"):
             if i + 1 >= len(args):
                 sys.stderr.write(f"{a}: missing argument\n")
                 return 1
             if a == "--filename":
                 pattern = args[i + 1]
+            elif a.startswith("--set-config"):
+                key, _, value = args[i + 1].partition("=")
+                if key != "shutterspeed":
+                    sys.stderr.write(f"\n*** Error: {key} not found in configuration tree. ***\n\n")
+                    return 1
+                try:
+                    exposure = parse_shutter(value)
+                except ValueError:
+                    sys.stderr.write(f"\n*** Error: shutterspeed {value!r} is not a shutter speed. ***\n\n")
+                    return 1
             i += 1
         elif a.startswith("--filename="):
             pattern = a.split("=", 1)[1]
@@ -381,10 +413,10 @@ def _parse_args(args: list[str]) -> tuple[str, bool, bool] | int:
             detect = True
         else:
             sys.stderr.write(f"gphoto2: unknown option {a!r} (this simulator knows --capture-image-and-download, "
-                             "--filename, --port, --auto-detect, --version)\n")
+                             "--filename, --port, --set-config-value, --auto-detect, --version)\n")
             return 1
         i += 1
-    return pattern, capture, detect
+    return pattern, capture, detect, exposure
 
 
 def _camera_faults(config_path: str, faults: dict[str, Any]) -> int | None:
@@ -427,10 +459,13 @@ def _capture(config_path: str, config: dict[str, Any], pattern: str) -> int:
         kind = "chart" if chart else "object"
         placement = int(config.get("placement", 0))
         frame = world.frame(kind)
-        raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=float(config["exposure_s"]),
+        exposure = float(config["exposure_s"])
+        raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure,
                            seed=frame_seed(int(config["seed"]), placement, chart_seed_kind(config, kind),
-                                           world.table_angle_deg),
+                                           world.table_angle_deg)
+                           + (int(round(1e6 * exposure)) if config.get("bracket") else 0),
                            exposure_boost=_SATURATION_BOOST if faults["saturate"] else 1.0)
+        raw.f_number = getattr(world, "f_number", None)
         write_raw(name, raw)
         if chart:
             chart_taken(config_path, placement)

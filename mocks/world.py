@@ -389,8 +389,8 @@ class World:
         """Rebuild a world from :meth:`to_dict` (the fake gphoto2's configuration).
 
         A mapping with a ``"swatch"`` entry is a :class:`mocks.swatch_world.SwatchWorld`, with
-        ``"board"`` a :class:`mocks.board_world.BoardWorld`, with ``"mirror"`` a
-        :class:`mocks.mirror_world.MirrorWorld`.
+        ``"board"`` a :class:`mocks.board_world.BoardWorld`, with ``"probe"`` a
+        :class:`mocks.probe_world.ProbeWorld`, with ``"mirror"`` a :class:`mocks.mirror_world.MirrorWorld`.
         """
         if "swatch" in data:
             from mocks.swatch_world import SwatchWorld  # imported here: it builds on this module
@@ -400,6 +400,10 @@ class World:
             from mocks.board_world import BoardWorld
 
             return BoardWorld.from_dict(data)
+        if "probe" in data:
+            from mocks.probe_world import ProbeWorld
+
+            return ProbeWorld.from_dict(data)
         if "mirror" in data:
             from mocks.mirror_world import MirrorWorld
 

@@ -22,8 +22,9 @@ from numpy.typing import NDArray
 
 from processing.cloth.anisotropic_microfacet import anisotropic_lobe
 from processing.errors import InputError
-from processing.materials.lobes import Lobe, material_brdf
+from processing.materials.lobes import Lobe, Material, material_brdf
 from processing.spectral.spectra import SpectralGrid
+from render.environment import EnvironmentPlan
 from render.scene import Sky
 from render.shading import (
     _F32,
@@ -45,7 +46,40 @@ ALBEDO_TABLE_SIZE = 65
 ALBEDO_GRAZING_COS = 1e-4
 
 # --------------------------------------------------------------------------- backends
+def _lobe_key(lobe: Lobe) -> tuple:
+    """The lobe group a lobe belongs to (as :func:`render.shading.plan_material` groups them)."""
+    if lobe.kind == "lambert":
+        return ("lambert", 0.0, "", 0.0)
+    if lobe.kind == "anisotropic":
+        return ("anisotropic", float(lobe.roughness), "smith", float(lobe.roughness_b))
+    return ("microfacet", float(lobe.roughness), lobe.shadowing, 0.0)
+
+
+def _group_key(group) -> tuple:
+    return (group.kind, float(group.roughness), group.shadowing, float(group.roughness_b))
+
+
+#: Directional albedo spectra already computed, per (lobe, nodes, grid): materials built from the
+#: same preset share them, and a re-render does not integrate them again.  Only lobes whose spectral
+#: factor has a value repr (ConductorFresnel, ...) are remembered; the default repr names an object.
+_ALBEDO_CACHE: dict[tuple, NDArray[np.float64]] = {}
+
+
 def _albedo_spectra(lobe: Lobe, cos_o: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
+    """Directional albedo ``(N, L)`` of one lobe including its weight, remembered (see ``_ALBEDO_CACHE``)."""
+    text = repr(lobe.spectral)
+    if " object at 0x" in text:
+        return _albedo_spectra_uncached(lobe, cos_o, grid)
+    key = (lobe.kind, lobe.weight, lobe.roughness, lobe.roughness_b, lobe.shadowing, text,
+           cos_o.tobytes(), grid.start, grid.stop, grid.step)
+    if key not in _ALBEDO_CACHE:
+        if len(_ALBEDO_CACHE) > 256:
+            _ALBEDO_CACHE.clear()
+        _ALBEDO_CACHE[key] = _albedo_spectra_uncached(lobe, cos_o, grid)
+    return _ALBEDO_CACHE[key]
+
+
+def _albedo_spectra_uncached(lobe: Lobe, cos_o: NDArray[np.float64], grid: SpectralGrid) -> NDArray[np.float64]:
     """Directional albedo ``(N, L)`` of one lobe including its weight.
 
     A Lambert lobe's albedo is its weight times its reflectance at every
@@ -99,6 +133,7 @@ class SpectralBackend:
         sky_radiance: NDArray[np.float64],
         plans: tuple[MaterialPlan, ...],
         albedo_size: int = ALBEDO_TABLE_SIZE,
+        environment: EnvironmentPlan | None = None,
     ) -> None:
         self.grid = grid
         self.wavelengths = grid.wavelengths
@@ -107,17 +142,26 @@ class SpectralBackend:
         self.sky_radiance = sky_radiance
         self.plans = plans
         self.channels = grid.size
+        self.environment = environment
         self.albedo: list[AngleTable | None] = []
+        # directional albedo spectra (unscaled) of each non-mirror lobe group of each material: an
+        # environment map lights each group through its own prefiltered map
+        self.group_albedo_spectra: list[list[AngleTable]] = []
+        self.env_materials: list[Material | None] = []
         nodes = np.linspace(0.0, 1.0, albedo_size)
         nodes[0] = ALBEDO_GRAZING_COS
         for plan in plans:
-            if sky.is_black or not plan.sky_lobes:
+            self.env_materials.append(Material(plan.material.name, plan.sky_lobes) if plan.sky_lobes else None)
+            if (sky.is_black and environment is None) or not plan.sky_lobes:
                 self.albedo.append(None)
+                self.group_albedo_spectra.append([])
                 continue
-            total = np.zeros((albedo_size, grid.size))
+            per_group = {_group_key(g): np.zeros((albedo_size, grid.size)) for g in plan.sky_groups}
             for lobe in plan.sky_lobes:
-                total += _albedo_spectra(lobe, nodes, grid)
-            self.albedo.append(AngleTable(total * sky_radiance))
+                per_group[_lobe_key(lobe)] += _albedo_spectra(lobe, nodes, grid)
+            total = sum(per_group.values())
+            self.group_albedo_spectra.append([AngleTable(v) for v in per_group.values()])
+            self.albedo.append(None if sky.is_black else AngleTable(total * sky_radiance))
 
     def zeros(self, n: int) -> NDArray[np.float64]:
         """A black colour array for ``n`` samples.
@@ -258,6 +302,91 @@ class SpectralBackend:
         out *= np.asarray(factor, np.float64)[:, None]
         return out
 
+    # ---- environment map (image-based lighting); coefficients are (K, n) of the plan's basis
+    def env_radiance(self, coeff: NDArray[np.float32]) -> NDArray[np.float64]:
+        """Spectral radiance ``(n, L)`` of environment coefficients ``(K, n)``."""
+        return np.asarray(coeff, np.float64).T @ self.environment.basis
+
+    def env_direct(self, mat: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, coeff: NDArray[np.float32], scale: Vec,
+                   tangential: tuple[Vec, Vec, Vec, Vec] | None = None) -> NDArray[np.float64]:
+        """Radiance of the non-mirror lobes lit from one environment direction per sample.
+
+        Parameters
+        ----------
+        mat
+            Global material number.
+        ci, co, ch, cd
+            Cosines of the samples, ``(n,)``.
+        coeff
+            ``(K, n)`` environment coefficients of the directions.
+        scale
+            ``(n,)`` estimator weight (visibility / density).
+        tangential
+            As for :meth:`direct`.
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
+        if tangential is not None:
+            tangential = tuple(np.asarray(x, np.float64) for x in tangential)
+        f = material_brdf(self.env_materials[mat], ci, co, ch, cd, self.wavelengths, tangential)
+        f *= (np.asarray(ci, np.float64) * scale)[:, None]
+        f *= self.env_radiance(coeff)
+        return f
+
+    def env_diffuse(self, mat: int, cos_o: Vec, prefiltered: list[NDArray[np.float32]]) -> NDArray[np.float64]:
+        """Unoccluded environment light of the non-mirror lobes: each group's albedo(cos_o) times its prefiltered map.
+
+        Parameters
+        ----------
+        mat
+            Global material number.
+        cos_o
+            ``(n,)`` cosines of the view direction.
+        prefiltered
+            ``(K, n)`` coefficients per lobe group of the material's non-mirror lobes: the
+            cosine-weighted mean over each hemisphere (Lambert, cloth) or the map prefiltered by
+            the lobe around the mirrored direction (microfacet lobes).
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
+        out = np.zeros((len(cos_o), self.channels))
+        for table, coeff in zip(self.group_albedo_spectra[mat], prefiltered):
+            term = table.lookup(cos_o).astype(np.float64)
+            term *= self.env_radiance(coeff)
+            out += term
+        return out
+
+    def mirror_env(self, mat: int, j: int, cos_d: Vec, coeff: NDArray[np.float32], factor: Vec) -> NDArray[np.float64]:
+        """The environment seen in mirror lobe ``j``: ``S(cos_d) * radiance(coeff) * factor``.
+
+        Parameters
+        ----------
+        mat, j, cos_d
+            As in :meth:`mirror_factor`.
+        coeff
+            ``(K, n)`` environment coefficients along the mirrored rays.
+        factor
+            ``(n,)`` ray weights.
+
+        Returns
+        -------
+        ndarray
+            float64 ``(n, L)``.
+        """
+        out = self.mirror_factor(mat, j, cos_d) * self.env_radiance(coeff)
+        out *= np.asarray(factor, np.float64)[:, None]
+        return out
+
+    def env_background(self, coeff: NDArray[np.float32]) -> NDArray[np.float64]:
+        """The environment's radiance ``(n, L)`` of coefficients ``(K, n)`` (camera rays that miss)."""
+        return self.env_radiance(coeff)
+
     def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float64]:
         """Spectra ``(n, L)`` as colours of this backend (the same).
 
@@ -362,6 +491,31 @@ class TableBackend:
                 [spectral_factor_table(lobe.spectral, sky_radiance, grid, k, size) for lobe in plan.mirrors]
             )
         self.background_xyz = (k * spectra_to_xyz(sky_radiance, grid)).astype(_F32)
+        env = spectral.environment
+        self.env_tables: list[list[AngleTable]] = []
+        self.env_albedo_tables: list[list[AngleTable]] = []
+        self.env_mirror_tables: list[list[AngleTable]] = []
+        if env is not None:
+            # every table holds the K basis spectra side by side: (N, 3 K) channels
+            def stacked(factor, weight: float) -> AngleTable:
+                parts = [spectral_factor_table(factor, b, grid, k * weight, size) for b in env.basis]
+                n = max(p.size for p in parts)
+                return AngleTable(np.concatenate([np.broadcast_to(p.values, (n, 3)) for p in parts], axis=1))
+
+            for mat, plan in enumerate(plans):
+                per_group = []
+                for group in plan.sky_groups:
+                    table = None
+                    for weight, factor in group.members:
+                        t = stacked(factor, weight)
+                        table = t if table is None else table + t
+                    per_group.append(table)
+                self.env_tables.append(per_group)
+                self.env_albedo_tables.append([AngleTable(np.concatenate(
+                    [k * spectra_to_xyz(alb.values * b, grid) for b in env.basis], axis=1))
+                    for alb in spectral.group_albedo_spectra[mat]])
+                self.env_mirror_tables.append([stacked(lobe.spectral, 1.0) for lobe in plan.mirrors])
+            self.env_xyz = (k * spectra_to_xyz(env.basis, grid)).astype(_F32)      # (K, 3)
 
     def zeros(self, n: int) -> NDArray[np.float32]:
         """A black colour array for ``n`` samples.
@@ -524,6 +678,85 @@ class TableBackend:
         """
         term = self.mirror_tables[mat][j].lookup_channels(cos_d)
         return term * np.asarray(factor, _F32)
+
+    # ---- environment map (image-based lighting); coefficients are (K, n) of the plan's basis
+    @staticmethod
+    def _combine(stacked: NDArray[np.float32], weights: NDArray[np.float32]) -> NDArray[np.float32]:
+        """``sum_k stacked[3k:3k+3] * weights[k]``: XYZ ``(3, n)`` of ``(3K, n)`` tables and ``(K, n)`` weights."""
+        out = stacked[0:3] * weights[0]
+        for c in range(1, weights.shape[0]):
+            out += stacked[3 * c:3 * c + 3] * weights[c]
+        return out
+
+    def env_direct(self, mat: int, ci: Vec, co: Vec, ch: Vec, cd: Vec, coeff: NDArray[np.float32], scale: Vec,
+                   tangential: tuple[Vec, Vec, Vec, Vec] | None = None) -> NDArray[np.float32]:
+        """XYZ of the non-mirror lobes lit from one environment direction per sample.
+
+        Parameters
+        ----------
+        mat, ci, co, ch, cd, coeff, scale, tangential
+            As for :meth:`SpectralBackend.env_direct`.
+
+        Returns
+        -------
+        ndarray
+            float32 XYZ ``(3, n)``.
+        """
+        plan = self.plans[mat]
+        out = self.zeros(len(ci))
+        index = table_index(cd, self.size)
+        for group, table in zip(plan.sky_groups, self.env_tables[mat]):
+            if group.kind == "lambert":
+                g = ci * _F32(1.0 / math.pi)
+            elif group.kind == "anisotropic":
+                if tangential is None:
+                    raise InputError("an anisotropic lobe needs the tangent frame of the hits")
+                g = anisotropic_lobe(ci, co, ch, cd, *tangential, group.roughness, group.roughness_b) * ci
+            else:
+                g = microfacet_geometry(ci, co, ch, cd, group.roughness, group.shadowing) * ci
+            g = (g * scale).astype(_F32, copy=False)
+            stacked = table.lookup_channels(cd) if table.constant else table.lookup_channels(index=index)
+            out += self._combine(stacked, coeff * g)
+        return out
+
+    def env_diffuse(self, mat: int, cos_o: Vec, prefiltered: list[NDArray[np.float32]]) -> NDArray[np.float32]:
+        """Unoccluded environment light of the non-mirror lobes from the albedo tables (see the spectral backend).
+
+        Parameters
+        ----------
+        mat, cos_o, prefiltered
+            As for :meth:`SpectralBackend.env_diffuse`.
+
+        Returns
+        -------
+        ndarray
+            float32 XYZ ``(3, n)``.
+        """
+        tables = self.env_albedo_tables[mat]
+        index = table_index(cos_o, tables[0].size)
+        out = self.zeros(len(cos_o))
+        for table, coeff in zip(tables, prefiltered):
+            out += self._combine(table.lookup_channels(index=index), coeff)
+        return out
+
+    def mirror_env(self, mat: int, j: int, cos_d: Vec, coeff: NDArray[np.float32], factor: Vec) -> NDArray[np.float32]:
+        """XYZ of the environment seen in mirror lobe ``j`` (see the spectral backend).
+
+        Parameters
+        ----------
+        mat, j, cos_d, coeff, factor
+            As for :meth:`SpectralBackend.mirror_env`.
+
+        Returns
+        -------
+        ndarray
+            float32 XYZ ``(3, n)``.
+        """
+        return self._combine(self.env_mirror_tables[mat][j].lookup_channels(cos_d), coeff * np.asarray(factor, _F32))
+
+    def env_background(self, coeff: NDArray[np.float32]) -> NDArray[np.float32]:
+        """XYZ ``(3, n)`` of environment coefficients ``(K, n)``."""
+        return np.ascontiguousarray(self.env_xyz.T @ np.asarray(coeff, _F32))
 
     def from_spectral(self, spectra: NDArray[np.float64]) -> NDArray[np.float32]:
         """XYZ of radiance spectra.

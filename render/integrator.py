@@ -1,9 +1,22 @@
-"""The shading integrator: direct light with shadow rays, sky light, one mirror bounce.
+"""The shading integrator: direct light with shadow rays, sky and environment light, one mirror bounce.
 
 :func:`shade` sums, for each ray hit, the colour signal of Matsuda et al.,
 eq. (2) and (5), over the lights and lobes of its material (the formula and
 its approximations are in :mod:`render.shading` and docs/rendering.md); the
 spectral part comes from one of the backends of :mod:`render.backends`.
+
+An environment map (:mod:`render.environment`) lights the non-mirror lobes
+of the primary hits by Monte Carlo integration when ``environment_samples``
+is above 0: half the directions drawn from the map's luminance above its
+mean, half from the lobes' BRDF (cosine for Lambert and cloth lobes,
+Beckmann normals for microfacet lobes), combined by the balance heuristic
+of multiple importance sampling (Veach and Guibas 1995,
+doi:10.1145/218380.218498), each with a shadow ray when ``shadows`` is set.
+With no samples (and on the mirror bounce's secondary hits) each lobe group
+takes its directional albedo times the map prefiltered by the group (the
+cosine lobe at the normal, or a glossy lobe around the mirrored view: the
+split-sum approximation), unoccluded.  Mirror lobes see the map along their
+mirrored rays where those miss the scene.
 """
 
 from __future__ import annotations
@@ -18,6 +31,7 @@ from numpy.typing import NDArray
 from processing.errors import InputError
 from processing.materials.lobes import Lobe
 from render.backends import SpectralBackend, TableBackend
+from render.environment import EnvironmentPlan
 from render.scene import Sky
 from render.shading import (
     _F32,
@@ -29,6 +43,7 @@ from render.shading import (
     _take,
     cross3,
     dot3,
+    orthonormal_basis,
     sample_beckmann_normals,
 )
 
@@ -66,6 +81,16 @@ class ShadingContext:
         :class:`Hits`.
     stats
         Counts of shadow rays, mirror rays and secondary hits.
+    environment
+        The environment map prepared for shading, or None.
+    environment_samples
+        Directions per primary hit for the environment light of the
+        non-mirror lobes (0: the prefiltered map, unoccluded).
+    environment_term
+        The sampled environment light of the last primary :func:`shade`
+        call (its colours, included in what it returned), or None: the
+        renderer leaves its Monte Carlo noise out of the adaptive
+        anti-aliasing decision.
     """
 
     lights: tuple[LightPlan, ...]
@@ -79,6 +104,9 @@ class ShadingContext:
     occluded: Callable[[NDArray[np.float32], float], NDArray[np.bool_]]
     make_hits: Callable[[NDArray[np.float32], dict[str, NDArray], NDArray[np.intp]], Hits]
     stats: dict[str, float] = field(default_factory=dict)
+    environment: EnvironmentPlan | None = None
+    environment_samples: int = 0
+    environment_term: NDArray | None = None
 
     def count(self, key: str, value: float) -> None:
         """Add ``value`` to the count ``key`` of :attr:`stats`.
@@ -204,6 +232,8 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
     if m == 0:
         return out
     per_light = [light_samples(ctx, hits, i) for i in range(len(ctx.lights))]
+    sampled_env = ctx.environment is not None and ctx.environment_samples > 0 and depth == ctx.mirror_bounces
+    env_out = backend.zeros(m) if sampled_env else None
     if len(ctx.plans) > 1:
         materials = np.flatnonzero(np.bincount(hits.material, minlength=len(ctx.plans)))
     else:
@@ -244,9 +274,19 @@ def shade(ctx: ShadingContext, hits: Hits, backend: SpectralBackend | TableBacke
         if not ctx.sky.is_black and backend.has_sky_diffuse(mat):
             mean = ctx.sky.hemisphere_mean(_take(hits.shading_normal, sel).T).astype(_F32)
             backend.add(out, sel, backend.sky_diffuse(mat, _take(hits.cos_o, sel), mean))
+        # ---- environment map through the non-mirror lobes
+        if ctx.environment is not None and plan.sky_groups:
+            sub = hits if sel is None else hits.take(sel)
+            if sampled_env:
+                _environment_light(ctx, sub, sel, env_out, backend, mat, rng)
+            else:
+                backend.add(out, sel, backend.env_diffuse(mat, sub.cos_o, _prefiltered(ctx, sub, plan)))
         # ---- mirror lobes
         for j, lobe in enumerate(plan.mirrors):
             _mirror(ctx, hits if sel is None else hits.take(sel), sel, out, backend, mat, j, lobe, depth, rng)
+    if sampled_env:
+        out += env_out
+        ctx.environment_term = env_out
     return out
 
 
@@ -257,11 +297,8 @@ def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: N
     co = sub.cos_o
     weight = _F32(lobe.weight)
     if depth <= 0:
-        if ctx.sky.is_black:
-            return
         r = _reflect(sub.view, sub.shading_normal, co)
-        factor = ctx.sky.radiance_scale(r.T).astype(_F32) * weight
-        backend.add(out, sel, backend.mirror_sky(mat, j, co, factor))
+        _mirror_surroundings(ctx, backend, out, sel, mat, j, r, co, np.full(len(sub), weight, dtype=_F32))
         return
     n_rays = ctx.mirror_rays if ctx.mirror_rays > 0 else 1
     for _ in range(n_rays):
@@ -294,13 +331,11 @@ def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: N
         target = rows if sel is None else sel[rows]
         cd_rows = _take(cd, key)
         w_rows = _take(w, key)
-        if not ctx.sky.is_black:
-            miss = np.flatnonzero(~hit)
-            if miss.size:
-                factor = ctx.sky.radiance_scale(np.take(r_rows, miss, axis=1).T).astype(_F32)
-                factor *= np.take(w_rows, miss)
-                idx = None if (sel is None and miss.size == len(sub)) else target[miss]
-                backend.add(out, idx, backend.mirror_sky(mat, j, np.take(cd_rows, miss), factor))
+        miss = np.flatnonzero(~hit)
+        if miss.size:
+            idx = None if (sel is None and miss.size == len(sub)) else target[miss]
+            _mirror_surroundings(ctx, backend, out, idx, mat, j, np.take(r_rows, miss, axis=1),
+                                 np.take(cd_rows, miss), np.take(w_rows, miss))
         hit_rows = np.flatnonzero(hit)
         if hit_rows.size:
             second = ctx.make_hits(rays, answer, hit_rows)
@@ -311,3 +346,156 @@ def _mirror(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: N
             product *= radiance
             product *= np.take(w_rows, hit_rows).astype(np.float64)[:, None]
             backend.add(out, target[hit_rows], backend.from_spectral(product))
+
+
+def _prefiltered(ctx: ShadingContext, sub: Hits, plan: MaterialPlan) -> list[NDArray[np.float32]]:
+    """Prefiltered environment coefficients ``(K, m)`` per non-mirror lobe group of ``plan``.
+
+    The cosine-prefiltered map at the normal for Lambert and cloth groups, the map prefiltered by
+    the lobe around the mirrored view for microfacet groups.
+    """
+    env = ctx.environment
+    out = []
+    irr = r = None
+    for group in plan.sky_groups:
+        if group.kind == "microfacet":
+            if r is None:
+                r = _reflect(sub.view, sub.shading_normal, sub.cos_o)
+            out.append(env.glossy(r, group.roughness))
+        else:
+            if irr is None:
+                irr = env.irradiance(sub.shading_normal)
+            out.append(irr)
+    return out
+
+
+def _mirror_surroundings(ctx: ShadingContext, backend: SpectralBackend | TableBackend, out: NDArray,
+                         idx: NDArray[np.intp] | None, mat: int, j: int, r: NDArray[np.float32],
+                         cd: NDArray[np.float32], w: NDArray[np.float32]) -> None:
+    """Add the sky and the environment map seen along mirrored rays ``r`` (3, n) with weights ``w`` to rows ``idx``."""
+    if not ctx.sky.is_black:
+        factor = ctx.sky.radiance_scale(r.T).astype(_F32) * w
+        backend.add(out, idx, backend.mirror_sky(mat, j, cd, factor))
+    if ctx.environment is not None:
+        backend.add(out, idx, backend.mirror_env(mat, j, cd, ctx.environment.lookup(r), w))
+
+
+# --------------------------------------------------------------------------- environment light
+def _group_weights(plan_groups) -> NDArray[np.float64]:
+    """Probabilities of choosing each lobe group for BRDF sampling: its share of the lobe weights."""
+    w = np.array([sum(weight for weight, _ in g.members) for g in plan_groups], dtype=np.float64)
+    return w / w.sum()
+
+
+def _sample_brdf(groups, probabilities: NDArray[np.float64], normal: NDArray[np.float32], view: NDArray[np.float32],
+                 frame: tuple[NDArray[np.float32], NDArray[np.float32]], rng: np.random.Generator,
+                 stratum: tuple[int, int] = (0, 1)) -> NDArray[np.float32]:
+    """One direction ``(3, m)`` per hit from the mixture of the lobe groups' sampling densities.
+
+    ``frame`` is :func:`orthonormal_basis` of ``normal``; ``stratum`` ``(s, n)`` restricts the cosine
+    directions to the s-th of n rings of equal probability.
+    """
+    m = normal.shape[1]
+    u = rng.random((3, m), dtype=_F32)
+    u[1] = (_F32(stratum[0]) + u[1]) * _F32(1.0 / stratum[1])
+    # cosine-weighted hemisphere (Lambert and anisotropic groups; Malley's method)
+    t, b = frame
+    r = np.sqrt(u[1])
+    phi = _F32(2.0 * math.pi) * u[2]
+    d = t * (r * np.cos(phi))
+    d += b * (r * np.sin(phi))
+    d += normal * np.sqrt(np.maximum(_F32(1.0) - u[1], _F32(0.0)))
+    choice = np.searchsorted(np.cumsum(probabilities)[:-1], u[0], side="right")
+    for g, group in enumerate(groups):
+        if group.kind != "microfacet":
+            continue
+        rows = np.flatnonzero(choice == g)
+        if rows.size == 0:
+            continue
+        n_rows = _take(normal, rows)
+        v_rows = _take(view, rows)
+        h = sample_beckmann_normals(n_rows, group.roughness, rng)
+        d[:, rows] = _reflect(v_rows, h, dot3(v_rows, h))
+    return d
+
+
+def _brdf_pdf(groups, probabilities: NDArray[np.float64], normal: NDArray[np.float32], view: NDArray[np.float32],
+              d: NDArray[np.float32], ci: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Density ``(m,)`` in 1/sr of :func:`_sample_brdf` for directions ``d``."""
+    pdf = np.zeros(d.shape[1], dtype=_F32)
+    cos_pdf = np.maximum(ci, _F32(0.0)) * _F32(1.0 / math.pi)
+    h = None
+    for p, group in zip(probabilities, groups):
+        if group.kind != "microfacet":
+            pdf += _F32(p) * cos_pdf
+            continue
+        if h is None:
+            h = view + d
+            _normalise(h)
+            ch = np.clip(dot3(normal, h), _F32(1e-6), _F32(1.0))
+            vh = np.maximum(np.abs(dot3(view, h)), _F32(1e-6))
+        s2 = _F32(group.roughness * group.roughness)
+        c2 = ch * ch
+        with np.errstate(over="ignore", under="ignore"):
+            dist = np.exp((_F32(1.0) - _F32(1.0) / c2) / s2) / (_F32(math.pi) * s2 * c2 * c2)
+        pdf += _F32(p) * dist * ch / (_F32(4.0) * vh)
+    return pdf
+
+
+def _environment_light(ctx: ShadingContext, sub: Hits, sel: NDArray[np.intp] | None, out: NDArray,
+                       backend: SpectralBackend | TableBackend, mat: int, rng: np.random.Generator) -> None:
+    """Add the environment light of material ``mat``'s non-mirror lobes for the hits ``sub`` (MIS, shadow rays)."""
+    env = ctx.environment
+    plan = ctx.plans[mat]
+    groups = plan.sky_groups
+    probabilities = _group_weights(groups)
+    total = ctx.environment_samples
+    n_light = total // 2 if env.samples_map else 0
+    n_brdf = total - n_light
+    m = len(sub)
+    ns, v, co = sub.shading_normal, sub.view, sub.cos_o
+    tb = None
+    if plan.anisotropic:
+        if sub.tangent is None:
+            raise InputError(f"material {plan.material.name!r} is anisotropic but the hits carry no tangents")
+        tb = (sub.tangent, cross3(ns, sub.tangent))
+    frame = orthonormal_basis(ns)
+    for s in range(total):
+        if s < n_light:
+            d, pdf_l, pixel = env.sample(m, rng, (s, n_light))
+        else:
+            d = _sample_brdf(groups, probabilities, ns, v, frame, rng, (s - n_light, n_brdf))
+            pixel = env.pixel_index(d)
+            pdf_l = env.pdf_of(pixel) if n_light else np.zeros(m, _F32)
+        ci = dot3(ns, d)
+        pdf_b = _brdf_pdf(groups, probabilities, ns, v, d, ci) if n_brdf else np.zeros(m, _F32)
+        denom = _F32(n_light) * pdf_l + _F32(n_brdf) * pdf_b
+        ok = (ci > 0) & (denom > 0)
+        rows = np.flatnonzero(ok)
+        if rows.size and ctx.shadows:
+            d_rows = _take(d, rows)
+            origins = _offset_origins(_take(sub.position, rows), _take(sub.geometric_normal, rows), d_rows,
+                                      ctx.offset)
+            blocked = ctx.occluded(_rays(origins, d_rows), math.inf)
+            ctx.count("environment_rays", rows.size)
+            rows = rows[~blocked]
+        if rows.size == 0:
+            continue
+        all_rows = rows.size == m
+        key = None if all_rows else rows
+        d_r = _take(d, key)
+        v_r = _take(v, key)
+        h = v_r + d_r
+        _normalise(h)
+        ns_r = _take(ns, key)
+        ci_r = _take(ci, key)
+        coeff_r = env.radiance_of(pixel if all_rows else np.take(pixel, rows))
+        scale = _F32(1.0) / _take(denom, key)
+        tangential = None
+        if tb is not None:
+            t_r, b_r = _take(tb[0], key), _take(tb[1], key)
+            tangential = (dot3(t_r, d_r), dot3(b_r, d_r), dot3(t_r, v_r), dot3(b_r, v_r))
+        term = backend.env_direct(mat, ci_r, _take(co, key), dot3(ns_r, h),
+                                  np.clip(dot3(v_r, h), _F32(0.0), _F32(1.0)), coeff_r, scale, tangential)
+        target = rows if sel is None else sel[rows]
+        backend.add(out, None if (all_rows and sel is None) else target, term)

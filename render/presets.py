@@ -105,6 +105,12 @@ class RenderSettings:
         samples disagree are rendered again with this many samples (which
         replace the base samples in the pixel's value); 0 turns it off.
         Must exceed ``samples_per_pixel``, which must be at least 2.
+    environment_samples
+        Directions per primary hit with which an environment map lights the
+        non-mirror lobes (half from the map's luminance, half from the
+        BRDF, multiple importance sampling, a shadow ray each when
+        ``shadows``); 0: each lobe group's albedo times the map
+        prefiltered by it, without occlusion by the scene.
     adaptive_threshold
         When the base samples of a pixel disagree: they hit different
         objects or materials, some hit and some miss, or their colours
@@ -126,6 +132,7 @@ class RenderSettings:
     seed: int = 0
     adaptive_samples: int = 0
     adaptive_threshold: float = 2.0
+    environment_samples: int = 8
 
     def __post_init__(self) -> None:
         try:
@@ -145,6 +152,11 @@ class RenderSettings:
         object.__setattr__(self, "tile_size", _whole(self.tile_size, "tile_size", 1, 1 << 14))
         object.__setattr__(self, "seed", _whole(self.seed, "seed", 0))
         object.__setattr__(self, "adaptive_samples", _whole(self.adaptive_samples, "adaptive_samples", 0, 4096))
+        object.__setattr__(self, "environment_samples",
+                           _whole(self.environment_samples, "environment_samples", 0, 4096))
+        if self.environment_samples == 1:
+            raise RenderInputError("render setting environment_samples must be 0 (prefiltered map) or at least 2 "
+                                   "(half from the map, half from the BRDF), got 1")
         if self.adaptive_samples:
             if self.samples_per_pixel < 2:
                 raise RenderInputError(
@@ -203,15 +215,17 @@ class RenderSettings:
 PRESETS: dict[str, RenderSettings] = {
     "draft": RenderSettings(
         name="draft", spectral_step=20.0, samples_per_pixel=1, jitter=False, mirror_bounces=0, mirror_rays=0,
-        use_tables=True, table_size=128, shadows=True, tile_size=256,
+        use_tables=True, table_size=128, shadows=True, tile_size=256, environment_samples=0,
     ),
     "standard": RenderSettings(
         name="standard", spectral_step=5.0, samples_per_pixel=4, jitter=False, mirror_bounces=1, mirror_rays=1,
         use_tables=True, table_size=256, shadows=True, tile_size=128, adaptive_samples=64, adaptive_threshold=0.5,
+        environment_samples=8,
     ),
     "reference": RenderSettings(
         name="reference", spectral_step=5.0, samples_per_pixel=16, jitter=False, mirror_bounces=1, mirror_rays=2,
         use_tables=False, table_size=256, shadows=True, tile_size=32, adaptive_samples=256, adaptive_threshold=0.25,
+        environment_samples=16,
     ),
 }
 

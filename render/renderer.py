@@ -52,6 +52,7 @@ from processing.spectral.spectra import SpectralGrid
 from render.backends import SpectralBackend, TableBackend
 from render.calibrated_camera import CalibratedCamera
 from render.camera import Camera
+from render.environment import EnvironmentPlan
 from render.errors import RenderCancelled, RenderInputError
 from render.integrator import ShadingContext, light_samples, shade
 from render.presets import PRESETS, RenderSettings
@@ -182,12 +183,13 @@ class _Triangles:
 
 @dataclass(eq=False)
 class _Lighting:
-    """The lights scaled to the key light's exposure, the XYZ normalisation and the sky radiance."""
+    """The lights scaled to the key light's exposure, the XYZ normalisation, the sky radiance and the environment."""
 
     lights: tuple[LightPlan, ...]
     k: float
     white: NDArray[np.float64]
     sky_radiance: NDArray[np.float64]
+    environment: EnvironmentPlan | None = None
 
 
 def _check_args(scene: Scene, camera: Camera, settings: RenderSettings | None) -> RenderSettings:
@@ -221,6 +223,7 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
     lighting = _lighting(scene, grid, lo, hi)
     plans = tuple(plan_material(m) for m in materials)
     backend = _backend(settings, grid, lighting, scene.sky, plans) if backends else None
+    environment = lighting.environment
     tracer = _Tracer(raycaster, timings)
     ctx = ShadingContext(
         lights=lighting.lights,
@@ -233,6 +236,8 @@ def _prepare(scene: Scene, camera: Camera, settings: RenderSettings, *, backends
         cast=tracer.cast,
         occluded=tracer.occluded,
         make_hits=functools.partial(_make_hits, triangles),
+        environment=environment,
+        environment_samples=settings.environment_samples,
     )
     timings["setup"] = time.perf_counter() - t0
     timings["bvh_build"] = _build_acceleration(raycaster, camera)
@@ -343,22 +348,34 @@ def _lighting(scene: Scene, grid: SpectralGrid, lo: NDArray[np.float64], hi: NDA
     from processing.spectral.display import white_xyz, xyz_scale
 
     spectra = [resolve_spectrum(light.spectrum, grid, f"light {i} spectrum") for i, light in enumerate(scene.lights)]
-    key_irradiance = _key_irradiance(scene, lo, hi)
-    k = xyz_scale(spectra[0], grid)
-    white = white_xyz(spectra[0], grid)
+    env = scene.environment
+    if spectra:
+        key_irradiance = _key_irradiance(scene, lo, hi)
+        k = xyz_scale(spectra[0], grid)
+        white = white_xyz(spectra[0], grid)
+        key_spectrum = spectra[0]
+    else:
+        # no lights: the environment alone; the white (and the unit of a synthetic sky) is the spectrum of
+        # its basis rows together (D65 for an sRGB map)
+        key_irradiance = 1.0
+        key_spectrum = EnvironmentPlan.basis_on_grid(env, grid).sum(axis=0)
+        k = xyz_scale(key_spectrum, grid)
+        white = white_xyz(key_spectrum, grid)
     lights = tuple(
         LightPlan(light.kind, np.asarray(light.vector, dtype=np.float64), e * (light.intensity / key_irradiance))
         for light, e in zip(scene.lights, spectra)
     )
     sky = scene.sky
-    sky_spec = resolve_spectrum(sky.spectrum, grid, "sky spectrum") if sky.spectrum is not None else spectra[0]
-    return _Lighting(lights, k, white, sky_spec / math.pi)
+    sky_spec = resolve_spectrum(sky.spectrum, grid, "sky spectrum") if sky.spectrum is not None else key_spectrum
+    plan = None if env is None else EnvironmentPlan.cached(env, grid, k)
+    return _Lighting(lights, k, white, sky_spec / math.pi, plan)
 
 
 def _backend(settings: RenderSettings, grid: SpectralGrid, lighting: _Lighting, sky: Sky,
              plans: tuple[MaterialPlan, ...]) -> SpectralBackend | TableBackend:
     """The colour backend of the settings: angular tables, or per-sample spectra."""
-    spectral = SpectralBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans)
+    spectral = SpectralBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans,
+                               environment=lighting.environment)
     if settings.use_tables:
         return TableBackend(grid, lighting.k, lighting.lights, sky, lighting.sky_radiance, plans,
                             settings.table_size, spectral)
@@ -617,8 +634,11 @@ def _refine_chunks(count: int, samples: int, use_tables: bool) -> list[slice]:
 
 def _shade_samples(
     prep: _Prepared, rays: NDArray[np.float32], rng: np.random.Generator, settings: RenderSettings
-) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.int64]]:
-    """Cast and shade primary ``rays``: sample XYZ ``(n, 3)``, hit flags and surface keys (-1: miss)."""
+) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.int64], NDArray[np.float32]]:
+    """Cast and shade primary ``rays``: sample XYZ, hit flags, surface keys, XYZ without sampled environment light.
+
+    The XYZ are ``(n, 3)``, keys -1 for a miss; the last is what adaptive anti-aliasing compares.
+    """
     ctx, backend = prep.ctx, prep.backend
     answer = _cast_primary(prep, rays)
     hit = np.isfinite(answer["t_hit"])
@@ -630,6 +650,12 @@ def _shade_samples(
         if miss.size:
             scale = ctx.sky.radiance_scale(np.take(rays, miss, axis=0)[:, 3:])
             backend.add(colour, miss, backend.background(scale))
+    if ctx.environment is not None:
+        miss = np.flatnonzero(~hit)
+        if miss.size:
+            dirs = np.ascontiguousarray(np.take(rays, miss, axis=0)[:, 3:].T)
+            dirs *= _F32(1.0) / np.sqrt(dot3(dirs, dirs))
+            backend.add(colour, miss, backend.env_background(ctx.environment.lookup(dirs)))
     if rows.size:
         hits = ctx.make_hits(rays, answer, rows)
         if settings.adaptive_samples:
@@ -637,8 +663,16 @@ def _shade_samples(
             if len(prep.tri_offset) > 1:
                 surface += prep.n_materials * np.take(answer["geometry_ids"], rows).astype(np.int32)
             key[rows] = surface
+        ctx.environment_term = None
         backend.add(colour, rows, shade(ctx, hits, backend, settings.mirror_bounces, rng))
-    return backend.to_xyz(colour), hit, key
+        if settings.adaptive_samples and ctx.environment_term is not None:
+            # the sampled environment light's noise would refine nearly every pixel: decide without it
+            steady = colour.copy()
+            backend.add(steady, rows, -ctx.environment_term)
+            ctx.environment_term = None
+            return backend.to_xyz(colour), hit, key, backend.to_xyz(steady)
+    xyz = backend.to_xyz(colour)
+    return xyz, hit, key, xyz
 
 
 def _tile_rngs(settings: RenderSettings, number: int) -> tuple[np.random.Generator, ...]:
@@ -895,12 +929,13 @@ def render(
     t_display = time.perf_counter()
     timings = prep.timings
     timings["shading"] = (t_display - t_loop) - timings["primary_rays"] - timings["shadow_rays"] - timings["mirror_rays"]
-    srgb8 = _display(xyz, mask, prep.white, ctx.sky.is_black)
+    background_black = ctx.sky.is_black and ctx.environment is None
+    srgb8 = _display(xyz, mask, prep.white, background_black)
     t_end = time.perf_counter()
     timings["display"] = t_end - t_display
     timings["total"] = t_end - t_start
     stats = _render_stats(prep, scene, refined, primary_total, hits_total, len(tiles))
-    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not ctx.sky.is_black, refined)
+    return RenderResult(xyz, srgb8, mask, prep.white, timings, stats, settings, not background_black, refined)
 
 
 def _render_tile(
@@ -911,7 +946,7 @@ def _render_tile(
     spp, extra = settings.samples_per_pixel, settings.adaptive_samples
     rng_base, rng_refine, rng_shade = _tile_rngs(settings, number)
     rays = camera.rays(x0, x1, y0, y1, spp, rng_base, settings.jitter)
-    sample_xyz, hit, key = _shade_samples(prep, rays, rng_shade, settings)
+    sample_xyz, hit, key, steady_xyz = _shade_samples(prep, rays, rng_shade, settings)
     primary_total = rays.shape[0]
     hits_total = int(np.count_nonzero(hit))
     nx = x1 - x0
@@ -919,11 +954,11 @@ def _render_tile(
     cover = _pixel_fraction(hit, spp)
     if not extra:
         return pixel, cover, None, primary_total, hits_total
-    todo = np.flatnonzero(pixels_to_refine(sample_xyz, key, spp, prep.white, settings.adaptive_threshold))
+    todo = np.flatnonzero(pixels_to_refine(steady_xyz, key, spp, prep.white, settings.adaptive_threshold))
     for part in _refine_chunks(todo.size, extra, settings.use_tables):
         idx = todo[part]
         more = camera.pixel_rays(x0 + idx % nx, y0 + idx // nx, extra, rng_refine, settings.jitter)
-        more_xyz, more_hit, _ = _shade_samples(prep, more, rng_shade, settings)
+        more_xyz, more_hit, _, _ = _shade_samples(prep, more, rng_shade, settings)
         primary_total += more.shape[0]
         hits_total += int(np.count_nonzero(more_hit))
         pixel[idx] = _pixel_mean(more_xyz, extra)
@@ -957,6 +992,7 @@ def _render_stats(prep: _Prepared, scene: Scene, refined: NDArray[np.bool_], pri
         "shadow_rays": ctx.stats.get("shadow_rays", 0),
         "mirror_rays": ctx.stats.get("mirror_rays", 0),
         "secondary_hits": ctx.stats.get("secondary_hits", 0),
+        "environment_rays": ctx.stats.get("environment_rays", 0),
         "refined_pixels": n_refined,
         "refined_fraction": n_refined / refined.size,
         "triangles": prep.n_triangles,

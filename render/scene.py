@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.lighting.environment_map import EnvironmentMap
 from processing.materials.lobes import Material
 from processing.spectral.spectra import REFERENCE_GRID, SpectralGrid, light_spectrum, resample
 from render.errors import RenderInputError
@@ -488,12 +489,19 @@ class Scene:
         One :class:`Light` or a sequence of them (stored as a tuple); the
         first sets the exposure.
     sky
-        The environment (default: none, black).
+        The synthetic sky (default: none, black).
+    environment
+        An environment map (:class:`processing.lighting.environment_map.EnvironmentMap`,
+        its rotation and intensity included) lighting the scene besides the
+        lights and the sky, or None.  Its luminance is the render's: a white
+        Lambertian surface under a uniform map of luminance Y renders with Y.
+        With an environment the scene may have no lights (the white is then
+        the map's basis white).
 
     Raises
     ------
     RenderInputError
-        No objects, no lights, or wrong types.
+        No objects, no lights (and no environment), or wrong types.
 
     Examples
     --------
@@ -507,6 +515,7 @@ class Scene:
     objects: Sequence[SceneObject]
     lights: Sequence[Light]
     sky: Sky = field(default_factory=Sky)
+    environment: EnvironmentMap | None = None
 
     def __post_init__(self) -> None:
         objects = (self.objects,) if isinstance(self.objects, SceneObject) else tuple(self.objects)
@@ -516,7 +525,10 @@ class Scene:
         for i, o in enumerate(objects):
             if not isinstance(o, SceneObject):
                 raise RenderInputError(f"scene object {i} must be a SceneObject, got {type(o).__name__}")
-        if not lights:
+        if self.environment is not None and not isinstance(self.environment, EnvironmentMap):
+            raise RenderInputError(f"scene environment must be a processing.lighting.environment_map.EnvironmentMap "
+                                   f"(read_environment, daylight_sky), got {type(self.environment).__name__}")
+        if not lights and self.environment is None:
             raise RenderInputError(
                 "the scene has no lights; add at least one (the first light sets the exposure: a white "
                 "Lambertian surface facing it renders with luminance Y = 1)"

@@ -477,12 +477,16 @@ class MaterialPlan:
         Its mirror lobes (reflect the environment).
     sky_lobes
         Its other lobes (lit by the sky through their albedo).
+    sky_groups
+        The other lobes grouped by geometric factor (an environment map
+        lights them through their BRDF).
     """
 
     material: Material
     groups: tuple[LobeGroup, ...]
     mirrors: tuple[Lobe, ...]
     sky_lobes: tuple[Lobe, ...]
+    sky_groups: tuple[LobeGroup, ...] = ()
 
     @property
     def anisotropic(self) -> bool:
@@ -509,6 +513,7 @@ def plan_material(material: Material) -> MaterialPlan:
         Its lobe groups, mirror lobes and sky-lit lobes.
     """
     groups: dict[tuple[str, float, str, float], list[tuple[float, Any]]] = {}
+    sky_groups: dict[tuple[str, float, str, float], list[tuple[float, Any]]] = {}
     mirrors: list[Lobe] = []
     sky: list[Lobe] = []
     for lobe in material.lobes:
@@ -525,11 +530,13 @@ def plan_material(material: Material) -> MaterialPlan:
             mirrors.append(lobe)
         else:
             sky.append(lobe)
+            sky_groups.setdefault(key, []).append((float(lobe.weight), lobe.spectral))
     return MaterialPlan(
         material,
         tuple(LobeGroup(k[0], k[1], k[2], tuple(v), k[3]) for k, v in groups.items()),
         tuple(mirrors),
         tuple(sky),
+        tuple(LobeGroup(k[0], k[1], k[2], tuple(v), k[3]) for k, v in sky_groups.items()),
     )
 
 

@@ -103,8 +103,8 @@ class Gphoto2Shooter:
 
         self.camera = Gphoto2Camera(staging, executable=executable, timeout_s=timeout_s)
 
-    def shoot(self, name: str) -> Path:
-        return self.camera.capture(name)
+    def shoot(self, name: str, shutter: str | None = None) -> Path:
+        return self.camera.capture(name, shutter=shutter)
 
 
 class HotFolderShooter:
@@ -122,7 +122,8 @@ class HotFolderShooter:
                                       poll_s=min(0.1, stable_s / 4))
         self.shutter = shutter
 
-    def shoot(self, name: str) -> Path:
+    def shoot(self, name: str, shutter: str | None = None) -> Path:
+        # a hot folder cannot set the exposure: the camera brackets on its own, and each file says its exposure
         if self.shutter is not None:
             self.shutter()
         return self.camera.wait_for_new(name)

@@ -13,7 +13,9 @@ frame is shot (lasers off), then one full revolution of ``steps`` profiles
 with the lasers re-asserted on every step; RAW frames are shot (lasers off)
 at the camera angles, each snapped to the nearest step.  A ``swatch`` plan
 (a flat fabric sample, Yasuda et al. section 4) shoots only RAW frames, at
-every step angle.  At the end of a pass its profiles are gathered into one
+every step angle.  A ``probe`` plan shoots the chart, then exposure brackets of a
+mirror sphere at one table angle, setting each frame's shutter speed first (a light probe,
+docs/lighting.md; each frame's record keeps its ``shutter``).  At the end of a pass its profiles are gathered into one
 ``profiles.npz`` (``angles_deg``, ``x_mm``, ``z_mm``; NaN = no return).
 
 Device faults are recovered where that is safe -- a vanished port is
@@ -94,9 +96,9 @@ __all__ = [
     "MIN_VALID_SHARE",
 ]
 
-PLAN_KINDS = ("scan", "swatch", "camera-calibration", "lamp-calibration")
+PLAN_KINDS = ("scan", "swatch", "camera-calibration", "lamp-calibration", "probe")
 #: Plans that take only RAW frames, one at every step angle of each pass (no profiles).
-CAMERA_ONLY_KINDS = ("swatch", "camera-calibration", "lamp-calibration")
+CAMERA_ONLY_KINDS = ("swatch", "camera-calibration", "lamp-calibration", "probe")
 #: Plans that calibrate the station (no colour chart by default).
 CALIBRATION_KINDS = ("camera-calibration", "lamp-calibration")
 #: The ChArUco board a camera-calibration plan uses unless told otherwise (lengths in mm).
@@ -104,8 +106,26 @@ DEFAULT_BOARD = {"dictionary": "DICT_5X5_100", "squares_x": 7, "squares_y": 5, "
 #: Table angles of a scan pass's RAW frames: every 30 deg, so a metal's highlights sweep its surface.
 DEFAULT_CAMERA_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 30))
 #: Steps and passes per plan kind when not given.
-_DEFAULT_STEPS = {"scan": 200, "swatch": 200, "camera-calibration": 12, "lamp-calibration": 12}
-_DEFAULT_PASSES = {"scan": 3, "swatch": 1, "camera-calibration": 3, "lamp-calibration": 1}
+_DEFAULT_STEPS = {"scan": 200, "swatch": 200, "camera-calibration": 12, "lamp-calibration": 12, "probe": 1}
+_DEFAULT_PASSES = {"scan": 3, "swatch": 1, "camera-calibration": 3, "lamp-calibration": 1, "probe": 1}
+#: Shutter speeds of a probe plan's brackets (gphoto2's ``shutterspeed`` values): 7 frames 2 EV apart.
+PROBE_BRACKETS = ("1/4000", "1/1000", "1/250", "1/60", "1/15", "1/4", "1")
+
+
+def shutter_seconds(value: str) -> float:
+    """Seconds of a shutter-speed setting such as ``"1/250"``, ``"0.5"`` or ``"2"``.
+
+    >>> shutter_seconds("1/250"), shutter_seconds("2")
+    (0.004, 2.0)
+    """
+    num, _, den = str(value).strip().partition("/")
+    try:
+        seconds = float(num) / float(den) if den else float(num)
+    except (ValueError, ZeroDivisionError):
+        seconds = math.nan
+    if not (math.isfinite(seconds) and 0 < seconds <= 3600):
+        raise ValueError(f"{value!r} is not a shutter speed (e.g. 1/250, 0.5 or 2 seconds)")
+    return seconds
 #: A pass whose share of profiles with a laser return is below this is suspect (laser never on?).
 MIN_VALID_SHARE = 0.05
 STAGING = ".incoming"
@@ -137,7 +157,7 @@ class Action:
 
     ``kind`` is ``"chart"`` (the colour-chart frame), ``"profile"`` or
     ``"frame"`` (a RAW frame of the object); ``angle_deg`` is the table angle
-    within the pass.
+    within the pass; ``shutter`` the shutter speed to set first (a probe's brackets), else None.
     """
 
     id: str
@@ -145,6 +165,7 @@ class Action:
     pass_no: int
     index: int
     angle_deg: float
+    shutter: str | None = None
 
     @property
     def stem(self) -> str:
@@ -167,8 +188,9 @@ class CapturePlan:
         ``"swatch"`` (RAW frames at every step angle, no profiles: a cloth
         swatch), ``"camera-calibration"`` (RAW frames of a ChArUco board at
         every step angle; one pass per placement of the board, flat or on a
-        wedge) or ``"lamp-calibration"`` (RAW frames of a mirror sphere at
-        every step angle).
+        wedge), ``"lamp-calibration"`` (RAW frames of a mirror sphere at
+        every step angle) or ``"probe"`` (exposure brackets of a mirror sphere in
+        the light to be measured, after the chart: docs/lighting.md).
     steps
         Table positions per revolution (equal angles from 0); default 200
         for ``scan`` and ``swatch``, 12 for the calibration plans.
@@ -196,8 +218,10 @@ class CapturePlan:
         squares, square and marker sizes in mm; default
         :data:`DEFAULT_BOARD`), stored with the plan in the session.
     sphere_radius_mm
-        Radius of a ``lamp-calibration`` plan's mirror sphere (mm), if known
+        Radius of a ``lamp-calibration`` or ``probe`` plan's mirror sphere (mm), if known
         when capturing.
+    brackets
+        Shutter speeds of a ``probe`` plan's frames (default :data:`PROBE_BRACKETS`).
 
     Examples
     --------
@@ -220,6 +244,7 @@ class CapturePlan:
     chart_frames: int | None = None
     board: dict[str, Any] | None = None
     sphere_radius_mm: float | None = None
+    brackets: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in PLAN_KINDS:
@@ -258,6 +283,17 @@ class CapturePlan:
             object.__setattr__(self, "board", board)
         elif self.board is not None:
             raise ValueError(f"board is for a camera-calibration plan, not {self.kind!r}")
+        if self.kind == "probe":
+            brackets = tuple(str(b) for b in (PROBE_BRACKETS if self.brackets is None else self.brackets))
+            if not 1 <= len(brackets) <= 99:
+                raise ValueError(f"brackets must list 1..99 shutter speeds, got {len(brackets)}")
+            for b in brackets:
+                shutter_seconds(b)
+            object.__setattr__(self, "brackets", brackets)
+            if self.steps != 1:
+                raise ValueError(f"a probe plan shoots at one table angle (steps 1), got steps {self.steps!r}")
+        elif self.brackets is not None:
+            raise ValueError(f"brackets are for a probe plan, not {self.kind!r}")
         r = self.sphere_radius_mm
         if r is not None and not (isinstance(r, (int, float)) and not isinstance(r, bool)
                                   and math.isfinite(r) and 0 < r <= 500):
@@ -284,6 +320,10 @@ class CapturePlan:
                 out.append(Action(f"{p}/chart", "chart", pass_no, 0, 0.0))
             else:
                 out += [Action(f"{p}/chart/{k:02d}", "chart", pass_no, k, 0.0) for k in range(self.chart_frames)]
+        if self.kind == "probe":
+            out += [Action(f"{p}/frame/{i:02d}", "frame", pass_no, i, 0.0, shutter=b)
+                    for i, b in enumerate(self.brackets)]
+            return out
         if self.kind in CAMERA_ONLY_KINDS:
             out += [Action(f"{p}/frame/{i:02d}" if self.steps <= 100 else f"{p}/frame/{i:04d}", "frame",
                            pass_no, i, self.step_angle(i)) for i in range(self.steps)]
@@ -311,13 +351,15 @@ class CapturePlan:
             out["board"] = dict(self.board)
         if self.sphere_radius_mm is not None:
             out["sphere_radius_mm"] = float(self.sphere_radius_mm)
+        if self.brackets is not None:
+            out["brackets"] = list(self.brackets)
         return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CapturePlan:
         """Inverse of :meth:`to_dict`."""
         known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera", "chart_frames",
-                 "board", "sphere_radius_mm"}
+                 "board", "sphere_radius_mm", "brackets"}
         args = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in known}
         # a manifest written before chart_frames existed was taken with one chart frame per pass
         args.setdefault("chart_frames", 1)
@@ -338,6 +380,9 @@ def placement_prompt(kind: str, pass_no: int) -> str:
                 "prop the ChArUco board on a wedge facing the camera, at a tilt the passes before did not use")
     if kind == "lamp-calibration":
         return "put the mirror sphere on the table, 3-4 cm from its centre, with the lamps as they are for the scans"
+    if kind == "probe":
+        return ("put the mirror sphere on the table centre in the light to be measured, the colour chart flat "
+                "beside it; switch the room's lights as they will be")
     if kind == "swatch":        # a swatch stays put; a new pass moves the lamp (pass_light_directions)
         return ("lay the swatch flat on the table centre" if p == 1 else
                 f"move the lamp to the light direction of pass {p} in swatch.json; leave the swatch as it lies")
@@ -348,8 +393,12 @@ def placement_prompt(kind: str, pass_no: int) -> str:
 class Shooter(Protocol):
     """A camera as the capture sees it: shoot one RAW frame into a staging folder."""
 
-    def shoot(self, name: str) -> Path:
-        """Fire and return the new RAW file (named ``<name>.<ext>``) in the staging folder."""
+    def shoot(self, name: str, shutter: str | None = None) -> Path:
+        """Fire and return the new RAW file (named ``<name>.<ext>``) in the staging folder.
+
+        ``shutter``: the shutter speed to set first (gphoto2's ``shutterspeed`` value); a camera that
+        cannot set it (a hot folder) shoots as it is set, and the frame's own metadata tells the exposure.
+        """
         ...
 
 
@@ -832,19 +881,21 @@ class _Runner:
     def _frame(self, a: Action) -> None:
         s = self.session
         angle = self._move(a.angle_deg, ())
-        path = self._shoot(f"p{a.pass_no:02d}_{a.stem}")
+        path = self._shoot(f"p{a.pass_no:02d}_{a.stem}", a.shutter)
         info = s.adopt_file(path, f"passes/p{a.pass_no:02d}/raw/{a.stem}{path.suffix.lower()}")
-        s.add_capture(a.id, kind=a.kind, **{"pass": a.pass_no}, index=a.index, angle_deg=angle,
+        extra = {} if a.shutter is None else {"shutter": a.shutter}
+        s.add_capture(a.id, kind=a.kind, **{"pass": a.pass_no}, index=a.index, angle_deg=angle, **extra,
                       file=info.path, sha256=info.sha256, bytes=info.bytes,
                       state={"table_deg": angle, "moving_to": None,
                              "fw_offset_deg": self.dev.turntable.firmware_offset_deg})
 
-    def _shoot(self, name: str) -> Path:
+    def _shoot(self, name: str, shutter: str | None = None) -> Path:
         assert self.camera is not None
         tries = 0
         while True:
             try:
-                return self._checked(self.camera.shoot(name))
+                shot = self.camera.shoot(name) if shutter is None else self.camera.shoot(name, shutter=shutter)
+                return self._checked(shot)
             except (CameraBusyError, CameraTimeoutError, CameraBadFrameError) as exc:
                 tries += 1
                 if tries > self.settings.camera_retries:

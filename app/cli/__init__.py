@@ -34,7 +34,7 @@ COMMANDS = {
     "mock": "mock", "devices": "devices", "capture": "capture", "calibrate": "calibrate",
     "process": "process", "project": "project", "register": "register",
     "fit-materials": "fit_materials", "chart": "chart", "spectral": "spectral", "identify": "identify",
-    "cloth": "cloth", "materials": "materials",
+    "cloth": "cloth", "materials": "materials", "probe": "probe",
     "render": "render", "export": "export", "report": "report",
     "batch": "batch", "gui": "gui", "demo": "demo",
 }
@@ -42,7 +42,7 @@ COMMANDS = {
 _EPILOG = """\
 Commands are listed in the order a session's work runs: a station (mock, devices), capture,
 calibration, geometry (process, project, register), appearance (fit-materials, chart, spectral,
-identify, cloth, materials), the products (render, export, report), then everything at once (batch,
+identify, cloth, materials, probe), the products (render, export, report), then everything at once (batch,
 gui, demo).  'kogei COMMAND --help' describes one; docs/ in the repository has the details."""
 
 

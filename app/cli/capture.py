@@ -40,10 +40,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", metavar="SPEC",
                    help="gphoto2, gphoto2:PATH (the gphoto2 program to run), hotfolder:DIR or none (required with "
                         "--out)")
-    p.add_argument("--plan", choices=["scan", "swatch", "camera-calibration", "lamp-calibration"], default="scan",
+    p.add_argument("--plan", choices=["scan", "swatch", "camera-calibration", "lamp-calibration", "probe"],
+                   default="scan",
                    help="scan: profiles + RAW frames (default); swatch: RAW frames at every step (cloth); "
                         "camera-calibration: a ChArUco board at every step, one pass per placement of the board "
-                        "(flat, then on wedges); lamp-calibration: a mirror sphere at every step")
+                        "(flat, then on wedges); lamp-calibration: a mirror sphere at every step; probe: the "
+                        "colour chart, then exposure brackets of a mirror sphere (a light probe, kogei probe)")
+    p.add_argument("--brackets", default=None, metavar="T,T,...",
+                   help="probe: the brackets' shutter speeds in seconds, as the camera names them (default "
+                        "1/4000,1/1000,1/250,1/60,1/15,1/4,1: 7 frames 2 EV apart)")
     p.add_argument("--steps", type=int, default=None, metavar="N",
                    help="table positions per revolution, evenly spaced (default 200, i.e. 1.8 deg apart; 12 for the "
                         "calibration plans)")
@@ -55,8 +60,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="camera-calibration: the ChArUco board's definition (dictionary, squares_x, squares_y, "
                         "square_mm, marker_mm); default a 7 x 5 board of 8 mm squares, DICT_5X5_100")
     p.add_argument("--sphere-radius", type=float, default=None, metavar="MM",
-                   help="lamp-calibration: the mirror sphere's radius (mm), recorded with the plan (default: none "
-                        "recorded; give it to kogei calibrate --lamp instead)")
+                   help="lamp-calibration and probe: the mirror sphere's radius (mm), recorded with the plan "
+                        "(default: none recorded; give it to kogei calibrate --lamp or kogei probe instead)")
     p.add_argument("--no-chart", action="store_true", help="do not shoot a colour-chart frame first in each pass")
     p.add_argument("--object", default=None, metavar="NAME",
                    help="object name for the session metadata (default: none)")
@@ -154,9 +159,13 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
             raise UsageError("--board is for --plan camera-calibration")
         kw["board"] = _board_file(args.board)
     if args.sphere_radius is not None:
-        if args.plan != "lamp-calibration":
-            raise UsageError("--sphere-radius is for --plan lamp-calibration")
+        if args.plan not in ("lamp-calibration", "probe"):
+            raise UsageError("--sphere-radius is for --plan lamp-calibration or probe")
         kw["sphere_radius_mm"] = args.sphere_radius
+    if args.brackets is not None:
+        if args.plan != "probe":
+            raise UsageError("--brackets is for --plan probe")
+        kw["brackets"] = tuple(b.strip() for b in args.brackets.split(",") if b.strip())
     try:
         plan = CapturePlan(**kw)
     except ValueError as exc:

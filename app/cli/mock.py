@@ -2,7 +2,7 @@
 
 The simulated devices are described in ``docs/simulator.md``.  Three actions:
 
-``kogei mock [--world hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
+``kogei mock [--world hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
 [--time-scale S] [--root DIR] [--seed N]``
     Starts :class:`mocks.station.SimulatedStation`, prints its turntable
     port, profiler port, gphoto2 shim, hot folder and control folder with
@@ -73,13 +73,15 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                     "pseudo-terminals, a fake gphoto2 and a hot folder, all looking at one simulated object. "
                     "'kogei mock place' and 'kogei mock shoot' talk to a running station.",
     )
-    p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|MESH",
+    p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH",
                    help="the procedural hawk head (default); a calibration sphere of radius R mm (default 25) "
                         "OFF mm from the axis (default 60); a ChArUco board (DICT_5X5_100, 7 x 5 squares of "
                         "8 mm, markers 6 mm) for camera calibration, 960 x 640 frames, placements 1, 2, 3 flat "
                         "and on 40 and 55 degree wedges, or every placement at TILT degrees (0 = flat, < 90); "
                         "a chrome ball for lamp calibration, radius R mm (default 20) OFF mm from the axis "
-                        "(default 35), 960 x 640 frames; or a mesh file (PLY/OBJ/STL/glTF, millimetres; glTF in metres); "
+                        "(default 35), 960 x 640 frames; a chrome ball of radius R mm (default 20) on the table "
+                        "centre in a simulated lit room with the chart beside it, for a light probe (kogei capture "
+                        "--plan probe); or a mesh file (PLY/OBJ/STL/glTF, millimetres; glTF in metres); "
                         "a mesh with per-face materials (a PLY with a face 'material' property such as "
                         "products/object-mesh.ply, a glTF with a primitive per material such as kogei export "
                         "writes) keeps them, one region each")
@@ -170,7 +172,7 @@ def _build_world(args: argparse.Namespace) -> Any:
             get_material(args.material)
         except MaterialError as exc:
             raise UsageError(f"--material {args.material}: {exc}") from None
-    if args.material is not None and args.world.split(":")[0] in ("board", "mirror-sphere"):
+    if args.material is not None and args.world.split(":")[0] in ("board", "mirror-sphere", "probe"):
         raise UsageError(f"--material does not apply to --world {args.world} (a printed board or a chrome ball)")
     if args.triangles is not None and args.world != "hawk":
         raise UsageError("--triangles sets the size of the procedural hawk; it does not apply to a mesh file")
@@ -196,6 +198,8 @@ def _build_world(args: argparse.Namespace) -> Any:
             return _board_world(args.world)
         if args.world == "mirror-sphere" or args.world.startswith("mirror-sphere:"):
             return _mirror_world(args.world)
+        if args.world == "probe" or args.world.startswith("probe:"):
+            return _probe_world(args.world)
         path = Path(args.world)
         if not path.is_file():
             raise UsageError(f"--world {args.world}: no such mesh file; give 'hawk' or the path of a "
@@ -239,13 +243,30 @@ def _mirror_world(spec: str) -> Any:
     return MirrorWorld.mirror_sphere(radius, offset)
 
 
+def _probe_world(spec: str) -> Any:
+    """``probe`` or ``probe:R`` (mm): the chrome ball on the table centre in the simulated room."""
+    from mocks.probe_world import ProbeWorld
+
+    parts = spec.split(":")[1:]
+    try:
+        if len(parts) > 1:
+            raise ValueError
+        radius = float(parts[0]) if parts and parts[0] else 20.0
+    except ValueError:
+        raise UsageError(f"--world {spec}: use probe or probe:RADIUS_MM") from None
+    return ProbeWorld.probe(radius)
+
+
 def _calibration_plan(world: Any) -> str | None:
     """The capture plan options a calibration target needs ("sphere" for the reference sphere, None to scan)."""
     from mocks.board_world import BoardWorld
     from mocks.mirror_world import MirrorWorld
+    from mocks.probe_world import ProbeWorld
 
     if str(getattr(world, "mesh_source", "")).startswith("sphere:"):
         return "sphere"
+    if isinstance(world, ProbeWorld):
+        return f"--plan probe --sphere-radius {world.sphere_radius_mm:g}"
     if isinstance(world, BoardWorld):
         return "--plan camera-calibration"
     if isinstance(world, MirrorWorld):
@@ -269,6 +290,8 @@ def _next_command(world: Any, plan: str | None) -> str:
         return "kogei process kogei-session --calibration calibration-session   # after a kogei mock --world sphere scan"
     if plan.startswith("--plan camera-calibration"):
         return "kogei calibrate --camera camera-calibration-session --scanner calibration-session"
+    if plan.startswith("--plan probe"):
+        return "kogei probe probe-session --camera-calibration camera-calibration-session --out probe.exr"
     return "kogei calibrate --lamp lamp-calibration-session --camera-calibration camera-calibration-session"
 
 

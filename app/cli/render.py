@@ -15,6 +15,7 @@ from app.workflows.scene_spec import (
     SceneSpec,
     check_path_text,
     load_scene_file,
+    parse_environment,
     parse_light,
     parse_size,
     parse_vector,
@@ -47,6 +48,14 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
         spec.illuminant = args.illuminant
     if args.sky:
         spec.sky.kind = args.sky
+        spec.sky_given = True
+    if args.environment is not None:
+        spec.environment = parse_environment(args.environment)
+    if args.environment_samples is not None:
+        if not (args.environment_samples == 0 or 2 <= args.environment_samples <= 4096):
+            raise UsageError(f"--environment-samples: expected 0 (prefiltered map) or 2 to 4096, "
+                             f"got {args.environment_samples}")
+        spec.environment_samples = args.environment_samples
     if args.size:
         spec.size = parse_size(args.size)
     if args.preset:
@@ -85,6 +94,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(default D65, or the scene file's)")
     p.add_argument("--sky", default=None, choices=["uniform", "gradient", "none"],
                    help="environment seen in mirror reflections (default gradient)")
+    p.add_argument("--environment", default=None, metavar="MAP",
+                   help="light the scene with an environment map: FILE.exr or FILE.hdr (equirectangular, 2:1, z up) "
+                        "with optional :rotate=DEG,intensity=X, or the analytic daylight sky "
+                        "sky:cct=K,sun_elevation=DEG,sun_azimuth=DEG,type=clear|intermediate|overcast|1-15,sun=X,"
+                        "sun_cct=K,luminance=Y,ground=R,height=ROWS (and rotate, intensity); it replaces the default "
+                        "light and sky unless --light or --sky are given (docs/lighting.md)")
+    p.add_argument("--environment-samples", type=int, default=None, metavar="N",
+                   help="directions per surface sample with which the environment lights non-mirror lobes (half "
+                        "from the map, half from the material; 0: the prefiltered map, no occlusion); more is less "
+                        "noise and more time (default: the preset's, draft 0, standard 8, reference 16)")
     p.add_argument("--eye", default=None, metavar="X,Y,Z",
                    help="camera position in the mesh's coordinates, mm (default: framed to show the whole scene)")
     p.add_argument("--target", default=None, metavar="X,Y,Z",

@@ -9,6 +9,9 @@
 * the procedural hawk's head with the materials of the paper's object
   (Matsuda et al., section 5: nami-shibuichi head, gold and urushi beak,
   copper eyes) under daylight: a sun plus a gradient sky;
+* a simulated light probe of a room of known light, merged, unwrapped and compared with the room's
+  truth, and the hawk (measured when the capture ran) under it and under a daylight sky
+  (:mod:`app.demo.light`);
 * one sphere per material preset under D65 and under illuminant A, labelled,
   so the colour shift of each alloy between the two lights can be compared;
 * woven cloth (Yasuda et al.): silk and tamamushi (shot silk) on a draped sheet.
@@ -123,6 +126,7 @@ def run_demo(args: argparse.Namespace) -> int:
         _demo_capture(out, args, summary)
     _demo_colour(out, summary)
     _demo_hawk(out, size, args.preset, triangles, summary)
+    _demo_light(out, size, args.preset, triangles, summary)
     _demo_spheres(out, size, args.preset, triangles, summary)
     _demo_cloth(out, size, args.preset, summary)
     (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
@@ -225,6 +229,26 @@ def _demo_hawk(out: Path, size: tuple[int, int], preset: str, triangles: int, su
     summary["renders"].append({"image": "hawk.png", "triangles": n_tri, "seconds": round(secs, 3),
                                "size": list(size), "timings": _plain(result.timings)})
     print(f"hawk: {n_tri} triangles, {secs:.1f} s -> {out / 'hawk.png'}", file=sys.stderr)
+
+
+def _demo_light(out: Path, size: tuple[int, int], preset: str, triangles: int, summary: dict) -> None:
+    """The simulated light probe and the hawk under it and under a daylight sky (app.demo.light).
+
+    The hawk is the measured object (its scene file) when the capture produced one, else the preset
+    hawk; rendered at half the demo's size to keep the added time small.
+    """
+    from app.demo.light import demo_light
+    from app.workflows.object_materials import OBJECT_SCENE
+    from app.workflows.scene_spec import load_scene_file
+
+    half = (max(size[0] // 2, 16), max(size[1] // 2, 16))
+    session = Path(summary["capture"]["session"]) if "object" in summary else None
+    if session is not None and (session / OBJECT_SCENE).is_file():
+        base, source = load_scene_file(session / OBJECT_SCENE), "the measured hawk"
+    else:
+        base, source = hawk_spec(half, preset, triangles), "the preset hawk"
+    base.size, base.preset = half, preset
+    summary["light"] = demo_light(out, base, source, default_hawk_triangles=triangles)
 
 
 def _demo_spheres(out: Path, size: tuple[int, int], preset: str, triangles: int, summary: dict) -> None:

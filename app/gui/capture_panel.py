@@ -24,11 +24,14 @@ Examples
 ('ETA –', 'ETA 42 s', 'ETA 1 h 02 min')
 >>> parse_angles("0, 90,180")
 (0.0, 90.0, 180.0)
+>>> describe_action("p01/profile/0018"), describe_action("p02/chart"), describe_action("p03/frame/04")
+('laser profile 19', 'photo of the colour chart', 'photo 5')
 """
 
 from __future__ import annotations
 
 import math
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -50,6 +53,7 @@ from PySide6.QtWidgets import (
     QLineEdit,
     QProgressBar,
     QPushButton,
+    QScrollArea,
     QSpinBox,
     QSplitter,
     QVBoxLayout,
@@ -59,10 +63,38 @@ from PySide6.QtWidgets import (
 from app.gui.figures import cloud_figure, empty_figure, profile_figure
 from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.station_link import StationLink
-from app.gui.widgets import Panel
+from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import Job, JobContext
 
-__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles"]
+__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles", "describe_action", "completion_text"]
+
+
+def describe_action(action: str) -> str:
+    """A capture step's id (``p01/profile/0018``) as the user reads it (numbered from 1); others unchanged."""
+    parts = action.split("/")
+    if len(parts) >= 2 and re.fullmatch(r"p\d+", parts[0]):
+        if parts[1] == "chart":
+            return "photo of the colour chart" + (f" {int(parts[2]) + 1}" if len(parts) > 2 else "")
+        if len(parts) == 3 and parts[2].isdigit():
+            what = {"profile": "laser profile", "frame": "photo"}.get(parts[1], parts[1])
+            return f"{what} {int(parts[2]) + 1}"
+    return action
+
+
+def completion_text(taken: int, skipped: int, recoveries: int, elapsed_s: float) -> str:
+    """The line shown when a capture completes, in plain words.
+
+    >>> completion_text(279, 0, 0, 56.04)
+    'complete: 279 captures in 56 s'
+    >>> completion_text(40, 20, 1, 30.0)
+    'complete: 40 captures in 30 s, 20 kept from before the interruption, 1 instrument drop-out recovered'
+    """
+    text = f"complete: {taken} captures in {elapsed_s:.0f} s"
+    if skipped:
+        text += f", {skipped} kept from before the interruption"
+    if recoveries:
+        text += f", {recoveries} instrument drop-out{'s' if recoveries > 1 else ''} recovered"
+    return text
 
 
 def format_eta(seconds: float | None) -> str:
@@ -166,8 +198,15 @@ class CapturePanel(Panel):
         self._reconnect: list[str] = []
 
         outer = QHBoxLayout(self)
-        left = QVBoxLayout()
-        outer.addLayout(left, 0)
+        column = QWidget()                  # the controls scroll when the window is short (700 px high)
+        left = QVBoxLayout(column)
+        left.setContentsMargins(0, 0, 0, 0)
+        self.controls_scroll = scroll = QScrollArea()
+        scroll.setWidget(column)
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        outer.addWidget(scroll, 0)
 
         jog = QGroupBox("Turntable and laser")
         g = QGridLayout(jog)
@@ -185,6 +224,15 @@ class CapturePanel(Panel):
         self.zero = QPushButton("Zero here")
         self.laser_on = QPushButton("Laser on")
         self.laser_off = QPushButton("Laser off")
+        for w, tip in ((self.angle, "the table angle to go to (degrees)"),
+                       (self.go, "turn the table to the angle (Ctrl+Left / Ctrl+Right step it)"),
+                       (self.step_size, "how far one step turns the table (degrees)"),
+                       (self.minus, "turn the table back by one step (Ctrl+Left)"),
+                       (self.plus, "turn the table on by one step (Ctrl+Right)"),
+                       (self.zero, "call the table's present position 0° (Ctrl+0)"),
+                       (self.laser_on, "switch the profiler's laser line on (Ctrl+L)"),
+                       (self.laser_off, "switch the laser line off (Ctrl+Shift+L)")):
+            w.setToolTip(tip)
         self.position = QLabel("table: – (connect the turntable)")
         g.addWidget(QLabel("Angle"), 0, 0)
         g.addWidget(self.angle, 0, 1)
@@ -210,10 +258,11 @@ class CapturePanel(Panel):
         plan = QGroupBox("Scan plan")
         f = QFormLayout(plan)
         self.kind = QComboBox()
-        self.kind.addItems(["scan", "swatch", "camera-calibration", "lamp-calibration"])
+        self.kind.addItems(["scan", "swatch", "camera-calibration", "lamp-calibration", "probe"])
         self.kind.setToolTip("scan: profiles + RAW frames; swatch: RAW frames of a cloth swatch at every step; "
                              "camera-calibration: a ChArUco board at every step, flat then on wedges; "
-                             "lamp-calibration: a mirror sphere at every step")
+                             "lamp-calibration: a mirror sphere at every step; probe: the colour chart, then 7 "
+                             "exposure brackets of a mirror sphere (a light probe for kogei probe)")
         self.steps = QSpinBox()
         self.steps.setRange(1, 100_000)
         self.steps.setValue(200)
@@ -222,6 +271,12 @@ class CapturePanel(Panel):
         self.passes.setValue(3)
         self.camera_angles = QLineEdit(",".join(f"{a:g}" for a in range(0, 360, 30)))
         self.chart = QCheckBox("colour chart first in every pass")
+        self.chart.setToolTip("shoot a frame of the colour chart at the start of each pass: it calibrates the "
+                              "colours of that pass's photos")
+        self.steps.setToolTip("table steps per full turn: more steps, denser scan, longer capture")
+        self.passes.setToolTip("how many times the object is scanned, re-placed between passes so that every "
+                               "side is seen")
+        self.camera_angles.setToolTip("table angles (degrees, comma-separated) at which a RAW photo is taken")
         self.chart.setChecked(True)
         self.kind.currentTextChanged.connect(self._kind_defaults)
         f.addRow("Kind", self.kind)
@@ -235,8 +290,11 @@ class CapturePanel(Panel):
         v = QVBoxLayout(run)
         buttons = QHBoxLayout()
         self.start = QPushButton("Start  (F5)")
+        self.start.setToolTip("start the capture, or go on with an interrupted one where it stopped")
         self.pause = QPushButton("Pause  (F6)")
+        self.pause.setToolTip("hold the capture after the current step; press again to continue")
         self.abort = QPushButton("Abort  (Esc)")
+        self.abort.setToolTip("stop after the current step; the session stays intact and Start goes on with it")
         self.start.clicked.connect(self.safe(self.start_capture))
         self.pause.clicked.connect(self.safe(self.toggle_pause))
         self.abort.clicked.connect(self.safe(self.abort_capture))
@@ -246,20 +304,29 @@ class CapturePanel(Panel):
         self.progress = QProgressBar()
         self.progress.setFormat("%v / %m  (%p%)")
         self.eta = QLabel("ETA –")
+        self.paused_label = QLabel("PAUSED — the capture holds after the current step; press Continue (F6) to go "
+                                   "on, or Abort (Esc) to stop (the session stays resumable)")
+        self.paused_label.setWordWrap(True)
+        self.paused_label.setStyleSheet("background:#fff3c4; color:#5a4300; font-weight:bold; padding:4px; "
+                                        "border:1px solid #d9a400;")
+        self.paused_label.hide()
         self.action = QLabel("idle")
         self.action.setWordWrap(True)
         v.addWidget(self.progress)
+        v.addWidget(self.paused_label)
         v.addWidget(self.eta)
         v.addWidget(self.action)
         self.prompt = QFrame()
         self.prompt.setStyleSheet("QFrame{background:#fff6d6; border:1px solid #d9a400;}")
         pl = QVBoxLayout(self.prompt)
-        self.prompt_text = QLabel()
+        self.prompt_text = WrapLabel()
         self.prompt_text.setWordWrap(True)
         self.prompt_text.setStyleSheet("font-weight:bold; border:none;")
         prow = QHBoxLayout()
         self.prompt_go = QPushButton("Continue  (Enter)")
+        self.prompt_go.setToolTip("done as asked: go on with the capture")
         self.prompt_stop = QPushButton("Stop here")
+        self.prompt_stop.setToolTip("stop the capture here; the session stays intact and Start goes on with it")
         self.prompt_go.clicked.connect(lambda: self._answer(True))
         self.prompt_stop.clicked.connect(lambda: self._answer(False))
         prow.addWidget(self.prompt_go)
@@ -270,6 +337,7 @@ class CapturePanel(Panel):
         v.addWidget(self.prompt)
         left.addWidget(run)
         left.addStretch(1)
+        scroll.setMinimumWidth(column.sizeHint().width() + 24)     # no horizontal scrolling
 
         plots = QSplitter(Qt.Orientation.Vertical)
         self.profile_plot = PlotImage(drawer)
@@ -285,6 +353,16 @@ class CapturePanel(Panel):
         self._ticks = 0
         self._timer.timeout.connect(self._refresh_plots)
         self._set_running(False)
+        self.link.state.connect(self._device_state)
+
+    def _device_state(self, name: str, state: str, detail: str) -> None:
+        """The table line follows the turntable: not connected, connected, or driven by the capture."""
+        if name != "turntable":
+            return
+        if state == "connected" and not self.position.text().startswith("table at"):
+            self.position.setText("table: connected (its position is confirmed at the first move or Zero here)")
+        elif state == "disconnected":
+            self.position.setText("table: – (connect the turntable)")
 
     # ------------------------------------------------------------ jog
     def jog(self, action: str, value: float = 0.0) -> None:
@@ -435,6 +513,8 @@ class CapturePanel(Panel):
         self.job.signals.finished.connect(self._on_finished)
         self.link.lane.submit(self.job)
         self.status_text = "running"
+        self.last_progress = None
+        self.eta.setText("ETA –")                 # nothing of the previous capture's timing
         self.position.setText("table: driven by the capture")
         self.action.setText(f"capturing into {session.root}")
         self.progress.setRange(0, len(plan.actions()))
@@ -453,11 +533,15 @@ class CapturePanel(Panel):
         if self.pause_event.is_set():
             self.pause_event.clear()
             self.pause.setText("Pause  (F6)")
+            self.status_text = "running"
+            self.paused_label.hide()
             self.action.setText("continuing")
             self.log.emit("capture continued")
         else:
             self.pause_event.set()
             self.pause.setText("Continue  (F6)")
+            self.status_text = "paused"
+            self.paused_label.show()
             self.action.setText("paused after the current step (the instruments hold their state)")
             self.log.emit("capture paused")
 
@@ -473,6 +557,8 @@ class CapturePanel(Panel):
 
     def _answer(self, go: bool) -> None:
         self.prompt.hide()
+        if self.job is not None and not self.job.done:
+            self.pause.setEnabled(True)
         self.gate.answer(go)
 
     def answer_prompt(self) -> None:
@@ -483,8 +569,13 @@ class CapturePanel(Panel):
     def _show_prompt(self, text: str) -> None:
         self._refresh_plots(both=True)          # the pass just finished, whole
         self.prompt_text.setText(text)
+        if self.pause_event.is_set():
+            self.toggle_pause()                 # the capture waits for the user anyway: one Continue, the prompt's
+        self.pause.setEnabled(False)
         self.prompt.show()
         self.prompt_go.setFocus()
+        # in a short window the controls scroll: the prompt must be in view, whatever was scrolled to
+        QTimer.singleShot(0, lambda: self.controls_scroll.ensureWidgetVisible(self.prompt, 0, 8))
         self.log.emit(text)
 
     def _set_running(self, running: bool) -> None:
@@ -501,7 +592,7 @@ class CapturePanel(Panel):
         self.progress.setMaximum(pr.total)
         self.progress.setValue(pr.done)
         self.eta.setText(f"{format_eta(pr.eta_s)} · elapsed {pr.elapsed_s:.0f} s")
-        self.action.setText(f"pass {pr.pass_no}: {pr.action}")
+        self.action.setText(f"pass {pr.pass_no}: {describe_action(pr.action)}")
         if "/profile/" in pr.action:
             self._pending_profile = pr.action
 
@@ -512,14 +603,23 @@ class CapturePanel(Panel):
 
     def _on_done(self, report: Any) -> None:
         self.status_text = "complete"
-        self.action.setText(f"complete: {report.taken} taken, {report.skipped} already held, "
-                            f"{len(report.recoveries)} recoveries, {report.elapsed_s:.1f} s")
+        self.action.setText(completion_text(report.taken, report.skipped, len(report.recoveries), report.elapsed_s))
         self.log.emit(f"capture complete: {self.action.text()}")
 
     def _on_failed(self, text: str, exc: Any) -> None:
         reason = getattr(exc, "reason", "error")
         self.status_text = "cancelled" if reason == "cancelled" else "interrupted"
+        # the window resumes with Start, not with the command line the engine's message names
+        text = re.sub(r"fix the cause and run: kogei capture --resume \S+", "fix the cause and press Start to "
+                      "resume", text)
         first = text.splitlines()[0]
+        if reason == "cancelled":
+            pr = self.last_progress
+            done = f" after {pr.done} of {pr.total} steps" if pr is not None else ""
+            self.action.setText(f"stopped at your request{done}. The session is intact: press Start to resume.")
+            self.notice.emit(f"capture stopped at your request{done}; the session {self._root} is intact: press "
+                           "Start to resume")
+            return
         self.action.setText(f"stopped: {first}\nThe session is intact: fix the cause and press Start to resume.")
         self.error.emit(text)
 
@@ -527,7 +627,9 @@ class CapturePanel(Panel):
         self._timer.stop()
         self._refresh_plots(both=True)
         self.prompt.hide()
+        self.paused_label.hide()
         self.pause.setText("Pause  (F6)")
+        self.position.setText("table: – (its position is confirmed at the next move)")
         self._set_running(False)
         self.link.capture_finished(self._reconnect, interrupted=self.status_text != "complete")
         self.capture_stopped.emit(self.status_text)

@@ -78,7 +78,9 @@ class DevicesPanel(QWidget):
             box.setMinimumContentsLength(34)
             box.setToolTip("a discovered port (with USB VID:PID) or a path / pyserial URL typed here")
             con = QPushButton("Connect")
+            con.setToolTip(f"open the port and check that the {_TITLES[name].lower()} answers")
             dis = QPushButton("Disconnect")
+            dis.setToolTip("close the port (the instrument keeps its state)")
             banner = QLabel("not connected")
             banner.setWordWrap(True)
             con.clicked.connect(lambda _=False, n=name: self.connect_clicked(n))
@@ -90,6 +92,7 @@ class DevicesPanel(QWidget):
         grid.setColumnStretch(2, 3)           # a pty or by-id path is long: the port column takes the width
         grid.setColumnStretch(5, 2)
         refresh = QPushButton("Refresh ports")
+        refresh.setToolTip("look for serial ports again (after plugging an instrument in)")
         refresh.clicked.connect(self.refresh_ports)
         grid.addWidget(refresh, len(INSTRUMENTS) + 1, 2)
         grid.setColumnStretch(5, 1)
@@ -99,12 +102,15 @@ class DevicesPanel(QWidget):
         form = QFormLayout(cam)
         self.camera_kind = QComboBox()
         self.camera_kind.addItems(["none", "gphoto2", "hotfolder"])
+        self.camera_kind.setToolTip("gphoto2: a camera tethered over USB; hotfolder: a folder the camera's own "
+                                    "software writes RAW files into; none: laser profiles only")
         self.camera_path = QLineEdit()
         self.camera_path.setPlaceholderText("gphoto2 program (default: gphoto2 on PATH) or the hot folder")
         row = browse_row(self.camera_path, self._browse_camera)
         self.camera_light = StatusLight()
         self.camera_state = QLabel("no camera (profiles only)")
         check = QPushButton("Check camera")
+        check.setToolTip("check that the chosen camera program or folder can be used")
         check.clicked.connect(self.check_camera)
         state_row = QHBoxLayout()
         state_row.addWidget(self.camera_light)
@@ -121,6 +127,10 @@ class DevicesPanel(QWidget):
         self.control_dir.setPlaceholderText("control folder printed by 'kogei mock' (re-places the object "
                                             "between passes)")
         self.start_sim_button = start = QPushButton("Start a simulated station in this window")
+        start.setToolTip("a simulated turntable, profiler and camera in this window, their ports filled in: to "
+                         "learn the station or try a plan without the instruments")
+        self.control_dir.setToolTip("the control folder 'kogei mock' prints: lets the window re-place the simulated "
+                                    "object between passes")
         start.clicked.connect(self.simulated_requested.emit)
         self.sim_object = QComboBox()
         self.sim_object.addItems(SIMULATED_OBJECTS)

@@ -177,8 +177,12 @@ def cloud_figure(fig: Figure, p: int, angles: np.ndarray, x: np.ndarray, z: np.n
 
 def frame_figure(fig: Figure, image: np.ndarray, size: tuple[int, int], title: str,
                  outline: np.ndarray | None = None, quads: np.ndarray | None = None,
-                 qualities: list[str] | None = None, mesh_outlines: list[np.ndarray] | None = None) -> None:
+                 qualities: list[str] | None = None, mesh_outlines: list[np.ndarray] | None = None,
+                 marks: np.ndarray | None = None) -> None:
     """A camera frame with the chart's outline and each patch coloured by its quality.
+
+    The image axes' gid is ``"frame"`` (a click on it maps to preview pixels);
+    ``marks`` (K, 2) are corners clicked so far, numbered in order.
 
     ``image`` may be a subsampled copy (:func:`display_image`) of a preview
     of ``size`` = (width, height) px; ``outline`` (4, 2), ``quads``
@@ -186,6 +190,7 @@ def frame_figure(fig: Figure, image: np.ndarray, size: tuple[int, int], title: s
     with the calibrated camera, polylines (M, 2)) are in that preview's pixels.
     """
     ax = fig.add_subplot(111)
+    ax.set_gid("frame")
     w, h = size
     ax.imshow(image, interpolation="nearest", extent=(-0.5, w - 0.5, h - 0.5, -0.5))
     for k, line in enumerate(mesh_outlines or []):
@@ -205,6 +210,12 @@ def frame_figure(fig: Figure, image: np.ndarray, size: tuple[int, int], title: s
             c = q.mean(axis=0)
             ax.text(c[0], c[1], str(n), color="white", fontsize=7, ha="center", va="center",
                     bbox={"facecolor": colour, "alpha": 0.7, "pad": 1, "lw": 0})
+    if marks is not None and len(marks):
+        m = np.asarray(marks, dtype=float)
+        ax.plot(m[:, 0], m[:, 1], "+-", color="#ff00ff", ms=12, mew=2, lw=1)
+        for k, (x, y) in enumerate(m, start=1):
+            ax.annotate(str(k), (x, y), xytext=(4, 4), textcoords="offset points", color="#ff00ff",
+                        fontsize=9, fontweight="bold")
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)
     style(ax, title)

@@ -45,7 +45,7 @@ from app.gui.session_panel import SessionPanel
 from app.gui.spectra_panel import SpectraPanel
 from app.gui.station_link import INSTRUMENTS, StationLink
 from app.gui.warm_up import freeze_heap, warm_up
-from app.gui.widgets import Banner
+from app.gui.widgets import Banner, Panel, StepStrip
 from app.gui.workers import Lane
 
 __all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "simulated_world"]
@@ -112,6 +112,10 @@ class MainWindow(QMainWindow):
 
         central = QWidget()
         v = QVBoxLayout(central)
+        from app.gui.guidance import STEPS
+
+        self.steps = StepStrip(STEPS)
+        v.addWidget(self.steps)
         self.banner = Banner()
         v.addWidget(self.banner)
         err_row = QHBoxLayout()
@@ -120,12 +124,16 @@ class MainWindow(QMainWindow):
         self.error_line.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.error_line.setStyleSheet("color:#7a1512; background:#fff0ef; padding:4px;")
         self.error_dismiss = QPushButton("Dismiss")
+        self.error_dismiss.setToolTip("hide this message (it stays in the log)")
         self.error_dismiss.clicked.connect(lambda: self.show_error(""))
         err_row.addWidget(self.error_line, 1)
         err_row.addWidget(self.error_dismiss)
         v.addLayout(err_row)
+        self.message_kind = ""                       # "error", "info" or "" (nothing shown)
+        self._message_source: Any = None
         self.show_error("")
         self.tabs = QTabWidget()
+        self.tabs.currentChanged.connect(self._tab_changed)
         v.addWidget(self.tabs, 1)
         self.setCentralWidget(central)
 
@@ -135,14 +143,18 @@ class MainWindow(QMainWindow):
         self.capture = CapturePanel(self.link, lambda: self.session.root, self.session.metadata,
                                     self.processing.calibration_source, self.drawer, self.devices.apply)
         self.camera = CameraPanel(self.link, self.work_lane, self.drawer, lambda: self.session.root)
-        self.spectra = SpectraPanel(self.work_lane, self.drawer, lambda: self.session.root)
+        self.spectra = SpectraPanel(self.work_lane, self.drawer, lambda: self.session.root,
+                                    catalogue=lambda: self.session.metadata().get("materials", ""))
+        self.camera.corners_marked.connect(self.spectra.set_chart_corners)
         self.preview = PreviewPanel(self.work_lane, lambda: self.session.root, self.drawer)
         for panel, title in ((self.devices, "Devices"), (self.session, "Session"), (self.capture, "Capture"),
                              (self.camera, "Camera"), (self.processing, "Processing"),
                              (self.spectra, "Spectra and materials"), (self.preview, "Preview")):
             self.tabs.addTab(panel, title)
             if hasattr(panel, "error"):
-                panel.error.connect(self.show_error)
+                panel.error.connect(lambda text, p=panel: self.show_error(text, source=p))
+            if isinstance(panel, Panel):
+                panel.notice.connect(lambda text, p=panel: self.show_info(text, source=p))
             if hasattr(panel, "log"):
                 panel.log.connect(self.append_log)
 
@@ -167,6 +179,12 @@ class MainWindow(QMainWindow):
         self._refresh_counter = 0
         self.capture.progress.valueChanged.connect(self._maybe_refresh_session)
         self.processing.processed.connect(self._processed)
+        self.steps.step_clicked.connect(self._show_step)
+        for sig in (self.link.state, self.session.session_chosen, self.session.manifest_shown,
+                    self.capture.capture_started, self.capture.capture_stopped,
+                    self.processing.processed, self.spectra.map_ready, self.processing.calibration.textChanged):
+            sig.connect(lambda *_: self.update_steps())
+        self.update_steps()
         self.statusBar().showMessage("ready")
         self._log_handler = _LogHandler(self)
         logging.getLogger("kogei.gui").addHandler(self._log_handler)
@@ -177,14 +195,37 @@ class MainWindow(QMainWindow):
         self.resize(1280, 860) if not self.settings.value("geometry") else None
 
     # ------------------------------------------------------------ errors and log
-    def show_error(self, text: str) -> None:
-        """Show a readable error above the tabs ('' hides it) and write it to the log."""
+    #: Style of the message line: an error (red) or information for the user (blue).
+    MESSAGE_STYLES = {"error": "color:#7a1512; background:#fff0ef; padding:4px;",
+                      "info": "color:#123f6e; background:#eaf3fc; padding:4px;"}
+
+    def show_error(self, text: str, source: Any = None) -> None:
+        """Show a readable error above the tabs ('' hides it) and write it to the log.
+
+        ``source``: the panel it came from; the message is cleared when
+        another tab is shown (it stays in the log).
+        """
+        self._message(text, "error", source)
+
+    def show_info(self, text: str, source: Any = None) -> None:
+        """As :meth:`show_error`, for information that is not a fault (a stop the user asked for)."""
+        self._message(text, "info", source)
+
+    def _message(self, text: str, kind: str, source: Any) -> None:
         self.error_line.setText(text)
+        self.error_line.setStyleSheet(self.MESSAGE_STYLES[kind])
         self.error_line.setVisible(bool(text))
         self.error_dismiss.setVisible(bool(text))
+        self.message_kind = kind if text else ""
+        self._message_source = source if text else None
         if text:
-            self.append_log(f"ERROR: {text}")
+            self.append_log(f"{'ERROR' if kind == 'error' else 'NOTE'}: {text}")
             self.statusBar().showMessage(text.splitlines()[0], 15_000)
+
+    def _tab_changed(self, index: int) -> None:
+        # a panel's message belongs to its tab: it would read as being about the tab now shown
+        if self._message_source is not None and self.tabs.widget(index) is not self._message_source:
+            self._message("", "error", None)
 
     def append_log(self, text: str) -> None:
         import time
@@ -235,6 +276,40 @@ class MainWindow(QMainWindow):
         m.addAction(act)
         view = self.menuBar().addMenu("&View")
         view.addAction(self.log_dock.toggleViewAction())
+        help_menu = self.menuBar().addMenu("&Help")
+        act = QAction("Steps of a session", self)
+        act.triggered.connect(self.show_steps_help)
+        help_menu.addAction(act)
+        act = QAction("About kogei", self)
+        act.triggered.connect(self.show_about)
+        help_menu.addAction(act)
+
+    def steps_help_text(self) -> str:
+        """The steps of a session, each with what to do there (the Help menu)."""
+        from app.gui.guidance import STEPS, step_hint
+
+        return "\n".join(f"{i}. {step}: {step_hint(step)}" for i, step in enumerate(STEPS, start=1))
+
+    def show_steps_help(self) -> None:
+        from PySide6.QtWidgets import QMessageBox
+
+        QMessageBox.information(self, "Steps of a session", self.steps_help_text())
+
+    def about_text(self) -> str:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            v = version("kogei")
+        except PackageNotFoundError:
+            v = "(not installed)"
+        return (f"kogei {v}: the capture station for museum objects -- turntable and laser profiler scans, RAW "
+                "photos calibrated with a colour chart, spectral reflectance and metal identification, spectral "
+                "rendering.  The documentation is in the repository's README.md and docs/.")
+
+    def show_about(self) -> None:
+        from PySide6.QtWidgets import QMessageBox
+
+        QMessageBox.about(self, "About kogei", self.about_text())
 
     # ------------------------------------------------------------ simulated station
     def start_simulated_station(self, triangles: int = 4000, seed: int = 0, image_size: tuple[int, int] = (240, 160),
@@ -328,6 +403,39 @@ class MainWindow(QMainWindow):
         return st
 
     # ------------------------------------------------------------ state
+    # ------------------------------------------------------------ guidance
+    def steps_done(self) -> dict[str, bool]:
+        """What has been done, as :func:`app.gui.guidance.current_step` reads it."""
+        root = self.session.root
+        manifest = self.session.manifest if root is not None else None
+        products = Path(root) / "products" if root is not None else None
+        return {
+            "devices": all(self.link.states.get(n) in ("connected", "capture") for n in ("turntable", "profiler")),
+            "calibrated": bool(self.processing.calibration_source())
+            or bool(products is not None and (Path(root) / "calibration.json").exists()),
+            "session": root is not None,
+            "captured": bool(manifest and manifest.get("status") == "complete"),
+            "processed": bool(products is not None and (products / "mesh.ply").exists()),
+            "materials": self.spectra.map is not None
+            or bool(products is not None and (products / "object-mesh.ply").exists()),
+        }
+
+    def update_steps(self) -> None:
+        """Highlight the next step of the strip and say what to do there."""
+        from app.gui.guidance import current_step, step_hint
+
+        step = current_step(self.steps_done())
+        if step == "Capture" and self.capture.job is not None and not self.capture.job.done:
+            self.steps.set_current(step, "Now: the capture runs; answer its prompts to re-place the object")
+            return
+        self.steps.set_current(step, f"Next: {step_hint(step)}")
+
+    def _show_step(self, step: str) -> None:
+        tabs = {"Devices": self.devices, "Calibrate": self.processing, "Session": self.session,
+                "Capture": self.capture, "Process": self.processing, "Materials": self.spectra,
+                "Preview": self.preview}
+        self.tabs.setCurrentWidget(tabs[step])
+
     def _state_changed(self, name: str, state: str, detail: str) -> None:
         summary = " · ".join(f"{n}: {self.link.states.get(n)}" for n in INSTRUMENTS)
         self.statusBar().showMessage(summary, 5000)
@@ -338,6 +446,11 @@ class MainWindow(QMainWindow):
         if manifest is not None:
             self.capture.set_plan(manifest.get("plan", {}))
         self.processing.show_station(manifest)
+        # what the tabs show of the previous session goes; the Preview shows this session's mesh if it has one
+        self.camera.refresh_charts()
+        self.spectra.forget()
+        if root and (Path(root) / "products" / "mesh.ply").exists():
+            self.run_safely(self.preview.mesh_changed)
         try:
             self.camera.refresh_posed()
         except Exception as exc:  # noqa: BLE001 - a damaged product must not stop the session from opening

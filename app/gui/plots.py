@@ -29,7 +29,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import QSize, Qt, QTimer, Signal
 from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget
 
@@ -39,6 +39,9 @@ from app.gui.workers import JobContext, Lane
 __all__ = ["FigureDrawer", "PlotImage"]
 
 _LOG = logging.getLogger("kogei.gui")
+
+#: Smallest size (w, h) in pixels a figure is drawn at; a smaller widget shows it scaled down.
+MIN_DRAW_SIZE = (320, 240)
 
 
 def _serve(conn: Any) -> None:
@@ -185,7 +188,19 @@ class PlotImage(QLabel):
     ``drawn`` is emitted after each drawing is shown.  A click on an axes
     that has a gid emits ``clicked(gid, x, y)`` in that axes' data
     coordinates (linear axes), so a bitmap can still be picked on.
+
+    A figure is drawn at the widget's size (at least :data:`MIN_DRAW_SIZE`).
+    When the widget changes size -- in width or height, by any amount: an
+    error line appearing, a splitter moved, a smaller window -- the bitmap
+    shown is scaled to fit at once (never cropped), and the figure is
+    redrawn at the new size once the size has stayed put for
+    :attr:`RESIZE_DEBOUNCE_MS` (a dragged splitter redraws once, not per
+    pixel).  A widget smaller than :data:`MIN_DRAW_SIZE` shows the drawing
+    scaled down, so titles and labels stay whole.
     """
+
+    #: Quiet time after the last size change before the figure is redrawn at the new size (ms).
+    RESIZE_DEBOUNCE_MS = 150
 
     drawn = Signal()
     clicked = Signal(str, float, float)
@@ -205,6 +220,15 @@ class PlotImage(QLabel):
         self.axes: list[dict[str, Any]] = []
         self.draws = 0
         self.failure = ""
+        self.scale = 1.0                   # bitmap pixels -> widget pixels of the bitmap shown
+        self._resize_timer = QTimer(self)
+        self._resize_timer.setSingleShot(True)
+        self._resize_timer.setInterval(self.RESIZE_DEBOUNCE_MS)
+        self._resize_timer.timeout.connect(self._redraw_for_size)
+
+    def draw_size(self) -> tuple[int, int]:
+        """The size (w, h) in pixels a figure is drawn at for the widget's current size."""
+        return max(self.width(), MIN_DRAW_SIZE[0]), max(self.height(), MIN_DRAW_SIZE[1])
 
     def plot(self, build: Callable[..., Any], **data: Any) -> None:
         """Draw ``build(fig, **data)`` next (replacing any drawing still waiting)."""
@@ -220,18 +244,38 @@ class PlotImage(QLabel):
             return
         (build, data), self._waiting = self._waiting, None
         self._busy = True
-        self.drawer.submit(build, data, max(self.width(), 320), max(self.height(), 240),
-                           succeeded=self._show, failed=self._failed, finished=self._done)
+        w, h = self.draw_size()
+        self.drawer.submit(build, data, w, h, succeeded=self._show, failed=self._failed, finished=self._done)
 
     def _show(self, drawing: tuple[np.ndarray, list[dict[str, Any]]]) -> None:
         rgba, self.axes = drawing
         self.rgba = rgba
         self.failure = ""
         h, w = rgba.shape[:2]
-        img = QImage(rgba.data, w, h, 4 * w, QImage.Format.Format_RGBA8888).copy()
-        self.setPixmap(QPixmap.fromImage(img))
+        self._image = QImage(rgba.data, w, h, 4 * w, QImage.Format.Format_RGBA8888).copy()
+        self._fit()
         self.draws += 1
         self.drawn.emit()
+        if (w, h) != self.draw_size() and not self._resize_timer.isActive():
+            self._resize_timer.start()          # the widget changed size while this one was drawn
+
+    def _fit(self) -> None:
+        """Show the last bitmap scaled to fit the widget, aspect kept (never cropped)."""
+        if self.rgba is None:
+            return
+        h, w = self.rgba.shape[:2]
+        self.scale = min(self.width() / w, self.height() / h) if self.width() > 0 and self.height() > 0 else 1.0
+        pix = QPixmap.fromImage(self._image)
+        if abs(self.scale - 1.0) > 1e-6:
+            pix = pix.scaled(QSize(max(1, round(w * self.scale)), max(1, round(h * self.scale))),
+                             Qt.AspectRatioMode.KeepAspectRatio, Qt.TransformationMode.SmoothTransformation)
+        self.setPixmap(pix)
+
+    def _redraw_for_size(self) -> None:
+        if self._last is None or self.rgba is None:
+            return
+        if tuple(self.rgba.shape[1::-1]) != self.draw_size():
+            self.plot(self._last[0], **self._last[1])
 
     def _failed(self, text: str, exc: Any) -> None:
         self.failure = text
@@ -243,9 +287,9 @@ class PlotImage(QLabel):
 
     # ------------------------------------------------------------ clicks
     def _origin(self) -> tuple[float, float]:
-        """Widget position of the bitmap's top-left corner (it is shown centred)."""
+        """Widget position of the bitmap's top-left corner (it is shown centred, scaled by :attr:`scale`)."""
         h, w = self.rgba.shape[:2]
-        return (self.width() - w) / 2.0, (self.height() - h) / 2.0
+        return (self.width() - w * self.scale) / 2.0, (self.height() - h * self.scale) / 2.0
 
     def axes_named(self, gid: str) -> dict[str, Any]:
         for ax in self.axes:
@@ -257,19 +301,19 @@ class PlotImage(QLabel):
         """Where data ``(x, y)`` of axes ``gid`` is shown, in widget pixels."""
         ox, oy = self._origin()
         px, py = axes_pixel(self.axes_named(gid), x, y)
-        return ox + px, oy + py
+        return ox + px * self.scale, oy + py * self.scale
 
     def data_per_pixel(self, gid: str) -> float:
-        """Data units per bitmap pixel along x of axes ``gid``."""
+        """Data units per widget pixel along x of axes ``gid`` (as the bitmap is shown, scaled)."""
         ax = self.axes_named(gid)
-        return abs(ax["xlim"][1] - ax["xlim"][0]) / max(ax["bbox"][2] - ax["bbox"][0], 1e-9)
+        return abs(ax["xlim"][1] - ax["xlim"][0]) / max(ax["bbox"][2] - ax["bbox"][0], 1e-9) / self.scale
 
     def mousePressEvent(self, e: Any) -> None:  # noqa: N802 - Qt's name
         super().mousePressEvent(e)
         if self.rgba is None:
             return                       # (the axes are those of the bitmap shown, even while the next one draws)
         ox, oy = self._origin()
-        px, py = e.position().x() - ox, e.position().y() - oy
+        px, py = (e.position().x() - ox) / self.scale, (e.position().y() - oy) / self.scale
         for ax in self.axes:
             x0, y0, x1, y1 = ax["bbox"]
             if ax["gid"] and x0 <= px <= x1 and y0 <= py <= y1:
@@ -278,5 +322,6 @@ class PlotImage(QLabel):
 
     def resizeEvent(self, e: Any) -> None:  # noqa: N802 - Qt's name
         super().resizeEvent(e)
-        if self._last is not None and self.rgba is not None and abs(self.rgba.shape[1] - self.width()) > 40:
-            self.plot(self._last[0], **self._last[1])
+        self._fit()
+        if self._last is not None:
+            self._resize_timer.start()

@@ -41,10 +41,12 @@ from PySide6.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QScrollArea,
     QSizePolicy,
     QSpinBox,
     QVBoxLayout,
@@ -55,7 +57,10 @@ from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane, ProcessJob
 
-__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "MEASURED"]
+__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "MEASURED", "LIGHTINGS"]
+
+#: The Preview tab's lighting choices.
+LIGHTINGS = ("directional light", "daylight sky (sun at the light's direction)", "light probe / HDR map")
 
 #: The material choice that renders the regions' measured materials.
 MEASURED = "measured (on the mesh)"
@@ -120,8 +125,11 @@ def _render_final(args: dict[str, Any], message: Callable[[str], None]) -> dict[
 
 def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, float, float],
                 azimuth_deg: float, elevation_deg: float, size: tuple[int, int], preset: str,
-                bounds: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
+                bounds: tuple[np.ndarray, np.ndarray], environment: str | None = None) -> dict[str, Any]:
     """Render ``mesh`` from the orbit camera.
+
+    ``environment`` (the ``kogei render --environment`` text: a ``.exr`` / ``.hdr`` file or
+    ``sky:...``) lights the mesh instead of the directional ``light``.
 
     Returns
     -------
@@ -133,7 +141,7 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
     import time
 
     from app.workflows.scene_build import build_job
-    from app.workflows.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec
+    from app.workflows.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpec, parse_environment
     from render.renderer import render
 
     lo, hi = bounds
@@ -143,8 +151,10 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
     distance = radius / math.sin(math.radians(fov) / 2) * 1.05
     eye = orbit_eye(center, distance, azimuth_deg, elevation_deg)
     up = (0.0, 0.0, 1.0) if abs(elevation_deg) < 89.0 else (0.0, 1.0, 0.0)
+    env = None if environment is None else parse_environment(environment, "environment")
     spec = SceneSpec(objects=[ObjectSpec(mesh=Path(mesh), material=material)],
-                     lights=[LightSpec("directional", light)], illuminant=illuminant, size=size, preset=preset,
+                     lights=[] if env is not None else [LightSpec("directional", light)], illuminant=illuminant,
+                     size=size, preset=preset, environment=env,
                      camera=CameraSpec(eye=tuple(eye.tolist()), target=tuple(center.tolist()), up=up, fov_deg=fov))
     job = build_job(spec)
     t = time.perf_counter()
@@ -236,20 +246,30 @@ class PreviewPanel(Panel):
             from app.gui.plots import PlotImage
 
             self.region_plot = PlotImage(drawer)
-            self.region_plot.setMinimumHeight(180)
+            self.region_plot.setMinimumHeight(150)
             self.region_plot.plot(empty_figure, title="Region observations",
                                   hint="render the measured object and click a point of it")
             left.addWidget(self.region_plot, 2)
 
-        side = QVBoxLayout()
-        outer.addLayout(side, 0)
+        column = QWidget()                      # the controls scroll in a short window (700 px high)
+        side = QVBoxLayout(column)
+        side.setContentsMargins(0, 0, 0, 0)
+        scroll = QScrollArea()
+        scroll.setWidget(column)
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        outer.addWidget(scroll, 0)
         g = QGroupBox("Scene")
         f = QFormLayout(g)
         self.mesh_label = QLabel("–")
         self.mesh_label.setWordWrap(True)
         open_mesh = QPushButton("Open mesh…")
+        open_mesh.setToolTip("render a mesh file (PLY, OBJ, ...) instead of the session's")
         open_mesh.clicked.connect(self.safe(self._open_mesh))
         use_session = QPushButton("Use the session's mesh")
+        use_session.setToolTip("render the open session's mesh (after processing), with its measured materials "
+                               "if any")
         use_session.clicked.connect(self.safe(self.mesh_changed))
         f.addRow("Mesh", self.mesh_label)
         f.addRow(open_mesh)
@@ -272,6 +292,13 @@ class PreviewPanel(Panel):
         self.preset.setCurrentText("standard")
         self.size = QComboBox()
         self.size.addItems(["480x360", "640x480", "800x600", "160x120"])
+        self.material.setToolTip("the material to render the mesh with; 'measured' uses the materials measured "
+                                 "on the mesh")
+        self.illuminant.setToolTip("the light's spectrum: daylight (D65), incandescent (A) or a colour "
+                                   "temperature")
+        self.cct.setToolTip("the colour temperature of the custom light (kelvin)")
+        self.preset.setToolTip("render quality once the view stops moving: draft, standard or reference")
+        self.size.setToolTip("the rendered image's size in pixels")
         f.addRow("Material", self.material)
         f.addRow("Illuminant", self.illuminant)
         f.addRow("CCT", self.cct)
@@ -280,6 +307,20 @@ class PreviewPanel(Panel):
         side.addWidget(g)
         lg = QGroupBox("Light and view")
         lf = QFormLayout(lg)
+        self.lighting = QComboBox()
+        self.lighting.addItems(LIGHTINGS)
+        self.lighting.setToolTip("what lights the object: one directional light; an outdoor daylight sky whose sun "
+                                 "stands at the light's azimuth and elevation; or a measured light probe "
+                                 "(kogei probe) or another HDR environment map (.exr / .hdr)")
+        self.probe_path = QLabel("no probe chosen")
+        self.probe_path.setWordWrap(True)
+        self.probe_button = QPushButton("Choose probe…")
+        self.probe_button.setToolTip("an environment map: the .exr kogei probe writes, or a .hdr / .exr from "
+                                     "elsewhere (read as linear sRGB)")
+        self.probe_button.clicked.connect(self.safe(self._choose_probe))
+        self.probe_file: str | None = None
+        lf.addRow("Lighting", self.lighting)
+        lf.addRow(self.probe_button, self.probe_path)
         self.light_az = QDoubleSpinBox()
         self.light_el = QDoubleSpinBox()
         self.azimuth = QDoubleSpinBox()
@@ -290,14 +331,21 @@ class PreviewPanel(Panel):
             sb.setValue(val)
             sb.setSuffix(" °")
             sb.setKeyboardTracking(False)
+        for sb, tip in ((self.light_az, "the light's direction around the object (degrees)"),
+                        (self.light_el, "the light's height above the horizon (degrees)"),
+                        (self.azimuth, "the view's direction around the object (degrees; or drag the image)"),
+                        (self.elevation, "the view's height above the horizon (degrees; or drag the image)")):
+            sb.setToolTip(tip)
         lf.addRow("Light azimuth", self.light_az)
         lf.addRow("Light elevation", self.light_el)
         lf.addRow("View azimuth (drag)", self.azimuth)
         lf.addRow("View elevation (drag)", self.elevation)
         side.addWidget(lg)
         self.render_button = QPushButton("Render")
+        self.render_button.setToolTip("render now at the chosen quality")
         self.render_button.clicked.connect(self.safe(lambda: self.request("final")))
         self.save_button = QPushButton("Save image…")
+        self.save_button.setToolTip("save the rendered image as a PNG file")
         self.save_button.clicked.connect(self.safe(self._save))
         side.addWidget(self.render_button)
         side.addWidget(self.save_button)
@@ -305,10 +353,13 @@ class PreviewPanel(Panel):
         self.info.setWordWrap(True)
         side.addWidget(self.info)
         side.addStretch(1)
+        scroll.setMinimumWidth(column.sizeHint().width() + 24)     # no horizontal scrolling
         self.cct.setEnabled(False)
         self.illuminant.currentTextChanged.connect(lambda t: self.cct.setEnabled(t == "custom CCT"))
-        for w in (self.material, self.illuminant, self.preset, self.size):
+        for w in (self.material, self.illuminant, self.preset, self.size, self.lighting):
             w.currentTextChanged.connect(lambda _: self._settle_later())
+        self.lighting.currentTextChanged.connect(self._lighting_changed)
+        self._lighting_changed(self.lighting.currentText())
         for w in (self.cct, self.light_az, self.light_el, self.azimuth, self.elevation):
             w.valueChanged.connect(lambda _: self._settle_later())
         self._settle = QTimer(self)
@@ -361,6 +412,44 @@ class PreviewPanel(Panel):
         self.lane.run(work, "read mesh", succeeded=loaded,
                       failed=lambda text, exc: self.error.emit(f"preview: {path}: {text}"))
 
+    # ------------------------------------------------------------ light
+    def _lighting_changed(self, text: str) -> None:
+        probe = text == LIGHTINGS[2]
+        self.probe_button.setEnabled(probe)
+        self.probe_path.setEnabled(probe)
+        self.light_az.setEnabled(not probe)          # the directional light or the sky's sun; a probe is measured
+        self.light_el.setEnabled(not probe)
+        if probe and self.probe_file is None:
+            root = self.session_root()
+            kept = None if root is None else root / "products" / "probe.exr"
+            if kept is not None and kept.is_file():
+                self.set_probe(str(kept))
+
+    def _choose_probe(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Light probe", "", "Environment maps (*.exr *.hdr)")
+        if path:
+            self.set_probe(path)
+
+    def set_probe(self, path: str) -> None:
+        """Light the preview with the environment map ``path`` (a ``kogei probe`` .exr or a .hdr / .exr)."""
+        self.probe_file = path
+        self.probe_path.setText(path)
+        self.lighting.setCurrentText(LIGHTINGS[2])
+        self._settle_later()
+
+    def environment_text(self) -> str | None:
+        """The ``--environment`` text of the chosen lighting (None: the directional light)."""
+        from app.errors import UsageError
+
+        text = self.lighting.currentText()
+        if text == LIGHTINGS[1]:
+            return f"sky:sun_elevation={max(self.light_el.value(), 0.0):g},sun_azimuth={self.light_az.value():g}"
+        if text == LIGHTINGS[2]:
+            if self.probe_file is None:
+                raise UsageError("no light probe chosen: press 'Choose probe…' (a kogei probe .exr or a .hdr)")
+            return self.probe_file
+        return None
+
     # ------------------------------------------------------------ rendering
     def illuminant_name(self) -> str:
         text = self.illuminant.currentText()
@@ -388,6 +477,8 @@ class PreviewPanel(Panel):
 
     def request(self, kind: str) -> None:
         """Ask for a ``draft`` (small, fast) or ``final`` image of the current view."""
+        from app.errors import UsageError
+
         if self.mesh_path is None or self.bounds is None:
             return
         w, h = self._size()
@@ -402,6 +493,11 @@ class PreviewPanel(Panel):
                 "light": light_vector(self.light_az.value(), self.light_el.value()),
                 "azimuth_deg": self.azimuth.value(), "elevation_deg": self.elevation.value(),
                 "size": size, "preset": preset, "bounds": self.bounds}
+        try:
+            args["environment"] = self.environment_text()
+        except UsageError as exc:
+            self.info.setText(str(exc))
+            return
         self._waiting = (kind, args)
         self._next()
 
@@ -440,8 +536,11 @@ class PreviewPanel(Panel):
         self.view.setPixmap(pix.scaled(target, Qt.AspectRatioMode.KeepAspectRatio,
                                        Qt.TransformationMode.SmoothTransformation))
         shown = MEASURED if args["mesh"] == self.object_mesh else args["material"]
-        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {shown} under "
-                          f"{args['illuminant']}, {secs:.2f} s")
+        env = args.get("environment")
+        light = (args["illuminant"] if env is None else "the daylight sky" if env.startswith("sky:")
+                 else f"the map {Path(env.split(':rotate=')[0].split(':intensity=')[0]).name}")
+        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {shown} under {light}, "
+                          f"{secs:.2f} s")
         self.rendered.emit(kind)
 
     def _failed(self, text: str, exc: Any) -> None:

@@ -9,13 +9,15 @@ interpreter for long stretches, and *Cancel* can stop them at once; the
 session's files are written atomically, so a cancelled run leaves it as it was.
 The residuals are the report's: per pass the points used, per pair the
 registration's RMS residual against the residual expected from the clouds'
-roughness, the overlap and the verdict, and the pose graph's consistency.
+roughness, the overlap and the check's outcome, and the pose graph's consistency.
+Each pair and the sphere calibration get a pass / warn / fail verdict with its
+thresholds and why in a tooltip (:mod:`app.gui.guidance`).
 
 Examples
 --------
 >>> pair_row({"source": 1, "target": 0, "rmse_mm": 0.0312, "expected_rmse_mm": 0.03, "overlap": 0.61,
 ...           "verified": True, "reason": "ok", "method": "global"}, ["pass 1", "pass 2"])
-['pass 2 → pass 1', '0.0312', '0.0300', '61%', 'global', 'yes', 'ok']
+['pass 2 → pass 1', '0.0312', '0.0300', '61%', 'global', 'yes', 'ok', 'pass: 1.0x the expected residual']
 """
 
 from __future__ import annotations
@@ -30,12 +32,15 @@ from PySide6.QtWidgets import (
     QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QLineEdit,
     QProgressBar,
     QPushButton,
+    QScrollArea,
+    QSizePolicy,
     QTreeWidget,
     QTreeWidgetItem,
     QVBoxLayout,
@@ -50,7 +55,7 @@ __all__ = ["ProcessingPanel", "pair_row", "run_processing", "camera_summary"]
 
 
 def pair_row(pair: dict[str, Any], names: list[str]) -> list[str]:
-    """Columns of one registered pair: pair, RMS, expected RMS, overlap, method, verified, reason."""
+    """Columns of one registered pair: pair, RMS, expected RMS, overlap, method, verified, reason, verdict."""
     def mm(v: Any) -> str:
         return "–" if v is None else f"{float(v):.4f}"
 
@@ -59,7 +64,16 @@ def pair_row(pair: dict[str, Any], names: list[str]) -> list[str]:
     overlap = pair.get("overlap")
     return [f"{src} → {tgt}", mm(pair.get("rmse_mm")), mm(pair.get("expected_rmse_mm")),
             "–" if overlap is None else f"{100 * float(overlap):.0f}%", str(pair.get("method", "")),
-            "yes" if pair.get("verified") else "NO", str(pair.get("reason", ""))]
+            "yes" if pair.get("verified") else "NO", str(pair.get("reason", "")), _pair_verdict(pair).level
+            + ": " + _pair_verdict(pair).figure]
+
+
+def _pair_verdict(pair: dict[str, Any]) -> Any:
+    from app.gui.guidance import registration_verdict
+
+    rmse, expected = pair.get("rmse_mm"), pair.get("expected_rmse_mm")
+    return registration_verdict(None if rmse is None else float(rmse), None if expected is None else float(expected),
+                                bool(pair.get("verified")))
 
 
 def run_processing(session: str, preset: str, calibration: str | None, picks: dict | None = None,
@@ -109,9 +123,19 @@ class ProcessingPanel(Panel):
         self.session_root = session_root
         self.drawer = drawer                    # draws the manual registration dialog's clouds
         self.job: ProcessJob | None = None
+        self.cancelled_by_user = False
         self.report: dict[str, Any] | None = None
         self.picks: dict[tuple[int, int], tuple[Any, Any]] = {}
-        outer = QVBoxLayout(self)
+        # the panel scrolls when the window is too short for it (a 700 px high window)
+        inner = QWidget()
+        outer = QVBoxLayout(inner)
+        self.scroll_area = scroll = QScrollArea()
+        scroll.setWidget(inner)
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        page = QVBoxLayout(self)
+        page.setContentsMargins(0, 0, 0, 0)
+        page.addWidget(scroll)
 
         cal = QGroupBox("Scanner calibration")
         f = QFormLayout(cal)
@@ -124,7 +148,10 @@ class ProcessingPanel(Panel):
         self.radius.setRange(0.1, 1000.0)
         self.radius.setValue(25.0)
         self.radius.setSuffix(" mm")
+        self.radius.setToolTip("the reference sphere's radius as measured (mm)")
         self.calibrate_button = QPushButton("Calibrate from the open session (a sphere scan)")
+        self.calibrate_button.setToolTip("fit the scanner's geometry to the open session's scan of the reference "
+                                         "sphere; the result is judged pass / warn / fail")
         self.calibrate_button.clicked.connect(self.safe(self.calibrate))
         crow = QHBoxLayout()
         crow.addWidget(QLabel("Sphere radius"))
@@ -143,9 +170,15 @@ class ProcessingPanel(Panel):
         self.preset = QComboBox()
         self.preset.addItems(["draft", "standard", "reference"])
         self.preset.setCurrentText("standard")
+        self.preset.setToolTip("draft: quick look; standard: the usual mesh; reference: the finest, slowest")
         self.run_button = QPushButton("Process the open session")
+        self.run_button.setToolTip("align the passes and build the watertight mesh (and pose the photos on it "
+                                   "when the camera is calibrated)")
         self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setToolTip("stop processing; the session is left as it was")
         self.pick_button = QPushButton("Manual 3-point registration…")
+        self.pick_button.setToolTip("align two passes by clicking three matching points on each, when the "
+                                    "automatic alignment failed")
         self.run_button.clicked.connect(self.safe(self.run))
         self.cancel_button.clicked.connect(self.safe(self.cancel))
         self.pick_button.clicked.connect(self.safe(self.open_pick_dialog))
@@ -171,11 +204,19 @@ class ProcessingPanel(Panel):
         self.passes_tree.setRootIsDecorated(False)
         self.pairs_tree = QTreeWidget()
         self.pairs_tree.setHeaderLabels(["Pair", "RMS (mm)", "Expected (mm)", "Overlap", "Method", "Verified",
-                                         "Reason"])
+                                         "Reason", "Verdict"])
+        self.pairs_tree.headerItem().setToolTip(2, "the residual the two clouds' own noise and spacing explain")
+        self.pairs_tree.headerItem().setToolTip(7, "pass <= 2x the expected residual, warn <= 4x, fail above or "
+                                                   "when the pair's check failed")
         self.pairs_tree.setRootIsDecorated(False)
         self.pairs_tree.setColumnWidth(0, 150)
         self.summary = QLabel("")
         self.summary.setWordWrap(True)
+        for tree in (self.passes_tree, self.pairs_tree):
+            # the trees take the room there is (at least 3 rows) rather than asking for 192 px each, so the
+            # scrolled panel fits the window when it can
+            tree.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Ignored)
+            tree.setMinimumHeight(80)
         rv.addWidget(self.passes_tree, 1)
         rv.addWidget(self.pairs_tree, 1)
         rv.addWidget(self.summary)
@@ -199,6 +240,8 @@ class ProcessingPanel(Panel):
         self.camera_button.setToolTip("the open session is a camera-calibration capture; the scanner calibration "
                                       "above names the sphere session whose photos tie the camera to the turntable")
         self.lamp_button = QPushButton("Calibrate the lamps from the open session (mirror sphere)")
+        self.lamp_button.setToolTip("locate the lamps from the highlights on the mirror sphere in the open "
+                                    "session's photos")
         self.camera_button.clicked.connect(self.safe(self.calibrate_camera))
         self.lamp_button.clicked.connect(self.safe(self.calibrate_lamps))
         row.addWidget(self.camera_button)
@@ -300,9 +343,14 @@ class ProcessingPanel(Panel):
             return calibrate_session(root, radius)
 
         def done(ref: dict[str, Any]) -> None:
+            from app.gui.guidance import sphere_verdict
+
+            verdict = sphere_verdict(float(ref["rms_mm"]))
             self.calibration.setText(str(root))
-            self.cal_state.setText(f"calibrated from {root}: sphere residual rms {ref['rms_mm']:.4f} mm, "
-                                   f"max {ref['max_mm']:.4f} mm")
+            self.cal_state.setText(f"{verdict.html()} calibrated from {root}: sphere residual rms "
+                                   f"{ref['rms_mm']:.4f} mm, max {ref['max_mm']:.4f} mm — {verdict.why}")
+            self.cal_state.setToolTip(verdict.tooltip)
+            self.calibration_verdict = verdict
             self.log.emit(self.cal_state.text())
 
         self.cal_state.setText("calibrating…")
@@ -330,11 +378,13 @@ class ProcessingPanel(Panel):
         self.stage.setText(f"processing {root} ({self.preset.currentText()})…")
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
+        self.cancelled_by_user = False
         self.log.emit(self.stage.text())
         self.job.start()
 
     def cancel(self) -> None:
         if self.job is not None and not self.job.done:
+            self.cancelled_by_user = True
             self.job.cancel()
 
     @property
@@ -351,6 +401,9 @@ class ProcessingPanel(Panel):
 
     def _on_failed(self, text: str, detail: Any) -> None:
         self.stage.setText(f"stopped: {text.splitlines()[0]}")
+        if self.cancelled_by_user:           # what the user asked for: information, not a fault
+            self.notice.emit(f"processing {text.splitlines()[0]}; the session is as it was")
+            return
         self.error.emit(text)
 
     def _on_finished(self) -> None:
@@ -374,8 +427,17 @@ class ProcessingPanel(Panel):
                 p.get("skipped", "") or ("" if not p.get("angle_uncertain_deg") else
                                          f"angle uncertain by {p['angle_uncertain_deg']:g}°")]))
         self.pairs_tree.clear()
+        from PySide6.QtGui import QBrush, QColor
+
+        from app.gui.guidance import VERDICT_COLOURS
+
         for pr in report["registration"]["pairs"]:
-            self.pairs_tree.addTopLevelItem(QTreeWidgetItem(pair_row(pr, names)))
+            item = QTreeWidgetItem(pair_row(pr, names))
+            verdict = _pair_verdict(pr)
+            item.setForeground(7, QBrush(QColor(VERDICT_COLOURS[verdict.level])))
+            item.setToolTip(7, verdict.tooltip)
+            self.pairs_tree.addTopLevelItem(item)
+        self.scroll_area.ensureWidgetVisible(self.pairs_tree)      # the verdicts in view in a short window
         c = report["registration"]["consistency"]
         m = report["mesh"]
         self.summary.setText(

@@ -6,6 +6,13 @@ journal replayed, without locking), so it can be refreshed while a capture
 writes the session; RAW thumbnails are decoded on a worker thread
 (:func:`processing.camera.raw_decode.decode_raw`, :func:`processing.camera.raw_decode.preview_srgb8`).
 
+The session's outputs have buttons: "Make report" writes the session's HTML
+report (:func:`app.report.html.write_report`, as ``kogei report``) and opens
+it; "Open session folder" opens the folder in the desktop's file manager;
+"Export glTF…" writes the measured object as a ``.glb``
+(:func:`app.workflows.gltf_export.export_gltf`, as ``kogei export``).  The
+report and the export run on a worker thread.
+
 Examples
 --------
 >>> capture_row("p01/profile/0003", {"kind": "profile", "pass": 1, "angle_deg": 90.0, "valid": 412, "status": "done"})
@@ -18,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PySide6.QtCore import QSize, Qt, Signal
-from PySide6.QtGui import QIcon, QImage, QPixmap
+from PySide6.QtCore import QSize, Qt, QUrl, Signal
+from PySide6.QtGui import QDesktopServices, QIcon, QImage, QPixmap
 from PySide6.QtWidgets import (
     QFileDialog,
     QFormLayout,
@@ -80,6 +87,7 @@ class SessionPanel(Panel):
     """See the module docstring.  ``root`` is the open session (None if none)."""
 
     session_chosen = Signal(object)        # Path of a session folder, or None
+    manifest_shown = Signal()              # the session list was (re-)read
 
     def __init__(self, lane: Lane, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -97,8 +105,13 @@ class SessionPanel(Panel):
         form.addRow("Folder", row)
         buttons = QHBoxLayout()
         self.new_button = QPushButton("New session")
+        self.new_button.setToolTip("a new session in the folder (an empty or new one); it is written when the "
+                                   "capture starts")
         self.open_button = QPushButton("Open / resume")
+        self.open_button.setToolTip("open the session in the folder; an interrupted capture goes on with Start "
+                                    "on the Capture tab")
         self.save_meta = QPushButton("Save metadata")
+        self.save_meta.setToolTip("store the object's fields in the open session (and its report)")
         self.new_button.clicked.connect(self.safe(self.new_session))
         self.open_button.clicked.connect(self.safe(lambda: self.open_session(self.folder.text().strip())))
         self.save_meta.clicked.connect(self.safe(self.save_metadata))
@@ -110,6 +123,21 @@ class SessionPanel(Panel):
         self.status.setWordWrap(True)
         form.addRow("Status", self.status)
         outer.addWidget(top)
+        outputs = QHBoxLayout()
+        self.report_button = QPushButton("Make report")
+        self.report_button.setToolTip("write the session's HTML report (products/report.html) and open it")
+        self.folder_button = QPushButton("Open session folder")
+        self.folder_button.setToolTip("open the session's folder in the file manager (RAW frames, products)")
+        self.export_button = QPushButton("Export glTF…")
+        self.export_button.setToolTip("write the measured object -- mesh and materials -- as a .glb file for "
+                                      "other 3-D programs (after 'kogei fit-materials')")
+        self.report_button.clicked.connect(self.safe(self.make_report))
+        self.folder_button.clicked.connect(self.safe(self.open_folder))
+        self.export_button.clicked.connect(self.safe(self._export))
+        for b in (self.report_button, self.folder_button, self.export_button):
+            outputs.addWidget(b)
+        outputs.addStretch(1)
+        form.addRow("Outputs", outputs)
 
         split = QSplitter(Qt.Orientation.Horizontal)
         meta = QGroupBox("Object")
@@ -118,6 +146,9 @@ class SessionPanel(Panel):
         for key, label in METADATA_FIELDS:
             edit = QLineEdit()
             edit.setMinimumWidth(260)          # a catalogue name fits whole
+            edit.setToolTip(f"{label}: kept in the session and shown in its report"
+                            + ("; e.g. 'shibuichi, gold, urushi': the Spectra tab can compare with just these"
+                               if key == "materials" else ""))
             self.meta_edits[key] = edit
             mform.addRow(label, edit)
         split.addWidget(meta)
@@ -196,6 +227,67 @@ class SessionPanel(Panel):
         self.show_manifest(manifest)
         self.session_chosen.emit(path)
 
+    # ------------------------------------------------------------ outputs
+    #: Opens a file or folder URL (the desktop's default program); replaced in tests.
+    opener = staticmethod(lambda url: QDesktopServices.openUrl(url))
+
+    def _session_on_disk(self) -> Path:
+        from app.errors import UsageError
+
+        if self.root is None or not (self.root / "session.json").exists():
+            raise UsageError("open a session first (a new one exists once its capture has started)")
+        return self.root
+
+    def open_folder(self) -> None:
+        """Open the session's folder in the desktop's file manager."""
+        self.opener(QUrl.fromLocalFile(str(self._session_on_disk())))
+
+    def make_report(self) -> None:
+        """Write the session's report on a worker thread, then open it."""
+        from app.errors import UsageError
+
+        root = self._session_on_disk()
+        if self.capturing:
+            raise UsageError("the capture is writing the session; make the report when it has stopped")
+
+        def work(ctx: JobContext) -> Path:
+            from app.report.html import write_report
+
+            return write_report(root)
+
+        def done(path: Path) -> None:
+            self.report_path = Path(path)
+            self.log.emit(f"report written: {path}")
+            self.notice.emit(f"report written: {path} (opened in the browser)")
+            self.opener(QUrl.fromLocalFile(str(path)))
+            self.refresh()
+
+        self.notice.emit("making the report…")
+        self.lane.run(work, "report", succeeded=done, failed=lambda text, exc: self.error.emit(f"report: {text}"))
+
+    def _export(self) -> None:
+        root = self._session_on_disk()
+        path, _ = QFileDialog.getSaveFileName(self, "Export the measured object", str(root / "object.glb"),
+                                              "glTF binary (*.glb)")
+        if path:
+            self.export_to(path)
+
+    def export_to(self, path: str | Path) -> None:
+        """Write the measured object as a ``.glb`` at ``path`` (replacing it) on a worker thread."""
+        root = self._session_on_disk()
+
+        def work(ctx: JobContext) -> dict[str, Any]:
+            from app.workflows.gltf_export import export_gltf
+
+            return export_gltf(root, path, force=True)
+
+        def done(info: dict[str, Any]) -> None:
+            self.exported = info
+            self.notice.emit(f"exported {info['out']}: {info['triangles']:,} triangles, "
+                             f"{len(info['regions'])} materials, {info['bytes'] / 1e6:.1f} MB")
+
+        self.lane.run(work, "export", succeeded=done, failed=lambda text, exc: self.error.emit(f"export: {text}"))
+
     def save_metadata(self) -> None:
         from app.errors import UsageError
         from app.session import Session, SessionError
@@ -249,6 +341,7 @@ class SessionPanel(Panel):
             if rec.get("kind") in ("chart", "frame") and cid not in self._thumbs and rec.get("file"):
                 self._thumbs.add(cid)
                 self._load_thumb(cid, self.root / rec["file"])
+        self.manifest_shown.emit()
 
     def _load_thumb(self, cid: str, path: Path) -> None:
         def work(ctx: JobContext) -> tuple[str, np.ndarray]:

@@ -26,6 +26,19 @@ A display over the colour pipeline's workflow (docs/colour-pipeline.md):
    pixels too dark to have a colour, masked pixels and the backdrop (the
    colour of the frame's rim), and blocks left less than half full.
 
+A click is refused, with the reason, where there is nothing to measure:
+a clipped pixel, a pixel too dark to have a colour (green below
+:data:`MIN_SIGNAL` of full scale), or the backdrop.  Both identifications
+answer through the project's one confidence rule
+(:func:`processing.materials.confidence.decide`): "no candidate fits" when
+even the best candidate misses the colour by far more than its stated
+error, "neutral metal" when silver-like metals cannot be told apart.  The
+map says how much of the object it judged and why the rest was left out
+(:func:`map_coverage`).  With "only the catalogued materials" on, the
+candidates are the session's catalogued materials
+(:func:`catalogued_candidates`: "shibuichi, gold, urushi" -> the shibuichi
+alloys, gold and both lacquers) rather than every preset.
+
 Both identifications allow the candidates the same model error as the batch
 ``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 1.75 %): the
 shibuichi alloys, shakudo and bronze differ by 0.005-0.02 in camera
@@ -52,13 +65,16 @@ import numpy as np
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QPixmap
 from PySide6.QtWidgets import (
+    QCheckBox,
     QComboBox,
     QDoubleSpinBox,
     QFormLayout,
+    QFrame,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QPushButton,
+    QScrollArea,
     QSizePolicy,
     QSpinBox,
     QSplitter,
@@ -70,11 +86,11 @@ from app.batch.materials import MODEL_ERROR
 from app.gui.figures import empty_figure, spectrum_figure
 from app.gui.plots import FigureDrawer, PlotImage
 from app.gui.session_panel import rgb_to_qimage
-from app.gui.widgets import Panel
+from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import JobContext, Lane
 
 __all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "UNCERTAIN",
-           "backdrop_mask", "block_labels", "LIGHT_DEG"]
+           "backdrop_mask", "block_labels", "LIGHT_DEG", "catalogued_candidates", "map_coverage", "answer_text"]
 
 #: Angle of the light from the surface normal assumed by the identification (degrees).
 LIGHT_DEG = 30.0
@@ -91,6 +107,46 @@ def block_labels(shape: tuple[int, int], block: int) -> np.ndarray:
     return (rows * ((w + block - 1) // block) + cols + 1).astype(np.int64)
 
 
+def catalogued_candidates(text: str) -> tuple[list[str], list[str]]:
+    """The identification's candidates named by a catalogue entry, and the words that name none.
+
+    Words are separated by commas, semicolons or "and"; a word picks the
+    candidates it names whole or as a hyphenated part ("shibuichi": every
+    shibuichi alloy; "urushi": black and red lacquer).
+
+    Examples
+    --------
+    >>> catalogued_candidates("shibuichi, gold and Urushi; enamel")
+    (['nami-shibuichi', 'shiro-shibuichi', 'jo-shibuichi', 'nami-shibuichi-uchi-sanbu', 'nami-shibuichi-soto-sanbu', 'gold', 'urushi-black', 'urushi-red'], ['enamel'])
+    """
+    import re
+
+    from processing.materials.identification import DEFAULT_CANDIDATES
+
+    words = [w.strip().lower() for w in re.split(r"[,;]|\band\b", text) if w.strip()]
+    names: list[str] = []
+    unmatched: list[str] = []
+    for word in words:
+        hits = [c for c in DEFAULT_CANDIDATES if c == word or word in c.split("-")]
+        if not hits:
+            unmatched.append(word)
+        names.extend(h for h in hits if h not in names)
+    return names, unmatched
+
+
+def answer_text(ident: Any) -> str:
+    """One line for an identification's answer, what the confidence is of, and the alternatives."""
+    from processing.materials.confidence import NEUTRAL_METAL, NO_FIT
+
+    if ident.material == NO_FIT:
+        return (f"no candidate fits: the nearest ({', '.join(ident.group)}) miss its colour by "
+                f"{math.sqrt(ident.misfit):.1f} times the stated error")
+    if ident.material == NEUTRAL_METAL:
+        return (f"a neutral metal, one of {', '.join(ident.group)} (confidence {ident.confidence:.2f}; they differ "
+                "mainly in brightness)")
+    return f"{ident.material} (confidence {ident.confidence:.2f}, runner-up {ident.runner_up})"
+
+
 @dataclass
 class SpectralScene:
     """An object frame with its chart-calibrated estimate."""
@@ -105,6 +161,7 @@ class SpectralScene:
     usable_patches: int
     light: str
     clipped: np.ndarray | None = None   # (H, W) bool: a photosite of the pixel saturated or dead (not estimated)
+    backdrop: np.ndarray | None = None  # (H, W) bool: the backdrop (backdrop_mask)
 
     @property
     def fit(self) -> Any:
@@ -113,8 +170,13 @@ class SpectralScene:
 
 
 def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = "D65", method: str = "wiener",
-                    chart: str = "classic24") -> SpectralScene:
-    """Decode the frame, estimate it through the chart exactly as ``kogei spectral estimate`` does, model the candidates."""
+                    chart: str = "classic24", corners: str | None = None,
+                    materials: list[str] | None = None) -> SpectralScene:
+    """Decode the frame, estimate it through the chart exactly as ``kogei spectral estimate`` does, model the candidates.
+
+    ``corners``: the chart's outer corners marked by hand (``--chart-corners``' text) instead of looking for it;
+    ``materials``: the candidate materials (default every preset).
+    """
     from app.workflows.chart import measure_chart
     from app.workflows.spectral import estimate_from_chart, estimator_setup
     from processing.camera.raw_decode import decode_raw, preview_srgb8
@@ -124,13 +186,15 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
         raise ValueError(f"chart {chart!r}: the spectra are calibrated with the ColorChecker Classic (classic24)")
     setup = estimator_setup(light=light, chart_type=chart)
     obj = decode_raw(frame, mode="bin2x2")
-    est = estimate_from_chart([obj], [measure_chart(Path(chart_frame), chart=chart)], setup, method=method,
+    est = estimate_from_chart([obj], [measure_chart(Path(chart_frame), chart=chart, corners=corners)], setup,
+                              method=method,
                               image_name=f"{frame}", chart_name=f"{chart_frame}")
     # black subtraction leaves read noise of either sign around 0
     rgb = np.maximum(obj.rgb, 0.0)
     return SpectralScene(Path(frame), Path(chart_frame), preview_srgb8(obj), rgb, est,
-                         candidate_set(setup.sensitivities, setup.lights[0], setup.grid, light_deg=LIGHT_DEG),
-                         est.chart_rmse, int(est.usable.sum()), light, ~est.mask)
+                         candidate_set(setup.sensitivities, setup.lights[0], setup.grid,
+                                       light_deg=LIGHT_DEG, **({} if materials is None else {"names": materials})),
+                         est.chart_rmse, int(est.usable.sum()), light, ~est.mask, backdrop_mask(rgb))
 
 
 def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
@@ -148,6 +212,12 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
     if not keep.any():
         raise ValueError(f"pixel ({x}, {y}) and its neighbours are clipped (saturated): their colour cannot be "
                          "measured; click a less bright part of the object, or shoot with less exposure")
+    green = float(scene.rgb[y0:y1, x0:x1, 1][keep].mean())
+    if green < MIN_SIGNAL:
+        raise ValueError(f"pixel ({x}, {y}) is too dark to measure a colour: its signal is {100 * green:.1f}% of full "
+                         f"scale, below {100 * MIN_SIGNAL:.0f}%; click a lit part of the object")
+    if scene.backdrop is not None and scene.backdrop[y, x]:
+        raise ValueError(f"pixel ({x}, {y}) is the backdrop, not the object: click the object")
     weights = scene.estimate.weights[y0:y1, x0:x1][keep][:, None, :]      # the kept pixels, as (N, 1, p)
     reg = region_spectra(weights, np.ones(weights.shape[:2], np.int64), scene.fit.basis, scene.method_error)
     camera = scene.estimate.camera[y0:y1, x0:x1][keep].astype(np.float64)
@@ -210,7 +280,7 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
         raise ValueError(f"min_confidence must be within 0..1, got {min_confidence!r}")
     h, w = scene.rgb.shape[:2]
     labels = block_labels((h, w), block)
-    skip = (scene.rgb[..., 1] < min_signal) | backdrop_mask(scene.rgb)
+    skip = (scene.rgb[..., 1] < min_signal) | (backdrop_mask(scene.rgb) if scene.backdrop is None else scene.backdrop)
     if scene.clipped is not None:
         skip |= scene.clipped
     labels = np.where(skip, 0, labels)
@@ -228,6 +298,22 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
     for lab, name in named.items():
         lut[lab] = index[name]
     return lut[labels], {i: n for n, i in index.items()}
+
+
+def map_coverage(scene: SpectralScene, labels: np.ndarray, min_signal: float = MIN_SIGNAL) -> dict[str, int]:
+    """How much of the object a material map judged, and why the rest was left out (pixel counts).
+
+    The object is every pixel but the backdrop; of it, ``judged`` pixels got
+    a label, the others are ``dark``, ``clipped``, or ``sparse`` (in a block
+    less than half usable), counted in that order.
+    """
+    back = scene.backdrop if scene.backdrop is not None else backdrop_mask(scene.rgb)
+    obj = ~back
+    dark = obj & (scene.rgb[..., 1] < min_signal)
+    clipped = obj & ~dark & (scene.clipped if scene.clipped is not None else False)
+    judged = obj & (labels > 0)
+    return {"object": int(obj.sum()), "judged": int(judged.sum()), "dark": int(dark.sum()),
+            "clipped": int(clipped.sum()), "sparse": int((obj & ~dark & ~clipped & ~judged).sum())}
 
 
 def _map_colours(names: dict[int, str]) -> np.ndarray:
@@ -281,24 +367,36 @@ class SpectraPanel(Panel):
     map_ready = Signal()
 
     def __init__(self, lane: Lane, drawer: FigureDrawer, session_root: Callable[[], Path | None],
-                 parent: QWidget | None = None) -> None:
+                 parent: QWidget | None = None, catalogue: Callable[[], str] | None = None) -> None:
         super().__init__(parent)
         self.lane = lane
         self.session_root = session_root
+        #: The session's catalogued materials (the Session tab's "Materials (as catalogued)").
+        self.catalogue = catalogue or (lambda: "")
         self.scene: SpectralScene | None = None
         self.last: dict[str, Any] | None = None
         self.map: tuple[np.ndarray, dict[int, str]] | None = None
+        self.manual_corners: dict[str, str] = {}
+        self._requests = 0
+        self._clicks = 0
         outer = QHBoxLayout(self)
-        left = QVBoxLayout()
-        outer.addLayout(left, 0)
+        # the controls, the state and the legend scroll together: in a small window nothing is cut off
+        column = QWidget()
+        left = QVBoxLayout(column)
+        left.setContentsMargins(0, 0, 0, 0)
+        scroll = QScrollArea()
+        scroll.setWidget(column)
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setFixedWidth(330)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        outer.addWidget(scroll, 0)
         left.addWidget(self._controls())
-        self.state = QLabel("list the frames of a captured session, then calibrate")
+        self.state = WrapLabel("list the frames of a captured session, then calibrate")
         self.state.setWordWrap(True)
-        self.state.setMaximumWidth(300)
         left.addWidget(self.state)
-        self.legend = QLabel("")
+        self.legend = WrapLabel("")
         self.legend.setWordWrap(True)
-        self.legend.setMaximumWidth(300)
         left.addWidget(self.legend)
         left.addStretch(1)
         split = QSplitter(Qt.Orientation.Horizontal)
@@ -321,12 +419,24 @@ class SpectraPanel(Panel):
         self.frames.setMinimumContentsLength(14)
         self.list_button = refresh = QPushButton("List the session's frames")
         refresh.clicked.connect(self.safe(self.list_frames))
+        self.frames.setToolTip("the session's object frames (pass / frame number)")
+        self.frames.currentIndexChanged.connect(lambda i: self._frame_chosen())
+        self.chart_frames = QComboBox()
+        self.chart_frames.setMinimumContentsLength(14)
+        self.chart_frames.setToolTip("the chart frame that calibrates the colours: by default the object frame's own "
+                                     "pass's (the Camera tab lists the same ones)")
         self.light = QComboBox()
         self.light.addItems(["D65", "A", "D50", "F2"])
         self.light.setEditable(True)
         self.light.setToolTip("the light of the shot: D65, A, a CCT such as 3200K, or a CSV file")
         self.method = QComboBox()
         self.method.addItems(["wiener", "rootpoly", "more-basis", "paper"])
+        for i, tip in enumerate((
+                "Wiener: the statistically best linear estimate, from the camera's and the light's known spectra",
+                "root-polynomial: a regression learned from the chart's 24 patches, robust to exposure",
+                "more basis: a linear regression onto more spectral shapes than the paper's three",
+                "paper: the original method, three spectral shapes and a 3 x 3 matrix (for comparison)")):
+            self.method.setItemData(i, tip, Qt.ItemDataRole.ToolTipRole)
         self.load_button = QPushButton("Calibrate with the pass's chart")
         self.load_button.clicked.connect(self.safe(self.load))
         self.block = QSpinBox()
@@ -340,14 +450,30 @@ class SpectraPanel(Panel):
         self.min_confidence.setToolTip("blocks whose best material is less likely than this are shown as "
                                        "'uncertain' rather than named")
         self.map_button = QPushButton("Material map")
+        self.map_button.setToolTip("name the material of every block of the object in the frame")
         self.map_button.clicked.connect(self.safe(self.make_map))
+        self.only_catalogued = QCheckBox("only the catalogued materials")
+        self.only_catalogued.setToolTip("compare with the materials the Session tab's catalogue entry names "
+                                        "(e.g. 'shibuichi, gold, urushi') instead of every known material")
+        self.only_catalogued.toggled.connect(self._candidates_changed)
+        self.candidates_label = WrapLabel("candidates: every known material")
+        self.candidates_label.setWordWrap(True)
+        self.list_button.setToolTip("list the open session's object frames and chart frames")
+        self.load_button.setToolTip("calibrate the camera's colours with the chosen chart frame, then click the "
+                                    "object to see its spectrum")
+        self.method.setToolTip("how spectra are estimated from the camera colours: wiener (the default) is the "
+                               "most robust; the others for comparison")
+        self.block.setToolTip("side of the square blocks the material map names one material for")
         f.addRow(refresh)
         f.addRow("Object frame", self.frames)
+        f.addRow("Chart frame", self.chart_frames)
         f.addRow("Light of the shot", self.light)
         f.addRow("Method", self.method)
         f.addRow(self.load_button)
         f.addRow("Map block", self.block)
         f.addRow("Min. confidence", self.min_confidence)
+        f.addRow(self.only_catalogued)
+        f.addRow(self.candidates_label)
         f.addRow(self.map_button)
         return src
 
@@ -363,8 +489,52 @@ class SpectraPanel(Panel):
         frames = [k for k, r in caps.items() if r.get("kind") == "frame"]
         if not frames:
             raise UsageError(f"session {root} has no object frames (captured without the camera?)")
+        from app.gui.camera_panel import chart_frame_label, session_chart_frames
+
+        self.chart_frames.blockSignals(True)
+        self.chart_frames.clear()
+        for chart_id, number, _path in session_chart_frames(root):
+            self.chart_frames.addItem(chart_frame_label(chart_id, number), chart_id)
+        self.chart_frames.blockSignals(False)
         self.frames.clear()
         self.frames.addItems(frames)
+        self._follow_pass()
+
+    def _empty_plot(self, hint: str = "click the object in the frame") -> None:
+        self.plot.plot(empty_figure, title="Reflectance", hint=hint, xlabel="wavelength (nm)", ylabel="reflectance")
+
+    def _frame_chosen(self) -> None:
+        """Another object frame chosen: its pass's chart, and nothing left of the previous frame's spectrum."""
+        self._follow_pass()
+        if self.last is not None:
+            self.last = None
+            self._empty_plot("calibrate the chosen frame, then click the object")
+
+    def forget(self) -> None:
+        """Another session was opened: nothing of the previous one stays on show."""
+        self._requests += 1
+        self._clicks += 1
+        self.scene = self.last = self.map = None
+        self.frames.clear()
+        self.chart_frames.clear()
+        self.legend.setText("")
+        self.image.clear()
+        self.image.image_size = None
+        self.image.setText("no frame")
+        self.state.setText("list the frames of a captured session, then calibrate")
+        self._empty_plot()
+
+    def _follow_pass(self) -> None:
+        """Choose the chart frame of the object frame's pass (its first, for a swatch pass of several)."""
+        pass_id = self.frames.currentText().split("/")[0]
+        for i in range(self.chart_frames.count()):
+            if str(self.chart_frames.itemData(i)).split("/")[0] == pass_id:
+                self.chart_frames.setCurrentIndex(i)
+                return
+
+    def set_chart_corners(self, path: str, corners: str) -> None:
+        """Corners of a chart frame marked by hand on the Camera tab: the calibration uses them for that frame."""
+        self.manual_corners[str(path)] = corners
 
     def load(self) -> None:
         from app.errors import UsageError
@@ -375,28 +545,74 @@ class SpectraPanel(Panel):
         if root is None or not cid:
             raise UsageError("list the session's frames and choose one")
         caps = Session.read(root)["captures"]
-        # a scan pass has one chart frame (pNN/chart); a swatch pass several (pNN/chart/00, ...): take the first
-        pass_id = cid.split('/')[0]
-        chart = caps.get(f"{pass_id}/chart") or caps.get(f"{pass_id}/chart/00")
-        if chart is None:
-            raise UsageError(f"{cid}: its pass has no chart frame, so the camera cannot be calibrated")
-        frame, chart_path = root / caps[cid]["file"], root / chart["file"]
+        chart_id = self.chart_frames.currentData()
+        if chart_id is None or chart_id not in caps:
+            raise UsageError(f"{cid}: the session has no chart frame, so the camera cannot be calibrated")
+        frame, chart_path = root / caps[cid]["file"], root / caps[chart_id]["file"]
         light, method = self.light.currentText().strip(), self.method.currentText()
+        corners = self.manual_corners.get(str(chart_path))
+        chart_label = self.chart_frames.currentText() + (" (corners marked by hand)" if corners else "")
+        self._chart_label = chart_label
+
+        materials = self.candidate_names()
 
         def work(ctx: JobContext) -> SpectralScene:
-            return analyse_spectra(frame, chart_path, light=light, method=method)
+            return analyse_spectra(frame, chart_path, light=light, method=method, corners=corners,
+                                   materials=materials)
 
-        self.state.setText(f"calibrating {cid} with its pass's chart…")
-        self.lane.run(work, "spectra", succeeded=self._loaded,
-                      failed=lambda text, exc: (self.state.setText(f"failed: {text}"), self.error.emit(text)))
+        self.state.setText(f"calibrating {cid} with the {chart_label}…")
+        # the lane runs two jobs at once: only the latest request's result is shown (an older one finishing
+        # later would show the previous frame, chart or candidates)
+        self._requests += 1
+        request = self._requests
+
+        def loaded(scene: SpectralScene) -> None:
+            if request == self._requests:
+                self._loaded(scene)
+
+        def failed(text: str, exc: Any) -> None:
+            if request == self._requests:
+                self.state.setText(f"failed: {text}")
+                self.error.emit(text)
+
+        self.lane.run(work, "spectra", succeeded=loaded, failed=failed)
+
+    def candidate_names(self) -> list[str] | None:
+        """The candidates: the catalogued materials when asked for (None: every known material)."""
+        from app.errors import UsageError
+
+        if not self.only_catalogued.isChecked():
+            self.candidates_label.setText("candidates: every known material")
+            return None
+        text = self.catalogue().strip()
+        names, unmatched = catalogued_candidates(text)
+        if len(names) < 2:
+            self.only_catalogued.setChecked(False)
+            raise UsageError(f"the catalogue entry {text!r} names {len(names)} known material(s); the comparison "
+                             "needs two or more: fill in 'Materials (as catalogued)' on the Session tab "
+                             "(e.g. shibuichi, gold, urushi)")
+        self.candidates_label.setText("candidates: " + ", ".join(names)
+                                      + (f" (not known: {', '.join(unmatched)})" if unmatched else ""))
+        return names
+
+    def _candidates_changed(self, on: bool) -> None:
+        try:
+            self.candidate_names()
+        except Exception as exc:  # noqa: BLE001 - shown in the window
+            self.error.emit(f"spectra: {exc}")
+            return
+        if self.scene is not None:
+            self.safe(self.load)()              # the same frame, compared with the new candidates
 
     def _loaded(self, scene: SpectralScene) -> None:
         self.scene = scene
         self.map = None
         self.last = None
         self.legend.setText("")
+        self._empty_plot()
         self.image.show_rgb(scene.preview)
-        self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated on {scene.usable_patches} "
+        self.state.setText(f"{scene.frame.name}: {scene.fit.method} estimate calibrated with the "
+                           f"{getattr(self, '_chart_label', 'chart frame')} on {scene.usable_patches} "
                            f"chart patches under {scene.light} (error on the chart {scene.method_error:.3f}). Click the "
                            "object to see its spectrum.")
         self.log.emit(self.state.text())
@@ -412,8 +628,19 @@ class SpectraPanel(Panel):
         def work(ctx: JobContext) -> dict[str, Any]:
             return spectrum_at(scene, x, y)
 
-        self.lane.run(work, "spectrum", succeeded=self._picked,
-                      failed=lambda text, exc: self.error.emit(f"spectrum: {text}"))
+        self._clicks += 1
+        click = self._clicks
+
+        def picked(res: dict[str, Any]) -> None:
+            if click == self._clicks and scene is self.scene:        # the latest click, on the frame shown
+                self._picked(res)
+
+        def refused(text: str, exc: Any) -> None:
+            if click == self._clicks:
+                self.state.setText(f"not measured: {text}")
+                self.error.emit(f"spectrum: {text}")
+
+        self.lane.run(work, "spectrum", succeeded=picked, failed=refused)
 
     def _picked(self, res: dict[str, Any]) -> None:
         self.last = res
@@ -422,10 +649,10 @@ class SpectraPanel(Panel):
         self.plot.plot(spectrum_figure, wavelengths=res["wavelengths"], mean=res["mean"],
                        uncertainty=res["uncertainty"], model=res["model"], model_name=res["model_name"],
                        pixels=res["pixels"],
-                       title=f"({res['x']}, {res['y']}): {ident.material}, confidence {ident.confidence:.2f}")
-        self.state.setText(f"pixel ({res['x']}, {res['y']}): {ident.material} (confidence {ident.confidence:.2f}, "
-                           f"runner-up {ident.runner_up}, best {res['model_name']} at reduced chi-square "
-                           f"{ident.misfit:.3g})")
+                       title=f"({res['x']}, {res['y']}): " + (f"{ident.material}, confidence {ident.confidence:.2f}"
+                                                              if ident.material in self.scene.candidates.names
+                                                              else ident.material))
+        self.state.setText(f"pixel ({res['x']}, {res['y']}), {res['pixels']} pixels: {answer_text(ident)}")
         self.analysed.emit(res)
 
     def make_map(self) -> None:
@@ -472,7 +699,13 @@ class SpectraPanel(Panel):
         uncertain = [i for i, n in names.items() if n == UNCERTAIN]
         judged = labels[labels > 0]
         share = float(np.isin(judged, uncertain).mean()) if judged.size else 0.0
-        self.state.setText(f"material map: {materials} materials over blocks of {self.block.value()} px "
-                           f"({100 * share:.0f}% of the judged area uncertain; dark, clipped and backdrop pixels "
-                           "left out)")
+        cov = map_coverage(self.scene, labels)
+        whole = max(cov["object"], 1)
+        self.coverage = cov
+        self.state.setText(f"material map: judged {100 * cov['judged'] / whole:.0f}% of the object "
+                           f"({cov['judged']:,} of {cov['object']:,} pixels); left out: "
+                           f"{100 * cov['dark'] / whole:.0f}% too dark, {100 * cov['clipped'] / whole:.0f}% clipped, "
+                           f"{100 * cov['sparse'] / whole:.0f}% in blocks less than half usable. "
+                           f"{materials} material{'' if materials == 1 else 's'} over blocks of {self.block.value()} px, "
+                           f"{100 * share:.0f}% of the judged area uncertain")
         self.map_ready.emit()

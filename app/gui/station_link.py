@@ -108,6 +108,7 @@ class StationLink(QObject):
         self.firmware: dict[str, str] = {}
         self.capturing = False
         self._lost: dict[str, str] = {}
+        self._left: set[str] = set()        # left disconnected by an interrupted capture, to reconnect after
         self._timer = QTimer(self)
         self._timer.setInterval(poll_ms)
         self._timer.timeout.connect(self.poll)
@@ -214,7 +215,8 @@ class StationLink(QObject):
     # ------------------------------------------------------------ capture hand-over
     def release_for_capture(self) -> list[str]:
         """Close the live drivers (on the lane, before the capture job queued after this) and mark them owned."""
-        names = [n for n in INSTRUMENTS if n in self.drivers or self.states[n] == "lost"]
+        names = [n for n in INSTRUMENTS if n in self.drivers or self.states[n] == "lost" or n in self._left]
+        self._left.clear()
         drivers = dict(self.drivers)
         self.drivers.clear()
         self.capturing = True
@@ -256,6 +258,8 @@ class StationLink(QObject):
             if interrupted and n == "turntable" and n not in self._lost:
                 self._set(n, "disconnected", "left as the capture stopped, so that resuming reads the board's "
                                              "position; connect it only to move the table by hand")
+                if n in reconnect:
+                    self._left.add(n)           # the capture that resumes reconnects it when it ends
                 continue
             if n in self._lost and self.ports.get(n):
                 # it dropped out and the capture gave up on it: watch it and re-handshake when it returns

@@ -14,7 +14,7 @@ from typing import Any
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QLineEdit, QPushButton, QWidget
 
-__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel", "browse_row"]
+__all__ = ["LIGHT_COLOURS", "StatusLight", "Banner", "Panel", "browse_row", "StepStrip", "WrapLabel"]
 
 #: Colour of each instrument state.
 LIGHT_COLOURS = {
@@ -61,7 +61,10 @@ class Banner(QLabel):
 
 
 class Panel(QWidget):
-    """Base of the panels: ``error`` and ``log`` signals, and :meth:`safe` for button handlers.
+    """Base of the panels: ``error``, ``notice`` and ``log`` signals, and :meth:`safe` for button handlers.
+
+    ``notice`` is for what the user asked for and should know about but is not
+    a fault (a capture or a processing run stopped at the user's request).
 
     A handler wrapped by :meth:`safe` never lets an exception escape into
     Qt's event loop: its readable message goes to ``error`` (the window shows
@@ -69,6 +72,7 @@ class Panel(QWidget):
     """
 
     error = Signal(str)
+    notice = Signal(str)
     log = Signal(str)
 
     def safe(self, fn: Callable[..., Any]) -> Callable[..., None]:
@@ -81,16 +85,78 @@ class Panel(QWidget):
 
                 from app.gui.workers import describe_error
 
-                logging.getLogger("kogei.gui").info("handler failed:\n%s", traceback.format_exc())
+                logging.getLogger("kogei.gui").info("details of the message above:\n%s", traceback.format_exc())
                 self.error.emit(describe_error(exc))
         return slot
 
 
 def browse_row(field: QLineEdit, browse: Callable[[], None]) -> QHBoxLayout:
-    """A path field with a "Browse…" button after it that calls ``browse``."""
+    """A path field with a "Browse…" button after it that calls ``browse``; the field's tooltip is its
+    placeholder text unless it has one."""
     button = QPushButton("Browse…")
+    button.setToolTip("choose it in a file dialog")
+    if not field.toolTip():
+        field.setToolTip(field.placeholderText())
     button.clicked.connect(browse)
     row = QHBoxLayout()
     row.addWidget(field, 1)
     row.addWidget(button)
     return row
+
+
+class StepStrip(QWidget):
+    """The station's steps in a row, the next one highlighted, and one line on what to do there.
+
+    ``step_clicked(name)`` is emitted when a step is clicked (the window shows its tab).
+    """
+
+    step_clicked = Signal(str)
+
+    def __init__(self, steps: tuple[str, ...], parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        row = QHBoxLayout(self)
+        row.setContentsMargins(0, 0, 0, 0)
+        self.buttons: dict[str, QPushButton] = {}
+        for i, name in enumerate(steps):
+            if i:
+                row.addWidget(QLabel("→"))
+            b = QPushButton(name)
+            b.setFlat(True)
+            b.setToolTip(f"show the tab of the {name} step")
+            b.clicked.connect(lambda _=False, n=name: self.step_clicked.emit(n))
+            row.addWidget(b)
+            self.buttons[name] = b
+        self.hint = QLabel("")
+        self.hint.setWordWrap(True)
+        row.addWidget(self.hint, 1)
+        self.current = ""
+
+    def set_current(self, step: str, hint: str) -> None:
+        self.current = step
+        for name, b in self.buttons.items():
+            b.setStyleSheet("background:#1f5fa8; color:white; font-weight:bold; border-radius:3px; padding:2px 6px;"
+                            if name == step else "color:#444; padding:2px 6px;")
+        self.hint.setText(hint)
+
+
+class WrapLabel(QLabel):
+    """A word-wrapped label that is always as tall as its text at its width (a plain wrapped QLabel in a
+    column can be given less height than its lines need, and then shows them cut)."""
+
+    def __init__(self, text: str = "", parent: QWidget | None = None) -> None:
+        super().__init__(text, parent)
+        self.setWordWrap(True)
+        self.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
+
+    def _fit(self) -> None:
+        height = self.heightForWidth(self.width()) if self.width() > 0 else -1
+        if height > 0:
+            self.setMinimumHeight(height)
+
+    def setText(self, text: str) -> None:  # noqa: N802 - Qt's name
+        super().setText(text)
+        self._fit()
+
+    def resizeEvent(self, e: Any) -> None:  # noqa: N802 - Qt's name
+        super().resizeEvent(e)
+        self._fit()

@@ -101,6 +101,7 @@ class Job(QRunnable):
         self.cancel_event = threading.Event()
         self.running = False
         self.done = False
+        self.delivered = False          # its signals have reached the window's thread (set there)
 
     def cancel(self) -> None:
         """Ask the job to stop at its next cancel check."""
@@ -131,8 +132,16 @@ class Lane:
         self.jobs: list[Job] = []
 
     def submit(self, job: Job) -> Job:
-        """Queue ``job``; it is kept referenced until it has finished."""
-        self.jobs = [j for j in self.jobs if not j.done]
+        """Queue ``job``; it is kept referenced until its signals have reached the window's thread.
+
+        A job's results are signals queued from the pool thread to the window's
+        thread; dropping the job when it is ``done`` (before the window has
+        handled them) let its signals object be collected with a result still
+        queued, and that result was lost.  ``finished`` is emitted last, so once
+        its receiver here has run, every other receiver has.
+        """
+        self.jobs = [j for j in self.jobs if not j.delivered]
+        job.signals.finished.connect(lambda j=job: setattr(j, "delivered", True))
         self.jobs.append(job)
         self.pool.start(job)
         return job
@@ -152,8 +161,8 @@ class Lane:
 
     @property
     def busy(self) -> bool:
-        """True while a job of this lane is queued or running."""
-        return any(not j.done for j in self.jobs)
+        """True while a job of this lane is queued or running, or its results are not handled yet."""
+        return any(not j.delivered for j in self.jobs)
 
     def wait(self, timeout_ms: int = 30_000) -> bool:
         """Block until every job has finished (for shutdown and tests)."""

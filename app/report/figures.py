@@ -16,7 +16,8 @@ import numpy as np
 
 __all__ = ["png_of", "calibration_residuals_figure", "frame_residuals_figure", "overlay_sheet", "pose_graph_figure", "coverage_figure", "holes_figure",
            "timing_figure", "data_uri", "chart_overlay_figure", "patch_error_figure",
-           "material_spectra_figure", "region_map_figure", "PALETTE", "palette_colour"]
+           "material_spectra_figure", "region_map_figure", "probe_tone_map", "probe_map_figure", "PALETTE",
+           "palette_colour"]
 
 DPI = 100
 
@@ -339,4 +340,74 @@ def region_map_figure(image: np.ndarray, keys: Sequence[tuple[tuple[int, int, in
     handles = [plt.Rectangle((0, 0), 1, 1, facecolor=np.asarray(c) / 255.0, edgecolor="#888888") for c in seen.values()]
     ax.legend(handles, list(seen), fontsize=8, loc="center left", bbox_to_anchor=(1.0, 0.5),
               title="region: material (verdict)", title_fontsize=8, frameon=False)
+    return png_of(fig)
+
+
+def probe_tone_map(rgb_linear: np.ndarray, key: float = 0.18) -> np.ndarray:
+    """8-bit sRGB of an HDR map: the log-mean luminance at ``key``, then Reinhard's global operator.
+
+    The colour of each pixel is kept (its linear RGB scaled by the ratio of compressed to original
+    luminance), so bright lamps show their colour instead of clipping to white.
+
+    Parameters
+    ----------
+    rgb_linear
+        ``(H, W, 3)`` linear sRGB, any positive scale.
+    key
+        The grey the log-mean luminance is mapped to.
+
+    Returns
+    -------
+    ndarray
+        ``(H, W, 3)`` uint8 sRGB.
+
+    References
+    ----------
+    .. [1] Reinhard, Stark, Shirley, Ferwerda, "Photographic tone reproduction for digital images",
+       ACM Transactions on Graphics 21(3), 267-276 (2002), doi:10.1145/566654.566575.
+
+    Examples
+    --------
+    >>> img = probe_tone_map(np.array([[[1.0, 1.0, 1.0], [100.0, 100.0, 100.0]]]))
+    >>> img.dtype.name, bool(img[0, 1, 0] > img[0, 0, 0]), int(img.max()) <= 255
+    ('uint8', True, True)
+    """
+    rgb = np.clip(np.nan_to_num(np.asarray(rgb_linear, dtype=np.float64)), 0.0, None)
+    y = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    log_mean = float(np.exp(np.mean(np.log(y + 1e-6))))
+    scaled = y * (key / max(log_mean, 1e-12))
+    compressed = scaled / (1.0 + scaled)
+    out = rgb * np.where(y > 0, compressed / np.maximum(y, 1e-12), 0.0)[..., None]
+    out = np.clip(out, 0.0, 1.0)
+    encoded = np.where(out <= 0.0031308, 12.92 * out, 1.055 * np.power(out, 1 / 2.4) - 0.055)
+    return np.round(255 * encoded).astype(np.uint8)
+
+
+def probe_map_figure(srgb8: np.ndarray, cap_angle_deg: np.ndarray | None = None,
+                     cap_limits_deg: tuple[float, float] | None = None) -> bytes:
+    """The equirectangular probe map over azimuth and elevation, with the unseen caps outlined.
+
+    Parameters
+    ----------
+    srgb8
+        ``(H, 2H, 3)`` the tone-mapped map (row 0 the zenith, column 0 azimuth 0, from +x toward +y).
+    cap_angle_deg
+        ``(H, 2H)`` each pixel's angle from the direction toward the camera (degrees), or None.
+    cap_limits_deg
+        The angles bounding the seen directions: the camera's cap and 180 minus the back cap.
+    """
+    plt = _plt()
+    h, w = srgb8.shape[:2]
+    fig, ax = plt.subplots(figsize=(7.0, 3.9), constrained_layout=True)
+    extent = (0.0, 360.0, -90.0, 90.0)
+    ax.imshow(srgb8, extent=extent, aspect="auto", interpolation="nearest")
+    if cap_angle_deg is not None and cap_limits_deg is not None:
+        az = (np.arange(w) + 0.5) * 360.0 / w
+        el = 90.0 - (np.arange(h) + 0.5) * 180.0 / h
+        ax.contour(az, el, cap_angle_deg, levels=sorted(cap_limits_deg), colors="white", linewidths=1.0,
+                   linestyles="dashed")
+    ax.set_xlabel("azimuth (degrees, from +x toward +y)")
+    ax.set_ylabel("elevation (degrees)")
+    ax.set_xticks(np.arange(0, 361, 90))
+    ax.set_yticks(np.arange(-90, 91, 45))
     return png_of(fig)

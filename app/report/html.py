@@ -12,7 +12,7 @@ technical tables into ``<details>``; every material answer carries a verdict
 its caption which materials it shows.  Sections, in order: object and plan,
 capture log, scanner calibration, registration and pose graph, camera and
 lamp, mesh views, coverage and filled holes, colour chart, spectra, materials
-on the mesh, material map, renders under D65 and A, timing.  A section whose
+on the mesh, material map, renders under D65 and A, the light probe (a probe session only), timing.  A section whose
 data the session does not hold says what is missing and which command
 produces it.
 """
@@ -869,6 +869,70 @@ def _renders(ctx: _Context) -> Section:
     return Section("renders", "Renders under D65 and A", body, bool(figs))
 
 
+def _has_probe(ctx: _Context) -> bool:
+    """A probe session (``kogei capture --plan probe``) or one holding a probe map."""
+    plan = ctx.manifest.get("plan") or {}
+    return (isinstance(plan, dict) and plan.get("kind") == "probe") or "probe" in ctx.products
+
+
+def _probe(ctx: _Context) -> Section:
+    """The light probe: the map tone-mapped over azimuth and elevation, and its report's figures."""
+    from app.report.figures import probe_map_figure, probe_tone_map
+    from processing.lighting.environment_map import pixel_directions, read_environment
+
+    title = "Light probe"
+    rec = ctx.products.get("probe")
+    if not rec:
+        return Section("probe", title, _missing("no light probe made from these brackets",
+                                                f"kogei probe {ctx.root} --out probe.exr"), False)
+    path = ctx.product_path(rec, "products.probe")
+    if path is None:
+        return Section("probe", title, "<p class='missing'>The probe's map could not be read (see Problems found)."
+                                       "</p>", False)
+    env = read_environment(path)
+    rep = ctx.product_json("probe_report") or {}
+    m = rep.get("map") or {}
+    angle = caps = None
+    toward = m.get("toward_camera")
+    if isinstance(toward, list) and len(toward) == 3:
+        d = pixel_directions(env.height, env.width)
+        angle = np.degrees(np.arccos(np.clip(d @ np.asarray(toward, dtype=np.float64), -1.0, 1.0)))
+        caps = (float(m.get("camera_mask_deg", 12.0)), 180.0 - float(m.get("back_mask_deg", 45.0)))
+    png = probe_map_figure(probe_tone_map(env.to_linear_srgb()), angle, caps)
+    lum = env.pixel_luminance()
+    w = env.solid_angles()
+    body = _lead("The light around the object as measured by the mirror sphere: every direction of the room "
+                 "unwrapped onto a map (up at the top, the horizon across the middle), in the room's frame, with "
+                 "the brightest lights compressed so the dim walls stay visible.")
+    body += _img(png, "light probe map", "The light probe (tone-mapped). Inside the dashed lines: the "
+                 "directions the sphere could not show (toward the camera and behind the sphere), filled from "
+                 "their surroundings.")
+    seconds = rep.get("seconds") or {}
+    spectral = rep.get("spectral") or {}
+    sphere = rep.get("sphere") or {}
+    pairs = [("map", f"{env.width} x {env.height} pixels, {m.get('frame', 'room frame')}"),
+             ("directions seen", _q(100 * float(m.get("observed_fraction", float("nan"))), ".0f", "%")),
+             ("brightest / mean luminance", f"{_q(float(lum.max()), '.3g')} / "
+                                            f"{_q(float((lum * w).sum() / w.sum()), '.3g')} "
+                                            f"({m.get('units', 'relative units')})"),
+             ("brackets", len(rep.get("frames") or [])),
+             ("exposure times", ", ".join(_q(st.get("exposure_time_s"), ".4g", "s")
+                                          for st in rep.get("settings") or [] if isinstance(st, dict))),
+             ("pixels saturated in every bracket", _q(100 * float(rep.get("saturated_everywhere_fraction",
+                                                                          float("nan"))), ".2f", "%")),
+             ("sphere", f"radius {_q(sphere.get('radius_mm'), '.1f', 'mm')}, {_q(sphere.get('radius_px'), '.0f', 'px')} "
+                        f"in the image, outline fit {_q(sphere.get('outline_rms_px'), '.2f', 'px RMS')}"),
+             ("masked caps", f"{_q(m.get('camera_mask_deg'), '.0f', 'deg')} toward the camera, "
+                             f"{_q(m.get('back_mask_deg'), '.0f', 'deg')} behind the sphere"),
+             ("spectral calibration", f"{spectral.get('method', 'unknown')} estimator, chart light "
+                                      f"{spectral.get('light', 'unknown')}, chart RMS reflectance error "
+                                      f"{_q(spectral.get('chart_rmse'), '.3f')}"),
+             ("time", ", ".join(f"{k} {_q(v, '.1f', 's')}" for k, v in seconds.items()))]
+    body += _details(_kv(pairs) + "<p>Render under it with <code>kogei render MESH --environment "
+                     f"{_e(_shown(path))}</code>.</p>")
+    return Section("probe", title, body, True)
+
+
 def _when(text: Any) -> str:
     """A manifest time as "2026-11-28 17:47 UTC" (the text as given when it is not one)."""
     try:
@@ -939,6 +1003,8 @@ def _sections_and_summary(root: Path) -> tuple[list[Section], str]:
         ("renders", "Renders under D65 and A", lambda: _renders(ctx)),
         ("timing", "Timing of every step", lambda: _timing(ctx, rep)),
     ]
+    if _has_probe(ctx):                # only a probe session has one; other reports stay as they were
+        builders.insert(-1, ("probe", "Light probe", lambda: _probe(ctx)))
     sections = []
     for key, title, build in builders:
         try:

@@ -14,10 +14,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from app.errors import UsageError
-from app.workflows.scene_spec import ObjectSpec, SceneSpec, check_procedural_args
+from app.workflows.scene_spec import EnvironmentSpec, ObjectSpec, SceneSpec, check_procedural_args
 from processing.common.rotation import rotation_xyz_deg as rotation_matrix  # about x, then y, then z (degrees)
 
-__all__ = ["RenderJob", "build_job", "object_mesh", "rotation_matrix", "DEFAULT_LIGHT", "neutral_grey",
+__all__ = ["RenderJob", "build_job", "build_environment", "object_mesh", "rotation_matrix", "DEFAULT_LIGHT", "neutral_grey",
            "NEUTRAL_GREY_REFLECTANCE", "face_material_object"]
 
 #: Reflectance of the neutral grey given to faces without a measured material (no region, or a region
@@ -164,6 +164,22 @@ def object_mesh(obj: ObjectSpec, default_hawk_triangles: int = 250_000):
                        tangents=tangents, weave_angle_deg=float(obj.weave_angle_deg or 0.0))
 
 
+def build_environment(env: EnvironmentSpec):
+    """The :class:`processing.lighting.environment_map.EnvironmentMap` of an environment spec (file or sky).
+
+    Bad files and settings raise :class:`processing.lighting.environment_map.EnvironmentMapError`
+    (an input error: one line naming the file or setting).
+    """
+    from processing.lighting.daylight_sky import daylight_sky
+    from processing.lighting.environment_map import read_environment
+
+    if env.file is not None:
+        base = read_environment(env.file)
+    else:
+        base = daylight_sky(**env.sky)
+    return base.with_(rotation_deg=env.rotate_deg, intensity=env.intensity * base.intensity)
+
+
 def build_job(spec: SceneSpec, *, default_hawk_triangles: int = 250_000) -> RenderJob:
     """Build scene, camera and settings; every bad value becomes a :class:`UsageError`."""
     from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
@@ -182,14 +198,17 @@ def build_job(spec: SceneSpec, *, default_hawk_triangles: int = 250_000) -> Rend
             except (ValueError, OSError) as exc:
                 raise UsageError(f"light spectrum: {exc}") from None
 
+    environment = build_environment(spec.environment) if spec.environment is not None else None
     objects = [object_mesh(o, default_hawk_triangles) for o in spec.objects]
     lights_spec = spec.lights or []
     lights = [Light(ls.kind, ls.vector, ls.spectrum or spec.illuminant, ls.intensity) for ls in lights_spec]
-    if not lights:
+    if not lights and environment is None:
         lights = [Light("directional", DEFAULT_LIGHT, spec.illuminant, 1.0)]
-    sky = Sky(kind=spec.sky.kind, zenith=spec.sky.zenith, horizon=spec.sky.horizon,
+    # an environment replaces the default key light and sky; asked-for ones light the scene with it
+    sky_kind = "none" if environment is not None and not spec.sky_given else spec.sky.kind
+    sky = Sky(kind=sky_kind, zenith=spec.sky.zenith, horizon=spec.sky.horizon,
               spectrum=spec.sky.spectrum or spec.illuminant)
-    scene = Scene(objects, lights, sky)
+    scene = Scene(objects, lights, sky, environment=environment)
 
     width, height = spec.size
     cam = spec.camera
@@ -209,4 +228,6 @@ def build_job(spec: SceneSpec, *, default_hawk_triangles: int = 250_000) -> Rend
         settings = get_preset(spec.preset)
     except (KeyError, ValueError) as exc:
         raise UsageError(f"--preset: {exc}") from None
+    if spec.environment_samples is not None:
+        settings = settings.replace(environment_samples=spec.environment_samples)
     return RenderJob(scene, camera, settings)

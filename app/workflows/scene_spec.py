@@ -19,11 +19,14 @@ __all__ = [
     "ObjectSpec",
     "LightSpec",
     "SkySpec",
+    "EnvironmentSpec",
     "CameraSpec",
     "SceneSpec",
     "parse_vector",
     "parse_size",
     "parse_light",
+    "parse_environment",
+    "ENVIRONMENT_SKY_KEYS",
     "load_scene_file",
     "MAX_SCENE_BYTES",
     "check_path_text",
@@ -86,6 +89,20 @@ class SkySpec:
 
 
 @dataclass
+class EnvironmentSpec:
+    """An environment map lighting the scene: a file (``.exr`` / ``.hdr``) or the analytic sky.
+
+    ``file`` is None for the analytic sky, whose settings (the keyword arguments
+    of :func:`processing.lighting.daylight_sky.daylight_sky`) are in ``sky``.
+    """
+
+    file: Path | None = None
+    sky: dict[str, Any] = field(default_factory=dict)
+    rotate_deg: float = 0.0
+    intensity: float = 1.0
+
+
+@dataclass
 class CameraSpec:
     eye: tuple[float, float, float] | None = None
     target: tuple[float, float, float] | None = None
@@ -102,6 +119,9 @@ class SceneSpec:
     illuminant: str = "D65"
     size: tuple[int, int] = (800, 600)
     preset: str = "standard"
+    environment: EnvironmentSpec | None = None
+    environment_samples: int | None = None  # None: the preset's
+    sky_given: bool = False                # a sky was asked for (else an environment replaces the default one)
 
 
 def parse_vector(text: str | list | tuple, name: str) -> tuple[float, float, float]:
@@ -171,6 +191,84 @@ def parse_light(text: str) -> LightSpec:
     if kind == "directional" and not any(vec):
         raise UsageError("--light: a directional light needs a non-zero direction")
     return LightSpec(kind=kind, vector=vec, spectrum=spectrum or None, intensity=intensity)
+
+
+#: Settings of the analytic sky (``--environment sky:KEY=VALUE,...``, ``[environment.sky]``): the
+#: keyword argument of :func:`processing.lighting.daylight_sky.daylight_sky` each sets.
+ENVIRONMENT_SKY_KEYS = {"cct": "cct", "sun_elevation": "sun_elevation_deg", "sun_azimuth": "sun_azimuth_deg",
+                        "type": "sky_type", "sun": "sun", "sun_cct": "sun_cct", "luminance": "luminance",
+                        "ground": "ground", "height": "height"}
+
+_ENVIRONMENT_FORMS = ("FILE.exr|FILE.hdr[:rotate=DEG,intensity=X] or "
+                      "sky[:cct=K,sun_elevation=DEG,sun_azimuth=DEG,type=clear|intermediate|overcast|1-15,...]")
+
+
+def _environment_value(key: str, value: Any, where: str) -> Any:
+    """One environment setting checked: a finite number (the sky type may be a name), ranges for the common keys."""
+    if key == "type" and isinstance(value, str) and not value.strip().lstrip("-").isdigit():
+        return value.strip().lower()
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise UsageError(f"{where} {key}: expected a number, got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+        raise UsageError(f"{where} {key}: expected a finite number, got {value!r}")
+    value = float(value)
+    if key == "intensity" and not value > 0:
+        raise UsageError(f"{where} intensity: expected a number > 0, got {value:g}")
+    if key in ("type", "height"):
+        if not value.is_integer():
+            raise UsageError(f"{where} {key}: expected a whole number, got {value:g}")
+        return int(value)
+    return value
+
+
+def _environment_options(items: dict[str, Any], is_file: bool, where: str) -> tuple[dict[str, Any], float, float]:
+    """Checked options: the sky's keyword arguments, the rotation and the intensity."""
+    allowed = {"rotate", "intensity"} | (set() if is_file else set(ENVIRONMENT_SKY_KEYS))
+    unknown = sorted(set(items) - allowed)
+    if unknown:
+        raise UsageError(f"{where}: unknown option(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
+    values = {k: _environment_value(k, v, where) for k, v in items.items()}
+    rotate = values.pop("rotate", 0.0)
+    intensity = values.pop("intensity", 1.0)
+    return {ENVIRONMENT_SKY_KEYS[k]: v for k, v in values.items()}, rotate, intensity
+
+
+def parse_environment(text: str, where: str = "--environment") -> EnvironmentSpec:
+    """Parse ``FILE.exr[:rotate=DEG,intensity=X]`` or ``sky[:cct=K,sun_elevation=DEG,...]``.
+
+    The file must end in ``.exr`` or ``.hdr``; ``sky`` is the analytic sky
+    (:func:`processing.lighting.daylight_sky.daylight_sky`, keys in
+    :data:`ENVIRONMENT_SKY_KEYS`), which takes ``rotate`` and ``intensity``
+    too.
+
+    Examples
+    --------
+    >>> parse_environment("probe.exr:rotate=90,intensity=2").rotate_deg
+    90.0
+    >>> parse_environment("sky:cct=5000,sun_elevation=30,type=overcast").sky
+    {'cct': 5000.0, 'sun_elevation_deg': 30.0, 'sky_type': 'overcast'}
+    """
+    text = text.strip()
+    low = text.lower()
+    if low == "sky" or low.startswith("sky:"):
+        source, options, is_file = None, text[4:], False
+    else:
+        cut = max(low.rfind(".exr"), low.rfind(".hdr"))
+        if cut < 0 or (len(text) > cut + 4 and text[cut + 4] != ":"):
+            raise UsageError(f"{where}: expected {_ENVIRONMENT_FORMS}, got {text!r}")
+        source, options, is_file = text[:cut + 4], text[cut + 5:], True
+        check_path_text(source, where)
+    items: dict[str, str] = {}
+    for part in filter(None, (p.strip() for p in options.split(","))):
+        key, eq, value = part.partition("=")
+        if not eq or not key.strip():
+            raise UsageError(f"{where}: options are KEY=VALUE separated by commas, got {part!r} in {text!r}")
+        items[key.strip().lower()] = value.strip()
+    sky, rotate, intensity = _environment_options(items, is_file, where)
+    return EnvironmentSpec(Path(source) if source else None, sky, rotate, intensity)
 
 
 #: Most triangles a procedural object may ask for: the renderer needs about 0.6 GB for a
@@ -366,11 +464,14 @@ def load_scene_file(path: str | Path) -> SceneSpec:
     """
     path = Path(path)
     data = _read_toml(path)
-    _check_keys(data, {"render", "camera", "sky", "light", "object"}, str(path))
+    _check_keys(data, {"render", "camera", "sky", "light", "object", "environment"}, str(path))
     spec = SceneSpec()
     _read_render(spec, _table(data, "render", path), path)
     spec.camera = _read_camera(_table(data, "camera", path), path)
     spec.sky = _read_sky(_table(data, "sky", path), path)
+    spec.sky_given = "sky" in data
+    if "environment" in data:
+        spec.environment = _read_environment(_table(data, "environment", path), path)
     spec.lights.extend(_read_lights(_tables(data, "light", path), path))
     spec.objects.extend(_read_objects(_tables(data, "object", path), path))
     return spec
@@ -400,7 +501,7 @@ def _read_toml(path: Path) -> dict[str, Any]:
 def _read_render(spec: SceneSpec, render: dict[str, Any], path: Path) -> None:
     """The ``[render]`` table into ``spec``: size, preset, illuminant."""
     where = f"{path} [render]"
-    _check_keys(render, {"size", "preset", "illuminant"}, where)
+    _check_keys(render, {"size", "preset", "illuminant", "environment_samples"}, where)
     size = _string(render, "size", where)
     if size is not None:
         try:
@@ -409,6 +510,10 @@ def _read_render(spec: SceneSpec, render: dict[str, Any], path: Path) -> None:
             raise UsageError(f"{where} size: {str(exc).removeprefix('--size: ')}") from None
     spec.preset = _string(render, "preset", where, spec.preset, PRESET_NAMES)
     spec.illuminant = _string(render, "illuminant", where, spec.illuminant)
+    samples = _whole(render, "environment_samples", where, 0, 4096)
+    if samples == 1:
+        raise UsageError(f"{where} environment_samples: expected 0 (prefiltered map) or 2 to 4096, got 1")
+    spec.environment_samples = samples
 
 
 def _read_camera(cam: dict[str, Any], path: Path) -> CameraSpec:
@@ -433,6 +538,27 @@ def _read_sky(sky: dict[str, Any], path: Path) -> SkySpec:
         horizon=_number(sky, "horizon", where, 0.6, low=0.0),
         spectrum=_string(sky, "spectrum", where),
     )
+
+
+def _read_environment(env: dict[str, Any], path: Path) -> EnvironmentSpec:
+    """The ``[environment]`` table: ``file`` (relative to the scene file) or an ``[environment.sky]`` table."""
+    where = f"{path} [environment]"
+    _check_keys(env, {"file", "sky", "rotate", "intensity"}, where)
+    if ("file" in env) == ("sky" in env):
+        raise UsageError(f"{where}: give exactly one of 'file' (an .exr or .hdr map) or a [environment.sky] table")
+    common = {k: env[k] for k in ("rotate", "intensity") if k in env}
+    if "file" in env:
+        name = _string(env, "file", where)
+        check_path_text(name, f"{where} file")
+        if Path(name).suffix.lower() not in (".exr", ".hdr"):
+            raise UsageError(f"{where} file: expected an .exr or .hdr environment map, got {name!r}")
+        _, rotate, intensity = _environment_options(common, True, where)
+        return EnvironmentSpec(path.parent / name, {}, rotate, intensity)
+    sky = env["sky"]
+    if not isinstance(sky, dict):
+        raise UsageError(f"{where} sky: expected a table of sky settings ([environment.sky]), got {sky!r} ({_kind(sky)})")
+    options, rotate, intensity = _environment_options({**sky, **common}, False, f"{where}")
+    return EnvironmentSpec(None, options, rotate, intensity)
 
 
 def _read_lights(lights: list[dict[str, Any]], path: Path) -> list[LightSpec]:

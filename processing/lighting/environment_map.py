@@ -25,8 +25,10 @@ Files: OpenEXR (``.exr``, float RGB, linear) and Radiance (``.hdr``).
 :func:`write_environment` stores linear sRGB in the RGB channels (any
 viewer shows the map) and the spectral basis matched to those channels in
 the header attribute ``kogeiSpectralBasis`` (JSON: ``wavelengths_nm`` and
-three rows ``basis``); :func:`read_environment` uses that basis when the
-attribute is there and Mallett-Yuksel upsampling otherwise.
+three rows ``basis``; a map with colours outside sRGB stores its own
+coefficients and basis instead, ``channels: "coefficients"``);
+:func:`read_environment` uses that basis when the attribute is there and
+Mallett-Yuksel upsampling otherwise.
 
 References
 ----------
@@ -375,7 +377,8 @@ def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
 
     try:
         with OpenEXR.File(str(path)) as f:
-            header = f.header()
+            # the header's attributes are copied while the file is open: closing it empties the dict
+            raw = f.header().get(HEADER_KEY)
             channels = f.channels()
             if "RGB" in channels:
                 rgb = np.asarray(channels["RGB"].pixels, dtype=np.float32)
@@ -393,7 +396,6 @@ def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
         raise EnvironmentMapError(f"{path}: not a readable OpenEXR file ({exc}); "
                                   "export the map again as .exr or .hdr") from None
     meta = None
-    raw = header.get(HEADER_KEY)
     if raw is not None:
         try:
             meta = json.loads(raw if isinstance(raw, str) else raw.decode())
@@ -468,7 +470,10 @@ def write_environment(path: str | os.PathLike[str], env: EnvironmentMap) -> Path
 
     The RGB channels are the map's linear sRGB (any viewer shows it); the
     header's basis ``B'`` satisfies ``rgb @ B' = coefficients @ basis``, so
-    :func:`read_environment` gives back the same spectra.  The map's
+    :func:`read_environment` gives back the same spectra.  A map with colours
+    outside sRGB (negative sRGB somewhere) is stored as its own coefficients
+    and basis instead (header ``channels``: ``"coefficients"``), which
+    kogei reads back exactly.  The map's
     intensity is applied; its rotation is not (it is a viewing setting).
 
     Parameters
@@ -501,7 +506,16 @@ def write_environment(path: str | os.PathLike[str], env: EnvironmentMap) -> Path
                                   "it cannot be stored as RGB")
     rgb = env.to_linear_srgb()
     basis_rgb = np.linalg.solve(m, env.basis)                            # rgb @ B' = c @ B
-    meta = {"wavelengths_nm": env.grid.wavelengths.tolist(), "basis": basis_rgb.tolist(), "source": env.source}
+    channels = "linear sRGB"
+    if float(rgb.min()) < 0.0:
+        # colours outside sRGB (a saturated wall in a probe) have negative sRGB, which no reader accepts as
+        # radiance: store the map's own non-negative coefficients and basis instead (kogei reads them exactly;
+        # other viewers show them as if they were sRGB)
+        rgb = (env.intensity * env.coefficients).astype(np.float32)
+        basis_rgb = env.basis
+        channels = "coefficients"
+    meta = {"wavelengths_nm": env.grid.wavelengths.tolist(), "basis": basis_rgb.tolist(), "source": env.source,
+            "channels": channels}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, HEADER_KEY: json.dumps(meta)}
     with OpenEXR.File(header, {"RGB": np.ascontiguousarray(rgb)}) as f:
         f.write(str(p))

@@ -73,3 +73,18 @@ def test_the_sphere_world_prints_the_scanner_calibration_scan():
     assert _next_command(sphere, plan) == "kogei calibrate calibration-session --sphere-radius 20"
     hawk_then = _next_command(World.hawk(2000), None)
     assert hawk_then.startswith("kogei process kogei-session --calibration calibration-session")
+
+
+def test_probe_world_and_its_printed_commands():
+    """kogei mock --world probe[:R] builds the lit room with the chrome ball and suggests the probe plan."""
+    from app.cli.mock import _calibration_plan, _next_command, capture_commands
+    from mocks.probe_world import ProbeWorld
+
+    w = _build_world(_args("--world", "probe:15"))
+    assert isinstance(w, ProbeWorld) and w.sphere_radius_mm == 15.0 and w.shows_chart
+    plan = _calibration_plan(w)
+    info = {"turntable": "/s/t", "profiler": "/s/p", "gphoto2": "/s/g", "hotfolder": "/s/h", "control": "/s/c"}
+    assert "--plan probe --sphere-radius 15" in capture_commands(info, plan=plan)["gphoto2"]
+    assert _next_command(w, plan).startswith("kogei probe probe-session")
+    with pytest.raises(UsageError, match="RADIUS_MM"):
+        _build_world(_args("--world", "probe:big"))

@@ -53,6 +53,8 @@ def test_shot_shows_the_chart_its_patches_and_the_clipping(qtbot, tmp_path):
     assert f"{100 * clipped:.2f}% of the pixels are clipped" in w.camera.clip_warning.text()
     if view.chart is not None:
         assert view.qualities[18] == "clipped"
+        # the chart's own patches are clipped: a warning that names them (not the note about object highlights)
+        assert w.camera.clip_level == "warn" and "19" in w.camera.clip_warning.text().split("among them")[0]
     else:                                          # or the chart cannot be found at all in a blown-out frame
         assert view.chart_problem
 

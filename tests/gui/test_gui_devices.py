@@ -89,7 +89,7 @@ def test_unplug_mid_pass_recovered_then_lost_then_resumed(qtbot, tmp_path, refer
     qtbot.mouseClick(w.capture.start, LEFT)
     wait_capture(qtbot, w, timeout_s=60)
     assert w.capture.status_text == "complete", w.error_line.text()
-    assert f"{held} already held" in w.capture.action.text()
+    assert f"{held} kept from before the interruption" in w.capture.action.text()
     assert Session.read(tmp_path / "s")["status"] == "complete"
     same_profiles([load_pass_profiles(tmp_path / "s", p) for p in range(1, PASSES + 1)], reference)
 

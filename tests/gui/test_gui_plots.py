@@ -110,3 +110,50 @@ def test_figures_of_nothing_draw_without_warnings():
         for build, data in cases:
             rgba = draw_figure(build, data, 320, 240)
             assert rgba.shape == (240, 320, 4) and rgba[..., :3].std() > 0     # drawn, not blank
+
+
+def test_a_plot_is_redrawn_at_any_new_size_and_scaled_never_cropped_meanwhile(qtbot, drawer):
+    """A change of height alone (an error line appearing) redraws the figure at the new size, once, after the
+    debounce; until then, and below the smallest drawing size, the bitmap shown fits inside the widget."""
+    from app.gui.plots import MIN_DRAW_SIZE, PlotImage
+
+    plot = PlotImage(drawer)
+    qtbot.addWidget(plot)
+    plot.resize(500, 400)
+    plot.show()
+    plot.plot(profile_figure, **_profile_data())
+    qtbot.waitUntil(lambda: plot.draws == 1 and not plot.busy, timeout=30_000)
+    qtbot.wait(2 * PlotImage.RESIZE_DEBOUNCE_MS)
+    assert plot.rgba.shape[:2] == (400, 500)
+    draws = plot.draws
+    for h in (390, 380, 370):                  # a few small steps: the old rule (width off by > 40 px) ignored all
+        plot.resize(500, h)
+        pix = plot.pixmap()
+        assert pix.width() <= plot.width() and pix.height() <= plot.height()      # scaled, not cropped
+    qtbot.waitUntil(lambda: plot.draws > draws and not plot.busy, timeout=30_000)
+    qtbot.wait(2 * PlotImage.RESIZE_DEBOUNCE_MS)
+    assert plot.rgba.shape[:2] == (370, 500) and plot.draws == draws + 1          # debounced: one redraw
+    plot.resize(280, 210)                        # below the smallest drawing: drawn at it, shown scaled down
+    qtbot.waitUntil(lambda: plot.rgba.shape[:2] == MIN_DRAW_SIZE[::-1] and not plot.busy, timeout=30_000)
+    pix = plot.pixmap()
+    assert (plot.width(), plot.height()) == (280, 210)
+    assert pix.width() <= 280 and pix.height() <= 210 and plot.scale < 1
+
+
+def test_a_finished_jobs_result_is_not_lost_when_another_job_is_queued_before_it_is_handled(qtbot):
+    """A job is done on its pool thread before the window handles its queued result; queueing another job in
+    between must not drop the first one (and its result) from the lane."""
+    import gc
+
+    from app.gui.workers import Lane
+
+    lane = Lane(2)
+    got = []
+    lane.run(lambda ctx: 41, "first", succeeded=got.append)
+    assert lane.wait(10_000)                       # done on its thread; its result is still queued
+    lane.run(lambda ctx: 42, "second", succeeded=got.append)
+    assert lane.wait(10_000)
+    gc.collect()
+    assert lane.busy                               # results not handled yet
+    qtbot.waitUntil(lambda: not lane.busy, timeout=10_000)
+    assert sorted(got) == [41, 42]

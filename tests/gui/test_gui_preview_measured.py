@@ -35,8 +35,8 @@ def test_preview_renders_the_measured_object_and_plots_a_clicked_region(qtbot, t
     w = make_window(qtbot, tmp_path)
     w.session.open_session(str(root))
     w.tabs.setCurrentWidget(w.preview)
-    w.preview.mesh_changed()
-    assert w.preview.material.currentText() == MEASURED
+    # opening the session is enough: the Preview takes its mesh (no "no mesh yet" beside a "mesh ready")
+    assert w.preview.material.currentText() == MEASURED and w.preview.object_mesh is not None
     qtbot.waitUntil(lambda: w.preview.last_kind == "final" and not w.preview._busy, timeout=120_000)
     img, mask = w.preview.last["srgb8"], w.preview.last["mask"] > 0.99
     assert img.std() > 5 and mask.mean() > 0.05

@@ -217,3 +217,30 @@ def test_full_simulated_session_through_the_window(qtbot, tmp_path, calibration,
     assert stalls["own_max_ms"] < 100.0, stalls
     assert stalls["busy_max_ms"] < 100.0, stalls
     assert stalls["p99_ms"] < 100.0, stalls
+
+
+def test_report_folder_and_export_buttons(qtbot, tmp_path):
+    """Make report writes the session's report (the same file as kogei report) and opens it; Open session folder
+    opens the folder; Export on a session whose materials were not measured says so, in the window."""
+    from PySide6.QtCore import Qt
+
+    from mocks.world import World
+    from tests.gui.helpers import library_capture, make_window
+
+    library_capture(World.hawk(2000), tmp_path, steps=8, passes=1, seed=3)
+    w = make_window(qtbot, tmp_path)
+    opened = []
+    w.session.opener = opened.append
+    w.session.folder.setText(str(tmp_path / "s"))
+    qtbot.mouseClick(w.session.open_button, Qt.MouseButton.LeftButton)
+    qtbot.mouseClick(w.session.folder_button, Qt.MouseButton.LeftButton)
+    assert [u.toLocalFile() for u in opened] == [str(tmp_path / "s")]
+    qtbot.mouseClick(w.session.report_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: len(opened) == 2, timeout=120_000)
+    report = tmp_path / "s" / "products" / "report.html"
+    assert opened[1].toLocalFile() == str(report) and report.stat().st_size > 1000
+    assert "<html" in report.read_text(encoding="utf-8").lower() and w.message_kind == "info"
+    w.session.export_to(tmp_path / "object.glb")
+    qtbot.waitUntil(lambda: w.message_kind == "error", timeout=60_000)
+    assert w.error_line.text().startswith("export:") and "Traceback" not in w.error_line.text()
+    assert not (tmp_path / "object.glb").exists()

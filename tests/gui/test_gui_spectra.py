@@ -110,3 +110,78 @@ def test_click_gives_spectrum_and_material_and_the_map_covers_the_sphere(qtbot, 
     labels_clipped, _ = material_map(dataclasses.replace(scene, rgb=np.where(block[..., None], 1.0, scene.rgb),
                                                          clipped=block), 6)
     assert not labels_clipped[block].any() and labels_clipped[~block].any()
+
+
+def test_dark_and_backdrop_clicks_are_refused_the_map_says_what_it_judged_and_the_catalogue_restricts(qtbot,
+                                                                                                      tmp_path):
+    """Nothing is named where nothing can be measured; the map reports its coverage of the object; the
+    session's catalogued materials become the candidates, and a catalogue that leaves out the true material
+    gets "no candidate fits" through the confidence rule rather than a confident wrong name.
+
+    Ground truth: the sphere is red lacquer (urushi-red); the backdrop's reflectance is 0.05
+    (:data:`mocks.world.BACKDROP_REFLECTANCE`) and the simulated world's labels give the sphere's pixels."""
+    from app.gui.spectra_panel import MIN_SIGNAL, map_coverage
+
+    world = World.calibration_sphere(40.0, 0.0, width=600, height=400, chart_layout="classic24")
+    w, _ = station_window(qtbot, tmp_path, camera=True, world=world, seed=4, n_points=96)
+    w.session.folder.setText(str(tmp_path / "s"))
+    w.session.meta_edits["materials"].setText("urushi, gold")
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    w.capture.steps.setValue(4)
+    w.capture.passes.setValue(1)
+    w.capture.camera_angles.setText("0")
+    qtbot.mouseClick(w.capture.start, LEFT)
+    wait_capture(qtbot, w, timeout_s=120)
+    truth = world.frame("object", 0.0)
+    w.tabs.setCurrentWidget(w.spectra)
+    qtbot.mouseClick(w.spectra.list_button, LEFT)
+    qtbot.mouseClick(w.spectra.load_button, LEFT)
+    qtbot.waitUntil(lambda: w.spectra.scene is not None, timeout=60_000)
+    scene = w.spectra.scene
+
+    # the frame's corner is the backdrop: refused with the reason, nothing named
+    w.spectra.pick(2, 2)
+    qtbot.waitUntil(lambda: "spectrum:" in w.error_line.text(), timeout=30_000)
+    assert "is the backdrop, not the object" in w.error_line.text() and w.spectra.last is None
+    assert w.spectra.state.text().startswith("not measured:")
+    # the sphere's unlit side: too dark to have a colour (the 5 x 5 pixels around the click below 2 %)
+    green = ndimage.uniform_filter(scene.rgb[..., 1], 5)
+    dark = np.argwhere((green < 0.8 * MIN_SIGNAL) & ~scene.backdrop)
+    assert len(dark), "the simulated sphere has an unlit side"
+    dy, dx = dark[len(dark) // 2]
+    w.error_line.setText("")
+    w.spectra.pick(int(dx), int(dy))
+    qtbot.waitUntil(lambda: "spectrum:" in w.error_line.text(), timeout=30_000)
+    assert "too dark to measure a colour" in w.error_line.text() and w.spectra.last is None
+
+    # the map: how much of the object was judged, and the parts left out, add up to the object
+    qtbot.mouseClick(w.spectra.map_button, LEFT)
+    qtbot.waitUntil(lambda: w.spectra.map is not None, timeout=60_000)
+    cov = map_coverage(scene, w.spectra.map[0])
+    assert cov["judged"] + cov["dark"] + cov["clipped"] + cov["sparse"] == cov["object"] > 0
+    sphere = int((truth.labels == 0)[::2, ::2].sum())
+    assert cov["judged"] <= cov["object"] and abs(cov["object"] - sphere) < 0.5 * sphere   # the object ~ the sphere
+    assert f"judged {100 * cov['judged'] / cov['object']:.0f}% of the object" in w.spectra.state.text()
+
+    # the catalogue "urushi, gold": three candidates; the sphere is still the red lacquer
+    depth = ndimage.distance_transform_edt(truth.labels == 0)
+    y, x = np.unravel_index(np.argmax(depth), depth.shape)
+    w.spectra.only_catalogued.setChecked(True)                 # recalibrates with the catalogued candidates
+    assert w.spectra.candidates_label.text() == "candidates: urushi-black, urushi-red, gold"
+    qtbot.waitUntil(lambda: w.spectra.scene is not scene and w.spectra.scene is not None, timeout=60_000)
+    assert list(w.spectra.scene.candidates.names) == ["urushi-black", "urushi-red", "gold"]
+    w.spectra.pick(int(x) // 2, int(y) // 2)
+    qtbot.waitUntil(lambda: w.spectra.last is not None, timeout=30_000)
+    assert w.spectra.last["identification"].material == "urushi-red"
+
+    # a catalogue without the lacquer: the red sphere fits none of silver, tin, aluminium -- said so
+    w.session.meta_edits["materials"].setText("silver, tin, aluminium")
+    w.spectra.only_catalogued.setChecked(False)
+    w.spectra.only_catalogued.setChecked(True)
+    last_scene = w.spectra.scene
+    qtbot.waitUntil(lambda: w.spectra.scene is not last_scene and not w.work_lane.busy, timeout=60_000)
+    w.spectra.pick(int(x) // 2, int(y) // 2)
+    qtbot.waitUntil(lambda: w.spectra.last is not None, timeout=30_000)
+    assert list(w.spectra.scene.candidates.names) == ["silver", "tin", "aluminium"], w.spectra.candidates_label.text()
+    assert w.spectra.last["identification"].material == "no candidate fits", w.spectra.state.text()
+    assert "no candidate fits" in w.spectra.state.text()

@@ -39,6 +39,8 @@ def test_pause_abort_reopen_and_resume(qtbot, tmp_path):
     qtbot.waitUntil(lambda: w.capture.progress.value() >= 5, timeout=10_000)
     qtbot.mouseClick(w.capture.pause, LEFT)
     assert w.capture.pause.text().startswith("Continue")
+    assert w.capture.status_text == "paused" and not w.capture.paused_label.isHidden()   # a visible PAUSED state
+    assert w.capture.paused_label.text().startswith("PAUSED")
     qtbot.wait(300)                                   # the step in flight ends, then the capture holds
     held = w.capture.progress.value()
     qtbot.wait(500)
@@ -48,6 +50,10 @@ def test_pause_abort_reopen_and_resume(qtbot, tmp_path):
     qtbot.mouseClick(w.capture.abort, LEFT)
     wait_capture(qtbot, w, timeout_s=30, answer_prompts=False)
     assert w.capture.status_text == "cancelled"
+    # the user's own stop is information, and the window's way to resume is Start, not a terminal command
+    assert w.message_kind == "info" and "press Start" in w.error_line.text()
+    assert "kogei capture" not in w.error_line.text() and "press Start to resume" in w.capture.action.text()
+    assert w.capture.paused_label.isHidden()
     m = Session.read(tmp_path / "s")
     assert m["status"] == "interrupted"
     taken = sum(1 for r in m["captures"].values() if r["kind"] == "profile")
@@ -72,7 +78,7 @@ def test_pause_abort_reopen_and_resume(qtbot, tmp_path):
     m = Session.read(tmp_path / "s")
     assert m["status"] == "complete"
     assert sum(1 for r in m["captures"].values() if r["kind"] == "profile") == 60
-    assert f"{taken} already held" in w2.capture.action.text()
+    assert f"{taken} kept from before the interruption" in w2.capture.action.text()
     w2.close()
     st.stop()
 
@@ -87,7 +93,7 @@ def test_cancel_processing_leaves_the_session_as_it_was(qtbot, tmp_path):
     assert w.processing.running and w.processing.cancel_button.isEnabled()
     qtbot.mouseClick(w.processing.cancel_button, LEFT)
     qtbot.waitUntil(lambda: not w.processing.running, timeout=10_000)
-    assert "cancelled by the user" in w.error_line.text()
+    assert "cancelled by the user" in w.error_line.text() and w.message_kind == "info"
     assert not w.processing.job._proc.is_alive()
     assert w.processing.run_button.isEnabled() and w.processing.report is None
     assert (tmp_path / "s" / "session.json").read_bytes() == before
@@ -96,6 +102,9 @@ def test_cancel_processing_leaves_the_session_as_it_was(qtbot, tmp_path):
     qtbot.mouseClick(w.processing.run_button, LEFT)
     qtbot.waitUntil(lambda: not w.processing.running, timeout=60_000)
     assert "has no scanner calibration" in w.error_line.text() and "kogei calibrate" in w.error_line.text()
+    assert w.message_kind == "error"
+    w.tabs.setCurrentWidget(w.preview)              # the Processing tab's error is not left above another tab
+    assert w.error_line.isHidden() and w.message_kind == ""
 
 
 def test_the_devices_button_starts_a_simulated_station_without_blocking(qtbot, tmp_path):
@@ -108,3 +117,36 @@ def test_the_devices_button_starts_a_simulated_station_without_blocking(qtbot, t
     assert "already running" in w.error_line.text()
     w.devices.connect_all()
     qtbot.waitUntil(lambda: w.link.states["turntable"] == "connected", timeout=10_000)
+
+
+def test_nothing_stale_across_an_aborted_and_resumed_capture_in_one_window(qtbot, tmp_path):
+    """The table line follows the turntable, the ETA starts afresh, and the turntable left disconnected by
+    the abort (so that resuming reads the board's position) is connected again when the resumed capture ends."""
+    w, st = _station_window(qtbot, tmp_path)
+    assert w.capture.position.text().startswith("table: connected")          # not "(connect the turntable)"
+    w.session.folder.setText(str(tmp_path / "s"))
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    w.capture.steps.setValue(30)
+    w.capture.passes.setValue(1)
+    qtbot.mouseClick(w.capture.start, LEFT)
+    assert w.capture.position.text() == "table: driven by the capture"
+    qtbot.waitUntil(lambda: not w.capture.prompt.isHidden(), timeout=10_000)
+    assert not w.capture.pause.isEnabled()                   # one Continue: the prompt's, while it waits
+    qtbot.mouseClick(w.capture.prompt_go, LEFT)
+    assert w.capture.pause.isEnabled()
+    qtbot.waitUntil(lambda: w.capture.progress.value() >= 5, timeout=10_000)
+    qtbot.waitUntil(lambda: w.capture.eta.text() != "ETA –", timeout=10_000)
+    qtbot.mouseClick(w.capture.abort, LEFT)
+    wait_capture(qtbot, w, timeout_s=30, answer_prompts=False)
+    assert w.capture.status_text == "cancelled"
+    assert w.capture.position.text() != "table: driven by the capture"
+    qtbot.waitUntil(lambda: w.link.states["turntable"] == "disconnected" and not w.link.lane.busy, timeout=10_000)
+
+    qtbot.mouseClick(w.capture.start, LEFT)                  # resume in the same window
+    assert w.capture.eta.text() == "ETA –"                   # not the aborted run's
+    wait_capture(qtbot, w, timeout_s=60)
+    assert w.capture.status_text == "complete", w.error_line.text()
+    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")),
+                    timeout=10_000)
+    assert w.capture.position.text().startswith("table: connected")
+    assert sum(1 for r in Session.read(tmp_path / "s")["captures"].values() if r["kind"] == "profile") == 30

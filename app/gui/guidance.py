@@ -1,0 +1,165 @@
+"""Guidance for the window's user: where the session stands among the steps, and a verdict on each quality figure.
+
+:data:`STEPS` are the station's steps in order; :func:`current_step` says which
+one is next from what has been done, and :func:`step_hint` what to do there.
+The window shows them as a strip above the tabs (:class:`StepStrip`).
+
+Every quality figure the window shows gets a verdict -- ``pass``, ``warn`` or
+``fail`` -- with its thresholds and one line of explanation (:class:`Verdict`):
+
+* **Sphere calibration** (:func:`sphere_verdict`): the rms of the reference
+  sphere's points about the fitted sphere.  A calibration that is right leaves
+  only the profiler's range noise (50 um for the simulated profiler, 20-100 um
+  for line-profile sensors of this class); pass up to 0.1 mm, warn up to
+  0.25 mm (the mesh carries that error), fail above.
+* **Chart detection** (:func:`chart_verdict`): the share of the 24 patches
+  whose colour blob sits where the detected chart puts it.  Pass from 0.9 (at
+  most two patches off), warn from 0.6, fail below (the patches sampled may be
+  the wrong ones: mark the corners by hand).
+* **Pairwise registration** (:func:`registration_verdict`): the pair's rms
+  residual over the one expected from the clouds' own noise and spacing.
+  Pass up to 2x, warn up to 4x (a small misalignment or a moved object),
+  fail above or when the pair's check failed.
+
+Examples
+--------
+>>> sphere_verdict(0.062).level, sphere_verdict(0.18).level, sphere_verdict(0.4).level
+('pass', 'warn', 'fail')
+>>> registration_verdict(0.09, 0.03, verified=True).level
+'warn'
+>>> current_step({"devices": True, "calibrated": True, "session": True})
+'Capture'
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["STEPS", "Verdict", "chart_verdict", "current_step", "registration_verdict", "sphere_verdict",
+           "step_hint", "VERDICT_COLOURS", "describe"]
+
+#: The station's steps, in order.
+STEPS = ("Devices", "Calibrate", "Session", "Capture", "Process", "Materials", "Preview")
+
+#: Colour of each verdict.
+VERDICT_COLOURS = {"pass": "#2e9e44", "warn": "#b07800", "fail": "#d0312d"}
+
+_HINTS = {
+    "Devices": "connect the turntable and the profiler (Devices tab), or start a simulated station there",
+    "Calibrate": "scan the reference sphere in one pass, then 'Calibrate from the open session' (Processing tab)",
+    "Session": "name the object and press 'New session' (Session tab)",
+    "Capture": "press Start on the Capture tab and follow the prompts to re-place the object between passes",
+    "Process": "press 'Process the open session' (Processing tab): registration and the watertight mesh",
+    "Materials": "calibrate a frame with its chart and make the material map (Spectra and materials tab)",
+    "Preview": "render the mesh under the light you choose (Preview tab)",
+}
+
+
+def current_step(done: dict[str, bool]) -> str:
+    """The first step of :data:`STEPS` not done yet (``"Preview"`` when all are).
+
+    ``done`` holds, by key: ``devices`` (instruments connected), ``calibrated``
+    (a scanner calibration chosen), ``session`` (one open), ``captured`` (its
+    capture complete), ``processed`` (it has a mesh), ``materials`` (a material
+    map made or materials measured on the mesh).  A session already captured
+    needs no instruments.
+
+    Examples
+    --------
+    >>> current_step({})
+    'Devices'
+    >>> current_step({"session": True, "captured": True, "calibrated": True})
+    'Process'
+    """
+    if done.get("session") and done.get("captured"):
+        order = [("calibrated", "Calibrate"), ("processed", "Process"), ("materials", "Materials")]
+    else:
+        order = [("devices", "Devices"), ("calibrated", "Calibrate"), ("session", "Session"), ("captured", "Capture"),
+                 ("processed", "Process"), ("materials", "Materials")]
+    for key, step in order:
+        if not done.get(key):
+            return step
+    return "Preview"
+
+
+def step_hint(step: str) -> str:
+    """One line on what to do at ``step``.
+
+    >>> step_hint("Session")
+    "name the object and press 'New session' (Session tab)"
+    """
+    return _HINTS[step]
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A quality figure's verdict: ``level`` (pass / warn / fail), the figure as text, the thresholds and why."""
+
+    level: str
+    figure: str
+    thresholds: str
+    why: str
+
+    @property
+    def text(self) -> str:
+        """``"0.062 mm: pass"``-style one-liner."""
+        return f"{self.figure}: {self.level}"
+
+    @property
+    def tooltip(self) -> str:
+        """The thresholds and the explanation, for a tooltip."""
+        return f"{self.thresholds}. {self.why}"
+
+    def html(self) -> str:
+        """The verdict word, coloured."""
+        return f"<b style='color:{VERDICT_COLOURS[self.level]}'>{self.level.upper()}</b>"
+
+
+def _level(value: float, good: float, bad: float) -> str:
+    return "pass" if value <= good else "warn" if value <= bad else "fail"
+
+
+def sphere_verdict(rms_mm: float) -> Verdict:
+    """The reference sphere's residual rms after calibration (see the module docstring)."""
+    level = _level(rms_mm, 0.1, 0.25)
+    why = {"pass": "the sphere fits to the profiler's own noise: the calibration adds no visible error",
+           "warn": "the sphere fits worse than the profiler's noise: the mesh will carry this error; rescan the "
+                   "sphere if the scan was disturbed",
+           "fail": "the sphere does not fit: the sphere radius given or the scan is wrong; check the radius and "
+                   "rescan"}[level]
+    return Verdict(level, f"sphere residual rms {rms_mm:.3f} mm", "pass <= 0.10 mm, warn <= 0.25 mm, fail above",
+                   why)
+
+
+def chart_verdict(confidence: float, method: str = "mcc") -> Verdict:
+    """The chart detection's confidence (see the module docstring); corners marked by hand pass."""
+    if method == "manual":
+        return Verdict("pass", "chart placed from the marked corners", "pass: corners marked by hand",
+                       "the patches are where the four clicked corners put them")
+    level = "pass" if confidence >= 0.9 else "warn" if confidence >= 0.6 else "fail"
+    why = {"pass": "the patches found agree with the chart's layout",
+           "warn": "some patches were not found where the layout puts them: check the outline on the frame",
+           "fail": "most patches disagree with the layout: the colours sampled may be wrong; mark the corners by "
+                   "hand"}[level]
+    return Verdict(level, f"chart confidence {confidence:.2f}", "pass >= 0.90, warn >= 0.60, fail below", why)
+
+
+def registration_verdict(rmse_mm: float | None, expected_mm: float | None, verified: bool) -> Verdict:
+    """A registered pair's residual against the one its clouds' noise explains (see the module docstring)."""
+    thresholds = "pass <= 2x the expected residual, warn <= 4x, fail above or when the pair's check failed"
+    if rmse_mm is None or not verified:
+        return Verdict("fail", "not registered" if rmse_mm is None else f"rms {rmse_mm:.4f} mm, check failed",
+                       thresholds, "the passes are not aligned: use the manual 3-point registration")
+    ratio = rmse_mm / expected_mm if expected_mm else float("inf")
+    level = _level(ratio, 2.0, 4.0)
+    why = {"pass": "the passes agree to the scanner's noise",
+           "warn": "the passes agree less well than their noise allows: a small misalignment, or the object moved",
+           "fail": "the passes disagree: the alignment is wrong; use the manual 3-point registration"}[level]
+    return Verdict(level, f"{ratio:.1f}x the expected residual", thresholds, why)
+
+
+def describe(done: dict[str, Any]) -> str:
+    """The strip's line: the next step and what to do there."""
+    step = current_step(done)
+    return f"Next: {step} — {step_hint(step)}"

@@ -1,0 +1,330 @@
+"""A light probe: exposure brackets of a mirror sphere -> a spectral environment map in the room frame.
+
+:func:`build_probe` is the one chain ``kogei probe`` (and anything else that makes a probe) calls:
+
+1. **merge** the brackets into linear HDR camera RGB (:func:`processing.lighting.hdr_merge.merge_brackets`,
+   exposures from each file's shutter, aperture and ISO);
+2. **find the sphere** in the HDR image with the station's sphere finding
+   (:func:`processing.geometry.sphere_image.sphere_silhouette` and
+   :func:`processing.geometry.sphere_image.fit_sphere_centre`, as the lamp calibration does) and place it
+   with the station's camera calibration (intrinsics and ``room_to_camera``);
+3. **unwrap** it into an equirectangular map in the room frame, the caps toward and away from the camera
+   marked and filled (:func:`processing.lighting.probe_unwrap.unwrap_probe`);
+4. make it **spectral** with the chart shot in the same light: the chart frame's patches calibrate the
+   project's estimator (:func:`processing.spectral.estimation.estimator.fit_estimator`, the same setup as
+   :func:`app.workflows.spectral.estimator_setup`), whose linear map from camera RGB to spectra becomes the
+   map's basis (:func:`processing.lighting.probe_spectral.probe_environment`).
+
+:func:`write_probe` writes the map as OpenEXR (:func:`processing.lighting.environment_map.write_environment`)
+and a JSON report next to it (``probe.json`` for ``probe.exr``).  The inputs are RAW files, a folder of RAW
+files, or a session captured with ``kogei capture --plan probe`` (its brackets and chart frame).
+docs/lighting.md describes the capture and each step's cost and error.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.errors import UsageError
+
+__all__ = ["ProbeResult", "ProbeInputs", "probe_inputs", "build_probe", "write_probe", "RAW_SUFFIXES",
+           "MAX_OUTLINE_RMS_PX", "FIND_WIDTH_PX", "record_probe", "PROBE_FILE", "PROBE_REPORT_FILE"]
+
+#: File name endings taken as RAW frames in a folder.
+RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2")
+#: A sphere outline fitting worse than this (px RMS) is not the probe sphere of the given radius.
+MAX_OUTLINE_RMS_PX = 1.0
+#: The sphere is found on the HDR image binned to at most this width (px).
+FIND_WIDTH_PX = 2000
+#: Where a probe session keeps its map and the map's report (``products.probe``, ``products.probe_report``).
+PROBE_FILE = "products/probe.exr"
+PROBE_REPORT_FILE = "products/probe.json"
+
+
+@dataclass
+class ProbeInputs:
+    """The brackets, the chart frame and the camera calibration a probe is made from."""
+
+    frames: list[Path]
+    chart: Path | None
+    camera_calibration: Any = None
+    sphere_radius_mm: float | None = None
+    source: str = ""
+    session: Path | None = None       # the probe session the frames came from, if any
+
+
+@dataclass
+class ProbeResult:
+    """A probe and how it was made.
+
+    Attributes
+    ----------
+    environment
+        The spectral map (:class:`processing.lighting.environment_map.EnvironmentMap`).
+    observed
+        ``(H, 2H)`` bool: directions seen on the sphere.
+    report
+        JSON-ready figures: frames and their settings, the sphere, the masked caps, the chart
+        calibration, timings.
+    """
+
+    environment: Any
+    observed: np.ndarray = field(repr=False)
+    report: dict[str, Any] = field(default_factory=dict)
+
+
+def _raw_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in RAW_SUFFIXES)
+
+
+def probe_inputs(sources: Sequence[str | os.PathLike[str]], *, chart: str | None = None,
+                 camera_calibration: str | None = None, sphere_radius_mm: float | None = None) -> ProbeInputs:
+    """The probe's inputs from the command line's SESSION_OR_FRAMES and options.
+
+    A session folder (``session.json``) of a ``probe`` plan gives its brackets, its chart frame, its
+    sphere radius and, when installed, its camera calibration; any folder else gives its RAW files;
+    files are the brackets themselves.  ``chart``, ``camera_calibration`` and ``sphere_radius_mm``
+    override the session's.
+    """
+    from app.workflows.station_calibration import load_station_source, parse_station_calibration
+
+    paths = [Path(s) for s in sources]
+    if not paths:
+        raise UsageError("give the brackets' RAW files, a folder of them or a probe session")
+    inputs = ProbeInputs([], None, None, sphere_radius_mm, ", ".join(str(p) for p in paths))
+    if len(paths) == 1 and paths[0].is_dir():
+        if (paths[0] / "session.json").is_file():
+            inputs = _session_inputs(paths[0], sphere_radius_mm)
+        else:
+            inputs.frames = [p for p in _raw_files(paths[0]) if chart is None or p.resolve() != Path(chart).resolve()]
+            if not inputs.frames:
+                raise UsageError(f"{paths[0]}: no RAW files ({', '.join(RAW_SUFFIXES)}) in this folder")
+    else:
+        for p in paths:
+            if not p.is_file():
+                raise UsageError(f"{p}: no such RAW file; give the brackets' files, a folder of them or a session")
+        inputs.frames = paths
+    if chart is not None:
+        inputs.chart = Path(chart)
+    if camera_calibration is not None:
+        data = load_station_source(camera_calibration, "camera_calibration")
+        inputs.camera_calibration = parse_station_calibration("camera_calibration", data,
+                                                              f"--camera-calibration {camera_calibration}")
+    if inputs.chart is None:
+        raise UsageError(f"{inputs.source}: no chart frame; give --chart RAW (the colour chart shot in the same "
+                         "light) so the probe can be made spectral")
+    if inputs.camera_calibration is None:
+        raise UsageError(f"{inputs.source}: no camera calibration; give --camera-calibration BOARD_SESSION (or its "
+                         "camera_calibration.json) so the sphere can be placed in the room")
+    if inputs.camera_calibration.room_to_camera is None:
+        raise UsageError(f"--camera-calibration {camera_calibration}: the camera is not tied to the room (scanner) "
+                         "frame; calibrate it with --scanner SPHERE_SESSION")
+    if inputs.sphere_radius_mm is None:
+        raise UsageError(f"{inputs.source}: give the mirror sphere's radius with --sphere-radius MM")
+    r = inputs.sphere_radius_mm
+    if isinstance(r, bool) or not isinstance(r, (int, float)) or not (math.isfinite(r) and r > 0):
+        raise UsageError(f"--sphere-radius must be the mirror sphere's radius in mm (> 0), got {r!r}")
+    return inputs
+
+
+def _session_inputs(root: Path, sphere_radius_mm: float | None) -> ProbeInputs:
+    """A ``probe`` session's brackets, chart frame, sphere radius and camera calibration."""
+    from app.session import Session, SessionError
+    from app.session_paths import confined_file
+    from app.workflows.station_calibration import session_camera_calibration
+
+    try:
+        manifest = Session.read(root)
+    except SessionError as exc:
+        raise UsageError(str(exc)) from None
+    plan = manifest.get("plan") or {}
+    if plan.get("kind") != "probe":
+        raise UsageError(f"session {root} is a {plan.get('kind')!r} capture, not a probe; capture the mirror sphere "
+                         "with 'kogei capture --plan probe'")
+    frames, chart = [], None
+    for cid, rec in sorted((manifest.get("captures") or {}).items()):
+        if not isinstance(rec, dict) or rec.get("status") != "done":
+            continue
+        try:
+            path = confined_file(root, rec.get("file"), f"captures.{cid}.file")
+        except FileNotFoundError:
+            raise UsageError(f"session {root}: {rec.get('file')} ({cid}) is missing; capture the probe again") from None
+        if rec.get("kind") == "chart":
+            chart = path
+        elif rec.get("kind") == "frame":
+            frames.append(path)
+    if not frames:
+        raise UsageError(f"session {root} has no bracket frames; capture them with 'kogei capture --plan probe'")
+    radius = sphere_radius_mm if sphere_radius_mm is not None else plan.get("sphere_radius_mm")
+    return ProbeInputs(frames, chart, session_camera_calibration(root, manifest), radius, str(root), root)
+
+
+def _find_sphere(hdr, calib, radius_mm: float, name: str) -> tuple[np.ndarray, float]:
+    """The sphere's centre (camera frame, mm) from its outline in the HDR image.
+
+    Found on the image binned by the smallest integer factor that brings it to at most
+    :data:`FIND_WIDTH_PX` wide (a 24-megapixel frame: 4, about 50 times less work), with the
+    calibration's intrinsics for that size.
+    """
+    import cv2
+
+    from processing.geometry.sphere_image import SphereImageError, fit_sphere_centre, sphere_silhouette
+
+    h, w = hdr.shape
+    b = next(f for f in range(1, w + 1) if w % f == 0 and h % f == 0 and (w // f <= FIND_WIDTH_PX or f == w))
+    img = hdr.rgb if b == 1 else cv2.resize(hdr.rgb, (w // b, h // b), interpolation=cv2.INTER_AREA)
+    try:
+        k, dist = calib.for_image_size(w // b, h // b)
+    except Exception as exc:  # noqa: BLE001 - CameraCalibrationError is the geometry domain's InputError
+        raise UsageError(f"{name}: {exc}") from None
+    try:
+        edge = sphere_silhouette(img, name=name)
+        centre, _, rms = fit_sphere_centre(edge, k, dist, radius_mm)
+    except SphereImageError as exc:
+        msg = str(exc)
+        raise UsageError(msg if name in msg else f"{name}: {msg}") from None
+    if rms > MAX_OUTLINE_RMS_PX:
+        raise UsageError(f"{name}: no probe sphere of radius {radius_mm:g} mm found (the outline found fits a sphere "
+                         f"with {rms:.2f} px RMS > {MAX_OUTLINE_RMS_PX:g} px); check --sphere-radius and that the "
+                         "sphere stands whole in front of a plain backdrop")
+    return centre, float(rms)
+
+
+def _chart_fit(chart: Path, *, light: str, method: str, chart_type: str, decode: str, f_number: float | None,
+               noise: float) -> tuple[Any, Any, dict[str, Any]]:
+    """The estimator calibrated by the chart frame, in the HDR image's units (exposure by its metadata)."""
+    from app.workflows.chart import measure_chart
+    from app.workflows.spectral import estimator_setup
+    from processing.camera.raw_decode import decode_raw
+    from processing.lighting.hdr_merge import exposure_scale, exposure_settings
+    from processing.spectral.estimation.estimator import fit_estimator
+    from processing.spectral.estimation.fit import SpectralEstimationError
+
+    setup = estimator_setup(light=light, chart_type=chart_type)
+    ch = measure_chart(chart, chart=chart_type, mode=decode)
+    scale = exposure_scale(*exposure_settings(decode_raw(chart, mode="bin2x2"), f_number))
+    rgb = ch.mean * scale
+    usable = ch.usable
+    try:
+        fit = fit_estimator(method, setup.training, setup.sensitivities, setup.lights[0], setup.grid, noise=noise,
+                            chart_rgb=rgb[usable], chart_reflectance=setup.reflectances[usable])
+    except SpectralEstimationError as exc:
+        raise UsageError(f"{chart}: {exc}") from None
+    est = fit.estimate_weights(rgb[usable]).astype(np.float64) @ fit.basis.T
+    info = {"chart": os.fspath(chart), "chart_type": chart_type, "light": light, "method": method,
+            "patches_used": int(usable.sum()), "chart_warnings": list(ch.warnings),
+            "chart_rmse": float(np.sqrt(np.mean((est - setup.reflectances[usable]) ** 2)))}
+    return fit, setup.lights[0], info
+
+
+def build_probe(inputs: ProbeInputs, *, light: str = "D65", method: str = "wiener", chart_type: str = "classic24",
+                decode: str = "demosaic", reflectance: float = 0.6, height: int | None = None,
+                f_number: float | None = None, camera_mask_deg: float = 12.0, back_mask_deg: float = 45.0,
+                noise: float = 0.01, message: Callable[[str], None] | None = None) -> ProbeResult:
+    """Merge, find the sphere, unwrap, make spectral (see the module).
+
+    Every bad input raises :class:`processing.errors.InputError` with a one-line message naming the file.
+    """
+    from processing.lighting.hdr_merge import merge_brackets
+    from processing.lighting.probe_spectral import probe_environment
+    from processing.lighting.probe_unwrap import unwrap_probe
+
+    note = message or (lambda text: None)
+    t0 = time.perf_counter()
+    fit, chart_light, chart_info = _chart_fit(inputs.chart, light=light, method=method, chart_type=chart_type,
+                                              decode=decode, f_number=f_number, noise=noise)
+    t1 = time.perf_counter()
+    hdr = merge_brackets(inputs.frames, mode=decode, f_number=f_number)
+    for line in hdr.notes:
+        note(line)
+    t2 = time.perf_counter()
+    name = f"{inputs.frames[0]} (HDR of {len(inputs.frames)} brackets)"
+    calib = inputs.camera_calibration
+    h_img, w_img = hdr.shape
+    try:
+        k, dist = calib.for_image_size(w_img, h_img)
+    except Exception as exc:  # noqa: BLE001 - CameraCalibrationError is the geometry domain's InputError
+        raise UsageError(f"{inputs.frames[0]}: {exc}") from None
+    centre, rms = _find_sphere(hdr, calib, float(inputs.sphere_radius_mm), name)
+    unwrap = unwrap_probe(hdr.rgb, centre, float(inputs.sphere_radius_mm), k, dist, calib.room_to_camera,
+                          height=height, reflectance=reflectance, camera_mask_deg=camera_mask_deg,
+                          back_mask_deg=back_mask_deg)
+    for line in unwrap.notes:
+        note(line)
+    t3 = time.perf_counter()
+    env = probe_environment(unwrap.rgb, fit, chart_light, source=f"probe {inputs.source}")
+    t4 = time.perf_counter()
+    lum = env.pixel_luminance()
+    report = {
+        "format": "kogei-probe", "version": 1,
+        "frames": [os.fspath(p) for p in inputs.frames],
+        "settings": [{"exposure_time_s": t, "f_number": n, "iso": s} for t, n, s in hdr.settings],
+        "decode": decode, "image_size": [w_img, h_img],
+        "saturated_everywhere_fraction": float(hdr.saturated.mean()),
+        "sphere": {"radius_mm": float(inputs.sphere_radius_mm), "centre_room_mm": unwrap.sphere_centre_mm.tolist(),
+                   "outline_rms_px": rms, "radius_px": unwrap.radius_px, "reflectance": reflectance},
+        "map": {"height": env.height, "width": env.width, "frame": "room (table at angle 0): z up, row 0 zenith",
+                "toward_camera": unwrap.toward_camera.tolist(), "camera_mask_deg": camera_mask_deg,
+                "back_mask_deg": back_mask_deg, "observed_fraction": float(unwrap.observed.mean()),
+                "luminance_max": float(lum.max()), "luminance_mean": float(
+                    (lum * env.solid_angles()).sum() / (env.solid_angles().sum() * env.width)),
+                "units": "luminance relative to a white diffuser where the chart lies"},
+        "spectral": chart_info,
+        "seconds": {"chart": t1 - t0, "merge": t2 - t1, "unwrap": t3 - t2, "spectral": t4 - t3},
+        "notes": hdr.notes + unwrap.notes,
+    }
+    return ProbeResult(env, unwrap.observed, report)
+
+
+def write_probe(result: ProbeResult, out: str | os.PathLike[str]) -> tuple[Path, Path]:
+    """Write the map (``.exr``) and its report (the same name, ``.json``); returns both paths."""
+    from processing.common.files import atomic_path
+    from processing.lighting.environment_map import write_environment
+
+    p = Path(out)
+    if p.suffix.lower() != ".exr":
+        raise UsageError(f"--out {p}: a probe is written as OpenEXR; give a file name ending in .exr")
+    if not p.parent.is_dir():
+        raise UsageError(f"--out {p}: the folder {p.parent} does not exist; create it first")
+    with atomic_path(p, durable=False, make_parents=False) as tmp:     # the temporary name ends in .exr too
+        write_environment(tmp, result.environment)
+    report_path = p.with_suffix(".json")
+    with atomic_path(report_path, durable=False, make_parents=False) as tmp:
+        tmp.write_text(json.dumps(result.report, indent=1), encoding="utf-8")
+    return p, report_path
+
+
+def record_probe(session_root: str | os.PathLike[str], result: ProbeResult) -> tuple[Path, Path]:
+    """Keep the probe in its session: :data:`PROBE_FILE` and :data:`PROBE_REPORT_FILE`, in the manifest.
+
+    The session report (``kogei report``) shows them.  Returns both paths.
+    """
+    import tempfile
+
+    from app.session import Session, SessionError
+    from processing.lighting.environment_map import write_environment
+
+    root = Path(session_root)
+    with tempfile.TemporaryDirectory(prefix="kogei-probe-") as tmp:
+        exr = write_environment(Path(tmp) / "probe.exr", result.environment).read_bytes()
+    report = json.dumps(result.report, indent=1).encode("utf-8")
+    try:
+        with Session.open(root) as session:
+            info = session.write_file(PROBE_FILE, exr)
+            rep = session.write_file(PROBE_REPORT_FILE, report)
+            products = dict(session.manifest.get("products") or {})
+            products["probe"] = {"file": info.path, "sha256": info.sha256, "bytes": info.bytes}
+            products["probe_report"] = {"file": rep.path, "sha256": rep.sha256, "bytes": rep.bytes}
+            session.update("products", products)
+    except SessionError as exc:
+        raise UsageError(f"{exc}; or give the brackets' files instead of the session") from None
+    return root / PROBE_FILE, root / PROBE_REPORT_FILE

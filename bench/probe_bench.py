@@ -1,0 +1,223 @@
+"""Cost and error of a light probe at a real camera's size: 7 brackets of 24 megapixels.
+
+The simulated chrome ball in the simulated room (:mod:`mocks.probe_world`) is photographed at
+6000 x 4000 (24 MP, RGGB 14-bit DNG) at the 7 exposure times of :data:`mocks.probe_world.BRACKET_TIMES_S`
+(2 EV apart, 1/4000 s to 1 s, f/8, ISO 100); the camera signal is computed without the spectral image
+(:meth:`mocks.probe_world.ProbeWorld.camera_signal`, which would need 6 GB).  The chart is shot in the
+same light at 960 x 640.  Then, each in a fresh process so its peak memory is its own:
+
+* ``merge-demosaic`` / ``merge-bin2x2``: :func:`processing.lighting.hdr_merge.merge_brackets` of the 7
+  frames (decoding included);
+* ``probe``: the whole :func:`app.workflows.light_probe.build_probe` (chart, merge, sphere finding, unwrap
+  to a 512 x 1024 map, spectral), and the map against the room's truth: per region (away from borders),
+  the median luminance ratio and the xy distance of the mean colour, and the solid-angle total.
+
+Run ``python -m bench.probe_bench`` (all cases; one JSON line) or ``--case NAME --dir DIR``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.common import machine_description, peak_rss_mb, run_case_subprocess
+
+__all__ = ["make_shots", "section", "main"]
+
+WIDTH, HEIGHT = 6000, 4000
+MAP_HEIGHT = 512
+
+
+def _world(width: int, height: int):
+    from mocks.probe_world import ProbeWorld
+
+    return ProbeWorld.probe(20.0, width=width, height=height)
+
+
+def make_shots(folder: Path) -> dict:
+    """Write the 24 MP brackets, the chart frame and the camera's calibration into ``folder``."""
+    from mocks.camera_sim import (
+        RawFrame,
+        SensorModel,
+        camera_sensitivities,
+        expose,
+        mosaic,
+        white_balance_neutral,
+        write_raw,
+        xyz_to_camera_matrix,
+    )
+    from mocks.probe_world import BRACKET_TIMES_S, PROBE_F_NUMBER, write_probe_shots
+    from processing.geometry.camera_calibration import CameraCalibration
+
+    folder.mkdir(parents=True, exist_ok=True)
+    small = _world(960, 640)
+    chart, _ = write_probe_shots(small, folder / "chart", times_s=())
+    world = _world(WIDTH, HEIGHT)
+    t0 = time.perf_counter()
+    signal = world.camera_signal(camera_sensitivities(world.grid))
+    render_s = time.perf_counter() - t0
+    sensor = SensorModel()
+    cfa = mosaic(signal, sensor.cfa_pattern).astype(np.float32)
+    del signal
+    frames = []
+    for i, t in enumerate(BRACKET_TIMES_S):
+        bayer, _ = expose(cfa, sensor, float(t), np.random.default_rng(i))
+        raw = RawFrame(bayer, sensor.black_level, sensor.white_level, sensor.cfa_pattern, float(t), sensor.iso,
+                       np.array(xyz_to_camera_matrix(world.grid)), white_balance_neutral(world.light_spectrum(),
+                                                                                         world.grid),
+                       np.zeros((1, 1)), f_number=PROBE_F_NUMBER)
+        frames.append(str(write_raw(folder / f"probe-{i + 1}.dng", raw)))
+    cal = CameraCalibration((WIDTH, HEIGHT), world.camera_intrinsics(), np.zeros(5), np.eye(4),
+                            room_to_camera=world.room_to_camera())
+    (folder / "camera_calibration.json").write_text(json.dumps(cal.to_dict()))
+    return {"frames": frames, "chart": str(chart), "render_s": render_s,
+            "file_mb": sum(os.path.getsize(f) for f in frames) / len(frames) / 1e6}
+
+
+def _frames(folder: Path) -> list[Path]:
+    return sorted(folder.glob("probe-*.dng"), key=lambda p: int(p.stem.split("-")[1]))
+
+
+def _cpu_s() -> float:
+    """CPU seconds (user + system) of this process so far: the work, whatever else shares the cores."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def case_merge(folder: Path, mode: str) -> dict:
+    from processing.lighting.hdr_merge import merge_brackets
+
+    frames = _frames(folder)
+    c0, t0 = _cpu_s(), time.perf_counter()
+    hdr = merge_brackets(frames, mode=mode)
+    seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
+    return {"case": f"merge-{mode}", "seconds": seconds, "cpu_s": cpu, "shape": list(hdr.shape),
+            "peak_rss_mb": peak_rss_mb(), "saturated_everywhere": float(hdr.saturated.mean()),
+            "load_average": os.getloadavg()[0]}
+
+
+def _region_errors(env, observed, world) -> dict:
+    from scipy.ndimage import binary_erosion
+
+    from mocks.probe_world import ROOM_REGIONS, region_labels
+    from processing.spectral.display import spectra_to_xyz
+
+    d = env.directions()
+    rec = spectra_to_xyz(env.spectral_radiance(d), env.grid)
+    truth = spectra_to_xyz(world.environment.spectral_radiance(d), world.grid) / world.chart_white_luminance()
+    labels = region_labels(env.height)
+
+    def xy(v):
+        return v[..., :2] / v.sum(axis=-1, keepdims=True)
+
+    rows = {}
+    for k, name in enumerate(ROOM_REGIONS):
+        m = binary_erosion(labels == k, iterations=2) & observed
+        if m.sum() < 10:
+            continue
+        rows[name] = {"luminance_ratio": float(np.median(rec[m][:, 1] / truth[m][:, 1])),
+                      "dxy": float(np.abs(xy(rec[m].mean(axis=0)) - xy(truth[m].mean(axis=0))).max()),
+                      "pixels": int(m.sum())}
+    w = env.solid_angles() * observed
+    return {"regions": rows, "total_luminance_ratio": float((rec[..., 1] * w).sum() / (truth[..., 1] * w).sum())}
+
+
+def case_probe(folder: Path) -> dict:
+    from app.workflows.light_probe import build_probe, probe_inputs
+
+    inputs = probe_inputs([str(p) for p in _frames(folder)], chart=str(folder / "chart" / "chart.dng"),
+                          camera_calibration=str(folder / "camera_calibration.json"), sphere_radius_mm=20.0)
+    c0, t0 = _cpu_s(), time.perf_counter()
+    result = build_probe(inputs, height=MAP_HEIGHT)
+    seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
+    errors = _region_errors(result.environment, result.observed, _world(96, 64))
+    return {"case": "probe", "seconds": seconds, "cpu_s": cpu, "load_average": os.getloadavg()[0], "steps_s": result.report["seconds"], "peak_rss_mb": peak_rss_mb(),
+            "radius_px": result.report["sphere"]["radius_px"], "observed": result.report["map"]["observed_fraction"],
+            "chart_rmse": result.report["spectral"]["chart_rmse"], **errors}
+
+
+def run_all() -> dict:
+    with tempfile.TemporaryDirectory(prefix="kogei-probe-bench-") as tmp:
+        made = run_case_subprocess("bench.probe_bench", "make", "--dir", tmp, timeout=3600)
+        out = {"machine": machine_description(), "size": [WIDTH, HEIGHT], **made,
+               "load_average": [os.getloadavg()[0]]}
+        for case in ("merge-demosaic", "merge-bin2x2", "probe"):
+            out[case] = run_case_subprocess("bench.probe_bench", case, "--dir", tmp, timeout=3600)
+        out["load_average"].append(os.getloadavg()[0])
+    return out
+
+
+def section(results: dict | None = None) -> list[str]:
+    """The Markdown section of docs/BENCHMARKS.md (runs the benchmark when no results are given)."""
+    r = results or run_all()
+    p = r["probe"]
+    lines = [
+        "## Light probe",
+        "",
+        f"7 brackets (1/4000 s to 1 s, 2 EV apart, f/8, ISO 100) of a chrome ball in the simulated room, "
+        f"{r['size'][0]} x {r['size'][1]} (24 MP) RGGB 14-bit DNGs of {r['file_mb']:.0f} MB (`bench/probe_bench.py`);",
+        "each case in a fresh process.  The merge includes decoding.  The probe is the whole chain (chart, merge,",
+        f"sphere, unwrap to {MAP_HEIGHT} x {2 * MAP_HEIGHT}, spectral); its map is compared with the room's truth",
+        "region by region (2 map rows from any border; the caps toward and away from the camera are not seen).",
+        "Targets: merge <= 20 s and <= 3 GB; luminance within 5 %, chromaticity (CIE 1931 xy) within 0.005.",
+        "",
+        f"Machine: {r['machine']}.  Load average (1 min) at the start and end: {r['load_average'][0]:.1f}, "
+        f"{r['load_average'][1]:.1f}.",
+        "",
+        "CPU time (user + system of the process) is the work itself; wall time grows with what else runs.",
+        "",
+        "| case | output | wall time (s) | CPU time (s) | peak RSS (MB) |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for name in ("merge-demosaic", "merge-bin2x2"):
+        c = r[name]
+        lines.append(f"| {name} | {c['shape'][1]} x {c['shape'][0]} x 3 float32 | **{c['seconds']:.1f}** | "
+                     f"{c['cpu_s']:.1f} | {c['peak_rss_mb']:.0f} |")
+    st = p["steps_s"]
+    lines.append(f"| probe (chart {st['chart']:.1f} s, merge {st['merge']:.1f} s, sphere + unwrap {st['unwrap']:.1f} s) "
+                 f"| {MAP_HEIGHT} x {2 * MAP_HEIGHT} map | **{p['seconds']:.1f}** | {p['cpu_s']:.1f} | "
+                 f"{p['peak_rss_mb']:.0f} |")
+    lines += [
+        "",
+        f"Ball radius {p['radius_px']:.0f} px; {100 * p['observed']:.0f} % of the directions seen; chart RMS "
+        f"reflectance error {p['chart_rmse']:.3f}; solid-angle total luminance ratio of the seen directions "
+        f"**{p['total_luminance_ratio']:.3f}**.",
+        "",
+        "| region | luminance ratio (median) | xy distance of the mean | map pixels |",
+        "|---|---:|---:|---:|",
+    ]
+    for name, row in p["regions"].items():
+        lines.append(f"| {name} | {row['luminance_ratio']:.3f} | {row['dxy']:.4f} | {row['pixels']} |")
+    lines.append("")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", default="all", choices=["all", "make", "merge-demosaic", "merge-bin2x2", "probe"])
+    ap.add_argument("--dir", default=None, help="the folder of the shots (cases other than all)")
+    args = ap.parse_args(argv)
+    if args.case == "all":
+        out = run_all()
+    elif args.dir is None:
+        sys.exit("--dir is needed for a single case")
+    elif args.case == "make":
+        out = make_shots(Path(args.dir))
+    elif args.case == "probe":
+        out = case_probe(Path(args.dir))
+    else:
+        out = case_merge(Path(args.dir), args.case.split("-", 1)[1])
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
