@@ -95,6 +95,26 @@ def _albedo_spectra_uncached(lobe: Lobe, cos_o: NDArray[np.float64], grid: Spect
     )
 
 
+def _geometry_cos(group, ci: NDArray[np.float32], co: NDArray[np.float32], ch: NDArray[np.float32],
+                  cd: NDArray[np.float32], tangential) -> NDArray[np.float32]:
+    """Geometry factor times cos_i of one non-mirror lobe group, evaluated everywhere (no cut-off).
+
+    Lambert: ``cos_i / pi``; anisotropic (cloth): the ellipsoid lobe, which needs ``tangential``
+    (i_t, i_b, o_t, o_b); otherwise the microfacet geometry.  The table backend's direct and
+    environment light share it.
+    """
+    if group.kind == "lambert":
+        return ci * _F32(1.0 / math.pi)
+    if group.kind == "anisotropic":
+        if tangential is None:
+            raise InputError("an anisotropic lobe needs the tangent frame of the hits")
+        s = anisotropic_lobe(ci, co, ch, cd, *tangential, group.roughness, group.roughness_b)
+    else:
+        s = microfacet_geometry(ci, co, ch, cd, group.roughness, group.shadowing)
+    s *= ci
+    return s
+
+
 class SpectralBackend:
     """Per-sample spectral evaluation; colours are spectral radiance ``(n, L)`` (float64).
 
@@ -586,12 +606,9 @@ class TableBackend:
                 out += table.lookup_channels(index=index) * (scale * (ci * _F32(1.0 / math.pi)))
                 continue
             if group.kind == "anisotropic":
-                if tangential is None:
-                    raise InputError("an anisotropic lobe needs the tangent frame of the hits")
                 if index is None:
                     index = table_index(cd, self.size)
-                s = anisotropic_lobe(ci, co, ch, cd, *tangential, group.roughness, group.roughness_b)
-                s *= ci
+                s = _geometry_cos(group, ci, co, ch, cd, tangential)
                 s *= scale
                 term = table.lookup_channels(index=index)
                 term *= s
@@ -706,15 +723,7 @@ class TableBackend:
         out = self.zeros(len(ci))
         index = table_index(cd, self.size)
         for group, table in zip(plan.sky_groups, self.env_tables[mat]):
-            if group.kind == "lambert":
-                g = ci * _F32(1.0 / math.pi)
-            elif group.kind == "anisotropic":
-                if tangential is None:
-                    raise InputError("an anisotropic lobe needs the tangent frame of the hits")
-                g = anisotropic_lobe(ci, co, ch, cd, *tangential, group.roughness, group.roughness_b) * ci
-            else:
-                g = microfacet_geometry(ci, co, ch, cd, group.roughness, group.shadowing) * ci
-            g = (g * scale).astype(_F32, copy=False)
+            g = (_geometry_cos(group, ci, co, ch, cd, tangential) * scale).astype(_F32, copy=False)
             stacked = table.lookup_channels(cd) if table.constant else table.lookup_channels(index=index)
             out += self._combine(stacked, coeff * g)
         return out
