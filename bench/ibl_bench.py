@@ -8,7 +8,10 @@ Cases (``python -m bench.ibl_bench --case NAME``, one JSON line each; ``bench/ru
     kogei (``standard``, and with more environment samples) and by Mitsuba 3
     (``scalar_spectral``, ``envmap`` emitter of the same map, ``roughconductor``
     with the same complex indices, a mesh with the same vertices and
-    normals, box-filtered pixels) at high spp.  The map is grey (R = G = B):
+    normals, box-filtered pixels) at high spp: the reference is the mean of
+    :data:`REFERENCE_SEEDS` renders of :data:`MITSUBA_SPP` spp with different
+    seeds, and the mean of half the seeds against the other half gives the
+    reference's own noise (that figure over 2).  The map is grey (R = G = B):
     Mitsuba's RGB upsampling and kogei's Mallett-Yuksel upsampling both give
     exactly D65 times the luminance, so the spectral handling is the same.
     The same comparison under one directional light (D65) is the baseline
@@ -17,7 +20,8 @@ Cases (``python -m bench.ibl_bench --case NAME``, one JSON line each; ``bench/ru
 ``speed``
     The procedural hawk at about 1M triangles, 1024 x 1024, gold without the
     mirror lobe: ``standard`` under the test map vs under one directional
-    light; ``draft`` at 640 x 480 under the map.
+    light; ``draft`` at 640 x 480 under the map, built afresh and re-rendered
+    with a :class:`render.renderer.GeometryCache` (an interactive view).
 ``trade``
     The gold sphere at 256 x 256: environment samples per hit and map
     height against time and delta E00 to the Mitsuba reference.
@@ -38,6 +42,7 @@ from bench.common import ROOT, peak_rss_mb
 
 SIZE = (256, 256)
 MITSUBA_SPP = 512
+REFERENCE_SEEDS = 8              # Mitsuba renders averaged into the reference of the map case
 MAP_HEIGHT = 256
 GOLD = "gold:roughness=0.2,gloss=1,mirror=0"
 EYE, TARGET, UP, FOV = (0.0, -4.2, 1.3), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 30.0
@@ -232,6 +237,12 @@ def _interior(mask: np.ndarray) -> np.ndarray:
     return binary_erosion(mask >= 1.0, iterations=2)
 
 
+def averaged_reference(seeds: range) -> tuple[np.ndarray, float]:
+    """Mean of the cached (or rendered) Mitsuba map renders with ``seeds``, and their total seconds."""
+    renders = [mitsuba_reference(False, seed=s) for s in seeds]
+    return np.mean([r[0] for r in renders], axis=0), float(sum(r[1] for r in renders))
+
+
 def case_mitsuba() -> dict:
     from render.presets import get_preset
     from render.renderer import render
@@ -239,15 +250,18 @@ def case_mitsuba() -> dict:
     camera = kogei_camera()
     rows = []
     env = sample_environment()
-    ref_env, t_ref_env = mitsuba_reference(False)
-    other_env, _ = mitsuba_reference(False, seed=1)
+    half = REFERENCE_SEEDS // 2
+    first, t_first = averaged_reference(range(half))
+    second, t_second = averaged_reference(range(half, REFERENCE_SEEDS))
+    ref_env, t_ref_env = 0.5 * (first + second), t_first + t_second
     ref_sun, t_ref_sun = mitsuba_reference(True)
     other_sun, _ = mitsuba_reference(True, seed=1)
     std = get_preset("standard")
     variants = [("one directional light", True, std),
                 ("environment map", False, std),
                 ("environment map, 32 samples per hit", False, std.replace(environment_samples=32)),
-                ("environment map, 128 samples per hit", False, std.replace(environment_samples=128))]
+                ("environment map, 128 samples per hit", False, std.replace(environment_samples=128)),
+                ("environment map, 512 samples per hit", False, std.replace(environment_samples=512))]
     mask = None
     for name, directional, settings in variants:
         scene = kogei_scene(None if directional else env, directional)
@@ -259,11 +273,11 @@ def case_mitsuba() -> dict:
         rows.append({"variant": name, "preset": settings.name, "environment_samples": settings.environment_samples,
                      "seconds": secs, **compare(res.xyz.astype(np.float64), ref, mask)})
     background = res.mask == 0
-    floor_env = compare(other_env, ref_env, mask)
+    floor_env = compare(first, second, mask)          # two references of half the seeds each
     floor_sun = compare(other_sun, ref_sun, mask)
     bg = compare(res.xyz.astype(np.float64), ref_env, background) if background.any() else {}
-    return {"size": list(SIZE), "mitsuba_spp": MITSUBA_SPP, "map_height": MAP_HEIGHT,
-            "mitsuba_seconds_env": t_ref_env, "mitsuba_seconds_sun": t_ref_sun,
+    return {"size": list(SIZE), "mitsuba_spp": MITSUBA_SPP, "reference_seeds": REFERENCE_SEEDS,
+            "map_height": MAP_HEIGHT, "mitsuba_seconds_env": t_ref_env, "mitsuba_seconds_sun": t_ref_sun,
             "rows": rows, "mitsuba_noise_env": floor_env, "mitsuba_noise_sun": floor_sun,
             "background": bg, "peak_rss_mb": peak_rss_mb()}
 
@@ -273,7 +287,7 @@ def case_trade() -> dict:
     from render.renderer import render
 
     camera = kogei_camera()
-    ref, _ = mitsuba_reference(False)
+    ref, _ = averaged_reference(range(REFERENCE_SEEDS))
     std = get_preset("standard")
     rows = []
     mask = None
@@ -299,7 +313,7 @@ def case_speed(repeats: int = 3) -> dict:
     from bench.render_bench import _hawk_job
     from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
     from render.camera import Camera
-    from render.renderer import render
+    from render.renderer import GeometryCache, render
     from render.scene import Scene, Sky
 
     tri = HAWK_PRESET_TRIANGLES["reference"]
@@ -328,13 +342,21 @@ def case_speed(repeats: int = 3) -> dict:
     cam = Camera(draft.camera.eye, draft.camera.target, draft.camera.up, draft.camera.fov_deg, 640, 480)
     scene = Scene(draft.scene.objects, [], Sky("none"), environment=env)
     render(scene, cam, draft.settings)                             # warm-up
-    first = []
-    for _ in range(repeats):
+    first, again = [], []
+    cache = GeometryCache()
+    for _ in range(repeats):                                       # interleaved
         t0 = time.perf_counter()
         res = render(scene, cam, draft.settings)
         first.append(time.perf_counter() - t0)
+        cache.clear()
+        render(scene, cam, draft.settings, geometry_cache=cache)   # the view's first render builds the tracer
+        t0 = time.perf_counter()
+        cached = render(scene, cam, draft.settings, geometry_cache=cache)
+        again.append(time.perf_counter() - t0)
     out["draft"] = {"triangles": n_tri, "size": [640, 480], "environment_s": statistics.median(first),
-                    "times": first, "timings": res.timings}
+                    "times": first, "timings": res.timings, "cached_s": statistics.median(again),
+                    "cached_times": again, "cached_timings": cached.timings,
+                    "cached_reused": bool(cached.stats["geometry_reused"])}
     out["peak_rss_mb"] = peak_rss_mb()
     return out
 
