@@ -118,6 +118,49 @@ def _region_plot_data(session: str, origin: np.ndarray, direction: np.ndarray) -
     return region_observations(session, region)
 
 
+class _SameGeometry:
+    """The drafts of an orbit re-render one mesh: keep its ray tracer between renders of this process.
+
+    Every render reads the mesh file again (a new :class:`render.meshio.Mesh`); a mesh equal to the
+    previous render's (vertices, triangles and normals) is swapped for that one, so the
+    :class:`render.renderer.GeometryCache` -- keyed on the mesh objects -- serves its tracer instead of
+    building it again.
+    """
+
+    def __init__(self) -> None:
+        import threading
+
+        from render.renderer import GeometryCache
+
+        self.cache = GeometryCache()
+        self._lock = threading.Lock()
+        self._meshes: tuple = ()
+
+    def scene(self, scene: Any) -> Any:
+        """``scene`` with each mesh equal to the last render's replaced by that mesh object."""
+        import dataclasses
+
+        with self._lock:
+            objects = []
+            for i, obj in enumerate(scene.objects):
+                prev = self._meshes[i] if i < len(self._meshes) else None
+                if prev is not None and prev is not obj.mesh and _equal_meshes(prev, obj.mesh):
+                    obj = dataclasses.replace(obj, mesh=prev)
+                objects.append(obj)
+            self._meshes = tuple(o.mesh for o in objects)
+        return dataclasses.replace(scene, objects=objects)
+
+
+def _equal_meshes(a: Any, b: Any) -> bool:
+    """True when two meshes have the same vertices, triangles and vertex normals."""
+    return all(x.shape == y.shape and np.array_equal(x, y) for x, y in
+               ((a.vertices, b.vertices), (a.triangles, b.triangles), (a.vertex_normals, b.vertex_normals)))
+
+
+#: The drafts' geometry, kept between the renders of this process.
+_GEOMETRY = _SameGeometry()
+
+
 def _render_final(args: dict[str, Any], message: Callable[[str], None]) -> dict[str, Any]:
     """:func:`render_view` in a worker process (:class:`app.gui.workers.ProcessJob` passes ``message``)."""
     return render_view(**args)
@@ -135,8 +178,10 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
     -------
     dict
         ``srgb8`` ``(H, W, 3)`` uint8, ``mask`` ``(H, W)`` object coverage,
-        ``seconds`` of rendering, and the camera: ``eye``, ``target``, ``up``
-        (mm), ``fov_deg`` (vertical).
+        ``seconds`` of rendering, the camera: ``eye``, ``target``, ``up``
+        (mm), ``fov_deg`` (vertical), and ``geometry_reused``: True when the
+        previous render in this process had the same mesh and its ray tracer
+        served again.
     """
     import time
 
@@ -158,8 +203,9 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
                      camera=CameraSpec(eye=tuple(eye.tolist()), target=tuple(center.tolist()), up=up, fov_deg=fov))
     job = build_job(spec)
     t = time.perf_counter()
-    result = render(job.scene, job.camera, job.settings)
+    result = render(_GEOMETRY.scene(job.scene), job.camera, job.settings, geometry_cache=_GEOMETRY.cache)
     return {"srgb8": result.srgb8, "mask": result.mask, "seconds": time.perf_counter() - t, "eye": eye,
+            "geometry_reused": bool(result.stats["geometry_reused"]),
             "target": center, "up": np.asarray(up, float), "fov_deg": fov}
 
 
