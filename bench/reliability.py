@@ -229,7 +229,12 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
     """Every clicked patch's truth and answer, with (``fringe``) or without the predicted CFA fringe."""
     from processing.camera.response import camera_sensitivities
     from processing.materials.confidence import Decision, is_right
-    from processing.materials.identification import DEFAULT_CANDIDATES, candidate_set, identify_material
+    from processing.materials.identification import (
+        DEFAULT_CANDIDATES,
+        FringeOnlyError,
+        candidate_set,
+        identify_material,
+    )
     from processing.spectral.reflectance_database import load_reflectances
     from processing.spectral.spectra import SpectralGrid, light_spectrum
 
@@ -248,7 +253,10 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
         if drawn is None:
             continue                      # refused: too dark to have a colour (the panel says so)
         px, err, info = drawn
-        r = identify_material(px, cands, noise=_STATED_NOISE, colour_error=err if fringe else None)
+        try:
+            r = identify_material(px, cands, noise=_STATED_NOISE, colour_error=err if fringe else None)
+        except FringeOnlyError:
+            continue                      # refused: every pixel's colour is mostly fringe (the panel says so)
         decision = Decision(r.material, r.confidence, tuple(r.group), 0, np.zeros(0), float("nan"))
         rows.append({"truth": truth, "answer": r.material, "confidence": float(r.confidence),
                      "right": bool(is_right(decision, truth)), "misfit": float(r.misfit), "camera": camera,
@@ -268,14 +276,15 @@ def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool 
     through one of the four Bayer patterns, photosite noise, clipped photosites left out, binned
     (:func:`processing.camera.raw_decode.bin2x2`) and carried to the model camera by the chart
     transform.  Patches whose green averages below 2 % of full scale are refused, as the spectra
-    panel refuses such a click.  ``fringe``: give the identification the predicted CFA fringe
+    panel refuses such a click, and so are patches whose every pixel is mostly fringe
+    (:class:`processing.materials.identification.FringeOnlyError`).  ``fringe``: give the identification the predicted CFA fringe
     (:func:`processing.camera.cfa_fringe.transformed_fringe`), as the spectra panel does.
 
     Returns
     -------
     dict
         As :func:`single_image_reliability`, plus ``refused`` (too dark), ``fringe`` and
-        ``high_wrong`` (answers stated >= 0.9 and wrong: truth, answer, shape, pixels).
+        ``high_wrong`` (answers stated >= 0.9 and wrong: truth, answer, shape, pixels), ``by_shape``.
     """
     from processing.materials.confidence import NO_FIT, reliability_table
 

@@ -326,7 +326,8 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
                          "to identify (a smaller block may do)")
     model = scene.estimate.camera.astype(np.float64)
     found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR, colour_error=scene.fringe)
-    named = {lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()}
+    named = {int(lab): UNCERTAIN for lab in np.unique(labels[labels > 0])}    # a block of fringe only: uncertain
+    named.update({lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()})
     names = sorted(set(named.values()) - {UNCERTAIN}) + ([UNCERTAIN] if UNCERTAIN in named.values() else [])
     index = {n: i + 1 for i, n in enumerate(names)}
     lut = np.zeros(int(labels.max()) + 1, np.int64)

@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import nnls
 
 from processing.camera.response import channel_matrix
-from processing.materials.confidence import NEUTRAL_METAL, NO_FIT, decide
+from processing.materials.confidence import NEUTRAL_METAL, NO_FIT, SINGLE_IMAGE_ERROR_DOF, decide
 from processing.materials.lobes import material_brdf
 from processing.materials.metal_model import ConductorFresnel
 from processing.materials.presets import get_material
@@ -42,6 +42,8 @@ __all__ = [
     "DEFAULT_CANDIDATES",
     "DEFAULT_MODEL_ERROR",
     "FRINGE_SLACK",
+    "FringeOnlyError",
+    "MAX_COLOUR_ERROR",
     "NEUTRAL_METAL",
     "NO_FIT",
     "CandidateSet",
@@ -69,6 +71,10 @@ DEFAULT_CANDIDATES: tuple[str, ...] = (
 #: 0.015.
 DEFAULT_MODEL_ERROR = 0.0175
 _NEUTRAL_RATIO = 1.10
+
+
+class FringeOnlyError(SpectralEstimationError):
+    """Every pixel of a region is predicted off by more than :data:`MAX_COLOUR_ERROR`: no colour to identify."""
 
 
 @dataclass(frozen=True)
@@ -219,6 +225,9 @@ class Identification:
     misfit: float
 
 
+#: Pixels whose predicted decode colour error (``colour_error``) exceeds this in some channel are left out of a
+#: region: their colour is mostly the fringe, and the prediction is least reliable where it is largest.
+MAX_COLOUR_ERROR = 0.5
 #: Share of a predicted decode colour error (``colour_error``) taken as independent per channel on top of
 #: its predicted direction: the prediction is first order (a highlight's curvature is not in it).
 FRINGE_SLACK = 0.5
@@ -263,7 +272,7 @@ def _check_noise(noise: float, model_error: float) -> None:
 
 def identify_material(
     pixels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01, model_error: float = DEFAULT_MODEL_ERROR,
-    colour_error: ArrayLike | None = None,
+    colour_error: ArrayLike | None = None, error_dof: float | None = SINGLE_IMAGE_ERROR_DOF,
 ) -> Identification:
     """Identify the material of one region from its pixels' camera values ``(n, c)`` (or one ``(c,)``).
 
@@ -281,7 +290,8 @@ def identify_material(
       binned Bayer image, :func:`processing.camera.cfa_fringe.cfa_fringe`), brightness-weighted
       over the pixels, as a full-strength error along its predicted direction plus
       :data:`FRINGE_SLACK` of its size independent per channel.  It is not divided by the pixel
-      count: every pixel of one highlight's flank is off the same way.
+      count: every pixel of one highlight's flank is off the same way.  Pixels predicted off by
+      more than :data:`MAX_COLOUR_ERROR` are left out.
 
     Parameters
     ----------
@@ -299,6 +309,10 @@ def identify_material(
     colour_error
         ``(n, c)`` (or ``(c,)``) signed relative colour error each pixel's values may carry from
         the decode (a channel reads ``1 + e`` times the truth); None: none.
+    error_dof
+        How well the error's own size is known (:func:`processing.materials.confidence.decide`,
+        Student-t likelihood); default :data:`processing.materials.confidence.SINGLE_IMAGE_ERROR_DOF`;
+        None: the Gaussian likelihood.
 
     Returns
     -------
@@ -355,6 +369,16 @@ def identify_material(
         if fringe is None or not np.all(np.isfinite(fringe)):
             raise SpectralEstimationError(f"colour_error must hold one finite relative error per pixel and channel "
                                           f"({px.shape[0]} x {candidates.channels}), got {np.shape(colour_error)}")
+        usable = np.abs(fringe).max(axis=1) <= MAX_COLOUR_ERROR
+        if not usable.any():
+            raise FringeOnlyError(
+                f"the region's colour is the sensor's colour-filter fringe (every pixel's predicted colour error "
+                f"exceeds {100 * MAX_COLOUR_ERROR:.0f}%, a highlight or edge a pixel or two wide): nothing to "
+                "identify; choose a broader lit part")
+        px, fringe = px[usable], fringe[usable]
+        mean = px.mean(axis=0)
+        if not np.any(mean > 0):
+            raise SpectralEstimationError("the region is black in every channel; nothing to identify")
     cov = _region_covariance(px, noise, model_error, fringe)
     p = np.linalg.inv(cov)
     m = candidates.responses
@@ -364,7 +388,8 @@ def identify_material(
     chi2 = np.maximum(np.einsum("kc,cd,kd->k", r, p, r), 0.0)
     n = len(candidates.names)
     c = candidates.channels
-    d = decide(candidates.names, chi2, np.full(n, c - 1.0), np.ones(n), neutral=candidates.neutral)
+    d = decide(candidates.names, chi2, np.full(n, c - 1.0), np.ones(n), neutral=candidates.neutral,
+               error_dof=error_dof)
     inside = set(d.group) if d.answer == NEUTRAL_METAL else {candidates.names[d.best]}
     outside = [i for i in np.argsort(-d.posterior, kind="stable") if candidates.names[i] not in inside]
     runner = int(outside[0]) if outside else int(np.argsort(chi2)[1])
@@ -395,7 +420,8 @@ def identify_regions(
     Returns
     -------
     dict
-        Label -> :class:`Identification`.
+        Label -> :class:`Identification`; a region whose every pixel is mostly CFA fringe
+        (:class:`FringeOnlyError`) is left out.
 
     Raises
     ------
@@ -431,11 +457,15 @@ def identify_regions(
         raise SpectralEstimationError("the label image has no region (every label is 0)")
     order = np.argsort(lab, kind="stable")
     bounds = np.searchsorted(lab[order], np.concatenate([ids, [ids[-1] + 1]]))
-    return {
-        int(r): identify_material(flat[order[bounds[i]:bounds[i + 1]]], candidates, noise=noise, model_error=model_error,
-                                  colour_error=None if err is None else err[order[bounds[i]:bounds[i + 1]]])
-        for i, r in enumerate(ids)
-    }
+    found = {}
+    for i, r in enumerate(ids):
+        part = order[bounds[i]:bounds[i + 1]]
+        try:
+            found[int(r)] = identify_material(flat[part], candidates, noise=noise, model_error=model_error,
+                                              colour_error=None if err is None else err[part])
+        except FringeOnlyError:
+            continue                      # no pixel with a colour of its own: the caller reports it unjudged
+    return found
 
 
 @dataclass(frozen=True)
