@@ -29,9 +29,16 @@ when the truth is in its group); "no candidate fits" names nothing and is counte
 outside the reliability table (:func:`processing.materials.confidence.reliability_table`).
 Targets: among answers stated at >= 0.9, at least 90 % right; expected calibration error <= 0.05.
 
-``python -m bench.reliability [--regions N] [--seed S] [--out DIR]`` prints a Markdown table and,
-with ``--out``, writes ``reliability.png`` (stated against observed per bin, with the counts) and
-``reliability.json``.
+:func:`highlight_reliability` asks the same of what a click in the spectra panel gives: patches drawn
+the same way but sampled through a Bayer sensor and the ``bin2x2`` decode, lit flat, by a small
+highlight or across an edge, where the CFA fringe moves a few pixels' colour by tens of percent
+(:mod:`processing.camera.cfa_fringe`); the identification is told the predicted fringe, as the
+panel does.
+
+``python -m bench.reliability [--regions N] [--highlights N] [--seed S] [--out DIR]`` prints the
+Markdown tables and, with ``--out``, writes ``reliability.png`` (stated against observed per bin,
+with the counts), ``reliability.json`` and, with ``--highlights``, ``reliability-highlights.png`` and
+``.json``.
 
 References
 ----------
@@ -411,7 +418,8 @@ def figure(result: dict[str, Any], path: Path) -> Path:
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.legend(fontsize=7, loc="upper left")
-    ax.set_title(f"single-image identification: ECE {result['ece']:.3f}, >= 0.9: "
+    what = "clicked patches (Bayer, bin2x2)" if "by_shape" in result else "single-image identification"
+    ax.set_title(f"{what}: ECE {result['ece']:.3f}, >= 0.9: "
                  f"{100 * result['high_accuracy']:.1f} % right", fontsize=9)
     bx.bar(mid, t["count"], width=np.diff(edges) * 0.9, color="0.5")
     bx.set_xlabel("stated confidence")
@@ -430,15 +438,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--model-error", type=float, default=None)
     ap.add_argument("--no-colour-error", action="store_true", help="leave out the unmodelled colour error")
+    ap.add_argument("--highlights", type=int, default=0, metavar="N",
+                    help="also N clicked patches through a Bayer sensor and the bin2x2 decode (highlight_reliability)")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
     result = single_image_reliability(args.regions, args.seed, model_error=args.model_error,
                                       colour_error=None if args.no_colour_error else COLOUR_ERROR)
     print(markdown(result))
+    patches = highlight_reliability(args.highlights, args.seed + 1) if args.highlights > 0 else None
+    if patches is not None:
+        print("\nClicked patches (Bayer sensor, bin2x2 decode, CFA fringe told):\n")
+        print(markdown(patches))
+        print(f"Refused (too dark, or fringe only): {patches['refused']}; stated >= 0.9 and wrong: "
+              f"{len(patches['high_wrong'])}.")
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         figure(result, args.out / "reliability.png")
         (args.out / "reliability.json").write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+        if patches is not None:
+            figure(patches, args.out / "reliability-highlights.png")
+            (args.out / "reliability-highlights.json").write_text(json.dumps(patches, indent=1) + "\n",
+                                                                  encoding="utf-8")
     return 0
 
 

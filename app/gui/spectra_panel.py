@@ -39,6 +39,13 @@ candidates are the session's catalogued materials
 (:func:`catalogued_candidates`: "shibuichi, gold, urushi" -> the shibuichi
 alloys, gold and both lacquers) rather than every preset.
 
+Both identifications carry the colour error the ``bin2x2`` decode puts into a
+small highlight or an edge (red and blue sampled on either side of a steep
+brightness change: :func:`processing.camera.cfa_fringe.transformed_fringe`,
+stored on the scene as ``fringe``), so a grey highlight a few pixels wide is
+not named gold with confidence; a mixed group below :data:`CANNOT_TELL` reads
+"cannot tell" with the short list (:func:`answer_text`, :func:`answer_title`).
+
 Both identifications allow the candidates the same model error as the batch
 ``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 1.75 %): the
 shibuichi alloys, shakudo and bronze differ by 0.005-0.02 in camera

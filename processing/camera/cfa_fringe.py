@@ -12,7 +12,8 @@ On a glossy metal's highlight, a few pixels across, ``|grad ln I|`` reaches 1 pe
 more, so red and blue are off by +-25 % in opposite directions: grey shibuichi reads gold.
 
 :func:`cfa_fringe` predicts ``e`` per pixel from the image's own brightness (the channel
-sum, so the gradient is not itself the fringe), for the material identification to carry as
+sum, so the gradient is not itself the fringe; of the two one-sided differences the steeper, so
+a highlight narrower than a pixel is not taken for a flat top), for the material identification to carry as
 a colour uncertainty of the region (:func:`processing.materials.identification.identify_material`,
 ``colour_error``).
 
@@ -84,6 +85,22 @@ def channel_offsets(cfa_pattern: str) -> NDArray[np.float64]:
     return offsets / counts[:, None]
 
 
+def _steeper_gradient(a: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+    """The steeper of the two one-sided differences along ``axis`` (its sign kept).
+
+    On a smooth slope both equal the central difference; on a highlight narrower than a pixel the
+    central difference is near 0 at the peak while the photosites of one cell see very different
+    light, and the steeper side says how much.
+    """
+    d = np.diff(a, axis=axis)
+    pad_lo = [(0, 0)] * a.ndim
+    pad_hi = [(0, 0)] * a.ndim
+    pad_lo[axis], pad_hi[axis] = (1, 0), (0, 1)
+    back = np.pad(d, pad_lo, mode="edge")
+    fwd = np.pad(d, pad_hi, mode="edge")
+    return np.where(np.abs(fwd) >= np.abs(back), fwd, back)
+
+
 def cfa_fringe(rgb: ArrayLike, cfa_pattern: str = "RGGB", *, floor: float | None = None) -> NDArray[np.float64]:
     """Predicted relative colour error of every pixel of a ``bin2x2`` image (signed, per channel).
 
@@ -129,7 +146,7 @@ def cfa_fringe(rgb: ArrayLike, cfa_pattern: str = "RGGB", *, floor: float | None
     if not (np.isfinite(floor) and floor >= 0):
         raise CfaFringeError(f"floor must be a brightness >= 0, got {floor!r}")
     log_i = np.log(np.maximum(level, max(floor, 1e-12)))
-    g_row, g_col = np.gradient(log_i)
+    g_row, g_col = _steeper_gradient(log_i, 0), _steeper_gradient(log_i, 1)
     shift = g_row[..., None] * offsets[:, 0] + g_col[..., None] * offsets[:, 1]
     return np.clip(np.expm1(np.clip(shift, -20.0, 20.0)), -1.0, MAX_FRINGE)
 

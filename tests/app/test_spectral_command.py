@@ -153,9 +153,13 @@ def test_identify_recovers_the_metals_and_lacquers(shots, capsys, method):
     for k, name in enumerate(MATERIALS, start=25):
         r = regions[k]
         assert r["material"] == name, (name, r["material"], r["runner_up"])
-        # at the default 2 % model error the copper-rich alloys, the shibuichi variants and black urushi,
-        # which differ by less than that in camera colour, share the posterior; gold and red urushi stand alone
-        assert r["confidence"] > (0.9 if name in ("gold", "urushi-red") else 0.25)
+        # at the default model error the copper-rich alloys, the shibuichi variants and black urushi, which
+        # differ by less than that in camera colour, share the posterior (the answer's group lists them): the
+        # named one holds more than an even share of it; gold and red urushi stand alone
+        if name in ("gold", "urushi-red"):
+            assert r["confidence"] > 0.9
+        else:
+            assert name in r["group"] and r["confidence"] > 1.0 / len(r["group"]), (name, r["group"])
         assert r["runner_up"] != name and r["pixels"] == 144
     # alloy weights against the compositions the world was rendered with (Matsuda et al. Table 1; Oguchi)
     by = {name: regions[k] for k, name in enumerate(MATERIALS, start=25)}
