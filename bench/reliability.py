@@ -238,10 +238,10 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
     from processing.materials.confidence import Decision, is_right
     from processing.materials.identification import (
         DEFAULT_CANDIDATES,
-        FringeOnlyError,
         candidate_set,
         identify_material,
     )
+    from processing.spectral.estimation.fit import SpectralEstimationError
     from processing.spectral.reflectance_database import load_reflectances
     from processing.spectral.spectra import SpectralGrid, light_spectrum
 
@@ -262,8 +262,8 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
         px, err, info = drawn
         try:
             r = identify_material(px, cands, noise=_STATED_NOISE, colour_error=err if fringe else None)
-        except FringeOnlyError:
-            continue                      # refused: every pixel's colour is mostly fringe (the panel says so)
+        except SpectralEstimationError:
+            continue                      # refused: every pixel's colour is mostly fringe (FringeOnlyError) or black
         decision = Decision(r.material, r.confidence, tuple(r.group), 0, np.zeros(0), float("nan"))
         rows.append({"truth": truth, "answer": r.material, "confidence": float(r.confidence),
                      "right": bool(is_right(decision, truth)), "misfit": float(r.misfit), "camera": camera,
