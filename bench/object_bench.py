@@ -496,6 +496,9 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
                 f"{h['abstained']} 'no candidate fits'; stated >= 0.9 and wrong: {len(h['high_wrong'])}. "
                 f"The same patches without the fringe term: ECE {b['ece']:.3f}, right among >= 0.9 "
                 f"{100 * b['high_accuracy']:.1f} % of {b['high_count']} ({len(b['high_wrong'])} wrong).", ""]
+        if h["high_wrong"]:
+            out += ["Stated >= 0.9 and wrong (truth -> answer, lighting, pixels): " + "; ".join(
+                f"{w['truth']} -> {w['answer']} ({w['shape']}, {w['pixels']})" for w in h["high_wrong"]) + ".", ""]
     m = rel["on_mesh"]
     out += [f"On the mesh, {m['no_fit']} of {m['regions']} regions answered \"no candidate fits\" (abstentions); "
             f"all answers right {100 * m['accuracy']:.1f} %; the nami-shibuichi Ag share's median error "

@@ -76,7 +76,9 @@ NOT_MEASURED = "not measured"
 #: candidate makes (a monochromatic green, a region of mixed materials) miss by far more.
 MAX_MISFIT = 25.0
 #: Degrees of freedom of the model error's own size for one image's identification (``decide(error_dof=...)``):
-#: chosen by measurement (``bench/reliability.py``).
+#: chosen by measurement (``bench/reliability.py``, 1000 regions / 600 clicked patches): expected calibration
+#: error 0.045 / 0.039 at 8, against 0.051 / 0.038 at 4, 0.047 / 0.046 at 16 and 0.053 / 0.051 for the
+#: Gaussian likelihood; right among answers stated >= 0.9: 98.0 / 94.7 % at 8, 96.9 / 90.0 % Gaussian.
 SINGLE_IMAGE_ERROR_DOF = 8.0
 #: Candidates within this likelihood ratio of the best are indistinguishable from it.
 AMBIGUOUS_LR = 20.0
