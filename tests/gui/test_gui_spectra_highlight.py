@@ -37,7 +37,7 @@ def hawk_scene(tmp_path_factory):
 
 
 def test_the_head_highlight_does_not_read_gold_confidently(hawk_scene):
-    from app.gui.spectra_panel import answer_text, spectrum_at
+    from app.gui.spectra_panel import CANNOT_TELL, answer_text, answer_title, spectrum_at
 
     scene, head, world = hawk_scene
     assert world.materials["head"] == "nami-shibuichi"
@@ -55,6 +55,10 @@ def test_the_head_highlight_does_not_read_gold_confidently(hawk_scene):
             assert ident.material == "nami-shibuichi", answer_text(ident)
         else:
             assert "nami-shibuichi" in ident.group or ident.material == "no candidate fits", answer_text(ident)
+        if len(ident.group) > 1 and ident.confidence < CANNOT_TELL and ident.material != "no candidate fits":
+            text = answer_text(ident, res["colour_error"])
+            assert text.startswith("cannot tell:") and "colour filter" in text, text
+            assert answer_title(ident).startswith("cannot tell")
         assert res["colour_error"] > 0.05            # the highlight's fringe is what makes it uncertain
 
 
