@@ -170,7 +170,7 @@ def answer_text(ident: Any, colour_error: float = 0.0) -> str:
     """
     from processing.materials.confidence import NEUTRAL_METAL, NO_FIT
 
-    why = (f"; a few-pixel highlight: the sensor's colour filter shifts its colour by up to "
+    why = (f"; a steep highlight or edge: the sensor's colour filter shifts its colour by up to "
            f"{100 * colour_error:.0f}%" if colour_error > 0.05 else "")
     if ident.material == NO_FIT:
         return (f"no candidate fits: the nearest ({', '.join(ident.group)}) miss its colour by "
