@@ -282,16 +282,19 @@ def large_case(triangles: int = 1_000_000) -> dict[str, Any]:
 
 def reliability_case(out: Path | None = None) -> dict[str, Any]:
     """On-mesh and single-image confidence calibration; the on-mesh table for the session report."""
-    from bench.reliability import single_image_reliability
+    from bench.reliability import highlight_reliability, single_image_reliability
     from bench.surface_fit_bench import calibration_case
 
     t0 = time.perf_counter()
     mesh = calibration_case()
     t_mesh = time.perf_counter() - t0
     single = single_image_reliability(n_regions=4000, seed=0)
+    patches = highlight_reliability(n_patches=3000, seed=1)
+    blind = highlight_reliability(n_patches=3000, seed=1, fringe=False)
     if out is not None:
         out.write_text(json.dumps(_on_mesh_table(mesh), indent=1) + "\n")
-    return {"on_mesh": mesh, "on_mesh_s": round(t_mesh, 1), "single_image": single}
+    return {"on_mesh": mesh, "on_mesh_s": round(t_mesh, 1), "single_image": single, "highlights": patches,
+            "highlights_no_fringe": blind}
 
 
 def _on_mesh_table(mesh: dict[str, Any]) -> dict[str, Any]:
@@ -468,10 +471,15 @@ def _head_answer(s: dict[str, Any], head: dict[str, Any], answer_text: Any) -> s
 
 def _reliability_lines(rel: dict[str, Any]) -> list[str]:
     out = []
-    tables = (("On the mesh (simulated regions, `bench/surface_fit_bench.py`)", _on_mesh_table(rel["on_mesh"])),
+    tables = [("On the mesh (simulated regions, `bench/surface_fit_bench.py`)", _on_mesh_table(rel["on_mesh"])),
               ("One image (`bench/reliability.py`)", {**rel["single_image"]["table"],
                                                        **{k: rel["single_image"][k] for k in
-                                                          ("ece", "high_accuracy", "high_count")}}))
+                                                          ("ece", "high_accuracy", "high_count")}})]
+    if rel.get("highlights"):
+        h = rel["highlights"]
+        tables.append(("One image, clicked patches through a Bayer sensor and the bin2x2 decode "
+                       "(`bench/reliability.py`, `highlight_reliability`)",
+                       {**h["table"], **{k: h[k] for k in ("ece", "high_accuracy", "high_count")}}))
     for title, table in tables:
         out += [f"{title}: ECE {table['ece']:.3f} (target <= 0.05); right among answers stated >= 0.9: "
                 f"{100 * table['high_accuracy']:.1f} % of {table['high_count']} (target >= 90 %).", "",
@@ -482,6 +490,15 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
                 out.append(f"| {edges[i]:.1f}-{edges[i + 1]:.1f} | {n} | {table['stated'][i]:.3f} | "
                            f"{table['observed'][i]:.3f} |")
         out.append("")
+    h, b = rel.get("highlights"), rel.get("highlights_no_fringe")
+    if h and b:
+        out += [f"Clicked patches: {h['regions']} judged ({h['refused']} refused: too dark or fringe only), "
+                f"{h['abstained']} 'no candidate fits'; stated >= 0.9 and wrong: {len(h['high_wrong'])}. "
+                f"The same patches without the fringe term: ECE {b['ece']:.3f}, right among >= 0.9 "
+                f"{100 * b['high_accuracy']:.1f} % of {b['high_count']} ({len(b['high_wrong'])} wrong).", ""]
+        if h["high_wrong"]:
+            out += ["Stated >= 0.9 and wrong (truth -> answer, lighting, pixels): " + "; ".join(
+                f"{w['truth']} -> {w['answer']} ({w['shape']}, {w['pixels']})" for w in h["high_wrong"]) + ".", ""]
     m = rel["on_mesh"]
     out += [f"On the mesh, {m['no_fit']} of {m['regions']} regions answered \"no candidate fits\" (abstentions); "
             f"all answers right {100 * m['accuracy']:.1f} %; the nami-shibuichi Ag share's median error "

@@ -9,7 +9,8 @@ three placements with RAW frames, processed and previewed, every step
 through the window's own widgets.  Settings go to a temporary file, so the
 user's window settings are untouched.  ``--size 1024x700`` sets the
 window's size (default 1360 x 900), to check that nothing is cropped in a
-small window.
+small window; ``--upto spectra`` stops after that view (into a scratch
+``--out``, to redo one picture).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["main", "take_screenshots"]
+__all__ = ["main", "take_screenshots", "VIEWS"]
 
 
 def _calibration(tmp: Path) -> Path:
@@ -48,9 +49,23 @@ def _calibration(tmp: Path) -> Path:
     return tmp / "calibration"
 
 
+#: The views in the order the session reaches them (``--upto`` stops after one).
+VIEWS = ("devices", "capture", "session", "camera", "spectra", "processing", "preview")
+
+
+class _Done(Exception):
+    """Raised after the ``upto`` view is written: the rest of the session is not needed."""
+
+
 def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callable[[str], None] = print,
-                     size: tuple[int, int] = (1360, 900)) -> list[Path]:
-    """Run the session in the window and write ``devices.png``, ``session.png``, ... into ``out``."""
+                     size: tuple[int, int] = (1360, 900), upto: str | None = None) -> list[Path]:
+    """Run the session in the window and write ``devices.png``, ``session.png``, ... into ``out``.
+
+    ``upto``: stop after writing that view (one of :data:`VIEWS`), e.g. ``"spectra"`` to redo the Spectra
+    tab's picture without processing the session.
+    """
+    if upto is not None and upto not in VIEWS:
+        raise ValueError(f"upto must be one of {', '.join(VIEWS)}, got {upto!r}")
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     from PySide6.QtCore import QSettings
     from PySide6.QtWidgets import QApplication
@@ -88,6 +103,8 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
         w.grab().save(str(path))
         saved.append(path)
         log(f"wrote {path}")
+        if name == upto:
+            raise _Done
 
     log("calibrating the simulated scanner (sphere scan)…")
     cal = _calibration(tmp)
@@ -173,6 +190,8 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
              and w.preview.last["srgb8"].shape[:2] == (480, 640) and not w.preview._busy
              and w.preview._waiting is None and not w.preview._settle.isActive(), "the preview", 600)
         shot(w, "preview")
+    except _Done:
+        pass
     finally:
         w.close()
         tmp_dir.cleanup()
@@ -284,6 +303,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--measured", default=None, metavar="SESSION",
                         help="only the Preview tab with the measured object and a clicked region's observations "
                              "(a session after kogei fit-materials, e.g. out/demo/capture/session)")
+    parser.add_argument("--upto", default=None, choices=VIEWS,
+                        help="stop after this view (the views before it are written too)")
     args = parser.parse_args(argv)
     if args.measured:
         print(f"wrote {measured_screenshot(Path(args.measured), Path(args.out))}")
@@ -297,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError
     except ValueError:
         parser.error(f"--size must be WxH with both at least 200, e.g. 1024x700; got {args.size!r}")
-    take_screenshots(Path(args.out), steps=args.steps, size=size)
+    take_screenshots(Path(args.out), steps=args.steps, size=size, upto=args.upto)
     return 0
 
 

@@ -42,7 +42,7 @@ from processing.errors import InputError
 from processing.materials.identification import DEFAULT_MODEL_ERROR
 
 __all__ = ["materials_inputs", "materials_params", "materials_run", "estimate_frame", "largest_material",
-           "material_colour", "METHOD", "LIGHT_DEG", "MODEL_ERROR", "MATERIALS_FILE"]
+           "material_colour", "METHOD", "LIGHT_DEG", "MODEL_ERROR", "MATERIALS_FILE", "MERGE_CONFIDENCE"]
 
 #: Spectral estimator (the best one-shot method in docs/BENCHMARKS.md, ``kogei spectral estimate``'s default).
 METHOD = "rootpoly"
@@ -51,6 +51,8 @@ LIGHT_DEG = 30.0
 #: Relative model error of the candidates: a region pools many pixels at varying angles (app.demo.colour);
 #: the one default of every identification (``kogei identify``'s too).
 MODEL_ERROR = DEFAULT_MODEL_ERROR
+#: Least confidence of a cluster's answer for it to be merged with the other clusters of that material.
+MERGE_CONFIDENCE = 0.5
 MATERIALS_FILE = "products/materials.json"
 MAPS_DIR = "products/materials"
 _BACKDROP_COLOUR = (40, 40, 40)
@@ -98,10 +100,13 @@ def material_colour(name: str | None) -> tuple[int, int, int]:
 def largest_material(regions: list[dict[str, Any]]) -> tuple[str, int] | None:
     """The identified material covering most pixels over all regions (metals, alloys, lacquers), with its count.
 
+    A region answered with a confidence below :data:`MERGE_CONFIDENCE` (a short list, not a name) does not count.
+
     Examples
     --------
     >>> largest_material([{"material": "gold", "pixels": 10}, {"material": "copper", "pixels": 6},
-    ...                   {"material": "copper", "pixels": 7}, {"material": None, "pixels": 50}])
+    ...                   {"material": "copper", "pixels": 7}, {"material": None, "pixels": 50},
+    ...                   {"material": "gold", "pixels": 9, "confidence": 0.2}])
     ('copper', 13)
     """
     from processing.materials.identification import NEUTRAL_METAL, NO_FIT
@@ -111,6 +116,8 @@ def largest_material(regions: list[dict[str, Any]]) -> tuple[str, int] | None:
     for reg in regions:
         name = reg.get("material")
         if name is None or name in (NEUTRAL_METAL, NO_FIT) or get_material(name).family not in _RENDERABLE:
+            continue
+        if float(reg.get("confidence") if reg.get("confidence") is not None else 1.0) < MERGE_CONFIDENCE:
             continue
         totals[name] = totals.get(name, 0) + int(reg["pixels"])
     if not totals:
@@ -165,8 +172,11 @@ def _identify_merged(result: Any, labels: NDArray[np.int64]) -> tuple[NDArray[np
     reports = identify_result(result, labels, light_deg=LIGHT_DEG, model_error=MODEL_ERROR)
     groups: dict[Any, list[int]] = {}
     for rep in reports:
-        # an unidentified cluster (or one no candidate fits) stays on its own; identified ones group by material
-        key = rep.material if rep.material not in (None, NO_FIT) else ("none", rep.label)
+        # an unidentified cluster, one no candidate fits, or one whose answer is less likely than not (a short
+        # list: a highlight's fringe, a cluster straddling two materials) stays on its own; the others group by
+        # material
+        named = rep.material not in (None, NO_FIT) and (rep.confidence or 0.0) >= MERGE_CONFIDENCE
+        key = rep.material if named else ("none", rep.label)
         groups.setdefault(key, []).append(rep.label)
     order = sorted(groups.values(), key=lambda g: -sum(int((labels == v).sum()) for v in g))
     lut = np.zeros(int(labels.max()) + 1, np.int64)

@@ -39,6 +39,13 @@ candidates are the session's catalogued materials
 (:func:`catalogued_candidates`: "shibuichi, gold, urushi" -> the shibuichi
 alloys, gold and both lacquers) rather than every preset.
 
+Both identifications carry the colour error the ``bin2x2`` decode puts into a
+small highlight or an edge (red and blue sampled on either side of a steep
+brightness change: :func:`processing.camera.cfa_fringe.transformed_fringe`,
+stored on the scene as ``fringe``), so a grey highlight a few pixels wide is
+not named gold with confidence; a mixed group below :data:`CANNOT_TELL` reads
+"cannot tell" with the short list (:func:`answer_text`, :func:`answer_title`).
+
 Both identifications allow the candidates the same model error as the batch
 ``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 1.75 %): the
 shibuichi alloys, shakudo and bronze differ by 0.005-0.02 in camera
@@ -90,7 +97,8 @@ from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import JobContext, Lane
 
 __all__ = ["SpectraPanel", "SpectralScene", "analyse_spectra", "spectrum_at", "material_map", "UNCERTAIN",
-           "backdrop_mask", "block_labels", "LIGHT_DEG", "catalogued_candidates", "map_coverage", "answer_text"]
+           "backdrop_mask", "block_labels", "LIGHT_DEG", "catalogued_candidates", "map_coverage", "answer_text",
+           "answer_title", "CANNOT_TELL"]
 
 #: Angle of the light from the surface normal assumed by the identification (degrees).
 LIGHT_DEG = 30.0
@@ -134,17 +142,46 @@ def catalogued_candidates(text: str) -> tuple[list[str], list[str]]:
     return names, unmatched
 
 
-def answer_text(ident: Any) -> str:
-    """One line for an identification's answer, what the confidence is of, and the alternatives."""
+#: Below this confidence, an answer whose group holds other candidates reads "cannot tell" with the short list.
+CANNOT_TELL = 0.5
+
+
+def _short_list(group: tuple[str, ...], shown: int = 4) -> str:
+    more = len(group) - shown
+    return ", ".join(group[:shown]) + (f" and {more} more" if more > 0 else "")
+
+
+def answer_title(ident: Any) -> str:
+    """A few words for the plot's title: the name and its confidence, or what cannot be told apart."""
     from processing.materials.confidence import NEUTRAL_METAL, NO_FIT
 
+    if ident.material in (NO_FIT, NEUTRAL_METAL):
+        return ident.material
+    if len(ident.group) > 1 and ident.confidence < CANNOT_TELL:
+        return f"cannot tell ({len(ident.group)} fit)"
+    return f"{ident.material}, confidence {ident.confidence:.2f}"
+
+
+def answer_text(ident: Any, colour_error: float = 0.0) -> str:
+    """One line for an identification's answer, what the confidence is of, and the alternatives.
+
+    ``colour_error``: the largest relative colour error the decode predicts for the clicked region (its CFA
+    fringe); above 5 % the line says so, as the reason a short list is all one click can give.
+    """
+    from processing.materials.confidence import NEUTRAL_METAL, NO_FIT
+
+    why = (f"; a steep highlight or edge: the sensor's colour filter shifts its colour by up to "
+           f"{100 * colour_error:.0f}%" if colour_error > 0.05 else "")
     if ident.material == NO_FIT:
         return (f"no candidate fits: the nearest ({', '.join(ident.group)}) miss its colour by "
                 f"{math.sqrt(ident.misfit):.1f} times the stated error")
     if ident.material == NEUTRAL_METAL:
         return (f"a neutral metal, one of {', '.join(ident.group)} (confidence {ident.confidence:.2f}; they differ "
-                "mainly in brightness)")
-    return f"{ident.material} (confidence {ident.confidence:.2f}, runner-up {ident.runner_up})"
+                f"mainly in brightness{why})")
+    if len(ident.group) > 1 and ident.confidence < CANNOT_TELL:
+        return (f"cannot tell: {_short_list(ident.group)} fit about equally (best {ident.material}, confidence "
+                f"{ident.confidence:.2f}{why})")
+    return f"{ident.material} (confidence {ident.confidence:.2f}, runner-up {ident.runner_up}{why})"
 
 
 @dataclass
@@ -162,6 +199,7 @@ class SpectralScene:
     light: str
     clipped: np.ndarray | None = None   # (H, W) bool: a photosite of the pixel saturated or dead (not estimated)
     backdrop: np.ndarray | None = None  # (H, W) bool: the backdrop (backdrop_mask)
+    fringe: np.ndarray | None = None    # (H, W, c) relative colour error of the binned CFA, model camera
 
     @property
     def fit(self) -> Any:
@@ -179,6 +217,7 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
     """
     from app.workflows.chart import measure_chart
     from app.workflows.spectral import estimate_from_chart, estimator_setup
+    from processing.camera.cfa_fringe import transformed_fringe
     from processing.camera.raw_decode import decode_raw, preview_srgb8
     from processing.materials.identification import candidate_set
 
@@ -194,7 +233,8 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
     return SpectralScene(Path(frame), Path(chart_frame), preview_srgb8(obj), rgb, est,
                          candidate_set(setup.sensitivities, setup.lights[0], setup.grid,
                                        light_deg=LIGHT_DEG, **({} if materials is None else {"names": materials})),
-                         est.chart_rmse, int(est.usable.sum()), light, ~est.mask, backdrop_mask(rgb))
+                         est.chart_rmse, int(est.usable.sum()), light, ~est.mask, backdrop_mask(rgb),
+                         transformed_fringe(rgb, obj.cfa_pattern, est.transform.matrix))
 
 
 def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
@@ -221,7 +261,8 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
     weights = scene.estimate.weights[y0:y1, x0:x1][keep][:, None, :]      # the kept pixels, as (N, 1, p)
     reg = region_spectra(weights, np.ones(weights.shape[:2], np.int64), scene.fit.basis, scene.method_error)
     camera = scene.estimate.camera[y0:y1, x0:x1][keep].astype(np.float64)
-    ident = identify_material(camera, scene.candidates, model_error=MODEL_ERROR)
+    fringe = None if scene.fringe is None else scene.fringe[y0:y1, x0:x1][keep]
+    ident = identify_material(camera, scene.candidates, model_error=MODEL_ERROR, colour_error=fringe)
     wl = scene.fit.wavelengths
     name = ident.material if ident.material in scene.candidates.names else ident.group[0]
     t = math.radians(LIGHT_DEG)
@@ -231,7 +272,8 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
     k = float(model @ mean / max(model @ model, 1e-300))
     return {"x": x, "y": y, "wavelengths": wl, "mean": mean, "uncertainty": reg.uncertainty[0],
             "identification": ident, "model_name": name, "model": model * k, "model_scale": k,
-            "pixels": int(reg.count[0])}
+            "pixels": int(reg.count[0]),
+            "colour_error": 0.0 if fringe is None else float(np.abs(fringe).max(initial=0.0))}
 
 
 def backdrop_mask(rgb: np.ndarray, tolerance: float = 0.15, rim: float = 0.05) -> np.ndarray:
@@ -290,8 +332,9 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
         raise ValueError("no block of the frame is at least half lit, unclipped and unlike the backdrop: nothing "
                          "to identify (a smaller block may do)")
     model = scene.estimate.camera.astype(np.float64)
-    found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR)
-    named = {lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()}
+    found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR, colour_error=scene.fringe)
+    named = {int(lab): UNCERTAIN for lab in np.unique(labels[labels > 0])}    # a block of fringe only: uncertain
+    named.update({lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()})
     names = sorted(set(named.values()) - {UNCERTAIN}) + ([UNCERTAIN] if UNCERTAIN in named.values() else [])
     index = {n: i + 1 for i, n in enumerate(names)}
     lut = np.zeros(int(labels.max()) + 1, np.int64)
@@ -649,10 +692,9 @@ class SpectraPanel(Panel):
         self.plot.plot(spectrum_figure, wavelengths=res["wavelengths"], mean=res["mean"],
                        uncertainty=res["uncertainty"], model=res["model"], model_name=res["model_name"],
                        pixels=res["pixels"],
-                       title=f"({res['x']}, {res['y']}): " + (f"{ident.material}, confidence {ident.confidence:.2f}"
-                                                              if ident.material in self.scene.candidates.names
-                                                              else ident.material))
-        self.state.setText(f"pixel ({res['x']}, {res['y']}), {res['pixels']} pixels: {answer_text(ident)}")
+                       title=f"({res['x']}, {res['y']}): {answer_title(ident)}")
+        self.state.setText(f"pixel ({res['x']}, {res['y']}), {res['pixels']} pixels: "
+                           f"{answer_text(ident, res.get('colour_error', 0.0))}")
         self.analysed.emit(res)
 
     def make_map(self) -> None:

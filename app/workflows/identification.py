@@ -18,7 +18,11 @@ model error defaults to
 (:func:`processing.spectral.estimation.estimator.region_spectra`, with the
 estimate's error on the chart as the method error) ride along.
 ``kogei identify``, the batch's materials step and the colour demo call
-:func:`identify_result`.
+:func:`identify_result`.  A result decoded ``bin2x2`` carries its sensor's CFA
+pattern and chart transform, and every region's pixels go to the
+identification with the colour error the binning predicts for them
+(:func:`result_fringe`: small highlights and edges, where red and blue are
+sampled on different sides of a steep brightness change).
 
 Masked pixels (saturated or dead in the RAW) never count, nor do pixels whose
 brightest channel is below ``min_level`` (default 0.005) times that of a white
@@ -43,6 +47,7 @@ from app.errors import UsageError
 from app.workflows.spectral import SpectralResult
 
 __all__ = ["ALLOY_METALS", "MIN_LEVEL", "RegionReport", "read_labels", "binned_labels", "identify_result",
+           "result_fringe",
            "usable_regions", "white_response", "pixel_level"]
 
 #: Metals of the alloy model (Matsuda et al., eq. (3)-(4); Table 1's shibuichi and shakudo are Ag-Cu-Au).
@@ -201,6 +206,25 @@ def usable_regions(result: SpectralResult, labels: NDArray[np.integer], min_leve
     return live
 
 
+def result_fringe(result: SpectralResult) -> NDArray[np.float64] | None:
+    """The predicted CFA fringe of a ``bin2x2`` result in the model camera's units, or None.
+
+    :func:`processing.camera.cfa_fringe.transformed_fringe` on the frame brought back to the object camera by
+    the inverse of the chart transform the result records (``metadata``: ``mode``, ``cfa_pattern``,
+    ``chart_transform``); None for a result without them (written before they were recorded), a demosaicked
+    one or a two-exposure one.
+    """
+    from processing.camera.cfa_fringe import transformed_fringe
+
+    meta = result.metadata
+    matrix = np.asarray(meta.get("chart_transform", []), dtype=np.float64)
+    if meta.get("mode") != "bin2x2" or not meta.get("cfa_pattern") or matrix.shape != (3, 3) \
+            or result.camera.shape[2] != 3 or abs(float(np.linalg.det(matrix))) < 1e-12:
+        return None
+    raw = result.camera.astype(np.float64) @ np.linalg.inv(matrix)
+    return transformed_fringe(np.maximum(raw, 0.0), str(meta["cfa_pattern"]), matrix)
+
+
 def identify_result(
     result: SpectralResult,
     labels: NDArray[np.integer] | None = None,
@@ -241,6 +265,8 @@ def identify_result(
     spectra = region_spectra(result.weights, live, result.basis, result.method_error) if live.any() else None
     row = {} if spectra is None else {int(v): i for i, v in enumerate(spectra.labels)}
     flat_cam = result.camera.reshape(-1, result.camera.shape[2])
+    fringe = result_fringe(result)
+    flat_err = None if fringe is None else fringe.reshape(-1, fringe.shape[2])
     flat_lab = live.ravel()
     reports = []
     for r in ids:
@@ -250,7 +276,8 @@ def identify_result(
                                         "no usable pixel (saturated or dead in the RAW, or black)"))
             continue
         try:
-            found = identify_material(px, cands, noise=noise, model_error=model_error)
+            found = identify_material(px, cands, noise=noise, model_error=model_error,
+                                      colour_error=None if flat_err is None else flat_err[flat_lab == r])
         except SpectralEstimationError as exc:
             reports.append(RegionReport(r, px.shape[0], None, None, None, None, (), None, None, None, None, str(exc)))
             continue

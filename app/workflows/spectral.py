@@ -405,6 +405,8 @@ def estimate_spectral(
         "chart_warnings": [w for c in charts for w in c.warnings],
         "condition": {k: float(v) for k, v in est.fit.condition.items()},
         "chart_residual": float(est.transform.residual),
+        "cfa_pattern": images[0].cfa_pattern,
+        "chart_transform": np.asarray(est.transform.matrix, dtype=np.float64).tolist(),
         "chart_rmse": est.chart_rmse,
         "training_rmse": float(est.fit.training_rmse),
         "training_spectra": int(setup.training.shape[0]),

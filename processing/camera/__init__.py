@@ -4,6 +4,8 @@ Modules
 -------
 raw_decode
     Linear, un-white-balanced camera RGB and masks from a Bayer RAW file; the sRGB preview.
+cfa_fringe
+    The false colour of a binned Bayer image where the brightness changes fast (small highlights).
 chart_layout
     Patch geometry and reference colours of the charts ``cv2.mcc`` knows.
 chart_detection
@@ -43,6 +45,7 @@ spectral sensitivity functions for digital color cameras? IEEE WACV, 168-179.
 doi:10.1109/WACV.2013.6475015
 """
 
+from processing.camera.cfa_fringe import CfaFringeError, cfa_fringe, transformed_fringe
 from processing.camera.chart_detection import (
     ChartDetection,
     ChartDetectionError,
@@ -98,6 +101,10 @@ __all__ = [
     "bilinear_demosaic",
     "preview_srgb8",
     "sniff_format",
+    # cfa_fringe
+    "CfaFringeError",
+    "cfa_fringe",
+    "transformed_fringe",
     # chart_layout
     "CHARTS",
     "ChartLayout",

@@ -53,6 +53,7 @@ from processing.materials.confidence import (
     MAX_MISFIT,
     NO_FIT,
     NOT_MEASURED,
+    SINGLE_IMAGE_ERROR_DOF,
     ConfidenceError,
     Decision,
     Reliability,
@@ -85,9 +86,12 @@ from processing.materials.fresnel import fresnel_conductor, fresnel_dielectric
 from processing.materials.identification import (
     DEFAULT_CANDIDATES,
     DEFAULT_MODEL_ERROR,
+    FRINGE_SLACK,
+    MAX_COLOUR_ERROR,
     NEUTRAL_METAL,
     AlloyEstimate,
     CandidateSet,
+    FringeOnlyError,
     Identification,
     candidate_set,
     estimate_alloy_weights,
@@ -174,14 +178,14 @@ __all__ = [
     "parse_material_spec", "preset_source",
     # confidence
     "Decision", "decide", "NO_FIT", "NOT_MEASURED", "MAX_MISFIT", "AMBIGUOUS_LR", "is_right", "reliability_table",
-    "Reliability", "ConfidenceError",
+    "Reliability", "ConfidenceError", "SINGLE_IMAGE_ERROR_DOF",
     # forward_fit
     "SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError", "region_samples",
     "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT",
     # photometric_normals
     "NormalRefinement", "refine_normals", "MAX_TILT_DEG", "PRIOR_DEG", "SMOOTH_DEG", "MIN_DECIDING",
     # identification
-    "DEFAULT_CANDIDATES", "DEFAULT_MODEL_ERROR", "NEUTRAL_METAL", "CandidateSet", "Identification", "AlloyEstimate", "candidate_set",
+    "DEFAULT_CANDIDATES", "DEFAULT_MODEL_ERROR", "FRINGE_SLACK", "MAX_COLOUR_ERROR", "FringeOnlyError", "NEUTRAL_METAL", "CandidateSet", "Identification", "AlloyEstimate", "candidate_set",
     "identify_material", "identify_regions", "estimate_alloy_weights",
     # segmentation
     "Segmentation", "SegmentationError", "border_backdrop", "segment_regions",

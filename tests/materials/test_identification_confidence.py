@@ -155,3 +155,32 @@ def test_reliability_bench_smoke():
     # loose: the full run (3000+ regions) gives >= 97 % right at >= 0.9 and ECE about 0.05
     assert out["high_count"] >= 30 and out["high_accuracy"] >= 0.85
     assert out["ece"] < 0.15
+
+
+def test_highlight_reliability_smoke():
+    """The clicked-patch bench runs end to end; with the fringe term its >= 0.9 answers are mostly right, and
+    without it they are not (the false colour of a few-pixel highlight is what the term is for)."""
+    from bench.reliability import highlight_reliability
+
+    told = highlight_reliability(n_patches=120, seed=5)
+    blind = highlight_reliability(n_patches=120, seed=5, fringe=False)
+    assert told["regions"] + told["refused"] == 120
+    assert sum(told["table"]["count"]) == told["answered"]
+    # loose (120 patches): the full run (3000) gives 97.5 % right at >= 0.9 with the term, 73 % without
+    assert told["high_count"] >= 5 and told["high_accuracy"] >= 0.8
+    assert len(blind["high_wrong"]) > len(told["high_wrong"])
+
+
+def test_the_student_t_likelihood_spreads_the_posterior_but_keeps_the_order():
+    """With the error's own size uncertain (error_dof), a chi-square gap of 20 on two degrees of freedom is
+    no longer e^10 to 1; the best candidate stays the best; a bad error_dof is refused."""
+    from processing.materials.confidence import ConfidenceError, decide
+
+    gauss = decide(["gold", "copper", "silver"], [1.0, 21.0, 400.0], [2, 2, 2], [1, 1, 1])
+    t = decide(["gold", "copper", "silver"], [1.0, 21.0, 400.0], [2, 2, 2], [1, 1, 1], error_dof=8)
+    assert gauss.answer == t.answer == "gold" and gauss.confidence > 0.99
+    ratio = t.posterior[0] / t.posterior[1]
+    expected = (1 + 21.0 / 8) ** 5 / (1 + 1.0 / 8) ** 5     # (1 + chi2 / nu)^((nu + dof) / 2), nu 8, dof 2
+    assert ratio == pytest.approx(expected, rel=1e-9) and t.confidence < gauss.confidence
+    with pytest.raises(ConfidenceError, match="error_dof"):
+        decide(["gold", "copper"], [1.0, 2.0], [2, 2], [1, 1], error_dof=0)
