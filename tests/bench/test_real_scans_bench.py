@@ -142,7 +142,11 @@ def test_section_reports_refused_scans_and_the_count_within_limits():
     refused = {"registered": False, "rotation_deg": None, "displacement_mm": None, "within": False}
     rows_k = [dict(ok, scan=n) for n in SCANS[1:-1]] + [dict(refused, scan=SCANS[-1])]
     rows_o = [dict(ok, scan=n) for n in SCANS[1:-1]] + [dict(bad, scan=SCANS[-1])]
-    text = "\n".join(section(_result(rows_k, rows_o)))
+    r = _result(rows_k, rows_o)
+    r["kogei_seeds"] = [{"seed": 0, "within": 8, "scans": 9, "refused": 1, "max_rotation_deg": 0.1,
+                         "max_displacement_mm": 0.2, "verified_wrong": 0, "seconds": 500.0}]
+    text = "\n".join(section(r))
+    assert "| kogei | 0 | 8/9 | 1 | 0.100 | 0.200 | 0 | 500 |" in text
     assert "| top3 | refused | refused | no | 178.000 | 260.000 | **no** |" in text
     assert text.count("**8/9**") == 2
     assert "Target: **not met**." in text
