@@ -339,6 +339,16 @@ def geometry_section(results: dict[str, dict] | None = None) -> list[str]:
     return lines
 
 
+def real_scans_section() -> list[str]:
+    """Registration of the Stanford bunny's real range scans against the published alignment (bench/real_scans_bench.py).
+
+    Skipped (one line in the section) when the scans are not in the lab's data folder.
+    """
+    from bench.real_scans_bench import section
+
+    return section(run_case_subprocess("bench.real_scans_bench", "all", timeout=7200))
+
+
 def chart_section() -> list[str]:
     """RAW decoding and chart detection on a 24-megapixel frame (bench/chart_bench.py)."""
     from bench.chart_bench import section
@@ -509,6 +519,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "render": ("## Renderer", render_section),
     "devices": ("## Devices", devices_section),
     "geometry": ("## Scan processing", geometry_section),
+    "real-scans": ("## Real scans", real_scans_section),
     "chart": ("## RAW decoding and chart detection", chart_section),
     "spectral": ("## Spectral estimation and material identification", spectral_section),
     "cloth": ("## Cloth", cloth_section),

@@ -16,6 +16,10 @@ registers every pair without an initial guess and optimises a pose graph
 
 ``--picks`` takes the manual fallback: three or more picked point pairs for
 a pair the automatic search cannot settle (e.g. a symmetric object).
+``--units mm|cm|m|in`` names the unit of the files' coordinates (default mm):
+they are converted to mm for the registration (its presets and metrics are in
+mm) and the merged cloud and the poses' translations are written back in that
+unit.
 
 Exit status 0 when every input is registered, 1 when some could not be (the
 files are still written, without those inputs, and the reasons are printed),
@@ -31,6 +35,7 @@ from pathlib import Path
 
 from app.errors import UsageError
 from app.workflows.cloud_registration import (
+    UNITS_MM,
     WRITABLE,
     poses_document,
     read_cloud,
@@ -62,6 +67,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--picks", default=None, metavar="PICKS.json",
                    help='manual picks: [{"pair": [i, j], "points": [[[x,y,z], ...], [[x,y,z], ...]]}], '
                         "3 or more corresponding points on input i and input j (0-based)")
+    p.add_argument("--units", default="mm", choices=sorted(UNITS_MM),
+                   help="unit of the files' coordinates (and of --picks); converted to mm for the registration, "
+                        "the merged cloud and the poses are written in it (default %(default)s)")
     p.add_argument("--drop-invalid", action="store_true",
                    help="drop NaN / infinite points instead of refusing the file")
     p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the random subsampling (default %(default)s)")
@@ -100,12 +108,15 @@ def _register(args: argparse.Namespace) -> int:
     if len(args.clouds) < 2:
         raise UsageError("give at least two point clouds to register")
     files = [str(c) for c in args.clouds]
+    mm = UNITS_MM[args.units]
     clouds, normals = [], []
     for f in files:
         pts, nrm = read_cloud(Path(f), drop_invalid=args.drop_invalid)
-        clouds.append(pts)
+        clouds.append(pts * mm)
         normals.append(nrm)
     picks = read_picks(Path(args.picks), len(files)) if args.picks else None
+    if picks is not None:
+        picks = {k: (a * mm, b * mm) for k, (a, b) in picks.items()}
     result = register_passes(clouds, normals, preset=args.preset, pairs=args.pairs, picks=picks,
                              names=files, seed=args.seed)
 
@@ -122,9 +133,9 @@ def _register(args: argparse.Namespace) -> int:
         say(f"pose graph: edges agree within {c.max_rotation_deg:.3g} deg and {c.max_displacement_mm:.3g} mm")
 
     if poses_path is not None:
-        write_poses(poses_path, poses_document(files, [len(c) for c in clouds], result))
+        write_poses(poses_path, poses_document(files, [len(c) for c in clouds], result, units=args.units))
     if out is not None:
-        write_merged_cloud(out, clouds, result, normals)
+        write_merged_cloud(out, clouds, result, normals, units=args.units)
     written = ", ".join(str(p) for p in (out, poses_path) if p is not None)
     n_ok = sum(p.registered for p in result.poses)
     say(f"wrote {written} ({n_ok} of {len(files)} inputs registered, {result.seconds:.1f} s)")

@@ -19,7 +19,7 @@ import numpy as np
 from app.errors import UsageError
 from processing.common.files import atomic_path
 
-__all__ = ["BYTES_PER_POINT", "MAX_PICKS_BYTES", "POSES_FORMAT", "READABLE", "WRITABLE", "read_cloud", "read_picks", "poses_document", "write_poses",
+__all__ = ["BYTES_PER_POINT", "MAX_PICKS_BYTES", "POSES_FORMAT", "READABLE", "UNITS_MM", "WRITABLE", "read_cloud", "read_picks", "poses_document", "write_poses",
            "write_merged_cloud"]
 
 #: ``format`` field of poses.json.
@@ -28,6 +28,16 @@ POSES_FORMAT = "kogei-poses"
 #: Point-cloud file suffixes read and written.
 READABLE = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 WRITABLE = (".ply", ".pcd", ".xyz", ".xyzn", ".pts")
+
+#: Units of the files' coordinates (``kogei register --units``) and millimetres per unit.
+UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
+
+
+def _in_units(transform: np.ndarray, units: str) -> np.ndarray:
+    """A 4 x 4 transform in mm with its translation expressed in ``units`` instead."""
+    t = np.array(transform, dtype=np.float64)
+    t[:3, 3] /= UNITS_MM[units]
+    return t
 
 
 def read_cloud(path: Path, *, drop_invalid: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
@@ -140,7 +150,7 @@ def read_picks(path: Path, n_inputs: int) -> dict[tuple[int, int], tuple[np.ndar
             a = np.asarray(points[0], dtype=np.float64)
             b = np.asarray(points[1], dtype=np.float64)
         except (TypeError, ValueError):
-            raise UsageError(f"{where}: points must be lists of [x, y, z] numbers in mm") from None
+            raise UsageError(f"{where}: points must be lists of [x, y, z] numbers in mm (or in --units)") from None
         if a.ndim != 2 or a.shape[1:] != (3,) or a.shape != b.shape:
             raise UsageError(
                 f"{where}: points must be two equally long lists of [x, y, z], got shapes {a.shape} and {b.shape}"
@@ -153,8 +163,14 @@ def read_picks(path: Path, n_inputs: int) -> dict[tuple[int, int], tuple[np.ndar
     return out
 
 
-def poses_document(files: list[str], counts: list[int], result: Any) -> dict[str, Any]:
-    """The JSON form of poses.json: per input its pose into the first's frame, every pair, the pose graph."""
+def poses_document(files: list[str], counts: list[int], result: Any, *, units: str = "mm") -> dict[str, Any]:
+    """The JSON form of poses.json: per input its pose into the first's frame, every pair, the pose graph.
+
+    ``result`` is in mm; the matrices' translations are written in ``units`` (the files'
+    unit, see :data:`UNITS_MM`), every ``*_mm`` metric stays in mm.
+    """
+    if units not in UNITS_MM:
+        raise UsageError(f"--units: unknown unit {units!r}; use one of {', '.join(UNITS_MM)}")
     inputs = []
     for f, n, pose in zip(files, counts, result.poses):
         inputs.append({
@@ -162,11 +178,12 @@ def poses_document(files: list[str], counts: list[int], result: Any) -> dict[str
             "points": n,
             "registered": pose.registered,
             "reason": pose.reason,
-            "matrix": None if pose.transform is None else np.asarray(pose.transform).tolist(),
+            "matrix": None if pose.transform is None else _in_units(pose.transform, units).tolist(),
         })
     pairs = []
     for r in result.pairs:
         d = r.as_dict()
+        d["transform"] = _in_units(r.transform, units).tolist()
         d["source_file"], d["target_file"] = files[r.source], files[r.target]
         pairs.append(d)
     graph = None
@@ -184,6 +201,7 @@ def poses_document(files: list[str], counts: list[int], result: Any) -> dict[str
         "format": POSES_FORMAT,
         "version": 1,
         "frame": files[0],
+        "units": units,
         "preset": result.preset.name,
         "inputs": inputs,
         "pairs": pairs,
@@ -198,13 +216,20 @@ def write_poses(path: Path, document: dict[str, Any]) -> None:
         tmp.write_text(json.dumps(document, indent=2, allow_nan=False) + "\n")
 
 
-def write_merged_cloud(path: Path, clouds: list[np.ndarray], result: Any, normals: list[np.ndarray | None]) -> None:
-    """The registered inputs merged in the first one's frame, written atomically (with normals if all have them)."""
+def write_merged_cloud(path: Path, clouds: list[np.ndarray], result: Any, normals: list[np.ndarray | None],
+                       *, units: str = "mm") -> None:
+    """The registered inputs merged in the first one's frame, written atomically (with normals if all have them).
+
+    ``clouds`` and ``result`` are in mm; the file is written in ``units`` (see :data:`UNITS_MM`).
+    """
     import open3d as o3d
 
     from processing.geometry.registration import merge_passes
 
+    if units not in UNITS_MM:
+        raise UsageError(f"--units: unknown unit {units!r}; use one of {', '.join(UNITS_MM)}")
     pts, nrm, _ = merge_passes(clouds, result, normals)
+    pts = pts / UNITS_MM[units]
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     if nrm is not None:
         pcd.normals = o3d.utility.Vector3dVector(nrm)

@@ -221,3 +221,39 @@ def test_poses_json_has_no_nan(tmp_path, passes):
     assert "NaN" not in text and "Infinity" not in text
     doc = json.loads(text)
     assert doc["pairs"][0]["margin"] is None and math.isfinite(doc["seconds"])
+
+
+def test_units_metres_are_converted_and_written_back(tmp_path, passes, capsys):
+    # the same two passes written in metres: registered as in mm, poses and merged cloud in metres
+    placements, scans = passes
+    files = [_write(tmp_path / "a.ply", scans[0][0] / 1000.0, scans[0][1]),
+             _write(tmp_path / "b.ply", scans[1][0] / 1000.0, scans[1][1])]
+    out, poses = tmp_path / "merged.ply", tmp_path / "poses.json"
+    code = run(_parse(*files, "--out", out, "--poses", poses, "--preset", "draft", "--units", "m"))
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads(poses.read_text())
+    assert doc["units"] == "m"
+    truth = placements[0] @ np.linalg.inv(placements[1])
+    matrix = np.array(doc["inputs"][1]["matrix"])
+    # translations in metres: back in mm they match the truth as the mm run does
+    in_mm = matrix.copy()
+    in_mm[:3, 3] *= 1000.0
+    rot, disp = pose_difference(in_mm, truth, scans[1][0])
+    assert rot < TOL_DEG and disp < TOL_MM
+    # the pair maps b into a, as the pose does (one edge: the pose graph keeps it), also in metres
+    assert np.allclose(doc["pairs"][0]["transform"], matrix, atol=1e-5)
+    # metrics stay in mm: the residual is about the hawk scan's noise, not a thousandth of it
+    assert 0.001 < doc["pairs"][0]["rmse_mm"] < 0.5
+    merged, _ = read_cloud(out)
+    assert np.allclose(merged[: len(scans[0][0])], scans[0][0] / 1000.0, atol=1e-9)
+
+
+def test_unknown_units_are_refused(tmp_path):
+    good = _write(tmp_path / "good.xyz", np.random.default_rng(0).normal(size=(50, 3)))
+    with pytest.raises(SystemExit) as exc:
+        _parse(good, good, "--poses", tmp_path / "p.json", "--units", "furlong")
+    assert exc.value.code == 2
+    from app.workflows.cloud_registration import poses_document
+
+    with pytest.raises(UsageError, match="--units: unknown unit 'furlong'"):
+        poses_document([], [], None, units="furlong")
