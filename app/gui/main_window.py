@@ -373,6 +373,11 @@ class MainWindow(QMainWindow):
             self.devices.put_button.setEnabled(True)
             self._describe_station(st)
             self.append_log(f"simulated station: the {name} is on the table")
+            # the plan that goes with what is on the table: the sphere's calibration plan, or the piece's scan
+            kind = "sphere-calibration" if name == SIMULATED_OBJECTS[1] else "scan"
+            if self.capture.kind.currentText() != kind and self.capture.start.isEnabled():
+                self.capture.kind.setCurrentText(kind)
+                self.append_log(f"capture plan: {kind} (for the {name})")
 
         def failed(text: str, exc: Any) -> None:
             self.devices.put_button.setEnabled(True)
@@ -408,6 +413,10 @@ class MainWindow(QMainWindow):
         """What has been done, as :func:`app.gui.guidance.current_step` reads it."""
         root = self.session.root
         manifest = self.session.manifest if root is not None else None
+        plan = manifest.get("plan") if isinstance(manifest, dict) else None
+        if isinstance(plan, dict) and plan.get("kind") != "scan":
+            # a calibration (or swatch, probe) session is not the piece's: the piece's session comes next
+            root, manifest = None, None
         products = Path(root) / "products" if root is not None else None
         return {
             "devices": all(self.link.states.get(n) in ("connected", "capture") for n in ("turntable", "profiler")),
