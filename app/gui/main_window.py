@@ -542,6 +542,7 @@ class MainWindow(QMainWindow):
         if manifest is not None:
             self.capture.set_plan(manifest.get("plan", {}))
         self.processing.show_station(manifest)
+        self.processing.show_mesh(root)              # the session's mesh, or that it has none yet
         # what the tabs show of the previous session goes; the Preview shows this session's mesh if it has one
         self.camera.refresh_charts()
         self.spectra.forget()
@@ -611,6 +612,9 @@ class MainWindow(QMainWindow):
         final = getattr(self.preview, "_process_job", None)
         if final is not None and not final.done:
             final.cancel()                   # a full-size preview render in its worker process
+        mesh_view = self.processing.mesh_job
+        if mesh_view is not None and not mesh_view.done:
+            mesh_view.cancel()               # the Processing tab's mesh view, rendering in its worker process
         self.device_lane.wait(30_000)
         self.work_lane.wait(30_000)
         self.drawer.shutdown(30_000)
