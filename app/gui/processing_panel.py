@@ -550,6 +550,9 @@ class ProcessingPanel(Panel):
             item.setForeground(7, QBrush(QColor(VERDICT_COLOURS[verdict.level])))
             item.setToolTip(7, verdict.tooltip)
             self.pairs_tree.addTopLevelItem(item)
+        for tree in (self.passes_tree, self.pairs_tree):            # whole verdicts in a narrow window
+            for col in range(tree.columnCount()):
+                tree.resizeColumnToContents(col)
         self.scroll_area.ensureWidgetVisible(self.pairs_tree)      # the verdicts in view in a short window
         c = report["registration"]["consistency"]
         m = report["mesh"]
