@@ -404,8 +404,9 @@ class MainWindow(QMainWindow):
 
     def _describe_station(self, st: Any) -> None:
         self.devices.sim_state.setText(f"running in this window: {st.root} with {_object_label(st.world)} on the "
-                                       f"table (turntable {st.turntable_path}, profiler {st.profiler_path}, "
-                                       f"gphoto2 {st.gphoto2_path})")
+                                       "table (its ports are filled in above)")
+        self.devices.sim_state.setToolTip(f"turntable {st.turntable_path}, profiler {st.profiler_path}, "
+                                          f"gphoto2 {st.gphoto2_path}")
 
     def _attach_station(self, st: Any) -> Any:
         """Point the Devices tab at a running simulated station (ports, gphoto2 shim, placements)."""
