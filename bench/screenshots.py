@@ -37,7 +37,7 @@ def _calibration(tmp: Path) -> Path:
     from mocks.station import SimulatedStation
     from mocks.world import World
 
-    plan = CapturePlan("scan", steps=90, passes=1, camera=False)
+    plan = CapturePlan("sphere-calibration", steps=90)           # profiles only, no chart
     with SimulatedStation(World.calibration_sphere(25.0, 60.0), root=tmp / "cal-station", seed=1) as st:
         config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)}}
         s = Session.create(tmp / "calibration", plan=plan.to_dict(), object_info={"name": "reference sphere r 25"})
@@ -181,6 +181,7 @@ def take_screenshots(out: Path, *, steps: int = 90, passes: int = 3, log: Callab
         wait(lambda: not w.processing.running, "processing", 900)
         if w.processing.report is None:
             raise RuntimeError(f"screenshots: processing failed: {w.error_line.text()}")
+        wait(lambda: w.processing.mesh_image is not None and w.processing.mesh_busy.isHidden(), "the mesh view")
         shot(w, "processing")
 
         w.tabs.setCurrentWidget(w.preview)

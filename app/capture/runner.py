@@ -11,7 +11,9 @@ Per pass of a ``scan`` plan: the object is placed (a hook: a prompt at the
 station, a command in an unattended run), the table is zeroed, the chart
 frame is shot (lasers off), then one full revolution of ``steps`` profiles
 with the lasers re-asserted on every step; RAW frames are shot (lasers off)
-at the camera angles, each snapped to the nearest step.  A ``swatch`` plan
+at the camera angles, each snapped to the nearest step.  A ``sphere-calibration`` plan is one pass
+of profiles of the reference sphere for the scanner calibration: no chart, and RAW frames only at the camera
+angles it is given (the photos that tie the camera to the scanner; none by default).  A ``swatch`` plan
 (a flat fabric sample, Yasuda et al. section 4) shoots only RAW frames, at
 every step angle.  A ``probe`` plan shoots the chart, then exposure brackets of a
 mirror sphere at one table angle, setting each frame's shutter speed first (a light probe,
@@ -73,6 +75,7 @@ from processing.common.files import sha256_file
 
 __all__ = [
     "PLAN_KINDS",
+    "PROFILE_KINDS",
     "CAMERA_ONLY_KINDS",
     "CALIBRATION_KINDS",
     "DEFAULT_BOARD",
@@ -96,18 +99,20 @@ __all__ = [
     "MIN_VALID_SHARE",
 ]
 
-PLAN_KINDS = ("scan", "swatch", "camera-calibration", "lamp-calibration", "probe")
+PLAN_KINDS = ("scan", "sphere-calibration", "swatch", "camera-calibration", "lamp-calibration", "probe")
+#: Plans that take laser profiles over a revolution (they need the profiler).
+PROFILE_KINDS = ("scan", "sphere-calibration")
 #: Plans that take only RAW frames, one at every step angle of each pass (no profiles).
 CAMERA_ONLY_KINDS = ("swatch", "camera-calibration", "lamp-calibration", "probe")
 #: Plans that calibrate the station (no colour chart by default).
-CALIBRATION_KINDS = ("camera-calibration", "lamp-calibration")
+CALIBRATION_KINDS = ("sphere-calibration", "camera-calibration", "lamp-calibration")
 #: The ChArUco board a camera-calibration plan uses unless told otherwise (lengths in mm).
 DEFAULT_BOARD = {"dictionary": "DICT_5X5_100", "squares_x": 7, "squares_y": 5, "square_mm": 8.0, "marker_mm": 6.0}
 #: Table angles of a scan pass's RAW frames: every 30 deg, so a metal's highlights sweep its surface.
 DEFAULT_CAMERA_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 30))
 #: Steps and passes per plan kind when not given.
-_DEFAULT_STEPS = {"scan": 200, "swatch": 200, "camera-calibration": 12, "lamp-calibration": 12, "probe": 1}
-_DEFAULT_PASSES = {"scan": 3, "swatch": 1, "camera-calibration": 3, "lamp-calibration": 1, "probe": 1}
+_DEFAULT_STEPS = {"scan": 200, "sphere-calibration": 200, "swatch": 200, "camera-calibration": 12, "lamp-calibration": 12, "probe": 1}
+_DEFAULT_PASSES = {"scan": 3, "sphere-calibration": 1, "swatch": 1, "camera-calibration": 3, "lamp-calibration": 1, "probe": 1}
 #: Shutter speeds of a probe plan's brackets (gphoto2's ``shutterspeed`` values): 7 frames 2 EV apart.
 PROBE_BRACKETS = ("1/4000", "1/1000", "1/250", "1/60", "1/15", "1/4", "1")
 
@@ -185,6 +190,9 @@ class CapturePlan:
     ----------
     kind
         ``"scan"`` (profiles over a revolution plus RAW frames),
+        ``"sphere-calibration"`` (one pass of profiles of the reference sphere for
+        the scanner calibration, no chart; RAW frames only at the camera angles
+        given, the sphere photos that tie the camera to the scanner),
         ``"swatch"`` (RAW frames at every step angle, no profiles: a cloth
         swatch), ``"camera-calibration"`` (RAW frames of a ChArUco board at
         every step angle; one pass per placement of the board, flat or on a
@@ -193,13 +201,15 @@ class CapturePlan:
         the light to be measured, after the chart: docs/lighting.md).
     steps
         Table positions per revolution (equal angles from 0); default 200
-        for ``scan`` and ``swatch``, 12 for the calibration plans.
+        for ``scan``, ``sphere-calibration`` and ``swatch``, 12 for the
+        camera and lamp calibrations.
     passes
         Placements of the object (re-placed by hand between passes);
         default 3 for ``scan`` and ``camera-calibration``, 1 otherwise.
     camera_angles_deg
-        Table angles of the RAW frames of a ``scan`` pass (snapped to the
-        nearest step; default every 30 deg); ignored by the other kinds.
+        Table angles of the RAW frames of a ``scan`` or ``sphere-calibration``
+        pass (snapped to the nearest step; default every 30 deg for a scan,
+        none for a sphere calibration); ignored by the other kinds.
     chart
         Shoot the colour-chart frame first in every pass (default: yes,
         except for the calibration plans).
@@ -207,7 +217,9 @@ class CapturePlan:
         Turntable laser outputs to switch on while profiling (the laser
         line's power); they are off for every camera frame.
     camera
-        False for a profiles-only scan (no camera frames, no chart).
+        False for a profiles-only scan (no camera frames, no chart).  A
+        ``sphere-calibration`` plan with no camera angles needs no camera
+        and is stored with ``camera`` False.
     chart_frames
         Chart frames per pass, their gains averaged by the fit (default 16
         for ``swatch``, whose fit is limited by the chart's pixel noise:
@@ -232,12 +244,15 @@ class CapturePlan:
     22
     >>> [a.id for a in CapturePlan("swatch", steps=2, passes=1, chart_frames=2).actions()]
     ['p01/chart/00', 'p01/chart/01', 'p01/frame/00', 'p01/frame/01']
+    >>> sphere = CapturePlan("sphere-calibration", steps=4)
+    >>> [a.id for a in sphere.actions()], sphere.camera
+    (['p01/profile/0000', 'p01/profile/0001', 'p01/profile/0002', 'p01/profile/0003'], False)
     """
 
     kind: str = "scan"
     steps: int | None = None
     passes: int | None = None
-    camera_angles_deg: tuple[float, ...] = DEFAULT_CAMERA_ANGLES_DEG
+    camera_angles_deg: tuple[float, ...] | None = None
     chart: bool | None = None
     lasers: tuple[int, ...] = (1,)
     camera: bool = True
@@ -276,6 +291,15 @@ class CapturePlan:
             object.__setattr__(self, "passes", _DEFAULT_PASSES[self.kind])
         if self.chart is None:
             object.__setattr__(self, "chart", self.kind not in CALIBRATION_KINDS)
+        if self.camera_angles_deg is None:
+            object.__setattr__(self, "camera_angles_deg",
+                               () if self.kind == "sphere-calibration" else DEFAULT_CAMERA_ANGLES_DEG)
+        if self.kind == "sphere-calibration":
+            if self.chart:
+                raise ValueError("a sphere-calibration plan takes no colour-chart frame (the scanner calibration "
+                                 "reads only the profiles); leave the chart out")
+            if not self.camera_angles_deg:         # no photos of the sphere: the camera is not needed
+                object.__setattr__(self, "camera", False)
         if self.kind == "camera-calibration":
             board = dict(DEFAULT_BOARD if self.board is None else self.board)
             if set(board) != set(DEFAULT_BOARD):
@@ -378,6 +402,8 @@ def placement_prompt(kind: str, pass_no: int) -> str:
     if kind == "camera-calibration":
         return ("lay the ChArUco board flat on the table, near its centre" if p == 1 else
                 "prop the ChArUco board on a wedge facing the camera, at a tilt the passes before did not use")
+    if kind == "sphere-calibration":
+        return "put the reference sphere on the table, 5-6 cm from its centre, where the laser line crosses it"
     if kind == "lamp-calibration":
         return "put the mirror sphere on the table, 3-4 cm from its centre, with the lamps as they are for the scans"
     if kind == "probe":
@@ -541,7 +567,7 @@ class _Runner:
             raise SessionError(f"session {session.root} was planned as {stored!r}, not {plan.to_dict()!r}; "
                                "resume it with its own plan (kogei capture --resume reads it from the session)")
         needs_table = True
-        needs_profiler = plan.kind == "scan"
+        needs_profiler = plan.kind in PROFILE_KINDS
         needs_camera = plan.camera
         missing = [name for name, need, dev in (("turntable", needs_table, devices.turntable),
                                                 ("laser profiler", needs_profiler, devices.profiler),
@@ -768,7 +794,7 @@ class _Runner:
             self.durations[a.kind].append(time.monotonic() - t)
             self.report.taken += 1
             self._progress(a)
-        if self.plan.kind == "scan":
+        if self.plan.kind in PROFILE_KINDS:
             self._gather(p)
         s.update_pass(p, status="complete", completed=utc_now())
         s.checkpoint()
@@ -920,7 +946,7 @@ class _Runner:
 
     # ---------------------------------------------------------------- end of pass
     def _gathered_ok(self, p: int) -> bool:
-        if self.plan.kind != "scan":
+        if self.plan.kind not in PROFILE_KINDS:
             return True
         rec = self.session.capture(f"p{p:02d}/profiles")
         return rec is not None and self.session.verify_file(rec) is None

@@ -40,9 +40,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", metavar="SPEC",
                    help="gphoto2, gphoto2:PATH (the gphoto2 program to run), hotfolder:DIR or none (required with "
                         "--out)")
-    p.add_argument("--plan", choices=["scan", "swatch", "camera-calibration", "lamp-calibration", "probe"],
+    p.add_argument("--plan", choices=["scan", "sphere-calibration", "swatch", "camera-calibration", "lamp-calibration", "probe"],
                    default="scan",
-                   help="scan: profiles + RAW frames (default); swatch: RAW frames at every step (cloth); "
+                   help="scan: profiles + RAW frames (default); sphere-calibration: one pass of profiles of the "
+                        "reference sphere for kogei calibrate, no chart, RAW frames only at --camera-angles (the "
+                        "sphere photos that tie the camera to the scanner); swatch: RAW frames at every step (cloth); "
                         "camera-calibration: a ChArUco board at every step, one pass per placement of the board "
                         "(flat, then on wedges); lamp-calibration: a mirror sphere at every step; probe: the "
                         "colour chart, then exposure brackets of a mirror sphere (a light probe, kogei probe)")
@@ -51,11 +53,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "1/4000,1/1000,1/250,1/60,1/15,1/4,1: 7 frames 2 EV apart)")
     p.add_argument("--steps", type=int, default=None, metavar="N",
                    help="table positions per revolution, evenly spaced (default 200, i.e. 1.8 deg apart; 12 for the "
-                        "calibration plans)")
+                        "camera and lamp calibration plans)")
     p.add_argument("--passes", type=int, default=None, metavar="N",
                    help="placements of the object (default 3 for scan and camera-calibration, else 1)")
     p.add_argument("--camera-angles", default=None, metavar="DEG,DEG,...",
-                   help="table angles of the RAW frames of each scan pass (default every 30 deg: 0,30,...,330)")
+                   help="table angles of the RAW frames of each scan pass (default every 30 deg: 0,30,...,330); "
+                        "sphere-calibration: the sphere photos to take (default none)")
     p.add_argument("--board", default=None, metavar="FILE.json",
                    help="camera-calibration: the ChArUco board's definition (dictionary, squares_x, squares_y, "
                         "square_mm, marker_mm); default a 7 x 5 board of 8 mm squares, DICT_5X5_100")
@@ -131,7 +134,7 @@ def _board_file(path: str) -> dict[str, Any]:
 
 def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     from app.capture.devices import check_command, check_device_config, creator_record, parse_camera_spec
-    from app.capture.runner import CapturePlan
+    from app.capture.runner import PROFILE_KINDS, CapturePlan
     from app.session import Session
 
     if not args.turntable:
@@ -139,9 +142,12 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     if args.camera is None:
         raise UsageError("--camera is required: gphoto2, gphoto2:PATH, hotfolder:DIR or none")
     camera = parse_camera_spec(args.camera)
-    if args.plan == "scan" and not args.laser:
-        raise UsageError("--laser PORT is required for a scan (the laser profiler's port)")
-    if args.plan != "scan" and camera["kind"] == "none":
+    if args.plan in PROFILE_KINDS and not args.laser:
+        raise UsageError(f"--laser PORT is required for a {args.plan} (the laser profiler's port)")
+    if args.plan == "sphere-calibration" and args.camera_angles and camera["kind"] == "none":
+        raise UsageError("--camera-angles: the sphere photos need a camera; give --camera, or leave "
+                         "--camera-angles out for profiles only")
+    if args.plan not in PROFILE_KINDS and camera["kind"] == "none":
         raise UsageError(f"a {args.plan} capture takes only RAW frames: give --camera")
     for name in ("speed", "steps_per_degree", "camera_timeout", "hotfolder_stable", "reconnect_timeout"):
         _positive("--" + name.replace("_", "-"), getattr(args, name))
@@ -185,7 +191,7 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
         config["turntable"]["steps_per_degree"] = args.steps_per_degree
     if args.speed:
         config["turntable"]["speed_deg_s"] = args.speed
-    if args.plan == "scan":
+    if args.plan in PROFILE_KINDS:
         config["profiler"] = {"port": args.laser}
         if args.exposure_us is not None:
             config["profiler"]["exposure_us"] = args.exposure_us

@@ -124,8 +124,9 @@ def capture_commands(info: dict[str, Any], steps: int = SCAN_STEPS, passes: int 
     ``plan`` is the plan's options for a calibration target (``--plan camera-calibration`` for the
     board, ``--plan lamp-calibration --sphere-radius R`` for the mirror sphere): camera only, the
     plan's own steps and passes.  ``plan="sphere"`` is the scanner calibration's scan of the reference
-    sphere: one pass of :data:`SPHERE_STEPS` profiles without the camera (the gphoto2 line) or with
-    photos of the sphere and no chart (the hot-folder line, for ``kogei calibrate --camera ... --scanner``).
+    sphere (``--plan sphere-calibration``): one pass of :data:`SPHERE_STEPS` profiles without the camera (the
+    gphoto2 line) or with photos of the sphere every 30 deg (the hot-folder line, for ``kogei calibrate --camera
+    ... --scanner``); never a chart.
 
     Examples
     --------
@@ -136,18 +137,19 @@ def capture_commands(info: dict[str, Any], steps: int = SCAN_STEPS, passes: int 
     >>> print(capture_commands(info, session="board", plan="--plan camera-calibration")["gphoto2"])
     kogei capture --turntable /s/turntable --camera gphoto2:/s/bin/gphoto2 --plan camera-calibration --out board --unattended --before-pass 'kogei mock place --control /s/control'
     >>> print(capture_commands(info, session="cal", plan="sphere")["gphoto2"])
-    kogei capture --turntable /s/turntable --laser /s/profiler --camera none --steps 90 --passes 1 --out cal --unattended
+    kogei capture --plan sphere-calibration --turntable /s/turntable --laser /s/profiler --camera none --steps 90 --out cal --unattended
     """
     q = shlex.quote
     place = f"kogei mock place --control {q(info['control'])}"
     shoot = f"kogei mock shoot --control {q(info['control'])}"
     if plan == "sphere":
-        common = f"--turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
-        tail = f"--steps {SPHERE_STEPS} --passes 1 --out {q(session)} --unattended"
+        common = f"--plan sphere-calibration --turntable {q(info['turntable'])} --laser {q(info['profiler'])}"
+        tail = f"--steps {SPHERE_STEPS} --out {q(session)} --unattended"
+        photos = ",".join(str(a) for a in range(0, 360, 30))
         return {
             "gphoto2": f"kogei capture {common} --camera none {tail}",
             "hotfolder": (f"kogei capture {common} --camera {q('hotfolder:' + info['hotfolder'])} "
-                          f"--shutter {q(shoot)} --hotfolder-stable 0.2 --no-chart {tail}"),
+                          f"--shutter {q(shoot)} --hotfolder-stable 0.2 --camera-angles {photos} {tail}"),
         }
     if plan:
         common = f"--turntable {q(info['turntable'])}"

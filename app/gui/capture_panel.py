@@ -258,8 +258,10 @@ class CapturePanel(Panel):
         plan = QGroupBox("Scan plan")
         f = QFormLayout(plan)
         self.kind = QComboBox()
-        self.kind.addItems(["scan", "swatch", "camera-calibration", "lamp-calibration", "probe"])
-        self.kind.setToolTip("scan: profiles + RAW frames; swatch: RAW frames of a cloth swatch at every step; "
+        self.kind.addItems(["scan", "sphere-calibration", "swatch", "camera-calibration", "lamp-calibration", "probe"])
+        self.kind.setToolTip("scan: profiles + RAW frames of the piece; sphere-calibration: one pass of profiles of "
+                             "the reference sphere for the scanner calibration (no chart; photos only at the camera "
+                             "angles given); swatch: RAW frames of a cloth swatch at every step; "
                              "camera-calibration: a ChArUco board at every step, flat then on wedges; "
                              "lamp-calibration: a mirror sphere at every step; probe: the colour chart, then 7 "
                              "exposure brackets of a mirror sphere (a light probe for kogei probe)")
@@ -276,7 +278,9 @@ class CapturePanel(Panel):
         self.steps.setToolTip("table steps per full turn: more steps, denser scan, longer capture")
         self.passes.setToolTip("how many times the object is scanned, re-placed between passes so that every "
                                "side is seen")
-        self.camera_angles.setToolTip("table angles (degrees, comma-separated) at which a RAW photo is taken")
+        self.camera_angles.setToolTip("table angles (degrees, comma-separated) at which a RAW photo is taken; for a "
+                                      "sphere-calibration leave it empty unless the camera will be calibrated too "
+                                      "(the sphere's photos tie the camera to the scanner)")
         self.chart.setChecked(True)
         self.kind.currentTextChanged.connect(self._kind_defaults)
         f.addRow("Kind", self.kind)
@@ -385,13 +389,16 @@ class CapturePanel(Panel):
 
     def _kind_defaults(self, kind: str) -> None:
         """Show a plan kind's defaults (steps, passes, chart) when the technician picks it."""
-        from app.capture.runner import CapturePlan
+        from app.capture.runner import PROFILE_KINDS, CapturePlan
 
         plan = CapturePlan(kind)
         self.steps.setValue(int(plan.steps))
         self.passes.setValue(int(plan.passes))
         self.chart.setChecked(bool(plan.chart))
-        self.camera_angles.setEnabled(kind == "scan")
+        self.chart.setEnabled(kind != "sphere-calibration")       # the scanner calibration reads no chart
+        self.camera_angles.setEnabled(kind in PROFILE_KINDS)
+        if kind in PROFILE_KINDS:
+            self.camera_angles.setText(",".join(f"{a:g}" for a in plan.camera_angles_deg))
 
     def set_plan(self, plan: dict[str, Any]) -> None:
         """Show a session's plan (an opened session resumes with its own plan)."""
@@ -402,7 +409,7 @@ class CapturePanel(Panel):
         self.chart.setChecked(bool(plan.get("chart", True)))
 
     def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
-        from app.capture.runner import open_for_resume
+        from app.capture.runner import PROFILE_KINDS, open_for_resume
         from app.errors import UsageError
         from app.session import Session, SessionError
 
@@ -429,13 +436,14 @@ class CapturePanel(Panel):
         except ValueError as exc:
             raise UsageError(str(exc)) from None
         config = self.link.device_config()
-        missing = [n for n, need in (("turntable", True), ("profiler", plan.kind == "scan")) if need and n not in config]
+        missing = [n for n, need in (("turntable", True), ("profiler", plan.kind in PROFILE_KINDS))
+                   if need and n not in config]
         if missing:
             raise UsageError(f"choose the {' and the '.join(missing)} port on the Devices tab")
         problem = self.link.camera_problem()
         if plan.camera and problem:
             raise UsageError(problem)
-        if plan.kind != "scan" and not plan.camera:
+        if plan.kind not in PROFILE_KINDS and not plan.camera:
             raise UsageError(f"a {plan.kind} capture takes only RAW frames: choose a camera on the Devices tab")
         try:
             session = Session.create(root, plan=plan.to_dict(), object_info=self.metadata(),

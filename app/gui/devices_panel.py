@@ -23,12 +23,14 @@ from PySide6.QtWidgets import (
     QComboBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QGridLayout,
     QGroupBox,
     QHBoxLayout,
     QLabel,
     QLineEdit,
     QPushButton,
+    QScrollArea,
     QVBoxLayout,
     QWidget,
 )
@@ -65,7 +67,16 @@ class DevicesPanel(QWidget):
         self.banners: dict[str, QLabel] = {}
         self.connect_buttons: dict[str, QPushButton] = {}
         self.disconnect_buttons: dict[str, QPushButton] = {}
-        outer = QVBoxLayout(self)
+        # the content scrolls when the window is too short for it (1024 x 700 with the log), never squeezed
+        inner = QWidget()
+        outer = QVBoxLayout(inner)
+        scroll = QScrollArea()
+        scroll.setWidget(inner)
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        page = QVBoxLayout(self)
+        page.setContentsMargins(0, 0, 0, 0)
+        page.addWidget(scroll)
 
         serial = QGroupBox("Serial instruments")
         grid = QGridLayout(serial)

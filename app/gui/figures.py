@@ -155,6 +155,7 @@ def cloud_figure(fig: Figure, p: int, angles: np.ndarray, x: np.ndarray, z: np.n
         ax.set_ylabel("y (mm)", fontsize=8)
         ax.set_zlabel("z (mm)", fontsize=8)
         ax.tick_params(labelsize=7)
+        ax.set_box_aspect(None, zoom=0.75)     # the axis labels inside the figure (the layout leaves 3-D axes be)
         if len(pts):
             span = np.ptp(pts, axis=0).max() / 2 or 1.0
             mid = (pts.max(axis=0) + pts.min(axis=0)) / 2

@@ -47,7 +47,8 @@ VERDICT_COLOURS = {"pass": "#2e9e44", "warn": "#b07800", "fail": "#d0312d"}
 
 _HINTS = {
     "Devices": "connect the turntable and the profiler (Devices tab), or start a simulated station there",
-    "Calibrate": "scan the reference sphere in one pass, then 'Calibrate from the open session' (Processing tab)",
+    "Calibrate": "scan the reference sphere (plan sphere-calibration), then 'Calibrate from the open session' "
+                 "(Processing tab)",
     "Session": "name the object and press 'New session' (Session tab)",
     "Capture": "press Start on the Capture tab and follow the prompts to re-place the object between passes",
     "Process": "press 'Process the open session' (Processing tab): registration and the watertight mesh",

@@ -7,6 +7,10 @@ in the log panel, never as a lost session.  Window layout, ports, camera,
 simulated-station folder, last session and calibration persist in
 :class:`QSettings` (organisation ``kogei``, application ``capture-station``).
 
+On start the window reopens the last session it had open (when it is still
+there); File > Recent sessions lists the last :data:`MAX_RECENT`.  A session
+that was moved or deleted is said so in the window and taken off the list.
+
 Keyboard: F5 start / resume the capture, F6 pause / continue, Esc abort,
 Enter continue at a placement prompt, Ctrl+Left / Ctrl+Right jog the table
 by one step, Ctrl+0 zero the table, Ctrl+L / Ctrl+Shift+L laser on / off,
@@ -48,10 +52,12 @@ from app.gui.warm_up import freeze_heap, warm_up
 from app.gui.widgets import Banner, Panel, StepStrip
 from app.gui.workers import Lane
 
-__all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "simulated_world"]
+__all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "MAX_RECENT", "simulated_world"]
 
 SETTINGS_ORG = "kogei"
 SETTINGS_APP = "capture-station"
+#: How many sessions File > Recent sessions lists.
+MAX_RECENT = 8
 
 
 def simulated_world(name: str, triangles: int = 4000, image_size: tuple[int, int] = (240, 160)) -> Any:
@@ -175,6 +181,7 @@ class MainWindow(QMainWindow):
         self.devices.object_requested.connect(lambda name: self.run_safely(lambda: self.put_simulated_object(name)))
         self.session.session_chosen.connect(self._session_chosen)
         self.capture.capture_started.connect(lambda: setattr(self.session, "capturing", True))
+        self.capture.capture_started.connect(lambda: self.remember_session(self.session.root))
         self.capture.capture_stopped.connect(self._capture_stopped)
         self._refresh_counter = 0
         self.capture.progress.valueChanged.connect(self._maybe_refresh_session)
@@ -193,6 +200,7 @@ class MainWindow(QMainWindow):
         self._menu()
         self.restore_settings()
         self.resize(1280, 860) if not self.settings.value("geometry") else None
+        self.reopen_last_session()
 
     # ------------------------------------------------------------ errors and log
     #: Style of the message line: an error (red) or information for the user (blue).
@@ -262,6 +270,14 @@ class MainWindow(QMainWindow):
             sc.activated.connect(lambda i=i: self.tabs.setCurrentIndex(i))
 
     def _menu(self) -> None:
+        f = self.menuBar().addMenu("&File")
+        act = QAction("Open session…", self)
+        act.setShortcut(QKeySequence.StandardKey.Open)
+        act.triggered.connect(lambda: self.run_safely(self._open_session_dialog))
+        f.addAction(act)
+        self.recent_menu = f.addMenu("Recent sessions")
+        self.recent_menu.aboutToShow.connect(self._fill_recent_menu)
+        self._fill_recent_menu()
         m = self.menuBar().addMenu("&Station")
         act = QAction("Connect all instruments", self)
         act.triggered.connect(lambda: self.run_safely(self.devices.connect_all))
@@ -373,6 +389,11 @@ class MainWindow(QMainWindow):
             self.devices.put_button.setEnabled(True)
             self._describe_station(st)
             self.append_log(f"simulated station: the {name} is on the table")
+            # the plan that goes with what is on the table: the sphere's calibration plan, or the piece's scan
+            kind = "sphere-calibration" if name == SIMULATED_OBJECTS[1] else "scan"
+            if self.capture.kind.currentText() != kind and self.capture.start.isEnabled():
+                self.capture.kind.setCurrentText(kind)
+                self.append_log(f"capture plan: {kind} (for the {name})")
 
         def failed(text: str, exc: Any) -> None:
             self.devices.put_button.setEnabled(True)
@@ -383,8 +404,9 @@ class MainWindow(QMainWindow):
 
     def _describe_station(self, st: Any) -> None:
         self.devices.sim_state.setText(f"running in this window: {st.root} with {_object_label(st.world)} on the "
-                                       f"table (turntable {st.turntable_path}, profiler {st.profiler_path}, "
-                                       f"gphoto2 {st.gphoto2_path})")
+                                       "table (its ports are filled in above)")
+        self.devices.sim_state.setToolTip(f"turntable {st.turntable_path}, profiler {st.profiler_path}, "
+                                          f"gphoto2 {st.gphoto2_path}")
 
     def _attach_station(self, st: Any) -> Any:
         """Point the Devices tab at a running simulated station (ports, gphoto2 shim, placements)."""
@@ -408,6 +430,10 @@ class MainWindow(QMainWindow):
         """What has been done, as :func:`app.gui.guidance.current_step` reads it."""
         root = self.session.root
         manifest = self.session.manifest if root is not None else None
+        plan = manifest.get("plan") if isinstance(manifest, dict) else None
+        if isinstance(plan, dict) and plan.get("kind") != "scan":
+            # a calibration (or swatch, probe) session is not the piece's: the piece's session comes next
+            root, manifest = None, None
         products = Path(root) / "products" if root is not None else None
         return {
             "devices": all(self.link.states.get(n) in ("connected", "capture") for n in ("turntable", "profiler")),
@@ -440,12 +466,84 @@ class MainWindow(QMainWindow):
         summary = " · ".join(f"{n}: {self.link.states.get(n)}" for n in INSTRUMENTS)
         self.statusBar().showMessage(summary, 5000)
 
+    # ------------------------------------------------------------ recent sessions
+    def recent_sessions(self) -> list[str]:
+        """The recent sessions' folders, the latest first (as stored in the settings)."""
+        value = self.settings.value("session/recent", [])
+        if isinstance(value, str):                  # an ini file gives a one-item list back as its item
+            value = [value]
+        return [str(v) for v in (value or []) if str(v)]
+
+    def _set_recent(self, items: list[str]) -> None:
+        self.settings.setValue("session/recent", items[:MAX_RECENT])
+        self._fill_recent_menu()
+
+    def remember_session(self, root: Any) -> None:
+        """Put the session ``root`` first in File > Recent sessions (once it exists on disk)."""
+        if root is None or not (Path(root) / "session.json").is_file():
+            return
+        text = str(Path(root))
+        self._set_recent([text] + [r for r in self.recent_sessions() if r != text])
+
+    def _forget_session(self, text: str) -> None:
+        self._set_recent([r for r in self.recent_sessions() if r != text])
+        if str(self.settings.value("session/last", "") or "") == text:
+            self.settings.setValue("session/last", "")
+
+    def open_recent(self, text: str) -> None:
+        """Open a session of the recent list; one no longer there is said so and taken off the list."""
+        from app.errors import UsageError
+
+        if not (Path(text) / "session.json").is_file():
+            self._forget_session(text)
+            raise UsageError(f"the session {text} is no longer there (moved or deleted?); it was taken off the "
+                             "recent sessions: open it where it is now with File > Open session…")
+        self.session.open_session(text)
+
+    def reopen_last_session(self) -> None:
+        """Reopen the session the window had open when it was closed (start-up)."""
+        last = str(self.settings.value("session/last", "") or "")
+        if not last:
+            return
+        if (Path(last) / "session.json").is_file():
+            self.run_safely(lambda: self.session.open_session(last))
+            if self.session.root is not None and str(self.session.root) == last:
+                self.show_info(f"reopened the last session, {last} (File > Recent sessions lists the others)")
+        elif last in self.recent_sessions():       # a session that was there and is gone
+            self._forget_session(last)
+            self.show_info(f"the last session, {last}, is no longer there (moved or deleted?); it was taken off "
+                           "the recent sessions")
+
+    def _fill_recent_menu(self) -> None:
+        menu = self.recent_menu
+        menu.clear()
+        items = self.recent_sessions()
+        for text in items:
+            there = (Path(text) / "session.json").is_file()
+            act = menu.addAction(text if there else f"{text}  (not found)")
+            act.setToolTip("open this session" if there else "moved or deleted: choosing it takes it off the list")
+            act.triggered.connect(lambda _=False, t=text: self.run_safely(lambda: self.open_recent(t)))
+        if not items:
+            menu.addAction("(none yet)").setEnabled(False)
+        else:
+            menu.addSeparator()
+            menu.addAction("Clear the list").triggered.connect(lambda: self._set_recent([]))
+
+    def _open_session_dialog(self) -> None:
+        from PySide6.QtWidgets import QFileDialog
+
+        path = QFileDialog.getExistingDirectory(self, "Open a session folder", self.session.folder.text())
+        if path:
+            self.session.open_session(path)
+
     def _session_chosen(self, root: Any) -> None:
         self.settings.setValue("session/last", str(root) if root else "")
+        self.remember_session(root)
         manifest = self.session.manifest
         if manifest is not None:
             self.capture.set_plan(manifest.get("plan", {}))
         self.processing.show_station(manifest)
+        self.processing.show_mesh(root)              # the session's mesh, or that it has none yet
         # what the tabs show of the previous session goes; the Preview shows this session's mesh if it has one
         self.camera.refresh_charts()
         self.spectra.forget()
@@ -466,6 +564,7 @@ class MainWindow(QMainWindow):
     def _capture_stopped(self, status: str) -> None:
         self.session.capturing = False
         self.session.refresh()
+        self.remember_session(self.session.root)
         self.statusBar().showMessage(f"capture {status}", 10_000)
 
     def _processed(self, report: Any) -> None:
@@ -514,6 +613,9 @@ class MainWindow(QMainWindow):
         final = getattr(self.preview, "_process_job", None)
         if final is not None and not final.done:
             final.cancel()                   # a full-size preview render in its worker process
+        mesh_view = self.processing.mesh_job
+        if mesh_view is not None and not mesh_view.done:
+            mesh_view.cancel()               # the Processing tab's mesh view, rendering in its worker process
         self.device_lane.wait(30_000)
         self.work_lane.wait(30_000)
         self.drawer.shutdown(30_000)

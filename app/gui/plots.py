@@ -212,7 +212,8 @@ class PlotImage(QLabel):
         self.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Ignored)
         self.setMinimumSize(*min_size)
-        self.setStyleSheet("background:white;")
+        self.setStyleSheet("background:white; color:#777;")      # the colour of a placeholder's text
+        self.setWordWrap(True)
         self._waiting: tuple[Callable[..., Any], dict[str, Any]] | None = None
         self._busy = False
         self._last: tuple[Callable[..., Any], dict[str, Any]] | None = None
@@ -231,8 +232,15 @@ class PlotImage(QLabel):
         return max(self.width(), MIN_DRAW_SIZE[0]), max(self.height(), MIN_DRAW_SIZE[1])
 
     def plot(self, build: Callable[..., Any], **data: Any) -> None:
-        """Draw ``build(fig, **data)`` next (replacing any drawing still waiting)."""
+        """Draw ``build(fig, **data)`` next (replacing any drawing still waiting).
+
+        An empty plot's ``title`` and ``hint`` show as text at once, until its drawing arrives from the
+        drawing process (which may still be starting): a pane is never blank.
+        """
         self._waiting = self._last = (build, data)
+        if self.rgba is None and isinstance(data.get("hint"), str):
+            title = str(data.get("title") or "")
+            self.setText(f"{title}\n\n{data['hint']}" if title else data["hint"])
         self._next()
 
     @property

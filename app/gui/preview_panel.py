@@ -16,6 +16,11 @@ request is rendered (a request made while one renders replaces any waiting
 one), so dragging never queues up stale work.  The illuminant is D65, A or a
 custom correlated colour temperature (``3200K`` style, as ``--illuminant``).
 
+"Adapt to display white" (on by default, as ``kogei render``) adapts the image from the light's white to
+the display's D65 white (CAT02), as the eye adapts to a room: a white surface looks white under any light, so
+D65 and A look nearly alike.  Off, the XYZ go to sRGB unadapted (:func:`display_srgb8`), as a camera balanced
+for daylight would show them: under A (tungsten) the object looks warm.
+
 Examples
 --------
 >>> import numpy as np
@@ -37,6 +42,7 @@ import numpy as np
 from PySide6.QtCore import QPoint, Qt, QTimer, Signal
 from PySide6.QtGui import QPixmap
 from PySide6.QtWidgets import (
+    QCheckBox,
     QComboBox,
     QDoubleSpinBox,
     QFileDialog,
@@ -57,7 +63,8 @@ from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
 from app.gui.workers import JobContext, Lane, ProcessJob
 
-__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "MEASURED", "LIGHTINGS"]
+__all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "display_srgb8", "MEASURED",
+           "LIGHTINGS"]
 
 #: The Preview tab's lighting choices.
 LIGHTINGS = ("directional light", "daylight sky (sun at the light's direction)", "light probe / HDR map")
@@ -104,6 +111,34 @@ def click_ray(view: dict[str, Any], x_px: float, y_px: float) -> tuple[np.ndarra
     sy = (1 - 2 * y_px / h) * half
     d = fwd + sx * right + sy * up
     return eye, d / np.linalg.norm(d)
+
+
+def display_srgb8(xyz: np.ndarray, mask: np.ndarray, white: np.ndarray, *, adapt: bool,
+                  background_black: bool = True) -> np.ndarray:
+    """8-bit sRGB of a render's XYZ, adapted from the light's ``white`` to the display's D65 white or not.
+
+    ``adapt`` False shows the light's own colour (the XYZ taken as they are, sRGB's white being D65); pixels no
+    object covers stay black when ``background_black``.
+
+    Examples
+    --------
+    >>> from processing.spectral.display import white_xyz
+    >>> from processing.spectral.spectra import light_spectrum
+    >>> a = white_xyz(light_spectrum("A"))[None, None, :]
+    >>> one = np.ones((1, 1))
+    >>> display_srgb8(a, one, a[0, 0], adapt=True).tolist(), display_srgb8(a, one, a[0, 0], adapt=False).tolist()
+    ([[[255, 255, 255]]], [[[255, 234, 133]]])
+    """
+    from processing.spectral.display import xyz_to_srgb8
+
+    xyz = np.asarray(xyz)
+    if not background_black:
+        return xyz_to_srgb8(xyz, white, adapt=adapt)
+    out = np.zeros(xyz.shape[:-1] + (3,), np.uint8)
+    covered = np.asarray(mask) > 0
+    if covered.any():
+        out[covered] = xyz_to_srgb8(xyz[covered], white, adapt=adapt)
+    return out
 
 
 def _region_plot_data(session: str, origin: np.ndarray, direction: np.ndarray) -> dict[str, Any] | None:
@@ -168,11 +203,13 @@ def _render_final(args: dict[str, Any], message: Callable[[str], None]) -> dict[
 
 def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, float, float],
                 azimuth_deg: float, elevation_deg: float, size: tuple[int, int], preset: str,
-                bounds: tuple[np.ndarray, np.ndarray], environment: str | None = None) -> dict[str, Any]:
+                bounds: tuple[np.ndarray, np.ndarray], environment: str | None = None,
+                adapt_white: bool = True) -> dict[str, Any]:
     """Render ``mesh`` from the orbit camera.
 
     ``environment`` (the ``kogei render --environment`` text: a ``.exr`` / ``.hdr`` file or
-    ``sky:...``) lights the mesh instead of the directional ``light``.
+    ``sky:...``) lights the mesh instead of the directional ``light``.  ``adapt_white`` False shows
+    the light's own colour (:func:`display_srgb8`) instead of adapting it to the display's white.
 
     Returns
     -------
@@ -204,7 +241,9 @@ def render_view(mesh: str, material: str, illuminant: str, light: tuple[float, f
     job = build_job(spec)
     t = time.perf_counter()
     result = render(_GEOMETRY.scene(job.scene), job.camera, job.settings, geometry_cache=_GEOMETRY.cache)
-    return {"srgb8": result.srgb8, "mask": result.mask, "seconds": time.perf_counter() - t, "eye": eye,
+    srgb8 = result.srgb8 if adapt_white else display_srgb8(result.xyz, result.mask, result.white, adapt=False,
+                                                           background_black=not result.sky_visible)
+    return {"srgb8": srgb8, "mask": result.mask, "seconds": time.perf_counter() - t, "eye": eye,
             "geometry_reused": bool(result.stats["geometry_reused"]),
             "target": center, "up": np.asarray(up, float), "fov_deg": fov}
 
@@ -336,6 +375,12 @@ class PreviewPanel(Panel):
         self.preset = QComboBox()
         self.preset.addItems(["draft", "standard", "reference"])
         self.preset.setCurrentText("standard")
+        self.adapt = QCheckBox("Adapt to display white")
+        self.adapt.setChecked(True)
+        self.adapt.setToolTip("on: the image is adapted from the light's white to the display's (CAT02), as the "
+                              "eye adapts to a room's light: white looks white under any illuminant, so D65 and A "
+                              "look nearly alike. Off: the display shows the light's own colour, as a camera "
+                              "balanced for daylight would: under A (tungsten) the object looks warm")
         self.size = QComboBox()
         self.size.addItems(["480x360", "640x480", "800x600", "160x120"])
         self.material.setToolTip("the material to render the mesh with; 'measured' uses the materials measured "
@@ -348,6 +393,7 @@ class PreviewPanel(Panel):
         f.addRow("Material", self.material)
         f.addRow("Illuminant", self.illuminant)
         f.addRow("CCT", self.cct)
+        f.addRow(self.adapt)
         f.addRow("Preset (when still)", self.preset)
         f.addRow("Image size", self.size)
         side.addWidget(g)
@@ -408,6 +454,7 @@ class PreviewPanel(Panel):
         self._lighting_changed(self.lighting.currentText())
         for w in (self.cct, self.light_az, self.light_el, self.azimuth, self.elevation):
             w.valueChanged.connect(lambda _: self._settle_later())
+        self.adapt.toggled.connect(lambda _: self._settle_later())
         self._settle = QTimer(self)
         self._settle.setSingleShot(True)
         self._settle.setInterval(self.settle_ms)
@@ -538,7 +585,7 @@ class PreviewPanel(Panel):
                 "illuminant": self.illuminant_name(),
                 "light": light_vector(self.light_az.value(), self.light_el.value()),
                 "azimuth_deg": self.azimuth.value(), "elevation_deg": self.elevation.value(),
-                "size": size, "preset": preset, "bounds": self.bounds}
+                "size": size, "preset": preset, "bounds": self.bounds, "adapt_white": self.adapt.isChecked()}
         try:
             args["environment"] = self.environment_text()
         except UsageError as exc:
@@ -585,8 +632,9 @@ class PreviewPanel(Panel):
         env = args.get("environment")
         light = (args["illuminant"] if env is None else "the daylight sky" if env.startswith("sky:")
                  else f"the map {Path(env.split(':rotate=')[0].split(':intensity=')[0]).name}")
-        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {shown} under {light}, "
-                          f"{secs:.2f} s")
+        adapted = "" if args.get("adapt_white", True) else " (the light's colour, not adapted)"
+        self.info.setText(f"{kind}: {img.shape[1]}x{img.shape[0]}, {args['preset']}, {shown} under {light}"
+                          f"{adapted}, {secs:.2f} s")
         self.rendered.emit(kind)
 
     def _failed(self, text: str, exc: Any) -> None:

@@ -11,7 +11,9 @@ The residuals are the report's: per pass the points used, per pair the
 registration's RMS residual against the residual expected from the clouds'
 roughness, the overlap and the check's outcome, and the pose graph's consistency.
 Each pair and the sphere calibration get a pass / warn / fail verdict with its
-thresholds and why in a tooltip (:mod:`app.gui.guidance`).
+thresholds and why in a tooltip (:mod:`app.gui.guidance`).  Once the session has a
+mesh, the panel shows it: a draft render (:func:`render_mesh_view`, the Preview
+tab's renderer) made in a worker process, with a busy bar while it renders.
 
 Examples
 --------
@@ -26,7 +28,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QPixmap
 from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
@@ -51,7 +54,10 @@ from app.gui.plots import FigureDrawer
 from app.gui.widgets import Panel, browse_row
 from app.gui.workers import JobContext, Lane, ProcessJob
 
-__all__ = ["ProcessingPanel", "pair_row", "run_processing", "camera_summary"]
+__all__ = ["ProcessingPanel", "pair_row", "run_processing", "camera_summary", "render_mesh_view", "MESH_VIEW_SIZE"]
+
+#: Size (pixels) of the mesh view's render.
+MESH_VIEW_SIZE = (360, 270)
 
 
 def pair_row(pair: dict[str, Any], names: list[str]) -> list[str]:
@@ -100,6 +106,33 @@ def camera_summary(ref: dict[str, Any]) -> str:
     return (f"camera: reprojection rms {ref['rms_px']:.3f} px over {src.get('frames_used', '?')} board frames "
             f"({len(src.get('frames_rejected') or [])} rejected), {size[0]} x {size[1]} px, tied to the turntable "
             f"by {src.get('sphere_photos', '?')} sphere photos")
+
+
+def render_mesh_view(mesh: str, size: tuple[int, int] = MESH_VIEW_SIZE,
+                     message: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """A draft render of the mesh file ``mesh`` for the panel's mesh view (run in a worker process).
+
+    The Preview tab's :func:`app.gui.preview_panel.render_view` at the ``draft`` preset: the
+    preview's default material under D65, lit from the upper left, seen from the front and
+    15 degrees above the table.
+
+    Returns
+    -------
+    dict
+        ``srgb8`` ``(H, W, 3)`` uint8, ``mask`` ``(H, W)``, ``triangles`` and ``seconds``.
+    """
+    import numpy as np
+
+    from app.gui.preview_panel import light_vector, render_view
+    from render.meshio import load_mesh
+
+    note = message or (lambda text: None)
+    m = load_mesh(mesh)
+    v = np.asarray(m.vertices, float)
+    note(f"rendering the mesh ({len(m.triangles)} triangles, draft)")
+    out = render_view(mesh, "nami-shibuichi", "D65", light_vector(200.0, 50.0), -90.0, 15.0, size, "draft",
+                      (v.min(axis=0), v.max(axis=0)))
+    return {"srgb8": out["srgb8"], "mask": out["mask"], "triangles": len(m.triangles), "seconds": out["seconds"]}
 
 
 def _projection_text(proj: dict[str, Any] | None) -> str:
@@ -161,8 +194,16 @@ class ProcessingPanel(Panel):
         f.addRow(crow)
         self.cal_state = QLabel("")
         f.addRow(self.cal_state)
-        outer.addWidget(cal)
-        outer.addWidget(self._station_box())
+        # the calibrations and the run on the left, the mesh view beside them (the line edits have room to give)
+        head = QHBoxLayout()
+        controls = QVBoxLayout()
+        head.addLayout(controls, 2)
+        mesh_group = QGroupBox("Mesh")
+        mesh_group.setLayout(self._mesh_box())
+        head.addWidget(mesh_group, 1)
+        outer.addLayout(head)
+        controls.addWidget(cal)
+        controls.addWidget(self._station_box())
 
         run = QGroupBox("Registration and meshing")
         v = QVBoxLayout(run)
@@ -195,7 +236,7 @@ class ProcessingPanel(Panel):
         self.stage.setWordWrap(True)
         v.addWidget(self.busy)
         v.addWidget(self.stage)
-        outer.addWidget(run)
+        controls.addWidget(run)
 
         res = QGroupBox("Residuals")
         rv = QVBoxLayout(res)
@@ -223,6 +264,78 @@ class ProcessingPanel(Panel):
         outer.addWidget(res, 1)
         self.cancel_button.setEnabled(False)
         self.pick_button.setEnabled(False)
+
+    def _mesh_box(self) -> QVBoxLayout:
+        """The mesh view: the session's mesh rendered once processing has made it."""
+        box = QVBoxLayout()
+        self.mesh_view = QLabel("no mesh yet: press 'Process the open session'; the watertight mesh is shown here")
+        self.mesh_view.setWordWrap(True)
+        self.mesh_view.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.mesh_view.setMinimumSize(200, 150)
+        # Ignored: the image is scaled to the room the layout gives, never the other way round
+        self.mesh_view.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Ignored)
+        self.mesh_view.setStyleSheet("background:#202020; color:#ddd;")
+        self.mesh_view.setToolTip("the session's mesh (products/mesh.ply), a quick render; the Preview tab renders "
+                                  "it under the light and material you choose")
+        self.mesh_busy = QProgressBar()
+        self.mesh_busy.setRange(0, 0)
+        self.mesh_busy.setMaximumHeight(8)
+        self.mesh_busy.setTextVisible(False)
+        self.mesh_busy.hide()
+        box.addWidget(self.mesh_view, 1)
+        box.addWidget(self.mesh_busy)
+        self.mesh_image: Any = None
+        self.mesh_mask: Any = None
+        self.mesh_job: ProcessJob | None = None
+        self.mesh_shown: str | None = None
+        return box
+
+    def show_mesh(self, root: Path | None) -> None:
+        """Render the session's ``products/mesh.ply`` into the mesh view (or say there is none yet)."""
+        mesh = None if root is None else Path(root) / "products" / "mesh.ply"
+        if self.mesh_job is not None and not self.mesh_job.done:
+            self.mesh_job.cancel()
+        if mesh is None or not mesh.is_file():
+            self.mesh_image, self.mesh_shown = None, None
+            self.mesh_view.setPixmap(QPixmap())
+            self.mesh_view.setText("no mesh yet: press 'Process the open session'; the watertight mesh is shown here")
+            return
+        self.mesh_view.setPixmap(QPixmap())
+        self.mesh_view.setText(f"rendering {mesh.name}…")
+        self.mesh_busy.show()
+        job = ProcessJob(render_mesh_view, str(mesh), MESH_VIEW_SIZE, parent=self)
+        job.message.connect(lambda text: self.mesh_view.setText(text + "…") if self.mesh_image is None else None)
+        job.succeeded.connect(lambda out, m=str(mesh): self._mesh_rendered(m, out))
+        job.failed.connect(self._mesh_failed)
+        job.finished.connect(self.mesh_busy.hide)
+        self.mesh_job = job.start()
+
+    def _mesh_rendered(self, mesh: str, out: dict[str, Any]) -> None:
+        self.mesh_image = out["srgb8"]
+        self.mesh_mask = out["mask"]
+        self.mesh_shown = mesh
+        self.mesh_view.setToolTip(f"{mesh}: {out['triangles']} triangles, rendered in {out['seconds']:.1f} s "
+                                  "(draft); the Preview tab renders it under the light and material you choose")
+        self._scale_mesh_image()
+
+    def _mesh_failed(self, text: str, detail: Any) -> None:
+        if self.mesh_job is not None and self.mesh_job.cancelled:
+            return                         # replaced by a newer render
+        self.mesh_view.setText(f"the mesh could not be rendered: {text.splitlines()[0]}")
+        self.log.emit(f"mesh view: {text}")
+
+    def _scale_mesh_image(self) -> None:
+        from app.gui.session_panel import rgb_to_qimage
+
+        if self.mesh_image is None:
+            return
+        pix = QPixmap.fromImage(rgb_to_qimage(self.mesh_image))
+        self.mesh_view.setPixmap(pix.scaled(self.mesh_view.contentsRect().size(), Qt.AspectRatioMode.KeepAspectRatio,
+                                            Qt.TransformationMode.SmoothTransformation))
+
+    def resizeEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        super().resizeEvent(event)
+        self._scale_mesh_image()
 
     def _station_box(self) -> QGroupBox:
         """Camera and lamp calibration: sources for processing, and buttons to calibrate from the open session."""
@@ -437,6 +550,9 @@ class ProcessingPanel(Panel):
             item.setForeground(7, QBrush(QColor(VERDICT_COLOURS[verdict.level])))
             item.setToolTip(7, verdict.tooltip)
             self.pairs_tree.addTopLevelItem(item)
+        for tree in (self.passes_tree, self.pairs_tree):            # whole verdicts in a narrow window
+            for col in range(tree.columnCount()):
+                tree.resizeColumnToContents(col)
         self.scroll_area.ensureWidgetVisible(self.pairs_tree)      # the verdicts in view in a short window
         c = report["registration"]["consistency"]
         m = report["mesh"]
@@ -450,6 +566,7 @@ class ProcessingPanel(Panel):
         self.stage.setText("done")
         self.pick_button.setEnabled(True)
         self.log.emit(f"processed: {self.summary.text()}")
+        self.show_mesh(self.session_root())
 
     # ------------------------------------------------------------ manual registration
     def open_pick_dialog(self) -> None:

@@ -166,7 +166,8 @@ def _sphere_frames(sphere_root: Path, manifest: dict[str, Any]) -> list[tuple[st
     frames = frame_records(sphere_root, manifest, passes={pass_no})
     if not frames:
         raise UsageError(f"--scanner {sphere_root}: the sphere session has no RAW frames of the sphere; capture it "
-                         "with the camera connected (kogei capture with --camera), then calibrate again")
+                         "with photos (kogei capture --plan sphere-calibration --camera gphoto2 --camera-angles "
+                         "0,30,...,330), then calibrate again")
     return frames
 
 

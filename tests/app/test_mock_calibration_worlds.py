@@ -67,9 +67,10 @@ def test_the_sphere_world_prints_the_scanner_calibration_scan():
     plan = _calibration_plan(sphere)
     info = {"turntable": "/s/t", "profiler": "/s/p", "gphoto2": "/s/g", "hotfolder": "/s/h", "control": "/s/c"}
     cmds = capture_commands(info, plan=plan, session=_session_name(plan))
-    assert cmds["gphoto2"] == ("kogei capture --turntable /s/t --laser /s/p --camera none --steps 90 --passes 1 "
-                               "--out calibration-session --unattended")
-    assert "--no-chart" in cmds["hotfolder"] and "--camera hotfolder:/s/h" in cmds["hotfolder"]
+    assert cmds["gphoto2"] == ("kogei capture --plan sphere-calibration --turntable /s/t --laser /s/p --camera none "
+                               "--steps 90 --out calibration-session --unattended")
+    # the hot-folder line takes the sphere's photos (they tie the camera to the scanner), never a chart
+    assert "--camera-angles 0,30," in cmds["hotfolder"] and "--camera hotfolder:/s/h" in cmds["hotfolder"]
     assert _next_command(sphere, plan) == "kogei calibrate calibration-session --sphere-radius 20"
     hawk_then = _next_command(World.hawk(2000), None)
     assert hawk_then.startswith("kogei process kogei-session --calibration calibration-session")

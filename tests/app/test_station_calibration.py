@@ -140,7 +140,7 @@ def test_a_scanner_session_without_a_scanner_calibration(sessions, capsys):
 def test_a_scanner_session_without_raw_frames_is_refused_before_the_board_is_read(sessions, capsys):
     # the scanner session has no RAW frames: said at once (not after minutes of board detection)
     _fails(["calibrate", "--camera", str(sessions / "no-board"), "--scanner", str(sessions / "scanner")],
-           capsys, sessions, "--scanner", "no RAW frames of the sphere", "with the camera")
+           capsys, sessions, "--scanner", "no RAW frames of the sphere", "--plan sphere-calibration", "--camera-angles")
 
 
 def test_missing_sessions_are_named(sessions, capsys):

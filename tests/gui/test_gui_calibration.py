@@ -37,7 +37,7 @@ def _put(qtbot, w, name: str) -> None:
     assert w.error_line.isHidden(), w.error_line.text()
 
 
-def _capture(qtbot, w, folder: Path, steps: int) -> None:
+def _capture(qtbot, w, folder: Path, steps: int) -> list[str]:
     w.tabs.setCurrentWidget(w.session)
     w.session.folder.setText(str(folder))
     qtbot.mouseClick(w.session.new_button, LEFT)
@@ -45,8 +45,9 @@ def _capture(qtbot, w, folder: Path, steps: int) -> None:
     w.capture.steps.setValue(steps)
     w.capture.passes.setValue(1)
     qtbot.mouseClick(w.capture.start, LEFT)
-    wait_capture(qtbot, w, timeout_s=90)
+    prompts = wait_capture(qtbot, w, timeout_s=90)
     assert w.capture.status_text == "complete", w.error_line.text()
+    return prompts
 
 
 def test_sphere_scan_calibrates_the_scanner_then_the_piece_goes_on_the_table(qtbot, tmp_path):
@@ -54,13 +55,25 @@ def test_sphere_scan_calibrates_the_scanner_then_the_piece_goes_on_the_table(qtb
     assert not w.devices.put_button.isEnabled()                     # no station yet
     st = w.start_simulated_station(triangles=4000, image_size=SIZE, n_points=N_POINTS, seed=SEED)
     assert "the hawk head" in w.devices.sim_state.text()
-    connect_instruments(qtbot, w)
+    connect_instruments(qtbot, w, camera=True)                      # the camera too: the plan must not use it
+    assert w.capture.kind.currentText() == "scan" and w.capture.chart.isChecked()
 
-    # The reference sphere goes on the table; the instruments stay connected
+    # The reference sphere goes on the table; the instruments stay connected; the plan becomes the sphere's
     _put(qtbot, w, SIMULATED_OBJECTS[1])
     assert st.world.mesh_source == "sphere:25:60" and "calibration sphere" in w.devices.sim_state.text()
     assert all(w.link.states[n] == "connected" for n in ("turntable", "profiler"))
-    _capture(qtbot, w, tmp_path / "sphere", steps=72)
+    assert w.capture.kind.currentText() == "sphere-calibration"
+    assert not w.capture.chart.isChecked() and not w.capture.chart.isEnabled()
+    assert w.capture.camera_angles.text() == "" and w.capture.passes.value() == 1
+    prompts = _capture(qtbot, w, tmp_path / "sphere", steps=72)
+    # one placement prompt, for the sphere, that does not ask for the chart; profiles only, no RAW file
+    assert len(prompts) == 1 and "reference sphere" in prompts[0] and "chart" not in prompts[0], prompts
+    m = Session.read(tmp_path / "sphere")
+    assert m["plan"]["kind"] == "sphere-calibration" and m["plan"]["camera"] is False
+    assert {r["kind"] for r in m["captures"].values()} == {"profile", "profiles"}
+    assert not [p for p in (tmp_path / "sphere").rglob("*") if p.suffix.lower() in (".cr2", ".dng", ".nef")]
+    # a sphere session is not the piece's: calibrating comes next (once the instruments are back from the capture)
+    qtbot.waitUntil(lambda: w.steps.current == "Calibrate", timeout=20_000)
 
     # Calibrate from the open session on the Processing tab
     w.tabs.setCurrentWidget(w.processing)
@@ -80,6 +93,9 @@ def test_sphere_scan_calibrates_the_scanner_then_the_piece_goes_on_the_table(qtb
     # The piece goes back on the table: the same profiles as a station that had the hawk from the start
     _put(qtbot, w, SIMULATED_OBJECTS[0])
     assert "head" in st.world.region_names and "the hawk head" in w.devices.sim_state.text()
+    assert w.capture.kind.currentText() == "scan"
+    qtbot.waitUntil(lambda: w.steps.current == "Session", timeout=20_000)
+    w.devices.camera_kind.setCurrentText("none")                    # profiles only, as the reference below
     # the table turned back to its mark (physical 0, where a fresh station's table starts) with the jog
     # controls: zero here, then go to minus the angle it stands at
     w.tabs.setCurrentWidget(w.capture)

@@ -157,3 +157,33 @@ def test_a_finished_jobs_result_is_not_lost_when_another_job_is_queued_before_it
     assert lane.busy                               # results not handled yet
     qtbot.waitUntil(lambda: not lane.busy, timeout=10_000)
     assert sorted(got) == [41, 42]
+
+
+def test_the_point_cloud_figure_keeps_its_axis_labels_inside_at_a_small_size():
+    """The live cloud's 3-D axes: their titles and labels lie inside the figure at the size the Capture tab gives
+    it in a 1024 x 700 window (583 x 205 px), which the constrained layout does not arrange for 3-D axes.
+    Ground truth: each text's drawn extent against the figure's own box."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from app.gui.figures import cloud_figure
+    from processing.geometry.calibration import ScannerCalibration, ideal_sensor_to_room
+
+    cal = ScannerCalibration(ideal_sensor_to_room(200.0, 30.0), 25.0, np.zeros(3), 0.0, 0.0, 0, 0, 0, 0.0, 25.0,
+                             np.zeros(0, np.int64), np.zeros(0))
+    angles = np.linspace(0.0, 356.0, 90)
+    x = np.tile(np.linspace(-30.0, 30.0, 200), (90, 1))
+    z = np.full_like(x, 200.0) + 10 * np.sin(np.radians(angles))[:, None]
+    for w, h in ((583, 205), (910, 300)):
+        fig = Figure(figsize=(w / 100, h / 100), dpi=100, layout="constrained")
+        canvas = FigureCanvasAgg(fig)
+        cloud_figure(fig, p=1, angles=angles, x=x, z=z, cal=cal)
+        canvas.draw()
+        ax = fig.axes[0]
+        assert ax.name == "3d"
+        box = fig.bbox
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            e = axis.label.get_window_extent(canvas.get_renderer())
+            assert box.x0 - 1 <= e.x0 and e.x1 <= box.x1 + 1 and box.y0 - 1 <= e.y0 and e.y1 <= box.y1 + 1, \
+                (w, h, axis.label.get_text(), e, box)

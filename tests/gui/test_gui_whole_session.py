@@ -101,6 +101,8 @@ def test_a_whole_session_through_the_window(qtbot, tmp_path):
     qtbot.waitUntil(lambda: not w.processing.running, timeout=900_000)
     assert w.processing.report is not None, w.error_line.text()
     assert (tmp_path / "hawk" / "products" / "mesh.ply").exists()
+    qtbot.waitUntil(lambda: w.processing.mesh_image is not None, timeout=300_000)    # the mesh view shows it
+    assert w.processing.mesh_mask.mean() > 0.02
     qtbot.waitUntil(lambda: w.steps.current == "Materials", timeout=20_000)
 
     # spectra: a frame calibrated with its own pass's chart, the map made with what can be judged
