@@ -1,0 +1,99 @@
+"""One pass of the simulated station as a point cloud, without the serial devices.
+
+:func:`simulated_pass` measures a world's object in placement ``n`` exactly as
+:class:`mocks.station.SimulatedStation` does (the station's sensor pose, fan,
+range window, incidence limit, occlusion and 0.05 mm Gaussian range noise,
+seeded per profile by :func:`mocks.noise_seed.profile_seed`, and the same
+placements :func:`mocks.station_geometry.placement_pose`), over one revolution
+of ``steps`` profiles, and returns the valid points in the pass's frame (the
+table frame at angle 0), with normals fitted to the points and turned toward
+the sensor by :func:`processing.geometry.scan_points.profiles_to_points`
+with the true sensor pose.  The table itself is left out (processing crops it
+from a session).  Registration tests and benchmarks use it to get many passes of a
+known placement quickly; the truth is :attr:`SimulatedPass.pose`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mocks.noise_seed import profile_seed
+from mocks.station_geometry import placement_pose, rest_on_table, station_sensor_to_room
+
+__all__ = ["SimulatedPass", "simulated_pass"]
+
+
+@dataclass(frozen=True)
+class SimulatedPass:
+    """A pass: points and normals (mm, the pass's frame) and the truth.
+
+    Attributes
+    ----------
+    points, normals
+        ``(N, 3)`` valid points and unit normals toward the sensor.
+    pose
+        4 x 4 object -> pass frame (the placement's pose on the table at angle 0).
+    placement
+        The placement number.
+    """
+
+    points: NDArray[np.float64]
+    normals: NDArray[np.float64]
+    pose: NDArray[np.float64]
+    placement: int
+
+
+def simulated_pass(world: Any, seed: int, placement: int, *, steps: int = 72, n_points: int = 640,
+                   noise_um: float = 50.0) -> SimulatedPass:
+    """The station's scan of ``world``'s object in placement ``placement`` over one revolution.
+
+    Parameters
+    ----------
+    world
+        A :class:`mocks.world.World` (its vertices, triangles and base pose).
+    seed
+        Station seed (placements and noise derive from it, as the station's).
+    placement
+        Placement number (>= 1).
+    steps
+        Profiles per revolution (the printed scan takes 72).
+    n_points
+        Points per profile (the station's 640).
+    noise_um
+        Range noise (micrometres, the station's 50).
+
+    Returns
+    -------
+    SimulatedPass
+        The points, normals and the true pose.
+
+    Examples
+    --------
+    >>> from mocks.world import World
+    >>> p = simulated_pass(World.calibration_sphere(20.0, 0.0), 0, 1, steps=36, n_points=160)
+    >>> centre = p.pose[:3, 3]
+    >>> d = np.linalg.norm(p.points - centre, axis=1)
+    >>> cos = np.sum(p.normals * (p.points - centre), 1) / d
+    >>> bool(abs(np.median(d) - 20.0) < 0.1), bool(np.median(cos) > 0.99)   # points on the sphere, normals outward
+    (True, True)
+    """
+    from mocks.profiler_firmware import RaycastSource
+    from processing.geometry.scan_points import profiles_to_points
+
+    pose = placement_pose(world.vertices, rest_on_table(world.vertices, world.pose), seed, placement)
+    obj = world.vertices @ pose[:3, :3].T + pose[:3, 3]
+    sensor = station_sensor_to_room()
+    src = RaycastSource(obj, world.triangles, lambda: 0.0, sensor_to_room=sensor, n_points=n_points, fov_deg=40.0,
+                        range_mm=(150.0, 360.0), max_incidence_deg=70.0, noise_um=noise_um,
+                        seed=lambda a: profile_seed(seed, placement, a))
+    angles = 360.0 * np.arange(steps) / steps
+    prof = [src.profile_at(float(a)) for a in angles]
+    x_mm = 1e-3 * np.stack([pr[0] for pr in prof])
+    z_mm = 1e-3 * np.stack([pr[1] for pr in prof])
+    cloud = profiles_to_points(x_mm, z_mm, angles, sensor, range_mm=(150.0, 360.0))
+    p, n = cloud.points, cloud.normals
+    return SimulatedPass(p, n, pose, int(placement))
