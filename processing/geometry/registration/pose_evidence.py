@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 __all__ = ["PoseEvidence", "pose_evidence"]
 
@@ -59,7 +59,7 @@ def pose_evidence(
     compare: ArrayLike | None = None,
     cap_sigma: float = 6.0,
 ) -> PoseEvidence:
-    """Significance of pose A over pose B from the residuals that change between them.
+    r"""Significance of pose A over pose B from the residuals that change between them.
 
     Parameters
     ----------
@@ -100,8 +100,8 @@ def pose_evidence(
     residuals, the log-likelihood ratio of pose A over pose B on the points
     ``i`` both match is
 
-    .. math:: \\Lambda = \\sum_i \\frac{r_{B,i}^2 - r_{A,i}^2}{2 \\sigma^2}
-              = \\sum_i \\frac{\\delta_i}{2 \\sigma^2}.
+    .. math:: \Lambda = \sum_i \frac{r_{B,i}^2 - r_{A,i}^2}{2 \sigma^2}
+              = \sum_i \frac{\delta_i}{2 \sigma^2}.
 
     Where the two poses put a point on the same surface, ``delta_i`` is
     noise of mean zero; where they differ (a boss landing on a plain
@@ -115,7 +115,7 @@ def pose_evidence(
     observation, and the statistic is the one-sample significance of the
     cells' sum
 
-    .. math:: z = \\frac{\\sum_j m_j}{s \\sqrt{M}}
+    .. math:: z = \frac{\sum_j m_j}{s \sqrt{M}}
 
     over the ``M`` cells.  Under the hypothesis that both poses are equally
     right the ``m_j`` are symmetric about zero (swapping A and B changes
