@@ -16,6 +16,7 @@ known placement quickly; the truth is :attr:`SimulatedPass.pose`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import numpy as np
@@ -24,7 +25,7 @@ from numpy.typing import NDArray
 from mocks.noise_seed import profile_seed
 from mocks.station_geometry import placement_pose, rest_on_table, station_sensor_to_room
 
-__all__ = ["SimulatedPass", "simulated_pass"]
+__all__ = ["SimulatedPass", "pass_colours", "simulated_pass"]
 
 
 @dataclass(frozen=True)
@@ -97,3 +98,71 @@ def simulated_pass(world: Any, seed: int, placement: int, *, steps: int = 72, n_
     cloud = profiles_to_points(x_mm, z_mm, angles, sensor, range_mm=(150.0, 360.0))
     p, n = cloud.points, cloud.normals
     return SimulatedPass(p, n, pose, int(placement))
+
+
+def pass_colours(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30))) -> NDArray[np.float64]:
+    """Colours ``(N, 3)`` of a pass's points from the station camera's frames of that placement.
+
+    The frames are the simulated camera's (``world.frame("object", angle)``, at the station's
+    240 x 160 pixels) at each table angle, with the object in the pass's placement; the camera's
+    true intrinsics and pose stand in for a camera calibration (posed photos).  A point takes the
+    colour of the pixel it projects to in the frame that sees it most frontally, where the camera's
+    ray reaches it unoccluded (the simulation's depth), the point is lit and the camera is more than
+    30 deg from the lamp's mirror direction (a highlight shows the lamp's colour, not the surface's); three band sums of the spectral radiance
+    (600-700, 500-590, 400-490 nm: red, green, blue) are its linear colour.  NaN where no frame sees a point.
+
+    Examples
+    --------
+    >>> from mocks.world import World
+    >>> w = World.calibration_sphere(20.0, 0.0)
+    >>> p = simulated_pass(w, 0, 1, steps=36, n_points=160)
+    >>> c = pass_colours(w, p, (0, 180))
+    >>> bool(np.isfinite(c).all(axis=1).mean() > 0.5), bool(np.nanmean(c[:, 0]) > np.nanmean(c[:, 2]))  # red lacquer
+    (True, True)
+    """
+    import dataclasses
+
+    import open3d as o3d
+
+    from mocks.world import rotation_z, station_world_settings
+
+    w = dataclasses.replace(world, pose=sim.pose, **station_world_settings())
+    k_mat, to_cam = w.camera_intrinsics(), w.room_to_camera()
+    cam_room = -to_cam[:3, :3].T @ to_cam[:3, 3]
+    wl = w.grid.wavelengths
+    bands = [(wl >= lo) & (wl <= hi) for lo, hi in ((600, 700), (500, 590), (400, 490))]
+    best_cos = np.full(len(sim.points), 0.2)
+    light = np.asarray(w.light_direction, dtype=np.float64)
+    light = light / np.linalg.norm(light)
+    glint_cos = math.cos(math.radians(30.0))
+    colours = np.full((len(sim.points), 3), np.nan)
+    obj = w.vertices @ sim.pose[:3, :3].T + sim.pose[:3, 3]
+    for angle in table_angles_deg:
+        rz = rotation_z(float(angle))[:3, :3]
+        p = sim.points @ rz.T
+        n = sim.normals @ rz.T
+        ray = cam_room - p
+        dist = np.linalg.norm(ray, axis=1)
+        cos = np.sum(n * ray, axis=1) / dist
+        # away from the lamp's mirror direction (a highlight shows the lamp's colour) and lit
+        mirror = 2.0 * cos[:, None] * n - ray / dist[:, None]
+        cos = np.where((mirror @ light < glint_cos) & (n @ light > 0.1), cos, -1.0)
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.core.Tensor((obj @ rz.T).astype(np.float32)),
+                            o3d.core.Tensor(w.triangles.astype(np.uint32)))
+        d = -ray / dist[:, None]
+        hit = scene.cast_rays(o3d.core.Tensor(np.hstack([np.broadcast_to(cam_room, p.shape), d]).astype(np.float32)))
+        seen = hit["t_hit"].numpy() >= dist - 0.3
+        x = p @ to_cam[:3, :3].T + to_cam[:3, 3]
+        uv = x @ k_mat.T
+        u = np.rint(uv[:, 0] / uv[:, 2]).astype(np.int64)
+        v = np.rint(uv[:, 1] / uv[:, 2]).astype(np.int64)
+        inside = (x[:, 2] > 0) & (u >= 0) & (u < w.width) & (v >= 0) & (v < w.height)
+        better = seen & inside & (cos > best_cos)
+        if not better.any():
+            continue
+        radiance = w.frame("object", float(angle)).radiance
+        rgb = np.stack([radiance[..., b].sum(axis=-1) for b in bands], axis=-1)
+        colours[better] = rgb[v[better], u[better]]
+        best_cos[better] = cos[better]
+    return colours

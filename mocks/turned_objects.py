@@ -17,9 +17,10 @@ section "Turned objects"):
 * ``inlaid-bowl`` -- a footed bowl 91 mm across and 40 mm high, ``urushi-red``,
   with a motif of ``urushi-black`` inlaid on its outer and inner walls,
   sunk :data:`INLAY_DEPTH_MM` (twice the range noise: shallow relief).
-* ``plain-bowl`` -- the same bowl shape, perfectly symmetric, ``urushi-black``
-  with the motif painted in ``gold`` with no relief at all: ambiguous in
-  shape, decided by colour only.
+* ``plain-bowl`` -- the same bowl shape, perfectly symmetric, ``urushi-red``
+  with the motif painted in ``urushi-black`` with no relief at all: ambiguous
+  in shape, decided by colour only.  (A metal inlay would look black in the
+  booth, which has no environment for it to mirror.)
 * ``plain-bowl:bare`` -- the same bowl without any decoration: ambiguous in
   shape and in colour.
 
@@ -233,7 +234,7 @@ def turned_object(name: str, step_mm: float = 0.8) -> TurnedMesh:
     (('body', 'band'), True)
     >>> bowl = turned_object("plain-bowl", step_mm=1.5)
     >>> bowl.materials, bowl.feature_area_mm2
-    ({'body': 'urushi-black', 'motif': 'gold'}, 0.0)
+    ({'body': 'urushi-red', 'motif': 'urushi-black'}, 0.0)
     """
     if name not in TURNED_OBJECTS:
         raise ValueError(f"unknown turned object {name!r}; choose one of {', '.join(TURNED_OBJECTS)}")
@@ -265,4 +266,4 @@ def turned_object(name: str, step_mm: float = 0.8) -> TurnedMesh:
         return TurnedMesh(v, t, motif.astype(np.int64), ("body", "motif"),
                           {"body": "urushi-red", "motif": "urushi-black"}, 0.0)
     return TurnedMesh(v, t, motif.astype(np.int64), ("body", "motif"),
-                      {"body": "urushi-black", "motif": "gold"}, 0.0)
+                      {"body": "urushi-red", "motif": "urushi-black"}, 0.0)

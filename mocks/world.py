@@ -324,7 +324,7 @@ class World:
         --------
         >>> w = World.turned("plain-bowl")
         >>> w.mesh_source, w.materials["motif"]
-        ('plain-bowl', 'gold')
+        ('plain-bowl', 'urushi-black')
         """
         from mocks.turned_objects import turned_object
 

@@ -30,6 +30,7 @@ from processing.geometry.registration.refinement import (
 from processing.geometry.registration.results import PairResult
 from processing.geometry.registration.symmetry import (
     _axis_sweep,
+    _by_evidence,
     _competitors,
     _decision,
     _refined_competitor,
@@ -230,7 +231,7 @@ def _register(
     best = int(np.argmax([sc.score for sc in scores]))
     # a nearly symmetric shape: sweep the poses about its weak axis
     weak_reason = ""
-    sweep = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset)
+    sweep = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset, nearly=10.0)
     if isinstance(sweep, str):
         weak_reason = sweep
     elif sweep is not None:
@@ -244,7 +245,7 @@ def _register(
     centre = src.level(decide).points.mean(axis=0)
     rivals = _competitors(src, tgt, decide, refined, scores, best, centre, scale, preset)
     if sweep is not None and not isinstance(sweep, str):
-        again = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset)
+        again = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset, nearly=10.0)
         if again is not None and not isinstance(again, str):
             m2, _, turned = _sweep_margin(src, tgt, refined[best], again[0], again[1], decide, preset, rng, tau_s)
             if turned is not None and m2 < preset.min_margin:
@@ -253,12 +254,12 @@ def _register(
                 sc2 = _scored([_evaluate(src, tgt, t2, decide, preset)], tau_s)[0]
                 rivals += _competitors(src, tgt, decide, [refined[best], t2], [scores[best], sc2], 0,
                                        centre, scale, preset)
+    t, sc_best, rivals = _by_evidence(src, tgt, decide, refined[best], scores[best], rivals, centre, scale, preset)
     margin, second_deg, evidence, ambiguous = _decision(rivals, preset)
-    t = refined[best]
     if len(levels) > 1:
         t = _icp_pyramid(src, tgt, preset, t, levels[-1:], settled=True)
     fine = levels[-1]
-    sc = replace(_evaluate(src, tgt, t, fine, preset), score=scores[best].score)
+    sc = replace(_evaluate(src, tgt, t, fine, preset), score=sc_best.score)
     ok, reason = _verdict(sc, margin, second_deg, fine, preset, evidence, ambiguous)
     if weak_reason:
         reason = weak_reason if ok else f"{reason}; {weak_reason}"

@@ -58,6 +58,7 @@ def pose_evidence(
     cell_mm: float,
     compare: ArrayLike | None = None,
     cap_sigma: float = 6.0,
+    min_noise: float = 0.0,
 ) -> PoseEvidence:
     r"""Significance of pose A over pose B from the residuals that change between them.
 
@@ -81,6 +82,9 @@ def pose_evidence(
         A residual counts at most ``cap_sigma`` noise deviations (the
         truncated quadratic of a Gaussian with an outlier floor), so that a
         few mismatches at the clouds' borders cannot outweigh a feature.
+    min_noise
+        Smallest noise deviation (the residuals' unit): the resolution of the
+        measurement, for residuals that can be exactly zero.
 
     Returns
     -------
@@ -182,7 +186,7 @@ def pose_evidence(
     if use.sum() < 2:
         return PoseEvidence(0.0, 0.0, math.nan, 0, int(use.sum()))
     ra, rb, pos = ra[use], rb[use], pos[use]
-    noise = _MAD_TO_SIGMA * float(np.median(np.abs(ra - np.median(ra))))
+    noise = max(_MAD_TO_SIGMA * float(np.median(np.abs(ra - np.median(ra)))), float(min_noise))
     if not noise > 0:
         return PoseEvidence(0.0, 0.0, noise, 0, int(use.sum()))
     cap = (cap_sigma * noise) ** 2

@@ -60,12 +60,17 @@ def _stability(
 
 
 def _weak_axis(
-    src: _Level, tgt: _Level, t: NDArray[np.float64], voxel: float, preset: RegistrationPreset
+    src: _Level, tgt: _Level, t: NDArray[np.float64], voxel: float, preset: RegistrationPreset,
+    nearly: float = 1.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | str | None:
     """The axis (direction, point) of a single weak rotation at ``t``.
 
     A reason if the pose is undetermined in another way, or None if the fit
-    is stable.
+    is stable.  With ``nearly`` > 1 a single rotation below ``nearly`` times
+    ``min_stability`` counts as weak too (when nothing is below
+    ``min_stability`` itself): a small feature on a surface of revolution
+    lifts the turn about its axis a little, but the turned poses still
+    compete and must be swept and weighed.
     """
     evals, evecs, c, length = _stability(src, tgt, t, preset.icp_distance * voxel)
     if evals[-1] <= 0:
@@ -73,7 +78,9 @@ def _weak_axis(
     ratio = evals / evals[-1]
     weak = ratio < preset.min_stability
     if not weak.any():
-        return None
+        weak = ratio < nearly * preset.min_stability
+        if weak.sum() != 1 or float(np.linalg.norm(evecs[:3, 0])) <= 0.7:
+            return None
     e = evecs[:, 0]
     rot_part = float(np.linalg.norm(e[:3]))
     if weak.sum() == 1 and rot_part > 0.7:
@@ -126,7 +133,9 @@ def _axis_sweep(
     poses[:, :3, 3] = trans[order]
     poses[:, 3, 3] = 1.0
     scale = max(src.diagonal, tgt.diagonal)
-    return _distinct(poses, s_lvl.points.mean(axis=0), preset, scale)[: preset.hypotheses]
+    # every distinct turn, not only the best-scoring few: before refinement the turned poses carry the
+    # error of the estimated axis, so their scores do not yet tell which one the feature favours
+    return _distinct(poses, s_lvl.points.mean(axis=0), preset, scale)
 
 
 def _competitor_margin(
@@ -154,8 +163,8 @@ def _competitor_margin(
     return margin, deg
 
 
-#: A competing pose: ``(margin, rotation_deg, evidence, pose)``, see :func:`_competitors`.
-_Competitor = tuple[float, float, PoseEvidence, NDArray[np.float64]]
+#: A competing pose: ``(margin, rotation_deg, evidence, pose, fit)``, see :func:`_competitors`.
+_Competitor = tuple[float, float, PoseEvidence, NDArray[np.float64], _Score]
 
 #: Cell edge of the evidence test in voxels of the level where poses are compared: the radius of the
 #: neighbourhood the level's normals are fitted over (3 voxels), over which residuals of neighbouring
@@ -194,13 +203,18 @@ def _smooth(level: _Level, k: int = 12, factor: float = 4.0) -> NDArray[np.bool_
     which neighbour is matched rather than on the pose; a smooth feature such
     as a boss stays far below it.
     """
+    cached = getattr(level, "_smooth_mask", None)
+    if cached is not None:
+        return cached
     k = min(k, len(level.points))
     _, idx = level.tree.query(level.points, k=k, workers=-1)
     nb = level.points[idx]
     d = nb - nb.mean(axis=1, keepdims=True)
     evals = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", d, d))
     var = evals[:, 0] / np.maximum(evals.sum(axis=1), 1e-300)
-    return var <= factor * float(np.median(var))
+    mask = var <= factor * float(np.median(var))
+    level._smooth_mask = mask  # type: ignore[attr-defined]  # the level's points never change
+    return mask
 
 
 def _competitors(
@@ -225,7 +239,36 @@ def _competitors(
             own, theirs, n = _common_quality(rb, np.concatenate(sc.residuals), b.tau_s)
             if max(sc.overlap_source, sc.overlap_target) >= 0.5 * overlap and n >= 0.25 * matched:
                 m = (own - theirs) / own if own > 0 else 0.0
-                out.append((m, rot, _evidence(src, tgt, poses[best], b, t, sc, voxel), t))
+                out.append((m, rot, _evidence(src, tgt, poses[best], b, t, sc, voxel), t, sc))
+    return out
+
+
+def _by_evidence(
+    src: _Cloud, tgt: _Cloud, voxel: float, pose: NDArray[np.float64], score: _Score,
+    rivals: Sequence[_Competitor], centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
+) -> tuple[NDArray[np.float64], _Score, list[_Competitor]]:
+    """Of a pose and its competitors, the one with the most evidence against all the others.
+
+    The best-scoring pose over the whole overlap is not always the right one
+    when only a small feature tells the poses apart; each candidate is weighed
+    against every other where they differ and the one whose weakest evidence
+    is highest wins (a candidate without competitors of its own counts as
+    infinitely supported only if it was the given pose).  The candidates are
+    the given pose and its ``hypotheses`` best-scoring competitors; each is
+    weighed against all.  Returns that pose,
+    its fit and its competitors.
+    """
+    poses = [pose] + [c[3] for c in rivals]
+    scores = [score] + [c[4] for c in rivals]
+    best_key, out = -math.inf, (pose, score, list(rivals))
+    top = [0] + [1 + k for k in np.argsort([-c[4].score for c in rivals])[: preset.hypotheses]]
+    for i in top:
+        mine = list(rivals) if i == 0 else _competitors(src, tgt, voxel, poses, scores, i, centre, scale, preset)
+        if not mine and i > 0:
+            continue
+        key = min((c[2].sigma for c in mine), default=math.inf)
+        if key > best_key:
+            best_key, out = key, (poses[i], scores[i], mine)
     return out
 
 
