@@ -15,8 +15,8 @@ known placement quickly; the truth is :attr:`SimulatedPass.pose`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np

@@ -115,26 +115,27 @@ def pose_evidence(
     with a uniform floor for outliers.  Dense points do not add independent evidence:
     residuals of neighbours share the fitted normal and the plane they are
     measured against.  The points are therefore grouped into cubic cells of
-    edge ``cell_mm``, each cell's mean ``m_j`` of ``delta`` is one
-    observation, and the statistic is the one-sample significance of the
-    cells' sum
+    edge ``cell_mm`` whose sums ``S_j`` of ``delta`` are the independent
+    blocks (the block bootstrap's unit), and the statistic is the
+    significance of their total
 
-    .. math:: z = \frac{\sum_j m_j}{s \sqrt{M}}
+    .. math:: z = \frac{\sum_j S_j}{\sqrt{V}}, \qquad
+              V = \max\Big(2 \sum_{S_j < 0} S_j^2,\; M n (2 \sigma_A^2)^2\Big)
 
     over the ``M`` cells.  Under the hypothesis that both poses are equally
-    right the ``m_j`` are symmetric about zero (swapping A and B changes
-    nothing but the sign), so their spread ``s`` is estimated from the cells
-    that favour B alone, ``s^2 = 2 sum_{m_j < 0} m_j^2 / M``: the cells on a
-    feature that favours A do not inflate it, while every mismatch and every
-    correlation within the overlap does.  ``s`` is not less than
-    ``2 sigma_A^2 / sqrt(n)``, the spread of the mean of ``n`` (the median
-    number of points per cell) independent ``r_B^2 - r_A^2`` with ``r``
-    normal of deviation ``sigma_A``, the robust (median absolute deviation)
-    deviation of A's residuals.  Under the null hypothesis ``z`` is about standard
-    normal; a pose is worth accepting over its competitor only when ``z`` is
-    overwhelming (``RegistrationPreset.min_evidence``, 5 sigma).  The
-    reported log-likelihood ratio counts each cell once,
-    ``sum_j m_j / (2 sigma_A^2)``.
+    right the ``S_j`` are symmetric about zero (swapping A and B changes
+    nothing but the sign), so the variance of the total is estimated from
+    the cells that favour B alone: the cells on a feature that favours A do
+    not inflate it, while every mismatch and every correlation within a cell
+    does.  ``V`` is not less than the variance for independent points,
+    ``(2 sigma_A^2)^2`` per point for ``r_B^2 - r_A^2`` with ``r`` normal of
+    deviation ``sigma_A`` (the robust, median absolute deviation, deviation of
+    A's residuals), ``n`` the median number of points per cell.  Under the
+    null hypothesis ``z`` is about standard normal; a pose is worth accepting
+    over its competitor only when ``z`` is overwhelming
+    (``RegistrationPreset.min_evidence``, 5 sigma).  The reported
+    log-likelihood ratio counts each cell once:
+    ``sum_j S_j / (2 sigma_A^2)`` divided by the mean number of points per cell.
 
     References
     ----------
@@ -193,10 +194,10 @@ def pose_evidence(
     delta = np.minimum(rb * rb, cap) - np.minimum(ra * ra, cap)
     key = np.floor((pos - pos.min(axis=0)) / cell_mm).astype(np.int64)
     _, cell, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    means = np.bincount(cell.ravel(), weights=delta) / counts
-    m = len(means)
-    llr = float(means.sum()) / (2.0 * noise * noise)
-    floor = 2.0 * noise * noise / math.sqrt(float(np.median(counts)))
-    spread = max(math.sqrt(2.0 * float(np.sum(np.minimum(means, 0.0) ** 2)) / m), floor)
-    z = float(means.sum()) / (spread * math.sqrt(m))
+    sums = np.bincount(cell.ravel(), weights=delta)
+    m = len(sums)
+    llr = float(sums.sum()) / float(counts.mean()) / (2.0 * noise * noise)
+    floor2 = m * float(np.median(counts)) * (2.0 * noise * noise) ** 2
+    spread2 = max(2.0 * float(np.sum(np.minimum(sums, 0.0) ** 2)), floor2)
+    z = float(sums.sum()) / math.sqrt(spread2)
     return PoseEvidence(z, llr, noise, m, int(use.sum()))
