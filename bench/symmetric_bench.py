@@ -101,6 +101,7 @@ def _pct(n: int, d: int) -> str:
 def section(r: dict[str, Any]) -> list[str]:
     """The docs/BENCHMARKS.md section of a :func:`collect` result."""
     s = r["summary"]
+    r_rows = r["rows"]
     lines = [
         "## Nearly symmetric turned objects (registration by evidence)",
         "",
@@ -135,11 +136,20 @@ def section(r: dict[str, Any]) -> list[str]:
         "of the pairs whose boss both passes measured); 0 verified-but-wrong over all objects -- "
         f"**{'met' if all(x['verified-but-wrong'] == 0 for x in s.values()) else 'not met'}**; plain bowl "
         f"ambiguous in shape -- {_pct(plain['ambiguous'], plain['pairs'])}; resolved by colour once posed frames "
-        "exist (100 %) -- **not measured**: scoring competing rotations by the photos' colour is not implemented yet.",
+        "exist (100 %) -- **not measured**: the colour sweep (`photo_consistency.py`) is not wired into registration "
+        "or the session yet ([processing.md](processing.md#colour-where-shape-is-silent)).",
         "",
-        "Where the vase is not registered the evidence is the reason: either its best pose is itself off by about "
-        "1.5 deg (the turn about the axis converges slowly when only the boss constrains it, and the evidence "
-        "against a competitor is then weak or negative), or the boss is not in both passes' overlap.",
+        "Per vase pair (seed: outcome, evidence): "
+        + "; ".join(f"{r['seed']}: {r['outcome']}, {r['evidence_sigma']} sigma"
+                    + ("" if r["feature_in_both"] else " (boss not in both passes)")
+                    + ("" if r["best_pose_right"] or r["outcome"] == "registered" else ", best pose wrong")
+                    for r in r_rows if r["object"] == "vase") + ".  "
+        "A refused pair is refused for want of evidence, not by a margin: where the boss is in both passes but "
+        "the evidence stays below 5 sigma, the boss covers too few independent cells against the mismatches at "
+        "the rim and foot, or the candidate the boss favours was not among the turned poses kept.  With the margin "
+        "rule alone every one of these vase pairs was refused, and one pair (seed 5) was verified 93.7 deg wrong "
+        "because no competing pose had been searched; the sweep about a nearly weak axis now finds its "
+        "competitors and refuses it.  Times are with other jobs sharing the 2 cores.",
         "",
     ]
     return lines
