@@ -135,7 +135,7 @@ def _axis_sweep(
     scale = max(src.diagonal, tgt.diagonal)
     # every distinct turn, not only the best-scoring few: before refinement the turned poses carry the
     # error of the estimated axis, so their scores do not yet tell which one the feature favours
-    return _distinct(poses, s_lvl.points.mean(axis=0), preset, scale)
+    return _distinct(poses, s_lvl.points.mean(axis=0), preset, scale, limit=len(poses))
 
 
 def _competitor_margin(
@@ -254,14 +254,15 @@ def _by_evidence(
     against every other where they differ and the one whose weakest evidence
     is highest wins (a candidate without competitors of its own counts as
     infinitely supported only if it was the given pose).  The candidates are
-    the given pose and its ``hypotheses`` best-scoring competitors; each is
+    the given pose and the ``hypotheses`` competitors with the least evidence
+    against them (those that fit better than it where they differ); each is
     weighed against all.  Returns that pose,
     its fit and its competitors.
     """
     poses = [pose] + [c[3] for c in rivals]
     scores = [score] + [c[4] for c in rivals]
     best_key, out = -math.inf, (pose, score, list(rivals))
-    top = [0] + [1 + k for k in np.argsort([-c[4].score for c in rivals])[: preset.hypotheses]]
+    top = [0] + [1 + k for k in np.argsort([c[2].sigma for c in rivals])[: preset.hypotheses]]
     for i in top:
         mine = list(rivals) if i == 0 else _competitors(src, tgt, voxel, poses, scores, i, centre, scale, preset)
         if not mine and i > 0:
