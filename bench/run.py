@@ -408,6 +408,15 @@ def object_section() -> list[str]:
     return section(json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
+def symmetric_section() -> list[str]:
+    """Nearly symmetric turned objects: automatic registration by evidence against the truth (bench/symmetric_bench.py)."""
+    from bench.symmetric_bench import section
+
+    proc = subprocess.run([sys.executable, "-m", "bench.symmetric_bench", "--pairs", "5"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=3600, check=True)
+    return section(json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
 def probe_section() -> list[str]:
     """Light probe: 7 brackets of 24 MP merged, unwrapped and compared with the room's truth (bench/probe_bench.py)."""
     from bench.probe_bench import section
@@ -528,6 +537,7 @@ SECTIONS: dict[str, tuple[str, Callable[[], list[str]]]] = {
     "posed": ("## Posed photos", posed_section),
     "object": ("## Materials on the mesh", object_section),
     "probe": ("## Light probe", probe_section),
+    "symmetric": ("## Nearly symmetric turned objects", symmetric_section),
 
 
     "ibl": ("## Image-based lighting", ibl_section),

@@ -316,6 +316,27 @@ class World:
                    mesh_source=f"hawk:{triangles}", **kwargs)
 
     @classmethod
+    def turned(cls, name: str, materials: dict[str, str] | None = None, **kwargs: Any) -> World:
+        """A turned object of :mod:`mocks.turned_objects` (``vase``, ``inlaid-bowl``, ``plain-bowl``,
+        ``plain-bowl:bare``) standing upright on the table's axis.
+
+        Examples
+        --------
+        >>> w = World.turned("plain-bowl")
+        >>> w.mesh_source, w.materials["motif"]
+        ('plain-bowl', 'urushi-black')
+        """
+        from mocks.turned_objects import turned_object
+
+        try:
+            mesh = turned_object(name)
+        except ValueError as exc:
+            raise WorldError(str(exc)) from None
+        mats = dict(mesh.materials)
+        mats.update(materials or {})
+        return cls(mesh.vertices, mesh.triangles, mesh.region, mesh.region_names, mats, mesh_source=name, **kwargs)
+
+    @classmethod
     def calibration_sphere(cls, radius_mm: float = 25.0, offset_mm: float = 60.0, **kwargs: Any) -> World:
         """A reference sphere for scanner calibration, resting on the table ``offset_mm`` from the axis.
 
@@ -417,6 +438,10 @@ class World:
                 raise WorldError(f"mesh {source!r}: use 'sphere:<radius_mm>:<offset_mm>'") from None
             data.pop("materials", None)
             return cls.calibration_sphere(radius, offset, **world_settings(data))
+        from mocks.turned_objects import TURNED_OBJECTS
+
+        if source in TURNED_OBJECTS:
+            return cls.turned(source, materials=data.pop("materials", None), **world_settings(data))
         if source.startswith("hawk:"):
             try:
                 n = int(source.split(":", 1)[1])

@@ -2,7 +2,7 @@
 
 The simulated devices are described in ``docs/simulator.md``.  Three actions:
 
-``kogei mock [--world hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
+``kogei mock [--world hawk|vase|inlaid-bowl|plain-bowl[:bare]|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
 [--time-scale S] [--root DIR] [--seed N]``
     Starts :class:`mocks.station.SimulatedStation`, prints its turntable
     port, profiler port, gphoto2 shim, hot folder and control folder with
@@ -73,8 +73,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                     "pseudo-terminals, a fake gphoto2 and a hot folder, all looking at one simulated object. "
                     "'kogei mock place' and 'kogei mock shoot' talk to a running station.",
     )
-    p.add_argument("--world", default="hawk", metavar="hawk|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH",
-                   help="the procedural hawk head (default); a calibration sphere of radius R mm (default 25) "
+    p.add_argument("--world", default="hawk", metavar="hawk|vase|inlaid-bowl|plain-bowl[:bare]|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH",
+                   help="the procedural hawk head (default); a turned object (a thrown vase with a boss and a "
+                        "faint band, a bowl with an inlaid motif, a plain bowl with a painted motif, or bare; "
+                        "docs/simulator.md, Turned objects); a calibration sphere of radius R mm (default 25) "
                         "OFF mm from the axis (default 60); a ChArUco board (DICT_5X5_100, 7 x 5 squares of "
                         "8 mm, markers 6 mm) for camera calibration, 960 x 640 frames, placements 1, 2, 3 flat "
                         "and on 40 and 55 degree wedges, or every placement at TILT degrees (0 = flat, < 90); "
@@ -166,6 +168,7 @@ def capture_commands(info: dict[str, Any], steps: int = SCAN_STEPS, passes: int 
 
 
 def _build_world(args: argparse.Namespace) -> Any:
+    from mocks.turned_objects import TURNED_OBJECTS
     from mocks.world import World, WorldError, station_world_settings
     from processing.materials.presets import MaterialError, get_material
 
@@ -184,6 +187,11 @@ def _build_world(args: argparse.Namespace) -> Any:
             if n < 500:
                 raise UsageError(f"--triangles must be at least 500, got {n}")
             world = World.hawk(n, **station_world_settings())
+            if args.material is not None:
+                world.materials = {name: args.material for name in world.region_names}
+            return world
+        if args.world in TURNED_OBJECTS:
+            world = World.turned(args.world, **station_world_settings())
             if args.material is not None:
                 world.materials = {name: args.material for name in world.region_names}
             return world

@@ -23,7 +23,9 @@ Modules
 :mod:`~processing.geometry.registration.refinement`
     Point-to-plane ICP over a voxel pyramid, the fit in both directions, the verdict.
 :mod:`~processing.geometry.registration.symmetry`
-    Weak directions of a fit, sweeps about a weak axis, margins over competing poses.
+    Weak directions of a fit, sweeps about a weak axis, margins and evidence over competing poses.
+:mod:`~processing.geometry.registration.pose_evidence`
+    Evidence for one pose over another where they differ, against the range noise.
 :mod:`~processing.geometry.registration.pairwise`
     :func:`register_pair` and :func:`register_from_picks`.
 :mod:`~processing.geometry.registration.pose_graph`

@@ -169,9 +169,11 @@ def _chunked_icp(
 
 
 def _distinct(
-    poses: NDArray[np.float64], c_s: NDArray[np.float64], preset: RegistrationPreset, scale: float
+    poses: NDArray[np.float64], c_s: NDArray[np.float64], preset: RegistrationPreset, scale: float,
+    limit: int | None = None,
 ) -> list[NDArray[np.float64]]:
-    """Greedy non-maximum suppression of poses (already sorted best first)."""
+    """Greedy non-maximum suppression of poses (already sorted best first); at most ``limit`` (default 4 x hypotheses)."""
+    limit = 4 * preset.hypotheses if limit is None else limit
     kept: list[NDArray[np.float64]] = []
     centres = np.einsum("kij,j->ki", poses[:, :3, :3], c_s) + poses[:, :3, 3]
     alive = np.ones(len(poses), dtype=bool)
@@ -179,7 +181,7 @@ def _distinct(
         if not alive[k]:
             continue
         kept.append(poses[k])
-        if len(kept) >= 4 * preset.hypotheses:
+        if len(kept) >= limit:
             break
         same = (_rotation_angle_deg(poses[k, :3, :3][None], poses[:, :3, :3]) < preset.distinct_deg) & (
             np.linalg.norm(centres - centres[k], axis=1) < preset.distinct_fraction * scale

@@ -28,7 +28,15 @@ from processing.geometry.registration.refinement import (
     _verdict,
 )
 from processing.geometry.registration.results import PairResult
-from processing.geometry.registration.symmetry import _axis_sweep, _margin, _sweep_margin, _weak_axis
+from processing.geometry.registration.symmetry import (
+    _axis_sweep,
+    _by_evidence,
+    _competitors,
+    _decision,
+    _refined_competitor,
+    _sweep_margin,
+    _weak_axis,
+)
 from processing.geometry.registration.transforms import _rodrigues, rigid_from_picks, transform_points
 
 __all__ = ["register_from_picks", "register_pair"]
@@ -223,7 +231,7 @@ def _register(
     best = int(np.argmax([sc.score for sc in scores]))
     # a nearly symmetric shape: sweep the poses about its weak axis
     weak_reason = ""
-    sweep = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset)
+    sweep = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset, nearly=10.0)
     if isinstance(sweep, str):
         weak_reason = sweep
     elif sweep is not None:
@@ -234,23 +242,29 @@ def _register(
             scores.append(_evaluate(src, tgt, t, decide, preset))
         scores = _scored(scores, tau_s)
         best = int(np.argmax([sc.score for sc in scores]))
-    margin, second_deg = _margin(refined, scores, best, src.level(decide).points.mean(axis=0), scale, preset)
+    centre = src.level(decide).points.mean(axis=0)
+    rivals = _competitors(src, tgt, decide, refined, scores, best, centre, scale, preset)
     if sweep is not None and not isinstance(sweep, str):
-        again = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset)
+        again = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset, nearly=10.0)
         if again is not None and not isinstance(again, str):
-            m2, d2 = _sweep_margin(src, tgt, refined[best], again[0], again[1], decide, preset, rng, tau_s)
-            if m2 < margin:
-                margin, second_deg = m2, d2
-    t = refined[best]
+            m2, _, turned = _sweep_margin(src, tgt, refined[best], again[0], again[1], decide, preset, rng, tau_s)
+            if turned is not None and m2 < preset.min_margin:
+                # judge the rigidly turned competitor at its best fit, as the others
+                t2 = _refined_competitor(src, tgt, turned, decide, preset)
+                sc2 = _scored([_evaluate(src, tgt, t2, decide, preset)], tau_s)[0]
+                rivals += _competitors(src, tgt, decide, [refined[best], t2], [scores[best], sc2], 0,
+                                       centre, scale, preset)
+    t, sc_best, rivals = _by_evidence(src, tgt, decide, refined[best], scores[best], rivals, centre, scale, preset)
+    margin, second_deg, evidence, ambiguous = _decision(rivals, preset)
     if len(levels) > 1:
         t = _icp_pyramid(src, tgt, preset, t, levels[-1:], settled=True)
     fine = levels[-1]
-    sc = replace(_evaluate(src, tgt, t, fine, preset), score=scores[best].score)
-    ok, reason = _verdict(sc, margin, second_deg, fine, preset)
+    sc = replace(_evaluate(src, tgt, t, fine, preset), score=sc_best.score)
+    ok, reason = _verdict(sc, margin, second_deg, fine, preset, evidence, ambiguous)
     if weak_reason:
         reason = weak_reason if ok else f"{reason}; {weak_reason}"
         ok = False
-    return _pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global")
+    return _pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence)
 
 
 def _as_transform(t: ArrayLike, name: str) -> NDArray[np.float64]:

@@ -61,6 +61,13 @@ class RegistrationPreset:
         Smallest accepted relative margin by which the pose fits better than
         its strongest distinct competitor, on the points both match (below it
         the pose is ambiguous, e.g. a symmetric object).
+    min_evidence
+        A competing pose within ``min_margin`` is ruled out when the evidence
+        for the pose where the two differ reaches this many standard
+        deviations (:func:`~processing.geometry.registration.pose_evidence.pose_evidence`:
+        the significance of the log-likelihood ratio of the residuals that
+        change between them, against the range noise, neighbouring points
+        pooled into independent cells).
     min_normal_agreement
         Smallest accepted mean cosine between matched normals.
     distinct_deg
@@ -114,6 +121,7 @@ class RegistrationPreset:
     min_overlap: float = 0.25
     max_rmse: float = 6.0
     min_margin: float = 0.05
+    min_evidence: float = 5.0
     min_normal_agreement: float = 0.8
     distinct_deg: float = 8.0
     distinct_fraction: float = 0.03

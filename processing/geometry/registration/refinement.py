@@ -189,8 +189,17 @@ def _scored(fits: Sequence[_Score], tau_s: float) -> list[_Score]:
     return [f.at(tau_s) for f in fits]
 
 
-def _verdict(sc: _Score, margin: float, second_deg: float, voxel: float, preset: RegistrationPreset) -> tuple[bool, str]:
-    """Whether a fit passes the preset's checks, and ``"ok"`` or every reason it does not."""
+def _verdict(
+    sc: _Score, margin: float, second_deg: float, voxel: float, preset: RegistrationPreset,
+    evidence: float = math.nan, ambiguous: bool | None = None,
+) -> tuple[bool, str]:
+    """Whether a fit passes the preset's checks, and ``"ok"`` or every reason it does not.
+
+    ``ambiguous`` says whether a competing pose is neither clearly worse
+    (``margin``) nor ruled out by the ``evidence`` where the two differ
+    (standard deviations, :mod:`~processing.geometry.registration.pose_evidence`);
+    None: judged by the margin alone.
+    """
     reasons = []
     overlap = max(sc.overlap_source, sc.overlap_target)
     if not overlap >= preset.min_overlap:
@@ -209,11 +218,15 @@ def _verdict(sc: _Score, margin: float, second_deg: float, voxel: float, preset:
             f"matched normals disagree (mean cosine {sc.normal_agreement:.2f} < "
             f"{preset.min_normal_agreement:.2f})"
         )
-    if math.isfinite(margin) and margin < preset.min_margin:
+    if ambiguous is None:
+        ambiguous = math.isfinite(margin) and margin < preset.min_margin
+    if ambiguous:
+        where = (f"; where the two differ the evidence is {evidence:.1f} sigma of the range noise "
+                 f"< {preset.min_evidence:g}" if math.isfinite(evidence) else "")
         reasons.append(
             f"ambiguous: a second pose {second_deg:.1f} deg away fits "
             f"{'nearly as well' if margin >= 0 else 'better'} where both overlap (margin {margin:.1%} < "
-            f"{preset.min_margin:.0%}; a nearly symmetric shape?); pick points to register this pair"
+            f"{preset.min_margin:.0%}{where}; a nearly symmetric shape?); pick points to register this pair"
         )
     return (not reasons), "; ".join(reasons) if reasons else "ok"
 
@@ -225,7 +238,7 @@ def _pair_scale(*clouds: _Cloud) -> float:
 
 def _pair_result(
     indices: tuple[int, int], t: NDArray[np.float64], sc: _Score, margin: float, second_deg: float,
-    ok: bool, reason: str, start: float, method: str,
+    ok: bool, reason: str, start: float, method: str, evidence: float = math.nan,
 ) -> PairResult:
     """The :class:`PairResult` of a fit, timed from ``start`` (``time.perf_counter``)."""
     return PairResult(
@@ -235,5 +248,5 @@ def _pair_result(
         rmse_mm=sc.rmse_mm, expected_rmse_mm=sc.expected_mm, normal_agreement=sc.normal_agreement,
         score=sc.score,
         margin=margin, second_rotation_deg=second_deg, verified=ok, reason=reason,
-        seconds=time.perf_counter() - start, method=method,
+        seconds=time.perf_counter() - start, method=method, evidence_sigma=evidence,
     )

@@ -59,6 +59,15 @@ class PairResult:
         Wall-clock time of the pair.
     method
         ``"global"``, ``"picks"`` or ``"initial"``.
+    evidence_sigma
+        Evidence for this pose over the competitor reported by
+        ``second_rotation_deg``, where the two differ: the significance of
+        their log-likelihood ratio in standard deviations of the range noise,
+        neighbouring points pooled into independent cells
+        (:func:`~processing.geometry.registration.pose_evidence.pose_evidence`).
+        A competitor within ``min_margin`` is ruled out only by at least
+        ``RegistrationPreset.min_evidence``.  NaN without competitors, for
+        picks and a given initial pose.
     """
 
     source: int
@@ -77,6 +86,7 @@ class PairResult:
     reason: str
     seconds: float
     method: str
+    evidence_sigma: float = math.nan
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (the transform as nested lists).

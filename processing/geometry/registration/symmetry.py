@@ -16,8 +16,9 @@ from numpy.typing import NDArray
 
 from processing.geometry.registration.clouds import _Cloud, _Level
 from processing.geometry.registration.global_search import _batch_score, _chunked_icp, _distinct, _subsample
+from processing.geometry.registration.pose_evidence import PoseEvidence, pose_evidence
 from processing.geometry.registration.presets import RegistrationPreset
-from processing.geometry.registration.refinement import _common_quality, _Score
+from processing.geometry.registration.refinement import _common_quality, _icp_pyramid, _Score
 from processing.geometry.registration.transforms import (
     _rodrigues,
     _rotation_angle_deg,
@@ -59,12 +60,17 @@ def _stability(
 
 
 def _weak_axis(
-    src: _Level, tgt: _Level, t: NDArray[np.float64], voxel: float, preset: RegistrationPreset
+    src: _Level, tgt: _Level, t: NDArray[np.float64], voxel: float, preset: RegistrationPreset,
+    nearly: float = 1.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | str | None:
     """The axis (direction, point) of a single weak rotation at ``t``.
 
     A reason if the pose is undetermined in another way, or None if the fit
-    is stable.
+    is stable.  With ``nearly`` > 1 a single rotation below ``nearly`` times
+    ``min_stability`` counts as weak too (when nothing is below
+    ``min_stability`` itself): a small feature on a surface of revolution
+    lifts the turn about its axis a little, but the turned poses still
+    compete and must be swept and weighed.
     """
     evals, evecs, c, length = _stability(src, tgt, t, preset.icp_distance * voxel)
     if evals[-1] <= 0:
@@ -72,7 +78,9 @@ def _weak_axis(
     ratio = evals / evals[-1]
     weak = ratio < preset.min_stability
     if not weak.any():
-        return None
+        weak = ratio < nearly * preset.min_stability
+        if weak.sum() != 1 or float(np.linalg.norm(evecs[:3, 0])) <= 0.7:
+            return None
     e = evecs[:, 0]
     rot_part = float(np.linalg.norm(e[:3]))
     if weak.sum() == 1 and rot_part > 0.7:
@@ -125,7 +133,9 @@ def _axis_sweep(
     poses[:, :3, 3] = trans[order]
     poses[:, 3, 3] = 1.0
     scale = max(src.diagonal, tgt.diagonal)
-    return _distinct(poses, s_lvl.points.mean(axis=0), preset, scale)[: preset.hypotheses]
+    # every distinct turn, not only the best-scoring few: before refinement the turned poses carry the
+    # error of the estimated axis, so their scores do not yet tell which one the feature favours
+    return _distinct(poses, s_lvl.points.mean(axis=0), preset, scale, limit=len(poses))
 
 
 def _competitor_margin(
@@ -153,34 +163,154 @@ def _competitor_margin(
     return margin, deg
 
 
-def _margin(
-    poses: Sequence[NDArray[np.float64]], scores: Sequence[_Score], best: int,
-    centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
-) -> tuple[float, float]:
-    """Margin of ``poses[best]`` over its distinct competitors, and the rotation to the strongest one.
+#: A competing pose: ``(margin, rotation_deg, evidence, pose, fit)``, see :func:`_competitors`.
+_Competitor = tuple[float, float, PoseEvidence, NDArray[np.float64], _Score]
 
-    See :func:`_competitor_margin`; both directions are pooled.
+#: Cell edge of the evidence test in voxels of the level where poses are compared: the radius of the
+#: neighbourhood the level's normals are fitted over (3 voxels), over which residuals of neighbouring
+#: points share most of their plane.
+EVIDENCE_CELL_VOXELS = 3.0
+
+
+def _evidence(
+    src: _Cloud, tgt: _Cloud, t_a: NDArray[np.float64], sc_a: _Score, t_b: NDArray[np.float64], sc_b: _Score,
+    voxel: float,
+) -> PoseEvidence:
+    """Evidence for pose ``t_a`` over ``t_b`` on the points of both levels that move between them.
+
+    Source points are placed in the target frame by ``t_a``; a point moves when
+    the two poses put it more than two voxels apart (elsewhere the two cannot
+    differ).  See :func:`~processing.geometry.registration.pose_evidence.pose_evidence`.
+    """
+    s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
+    s_pts, t_pts = s_lvl.points, t_lvl.points
+    xa, xb = transform_points(t_a, s_pts), transform_points(t_b, s_pts)
+    ya, yb = transform_points(np.linalg.inv(t_a), t_pts), transform_points(np.linalg.inv(t_b), t_pts)
+    moves = np.concatenate([np.linalg.norm(xa - xb, axis=1), np.linalg.norm(ya - yb, axis=1)]) > 2.0 * voxel
+    moves &= np.concatenate([_smooth(s_lvl), _smooth(t_lvl)])
+    pos = np.concatenate([xa, t_pts])
+    ra = np.concatenate(sc_a.residuals)
+    rb = np.concatenate(sc_b.residuals)
+    return pose_evidence(ra, rb, pos, EVIDENCE_CELL_VOXELS * voxel, moves)
+
+
+def _smooth(level: _Level, k: int = 12, factor: float = 4.0) -> NDArray[np.bool_]:
+    """Points where the surface is locally smooth: surface variation within ``factor`` times the cloud's median.
+
+    The surface variation ``lambda_0 / (lambda_0 + lambda_1 + lambda_2)`` of
+    the ``k`` nearest neighbours' covariance (Pauly, Gross & Kobbelt 2002) is
+    large at sharp edges and rims, where point-to-plane residuals depend on
+    which neighbour is matched rather than on the pose; a smooth feature such
+    as a boss stays far below it.
+    """
+    cached = getattr(level, "_smooth_mask", None)
+    if cached is not None:
+        return cached
+    k = min(k, len(level.points))
+    _, idx = level.tree.query(level.points, k=k, workers=-1)
+    nb = level.points[idx]
+    d = nb - nb.mean(axis=1, keepdims=True)
+    evals = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", d, d))
+    var = evals[:, 0] / np.maximum(evals.sum(axis=1), 1e-300)
+    mask = var <= factor * float(np.median(var))
+    level._smooth_mask = mask  # type: ignore[attr-defined]  # the level's points never change
+    return mask
+
+
+def _competitors(
+    src: _Cloud, tgt: _Cloud, voxel: float, poses: Sequence[NDArray[np.float64]], scores: Sequence[_Score],
+    best: int, centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
+) -> list[_Competitor]:
+    """The distinct poses that compete with ``poses[best]``: margin, rotation, evidence and pose of each.
+
+    A competitor explains at least half as much of the clouds and shares at
+    least a quarter of the best pose's matched points (see
+    :func:`_competitor_margin`); its evidence is :func:`_evidence` at
+    ``voxel`` (the level where the fits were evaluated).
     """
     b = scores[best]
     rb = np.concatenate(b.residuals)
-    others = []
+    matched = int(np.sum(~np.isnan(rb)))
+    overlap = max(b.overlap_source, b.overlap_target)
+    out: list[_Competitor] = []
     for t, sc in zip(poses, scores):
         rot, disp = pose_difference(poses[best], t, centre[None])
         if rot >= preset.distinct_deg or disp >= preset.distinct_fraction * scale:
             own, theirs, n = _common_quality(rb, np.concatenate(sc.residuals), b.tau_s)
-            others.append((max(sc.overlap_source, sc.overlap_target), own, theirs, n, rot))
-    matched = int(np.sum(~np.isnan(rb)))
-    return _competitor_margin(max(b.overlap_source, b.overlap_target), others, matched)
+            if max(sc.overlap_source, sc.overlap_target) >= 0.5 * overlap and n >= 0.25 * matched:
+                m = (own - theirs) / own if own > 0 else 0.0
+                out.append((m, rot, _evidence(src, tgt, poses[best], b, t, sc, voxel), t, sc))
+    return out
+
+
+def _by_evidence(
+    src: _Cloud, tgt: _Cloud, voxel: float, pose: NDArray[np.float64], score: _Score,
+    rivals: Sequence[_Competitor], centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
+) -> tuple[NDArray[np.float64], _Score, list[_Competitor]]:
+    """Of a pose and its competitors, the one with the most evidence against all the others.
+
+    The best-scoring pose over the whole overlap is not always the right one
+    when only a small feature tells the poses apart; each candidate is weighed
+    against every other where they differ and the one whose weakest evidence
+    is highest wins (a candidate without competitors of its own counts as
+    infinitely supported only if it was the given pose).  The candidates are
+    the given pose and the ``hypotheses`` competitors with the least evidence
+    against them (those that fit better than it where they differ); each is
+    weighed against all.  Returns that pose,
+    its fit and its competitors.
+    """
+    poses = [pose] + [c[3] for c in rivals]
+    scores = [score] + [c[4] for c in rivals]
+    best_key, out = -math.inf, (pose, score, list(rivals))
+    top = [0] + [1 + k for k in np.argsort([c[2].sigma for c in rivals])[: preset.hypotheses]]
+    for i in top:
+        mine = list(rivals) if i == 0 else _competitors(src, tgt, voxel, poses, scores, i, centre, scale, preset)
+        if not mine and i > 0:
+            continue
+        key = min((c[2].sigma for c in mine), default=math.inf)
+        if key > best_key:
+            best_key, out = key, (poses[i], scores[i], mine)
+    return out
+
+
+def _decision(competitors: Sequence[_Competitor], preset: RegistrationPreset) -> tuple[float, float, float, bool]:
+    """``(margin, rotation_deg, evidence_sigma, ambiguous)`` of a pose over its competitors.
+
+    A competitor is ruled out when the pose fits better than it by at least
+    ``min_margin`` where both match, or when the evidence where they differ
+    reaches ``min_evidence`` standard deviations.  The figures reported are
+    those of the strongest competitor not ruled out (else of the one with the
+    least evidence); ``(1.0, nan, nan, False)`` without competitors.
+    """
+    if not competitors:
+        return 1.0, math.nan, math.nan, False
+    margin = min(c[0] for c in competitors)
+    open_ = [c for c in competitors if c[0] < preset.min_margin and c[2].sigma < preset.min_evidence]
+    pool = open_ or list(competitors)
+    worst = min(pool, key=lambda c: c[2].sigma)
+    return margin, worst[1], worst[2].sigma, bool(open_)
+
+
+def _refined_competitor(
+    src: _Cloud, tgt: _Cloud, t: NDArray[np.float64], voxel: float, preset: RegistrationPreset,
+) -> NDArray[np.float64]:
+    """A rigidly turned pose refined by ICP at one level (``voxel`` mm), so that its fit is judged at its best.
+
+    Point-to-plane ICP does not slide a pose along an exact symmetry, so a
+    competitor on a surface of revolution stays where it was turned to.
+    """
+    return _icp_pyramid(src, tgt, preset, t, [voxel], settled=True)
 
 
 def _sweep_margin(
     src: _Cloud, tgt: _Cloud, t: NDArray[np.float64], axis: NDArray[np.float64], point: NDArray[np.float64],
     voxel: float, preset: RegistrationPreset, rng: np.random.Generator, score_tau: float,
-) -> tuple[float, float]:
-    """Quality margin of ``t`` over the same pose turned rigidly about a weak axis.
+) -> tuple[float, float, NDArray[np.float64] | None]:
+    """Quality margin of ``t`` over the same pose turned rigidly about a weak axis, and that turned pose.
 
     There is no refinement, so that a continuous symmetry cannot slide the
-    competitors back onto ``t``; see :func:`_competitor_margin`.
+    competitors back onto ``t``; see :func:`_competitor_margin`.  The pose is
+    the strongest competitor's (None without competitors).
     """
     s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
     rot, trans, deg = _axis_turns(t, axis, point, preset.sweep_steps)
@@ -195,4 +325,12 @@ def _sweep_margin(
     theirs = (part * both).sum(axis=1) / np.maximum(n, 1)
     far = np.flatnonzero(deg >= preset.distinct_deg)
     others = [(overlap[k], own[k], theirs[k], int(n[k]), deg[k]) for k in far]
-    return _competitor_margin(float(overlap[0]), others, int(hit[0].sum()))
+    margin, second = _competitor_margin(float(overlap[0]), others, int(hit[0].sum()))
+    pose = None
+    ok = far[(overlap[far] >= 0.5 * overlap[0]) & (n[far] >= 0.25 * hit[0].sum())]
+    if len(ok):
+        m = np.where(own[ok] > 0, (own[ok] - theirs[ok]) / np.where(own[ok] > 0, own[ok], 1.0), 0.0)
+        k = int(ok[np.argmin(m)])
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rot[k], trans[k]
+    return margin, second, pose

@@ -1,0 +1,167 @@
+"""Registration of nearly symmetric turned objects against the simulated world's truth.
+
+For each turned object of :mod:`mocks.turned_objects` (the vase with a 1 mm boss, the bowl with a
+0.1 mm inlaid motif, the plain bowl with a painted motif) and each station seed, two random
+placements (2 and 3) are scanned as the station does (:func:`mocks.pass_cloud.simulated_pass`: the
+station's sensor, placements and seeded 0.05 mm range noise, 72 profiles per revolution) and
+registered automatically (:func:`processing.geometry.registration.register_pair`, ``standard``).
+The truth only scores: the pair's true transform is ``pose_2 @ inv(pose_3)``; a pair is *registered*
+when it is verified and within 0.5 deg and 0.5 mm (largest displacement of the source points) of it,
+*verified-but-wrong* when verified outside those limits, *ambiguous* when refused as ambiguous or
+undetermined (a symmetric shape), *refused* for another reason.
+
+Run ``python -m bench.symmetric_bench [--quick] [--pairs N]``; prints one JSON object (the last line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from bench.common import machine_description
+
+__all__ = ["OBJECTS", "collect", "section"]
+
+#: The objects and what should decide their pairs.
+OBJECTS = {"vase": "shape (the boss)", "inlaid-bowl": "colour (the motif; 0.1 mm relief)",
+           "plain-bowl": "colour only (painted motif)"}
+#: Pose limits of a right pair (deg, mm), as the scan-processing benchmark's.
+LIMIT_DEG, LIMIT_MM = 0.5, 0.5
+
+
+def pair_row(name: str, seed: int) -> dict[str, Any]:
+    """One placement pair of ``name`` at station seed ``seed``, registered and scored."""
+    from mocks.pass_cloud import simulated_pass
+    from mocks.world import World
+    from processing.geometry.registration import pose_difference, register_pair
+
+    world = World.turned(name)
+    a, b = simulated_pass(world, seed, 2), simulated_pass(world, seed, 3)
+    res = register_pair(b.points, a.points, source_normals=b.normals, target_normals=a.normals,
+                        preset="standard", seed=seed)
+    rot, disp = pose_difference(res.transform, a.pose @ np.linalg.inv(b.pose), b.points)
+    # truth: is the vase's boss measured in both passes (points within 4 mm of its top)?
+    feature = None
+    if name == "vase":
+        from mocks.turned_objects import BOSS_HEIGHT_MM
+
+        top = np.array([26.0 + BOSS_HEIGHT_MM, 0.0, 30.0])
+        seen = [int(np.sum(np.linalg.norm(p.points - (p.pose[:3, :3] @ top + p.pose[:3, 3]), axis=1) < 4.0))
+                for p in (a, b)]
+        feature = min(seen) >= 20
+    right = rot <= LIMIT_DEG and disp <= LIMIT_MM
+    if res.verified:
+        outcome = "registered" if right else "verified-but-wrong"
+    elif "ambiguous" in res.reason or "undetermined" in res.reason:
+        outcome = "ambiguous"
+    else:
+        outcome = "refused"
+    return {"object": name, "seed": seed, "outcome": outcome, "rotation_deg": round(float(rot), 3),
+            "displacement_mm": round(float(disp), 3), "best_pose_right": bool(right),
+            "evidence_sigma": None if not np.isfinite(res.evidence_sigma) else round(float(res.evidence_sigma), 1),
+            "margin": round(float(res.margin), 4), "seconds": round(res.seconds, 1), "reason": res.reason,
+            "feature_in_both": feature}
+
+
+def collect(pairs: int) -> dict[str, Any]:
+    """Every object's ``pairs`` pairs (seeds 0 .. pairs - 1) and a summary per object."""
+    rows, summary = [], {}
+    for name in OBJECTS:
+        mine = []
+        for seed in range(pairs):
+            t0 = time.perf_counter()
+            r = pair_row(name, seed)
+            r["wall_s"] = round(time.perf_counter() - t0, 1)
+            print(json.dumps(r), file=sys.stderr, flush=True)
+            mine.append(r)
+        rows += mine
+        count = {k: sum(r["outcome"] == k for r in mine)
+                 for k in ("registered", "verified-but-wrong", "ambiguous", "refused")}
+        ev = [r["evidence_sigma"] for r in mine if r["evidence_sigma"] is not None]
+        summary[name] = {"pairs": len(mine), **count,
+                         "best_pose_right": sum(r["best_pose_right"] for r in mine),
+                         "feature_in_both": sum(bool(r["feature_in_both"]) for r in mine),
+                         "registered_of_feature_in_both": sum(bool(r["feature_in_both"]) and r["outcome"] == "registered"
+                                                              for r in mine),
+                         "evidence_sigma_median": round(statistics.median(ev), 1) if ev else None,
+                         "seconds_median": round(statistics.median(r["seconds"] for r in mine), 1)}
+    return {"machine": machine_description(), "pairs_per_object": pairs, "summary": summary, "rows": rows}
+
+
+def _pct(n: int, d: int) -> str:
+    return f"{n}/{d} ({100.0 * n / d:.0f} %)" if d else "-"
+
+
+def section(r: dict[str, Any]) -> list[str]:
+    """The docs/BENCHMARKS.md section of a :func:`collect` result."""
+    s = r["summary"]
+    r_rows = r["rows"]
+    lines = [
+        "## Nearly symmetric turned objects (registration by evidence)",
+        "",
+        f"`python -m bench.symmetric_bench --pairs {r['pairs_per_object']}` ({r['machine']}).  Each object of "
+        "`mocks/turned_objects.py` ([simulator.md](simulator.md#turned-objects)) in two random placements (2 and 3) "
+        "per station seed, scanned as the station does (`mocks/pass_cloud.py`: 72 profiles, 0.05 mm range noise) "
+        "and registered automatically at `standard`; scored against the true placements "
+        f"(right: within {LIMIT_DEG} deg and {LIMIT_MM} mm).  A competitor within the 5 % margin is ruled out only by "
+        "at least 5 sigma of evidence where the two poses differ "
+        "([processing.md](processing.md#nearly-symmetric-shapes-evidence)).",
+        "",
+        "| object | decided by | pairs | registered automatically | verified-but-wrong | ambiguous | refused otherwise "
+        "| best pose right (verified or not) | evidence (median, sigma) | s per pair (median) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, what in OBJECTS.items():
+        x = s[name]
+        lines.append(f"| `{name}` | {what} | {x['pairs']} | {_pct(x['registered'], x['pairs'])} | "
+                     f"{x['verified-but-wrong']} | {_pct(x['ambiguous'], x['pairs'])} | {x['refused']} | "
+                     f"{x['best_pose_right']} | {x['evidence_sigma_median']} | {x['seconds_median']} |")
+    v = s["vase"]
+    plain = s["plain-bowl"]
+    lines += [
+        "",
+        f"The vase's boss is measured in both passes (>= 20 points within 4 mm of its top, from the truth) in "
+        f"{v['feature_in_both']} of {v['pairs']} pairs; of those, {v['registered_of_feature_in_both']} are registered "
+        "automatically.  A pair whose boss one pass does not see has no evidence to decide by, and is refused.",
+        "",
+        f"Targets: vase (a feature >= 10 x the range noise over >= 0.5 % of the overlap) >= 95 % registered "
+        f"automatically -- **{'met' if v['registered'] >= 0.95 * v['pairs'] else 'not met'}** "
+        f"({_pct(v['registered'], v['pairs'])}; {_pct(v['registered_of_feature_in_both'], v['feature_in_both'])} "
+        "of the pairs whose boss both passes measured); 0 verified-but-wrong over all objects -- "
+        f"**{'met' if all(x['verified-but-wrong'] == 0 for x in s.values()) else 'not met'}**; plain bowl "
+        f"ambiguous in shape -- {_pct(plain['ambiguous'], plain['pairs'])}; resolved by colour once posed frames "
+        "exist (100 %) -- **not measured**: deciding the turn by colour is not implemented "
+        "yet ([processing.md](processing.md#colour-where-shape-is-silent-not-yet)).",
+        "",
+        "Per vase pair (seed: outcome, evidence): "
+        + "; ".join(f"{r['seed']}: {r['outcome']}, {r['evidence_sigma']} sigma"
+                    + ("" if r["feature_in_both"] else " (boss not in both passes)")
+                    + ("" if r["best_pose_right"] or r["outcome"] == "registered" else ", best pose wrong")
+                    for r in r_rows if r["object"] == "vase") + ".  "
+        "A refused pair is refused for want of evidence, not by a margin: where the boss is in both passes but "
+        "the evidence stays below 5 sigma, the boss covers too few independent cells against the mismatches at "
+        "the rim and foot, or the candidate the boss favours was not among the turned poses kept.  With the margin "
+        "rule alone every one of these vase pairs was refused, and one pair (seed 5) was verified 93.7 deg wrong "
+        "because no competing pose had been searched; the sweep about a nearly weak axis now finds its "
+        "competitors and refuses it.  Times are with other jobs sharing the 2 cores.",
+        "",
+    ]
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="3 pairs per object instead of --pairs")
+    ap.add_argument("--pairs", type=int, default=10, help="placement pairs (station seeds) per object (default 10)")
+    args = ap.parse_args(argv)
+    print(json.dumps(collect(3 if args.quick else args.pairs)))
+
+
+if __name__ == "__main__":
+    main()

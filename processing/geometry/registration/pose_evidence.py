@@ -1,0 +1,203 @@
+"""Evidence between two competing poses: a block significance test of their log-likelihood ratio.
+
+A nearly symmetric object (a thrown vase with a small boss) has two or more
+poses that fit almost the whole overlap equally well; only the points near
+the distinguishing feature tell them apart.  A global margin (how much better
+one pose fits on average) dilutes that local evidence in the overlap's area;
+this module weighs it against the range noise instead.  See
+docs/processing.md, section "Nearly symmetric shapes: evidence".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = ["PoseEvidence", "pose_evidence"]
+
+#: Consistency constant of the median absolute deviation for a Gaussian.
+_MAD_TO_SIGMA = 1.482602218505602
+
+
+@dataclass(frozen=True)
+class PoseEvidence:
+    """The evidence for pose A over pose B where they differ.
+
+    Attributes
+    ----------
+    sigma
+        Significance of A over B, in standard deviations of the statistic
+        under the hypothesis that both poses are equally right (positive
+        favours A; 0 when no point tells them apart).
+    log_likelihood_ratio
+        ``ln L(A) - ln L(B)`` per independent cell (see
+        :func:`pose_evidence`), in nats.
+    noise_mm
+        Robust standard deviation of A's residuals (mm), the noise the
+        evidence is weighed against.
+    cells
+        Number of cells (independent blocks) compared.
+    points
+        Number of points compared.
+    """
+
+    sigma: float
+    log_likelihood_ratio: float
+    noise_mm: float
+    cells: int
+    points: int
+
+
+def pose_evidence(
+    residuals_a_mm: ArrayLike,
+    residuals_b_mm: ArrayLike,
+    positions_mm: ArrayLike,
+    cell_mm: float,
+    compare: ArrayLike | None = None,
+    cap_sigma: float = 6.0,
+    min_noise: float = 0.0,
+) -> PoseEvidence:
+    r"""Significance of pose A over pose B from the residuals that change between them.
+
+    Parameters
+    ----------
+    residuals_a_mm, residuals_b_mm
+        ``(N,)`` point-to-plane residuals of the same points under pose A and
+        pose B (mm); NaN where a point has no partner under that pose.
+    positions_mm
+        ``(N, 3)`` the points' positions in one frame (mm), for the cells.
+    cell_mm
+        Edge of the cubic cells (mm): at least the length over which the
+        residuals of neighbouring points are correlated (the neighbourhood the
+        normals are fitted over), so that one cell is about one independent
+        observation.
+    compare
+        Optional ``(N,)`` booleans: the points to compare, typically those
+        that move between the two poses (elsewhere the poses cannot differ).
+        Default: every point.
+    cap_sigma
+        A residual counts at most ``cap_sigma`` noise deviations (the
+        truncated quadratic of a Gaussian with an outlier floor), so that a
+        few mismatches at the clouds' borders cannot outweigh a feature.
+    min_noise
+        Smallest noise deviation (the residuals' unit): the resolution of the
+        measurement, for residuals that can be exactly zero.
+
+    Returns
+    -------
+    PoseEvidence
+        The significance, the per-cell log-likelihood ratio and the figures
+        they rest on.
+
+    Raises
+    ------
+    ValueError
+        Residuals and positions of different lengths or a cell size that is
+        not a positive finite number.
+
+    Notes
+    -----
+    With Gaussian range noise of standard deviation ``sigma`` on the
+    residuals, the log-likelihood ratio of pose A over pose B on the points
+    ``i`` both match is
+
+    .. math:: \Lambda = \sum_i \frac{r_{B,i}^2 - r_{A,i}^2}{2 \sigma^2}
+              = \sum_i \frac{\delta_i}{2 \sigma^2}.
+
+    Where the two poses put a point on the same surface, ``delta_i`` is
+    noise of mean zero; where they differ (a boss landing on a plain
+    surface) it is large.  Mismatches (a point near a border paired across
+    an edge) are not Gaussian: each squared residual is capped at
+    ``(c sigma)^2``, ``c = cap_sigma``, the log-likelihood of a Gaussian
+    with a uniform floor for outliers.  Dense points do not add independent evidence:
+    residuals of neighbours share the fitted normal and the plane they are
+    measured against.  The points are therefore grouped into cubic cells of
+    edge ``cell_mm`` whose sums ``S_j`` of ``delta`` are the independent
+    blocks (the block bootstrap's unit), and the statistic is the
+    significance of their total
+
+    .. math:: z = \frac{\sum_j S_j}{\sqrt{V}}, \qquad
+              V = \max\Big(2 \sum_{S_j < 0} S_j^2,\; M n (2 \sigma_A^2)^2\Big)
+
+    over the ``M`` cells.  Under the hypothesis that both poses are equally
+    right the ``S_j`` are symmetric about zero (swapping A and B changes
+    nothing but the sign), so the variance of the total is estimated from
+    the cells that favour B alone: the cells on a feature that favours A do
+    not inflate it, while every mismatch and every correlation within a cell
+    does.  ``V`` is not less than the variance for independent points,
+    ``(2 sigma_A^2)^2`` per point for ``r_B^2 - r_A^2`` with ``r`` normal of
+    deviation ``sigma_A`` (the robust, median absolute deviation, deviation of
+    A's residuals), ``n`` the median number of points per cell.  Under the
+    null hypothesis ``z`` is about standard normal; a pose is worth accepting
+    over its competitor only when ``z`` is overwhelming
+    (``RegistrationPreset.min_evidence``, 5 sigma).  The reported
+    log-likelihood ratio counts each cell once:
+    ``sum_j S_j / (2 sigma_A^2)`` divided by the mean number of points per cell.
+
+    References
+    ----------
+    .. [1] Künsch, H. R. (1989). The jackknife and the bootstrap for general
+       stationary observations. Annals of Statistics 17(3), 1217-1241.
+       doi:10.1214/aos/1176347265 (blocks of neighbouring observations as
+       the independent units of a correlated series).
+    .. [2] Huber, P. J., Ronchetti, E. M. (2009). Robust Statistics, 2nd ed.,
+       Wiley, section 5.1 (the median absolute deviation).
+       doi:10.1002/9780470434697
+    .. [3] Torr, P. H. S., Zisserman, A. (2000). MLESAC: a new robust
+       estimator with application to estimating image geometry. CVIU 78(1),
+       138-156. doi:10.1006/cviu.1999.0832 (Gaussian inliers with a uniform
+       outlier floor: the capped squared residual).
+
+    Examples
+    --------
+    A plane measured with 0.05 mm noise on a 0.5 mm grid; pose B puts a 1 mm
+    bump of 3 mm radius where A has none -- a feature covering about 1 % of
+    the 60 x 60 mm overlap:
+
+    >>> rng = np.random.default_rng(0)
+    >>> g = np.arange(0, 60, 0.5)
+    >>> xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    >>> pos = np.column_stack([xy, np.zeros(len(xy))])
+    >>> r_a = rng.normal(0, 0.05, len(xy))
+    >>> bump = 1.0 * np.exp(-0.5 * np.sum((xy - 30) ** 2, axis=1) / 3.0 ** 2)
+    >>> r_b = rng.normal(0, 0.05, len(xy)) + bump
+    >>> ev = pose_evidence(r_a, r_b, pos, cell_mm=3.0)
+    >>> ev.cells, bool(ev.sigma > 20)
+    (400, True)
+
+    Without the bump the two poses are equally right and the evidence is noise:
+
+    >>> bool(abs(pose_evidence(r_a, r_b - bump, pos, cell_mm=3.0).sigma) < 3)
+    True
+    """
+    ra = np.asarray(residuals_a_mm, dtype=np.float64).ravel()
+    rb = np.asarray(residuals_b_mm, dtype=np.float64).ravel()
+    pos = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 3)
+    if not (len(ra) == len(rb) == len(pos)):
+        raise ValueError(f"residuals_a_mm, residuals_b_mm and positions_mm must have one entry per point, "
+                         f"got {len(ra)}, {len(rb)} and {len(pos)}")
+    if not (math.isfinite(cell_mm) and cell_mm > 0):
+        raise ValueError(f"cell_mm must be a positive cell size in mm, got {cell_mm!r}")
+    use = np.isfinite(ra) & np.isfinite(rb) & np.all(np.isfinite(pos), axis=1)
+    if compare is not None:
+        use &= np.asarray(compare, dtype=bool).ravel()
+    if use.sum() < 2:
+        return PoseEvidence(0.0, 0.0, math.nan, 0, int(use.sum()))
+    ra, rb, pos = ra[use], rb[use], pos[use]
+    noise = max(_MAD_TO_SIGMA * float(np.median(np.abs(ra - np.median(ra)))), float(min_noise))
+    if not noise > 0:
+        return PoseEvidence(0.0, 0.0, noise, 0, int(use.sum()))
+    cap = (cap_sigma * noise) ** 2
+    delta = np.minimum(rb * rb, cap) - np.minimum(ra * ra, cap)
+    key = np.floor((pos - pos.min(axis=0)) / cell_mm).astype(np.int64)
+    _, cell, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    sums = np.bincount(cell.ravel(), weights=delta)
+    m = len(sums)
+    llr = float(sums.sum()) / float(counts.mean()) / (2.0 * noise * noise)
+    floor2 = m * float(np.median(counts)) * (2.0 * noise * noise) ** 2
+    spread2 = max(2.0 * float(np.sum(np.minimum(sums, 0.0) ** 2)), floor2)
+    z = float(sums.sum()) / math.sqrt(spread2)
+    return PoseEvidence(z, llr, noise, m, int(use.sum()))
