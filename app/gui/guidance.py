@@ -23,10 +23,11 @@ Every quality figure the window shows gets a verdict -- ``pass``, ``warn`` or
 * **Materials on the mesh** (:func:`materials_verdict`): the regions the
   measurement found and their answers.  Pass when every region has a material
   told apart from the other candidates (and, when validated on the held-out
-  photos, the measured materials predict them better than one material for
+  photos, the measured materials predict them no worse than one material for
   the whole object); warn when a region is not measured, fits no candidate or
-  cannot be told from another candidate, or the held-out photos are predicted
-  no better than by one material; fail when no region has a fitted material.
+  cannot be told from another candidate, or, with two or more materials fitted,
+  the held-out photos are predicted worse than by one material; fail when no
+  region has a fitted material.
 
 Examples
 --------
@@ -186,19 +187,21 @@ def materials_verdict(doc: dict[str, Any]) -> Verdict:
     'pass'
     >>> materials_verdict({"regions": [gold, {"material": "not measured", "group": []}]}).text
     '2 regions, 1 not decided: warn'
-    >>> materials_verdict({"regions": [gold], "validation": {"mean_de2000": 6.0,
-    ...                                                      "baseline_mean_de2000": 5.0}}).level
+    >>> urushi = {"material": "red urushi", "confidence": 0.97, "group": ["red urushi"]}
+    >>> materials_verdict({"regions": [gold, urushi], "validation": {"mean_de2000": 6.0,
+    ...                                                              "baseline_mean_de2000": 5.0}}).level
     'warn'
     """
     regions = list(doc.get("regions") or [])
     thresholds = ("pass: every region has one material told apart from the others (and the held-out photos are "
-                  "predicted better than by one material); warn: a region not measured, fitting no candidate or "
-                  "not told apart, or no better than one material; fail: no region measured")
+                  "predicted no worse than by one material); warn: a region not measured, fitting no candidate or "
+                  "not told apart, or worse than one material; fail: no region measured")
     undecided = sum(_undecided(r) for r in regions)
     fitted = sum(r.get("material") not in ("not measured", "no candidate fits") for r in regions)
     val = doc.get("validation") or {}
     de, base = val.get("mean_de2000"), val.get("baseline_mean_de2000")
-    worse = de is not None and base is not None and float(de) >= float(base)
+    # with one material fitted the measured render is the one-material render: nothing to compare
+    worse = fitted >= 2 and de is not None and base is not None and float(de) > float(base)
     figure = f"{len(regions)} region{'s' if len(regions) != 1 else ''}" + (
         f", {undecided} not decided" if undecided else "")
     if not fitted:
@@ -206,7 +209,7 @@ def materials_verdict(doc: dict[str, Any]) -> Verdict:
                        "calibrations and that the photos show the object")
     if undecided or worse:
         why = ("a region has no single answer: photograph it under more lamp angles or name the catalogued "
-               "materials" if undecided else "the measured materials predict the held-out photos no better than one "
+               "materials" if undecided else "the measured materials predict the held-out photos worse than one "
                "material for the whole object")
         return Verdict("warn", figure, thresholds, why)
     return Verdict("pass", figure, thresholds, "every region has one material, told apart from the other candidates")

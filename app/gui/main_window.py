@@ -465,6 +465,8 @@ class MainWindow(QMainWindow):
         tabs = {"Devices": self.devices, "Calibrate": self.processing, "Session": self.session,
                 "Capture": self.capture, "Process": self.processing, "Materials": self.spectra,
                 "Preview": self.preview}
+        if step == "Materials" and self.processing.materials_button.isEnabled():
+            tabs[step] = self.processing             # the photos are posed: measure the materials on the mesh
         self.tabs.setCurrentWidget(tabs[step])
 
     def _state_changed(self, name: str, state: str, detail: str) -> None:

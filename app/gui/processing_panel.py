@@ -485,8 +485,9 @@ class ProcessingPanel(Panel):
 
         self.materials_doc = doc
         verdict = self.materials_verdict = materials_verdict(doc)
-        self.materials_state.setText(f"{verdict.html()} {lead}{materials_summary(doc)} — {verdict.why}")
-        self.materials_state.setToolTip(verdict.tooltip)
+        # why and the thresholds in the tooltip: the column is narrow, and the Processing tab should fit unscrolled
+        self.materials_state.setText(f"{verdict.html()} {lead}{materials_summary(doc)}")
+        self.materials_state.setToolTip(f"{verdict.level}: {verdict.why}. Thresholds — {verdict.thresholds}")
 
     def measure_materials(self) -> None:
         from app.errors import UsageError

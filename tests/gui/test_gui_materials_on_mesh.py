@@ -57,6 +57,9 @@ def test_measure_materials_on_the_mesh_from_the_window(qtbot, tmp_path, posed):
     w.tabs.setCurrentWidget(w.processing)
     p = w.processing
     assert p.materials_button.isEnabled() and "kogei fit-materials" in p.materials_button.toolTip()
+    w.tabs.setCurrentWidget(w.session)
+    w._show_step("Materials")                                   # the strip's Materials step leads to the button
+    assert w.tabs.currentWidget() is p
     assert w.preview.object_mesh is None                         # nothing measured yet
     p.materials_validate.setChecked(False)
     qtbot.mouseClick(p.materials_button, LEFT)
