@@ -123,3 +123,17 @@ def test_button_is_disabled_without_posed_photos(qtbot, tmp_path):
     assert not p.materials_button.isEnabled()
     tip = p.materials_button.toolTip()
     assert "not posed" in tip and "calibrate the camera and the lamps" in tip and "Process" in tip
+
+
+def test_a_failure_is_one_line_in_the_window(qtbot, tmp_path, posed):
+    root, _ = _copy(posed, tmp_path)
+    (root / "products/observations.npz").write_bytes(b"not an npz")      # damaged after it was recorded
+    w = make_window(qtbot, tmp_path)
+    w.session.open_session(str(root))
+    p = w.processing
+    qtbot.mouseClick(p.materials_button, LEFT)
+    qtbot.waitUntil(lambda: not p.measuring, timeout=60_000)
+    text = w.error_line.text()
+    assert w.message_kind == "error" and "\n" not in text and "Traceback" not in text
+    assert str(root) in text and "kogei project" in text and p.materials_state.text().startswith("stopped:"), text
+    assert not (root / "products/object-materials.json").exists()
