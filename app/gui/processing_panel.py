@@ -23,7 +23,9 @@ lamp calibrations, then *Process*); its result line names the regions' answers
 with a verdict (:func:`app.gui.guidance.materials_verdict`) and the held-out
 photos' error when validated, and the window re-reads the session so the
 Preview tab offers the measured material.  A cancelled run removes the object's
-files it had written and not yet recorded, so the session is left as it was.
+files it had written and not yet recorded (the mesh, scene and validation images
+of a first measurement), so the session is left as it was; a cancelled
+re-measurement may leave the previous measurement's files overwritten.
 
 Examples
 --------
@@ -492,7 +494,7 @@ class ProcessingPanel(Panel):
     def measure_materials(self) -> None:
         from app.errors import UsageError
         from app.session import Session
-        from app.workflows.object_materials import OBJECT_MATERIALS, OBJECT_MESH, OBJECT_SCENE
+        from app.workflows.object_materials import OBJECT_MATERIALS, OBJECT_MESH, OBJECT_SCENE, VALIDATION_DIR
 
         root = self.session_root()
         manifest = Session.read(root) if root is not None and (root / "session.json").exists() else None
@@ -503,6 +505,7 @@ class ProcessingPanel(Panel):
             raise UsageError("the materials are already being measured")
         # what the object's files were: a cancelled run removes what it wrote and did not record
         self._materials_before = {rel: _stamp(root / rel) for rel in (OBJECT_MATERIALS, OBJECT_MESH, OBJECT_SCENE)}
+        self._materials_before[VALIDATION_DIR] = (root / VALIDATION_DIR).exists() or None
         self._materials_root = root
         validate = self.materials_validate.isChecked()
         self.materials_job = ProcessJob(run_materials, str(root), validate, parent=self)
@@ -563,11 +566,16 @@ class ProcessingPanel(Panel):
         if recorded == OBJECT_MATERIALS and _stamp(root / OBJECT_MATERIALS) != self._materials_before.get(
                 OBJECT_MATERIALS) and _stamp(root / OBJECT_MATERIALS) is not None:
             return 0                             # the run finished recording before the stop: keep it
+        import shutil
+
         removed = 0
         for rel, before in self._materials_before.items():
             if before is None and (root / rel).is_file():
                 (root / rel).unlink()
                 removed += 1
+            elif before is None and (root / rel).is_dir():       # the validation's images of a first run
+                removed += sum(1 for f in (root / rel).rglob("*") if f.is_file())
+                shutil.rmtree(root / rel)
         return removed
 
     def _materials_finished(self) -> None:

@@ -111,6 +111,26 @@ def test_cancel_measuring_leaves_no_partial_products(qtbot, tmp_path, posed):
     assert p.materials_button.isEnabled() and w.preview.object_mesh is None
 
 
+def test_cancel_during_validation_removes_what_the_run_wrote(qtbot, tmp_path, posed):
+    """The library writes the object's mesh and scene before it renders the held-out photos; a stop then must not
+    leave them for the Preview to offer (it offers the measured material when object-mesh.ply exists)."""
+    root, _ = _copy(posed, tmp_path)
+    w = make_window(qtbot, tmp_path)
+    w.session.open_session(str(root))
+    p = w.processing
+    assert p.materials_validate.isChecked()                             # the default: validated
+    qtbot.mouseClick(p.materials_button, LEFT)
+    qtbot.waitUntil(lambda: p.materials_state.text().startswith("validating") or not p.measuring, timeout=120_000)
+    assert p.measuring and (root / "products/object-mesh.ply").is_file()   # written, not recorded yet
+    qtbot.mouseClick(p.materials_cancel_button, LEFT)
+    qtbot.waitUntil(lambda: not p.measuring, timeout=10_000)
+    assert w.message_kind == "info" and "removed" in w.error_line.text()
+    for rel in ("object-materials.json", "object-mesh.ply", "object-scene.toml", "validation"):
+        assert not (root / "products" / rel).exists(), rel
+    w.preview.mesh_changed()
+    assert w.preview.object_mesh is None
+
+
 def test_button_is_disabled_without_posed_photos(qtbot, tmp_path):
     from app.session import Session
 
