@@ -20,6 +20,14 @@ Every quality figure the window shows gets a verdict -- ``pass``, ``warn`` or
   residual over the one expected from the clouds' own noise and spacing.
   Pass up to 2x, warn up to 4x (a small misalignment or a moved object),
   fail above or when the pair's check failed.
+* **Materials on the mesh** (:func:`materials_verdict`): the regions the
+  measurement found and their answers.  Pass when every region has a material
+  told apart from the other candidates (and, when validated on the held-out
+  photos, the measured materials predict them no worse than one material for
+  the whole object); warn when a region is not measured, fits no candidate or
+  cannot be told from another candidate, or, with two or more materials fitted,
+  the held-out photos are predicted worse than by one material; fail when no
+  region has a fitted material.
 
 Examples
 --------
@@ -36,8 +44,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["STEPS", "Verdict", "chart_verdict", "current_step", "registration_verdict", "sphere_verdict",
-           "step_hint", "VERDICT_COLOURS", "describe"]
+__all__ = ["STEPS", "Verdict", "chart_verdict", "current_step", "materials_verdict", "registration_verdict",
+           "sphere_verdict", "step_hint", "VERDICT_COLOURS", "describe"]
 
 #: The station's steps, in order.
 STEPS = ("Devices", "Calibrate", "Session", "Capture", "Process", "Materials", "Preview")
@@ -52,7 +60,8 @@ _HINTS = {
     "Session": "name the object and press 'New session' (Session tab)",
     "Capture": "press Start on the Capture tab and follow the prompts to re-place the object between passes",
     "Process": "press 'Process the open session' (Processing tab): registration and the watertight mesh",
-    "Materials": "calibrate a frame with its chart and make the material map (Spectra and materials tab)",
+    "Materials": "press 'Measure materials on the mesh' (Processing tab) when the photos are posed on the mesh, "
+                 "or calibrate a frame with its chart and make the material map (Spectra and materials tab)",
     "Preview": "render the mesh under the light you choose (Preview tab)",
 }
 
@@ -158,6 +167,52 @@ def registration_verdict(rmse_mm: float | None, expected_mm: float | None, verif
            "warn": "the passes agree less well than their noise allows: a small misalignment, or the object moved",
            "fail": "the passes disagree: the alignment is wrong; use the manual 3-point registration"}[level]
     return Verdict(level, f"{ratio:.1f}x the expected residual", thresholds, why)
+
+
+def _undecided(region: dict[str, Any]) -> bool:
+    """True for a region without one material told apart: not measured, no fit, or a group of candidates."""
+    material = region.get("material")
+    if material in ("not measured", "no candidate fits", "neutral metal"):
+        return True
+    return any(g != material for g in (region.get("group") or []))
+
+
+def materials_verdict(doc: dict[str, Any]) -> Verdict:
+    """The materials measured on the mesh (``products/object-materials.json``; see the module docstring).
+
+    Examples
+    --------
+    >>> gold = {"material": "gold", "confidence": 0.93, "group": ["gold"]}
+    >>> materials_verdict({"regions": [gold]}).level
+    'pass'
+    >>> materials_verdict({"regions": [gold, {"material": "not measured", "group": []}]}).text
+    '2 regions, 1 not decided: warn'
+    >>> urushi = {"material": "red urushi", "confidence": 0.97, "group": ["red urushi"]}
+    >>> materials_verdict({"regions": [gold, urushi], "validation": {"mean_de2000": 6.0,
+    ...                                                              "baseline_mean_de2000": 5.0}}).level
+    'warn'
+    """
+    regions = list(doc.get("regions") or [])
+    thresholds = ("pass: every region has one material told apart from the others (and the held-out photos are "
+                  "predicted no worse than by one material); warn: a region not measured, fitting no candidate or "
+                  "not told apart, or worse than one material; fail: no region measured")
+    undecided = sum(_undecided(r) for r in regions)
+    fitted = sum(r.get("material") not in ("not measured", "no candidate fits") for r in regions)
+    val = doc.get("validation") or {}
+    de, base = val.get("mean_de2000"), val.get("baseline_mean_de2000")
+    # with one material fitted the measured render is the one-material render: nothing to compare
+    worse = fitted >= 2 and de is not None and base is not None and float(de) > float(base)
+    figure = f"{len(regions)} region{'s' if len(regions) != 1 else ''}" + (
+        f", {undecided} not decided" if undecided else "")
+    if not fitted:
+        return Verdict("fail", figure, thresholds, "no region has a fitted material: check the lamp and camera "
+                       "calibrations and that the photos show the object")
+    if undecided or worse:
+        why = ("a region has no single answer: photograph it under more lamp angles or name the catalogued "
+               "materials" if undecided else "the measured materials predict the held-out photos worse than one "
+               "material for the whole object")
+        return Verdict("warn", figure, thresholds, why)
+    return Verdict("pass", figure, thresholds, "every region has one material, told apart from the other candidates")
 
 
 def describe(done: dict[str, Any]) -> str:

@@ -186,10 +186,15 @@ class MainWindow(QMainWindow):
         self._refresh_counter = 0
         self.capture.progress.valueChanged.connect(self._maybe_refresh_session)
         self.processing.processed.connect(self._processed)
+        self.processing.materials_measured.connect(self._materials_measured)
+        # every re-read of the session (after processing, a capture) says whether its photos are posed yet
+        self.session.manifest_shown.connect(
+            lambda: self.processing.show_materials_state(self.session.root, self.session.manifest))
         self.steps.step_clicked.connect(self._show_step)
         for sig in (self.link.state, self.session.session_chosen, self.session.manifest_shown,
                     self.capture.capture_started, self.capture.capture_stopped,
-                    self.processing.processed, self.spectra.map_ready, self.processing.calibration.textChanged):
+                    self.processing.processed, self.processing.materials_measured, self.spectra.map_ready,
+                    self.processing.calibration.textChanged):
             sig.connect(lambda *_: self.update_steps())
         self.update_steps()
         self.statusBar().showMessage("ready")
@@ -460,6 +465,8 @@ class MainWindow(QMainWindow):
         tabs = {"Devices": self.devices, "Calibrate": self.processing, "Session": self.session,
                 "Capture": self.capture, "Process": self.processing, "Materials": self.spectra,
                 "Preview": self.preview}
+        if step == "Materials" and self.processing.materials_button.isEnabled():
+            tabs[step] = self.processing             # the photos are posed: measure the materials on the mesh
         self.tabs.setCurrentWidget(tabs[step])
 
     def _state_changed(self, name: str, state: str, detail: str) -> None:
@@ -543,6 +550,7 @@ class MainWindow(QMainWindow):
         if manifest is not None:
             self.capture.set_plan(manifest.get("plan", {}))
         self.processing.show_station(manifest)
+        self.processing.show_materials_state(root, manifest)
         self.processing.show_mesh(root)              # the session's mesh, or that it has none yet
         # what the tabs show of the previous session goes; the Preview shows this session's mesh if it has one
         self.camera.refresh_charts()
@@ -568,6 +576,11 @@ class MainWindow(QMainWindow):
         self.statusBar().showMessage(f"capture {status}", 10_000)
 
     def _processed(self, report: Any) -> None:
+        self.session.refresh()
+        self.run_safely(self.preview.mesh_changed)
+
+    def _materials_measured(self, doc: Any) -> None:
+        # the session is re-read: the Preview takes the measured object (products/object-mesh.ply)
         self.session.refresh()
         self.run_safely(self.preview.mesh_changed)
 
@@ -610,6 +623,7 @@ class MainWindow(QMainWindow):
         """Stop the capture and the workers, close the instruments and the simulated station."""
         self.capture.abort_capture()
         self.processing.cancel()
+        self.processing.cancel_materials()
         final = getattr(self.preview, "_process_job", None)
         if final is not None and not final.done:
             final.cancel()                   # a full-size preview render in its worker process

@@ -15,6 +15,18 @@ thresholds and why in a tooltip (:mod:`app.gui.guidance`).  Once the session has
 mesh, the panel shows it: a draft render (:func:`render_mesh_view`, the Preview
 tab's renderer) made in a worker process, with a busy bar while it renders.
 
+*Measure materials on the mesh* is a thin shell over
+:func:`app.workflows.object_materials.measure_object` (what ``kogei fit-materials``
+runs), in a worker process with its own *Cancel*.  It is enabled once the open
+session's photos are posed on its mesh (``products/observations.npz``: camera and
+lamp calibrations, then *Process*); its result line names the regions' answers
+with a verdict (:func:`app.gui.guidance.materials_verdict`) and the held-out
+photos' error when validated, and the window re-reads the session so the
+Preview tab offers the measured material.  A cancelled run removes the object's
+files it had written and not yet recorded (the mesh, scene and validation images
+of a first measurement), so the session is left as it was; a cancelled
+re-measurement may leave the previous measurement's files overwritten.
+
 Examples
 --------
 >>> pair_row({"source": 1, "target": 0, "rmse_mm": 0.0312, "expected_rmse_mm": 0.03, "overlap": 0.61,
@@ -31,6 +43,7 @@ from typing import Any
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtGui import QPixmap
 from PySide6.QtWidgets import (
+    QCheckBox,
     QComboBox,
     QDoubleSpinBox,
     QFileDialog,
@@ -54,7 +67,8 @@ from app.gui.plots import FigureDrawer
 from app.gui.widgets import Panel, browse_row
 from app.gui.workers import JobContext, Lane, ProcessJob
 
-__all__ = ["ProcessingPanel", "pair_row", "run_processing", "camera_summary", "render_mesh_view", "MESH_VIEW_SIZE"]
+__all__ = ["ProcessingPanel", "pair_row", "run_processing", "run_materials", "materials_missing", "materials_summary",
+           "camera_summary", "render_mesh_view", "MESH_VIEW_SIZE"]
 
 #: Size (pixels) of the mesh view's render.
 MESH_VIEW_SIZE = (360, 270)
@@ -90,6 +104,59 @@ def run_processing(session: str, preset: str, calibration: str | None, picks: di
 
     return process_session(session, preset=preset, calibration=calibration, message=message, picks=picks,
                            camera_calibration=camera_calibration, lamp_calibration=lamp_calibration)
+
+
+def run_materials(session: str, validate: bool, *, message: Callable[[str], None]) -> dict[str, Any]:
+    """:func:`app.workflows.object_materials.measure_object` in a worker process (module-level: picklable)."""
+    from app.workflows.object_materials import measure_object
+
+    return measure_object(session, validate=validate, message=message)
+
+
+def materials_missing(root: Path | None, manifest: dict[str, Any] | None) -> str | None:
+    """Why the materials cannot be measured on the open session's mesh, or None when they can.
+
+    Examples
+    --------
+    >>> materials_missing(None, None)
+    'open a processed session first (Session tab)'
+    """
+    if root is None or not isinstance(manifest, dict):
+        return "open a processed session first (Session tab)"
+    ref = (manifest.get("products") or {}).get("observations")
+    if not isinstance(ref, dict) or not (Path(root) / str(ref.get("file") or "")).is_file():
+        return ("this session's photos are not posed on its mesh (no products/observations.npz): calibrate the "
+                "camera and the lamps (above), then press 'Process the open session'")
+    return None
+
+
+def materials_summary(doc: dict[str, Any]) -> str:
+    """The result line's text after the verdict word: regions, their answers, the held-out photos' error.
+
+    Examples
+    --------
+    >>> materials_summary({"regions": [{"index": 0, "material": "gold", "confidence": 0.934, "group": ["gold"]}]})
+    '1 region: 0 gold (confidence 0.93) · not validated on held-out photos'
+    """
+    from app.workflows.object_materials import answer_text
+
+    regions = list(doc.get("regions") or [])
+    answers = "; ".join(f"{r.get('index', i)} {answer_text(r)}" for i, r in enumerate(regions))
+    val = doc.get("validation") or {}
+    de, base = val.get("mean_de2000"), val.get("baseline_mean_de2000")
+    held = (f"held-out photos: mean ΔE00 {de:.2f} (one material for the whole object: {base:.2f})"
+            if de is not None and base is not None else
+            "not validated on held-out photos" if not val else str(val.get("note") or "not validated"))
+    return f"{len(regions)} region{'s' if len(regions) != 1 else ''}: {answers} · {held}"
+
+
+def _stamp(path: Path) -> tuple[int, int] | None:
+    """A file's (size, mtime in ns), or None when it does not exist."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_size, st.st_mtime_ns)
 
 
 def camera_summary(ref: dict[str, Any]) -> str:
@@ -148,6 +215,7 @@ class ProcessingPanel(Panel):
     """See the module docstring."""
 
     processed = Signal(object)          # the report
+    materials_measured = Signal(object)  # the materials document (products/object-materials.json)
 
     def __init__(self, lane: Lane, session_root: Callable[[], Path | None], drawer: FigureDrawer,
                  parent: QWidget | None = None) -> None:
@@ -200,7 +268,11 @@ class ProcessingPanel(Panel):
         head.addLayout(controls, 2)
         mesh_group = QGroupBox("Mesh")
         mesh_group.setLayout(self._mesh_box())
-        head.addWidget(mesh_group, 1)
+        # the mesh and what is measured on it share the right-hand column (the mesh view gives up the room)
+        side = QVBoxLayout()
+        side.addWidget(mesh_group, 1)
+        side.addWidget(self._materials_box())
+        head.addLayout(side, 1)
         outer.addLayout(head)
         controls.addWidget(cal)
         controls.addWidget(self._station_box())
@@ -336,6 +408,181 @@ class ProcessingPanel(Panel):
     def resizeEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
         super().resizeEvent(event)
         self._scale_mesh_image()
+
+    # ------------------------------------------------------------ materials on the mesh
+    def _materials_box(self) -> QGroupBox:
+        """Measure the materials on the mesh from the posed photos (``kogei fit-materials``)."""
+        box = QGroupBox("Materials on the mesh")
+        v = QVBoxLayout(box)
+        r = QHBoxLayout()
+        self.materials_button = QPushButton("Measure materials on the mesh")
+        self.materials_validate = QCheckBox("Validate on photos")
+        self.materials_validate.setChecked(True)
+        self.materials_validate.setToolTip("render every 4th table angle (held out of the fit) with the measured "
+                                           "materials and compare with the photos (CIEDE2000); takes longer")
+        self.materials_cancel_button = QPushButton("Cancel")
+        self.materials_cancel_button.setToolTip("stop measuring the materials; the session is left as it was")
+        self.materials_button.clicked.connect(self.safe(self.measure_materials))
+        self.materials_cancel_button.clicked.connect(self.safe(self.cancel_materials))
+        # stacked: the column is narrow in a 1024 px window; Cancel sits beside the busy bar it stops
+        v.addWidget(self.materials_button)
+        v.addWidget(self.materials_validate)
+        v.addLayout(r)
+        self.materials_busy = QProgressBar()
+        self.materials_busy.setRange(0, 1)
+        self.materials_busy.setValue(0)
+        self.materials_busy.setMaximumHeight(10)
+        self.materials_busy.setMinimumWidth(40)
+        self.materials_busy.setTextVisible(False)
+        self.materials_state = QLabel("")
+        self.materials_state.setWordWrap(True)
+        self.materials_state.setToolTip("the regions found on the mesh and each one's material, with a verdict")
+        r.addWidget(self.materials_busy, 1)
+        r.addWidget(self.materials_cancel_button)
+        v.addWidget(self.materials_state)
+        self.materials_job: ProcessJob | None = None
+        self.materials_cancelled = False
+        self.materials_doc: dict[str, Any] | None = None
+        self.materials_verdict: Any = None
+        self._materials_before: dict[str, Any] = {}
+        self._materials_shown_root: Path | None = None
+        self.materials_cancel_button.setEnabled(False)
+        self.show_materials_state(None, None)
+        return box
+
+    def show_materials_state(self, root: Path | None, manifest: dict[str, Any] | None) -> None:
+        """Enable the measurement when the open session's photos are posed on its mesh; say what is missing if not."""
+        missing = materials_missing(root, manifest)
+        running = self.materials_job is not None and not self.materials_job.done
+        self.materials_button.setEnabled(missing is None and not running)
+        self.materials_button.setToolTip(
+            "segment the mesh into regions of one material and fit each region's material to the posed photos "
+            "(kogei fit-materials); the Preview tab then renders the measured material"
+            if missing is None else f"not available: {missing}")
+        if running:
+            return
+        if missing is not None:
+            self.materials_state.setText(missing)
+            self.materials_state.setToolTip("what the measurement needs")
+        elif root != self._materials_shown_root:
+            self._show_recorded_materials(root, manifest)   # a newly opened session: its earlier result, if any
+        self._materials_shown_root = root if missing is None else None
+
+    def _show_recorded_materials(self, root: Path, manifest: dict[str, Any]) -> None:
+        from app.workflows.object_materials import read_object_materials
+
+        self.materials_doc, self.materials_verdict = None, None
+        self.materials_state.setText("")
+        if not isinstance((manifest.get("products") or {}).get("object_materials"), dict):
+            return
+        try:
+            doc = read_object_materials(root)
+        except Exception as exc:  # noqa: BLE001 - a damaged product must not stop the session from opening
+            self.materials_state.setText(f"the materials measured earlier cannot be read: {exc}")
+            return
+        self._show_materials_result(doc, "measured earlier: ")
+
+    def _show_materials_result(self, doc: dict[str, Any], lead: str = "") -> None:
+        from app.gui.guidance import materials_verdict
+
+        self.materials_doc = doc
+        verdict = self.materials_verdict = materials_verdict(doc)
+        # why and the thresholds in the tooltip: the column is narrow, and the Processing tab should fit unscrolled
+        self.materials_state.setText(f"{verdict.html()} {lead}{materials_summary(doc)}")
+        self.materials_state.setToolTip(f"{verdict.level}: {verdict.why}. Thresholds — {verdict.thresholds}")
+
+    def measure_materials(self) -> None:
+        from app.errors import UsageError
+        from app.session import Session
+        from app.workflows.object_materials import OBJECT_MATERIALS, OBJECT_MESH, OBJECT_SCENE, VALIDATION_DIR
+
+        root = self.session_root()
+        manifest = Session.read(root) if root is not None and (root / "session.json").exists() else None
+        missing = materials_missing(root, manifest)
+        if missing is not None:
+            raise UsageError(missing)
+        if self.materials_job is not None and not self.materials_job.done:
+            raise UsageError("the materials are already being measured")
+        # what the object's files were: a cancelled run removes what it wrote and did not record
+        self._materials_before = {rel: _stamp(root / rel) for rel in (OBJECT_MATERIALS, OBJECT_MESH, OBJECT_SCENE)}
+        self._materials_before[VALIDATION_DIR] = (root / VALIDATION_DIR).exists() or None
+        self._materials_root = root
+        validate = self.materials_validate.isChecked()
+        self.materials_job = ProcessJob(run_materials, str(root), validate, parent=self)
+        self.materials_job.message.connect(self._materials_message)
+        self.materials_job.succeeded.connect(self._materials_done)
+        self.materials_job.failed.connect(self._materials_failed)
+        self.materials_job.finished.connect(self._materials_finished)
+        self.materials_busy.setRange(0, 0)
+        self.materials_state.setText(f"measuring the materials on the mesh of {root}"
+                                     + (" (with validation)" if validate else "") + "…")
+        self.materials_button.setEnabled(False)
+        self.materials_cancel_button.setEnabled(True)
+        self.materials_cancelled = False
+        self.materials_doc = None
+        self.log.emit(self.materials_state.text())
+        self.materials_job.start()
+
+    def cancel_materials(self) -> None:
+        if self.materials_job is not None and not self.materials_job.done:
+            self.materials_cancelled = True
+            self.materials_job.cancel()
+
+    @property
+    def measuring(self) -> bool:
+        """True while the materials are being measured."""
+        return self.materials_job is not None and not self.materials_job.done
+
+    def _materials_message(self, text: str) -> None:
+        self.materials_state.setText(text)
+        self.log.emit(f"materials: {text}")
+
+    def _materials_done(self, doc: dict[str, Any]) -> None:
+        self._show_materials_result(doc)
+        self._materials_shown_root = self.session_root()
+        self.log.emit(f"materials measured ({self.materials_verdict.level}): {materials_summary(doc)}")
+        self.materials_measured.emit(doc)
+
+    def _materials_failed(self, text: str, detail: Any) -> None:
+        line = text.splitlines()[0] if text else "failed"
+        if self.materials_cancelled:             # what the user asked for: information, not a fault
+            removed = self._remove_unrecorded()
+            self.materials_state.setText("cancelled: the session is as it was")
+            self.notice.emit(f"measuring the materials {line}"
+                             + (f" ({removed} unrecorded file{'s' if removed != 1 else ''} removed)" if removed else ""))
+            return
+        self.materials_state.setText(f"stopped: {line}")
+        self.error.emit(line)
+
+    def _remove_unrecorded(self) -> int:
+        """Remove the object's files this run wrote that the session does not record (a run stopped mid-way)."""
+        from app.session import Session
+        from app.workflows.object_materials import OBJECT_MATERIALS
+
+        root = getattr(self, "_materials_root", None)
+        if root is None:
+            return 0
+        recorded = ((Session.read(root).get("products") or {}).get("object_materials") or {}).get("file")
+        if recorded == OBJECT_MATERIALS and _stamp(root / OBJECT_MATERIALS) != self._materials_before.get(
+                OBJECT_MATERIALS) and _stamp(root / OBJECT_MATERIALS) is not None:
+            return 0                             # the run finished recording before the stop: keep it
+        import shutil
+
+        removed = 0
+        for rel, before in self._materials_before.items():
+            if before is None and (root / rel).is_file():
+                (root / rel).unlink()
+                removed += 1
+            elif before is None and (root / rel).is_dir():       # the validation's images of a first run
+                removed += sum(1 for f in (root / rel).rglob("*") if f.is_file())
+                shutil.rmtree(root / rel)
+        return removed
+
+    def _materials_finished(self) -> None:
+        self.materials_busy.setRange(0, 1)
+        self.materials_busy.setValue(1 if self.materials_doc is not None else 0)
+        self.materials_cancel_button.setEnabled(False)
+        self.materials_button.setEnabled(True)
 
     def _station_box(self) -> QGroupBox:
         """Camera and lamp calibration: sources for processing, and buttons to calibrate from the open session."""
