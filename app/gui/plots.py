@@ -34,7 +34,7 @@ from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget
 
 from app.gui.figures import axes_pixel, empty_figure, render_figure
-from app.gui.workers import JobContext, Lane
+from app.gui.workers import JobContext, Lane, WindowClosing
 
 __all__ = ["FigureDrawer", "PlotImage"]
 
@@ -144,7 +144,7 @@ class FigureDrawer:
         """As :meth:`draw`, with where each axes landed (:func:`app.gui.figures.render_figure`)."""
         with self._lock:
             if self._closed:
-                raise RuntimeError("the window is closing; the figure was not drawn")
+                raise WindowClosing("the window is closing; the figure was not drawn")
             self._ensure()
             conn, proc = self._conn, self._proc
             try:

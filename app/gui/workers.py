@@ -41,7 +41,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QRunnable, QThreadPool, QTimer, Signal
 
-__all__ = ["describe_error", "JobContext", "JobSignals", "Job", "Lane", "ProcessJob"]
+__all__ = ["describe_error", "JobContext", "JobSignals", "Job", "Lane", "ProcessJob", "WindowClosing"]
 
 _LOG = logging.getLogger("kogei.gui")
 
@@ -55,6 +55,10 @@ def describe_error(exc: BaseException) -> str:
     if isinstance(exc, _USER_ERRORS) and not isinstance(exc, (RecursionError, NotImplementedError)):
         return text
     return f"unexpected error ({type(exc).__name__}): {text}"
+
+
+class WindowClosing(RuntimeError):
+    """A job given up because the window is closing: expected, so it is not logged as a failure."""
 
 
 @dataclass
@@ -112,6 +116,9 @@ class Job(QRunnable):
         ctx = JobContext(self.cancel_event, self.signals.progress.emit, self.signals.message.emit)
         try:
             result = self.fn(ctx)
+        except WindowClosing as exc:
+            _LOG.debug("%s given up: %s", self.name, exc)
+            self.signals.failed.emit(describe_error(exc), exc)
         except BaseException as exc:  # noqa: BLE001 - every failure is reported in the window, never lost
             _LOG.error("%s failed:\n%s", self.name, traceback.format_exc())
             self.signals.failed.emit(describe_error(exc), exc)

@@ -87,6 +87,23 @@ def test_a_closed_drawer_refuses_readably_and_starts_no_process():
     assert d.processes_started == 0 and d.pid is None
 
 
+def test_a_plot_given_up_at_closing_is_no_logged_failure(caplog):
+    """A plot job still queued when the window closes fails quietly: no traceback in the log."""
+    import logging
+
+    from app.gui.workers import Job
+
+    d = FigureDrawer()
+    d.shutdown()
+    failures = []
+    job = Job(lambda ctx: d.draw(empty_figure, {"title": "a", "hint": "b"}, 100, 100), "plot")
+    job.signals.failed.connect(lambda text, exc: failures.append(text))
+    with caplog.at_level(logging.DEBUG, logger="kogei.gui"):
+        job.run()
+    assert [r for r in caplog.records if r.levelno >= logging.ERROR] == []
+    assert job.done and "Traceback" not in caplog.text
+
+
 def test_figures_of_nothing_draw_without_warnings():
     """A pass with no laser return, an empty histogram, a flat spectrum, passes not loaded yet: each draws."""
     import warnings
