@@ -150,5 +150,6 @@ def test_the_documented_first_session_runs_and_measures_the_simulated_truth(tmp_
     assert hawk["materials"]["beak"] == "gold"
     materials = json.loads((session / "products" / "materials.json").read_text())
     golds = [r for r in materials["regions"] if r["material"] == "gold"]
-    assert golds and max(r["confidence"] for r in golds) >= 0.9, materials["regions"]
+    # named gold at the confidence the report calls reliable (0.8: calibrated, about one in five wrong there)
+    assert golds and max(r["confidence"] for r in golds) >= 0.8, materials["regions"]
     assert (session / "products" / "report.html").stat().st_size > 10_000
