@@ -42,7 +42,7 @@ from processing.spectral.display import spectra_to_xyz
 from processing.spectral.spectra import SpectralGrid, light_spectrum
 
 __all__ = ["ProbeWorld", "room_environment", "region_labels", "write_probe_shots", "BRACKET_TIMES_S",
-           "CHART_TIME_S", "PROBE_F_NUMBER", "ROOM_REGIONS"]
+           "CHART_TIME_S", "PROBE_F_NUMBER", "ROOM_REGIONS", "WALL_PATCHES"]
 
 #: Exposure times (s) of the probe's brackets: 2 EV apart, as gphoto2 shutter settings 1/4000 ... 1.
 BRACKET_TIMES_S = (1 / 4000, 1 / 1000, 1 / 250, 1 / 60, 1 / 15, 1 / 4, 1.0)
@@ -54,8 +54,8 @@ PROBE_F_NUMBER = 8.0
 ROOM_REGIONS = ("floor", "ceiling", "red wall", "green wall", "blue wall", "yellow wall", "window",
                 "lamp 1", "lamp 2", "lamp 3")
 
-# ColorChecker patches (0-based, reading order) of the walls: red, green, blue, yellow; white for the ceiling
-_WALL_PATCHES = (14, 13, 12, 15)
+#: ColorChecker patches (0-based, reading order) of the walls: red, green, blue, yellow (white: the ceiling)
+WALL_PATCHES = (14, 13, 12, 15)
 _CEILING_PATCH = 18
 _FLOOR_REFLECTANCE = 0.3
 _WALL_LEVEL = 1.0           # wall radiance = reflectance x D65 of luminance _WALL_LEVEL
@@ -129,7 +129,7 @@ def room_environment(height: int = 128, grid: SpectralGrid = _GRID,
     lamp = lamp / float(spectra_to_xyz(lamp, grid)[1])
     patches = chart_reflectances(grid)
     rows = [_FLOOR_REFLECTANCE * d65, _WALL_LEVEL * patches[_CEILING_PATCH] * d65]
-    rows += [_WALL_LEVEL * patches[p] * d65 for p in _WALL_PATCHES]
+    rows += [_WALL_LEVEL * patches[p] * d65 for p in WALL_PATCHES]
     rows += [_WINDOW_LEVEL * d65] + [_LAMP_LEVEL * lamp] * len(_LAMPS)
     lab = region_labels(height)
     coeff = np.zeros((height, 2 * height, len(rows)), np.float32)

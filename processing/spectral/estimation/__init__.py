@@ -16,6 +16,8 @@ two_light
 estimator
     :data:`METHODS` and :func:`fit_estimator` (by name, calibrated to a
     chart), spectral images and region spectra.
+metamer_set
+    The luminances a camera's values allow: bounds over its metamer set.
 
 docs/colour-pipeline.md, "Spectral estimation and material identification",
 describes the methods and their accuracy.
@@ -29,6 +31,9 @@ craft object based on a light reflection model", IPSJ technical report
 Pratt, W. K., Mancill, C. E. (1976). Spectral estimation techniques for the
 spectral calibration of a color image scanner. Applied Optics 15(1), 73-75.
 doi:10.1364/AO.15.000073
+
+Finlayson, G. D., Morovic, P. (2005). Metamer sets. Journal of the Optical
+Society of America A 22(5), 810-819. doi:10.1364/JOSAA.22.000810
 
 Finlayson, G. D., Mackiewicz, M., Hurlbert, A. (2015). Color correction using
 root-polynomial regression. IEEE Transactions on Image Processing 24(5),
@@ -54,6 +59,7 @@ from processing.spectral.estimation.fit import (
     pca_basis,
     with_transform,
 )
+from processing.spectral.estimation.metamer_set import luminance_range
 from processing.spectral.estimation.pca_matsuda import fit_paper
 from processing.spectral.estimation.root_polynomial_finlayson import fit_more_basis, fit_rootpoly
 from processing.spectral.estimation.two_light import fit_two_light
@@ -77,6 +83,8 @@ __all__ = [
     "feature_names",
     "expand_features",
     "with_transform",
+    # metamer_set
+    "luminance_range",
     # pca_matsuda
     "fit_paper",
     # wiener
