@@ -73,3 +73,42 @@ def test_bare_bowl_stays_ambiguous_in_colour():
     a, b, ca, cb = _pair("plain-bowl:bare", 0)
     _, cl, turn = _decide(a, b, ca, cb)
     assert not cl.usable or turn.sigma < MIN_SIGMA, (cl.why, turn)
+
+
+def _painted_egg(seed: int, n: int = 3000):
+    """Points on a surface of revolution about +z (an egg, wider below), red with a black patch; normals outward."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = 25.0 * (1.0 - 0.15 * d[:, 2])
+    pts = np.column_stack([r * d[:, 0], r * d[:, 1], 35.0 * d[:, 2]]) + rng.normal(0, 0.03, (n, 3))
+    grad = np.column_stack([pts[:, 0], pts[:, 1], pts[:, 2] * (r / 35.0) ** 2])
+    normals = grad / np.linalg.norm(grad, axis=1, keepdims=True)
+    az = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))
+    patch = (np.abs(az - 40.0) < 15.0) & (np.abs(pts[:, 2] - 5.0) < 10.0)
+    colours = np.where(patch[:, None], [0.01, 0.01, 0.01], [0.5, 0.08, 0.06])
+    return pts, normals, colours
+
+
+@pytest.mark.slow
+def test_register_pair_decides_a_free_turn_by_colour_and_says_so():
+    # the same painted egg sampled twice, the source turned 130 deg about its axis and shifted: without
+    # colours the turn is ambiguous in shape; with them it is decided by colour within the limits
+    from processing.geometry.registration import register_pair, transform_points
+
+    sp, sn, sc = _painted_egg(1)
+    tp, tn, tc = _painted_egg(2)
+    truth = np.eye(4)
+    truth[:3, :3] = _turned(np.eye(4), np.array([0.0, 0.0, 1.0]), np.zeros(3), np.radians([130.0]))[0][:3, :3]
+    truth[:3, 3] = [4.0, -3.0, 2.0]
+    src, src_n = transform_points(np.linalg.inv(truth), sp), sn @ np.linalg.inv(truth)[:3, :3].T
+    shape = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0)
+    assert not shape.verified and "ambiguous" in shape.reason, shape.reason
+    res = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
+                        source_colours=sc, target_colours=tc)
+    rot, disp = pose_difference(res.transform, truth, src)
+    assert res.verified and res.decided_by == "colour", res.reason
+    assert res.evidence_sigma >= MIN_SIGMA and rot < TOL_DEG and disp < TOL_MM, (res.evidence_sigma, rot, disp)
+    shuffled = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
+                             source_colours=sc[np.random.default_rng(0).permutation(len(sc))], target_colours=tc)
+    assert not shuffled.verified and shuffled.decided_by == "shape", shuffled.reason
