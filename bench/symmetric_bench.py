@@ -136,8 +136,9 @@ def section(r: dict[str, Any]) -> list[str]:
         "of the pairs whose boss both passes measured); 0 verified-but-wrong over all objects -- "
         f"**{'met' if all(x['verified-but-wrong'] == 0 for x in s.values()) else 'not met'}**; plain bowl "
         f"ambiguous in shape -- {_pct(plain['ambiguous'], plain['pairs'])}; resolved by colour once posed frames "
-        "exist (100 %) -- **not measured**: deciding the turn by colour is not implemented "
-        "yet ([processing.md](processing.md#colour-where-shape-is-silent-not-yet)).",
+        "exist (100 %) -- **not met** end to end: the turn is decided by colour given a right shape fit "
+        "([below](#colour-where-shape-is-silent)), but `register_pair` does not reach one on these pairs "
+        "([processing.md](processing.md#colour-where-shape-is-silent)).",
         "",
         "Per vase pair (seed: outcome, evidence): "
         + "; ".join(f"{r['seed']}: {r['outcome']}, {r['evidence_sigma']} sigma"
@@ -188,6 +189,11 @@ def colour_row(name: str, seed: int, offset_deg: float = 100.0) -> dict[str, Any
     turn = turn_by_colour(b.points, cl.source, a.points, cl.target, start, axis, point,
                           max_distance_mm=1.0, cell_mm=3.0, seed=seed)
     rot, disp = pose_difference(turn.transform, truth, b.points)
+    # the null on this pair's data: the source's classes given to randomly permuted points
+    rng = np.random.default_rng(seed)
+    null = [turn_by_colour(b.points, rng.permutation(cl.source), a.points, cl.target, start, axis, point,
+                           max_distance_mm=1.0, cell_mm=3.0, seed=seed).sigma for _ in range(2)]
+    row["shuffled_sigma"] = [round(z, 2) for z in null]
     right = rot <= LIMIT_DEG and disp <= LIMIT_MM
     accepted = turn.sigma >= 5.0
     outcome = ("resolved" if right else "verified-but-wrong") if accepted else "ambiguous in colour"
@@ -210,15 +216,16 @@ def collect_colour(pairs: int) -> dict[str, Any]:
 def colour_section(r: dict[str, Any]) -> list[str]:
     """The docs/BENCHMARKS.md table of a :func:`collect_colour` result."""
     lines = ["| object | pairs | resolved by colour | verified-but-wrong | ambiguous in colour | evidence per pair (sigma) "
-             "| motif points both passes share (truth) |",
-             "|---|---|---|---|---|---|---|"]
+             "| motif points both passes share (truth) | shuffled classes (sigma) |",
+             "|---|---|---|---|---|---|---|---|"]
     for name in ("plain-bowl", "plain-bowl:bare"):
         mine = [x for x in r["rows"] if x["object"] == name]
         k = {o: sum(x["outcome"] == o for x in mine) for o in ("resolved", "verified-but-wrong", "ambiguous in colour")}
         lines.append(f"| `{name}` | {len(mine)} | {_pct(k['resolved'], len(mine))} | {k['verified-but-wrong']} | "
                      f"{_pct(k['ambiguous in colour'], len(mine))} | "
                      + ", ".join("-" if x["sigma"] is None else f"{x['sigma']}" for x in mine) + " | "
-                     + ", ".join(str(x["motif_shared"]) for x in mine) + " |")
+                     + ", ".join(str(x["motif_shared"]) for x in mine) + " | "
+                     + ", ".join("/".join(str(z) for z in x.get("shuffled_sigma", [])) or "-" for x in mine) + " |")
     return lines
 
 
