@@ -112,3 +112,11 @@ def test_register_pair_decides_a_free_turn_by_colour_and_says_so():
     shuffled = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
                              source_colours=sc[np.random.default_rng(0).permutation(len(sc))], target_colours=tc)
     assert not shuffled.verified and shuffled.decided_by == "shape", shuffled.reason
+
+
+def test_colours_of_the_wrong_length_are_refused_with_the_parameter_named():
+    from processing.geometry.registration import RegistrationError, register_pair
+
+    sp, sn, sc = _painted_egg(1, 600)
+    with pytest.raises(RegistrationError, match="source_colours: colours must be"):
+        register_pair(sp, sp, source_normals=sn, target_normals=sn, source_colours=sc[:-1], target_colours=sc)
