@@ -26,7 +26,7 @@ import numpy as np
 
 from bench.common import machine_description
 
-__all__ = ["OBJECTS", "collect", "section"]
+__all__ = ["OBJECTS", "collect", "collect_colour", "colour_section", "section"]
 
 #: The objects and what should decide their pairs.
 OBJECTS = {"vase": "shape (the boss)", "inlaid-bowl": "colour (the motif; 0.1 mm relief)",
@@ -136,8 +136,9 @@ def section(r: dict[str, Any]) -> list[str]:
         "of the pairs whose boss both passes measured); 0 verified-but-wrong over all objects -- "
         f"**{'met' if all(x['verified-but-wrong'] == 0 for x in s.values()) else 'not met'}**; plain bowl "
         f"ambiguous in shape -- {_pct(plain['ambiguous'], plain['pairs'])}; resolved by colour once posed frames "
-        "exist (100 %) -- **not measured**: deciding the turn by colour is not implemented "
-        "yet ([processing.md](processing.md#colour-where-shape-is-silent-not-yet)).",
+        "exist (100 %) -- **not met** end to end: the turn is decided by colour given a right shape fit "
+        "([below](#colour-where-shape-is-silent)), but `register_pair` does not reach one on these pairs "
+        "([processing.md](processing.md#colour-where-shape-is-silent)).",
         "",
         "Per vase pair (seed: outcome, evidence): "
         + "; ".join(f"{r['seed']}: {r['outcome']}, {r['evidence_sigma']} sigma"
@@ -155,12 +156,88 @@ def section(r: dict[str, Any]) -> list[str]:
     return lines
 
 
+def colour_row(name: str, seed: int, offset_deg: float = 100.0) -> dict[str, Any]:
+    """One placement pair of ``name``: the turn about the axis decided by colour alone, scored against the truth.
+
+    The shape fit is the true pose turned by ``offset_deg`` about the object's axis (every turn fits a
+    plain bowl's shape equally); the colours are the station camera's frames every 30 deg
+    (:func:`mocks.pass_cloud.pass_colour_views`, the camera's true pose standing in for a calibration).
+    """
+    from mocks.pass_cloud import pass_colour_views, simulated_pass
+    from mocks.world import World
+    from processing.geometry.registration import PointColours, pose_difference
+    from processing.geometry.registration.photo_consistency import _turned, colour_classes, turn_by_colour
+
+    world = World.turned(name)
+    a, b = simulated_pass(world, seed, 2), simulated_pass(world, seed, 3)
+    ca, cb = PointColours(*pass_colour_views(world, a)), PointColours(*pass_colour_views(world, b))
+    truth = a.pose @ np.linalg.inv(b.pose)
+    axis, point = a.pose[:3, 2], a.pose[:3, 3]
+    start = _turned(truth, axis, point, np.radians([offset_deg]))[0]
+    cl = colour_classes(b.points, cb, a.points, ca, source_normals=b.normals, target_normals=a.normals)
+    row: dict[str, Any] = {"object": name, "seed": seed, "classes": cl.usable, "why": cl.why,
+                           "otsu_eta": round(float(cl.effectiveness), 3), "class_gap": round(float(cl.gap), 3)}
+    if not cl.usable:
+        return {**row, "outcome": "ambiguous in colour", "sigma": None, "motif_shared": 0}
+    # truth: points of the smaller class that meet the same class within 1 mm at the true pose
+    from scipy.spatial import cKDTree
+
+    minor = int(np.mean(cl.source[cl.source >= 0]) < 0.5)
+    d, i = cKDTree(a.points).query(b.points @ truth[:3, :3].T + truth[:3, 3], distance_upper_bound=1.0)
+    hit = np.isfinite(d)
+    row["motif_shared"] = int(np.sum(hit & (cl.source == minor) & (cl.target[np.minimum(i, len(a.points) - 1)] == minor)))
+    turn = turn_by_colour(b.points, cl.source, a.points, cl.target, start, axis, point,
+                          max_distance_mm=1.0, cell_mm=3.0, seed=seed)
+    rot, disp = pose_difference(turn.transform, truth, b.points)
+    # the null on this pair's data: the source's classes given to randomly permuted points
+    rng = np.random.default_rng(seed)
+    null = [turn_by_colour(b.points, rng.permutation(cl.source), a.points, cl.target, start, axis, point,
+                           max_distance_mm=1.0, cell_mm=3.0, seed=seed).sigma for _ in range(2)]
+    row["shuffled_sigma"] = [round(z, 2) for z in null]
+    right = rot <= LIMIT_DEG and disp <= LIMIT_MM
+    accepted = turn.sigma >= 5.0
+    outcome = ("resolved" if right else "verified-but-wrong") if accepted else "ambiguous in colour"
+    return {**row, "outcome": outcome, "sigma": round(turn.sigma, 2), "second_deg": round(turn.second_deg, 1),
+            "rotation_deg": round(float(rot), 3), "displacement_mm": round(float(disp), 3), "cells": turn.cells,
+            "disagree_best": round(turn.disagree_best, 4), "disagree_second": round(turn.disagree_second, 4)}
+
+
+def collect_colour(pairs: int) -> dict[str, Any]:
+    """:func:`colour_row` for the plain bowl and the bare bowl, seeds 0 .. pairs - 1."""
+    rows = []
+    for name in ("plain-bowl", "plain-bowl:bare"):
+        for seed in range(pairs):
+            r = colour_row(name, seed)
+            print(json.dumps(r), file=sys.stderr, flush=True)
+            rows.append(r)
+    return {"machine": machine_description(), "pairs_per_object": pairs, "rows": rows}
+
+
+def colour_section(r: dict[str, Any]) -> list[str]:
+    """The docs/BENCHMARKS.md table of a :func:`collect_colour` result."""
+    lines = ["| object | pairs | resolved by colour | verified-but-wrong | ambiguous in colour | evidence per pair (sigma) "
+             "| motif points both passes share (truth) | shuffled classes (sigma) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name in ("plain-bowl", "plain-bowl:bare"):
+        mine = [x for x in r["rows"] if x["object"] == name]
+        k = {o: sum(x["outcome"] == o for x in mine) for o in ("resolved", "verified-but-wrong", "ambiguous in colour")}
+        lines.append(f"| `{name}` | {len(mine)} | {_pct(k['resolved'], len(mine))} | {k['verified-but-wrong']} | "
+                     f"{_pct(k['ambiguous in colour'], len(mine))} | "
+                     + ", ".join("-" if x["sigma"] is None else f"{x['sigma']}" for x in mine) + " | "
+                     + ", ".join(str(x["motif_shared"]) for x in mine) + " | "
+                     + ", ".join("/".join(str(z) for z in x.get("shuffled_sigma", [])) or "-" for x in mine) + " |")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 pairs per object instead of --pairs")
     ap.add_argument("--pairs", type=int, default=10, help="placement pairs (station seeds) per object (default 10)")
+    ap.add_argument("--colour", action="store_true",
+                    help="only the turn of the plain and bare bowls decided by colour (given the right shape fit)")
     args = ap.parse_args(argv)
-    print(json.dumps(collect(3 if args.quick else args.pairs)))
+    n = 3 if args.quick else args.pairs
+    print(json.dumps(collect_colour(n) if args.colour else collect(n)))
 
 
 if __name__ == "__main__":

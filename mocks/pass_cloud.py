@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from mocks.noise_seed import profile_seed
 from mocks.station_geometry import placement_pose, rest_on_table, station_sensor_to_room
 
-__all__ = ["SimulatedPass", "pass_colours", "simulated_pass"]
+__all__ = ["SimulatedPass", "pass_colour_views", "pass_colours", "simulated_pass"]
 
 
 @dataclass(frozen=True)
@@ -101,6 +101,21 @@ def simulated_pass(world: Any, seed: int, placement: int, *, steps: int = 72, n_
 
 
 def pass_colours(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30))) -> NDArray[np.float64]:
+    """Colours ``(N, 3)`` of a pass's points from the station camera's frames: :func:`pass_colour_views`'s first part.
+
+    Examples
+    --------
+    >>> from mocks.world import World
+    >>> w = World.calibration_sphere(20.0, 0.0)
+    >>> p = simulated_pass(w, 0, 1, steps=36, n_points=160)
+    >>> pass_colours(w, p, (0,)).shape == p.points.shape
+    True
+    """
+    return pass_colour_views(world, sim, table_angles_deg)[0]
+
+
+def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30))
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Colours ``(N, 3)`` of a pass's points from the station camera's frames of that placement.
 
     The frames are the simulated camera's (``world.frame("object", angle)``, at the station's
@@ -111,12 +126,20 @@ def pass_colours(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(r
     30 deg from the lamp's mirror direction (a highlight shows the lamp's colour, not the surface's); three band sums of the spectral radiance
     (600-700, 500-590, 400-490 nm: red, green, blue) are its linear colour.  NaN where no frame sees a point.
 
+    Returns
+    -------
+    colours, lamp_dirs, camera_mm
+        ``(N, 3)`` each: the linear colour, the unit direction toward the (distant) lamp and the
+        camera's centre (mm), both in the pass's frame at the table angle of the frame that gave the
+        colour (the lamp and camera are fixed in the room; the table turns under them).  NaN where no
+        frame sees a point.
+
     Examples
     --------
     >>> from mocks.world import World
     >>> w = World.calibration_sphere(20.0, 0.0)
     >>> p = simulated_pass(w, 0, 1, steps=36, n_points=160)
-    >>> c = pass_colours(w, p, (0, 180))
+    >>> c, lamp, cam = pass_colour_views(w, p, (0, 180))
     >>> bool(np.isfinite(c).all(axis=1).mean() > 0.5), bool(np.nanmean(c[:, 0]) > np.nanmean(c[:, 2]))  # red lacquer
     (True, True)
     """
@@ -136,6 +159,8 @@ def pass_colours(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(r
     light = light / np.linalg.norm(light)
     glint_cos = math.cos(math.radians(30.0))
     colours = np.full((len(sim.points), 3), np.nan)
+    lamp = np.full((len(sim.points), 3), np.nan)
+    camera = np.full((len(sim.points), 3), np.nan)
     obj = w.vertices @ sim.pose[:3, :3].T + sim.pose[:3, 3]
     for angle in table_angles_deg:
         rz = rotation_z(float(angle))[:3, :3]
@@ -164,5 +189,7 @@ def pass_colours(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(r
         radiance = w.frame("object", float(angle)).radiance
         rgb = np.stack([radiance[..., b].sum(axis=-1) for b in bands], axis=-1)
         colours[better] = rgb[v[better], u[better]]
+        lamp[better] = rz.T @ light            # the room's lamp and camera in the pass's frame
+        camera[better] = rz.T @ cam_room
         best_cos[better] = cos[better]
-    return colours
+    return colours, lamp, camera

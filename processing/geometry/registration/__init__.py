@@ -58,6 +58,7 @@ References
 
 from processing.geometry.registration.clouds import MIN_POINTS
 from processing.geometry.registration.pairwise import register_from_picks, register_pair
+from processing.geometry.registration.photo_consistency import PointColours
 from processing.geometry.registration.pose_graph import merge_passes, register_passes
 from processing.geometry.registration.presets import (
     PRESETS,
@@ -83,6 +84,7 @@ __all__ = [
     "PRESETS",
     "PairResult",
     "PassPose",
+    "PointColours",
     "PoseGraphConsistency",
     "RegistrationError",
     "RegistrationPreset",

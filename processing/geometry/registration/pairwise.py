@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.clouds import _as_cloud, _Cloud
 from processing.geometry.registration.global_search import _global_search
+from processing.geometry.registration.photo_consistency import PointColours, colour_classes, turn_by_colour
 from processing.geometry.registration.presets import RegistrationError, RegistrationPreset, registration_preset
 from processing.geometry.registration.refinement import (
     _evaluate,
@@ -51,6 +52,8 @@ def register_pair(
     preset: str | RegistrationPreset = "standard",
     initial: ArrayLike | None = None,
     seed: int = 0,
+    source_colours: PointColours | ArrayLike | None = None,
+    target_colours: PointColours | ArrayLike | None = None,
 ) -> PairResult:
     """Register two partial point clouds without an initial guess, and verify the result.
 
@@ -69,6 +72,15 @@ def register_pair(
         and only refines and verifies (no ambiguity check, ``margin`` is NaN).
     seed
         Seed of the random subsampling (results are reproducible).
+    source_colours, target_colours
+        Optional colours of the points from posed photos: ``(N, 3)`` linear
+        RGB (NaN where unseen) or a
+        :class:`~processing.geometry.registration.photo_consistency.PointColours`
+        that also gives the lamp direction and camera centre per point (then,
+        with normals, highlights and grazing views are dropped).  Used only
+        when the shape leaves the turn about a nearly free axis ambiguous:
+        the turn is then decided by the points' colour classes if their
+        evidence reaches ``min_evidence`` (``decided_by`` is ``"colour"``).
 
     Returns
     -------
@@ -119,8 +131,10 @@ def register_pair(
     tgt = _as_cloud(target, target_normals, "target")
     scale = _pair_scale(src, tgt)
     rng = np.random.default_rng(seed)
+    colours = _as_colours(source_colours, len(src.points), "source_colours"), \
+        _as_colours(target_colours, len(tgt.points), "target_colours")
     if initial is None:
-        return _register(src, tgt, scale, p, rng, (0, 1))
+        return _register(src, tgt, scale, p, rng, (0, 1), colours)
     t0 = _as_transform(initial, "initial")
     return _refine_and_check(src, tgt, scale, p, t0, (0, 1), time.perf_counter(), "initial", None)
 
@@ -217,8 +231,9 @@ def _register(
     preset: RegistrationPreset,
     rng: np.random.Generator,
     indices: tuple[int, int],
+    colours: tuple[PointColours | None, PointColours | None] = (None, None),
 ) -> PairResult:
-    """Automatic registration of a pair: global search, refinement, symmetry sweep, checks."""
+    """Automatic registration of a pair: global search, refinement, symmetry sweep, checks, colour."""
     start = time.perf_counter()
     hyps = _global_search(src, tgt, scale, preset, rng)
     # every hypothesis down the pyramid but its finest level; decide there
@@ -256,15 +271,62 @@ def _register(
                                        centre, scale, preset)
     t, sc_best, rivals = _by_evidence(src, tgt, decide, refined[best], scores[best], rivals, centre, scale, preset)
     margin, second_deg, evidence, ambiguous = _decision(rivals, preset)
+    decided_by, colour_note = "shape", ""
+    if ambiguous and colours[0] is not None and colours[1] is not None:
+        axis = _weak_axis(src.level(decide), tgt.level(decide), t, decide, preset, nearly=10.0)
+        if axis is not None and not isinstance(axis, str):
+            t_c, colour_note = _turn_by_colour(src, tgt, colours[0], colours[1], t, axis, preset, int(rng.integers(1 << 30)))
+            if t_c is not None:
+                t, decided_by, ambiguous = t_c[0], "colour", False
+                second_deg, evidence = t_c[1], t_c[2]
     if len(levels) > 1:
         t = _icp_pyramid(src, tgt, preset, t, levels[-1:], settled=True)
     fine = levels[-1]
     sc = replace(_evaluate(src, tgt, t, fine, preset), score=sc_best.score)
     ok, reason = _verdict(sc, margin, second_deg, fine, preset, evidence, ambiguous)
+    if colour_note and not (ok and decided_by == "colour"):
+        reason = f"{reason}; {colour_note}"
     if weak_reason:
         reason = weak_reason if ok else f"{reason}; {weak_reason}"
         ok = False
-    return _pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence)
+    return replace(_pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence),
+                   decided_by=decided_by)
+
+
+def _as_colours(c: PointColours | ArrayLike | None, n: int, name: str) -> PointColours | None:
+    """Checked per-point colours (and lamp and camera) of a cloud of ``n`` points, or None."""
+    if c is None:
+        return None
+    pc = c if isinstance(c, PointColours) else PointColours(np.asarray(c, dtype=np.float64))
+    for field in ("colours", "lamp_dirs", "camera_mm"):
+        v = getattr(pc, field)
+        if v is not None and np.shape(v) != (n, 3):
+            raise RegistrationError(f"{name}: {field} must be (N, 3) with one row per point ({n}), "
+                                    f"got shape {np.shape(v)}")
+    return pc
+
+
+def _turn_by_colour(
+    src: _Cloud, tgt: _Cloud, cs: PointColours, ct: PointColours, t: NDArray[np.float64],
+    axis: tuple[NDArray[np.float64], NDArray[np.float64]], preset: RegistrationPreset, seed: int,
+) -> tuple[tuple[NDArray[np.float64], float, float] | None, str]:
+    """The turn of ``t`` about a nearly free axis decided by the points' colour classes, or None and why not.
+
+    Partners are at most three sample spacings apart (the turn is located
+    by the borders between classes, which a wider search blurs); evidence
+    cells are three times that.  Returns ``((pose, second_deg, sigma), note)``.
+    """
+    classes = colour_classes(src.points, cs, tgt.points, ct, source_normals=src.normals,
+                             target_normals=tgt.normals)
+    if not classes.usable:
+        return None, f"colour cannot decide: {classes.why}"
+    reach = 3.0 * max(src.spacing, tgt.spacing)
+    turn = turn_by_colour(src.points, classes.source, tgt.points, classes.target, t, axis[0], axis[1],
+                          max_distance_mm=reach, cell_mm=3.0 * reach, distinct_deg=preset.distinct_deg, seed=seed)
+    if not turn.sigma >= preset.min_evidence:
+        return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
+                      f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
+    return (turn.transform, turn.second_deg, turn.sigma), ""
 
 
 def _as_transform(t: ArrayLike, name: str) -> NDArray[np.float64]:

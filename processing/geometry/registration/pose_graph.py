@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.clouds import _as_cloud, _Cloud
-from processing.geometry.registration.pairwise import _refine_and_check, _register
+from processing.geometry.registration.pairwise import _as_colours, _refine_and_check, _register
+from processing.geometry.registration.photo_consistency import PointColours
 from processing.geometry.registration.presets import RegistrationError, RegistrationPreset, registration_preset
 from processing.geometry.registration.refinement import _pair_scale, _pyramid
 from processing.geometry.registration.results import PairResult, PassPose, PoseGraphConsistency, RegistrationResult
@@ -31,6 +32,7 @@ def register_passes(
     picks: Mapping[tuple[int, int], tuple[ArrayLike, ArrayLike]] | None = None,
     names: Sequence[str] | None = None,
     seed: int = 0,
+    colours: Sequence[PointColours | ArrayLike | None] | None = None,
 ) -> RegistrationResult:
     """Register several passes into the frame of the first, with a pose graph over all pairs.
 
@@ -56,6 +58,11 @@ def register_passes(
         from 1, the arrays and ``picks`` from 0).
     seed
         Seed of the random subsampling.
+    colours
+        Optional colours per pass from posed photos (``None`` entries
+        allowed), as ``source_colours`` of :func:`register_pair`: they
+        decide a pair whose shape leaves a turn about a nearly free axis
+        ambiguous.
 
     Returns
     -------
@@ -104,6 +111,11 @@ def register_passes(
     if len(normals) != n:
         raise RegistrationError(f"normals: {len(normals)} entries for {n} clouds (use None where missing)")
     prepared = [_as_cloud(c, nm, name) for c, nm, name in zip(clouds, normals, names)]
+    if colours is None:
+        colours = [None] * n
+    if len(colours) != n:
+        raise RegistrationError(f"colours: {len(colours)} entries for {n} clouds (use None where missing)")
+    painted = [_as_colours(c, len(cl.points), f"colours of {name}") for c, cl, name in zip(colours, prepared, names)]
     scale = _pair_scale(*prepared)
     pair_list = _pair_list(n, pairs)
     picks = dict(picks or {})
@@ -127,7 +139,7 @@ def register_passes(
             res = _refine_and_check(prepared[j], prepared[i], scale, p, t0, (j, i), t_start, "picks", first,
                                     (np.asarray(on_j, dtype=np.float64), np.asarray(on_i, dtype=np.float64), rms))
         else:
-            res = _register(prepared[j], prepared[i], scale, p, rng, (j, i))
+            res = _register(prepared[j], prepared[i], scale, p, rng, (j, i), (painted[j], painted[i]))
         results.append(res)
     poses, consistency = _pose_graph(prepared, results, scale, p)
     return RegistrationResult(

@@ -67,7 +67,13 @@ class PairResult:
         (:func:`~processing.geometry.registration.pose_evidence.pose_evidence`).
         A competitor within ``min_margin`` is ruled out only by at least
         ``RegistrationPreset.min_evidence``.  NaN without competitors, for
-        picks and a given initial pose.
+        picks and a given initial pose.  When ``decided_by`` is ``"colour"``,
+        the evidence of the colour classes for this turn over the best turn a
+        distinct angle away
+        (:func:`~processing.geometry.registration.photo_consistency.turn_by_colour`).
+    decided_by
+        ``"shape"``, or ``"colour"`` when the shape left the turn about a
+        nearly free axis ambiguous and the points' colours decided it.
     """
 
     source: int
@@ -87,6 +93,7 @@ class PairResult:
     seconds: float
     method: str
     evidence_sigma: float = math.nan
+    decided_by: str = "shape"
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (the transform as nested lists).

@@ -1,0 +1,122 @@
+"""The turn of a symmetric pair decided by colour, against the simulated world's truth.
+
+Passes and their colours come from :mod:`mocks.pass_cloud` (the station's sensor, placements and
+0.05 mm range noise; the station camera's frames of each placement, its true pose standing in for a
+camera calibration).  The shape fit is the truth turned by 100 deg about the bowl's axis: any turn
+fits the shape of a plain bowl equally, so colour alone must find the turn.  A right turn is within
+0.5 deg and 0.5 mm (largest displacement of the source points) of the truth, the registration
+benchmark's limits; accepted means at least 5 sigma of evidence (``min_evidence``).  Scanning and
+colouring a pair takes about a minute on a shared machine, hence ``slow``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from mocks.pass_cloud import pass_colour_views, simulated_pass
+from mocks.world import World
+from processing.geometry.registration import PointColours, pose_difference
+from processing.geometry.registration.photo_consistency import _turned, colour_classes, turn_by_colour
+
+TOL_DEG, TOL_MM, MIN_SIGMA = 0.5, 0.5, 5.0
+#: Frames every 45 deg instead of the station's 30 (keeps the test short; fewer points coloured).
+ANGLES = tuple(range(0, 360, 45))
+
+
+@functools.lru_cache(maxsize=2)
+def _pair(name: str, seed: int):
+    w = World.turned(name)
+    a, b = simulated_pass(w, seed, 2, steps=72), simulated_pass(w, seed, 3, steps=72)
+    return a, b, PointColours(*pass_colour_views(w, a, ANGLES)), PointColours(*pass_colour_views(w, b, ANGLES))
+
+
+def _decide(a, b, ca, cb):
+    truth = a.pose @ np.linalg.inv(b.pose)
+    axis, point = a.pose[:3, 2], a.pose[:3, 3]          # the bowl's axis in the target frame
+    start = _turned(truth, axis, point, np.radians([100.0]))[0]
+    cl = colour_classes(b.points, cb, a.points, ca, source_normals=b.normals, target_normals=a.normals)
+    if not cl.usable:
+        return truth, cl, None
+    turn = turn_by_colour(b.points, cl.source, a.points, cl.target, start, axis, point,
+                          max_distance_mm=1.0, cell_mm=3.0)
+    return truth, cl, turn
+
+
+@pytest.mark.slow
+def test_plain_bowl_turn_is_found_by_colour_within_the_registration_limits():
+    # seed 1: the painted motif lies in the surface both passes share
+    a, b, ca, cb = _pair("plain-bowl", 1)
+    truth, cl, turn = _decide(a, b, ca, cb)
+    assert cl.usable and cl.effectiveness > 0.9, cl
+    assert turn is not None and turn.sigma >= MIN_SIGMA, turn
+    rot, disp = pose_difference(turn.transform, truth, b.points)
+    assert rot < TOL_DEG and disp < TOL_MM, (rot, disp, turn)
+
+
+@pytest.mark.slow
+def test_shuffled_colours_are_refused():
+    # a wrong colour assignment: the source's colours (and how they were seen) given to random points
+    a, b, ca, cb = _pair("plain-bowl", 1)
+    perm = np.random.default_rng(0).permutation(len(b.points))
+    wrong = PointColours(cb.colours[perm], cb.lamp_dirs[perm], cb.camera_mm[perm])
+    _, cl, turn = _decide(a, b, ca, wrong)
+    assert turn is None or turn.sigma < MIN_SIGMA, turn
+
+
+@pytest.mark.slow
+def test_bare_bowl_stays_ambiguous_in_colour():
+    # all black lacquer: its specular tail spreads the chromaticity a little, which may look like two
+    # classes, but no turn is supported by them
+    a, b, ca, cb = _pair("plain-bowl:bare", 0)
+    _, cl, turn = _decide(a, b, ca, cb)
+    assert not cl.usable or turn.sigma < MIN_SIGMA, (cl.why, turn)
+
+
+def _painted_egg(seed: int, n: int = 3000):
+    """Points on a surface of revolution about +z (an egg, wider below), red with a black patch; normals outward."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = 25.0 * (1.0 - 0.15 * d[:, 2])
+    pts = np.column_stack([r * d[:, 0], r * d[:, 1], 35.0 * d[:, 2]]) + rng.normal(0, 0.03, (n, 3))
+    grad = np.column_stack([pts[:, 0], pts[:, 1], pts[:, 2] * (r / 35.0) ** 2])
+    normals = grad / np.linalg.norm(grad, axis=1, keepdims=True)
+    az = np.degrees(np.arctan2(pts[:, 1], pts[:, 0]))
+    patch = (np.abs(az - 40.0) < 15.0) & (np.abs(pts[:, 2] - 5.0) < 10.0)
+    colours = np.where(patch[:, None], [0.01, 0.01, 0.01], [0.5, 0.08, 0.06])
+    return pts, normals, colours
+
+
+@pytest.mark.slow
+def test_register_pair_decides_a_free_turn_by_colour_and_says_so():
+    # the same painted egg sampled twice, the source turned 130 deg about its axis and shifted: without
+    # colours the turn is ambiguous in shape; with them it is decided by colour within the limits
+    from processing.geometry.registration import register_pair, transform_points
+
+    sp, sn, sc = _painted_egg(1)
+    tp, tn, tc = _painted_egg(2)
+    truth = np.eye(4)
+    truth[:3, :3] = _turned(np.eye(4), np.array([0.0, 0.0, 1.0]), np.zeros(3), np.radians([130.0]))[0][:3, :3]
+    truth[:3, 3] = [4.0, -3.0, 2.0]
+    src, src_n = transform_points(np.linalg.inv(truth), sp), sn @ np.linalg.inv(truth)[:3, :3].T
+    shape = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0)
+    assert not shape.verified and "ambiguous" in shape.reason, shape.reason
+    res = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
+                        source_colours=sc, target_colours=tc)
+    rot, disp = pose_difference(res.transform, truth, src)
+    assert res.verified and res.decided_by == "colour", res.reason
+    assert res.evidence_sigma >= MIN_SIGMA and rot < TOL_DEG and disp < TOL_MM, (res.evidence_sigma, rot, disp)
+    shuffled = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
+                             source_colours=sc[np.random.default_rng(0).permutation(len(sc))], target_colours=tc)
+    assert not shuffled.verified and shuffled.decided_by == "shape", shuffled.reason
+
+
+def test_colours_of_the_wrong_length_are_refused_with_the_parameter_named():
+    from processing.geometry.registration import RegistrationError, register_pair
+
+    sp, sn, sc = _painted_egg(1, 600)
+    with pytest.raises(RegistrationError, match="source_colours: colours must be"):
+        register_pair(sp, sp, source_normals=sn, target_normals=sn, source_colours=sc[:-1], target_colours=sc)
