@@ -234,8 +234,26 @@ MAX_COLOUR_ERROR = 0.5
 FRINGE_SLACK = 0.5
 
 
+def _dark_covariance(px: NDArray[np.float64], dark: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(c, c)`` covariance of a region mean's error from the sensor's absolute noise and its clipping at 0.
+
+    The absolute noise ``dark`` of one pixel averages down over the ``n`` pixels; the bias of values
+    clipped at zero (a pixel at the noise floor reads ``s / sqrt(2 pi)`` on average instead of 0) does
+    not: every dark pixel is off the same way.  Each pixel counts toward the bias by
+    ``exp(-t^2 / 2)``, ``t`` its darkest channel in units of that channel's absolute noise (1 at the
+    floor, 0.01 three noise levels above it).
+    """
+    n = px.shape[0]
+    sd = np.sqrt(np.maximum(np.diag(dark), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(sd > 0, px / np.where(sd > 0, sd, 1.0), np.inf)
+    at_floor = float(np.exp(-0.5 * np.min(t, axis=1) ** 2).mean())
+    return dark / n + at_floor**2 * dark / (2.0 * math.pi)
+
+
 def _region_covariance(px: NDArray[np.float64], noise: float, model_error: float,
-                       colour_error: NDArray[np.float64] | None) -> NDArray[np.float64]:
+                       colour_error: NDArray[np.float64] | None,
+                       dark: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """``(c, c)`` covariance of a region's mean colour: noise, pixel scatter, model and decode error."""
     n, c = px.shape
     mean = px.mean(axis=0)
@@ -253,6 +271,8 @@ def _region_covariance(px: NDArray[np.float64], noise: float, model_error: float
         f = (w @ colour_error) * mean         # the region's predicted colour offset (signed)
         spread = (w @ np.abs(colour_error)) * mean
         cov = cov + np.outer(f, f) + np.diag((FRINGE_SLACK * spread) ** 2)
+    if dark is not None:
+        cov = cov + _dark_covariance(px, dark)
     floor = (1e-6 * float(mean.max())) ** 2   # a channel at exactly 0 keeps a finite weight
     return cov + np.eye(c) * max(floor, 1e-300)
 
@@ -271,9 +291,23 @@ def _check_noise(noise: float, model_error: float) -> None:
         raise SpectralEstimationError("noise and model_error are both 0: the likelihood is undefined; give the noise level")
 
 
+def _dark_matrix(dark_noise: ArrayLike | None, c: int) -> NDArray[np.float64] | None:
+    """``dark_noise`` as a ``(c, c)`` covariance (None stays None)."""
+    if dark_noise is None:
+        return None
+    d = np.asarray(dark_noise, dtype=np.float64)
+    if d.shape == (c,) and np.all(np.isfinite(d)) and np.all(d >= 0):
+        return np.diag(d**2)
+    if d.shape == (c, c) and np.all(np.isfinite(d)) and np.allclose(d, d.T) and np.all(np.diag(d) >= 0):
+        return 0.5 * (d + d.T)
+    raise SpectralEstimationError(f"dark_noise must be {c} standard deviations >= 0 or a symmetric {c} x {c} "
+                                  f"covariance in the pixels' units, got shape {d.shape}")
+
+
 def identify_material(
     pixels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01, model_error: float = DEFAULT_MODEL_ERROR,
     colour_error: ArrayLike | None = None, error_dof: float | None = SINGLE_IMAGE_ERROR_DOF,
+    dark_noise: ArrayLike | None = None,
 ) -> Identification:
     """Identify the material of one region from its pixels' camera values ``(n, c)`` (or one ``(c,)``).
 
@@ -292,7 +326,13 @@ def identify_material(
       over the pixels, as a full-strength error along its predicted direction plus
       :data:`FRINGE_SLACK` of its size independent per channel.  It is not divided by the pixel
       count: every pixel of one highlight's flank is off the same way.  Pixels predicted off by
-      more than :data:`MAX_COLOUR_ERROR` are left out.
+      more than :data:`MAX_COLOUR_ERROR` are left out;
+    * with ``dark_noise``: the sensor's absolute noise (read noise after black subtraction), which
+      the relative ``noise`` misses where the signal is low, divided by the pixel count, plus the
+      bias of values clipped at 0, which is not (:func:`_dark_covariance`).  Pixels at the noise
+      floor have no colour of their own: their clipped noise, equal in the RAW channels, reads
+      after the chart transform as the colour the transform gives a RAW grey (for a camera whose
+      red and blue are weaker than its green, a strong red), which a red lacquer fits well.
 
     Parameters
     ----------
@@ -314,6 +354,10 @@ def identify_material(
         How well the error's own size is known (:func:`processing.materials.confidence.decide`,
         Student-t likelihood); default :data:`processing.materials.confidence.SINGLE_IMAGE_ERROR_DOF`;
         None: the Gaussian likelihood.
+    dark_noise
+        Absolute noise of one pixel in the units of ``pixels``: ``(c,)`` standard deviations or a
+        ``(c, c)`` covariance (a RAW's read noise ``s`` per channel carried by a row-form chart
+        transform ``M`` is ``M.T @ diag(s**2) @ M``); None: none.
 
     Returns
     -------
@@ -356,6 +400,18 @@ def identify_material(
     >>> told = identify_material(seen, cands, colour_error=fringe)
     >>> blind.material != "nami-shibuichi", told.confidence < 0.9
     (True, True)
+
+    Pixels at the noise floor: read noise clipped at 0, equal in the RAW channels, through a chart
+    transform that lifts red above green and blue.  Taken at its face value it reads as the red
+    lacquer; told the read noise, nothing is certain.
+
+    >>> m = np.array([[2.4, -0.3, -0.2], [-0.6, 1.2, -0.3], [-0.2, -0.4, 1.9]])
+    >>> raw = np.maximum(np.random.default_rng(1).normal(0.0, 5e-4, (100, 3)), 0.0)
+    >>> dark = np.maximum(raw @ m, 0.0)
+    >>> blind = identify_material(dark, cands)
+    >>> told = identify_material(dark, cands, dark_noise=m.T @ np.diag(np.full(3, 5e-4**2)) @ m)
+    >>> blind.material, blind.confidence > 0.9, told.confidence < 0.9
+    ('urushi-red', True, True)
     """
     _check_noise(noise, model_error)
     px = np.asarray(checked_channels("region pixels", pixels, candidates.channels), dtype=np.float64)
@@ -380,7 +436,7 @@ def identify_material(
         mean = px.mean(axis=0)
         if not np.any(mean > 0):
             raise SpectralEstimationError("the region is black in every channel; nothing to identify")
-    cov = _region_covariance(px, noise, model_error, fringe)
+    cov = _region_covariance(px, noise, model_error, fringe, _dark_matrix(dark_noise, candidates.channels))
     p = np.linalg.inv(cov)
     m = candidates.responses
     pm = m @ p                                               # (k, c)
@@ -402,6 +458,7 @@ def identify_material(
 def identify_regions(
     rgb: ArrayLike, labels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01,
     model_error: float = DEFAULT_MODEL_ERROR, colour_error: ArrayLike | None = None,
+    dark_noise: ArrayLike | None = None,
 ) -> dict[int, Identification]:
     """Identify every labelled region (label > 0) of an image.
 
@@ -417,6 +474,8 @@ def identify_regions(
         As for :func:`identify_material`.
     colour_error
         ``(H, W, c)`` per-pixel relative colour error (as for :func:`identify_material`); None: none.
+    dark_noise
+        The sensor's absolute noise of one pixel (as for :func:`identify_material`); None: none.
 
     Returns
     -------
@@ -463,7 +522,8 @@ def identify_regions(
         part = order[bounds[i]:bounds[i + 1]]
         try:
             found[int(r)] = identify_material(flat[part], candidates, noise=noise, model_error=model_error,
-                                              colour_error=None if err is None else err[part])
+                                              colour_error=None if err is None else err[part],
+                                              dark_noise=dark_noise)
         except FringeOnlyError:
             continue                      # no pixel with a colour of its own: the caller reports it unjudged
     return found
