@@ -235,9 +235,9 @@ def _highlight_patch(rng: np.random.Generator, material: Any, e: np.ndarray, sen
 
 
 def _highlight_draws(n_patches: int, seed: int, fringe: bool,
-                     colour_error: tuple[float, float] | None, dark: bool = True) -> list[dict[str, Any]]:
+                     colour_error: tuple[float, float] | None, sensor: bool = True) -> list[dict[str, Any]]:
     """Every clicked patch's truth and answer, with (``fringe``) or without the predicted CFA fringe, with
-    (``dark``) or without the sensor's read noise carried by the chart transform."""
+    (``sensor``) or without the sensor's read noise and the chart transform the pixels went through."""
     from processing.camera.response import camera_sensitivities
     from processing.camera.transfer import transformed_read_noise
     from processing.materials.confidence import Decision, is_right
@@ -267,7 +267,8 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
         px, err, info = drawn
         try:
             r = identify_material(px, cands, noise=_STATED_NOISE, colour_error=err if fringe else None,
-                                  dark_noise=transformed_read_noise(transform, READ_NOISE) if dark else None)
+                                  dark_noise=transformed_read_noise(transform, READ_NOISE) if sensor else None,
+                                  transform=transform if sensor else None)
         except SpectralEstimationError:
             continue                      # refused: every pixel's colour is mostly fringe (FringeOnlyError) or black
         decision = Decision(r.material, r.confidence, tuple(r.group), 0, np.zeros(0), float("nan"))
@@ -279,7 +280,7 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
 
 def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool = True,
                           colour_error: tuple[float, float] | None = COLOUR_ERROR, bins: int = 10,
-                          dark: bool = True) -> dict[str, Any]:
+                          sensor: bool = True) -> dict[str, Any]:
     """Clicked patches through a Bayer sensor and the ``bin2x2`` decode: stated confidence against accuracy.
 
     Each patch: a candidate drawn as in :func:`single_image_reliability` (material, camera, chart
@@ -292,9 +293,9 @@ def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool 
     transform.  Patches whose green averages below 2 % of full scale are refused, as the spectra
     panel refuses such a click, and so are patches whose every pixel is mostly fringe
     (:class:`processing.materials.identification.FringeOnlyError`).  ``fringe``: give the identification the predicted CFA fringe
-    (:func:`processing.camera.cfa_fringe.transformed_fringe`), as the spectra panel does.  ``dark``:
+    (:func:`processing.camera.cfa_fringe.transformed_fringe`), as the spectra panel does.  ``sensor``:
     give it the sensor's read noise (:data:`READ_NOISE` per photosite, binned and carried by the
-    patch's chart transform: ``dark_noise`` of
+    patch's chart transform) and that transform (``dark_noise`` and ``transform`` of
     :func:`processing.materials.identification.identify_material`), as the spectra panel does.
 
     Returns
@@ -306,7 +307,7 @@ def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool 
     from processing.materials.confidence import NO_FIT, reliability_table
 
     t0 = time.perf_counter()
-    rows = _highlight_draws(n_patches, seed, fringe, colour_error, dark)
+    rows = _highlight_draws(n_patches, seed, fringe, colour_error, sensor)
     named = [r for r in rows if r["answer"] != NO_FIT]
     rel = reliability_table([r["confidence"] for r in named], [r["right"] for r in named], bins=bins)
     met = bool(rel.high_count > 0 and rel.high_accuracy >= TARGETS["high_accuracy"] and rel.ece <= TARGETS["ece"])
@@ -329,7 +330,7 @@ def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool 
                   "stated": [None if math.isnan(v) else float(v) for v in rel.stated],
                   "observed": [None if math.isnan(v) else float(v) for v in rel.observed]},
         "ece": rel.ece, "high_accuracy": rel.high_accuracy, "high_count": rel.high_count,
-        "high_wrong": wrong, "by_shape": by_shape, "fringe": fringe, "dark": dark,
+        "high_wrong": wrong, "by_shape": by_shape, "fringe": fringe, "sensor": sensor,
         "targets": dict(TARGETS), "met": met and not wrong, "seed": seed, "seconds": time.perf_counter() - t0,
     }
 

@@ -48,7 +48,10 @@ not named gold with confidence; a mixed group below :data:`CANNOT_TELL` reads
 They also carry the sensor's read noise through the chart transform
 (:func:`processing.camera.transfer.transformed_read_noise`, stored as
 ``dark_noise``): pixels at the noise floor, such as the dark flank of a
-highlight, hold clipped noise that the transform turns red, not a colour.
+highlight, hold clipped noise that the transform turns red, not a colour;
+and the transform itself (``transform``), so that the relative noise and model
+error are taken in the sensor's channels, where they arise, and carried
+through it.
 
 Both identifications allow the candidates the same model error as the batch
 ``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 1.75 %): the
@@ -205,6 +208,7 @@ class SpectralScene:
     backdrop: np.ndarray | None = None  # (H, W) bool: the backdrop (backdrop_mask)
     fringe: np.ndarray | None = None    # (H, W, c) relative colour error of the binned CFA, model camera
     dark_noise: np.ndarray | None = None  # (c, c) one pixel's read noise in the model camera (transformed_read_noise)
+    transform: np.ndarray | None = None   # (c, c) the chart transform from the object camera to the model camera
 
     @property
     def fit(self) -> Any:
@@ -241,7 +245,8 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
                                        light_deg=LIGHT_DEG, **({} if materials is None else {"names": materials})),
                          est.chart_rmse, int(est.usable.sum()), light, ~est.mask, backdrop_mask(rgb),
                          transformed_fringe(rgb, obj.cfa_pattern, est.transform.matrix),
-                         transformed_read_noise(est.transform.matrix, mode="bin2x2"))
+                         transformed_read_noise(est.transform.matrix, mode="bin2x2"),
+                         np.asarray(est.transform.matrix, dtype=np.float64))
 
 
 def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
@@ -270,7 +275,7 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
     camera = scene.estimate.camera[y0:y1, x0:x1][keep].astype(np.float64)
     fringe = None if scene.fringe is None else scene.fringe[y0:y1, x0:x1][keep]
     ident = identify_material(camera, scene.candidates, model_error=MODEL_ERROR, colour_error=fringe,
-                              dark_noise=scene.dark_noise)
+                              dark_noise=scene.dark_noise, transform=scene.transform)
     wl = scene.fit.wavelengths
     name = ident.material if ident.material in scene.candidates.names else ident.group[0]
     t = math.radians(LIGHT_DEG)
@@ -341,7 +346,7 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
                          "to identify (a smaller block may do)")
     model = scene.estimate.camera.astype(np.float64)
     found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR, colour_error=scene.fringe,
-                             dark_noise=scene.dark_noise)
+                             dark_noise=scene.dark_noise, transform=scene.transform)
     named = {int(lab): UNCERTAIN for lab in np.unique(labels[labels > 0])}    # a block of fringe only: uncertain
     named.update({lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()})
     names = sorted(set(named.values()) - {UNCERTAIN}) + ([UNCERTAIN] if UNCERTAIN in named.values() else [])

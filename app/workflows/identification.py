@@ -39,7 +39,9 @@ region with no such pixel is reported with ``material`` None and the reason.
 The pixels kept still carry the sensor's read noise, equal in the RAW channels
 and turned by the chart transform into the colour of a RAW grey (a strong red
 for most cameras); the identification is told it (:func:`result_dark_noise`),
-so a dim region is not named with a confidence its noise cannot support.
+so a dim region is not named with a confidence its noise cannot support, and
+the transform itself, so that the relative noise and model error are taken in
+the sensor's channels and carried through it.
 """
 
 from __future__ import annotations
@@ -296,6 +298,9 @@ def identify_result(
     predicted = result_fringe(result) if fringe else None
     flat_err = None if predicted is None else predicted.reshape(-1, predicted.shape[2])
     dark = result_dark_noise(result)
+    matrix = None if dark is None else np.asarray(result.metadata["chart_transform"], dtype=np.float64)
+    if matrix is not None and abs(float(np.linalg.det(matrix))) < 1e-12:
+        matrix = None
     flat_lab = live.ravel()
     reports = []
     for r in ids:
@@ -307,7 +312,7 @@ def identify_result(
         try:
             found = identify_material(px, cands, noise=noise, model_error=model_error,
                                       colour_error=None if flat_err is None else flat_err[flat_lab == r],
-                                      dark_noise=dark)
+                                      dark_noise=dark, transform=matrix)
         except SpectralEstimationError as exc:
             reports.append(RegionReport(r, px.shape[0], None, None, None, None, (), None, None, None, None, str(exc)))
             continue
