@@ -58,7 +58,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["single_image_reliability", "highlight_reliability", "markdown", "figure", "main", "TARGETS", "COLOUR_ERROR"]
+__all__ = ["single_image_reliability", "highlight_reliability", "markdown", "figure", "main", "TARGETS", "COLOUR_ERROR",
+           "READ_NOISE"]
 
 #: Calibration targets: share right among answers stated >= 0.9, and the expected calibration error.
 TARGETS = {"high_accuracy": 0.90, "ece": 0.05}
@@ -69,6 +70,8 @@ _CHART_NOISE = 0.002
 _MIN_SIGNAL = 0.02
 #: Range (log-uniform) of a region's unmodelled relative colour error per channel (module text).
 COLOUR_ERROR = (0.002, 0.05)
+#: Read noise of one photosite of the simulated Bayer sensor (fraction of full scale), after black subtraction.
+READ_NOISE = 0.0005
 
 
 def _true_camera(rng: np.random.Generator, grid: Any) -> tuple[np.ndarray, str]:
@@ -217,7 +220,7 @@ def _highlight_patch(rng: np.random.Generator, material: Any, e: np.ndarray, sen
     for k in range(4):
         cfa[k // 2::2, k % 2::2] = idx[k]
     mosaic = np.take_along_axis(raw, cfa[..., None], axis=2)[..., 0]
-    mosaic = mosaic * (1.0 + noise * rng.standard_normal(mosaic.shape)) + 0.0005 * rng.standard_normal(mosaic.shape)
+    mosaic = mosaic * (1.0 + noise * rng.standard_normal(mosaic.shape)) + READ_NOISE * rng.standard_normal(mosaic.shape)
     sat = mosaic >= 1.0
     rgb, clipped, _ = bin2x2(np.clip(mosaic, 0.0, 1.0).astype(np.float32), idx, sat, np.zeros_like(sat))
     rgb = np.maximum(rgb.astype(np.float64), 0.0)
@@ -232,9 +235,11 @@ def _highlight_patch(rng: np.random.Generator, material: Any, e: np.ndarray, sen
 
 
 def _highlight_draws(n_patches: int, seed: int, fringe: bool,
-                     colour_error: tuple[float, float] | None) -> list[dict[str, Any]]:
-    """Every clicked patch's truth and answer, with (``fringe``) or without the predicted CFA fringe."""
+                     colour_error: tuple[float, float] | None, sensor: bool = True) -> list[dict[str, Any]]:
+    """Every clicked patch's truth and answer, with (``fringe``) or without the predicted CFA fringe, with
+    (``sensor``) or without the sensor's read noise and the chart transform the pixels went through."""
     from processing.camera.response import camera_sensitivities
+    from processing.camera.transfer import transformed_read_noise
     from processing.materials.confidence import Decision, is_right
     from processing.materials.identification import (
         DEFAULT_CANDIDATES,
@@ -261,7 +266,9 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
             continue                      # refused: too dark to have a colour (the panel says so)
         px, err, info = drawn
         try:
-            r = identify_material(px, cands, noise=_STATED_NOISE, colour_error=err if fringe else None)
+            r = identify_material(px, cands, noise=_STATED_NOISE, colour_error=err if fringe else None,
+                                  dark_noise=transformed_read_noise(transform, READ_NOISE) if sensor else None,
+                                  transform=transform if sensor else None)
         except SpectralEstimationError:
             continue                      # refused: every pixel's colour is mostly fringe (FringeOnlyError) or black
         decision = Decision(r.material, r.confidence, tuple(r.group), 0, np.zeros(0), float("nan"))
@@ -272,7 +279,8 @@ def _highlight_draws(n_patches: int, seed: int, fringe: bool,
 
 
 def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool = True,
-                          colour_error: tuple[float, float] | None = COLOUR_ERROR, bins: int = 10) -> dict[str, Any]:
+                          colour_error: tuple[float, float] | None = COLOUR_ERROR, bins: int = 10,
+                          sensor: bool = True) -> dict[str, Any]:
     """Clicked patches through a Bayer sensor and the ``bin2x2`` decode: stated confidence against accuracy.
 
     Each patch: a candidate drawn as in :func:`single_image_reliability` (material, camera, chart
@@ -285,7 +293,10 @@ def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool 
     transform.  Patches whose green averages below 2 % of full scale are refused, as the spectra
     panel refuses such a click, and so are patches whose every pixel is mostly fringe
     (:class:`processing.materials.identification.FringeOnlyError`).  ``fringe``: give the identification the predicted CFA fringe
-    (:func:`processing.camera.cfa_fringe.transformed_fringe`), as the spectra panel does.
+    (:func:`processing.camera.cfa_fringe.transformed_fringe`), as the spectra panel does.  ``sensor``:
+    give it the sensor's read noise (:data:`READ_NOISE` per photosite, binned and carried by the
+    patch's chart transform) and that transform (``dark_noise`` and ``transform`` of
+    :func:`processing.materials.identification.identify_material`), as the spectra panel does.
 
     Returns
     -------
@@ -296,7 +307,7 @@ def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool 
     from processing.materials.confidence import NO_FIT, reliability_table
 
     t0 = time.perf_counter()
-    rows = _highlight_draws(n_patches, seed, fringe, colour_error)
+    rows = _highlight_draws(n_patches, seed, fringe, colour_error, sensor)
     named = [r for r in rows if r["answer"] != NO_FIT]
     rel = reliability_table([r["confidence"] for r in named], [r["right"] for r in named], bins=bins)
     met = bool(rel.high_count > 0 and rel.high_accuracy >= TARGETS["high_accuracy"] and rel.ece <= TARGETS["ece"])
@@ -319,7 +330,7 @@ def highlight_reliability(n_patches: int = 3000, seed: int = 0, *, fringe: bool 
                   "stated": [None if math.isnan(v) else float(v) for v in rel.stated],
                   "observed": [None if math.isnan(v) else float(v) for v in rel.observed]},
         "ece": rel.ece, "high_accuracy": rel.high_accuracy, "high_count": rel.high_count,
-        "high_wrong": wrong, "by_shape": by_shape, "fringe": fringe,
+        "high_wrong": wrong, "by_shape": by_shape, "fringe": fringe, "sensor": sensor,
         "targets": dict(TARGETS), "met": met and not wrong, "seed": seed, "seconds": time.perf_counter() - t0,
     }
 

@@ -45,6 +45,13 @@ brightness change: :func:`processing.camera.cfa_fringe.transformed_fringe`,
 stored on the scene as ``fringe``), so a grey highlight a few pixels wide is
 not named gold with confidence; a mixed group below :data:`CANNOT_TELL` reads
 "cannot tell" with the short list (:func:`answer_text`, :func:`answer_title`).
+They also carry the sensor's read noise through the chart transform
+(:func:`processing.camera.transfer.transformed_read_noise`, stored as
+``dark_noise``): pixels at the noise floor, such as the dark flank of a
+highlight, hold clipped noise that the transform turns red, not a colour;
+and the transform itself (``transform``), so that the relative noise and model
+error are taken in the sensor's channels, where they arise, and carried
+through it.
 
 Both identifications allow the candidates the same model error as the batch
 ``materials`` step (:data:`app.batch.materials.MODEL_ERROR`, 1.75 %): the
@@ -200,6 +207,8 @@ class SpectralScene:
     clipped: np.ndarray | None = None   # (H, W) bool: a photosite of the pixel saturated or dead (not estimated)
     backdrop: np.ndarray | None = None  # (H, W) bool: the backdrop (backdrop_mask)
     fringe: np.ndarray | None = None    # (H, W, c) relative colour error of the binned CFA, model camera
+    dark_noise: np.ndarray | None = None  # (c, c) one pixel's read noise in the model camera (transformed_read_noise)
+    transform: np.ndarray | None = None   # (c, c) the chart transform from the object camera to the model camera
 
     @property
     def fit(self) -> Any:
@@ -219,6 +228,7 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
     from app.workflows.spectral import estimate_from_chart, estimator_setup
     from processing.camera.cfa_fringe import transformed_fringe
     from processing.camera.raw_decode import decode_raw, preview_srgb8
+    from processing.camera.transfer import transformed_read_noise
     from processing.materials.identification import candidate_set
 
     if chart != "classic24":
@@ -234,7 +244,9 @@ def analyse_spectra(frame: str | Path, chart_frame: str | Path, *, light: str = 
                          candidate_set(setup.sensitivities, setup.lights[0], setup.grid,
                                        light_deg=LIGHT_DEG, **({} if materials is None else {"names": materials})),
                          est.chart_rmse, int(est.usable.sum()), light, ~est.mask, backdrop_mask(rgb),
-                         transformed_fringe(rgb, obj.cfa_pattern, est.transform.matrix))
+                         transformed_fringe(rgb, obj.cfa_pattern, est.transform.matrix),
+                         transformed_read_noise(est.transform.matrix, mode="bin2x2"),
+                         np.asarray(est.transform.matrix, dtype=np.float64))
 
 
 def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[str, Any]:
@@ -262,7 +274,8 @@ def spectrum_at(scene: SpectralScene, x: int, y: int, radius: int = 2) -> dict[s
     reg = region_spectra(weights, np.ones(weights.shape[:2], np.int64), scene.fit.basis, scene.method_error)
     camera = scene.estimate.camera[y0:y1, x0:x1][keep].astype(np.float64)
     fringe = None if scene.fringe is None else scene.fringe[y0:y1, x0:x1][keep]
-    ident = identify_material(camera, scene.candidates, model_error=MODEL_ERROR, colour_error=fringe)
+    ident = identify_material(camera, scene.candidates, model_error=MODEL_ERROR, colour_error=fringe,
+                              dark_noise=scene.dark_noise, transform=scene.transform)
     wl = scene.fit.wavelengths
     name = ident.material if ident.material in scene.candidates.names else ident.group[0]
     t = math.radians(LIGHT_DEG)
@@ -332,7 +345,8 @@ def material_map(scene: SpectralScene, block: int = 6, min_signal: float = MIN_S
         raise ValueError("no block of the frame is at least half lit, unclipped and unlike the backdrop: nothing "
                          "to identify (a smaller block may do)")
     model = scene.estimate.camera.astype(np.float64)
-    found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR, colour_error=scene.fringe)
+    found = identify_regions(model, labels, scene.candidates, model_error=MODEL_ERROR, colour_error=scene.fringe,
+                             dark_noise=scene.dark_noise, transform=scene.transform)
     named = {int(lab): UNCERTAIN for lab in np.unique(labels[labels > 0])}    # a block of fringe only: uncertain
     named.update({lab: (r.material if r.confidence >= min_confidence else UNCERTAIN) for lab, r in found.items()})
     names = sorted(set(named.values()) - {UNCERTAIN}) + ([UNCERTAIN] if UNCERTAIN in named.values() else [])

@@ -36,6 +36,12 @@ which the chart transform fixes): a glossy metal under one light is black away
 from its highlights, and such pixels carry read noise, not colour (noise
 clipped at 0 would pull a region's colour toward the camera's black).  A
 region with no such pixel is reported with ``material`` None and the reason.
+The pixels kept still carry the sensor's read noise, equal in the RAW channels
+and turned by the chart transform into the colour of a RAW grey (a strong red
+for most cameras); the identification is told it (:func:`result_dark_noise`),
+so a dim region is not named with a confidence its noise cannot support, and
+the transform itself, so that the relative noise and model error are taken in
+the sensor's channels and carried through it.
 """
 
 from __future__ import annotations
@@ -52,7 +58,7 @@ from app.errors import UsageError
 from app.workflows.spectral import SpectralResult
 
 __all__ = ["ALLOY_METALS", "MIN_LEVEL", "RegionReport", "read_labels", "binned_labels", "identify_result",
-           "result_fringe",
+           "result_fringe", "result_dark_noise",
            "usable_regions", "white_response", "pixel_level"]
 
 #: Metals of the alloy model (Matsuda et al., eq. (3)-(4); Table 1's shibuichi and shakudo are Ag-Cu-Au).
@@ -230,6 +236,22 @@ def result_fringe(result: SpectralResult) -> NDArray[np.float64] | None:
     return transformed_fringe(np.maximum(raw, 0.0), str(meta["cfa_pattern"]), matrix)
 
 
+def result_dark_noise(result: SpectralResult) -> NDArray[np.float64] | None:
+    """``(3, 3)`` covariance of one pixel's read noise in the model camera's units, or None.
+
+    :func:`processing.camera.transfer.transformed_read_noise` (the assumed
+    :data:`processing.camera.transfer.READ_NOISE` of a photosite) through the chart transform the result
+    records (``metadata``: ``chart_transform``, ``mode``); None for a result without a 3 x 3 transform.
+    """
+    from processing.camera.transfer import transformed_read_noise
+
+    meta = result.metadata
+    matrix = np.asarray(meta.get("chart_transform", []), dtype=np.float64)
+    if matrix.shape != (3, 3) or result.camera.shape[2] != 3 or not np.all(np.isfinite(matrix)):
+        return None
+    return transformed_read_noise(matrix, mode=str(meta.get("mode", "bin2x2")))
+
+
 def identify_result(
     result: SpectralResult,
     labels: NDArray[np.integer] | None = None,
@@ -275,6 +297,10 @@ def identify_result(
     flat_cam = result.camera.reshape(-1, result.camera.shape[2])
     predicted = result_fringe(result) if fringe else None
     flat_err = None if predicted is None else predicted.reshape(-1, predicted.shape[2])
+    dark = result_dark_noise(result)
+    matrix = None if dark is None else np.asarray(result.metadata["chart_transform"], dtype=np.float64)
+    if matrix is not None and abs(float(np.linalg.det(matrix))) < 1e-12:
+        matrix = None
     flat_lab = live.ravel()
     reports = []
     for r in ids:
@@ -285,7 +311,8 @@ def identify_result(
             continue
         try:
             found = identify_material(px, cands, noise=noise, model_error=model_error,
-                                      colour_error=None if flat_err is None else flat_err[flat_lab == r])
+                                      colour_error=None if flat_err is None else flat_err[flat_lab == r],
+                                      dark_noise=dark, transform=matrix)
         except SpectralEstimationError as exc:
             reports.append(RegionReport(r, px.shape[0], None, None, None, None, (), None, None, None, None, str(exc)))
             continue

@@ -23,10 +23,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.spectral.checks import SpectralEstimationError, checked_channels
 
-__all__ = ["ChartConditionError", "ChartTransform", "fit_chart_transform", "condition_number"]
+__all__ = ["ChartConditionError", "ChartTransform", "fit_chart_transform", "condition_number", "READ_NOISE",
+           "transformed_read_noise"]
 
 #: Largest accepted sigma_1 / sigma_3 of the chart's camera values.
 MAX_CONDITION = 100.0
+#: Read noise of one photosite after black subtraction, as a fraction of full scale, assumed when the RAW does
+#: not state it: about 5 DN of a 14-bit sensor (cameras at base ISO read 1.5-5 DN; the simulated sensor 2 DN of
+#: its 15 783), taken at the upper end because it is a floor under the colour of dark pixels.
+READ_NOISE = 3e-4
 
 
 class ChartConditionError(SpectralEstimationError):
@@ -179,3 +184,47 @@ def fit_chart_transform(
     scale = np.maximum(np.abs(mod), 1e-12)
     residual = float(np.sqrt(np.mean(((obj @ matrix - mod) / scale) ** 2)))
     return ChartTransform(matrix, worst, residual)
+
+
+def transformed_read_noise(matrix: ArrayLike, read_noise: float = READ_NOISE, mode: str = "bin2x2") -> NDArray[np.float64]:
+    """``(3, 3)`` covariance of one pixel's read noise in the model camera's units.
+
+    A photosite's read noise ``s`` (fraction of full scale) becomes, per decoded channel, ``s``
+    for red and blue and ``s / sqrt(2)`` for the mean of the two greens of a ``bin2x2`` pixel (``s``
+    in every channel otherwise, a demosaicked pixel being at least one photosite's noise); the row-form
+    chart transform ``M`` carries the diagonal covariance ``D`` to ``M.T @ D @ M``.  It is the
+    ``dark_noise`` of :func:`processing.materials.identification.identify_material`: the noise floor
+    whose clipped values read as the colour the transform gives a RAW grey.
+
+    Parameters
+    ----------
+    matrix
+        ``(3, 3)`` row-form chart transform (:attr:`ChartTransform.matrix`).
+    read_noise
+        One photosite's read noise, fraction of full scale (>= 0).
+    mode
+        The decode: ``"bin2x2"`` or a demosaicking mode.
+
+    Returns
+    -------
+    ndarray
+        ``(3, 3)`` covariance.
+
+    Raises
+    ------
+    SpectralEstimationError
+        A matrix that is not 3 x 3 and finite, or a negative or non-finite ``read_noise``.
+
+    Examples
+    --------
+    >>> c = transformed_read_noise(np.diag([2.0, 1.0, 1.5]), 1e-3)
+    >>> np.round(np.sqrt(np.diag(c)) * 1e3, 3).tolist()
+    [2.0, 0.707, 1.5]
+    """
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)):
+        raise SpectralEstimationError(f"chart transform must be a finite 3 x 3 matrix, got shape {m.shape}")
+    if not (isinstance(read_noise, (int, float, np.floating)) and np.isfinite(read_noise) and read_noise >= 0):
+        raise SpectralEstimationError(f"read_noise must be a fraction of full scale >= 0, got {read_noise!r}")
+    per = float(read_noise) * (np.array([1.0, np.sqrt(0.5), 1.0]) if mode == "bin2x2" else np.ones(3))
+    return m.T @ np.diag(per**2) @ m

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import nnls
+from scipy.special import erfc
 
 from processing.camera.response import channel_matrix
 from processing.materials.confidence import NEUTRAL_METAL, NO_FIT, SINGLE_IMAGE_ERROR_DOF, decide
@@ -234,25 +235,67 @@ MAX_COLOUR_ERROR = 0.5
 FRINGE_SLACK = 0.5
 
 
+def _dark_covariance(px: NDArray[np.float64], dark: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(c, c)`` covariance of a region mean's error from the sensor's absolute noise and its clipping at 0.
+
+    The absolute noise ``dark`` of one pixel averages down over the ``n`` pixels; the bias of values
+    clipped at zero does not: every dark pixel is off the same way.  A value ``mu`` with Gaussian noise
+    ``s`` clipped at 0 reads on average ``mu + s (phi(t) - t Phi(-t))``, ``t = mu / s`` (0.40 s at the
+    floor, 0.08 s one noise level above it, 0.01 s at two).  Each pixel's bias is taken at its darkest
+    channel (``t`` its value over that channel's noise) and the region's mean of it scales ``dark``.
+    """
+    n = px.shape[0]
+    sd = np.sqrt(np.maximum(np.diag(dark), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(sd > 0, px / np.where(sd > 0, sd, 1.0), np.inf)
+    t = np.clip(np.min(t, axis=1), 0.0, 40.0)
+    bias = float((np.exp(-0.5 * t**2) / math.sqrt(2.0 * math.pi) - 0.5 * t * erfc(t / math.sqrt(2.0))).mean())
+    return dark / n + bias**2 * dark
+
+
+def _relative_covariance(mean: NDArray[np.float64], level: float,
+                         transform: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """``(c, c)`` covariance of an error of relative size ``level`` in every channel of the object camera.
+
+    Without ``transform`` the pixels are the object camera's own values: ``diag((level * mean)^2)``.  With a
+    row-form chart transform ``M`` the error arises before it, in the channels ``r = mean M^-1`` the sensor
+    recorded, and reaches the model camera as ``M.T diag((level r)^2) M``: where ``M`` takes a difference of
+    large channels (a model blue of ``1.6 B - 1.5 G``), a per cent of error in each is many per cent of
+    the difference.
+    """
+    if transform is None:
+        return np.diag((level * mean) ** 2)
+    raw = np.abs(mean @ np.linalg.inv(transform))
+    return transform.T @ np.diag((level * raw) ** 2) @ transform
+
+
 def _region_covariance(px: NDArray[np.float64], noise: float, model_error: float,
-                       colour_error: NDArray[np.float64] | None) -> NDArray[np.float64]:
+                       colour_error: NDArray[np.float64] | None,
+                       dark: NDArray[np.float64] | None = None,
+                       transform: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """``(c, c)`` covariance of a region's mean colour: noise, pixel scatter, model and decode error."""
     n, c = px.shape
     mean = px.mean(axis=0)
     bright = np.maximum(px.sum(axis=1), 0.0)
     total = float(bright.sum())
     n_eff = total**2 / float((bright**2).sum()) if total > 0 else float(n)
-    var = (noise**2 / max(n_eff, 1.0) + model_error**2) * mean**2
+    cov = _relative_covariance(mean, noise / math.sqrt(max(n_eff, 1.0)), transform)
     if n > 1:                                 # colour scatter among the pixels (brightness taken out)
         a = px @ mean / max(float(mean @ mean), 1e-300)
         d = px - a[:, None] * mean[None, :]
-        var = np.maximum(var, (d**2).sum(axis=0) / (n * (n - 1)) + model_error**2 * mean**2)
-    cov = np.diag(var)
+        scatter = (d**2).sum(axis=0) / (n * (n - 1))
+        stated = np.diag(cov)
+        grow = np.where(stated > 0, np.sqrt(np.maximum(scatter, stated) / np.where(stated > 0, stated, 1.0)), 0.0)
+        cov = cov * np.outer(grow, grow) + np.diag(np.where(stated > 0, 0.0, scatter))
+        # the larger of the stated noise and the scatter, per channel
+    cov = cov + _relative_covariance(mean, model_error, transform)
     if colour_error is not None:
         w = bright / total if total > 0 else np.full(n, 1.0 / n)
         f = (w @ colour_error) * mean         # the region's predicted colour offset (signed)
         spread = (w @ np.abs(colour_error)) * mean
         cov = cov + np.outer(f, f) + np.diag((FRINGE_SLACK * spread) ** 2)
+    if dark is not None:
+        cov = cov + _dark_covariance(px, dark)
     floor = (1e-6 * float(mean.max())) ** 2   # a channel at exactly 0 keeps a finite weight
     return cov + np.eye(c) * max(floor, 1e-300)
 
@@ -271,9 +314,34 @@ def _check_noise(noise: float, model_error: float) -> None:
         raise SpectralEstimationError("noise and model_error are both 0: the likelihood is undefined; give the noise level")
 
 
+def _dark_matrix(dark_noise: ArrayLike | None, c: int) -> NDArray[np.float64] | None:
+    """``dark_noise`` as a ``(c, c)`` covariance (None stays None)."""
+    if dark_noise is None:
+        return None
+    d = np.asarray(dark_noise, dtype=np.float64)
+    if d.shape == (c,) and np.all(np.isfinite(d)) and np.all(d >= 0):
+        return np.diag(d**2)
+    if d.shape == (c, c) and np.all(np.isfinite(d)) and np.allclose(d, d.T) and np.all(np.diag(d) >= 0):
+        return 0.5 * (d + d.T)
+    raise SpectralEstimationError(f"dark_noise must be {c} standard deviations >= 0 or a symmetric {c} x {c} "
+                                  f"covariance in the pixels' units, got shape {d.shape}")
+
+
+def _transform_matrix(transform: ArrayLike | None, c: int) -> NDArray[np.float64] | None:
+    """``transform`` as an invertible ``(c, c)`` matrix (None stays None)."""
+    if transform is None:
+        return None
+    m = np.asarray(transform, dtype=np.float64)
+    if m.shape != (c, c) or not np.all(np.isfinite(m)) or abs(float(np.linalg.det(m))) < 1e-12:
+        raise SpectralEstimationError(f"transform must be the invertible {c} x {c} chart transform that brought the "
+                                      f"pixels to the model camera, got shape {m.shape}")
+    return m
+
+
 def identify_material(
     pixels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01, model_error: float = DEFAULT_MODEL_ERROR,
     colour_error: ArrayLike | None = None, error_dof: float | None = SINGLE_IMAGE_ERROR_DOF,
+    dark_noise: ArrayLike | None = None, transform: ArrayLike | None = None,
 ) -> Identification:
     """Identify the material of one region from its pixels' camera values ``(n, c)`` (or one ``(c,)``).
 
@@ -292,7 +360,13 @@ def identify_material(
       over the pixels, as a full-strength error along its predicted direction plus
       :data:`FRINGE_SLACK` of its size independent per channel.  It is not divided by the pixel
       count: every pixel of one highlight's flank is off the same way.  Pixels predicted off by
-      more than :data:`MAX_COLOUR_ERROR` are left out.
+      more than :data:`MAX_COLOUR_ERROR` are left out;
+    * with ``dark_noise``: the sensor's absolute noise (read noise after black subtraction), which
+      the relative ``noise`` misses where the signal is low, divided by the pixel count, plus the
+      bias of values clipped at 0, which is not (:func:`_dark_covariance`).  Pixels at the noise
+      floor have no colour of their own: their clipped noise, equal in the RAW channels, reads
+      after the chart transform as the colour the transform gives a RAW grey (for a camera whose
+      red and blue are weaker than its green, a strong red), which a red lacquer fits well.
 
     Parameters
     ----------
@@ -314,6 +388,15 @@ def identify_material(
         How well the error's own size is known (:func:`processing.materials.confidence.decide`,
         Student-t likelihood); default :data:`processing.materials.confidence.SINGLE_IMAGE_ERROR_DOF`;
         None: the Gaussian likelihood.
+    dark_noise
+        Absolute noise of one pixel in the units of ``pixels``: ``(c,)`` standard deviations or a
+        ``(c, c)`` covariance (a RAW's read noise ``s`` per channel carried by a row-form chart
+        transform ``M`` is ``M.T @ diag(s**2) @ M``); None: none.
+    transform
+        ``(c, c)`` row-form chart transform that brought the pixels from the object camera to the model
+        camera (:attr:`processing.camera.transfer.ChartTransform.matrix`); given, the relative noise
+        and model error are taken in the object camera's channels and carried through it
+        (:func:`_relative_covariance`); None: the pixels' own channels.
 
     Returns
     -------
@@ -356,6 +439,18 @@ def identify_material(
     >>> told = identify_material(seen, cands, colour_error=fringe)
     >>> blind.material != "nami-shibuichi", told.confidence < 0.9
     (True, True)
+
+    Pixels at the noise floor: read noise clipped at 0, equal in the RAW channels, through a chart
+    transform that lifts red above green and blue.  Taken at its face value it reads as the red
+    lacquer; told the read noise, nothing is certain.
+
+    >>> m = np.array([[2.4, -0.3, -0.2], [-0.6, 1.2, -0.3], [-0.2, -0.4, 1.9]])
+    >>> raw = np.maximum(np.random.default_rng(1).normal(0.0, 5e-4, (100, 3)), 0.0)
+    >>> dark = np.maximum(raw @ m, 0.0)
+    >>> blind = identify_material(dark, cands)
+    >>> told = identify_material(dark, cands, dark_noise=m.T @ np.diag(np.full(3, 5e-4**2)) @ m)
+    >>> blind.material, blind.confidence > 0.9, told.confidence < 0.9
+    ('urushi-red', True, True)
     """
     _check_noise(noise, model_error)
     px = np.asarray(checked_channels("region pixels", pixels, candidates.channels), dtype=np.float64)
@@ -380,7 +475,8 @@ def identify_material(
         mean = px.mean(axis=0)
         if not np.any(mean > 0):
             raise SpectralEstimationError("the region is black in every channel; nothing to identify")
-    cov = _region_covariance(px, noise, model_error, fringe)
+    cov = _region_covariance(px, noise, model_error, fringe, _dark_matrix(dark_noise, candidates.channels),
+                             _transform_matrix(transform, candidates.channels))
     p = np.linalg.inv(cov)
     m = candidates.responses
     pm = m @ p                                               # (k, c)
@@ -402,6 +498,7 @@ def identify_material(
 def identify_regions(
     rgb: ArrayLike, labels: ArrayLike, candidates: CandidateSet, *, noise: float = 0.01,
     model_error: float = DEFAULT_MODEL_ERROR, colour_error: ArrayLike | None = None,
+    dark_noise: ArrayLike | None = None, transform: ArrayLike | None = None,
 ) -> dict[int, Identification]:
     """Identify every labelled region (label > 0) of an image.
 
@@ -417,6 +514,10 @@ def identify_regions(
         As for :func:`identify_material`.
     colour_error
         ``(H, W, c)`` per-pixel relative colour error (as for :func:`identify_material`); None: none.
+    dark_noise
+        The sensor's absolute noise of one pixel (as for :func:`identify_material`); None: none.
+    transform
+        The chart transform the pixels went through (as for :func:`identify_material`); None: none.
 
     Returns
     -------
@@ -463,7 +564,8 @@ def identify_regions(
         part = order[bounds[i]:bounds[i + 1]]
         try:
             found[int(r)] = identify_material(flat[part], candidates, noise=noise, model_error=model_error,
-                                              colour_error=None if err is None else err[part])
+                                              colour_error=None if err is None else err[part],
+                                              dark_noise=dark_noise, transform=transform)
         except FringeOnlyError:
             continue                      # no pixel with a colour of its own: the caller reports it unjudged
     return found
