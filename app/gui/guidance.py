@@ -267,10 +267,8 @@ def calibration_hint(done: dict[str, Any]) -> str | None:
     if not done.get("calibrated") or (done.get("camera") and done.get("lamps")):
         return None
     if not done.get("camera"):
-        return ("to pose the photos on the mesh (materials on the mesh), put the ChArUco board on the table and "
-                "capture it (plan camera-calibration) in a new session")
-    return ("to pose the photos on the mesh (materials on the mesh), put the chrome sphere on the table and capture "
-            "it (plan lamp-calibration) in a new session")
+        return "for materials on the mesh, capture the ChArUco board in a new session (plan camera-calibration)"
+    return "for materials on the mesh, capture the chrome sphere in a new session (plan lamp-calibration)"
 
 
 def describe(done: dict[str, Any]) -> str:

@@ -522,7 +522,7 @@ class MainWindow(QMainWindow):
             # a board or chrome-sphere session is open: its calibration is the step at hand
             self.steps.set_current("Calibrate", f"Next: {extra}")
         elif extra and step == "Session":
-            self.steps.set_current(step, f"Next: {step_hint(step)}; {extra}")
+            self.steps.set_current(step, f"Next: {extra}, or name the piece and press 'New session'")
         else:
             self.steps.set_current(step, f"Next: {step_hint(step)}")
 
