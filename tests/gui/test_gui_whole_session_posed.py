@@ -8,9 +8,11 @@ says what comes next at each calibration.
 Ground truth: the simulated worlds (:mod:`mocks.board_world`, :mod:`mocks.mirror_world`, :mod:`mocks.world`):
 
 * the camera: its focal length and pose against the simulated camera's.  Tolerances: focal within 0.5 %, pose
-  within 0.1 deg and 0.5 mm.  The pose's gauge is fixed by the reference sphere's photos at the station's
-  240 x 160 frames (one pixel is about 0.5 mm at the object), four times coarser than the demo's, whose
-  tolerances (0.2 %, 0.05 deg, 0.2 mm; tests/app/test_demo.py) are halved to quartered accordingly;
+  within 0.1 deg and 2 mm.  The board's frames are the demo's (960 x 640), but the pose's gauge is fixed by
+  three photos of the reference sphere at the station's 240 x 160 frames, four times coarser than the demo's
+  (tolerances 0.2 %, 0.05 deg, 0.2 mm; tests/app/test_demo.py): the sphere's centre along the line of sight
+  comes from its outline's size, about 52 px across, so a quarter-pixel error in that size moves it
+  260 mm * 0.25 / 52 = 1.25 mm; 2 mm allows that with a margin (measured: 1.19 mm);
 * the lamp: its direction against the simulated distant lamp's, within 0.5 deg (the demo: 0.2 deg, from twice
   as many chrome-sphere photos);
 * the materials: the largest region measured on the mesh is the hawk's head (most of the simulated hawk's
@@ -118,7 +120,7 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     rot_deg, shift_mm = pose_difference(np.linalg.inv(calib.room_to_camera), np.linalg.inv(board_world.room_to_camera()))
     print(f"camera vs truth: focal {focal_pct:+.3f} %, pose {rot_deg:.4f} deg / {shift_mm:.3f} mm, "
           f"rms {calib.rms_px:.3f} px")
-    assert abs(focal_pct) <= 0.5 and rot_deg <= 0.1 and shift_mm <= 0.5
+    assert abs(focal_pct) <= 0.5 and rot_deg <= 0.1 and shift_mm <= 2.0
     assert "chrome sphere" in w.steps.hint.text()
 
     # the lamps: the chrome sphere at 6 table angles
