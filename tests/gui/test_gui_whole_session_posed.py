@@ -18,8 +18,9 @@ Ground truth: the simulated worlds (:mod:`mocks.board_world`, :mod:`mocks.mirror
 * the materials: the largest region measured on the mesh is the hawk's head (most of the simulated hawk's
   surface), read as nami-shibuichi (or a group naming it), as tests/app/test_object_materials.py reads it.
 
-The plans are kept small (few steps, 6 photos of each calibration target per placement, 2 passes of the
-hawk) so the test stays a couple of minutes on a quiet machine.
+The plans are kept small (6 photos of each calibration target per placement, 2 passes of 48 steps of the
+hawk); the board and the chrome sphere are rendered at 960 x 640, which makes this the GUI's longest test
+(marked slow).  Each phase's seconds are printed (``-s``).
 """
 
 from __future__ import annotations
@@ -38,8 +39,23 @@ from app.gui.devices_panel import SIMULATED_OBJECTS
 from app.session import Session
 from tests.gui.helpers import make_window, wait_capture
 
+pytestmark = pytest.mark.slow
+
 LEFT = Qt.MouseButton.LeftButton
 HAWK, SPHERE, BOARD, CHROME = SIMULATED_OBJECTS
+
+
+class _Phases:
+    """Seconds per phase of the session, printed at the end."""
+
+    def __init__(self) -> None:
+        self.t = time.perf_counter()
+        self.rows: list[str] = []
+
+    def __call__(self, name: str) -> None:
+        now = time.perf_counter()
+        self.rows.append(f"{name} {now - self.t:.1f} s")
+        self.t = now
 
 
 def _click(qtbot, button) -> None:
@@ -82,6 +98,7 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     from processing.geometry.registration import pose_difference
 
     t0 = time.perf_counter()
+    phase = _Phases()
     w = make_window(qtbot, tmp_path)
     _click(qtbot, w.devices.start_sim_button)
     qtbot.waitUntil(lambda: w.station is not None, timeout=120_000)
@@ -101,12 +118,14 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     qtbot.waitUntil(lambda: p.calibration.text() == str(tmp_path / "sphere"), timeout=120_000)
     assert p.calibration_verdict.level == "pass", p.cal_state.text()
     assert "ChArUco board" in w.steps.hint.text()                # the strip says the camera comes next
+    phase("connect + sphere scan + scanner calibration")
 
     # the camera: the board, flat then on two wedges, 6 photos per placement
     _put(qtbot, w, BOARD)
     board_world = w.station.world
     assert (board_world.width, board_world.height) == (960, 640)     # the sensor's full resolution
     _capture(qtbot, w, tmp_path / "board", "camera-calibration", steps=6, passes=3)
+    phase("board capture")
     assert w.steps.current == "Calibrate" and "Calibrate the camera" in w.steps.hint.text()
     w.tabs.setCurrentWidget(p)
     _click(qtbot, p.camera_button)
@@ -122,12 +141,14 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
           f"rms {calib.rms_px:.3f} px")
     assert abs(focal_pct) <= 0.5 and rot_deg <= 0.1 and shift_mm <= 2.0
     assert "chrome sphere" in w.steps.hint.text()
+    phase("camera calibration")
 
     # the lamps: the chrome sphere at 6 table angles
     _put(qtbot, w, CHROME)
     mirror_world = w.station.world
     assert w.capture.mirror_radius.value() == mirror_world.sphere_radius_mm
     _capture(qtbot, w, tmp_path / "lamp", "lamp-calibration", steps=6, passes=1)
+    phase("chrome sphere capture")
     assert w.steps.current == "Calibrate" and "Calibrate the lamps" in w.steps.hint.text()
     w.tabs.setCurrentWidget(p)
     _click(qtbot, p.lamp_button)
@@ -142,6 +163,7 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     print(f"lamp vs truth: direction {lamp_deg:.4f} deg")
     assert lamp_deg <= 0.5
     assert w.steps.current == "Session"                        # every calibration done: the piece's session next
+    phase("lamp calibration")
 
     # the piece: 2 passes with photos every 45 degrees, the chart first in each
     _put(qtbot, w, HAWK)
@@ -149,6 +171,7 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     assert (hawk_world.width, hawk_world.height) == (240, 160)       # back to the station's binned frames
     _capture(qtbot, w, tmp_path / "hawk", "scan", steps=48, passes=2, angles="0,45,90,135,180,225,270,315",
              chart=True)
+    phase("hawk capture")
 
     # processed with the camera and lamps named: the photos are posed on the mesh
     w.tabs.setCurrentWidget(p)
@@ -157,6 +180,7 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     qtbot.waitUntil(lambda: not p.running, timeout=900_000)
     assert p.report is not None and p.report.get("projection") is not None, w.error_line.text()
     qtbot.waitUntil(lambda: p.materials_button.isEnabled(), timeout=30_000)
+    phase("processing with posed photos")
 
     # materials on the mesh (no held-out validation: tests/app/test_object_materials.py checks it)
     p.materials_validate.setChecked(False)
@@ -171,6 +195,7 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     big = max(doc["regions"], key=lambda r: r["area_mm2"])
     print(f"largest region: {big['material']} {big['group']}, {big['area_mm2']:.0f} of {doc['area_mm2']:.0f} mm2")
     assert big["material"] == "nami-shibuichi" or "nami-shibuichi" in big["group"], big
+    phase("materials on the mesh")
 
     # the Preview shows the measured materials
     qtbot.waitUntil(lambda: w.preview.object_mesh is not None, timeout=20_000)
@@ -179,4 +204,5 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     qtbot.waitUntil(lambda: w.preview.last is not None and not w.preview._busy, timeout=300_000)
     assert w.preview.last["mask"].mean() > 0.02
     assert w.message_kind != "error", w.error_line.text()
-    print(f"whole posed session: {time.perf_counter() - t0:.1f} s")
+    phase("preview")
+    print(f"whole posed session: {time.perf_counter() - t0:.1f} s ({'; '.join(phase.rows)})")
