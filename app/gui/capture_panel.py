@@ -66,7 +66,11 @@ from app.gui.station_link import StationLink
 from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import Job, JobContext
 
-__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles", "describe_action", "completion_text"]
+__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles", "describe_action", "completion_text",
+           "MIRROR_KINDS"]
+
+#: Plans of a mirror (chrome) sphere: their plan records the sphere's radius.
+MIRROR_KINDS = ("lamp-calibration", "probe")
 
 
 def describe_action(action: str) -> str:
@@ -282,11 +286,20 @@ class CapturePanel(Panel):
                                       "sphere-calibration leave it empty unless the camera will be calibrated too "
                                       "(the sphere's photos tie the camera to the scanner)")
         self.chart.setChecked(True)
+        self.mirror_radius = QDoubleSpinBox()
+        self.mirror_radius.setRange(1.0, 500.0)
+        self.mirror_radius.setDecimals(2)
+        self.mirror_radius.setSuffix(" mm")
+        self.mirror_radius.setValue(20.0)
+        self.mirror_radius.setEnabled(False)
+        self.mirror_radius.setToolTip("lamp-calibration and probe: the mirror (chrome) sphere's radius, from its "
+                                      "certificate; recorded with the plan, the lamp calibration reads it")
         self.kind.currentTextChanged.connect(self._kind_defaults)
         f.addRow("Kind", self.kind)
         f.addRow("Steps per turn", self.steps)
         f.addRow("Passes", self.passes)
         f.addRow("Camera angles (°)", self.camera_angles)
+        f.addRow("Mirror sphere radius", self.mirror_radius)
         f.addRow(self.chart)
         left.addWidget(plan)
 
@@ -383,9 +396,10 @@ class CapturePanel(Panel):
 
         camera = self.link.camera.get("kind", "none") != "none"
         kind = self.kind.currentText()
+        radius = float(self.mirror_radius.value()) if kind in MIRROR_KINDS else None
         return CapturePlan(kind, steps=int(self.steps.value()), passes=int(self.passes.value()),
                            camera_angles_deg=parse_angles(self.camera_angles.text()),
-                           chart=self.chart.isChecked(), camera=camera)
+                           chart=self.chart.isChecked(), camera=camera, sphere_radius_mm=radius)
 
     def _kind_defaults(self, kind: str) -> None:
         """Show a plan kind's defaults (steps, passes, chart) when the technician picks it."""
@@ -397,6 +411,7 @@ class CapturePanel(Panel):
         self.chart.setChecked(bool(plan.chart))
         self.chart.setEnabled(kind != "sphere-calibration")       # the scanner calibration reads no chart
         self.camera_angles.setEnabled(kind in PROFILE_KINDS)
+        self.mirror_radius.setEnabled(kind in MIRROR_KINDS)
         if kind in PROFILE_KINDS:
             self.camera_angles.setText(",".join(f"{a:g}" for a in plan.camera_angles_deg))
 
@@ -407,6 +422,9 @@ class CapturePanel(Panel):
         self.passes.setValue(int(plan.get("passes", 3)))
         self.camera_angles.setText(",".join(f"{a:g}" for a in plan.get("camera_angles_deg", ())))
         self.chart.setChecked(bool(plan.get("chart", True)))
+        radius = plan.get("sphere_radius_mm")
+        if isinstance(radius, (int, float)) and not isinstance(radius, bool):
+            self.mirror_radius.setValue(float(radius))
 
     def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
         from app.capture.runner import PROFILE_KINDS, open_for_resume

@@ -40,9 +40,14 @@ from app.gui.widgets import StatusLight, browse_row
 
 __all__ = ["DevicesPanel", "port_label", "SIMULATED_OBJECTS"]
 
-#: What the simulated station can have on its table: the piece, and the reference sphere for the calibration
-#: scan (its radius is the Processing tab's default sphere radius).
-SIMULATED_OBJECTS = ("hawk head", "calibration sphere (radius 25 mm, 60 mm off the axis)")
+#: What the simulated station can have on its table: the piece; the reference sphere for the scanner
+#: calibration (its radius is the Processing tab's default sphere radius); the ChArUco board for the camera
+#: calibration (the capture plan's default board, flat then on two wedges); the chrome (mirror) sphere for the
+#: lamp calibration (the Capture tab's default mirror-sphere radius).  The board and the chrome sphere are
+#: the worlds ``kogei demo`` and ``kogei mock --world board|mirror-sphere`` calibrate from.
+SIMULATED_OBJECTS = ("hawk head", "calibration sphere (radius 25 mm, 60 mm off the axis)",
+                     "ChArUco board (7 x 5 squares of 8 mm, flat then on two wedges)",
+                     "chrome sphere (radius 20 mm, 25 mm off the axis)")
 
 _TITLES = {"turntable": "Turntable (Horus)", "profiler": "Laser profiler"}
 
@@ -145,8 +150,9 @@ class DevicesPanel(QWidget):
         start.clicked.connect(self.simulated_requested.emit)
         self.sim_object = QComboBox()
         self.sim_object.addItems(SIMULATED_OBJECTS)
-        self.sim_object.setToolTip("the object on the simulated table: scan the sphere to calibrate the scanner "
-                                   "(Processing tab), then the piece")
+        self.sim_object.setToolTip("the object on the simulated table: scan the calibration sphere (scanner), "
+                                   "photograph the ChArUco board (camera) and the chrome sphere (lamps), calibrate "
+                                   "each on the Processing tab, then scan the piece")
         self.put_button = QPushButton("Put on the table")
         self.put_button.setToolTip("swap the object on the running simulated station (the instruments stay "
                                    "connected)")

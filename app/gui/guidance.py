@@ -12,6 +12,10 @@ Every quality figure the window shows gets a verdict -- ``pass``, ``warn`` or
   only the profiler's range noise (50 um for the simulated profiler, 20-100 um
   for line-profile sensors of this class); pass up to 0.1 mm, warn up to
   0.25 mm (the mesh carries that error), fail above.
+* **Camera calibration** (:func:`camera_verdict`): the reprojection rms of the
+  ChArUco board's corners.  Pass up to 0.5 px (corner detection's own error on
+  sharp frames), warn up to 1.0 px (the calibration's own limit: above it
+  ``kogei calibrate --camera`` refuses the result), fail above.
 * **Chart detection** (:func:`chart_verdict`): the share of the 24 patches
   whose colour blob sits where the detected chart puts it.  Pass from 0.9 (at
   most two patches off), warn from 0.6, fail below (the patches sampled may be
@@ -44,7 +48,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["STEPS", "Verdict", "chart_verdict", "current_step", "materials_verdict", "registration_verdict",
+__all__ = ["STEPS", "Verdict", "calibration_hint", "camera_verdict", "chart_verdict", "current_step", "materials_verdict", "registration_verdict",
            "sphere_verdict", "step_hint", "VERDICT_COLOURS", "describe"]
 
 #: The station's steps, in order.
@@ -55,8 +59,8 @@ VERDICT_COLOURS = {"pass": "#2e9e44", "warn": "#b07800", "fail": "#d0312d"}
 
 _HINTS = {
     "Devices": "connect the turntable and the profiler (Devices tab), or start a simulated station there",
-    "Calibrate": "scan the reference sphere (plan sphere-calibration), then 'Calibrate from the open session' "
-                 "(Processing tab)",
+    "Calibrate": "scan the reference sphere (plan sphere-calibration; with photos at a few camera angles when the "
+                 "camera will be calibrated too), then 'Calibrate from the open session' (Processing tab)",
     "Session": "name the object and press 'New session' (Session tab)",
     "Capture": "press Start on the Capture tab and follow the prompts to re-place the object between passes",
     "Process": "press 'Process the open session' (Processing tab): registration and the watertight mesh",
@@ -142,6 +146,21 @@ def sphere_verdict(rms_mm: float) -> Verdict:
                    why)
 
 
+def camera_verdict(rms_px: float) -> Verdict:
+    """The camera calibration's reprojection rms over the board's corners (see the module docstring).
+
+    >>> camera_verdict(0.12).level, camera_verdict(0.7).level, camera_verdict(1.5).level
+    ('pass', 'warn', 'fail')
+    """
+    level = _level(rms_px, 0.5, 1.0)
+    why = {"pass": "the board's corners land where the calibrated camera puts them, to a fraction of a pixel",
+           "warn": "the corners land up to a pixel off: photos posed on the mesh may be off by as much; check "
+                   "that the board is flat and sharp",
+           "fail": "the corners do not fit one camera: the board moved, is not flat or the frames are blurred; "
+                   "photograph it again"}[level]
+    return Verdict(level, f"reprojection rms {rms_px:.3f} px", "pass <= 0.5 px, warn <= 1.0 px, fail above", why)
+
+
 def chart_verdict(confidence: float, method: str = "mcc") -> Verdict:
     """The chart detection's confidence (see the module docstring); corners marked by hand pass."""
     if method == "manual":
@@ -213,6 +232,43 @@ def materials_verdict(doc: dict[str, Any]) -> Verdict:
                "material for the whole object")
         return Verdict("warn", figure, thresholds, why)
     return Verdict("pass", figure, thresholds, "every region has one material, told apart from the other candidates")
+
+
+def calibration_hint(done: dict[str, Any]) -> str | None:
+    """What to do next for the camera and lamp calibration, or None when nothing is pending.
+
+    ``done`` holds, besides :func:`current_step`'s keys: ``camera`` and ``lamps`` (a camera / lamp
+    calibration chosen for processing), ``target`` (the plan kind of the open session when it is a
+    ``camera-calibration`` or ``lamp-calibration`` one) and ``target_captured`` (its capture complete).
+    They are needed only to pose the photos on the mesh (*Measure materials on the mesh*).
+
+    Examples
+    --------
+    >>> calibration_hint({"calibrated": True, "target": "camera-calibration", "target_captured": True})
+    "press 'Calibrate the camera from the open session (board)' (Processing tab)"
+    >>> calibration_hint({"calibrated": True, "camera": True, "lamps": True}) is None
+    True
+    """
+    target, captured = done.get("target"), done.get("target_captured")
+    if target == "camera-calibration":
+        if not captured:
+            return "press Start on the Capture tab (plan camera-calibration): the board at every step, flat then on wedges"
+        if not done.get("calibrated"):
+            return "calibrate the scanner first (a sphere scan with photos): it ties the camera to the turntable"
+        if not done.get("camera"):
+            return "press 'Calibrate the camera from the open session (board)' (Processing tab)"
+    if target == "lamp-calibration":
+        if not captured:
+            return "press Start on the Capture tab (plan lamp-calibration): the chrome sphere at every step"
+        if not done.get("camera"):
+            return "calibrate the camera first (the ChArUco board), then the lamps"
+        if not done.get("lamps"):
+            return "press 'Calibrate the lamps from the open session (mirror sphere)' (Processing tab)"
+    if not done.get("calibrated") or (done.get("camera") and done.get("lamps")):
+        return None
+    if not done.get("camera"):
+        return "for materials on the mesh, capture the ChArUco board in a new session (plan camera-calibration)"
+    return "for materials on the mesh, capture the chrome sphere in a new session (plan lamp-calibration)"
 
 
 def describe(done: dict[str, Any]) -> str:

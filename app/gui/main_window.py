@@ -52,7 +52,8 @@ from app.gui.warm_up import freeze_heap, warm_up
 from app.gui.widgets import Banner, Panel, StepStrip
 from app.gui.workers import Lane
 
-__all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "MAX_RECENT", "simulated_world"]
+__all__ = ["MainWindow", "SETTINGS_ORG", "SETTINGS_APP", "MAX_RECENT", "simulated_world", "station_frame_size",
+           "TARGET_BINNING"]
 
 SETTINGS_ORG = "kogei"
 SETTINGS_APP = "capture-station"
@@ -60,8 +61,20 @@ SETTINGS_APP = "capture-station"
 MAX_RECENT = 8
 
 
+#: The simulated camera's photosites per station-frame pixel along each side: the board and the chrome sphere
+#: are photographed at the sensor's full resolution (960 x 640 for the 240 x 160 station frames, as ``kogei
+#: demo``), the piece and the reference sphere binned 4 x 4 (the camera calibration scales to binned frames).
+TARGET_BINNING = 4
+
+
 def simulated_world(name: str, triangles: int = 4000, image_size: tuple[int, int] = (240, 160)) -> Any:
-    """The :class:`mocks.world.World` of an entry of :data:`app.gui.devices_panel.SIMULATED_OBJECTS`."""
+    """The :class:`mocks.world.World` of an entry of :data:`app.gui.devices_panel.SIMULATED_OBJECTS`.
+
+    ``image_size`` is the station's frame (the piece's photos); the calibration targets' worlds
+    (:class:`mocks.board_world.BoardWorld`, :class:`mocks.mirror_world.MirrorWorld`) are photographed at
+    :data:`TARGET_BINNING` times it, through the same simulated camera.
+    """
+    from app.demo.station import MIRROR_OFFSET_MM, MIRROR_RADIUS_MM
     from mocks.world import STATION_CHART_LAYOUT, World
 
     w, h = image_size
@@ -69,7 +82,33 @@ def simulated_world(name: str, triangles: int = 4000, image_size: tuple[int, int
         return World.hawk(triangles, width=w, height=h, chart_layout=STATION_CHART_LAYOUT)
     if name == SIMULATED_OBJECTS[1]:
         return World.calibration_sphere(25.0, 60.0, width=w, height=h, chart_layout=STATION_CHART_LAYOUT)
+    if name == SIMULATED_OBJECTS[2]:
+        from mocks.board_world import BoardWorld
+
+        return BoardWorld.charuco(width=w * TARGET_BINNING, height=h * TARGET_BINNING)
+    if name == SIMULATED_OBJECTS[3]:
+        from mocks.mirror_world import MirrorWorld
+
+        return MirrorWorld.mirror_sphere(MIRROR_RADIUS_MM, MIRROR_OFFSET_MM, width=w * TARGET_BINNING,
+                                         height=h * TARGET_BINNING)
     raise ValueError(f"unknown simulated object {name!r}; choose one of: {', '.join(SIMULATED_OBJECTS)}")
+
+
+def station_frame_size(world: Any) -> tuple[int, int]:
+    """The station's frame size (the piece's photos) of a simulated world on its table."""
+    if _is_target(world):
+        return world.width // TARGET_BINNING, world.height // TARGET_BINNING
+    return world.width, world.height
+
+
+def _is_target(world: Any) -> bool:
+    """A camera or lamp calibration target (board, chrome sphere), photographed at full resolution."""
+    return (world.mesh_source or "").startswith(("board:", "mirror:"))
+
+
+#: The capture plan that goes with each simulated object.
+_PLAN_OF = dict(zip(SIMULATED_OBJECTS, ("scan", "sphere-calibration", "camera-calibration", "lamp-calibration"),
+                    strict=True))
 
 
 def _object_label(world: Any) -> str:
@@ -77,6 +116,12 @@ def _object_label(world: Any) -> str:
     if source.startswith("sphere:"):
         _, r, off = source.split(":")
         return f"the calibration sphere (radius {r} mm, {off} mm off the axis)"
+    if source.startswith("board:"):
+        b = world.board
+        return f"the ChArUco board ({b['squares_x']} x {b['squares_y']} squares of {b['square_mm']:g} mm)"
+    if source.startswith("mirror:"):
+        _, r, off = source.split(":")
+        return f"the chrome sphere (radius {r} mm, {off} mm off the axis)"
     return "the hawk head" if "head" in world.region_names else f"the object {source or '(inline mesh)'}"
 
 
@@ -194,7 +239,8 @@ class MainWindow(QMainWindow):
         for sig in (self.link.state, self.session.session_chosen, self.session.manifest_shown,
                     self.capture.capture_started, self.capture.capture_stopped,
                     self.processing.processed, self.processing.materials_measured, self.spectra.map_ready,
-                    self.processing.calibration.textChanged):
+                    self.processing.calibration.textChanged, self.processing.camera_cal.textChanged,
+                    self.processing.lamp_cal.textChanged):
             sig.connect(lambda *_: self.update_steps())
         self.update_steps()
         self.statusBar().showMessage("ready")
@@ -383,7 +429,7 @@ class MainWindow(QMainWindow):
             raise UsageError("no simulated station runs in this window: start one first")
         if self.capture.job is not None and not self.capture.job.done:
             raise UsageError("a capture is running: the object stays on the table until it ends")
-        size = (st.world.width, st.world.height)
+        size = station_frame_size(st.world)
         self.devices.put_button.setEnabled(False)
         self.devices.sim_state.setText(f"putting the {name} on the table…")
 
@@ -394,11 +440,13 @@ class MainWindow(QMainWindow):
             self.devices.put_button.setEnabled(True)
             self._describe_station(st)
             self.append_log(f"simulated station: the {name} is on the table")
-            # the plan that goes with what is on the table: the sphere's calibration plan, or the piece's scan
-            kind = "sphere-calibration" if name == SIMULATED_OBJECTS[1] else "scan"
+            # the plan that goes with what is on the table: a calibration target's plan, or the piece's scan
+            kind = _PLAN_OF[name]
             if self.capture.kind.currentText() != kind and self.capture.start.isEnabled():
                 self.capture.kind.setCurrentText(kind)
                 self.append_log(f"capture plan: {kind} (for the {name})")
+            if kind == "lamp-calibration":
+                self.capture.mirror_radius.setValue(float(st.world.sphere_radius_mm))
 
         def failed(text: str, exc: Any) -> None:
             self.devices.put_button.setEnabled(True)
@@ -436,7 +484,10 @@ class MainWindow(QMainWindow):
         root = self.session.root
         manifest = self.session.manifest if root is not None else None
         plan = manifest.get("plan") if isinstance(manifest, dict) else None
-        if isinstance(plan, dict) and plan.get("kind") != "scan":
+        kind = plan.get("kind") if isinstance(plan, dict) else None
+        target = kind if kind in ("camera-calibration", "lamp-calibration") else None
+        target_captured = bool(target and manifest.get("status") == "complete")
+        if isinstance(plan, dict) and kind != "scan":
             # a calibration (or swatch, probe) session is not the piece's: the piece's session comes next
             root, manifest = None, None
         products = Path(root) / "products" if root is not None else None
@@ -449,17 +500,31 @@ class MainWindow(QMainWindow):
             "processed": bool(products is not None and (products / "mesh.ply").exists()),
             "materials": self.spectra.map is not None
             or bool(products is not None and (products / "object-mesh.ply").exists()),
+            "camera": bool(self.processing.camera_cal.text().strip()),
+            "lamps": bool(self.processing.lamp_cal.text().strip()),
+            "target": target,
+            "target_captured": target_captured,
         }
 
     def update_steps(self) -> None:
         """Highlight the next step of the strip and say what to do there."""
-        from app.gui.guidance import current_step, step_hint
+        from app.gui.guidance import calibration_hint, current_step, step_hint
 
-        step = current_step(self.steps_done())
-        if step == "Capture" and self.capture.job is not None and not self.capture.job.done:
-            self.steps.set_current(step, "Now: the capture runs; answer its prompts to re-place the object")
-            return
-        self.steps.set_current(step, f"Next: {step_hint(step)}")
+        done = self.steps_done()
+        step = current_step(done)
+        if self.capture.job is not None and not self.capture.job.done:
+            step = "Calibrate" if done["target"] else step
+            if step in ("Capture", "Calibrate"):
+                self.steps.set_current(step, "Now: the capture runs; answer its prompts to re-place the object")
+                return
+        extra = calibration_hint(done)
+        if done["target"] and extra:
+            # a board or chrome-sphere session is open: its calibration is the step at hand
+            self.steps.set_current("Calibrate", f"Next: {extra}")
+        elif extra and step == "Session":
+            self.steps.set_current(step, f"Next: {extra}, or name the piece and press 'New session'")
+        else:
+            self.steps.set_current(step, f"Next: {step_hint(step)}")
 
     def _show_step(self, step: str) -> None:
         tabs = {"Devices": self.devices, "Calibrate": self.processing, "Session": self.session,

@@ -610,6 +610,7 @@ class ProcessingPanel(Panel):
         f.addRow(row)
         self.station_state = QLabel("")
         self.station_state.setWordWrap(True)
+        self.camera_verdict: Any = None                 # the last camera calibration's verdict (app.gui.guidance)
         f.addRow(self.station_state)
         return box
 
@@ -647,9 +648,14 @@ class ProcessingPanel(Panel):
             return calibrate_camera_session(root, scanner, message=ctx.message)
 
         def done(ref: dict[str, Any]) -> None:
+            from app.gui.guidance import camera_verdict
+
+            verdict = camera_verdict(float(ref["rms_px"]))
+            self.camera_verdict = verdict
             self.camera_cal.setText(str(root))
-            self.station_state.setText(camera_summary(ref))
-            self.log.emit(self.station_state.text())
+            self.station_state.setText(f"{verdict.html()} {camera_summary(ref)} — {verdict.why}")
+            self.station_state.setToolTip(verdict.tooltip)
+            self.log.emit(f"{verdict.level.upper()} {camera_summary(ref)}")
 
         self.station_state.setText("calibrating the camera…")
         self.lane.run(work, "calibrate camera", succeeded=done,

@@ -13,7 +13,7 @@ pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip
 
 from PySide6.QtWidgets import QAbstractButton, QAbstractSpinBox, QComboBox, QLineEdit, QTabBar
 
-from app.gui.guidance import chart_verdict, registration_verdict, sphere_verdict
+from app.gui.guidance import calibration_hint, camera_verdict, chart_verdict, registration_verdict, sphere_verdict
 from tests.gui.helpers import connect_instruments, make_window
 
 
@@ -54,6 +54,8 @@ def test_the_step_strip_follows_the_session(qtbot, tmp_path):
     (registration_verdict(0.05, 0.03, True), "pass"), (registration_verdict(0.10, 0.03, True), "warn"),
     (registration_verdict(0.135, 0.03, True), "fail"), (registration_verdict(0.03, 0.03, False), "fail"),
     (registration_verdict(None, None, False), "fail"),
+    (camera_verdict(0.12), "pass"), (camera_verdict(0.5), "pass"), (camera_verdict(0.8), "warn"),
+    (camera_verdict(1.2), "fail"),
 ])
 def test_each_quality_figure_gets_its_thresholds_verdict_and_a_reason(verdict, level):
     assert verdict.level == level
@@ -102,3 +104,20 @@ def test_the_processing_tab_needs_no_scrolling_at_the_default_size(qtbot, tmp_pa
     qtbot.wait(100)
     area = w.processing.scroll_area
     assert area.widget().height() <= area.viewport().height()
+
+
+def test_the_camera_and_lamp_calibrations_are_guided_in_order():
+    """After the scanner: the board's capture, its camera calibration, the chrome sphere's capture, its lamp
+    calibration; each calibration waits for what it needs (the scanner for the camera, the camera for the lamps)."""
+    board = {"target": "camera-calibration"}
+    chrome = {"target": "lamp-calibration"}
+    assert calibration_hint({}) is None                                      # the scanner's step says it
+    assert "ChArUco board" in calibration_hint({"calibrated": True})
+    assert "press Start" in calibration_hint({**board, "calibrated": True})
+    assert "scanner first" in calibration_hint({**board, "target_captured": True})
+    assert "Calibrate the camera" in calibration_hint({**board, "target_captured": True, "calibrated": True})
+    assert "chrome sphere" in calibration_hint({"calibrated": True, "camera": True})
+    assert "camera first" in calibration_hint({**chrome, "target_captured": True, "calibrated": True})
+    assert "Calibrate the lamps" in calibration_hint({**chrome, "target_captured": True, "calibrated": True,
+                                                      "camera": True})
+    assert calibration_hint({"calibrated": True, "camera": True, "lamps": True}) is None
