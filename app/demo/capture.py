@@ -66,10 +66,16 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     from app.demo.station import CAMERA_SIZE, FRAME_BINNING, calibrate_station
 
     t0 = time.perf_counter()
+    stages_s: dict[str, float] = {}
     pose_frames = pose_frames and camera != "none"
     calibration = _calibration_scan(out, cal_dir, seed, camera=pose_frames)
     print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
+    stages_s["scanner calibration (sphere scan)"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
     station = calibrate_station(out, cal_dir, seed=seed) if pose_frames else None
+    if station is not None:
+        stages_s["camera and lamp calibration"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
     if station is not None:
         cam, err = station["camera"], station["camera"]["error_vs_truth"]
         print(f"camera: reprojection rms {cam['rms_px']:.3f} px from {cam['frames_used']} board frames; vs the "
@@ -119,6 +125,7 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     seconds = time.perf_counter() - t0
     profiles = [load_pass_profiles(session_dir, p) for p in range(1, passes + 1)]
     profiles_figure(profiles, out / "capture-profiles.png")
+    stages_s["capture session (profiles, RAW frames)"] = time.perf_counter() - t1
     summary = {
         "session": str(session_dir),
         "steps": steps, "passes": passes, "camera": camera,
@@ -131,7 +138,10 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
         "simulation_truth": truth,
     }
     if process_preset:
+        t1 = time.perf_counter()
         summary["process"] = _process(session_dir, cal_dir, process_preset, truth, station)
+        stages_s["process (register, mesh, pose frames)"] = time.perf_counter() - t1
+    summary["stages_s"] = {k: round(v, 2) for k, v in stages_s.items()}
     return summary
 
 
