@@ -116,10 +116,12 @@ def _render(spec: SceneSpec, hawk_triangles: int):
 def run_demo(args: argparse.Namespace) -> int:
     """The showcase into ``args.out``: a simulated capture, the colour demo, the renders; ``demo.json``.
 
-    Two chains of stages run at once, one per core: the capture chain (calibrations, the capture, its
-    processing, the batch, the measured object, the measured light, each needing the one before) in
-    this process, and the stages that need nothing from it (the colour demo, the hawk, the spheres, the
-    cloth) in a second process (:func:`_independent_stages`).  ``demo.json``'s ``stages_s`` and the
+    Two chains of stages run at once, one per core: the capture chain (the scanner's calibration, the
+    hawk's capture, the camera and lamp calibrations, the processing, the batch, the measured object,
+    the measured light, each needing the one before) in this process; in a second process first the
+    board and chrome-sphere captures the camera and lamp calibrations need, then the stages that need
+    nothing from the capture (:func:`_independent_stages`: the colour demo, the hawk, the spheres, the
+    cloth).  ``demo.json``'s ``stages_s`` and the
     console's last lines give each stage's seconds and the whole demo's.
     """
     from concurrent.futures import ProcessPoolExecutor
@@ -138,9 +140,16 @@ def run_demo(args: argparse.Namespace) -> int:
         raise UsageError("--capture-steps and --capture-passes must be >= 1 (or --capture-steps 0: no capture)")
     summary: dict = {"preset": args.preset, "renders": [], "stages_s": {}}
     with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
+        station = None
+        if args.capture_steps and args.capture_camera != "none":
+            from app.demo.station import capture_station_sessions
+
+            # first in the second process: the board and chrome-sphere sessions the capture chain needs
+            # after its hawk capture, then the stages that need nothing from it
+            station = pool.submit(capture_station_sessions, out / "capture", seed=1)
         other = pool.submit(_independent_stages, out, size, args.preset, triangles)
         if args.capture_steps:
-            _demo_capture(out, args, summary)
+            _demo_capture(out, args, summary, station)
         _timed("light", summary, _demo_light, out, size, args.preset, triangles, summary)
         parts = other.result()
     summary["colour"] = parts["colour"]
@@ -175,12 +184,16 @@ def _independent_stages(out: Path, size: tuple[int, int], preset: str, triangles
     return summary
 
 
-def _demo_capture(out: Path, args: argparse.Namespace, summary: dict) -> None:
-    """A simulated capture session, processed, then the batch's other steps on it."""
+def _demo_capture(out: Path, args: argparse.Namespace, summary: dict, station_sessions=None) -> None:
+    """A simulated capture session, processed, then the batch's other steps on it.
+
+    ``station_sessions``: a future of the board and chrome-sphere sessions captured in the other process.
+    """
     from app.demo.capture import simulated_capture
 
     cap = simulated_capture(out / "capture", steps=args.capture_steps, passes=args.capture_passes,
-                            camera=args.capture_camera, process_preset=args.preset)
+                            camera=args.capture_camera, process_preset=args.preset, seed=1,
+                            station_sessions=station_sessions)
     summary["capture"] = cap
     summary["stages_s"].update(cap["stages_s"])
     print(f"capture: {cap['captures_taken']} captures in {cap['seconds']:.1f} s -> {cap['session']}",
