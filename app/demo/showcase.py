@@ -162,7 +162,7 @@ def run_demo(args: argparse.Namespace) -> int:
     print(f"demo written to {out}/ in {summary['seconds']:.0f} s; the stages (two chains at once, one per core):",
           file=sys.stderr)
     for name, secs in summary["stages_s"].items():
-        print(f"  {name:<34} {secs:7.1f} s", file=sys.stderr)
+        print(f"  {name:<44} {secs:7.1f} s", file=sys.stderr)
     return 0
 
 
