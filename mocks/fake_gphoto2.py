@@ -69,6 +69,8 @@ __all__ = [
     "main",
     "parse_shutter",
     "read_config",
+    "render_frame",
+    "set_renderer",
     "update_config",
     "write_config",
 ]
@@ -120,8 +122,13 @@ def expand_pattern(pattern: str, *, basename: str, extension: str, number: int, 
 
 
 def write_config(path: str | os.PathLike[str], world: dict[str, Any], *, faults: dict[str, Any] | None = None,
-                 chart_first: bool = True, exposure_s: float = 0.01, seed: int = 0, placement: int = 0) -> Path:
+                 chart_first: bool = True, exposure_s: float = 0.01, seed: int = 0, placement: int = 0,
+                 renderer: str | os.PathLike[str] | None = None) -> Path:
     """Write a fake-gphoto2 configuration atomically (and reset its capture counter).
+
+    ``renderer`` is the control folder of a simulated station that renders the frames in its own process
+    (:func:`mocks.station_requests.request_render`); without it, or when nobody answers there, the
+    program renders them itself.
 
     Examples
     --------
@@ -137,6 +144,8 @@ def write_config(path: str | os.PathLike[str], world: dict[str, Any], *, faults:
     config = {"world": world, "chart_first": bool(chart_first), "chart_next": bool(chart_first),
               "placement": int(placement), "exposure_s": float(exposure_s),
               "seed": int(seed), "faults": {**DEFAULT_FAULTS, **(faults or {})}}
+    if renderer is not None:
+        config["renderer"] = str(renderer)
     target = Path(path)
     with config_lock(target):
         _atomic_json(target, config)
@@ -200,6 +209,17 @@ def update_config(path: str | os.PathLike[str], *, faults: dict[str, Any] | None
         if chart_index is not None:
             config["chart_index"] = int(chart_index)
         config["world"].update(world_changes)
+        _atomic_json(Path(path), config)
+
+
+def set_renderer(path: str | os.PathLike[str], renderer: str | os.PathLike[str] | None) -> None:
+    """Set (a station's control folder) or clear (None) who renders the frames of configuration ``path``."""
+    with config_lock(path):
+        config = read_config(path)
+        if renderer is None:
+            config.pop("renderer", None)
+        else:
+            config["renderer"] = str(renderer)
         _atomic_json(Path(path), config)
 
 
@@ -434,6 +454,46 @@ def _camera_faults(config_path: str, faults: dict[str, Any]) -> int | None:
     return None
 
 
+def render_frame(config_path: str | os.PathLike[str], config: dict[str, Any], path: str, kind: str) -> None:
+    """Render the configured world's ``kind`` frame (``"chart"`` or ``"object"``) and write it to ``path`` (DNG).
+
+    The capture's sensor noise is seeded by (``seed``, ``placement``, frame kind, table angle) and, for a
+    bracket, its exposure, so the same frame renders the same wherever it is rendered: in this program or
+    in the simulated station's process (:func:`_render_at_station`).
+    """
+    from mocks.camera_sim import simulate_raw, write_raw
+    from mocks.noise_seed import frame_seed
+
+    world = _world(config["world"], Path(config_path))
+    placement = int(config.get("placement", 0))
+    frame = world.frame(kind)
+    exposure = float(config["exposure_s"])
+    raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure,
+                       seed=frame_seed(int(config["seed"]), placement, chart_seed_kind(config, kind),
+                                       world.table_angle_deg)
+                       + (int(round(1e6 * exposure)) if config.get("bracket") else 0),
+                       exposure_boost=_SATURATION_BOOST if config["faults"]["saturate"] else 1.0)
+    raw.f_number = getattr(world, "f_number", None)
+    write_raw(path, raw)
+
+
+def _render_at_station(config_path: str, config: dict[str, Any], path: str, kind: str) -> bool:
+    """Have the simulated station that wrote the configuration render the frame (True), or False when none
+    is watching its control folder (``renderer`` in the configuration).
+
+    A fresh program would spend seconds importing the renderer's modules for every photograph; the
+    station's process has them loaded.
+    """
+    control = config.get("renderer")
+    if not control:
+        return False
+    from mocks.station_requests import request_render
+
+    answer = request_render(control, {"config_path": str(Path(config_path).resolve()), "config": config,
+                                      "path": path, "kind": kind})
+    return answer is not None
+
+
 def _capture(config_path: str, config: dict[str, Any], pattern: str) -> int:
     """Count the capture, render the frame and write it under ``pattern`` as gphoto2 reports it."""
     faults = config["faults"]
@@ -451,24 +511,13 @@ def _capture(config_path: str, config: dict[str, Any], pattern: str) -> int:
     _atomic_json(state_path, {"count": number})
     print(f"New file is in location /capt{count:04d}.nef on the camera")
     if not faults["no_output"]:
-        from mocks.camera_sim import simulate_raw, write_raw
-        from mocks.noise_seed import frame_seed
-
-        world = _world(config["world"], Path(config_path))
         chart = _chart_next(config, number)
         kind = "chart" if chart else "object"
-        placement = int(config.get("placement", 0))
-        frame = world.frame(kind)
-        exposure = float(config["exposure_s"])
-        raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure,
-                           seed=frame_seed(int(config["seed"]), placement, chart_seed_kind(config, kind),
-                                           world.table_angle_deg)
-                           + (int(round(1e6 * exposure)) if config.get("bracket") else 0),
-                           exposure_boost=_SATURATION_BOOST if faults["saturate"] else 1.0)
-        raw.f_number = getattr(world, "f_number", None)
-        write_raw(name, raw)
+        target = os.path.abspath(name)
+        if not _render_at_station(config_path, config, target, kind):
+            render_frame(config_path, config, target, kind)
         if chart:
-            chart_taken(config_path, placement)
+            chart_taken(config_path, int(config.get("placement", 0)))
         print(f"Saving file as {name}")
     print(f"Deleting file /capt{count:04d}.nef on the camera")
     return 0

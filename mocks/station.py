@@ -334,6 +334,9 @@ class SimulatedStation:
             self._stop_event.clear()
             self._control = threading.Thread(target=self._serve_control, name="station-control", daemon=True)
             self._control.start()
+            from mocks.fake_gphoto2 import set_renderer
+
+            set_renderer(self.config_path, self.control_dir)    # its frames rendered here, modules loaded
         except BaseException:
             self.stop()
             raise
@@ -345,6 +348,10 @@ class SimulatedStation:
         if self._control is not None:
             self._control.join(10.0)
             self._control = None
+            if self.config_path.is_file():
+                from mocks.fake_gphoto2 import set_renderer
+
+                set_renderer(self.config_path, None)           # a later gphoto2 renders its frames itself
         for dev in (self._profiler, self._turntable):
             if dev is not None:
                 dev.stop()
@@ -507,7 +514,8 @@ class SimulatedStation:
             placement = self._placement
         world["table_angle_deg"] = float(table_angle_deg)
         write_config(self.config_path, world, faults=self._camera_faults, chart_first=self._shows_chart(),
-                     exposure_s=self.exposure_s, seed=self.seed, placement=placement)
+                     exposure_s=self.exposure_s, seed=self.seed, placement=placement,
+                     renderer=self.control_dir if self._started and not self._stopped else None)
         cache_mesh(self.config_path, self.world, label)
 
     def _camera_world(self) -> tuple[str, dict[str, Any]]:
@@ -589,4 +597,9 @@ class SimulatedStation:
             return {"ok": True, "action": "place", "placement": n, "pose": pose.tolist()}
         if action == "shoot":
             return {"ok": True, "action": "shoot", **self._shoot()}
-        raise StationError(f"unknown action {action!r}; known: place, shoot")
+        if action == "render":
+            from mocks.fake_gphoto2 import render_frame
+
+            render_frame(payload["config_path"], payload["config"], payload["path"], payload["kind"])
+            return {"ok": True, "action": "render", "file": payload["path"]}
+        raise StationError(f"unknown action {action!r}; known: place, shoot, render")

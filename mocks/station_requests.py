@@ -34,7 +34,7 @@ from typing import Any
 
 from processing.common.files import atomic_write_text
 
-__all__ = ["StationError", "StationTimeout", "serve_requests", "request_place", "request_shoot"]
+__all__ = ["StationError", "StationTimeout", "serve_requests", "request_place", "request_shoot", "request_render"]
 
 _log = logging.getLogger("mocks.station")   # the station's log, as before the protocol had its own module
 _REQUEST = re.compile(r"^request-([A-Za-z0-9_.-]{1,80})\.json$")
@@ -201,3 +201,67 @@ def request_shoot(control_dir: str | os.PathLike[str], timeout_s: float = 60.0) 
         As :func:`request_place`.
     """
     return _request(control_dir, {"action": "shoot"}, timeout_s)
+
+
+def request_render(control_dir: str | os.PathLike[str], payload: dict[str, Any], claim_timeout_s: float = 2.0,
+                   timeout_s: float = 300.0, poll_s: float = 0.01) -> dict[str, Any] | None:
+    """Ask the station watching ``control_dir`` to render a fake-gphoto2 frame (``{"action": "render", ...}``).
+
+    The station process has the world's modules imported and its mesh in memory, so a frame it renders
+    costs the rendering alone, where a fresh ``gphoto2`` process would first spend seconds importing.
+
+    Parameters
+    ----------
+    control_dir
+        The station's control folder.
+    payload
+        The request (its ``"action"`` is set to ``"render"``).
+    claim_timeout_s
+        How long to wait for the station to take the request (s); no station taking it is not an error.
+    timeout_s
+        How long to wait for the answer once the request is taken (s).
+    poll_s
+        Polling period (s).
+
+    Returns
+    -------
+    dict or None
+        The station's answer, or None when no station took the request within ``claim_timeout_s`` (the
+        request is taken back: the caller renders the frame itself).
+
+    Raises
+    ------
+    StationError
+        The station took the request and refused it or did not finish within ``timeout_s``.
+    """
+    folder = Path(control_dir)
+    if not folder.is_dir():
+        return None
+    rid = f"{os.getpid()}-{uuid.uuid4().hex[:12]}"
+    request = folder / f"request-{rid}.json"
+    done = folder / f"done-{rid}.json"
+    _atomic_json(request, {**payload, "action": "render"})
+    start = time.monotonic()
+    claimed = False
+    while True:
+        try:
+            text = done.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            now = time.monotonic()
+            if not claimed and now - start >= claim_timeout_s:
+                try:
+                    request.unlink()
+                    return None                 # no station watching: nobody took it
+                except FileNotFoundError:
+                    claimed = True
+            if claimed and now - start >= timeout_s:
+                raise StationTimeout(f"the simulated station at {folder} took the render request but did not "
+                                     f"finish within {timeout_s:g} s") from None
+            time.sleep(poll_s)
+            continue
+        done.unlink(missing_ok=True)
+        answer = json.loads(text)
+        if not answer.get("ok"):
+            raise StationError(f"the simulated station at {folder} could not render: "
+                               f"{answer.get('error', 'no reason given')}")
+        return answer

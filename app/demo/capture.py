@@ -36,12 +36,15 @@ SCAN_EXPOSURE_S = 0.002
 
 def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: str = "gphoto2",
                       triangles: int = 20_000, seed: int = 1, process_preset: str | None = "standard",
-                      pose_frames: bool = True) -> dict[str, Any]:
+                      pose_frames: bool = True, station_sessions: Any = None) -> dict[str, Any]:
     """Calibrate the simulated scanner, capture a session of the procedural hawk into ``out``, process it.
 
     With ``pose_frames`` (and a camera) the camera and the lamp are calibrated
-    first (:func:`app.demo.station.calibrate_station`) and processing poses every
-    RAW frame on the mesh.
+    (:func:`app.demo.station.calibrate_station`) before processing, which then
+    poses every RAW frame on the mesh.  ``station_sessions``, a future of
+    :func:`app.demo.station.capture_station_sessions` (into ``out``) running in
+    another process, gives the board and mirror-sphere sessions; without it they
+    are captured here.
 
     Returns
     -------
@@ -66,20 +69,12 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     from app.demo.station import CAMERA_SIZE, FRAME_BINNING, calibrate_station
 
     t0 = time.perf_counter()
+    stages_s: dict[str, float] = {}
     pose_frames = pose_frames and camera != "none"
     calibration = _calibration_scan(out, cal_dir, seed, camera=pose_frames)
     print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
-    station = calibrate_station(out, cal_dir, seed=seed) if pose_frames else None
-    if station is not None:
-        cam, err = station["camera"], station["camera"]["error_vs_truth"]
-        print(f"camera: reprojection rms {cam['rms_px']:.3f} px from {cam['frames_used']} board frames; vs the "
-              f"simulation's truth focal {err['focal_pct']:+.3f} %, pose {err['rotation_deg']:.4f} deg / "
-              f"{err['translation_mm']:.3f} mm", file=sys.stderr)
-        for e in station["lamps"]["error_vs_truth"]:
-            what = (f"direction {e['direction_error_deg']:.3f} deg" if "direction_error_deg" in e else
-                    f"position {e['position_error_mm']:.2f} mm" if "position_error_mm" in e else
-                    f"kind {e['kind']} (truth {e.get('truth_kind')})")
-            print(f"lamp {e['lamp']} ({e['kind']}): vs the simulation's truth {what}", file=sys.stderr)
+    stages_s["scanner calibration (sphere scan)"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
     plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none")
     size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
     world = World.hawk(triangles, chart_layout="classic24", **size)
@@ -119,6 +114,14 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     seconds = time.perf_counter() - t0
     profiles = [load_pass_profiles(session_dir, p) for p in range(1, passes + 1)]
     profiles_figure(profiles, out / "capture-profiles.png")
+    stages_s["capture session (profiles, RAW frames)"] = time.perf_counter() - t1
+    station = None
+    if pose_frames:
+        t1 = time.perf_counter()
+        sessions = None if station_sessions is None else station_sessions.result()
+        station = calibrate_station(out, cal_dir, seed=seed, sessions=sessions)
+        stages_s["camera and lamp calibration"] = time.perf_counter() - t1
+        _print_station(station)
     summary = {
         "session": str(session_dir),
         "steps": steps, "passes": passes, "camera": camera,
@@ -131,8 +134,23 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
         "simulation_truth": truth,
     }
     if process_preset:
+        t1 = time.perf_counter()
         summary["process"] = _process(session_dir, cal_dir, process_preset, truth, station)
+        stages_s["process (register, mesh, pose frames)"] = time.perf_counter() - t1
+    summary["stages_s"] = {k: round(v, 2) for k, v in stages_s.items()}
     return summary
+
+
+def _print_station(station: dict[str, Any]) -> None:
+    cam, err = station["camera"], station["camera"]["error_vs_truth"]
+    print(f"camera: reprojection rms {cam['rms_px']:.3f} px from {cam['frames_used']} board frames; vs the "
+          f"simulation's truth focal {err['focal_pct']:+.3f} %, pose {err['rotation_deg']:.4f} deg / "
+          f"{err['translation_mm']:.3f} mm", file=sys.stderr)
+    for e in station["lamps"]["error_vs_truth"]:
+        what = (f"direction {e['direction_error_deg']:.3f} deg" if "direction_error_deg" in e else
+                f"position {e['position_error_mm']:.2f} mm" if "position_error_mm" in e else
+                f"kind {e['kind']} (truth {e.get('truth_kind')})")
+        print(f"lamp {e['lamp']} ({e['kind']}): vs the simulation's truth {what}", file=sys.stderr)
 
 
 def _calibration_scan(out: Path, cal_dir: Path, seed: int, *, camera: bool = False) -> dict[str, Any]:

@@ -114,37 +114,88 @@ def _render(spec: SceneSpec, hawk_triangles: int):
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """The showcase into ``args.out``: a simulated capture, the colour demo, the renders; ``demo.json``."""
+    """The showcase into ``args.out``: a simulated capture, the colour demo, the renders; ``demo.json``.
+
+    Two chains of stages run at once, one per core: the capture chain (the scanner's calibration, the
+    hawk's capture, the camera and lamp calibrations, the processing, the batch, the measured object,
+    the measured light, each needing the one before) in this process; in a second process first the
+    board and chrome-sphere captures the camera and lamp calibrations need, then the stages that need
+    nothing from the capture (:func:`_independent_stages`: the colour demo, the hawk, the spheres, the
+    cloth).  ``demo.json``'s ``stages_s`` and the
+    console's last lines give each stage's seconds and the whole demo's.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
     from mocks.procedural_hawk import HAWK_PRESET_TRIANGLES
 
+    t0 = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     triangles = args.hawk_triangles or HAWK_PRESET_TRIANGLES["reference"]
     size = size_of(args)
-    summary: dict = {"preset": args.preset, "renders": []}
-    if args.capture_steps:
-        _demo_capture(out, args, summary)
-    _demo_colour(out, summary)
-    _demo_hawk(out, size, args.preset, triangles, summary)
-    _demo_light(out, size, args.preset, triangles, summary)
-    _demo_spheres(out, size, args.preset, triangles, summary)
-    _demo_cloth(out, size, args.preset, summary)
-    (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    print(f"demo written to {out}/", file=sys.stderr)
-    return 0
-
-
-def _demo_capture(out: Path, args: argparse.Namespace, summary: dict) -> None:
-    """A simulated capture session, processed, then the batch's other steps on it."""
-    from app.demo.capture import simulated_capture
-
-    if args.capture_steps < 1 or args.capture_passes < 1:
+    if args.capture_steps and (args.capture_steps < 1 or args.capture_passes < 1):
         from app.errors import UsageError
 
         raise UsageError("--capture-steps and --capture-passes must be >= 1 (or --capture-steps 0: no capture)")
+    summary: dict = {"preset": args.preset, "renders": [], "stages_s": {}}
+    with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
+        station = None
+        if args.capture_steps and args.capture_camera != "none":
+            from app.demo.station import capture_station_sessions
+
+            # first in the second process: the board and chrome-sphere sessions the capture chain needs
+            # after its hawk capture, then the stages that need nothing from it
+            station = pool.submit(capture_station_sessions, out / "capture", seed=1)
+        other = pool.submit(_independent_stages, out, size, args.preset, triangles)
+        if args.capture_steps:
+            _demo_capture(out, args, summary, station)
+        _timed("light", summary, _demo_light, out, size, args.preset, triangles, summary)
+        parts = other.result()
+    summary["colour"] = parts["colour"]
+    summary["renders"] = parts["renders"] + summary["renders"]
+    summary["shift_D65_to_A"] = parts["shift_D65_to_A"]
+    summary["stages_s"].update(parts["stages_s"])
+    summary["seconds"] = round(time.perf_counter() - t0, 1)
+    summary["stages_s"] = {k: round(v, 1) for k, v in summary["stages_s"].items()}
+    (out / "demo.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    print(f"demo written to {out}/ in {summary['seconds']:.0f} s; the stages (two chains at once, one per core):",
+          file=sys.stderr)
+    for name, secs in summary["stages_s"].items():
+        print(f"  {name:<44} {secs:7.1f} s", file=sys.stderr)
+    return 0
+
+
+def _timed(name: str, summary: dict, stage, *args):
+    """Run ``stage(*args)`` and add its seconds to ``summary["stages_s"][name]``."""
+    t0 = time.perf_counter()
+    result = stage(*args)
+    summary["stages_s"][name] = summary["stages_s"].get(name, 0.0) + time.perf_counter() - t0
+    return result
+
+
+def _independent_stages(out: Path, size: tuple[int, int], preset: str, triangles: int) -> dict:
+    """The stages that need nothing from the capture: colour demo, hawk, spheres, cloth (a process of their own)."""
+    summary: dict = {"renders": [], "stages_s": {}}
+    _timed("colour (RAW frames, chart, identification)", summary, _demo_colour, out, summary)
+    _timed("hawk render", summary, _demo_hawk, out, size, preset, triangles, summary)
+    _timed("spheres (D65 and A)", summary, _demo_spheres, out, size, preset, triangles, summary)
+    _timed("cloth", summary, _demo_cloth, out, size, preset, summary)
+    return summary
+
+
+def _demo_capture(out: Path, args: argparse.Namespace, summary: dict, station_sessions=None) -> None:
+    """A simulated capture session, processed, then the batch's other steps on it.
+
+    ``station_sessions``: a future of the board and chrome-sphere sessions captured in the other process.
+    """
+    from app.demo.capture import simulated_capture
+
     cap = simulated_capture(out / "capture", steps=args.capture_steps, passes=args.capture_passes,
-                            camera=args.capture_camera, process_preset=args.preset)
+                            camera=args.capture_camera, process_preset=args.preset, seed=1,
+                            station_sessions=station_sessions)
     summary["capture"] = cap
+    summary["stages_s"].update(cap["stages_s"])
     print(f"capture: {cap['captures_taken']} captures in {cap['seconds']:.1f} s -> {cap['session']}",
           file=sys.stderr)
     proc = cap.get("process")
@@ -162,9 +213,12 @@ def _demo_capture(out: Path, args: argparse.Namespace, summary: dict) -> None:
                   f"({proj['observations']} observations, {proj['seconds']:.1f} s)", file=sys.stderr)
 
     if proc:
-        summary["batch"] = _batch_steps(Path(cap["session"]), args.preset)
+        summary["batch"] = _timed("batch (colour, materials, render, report)", summary, _batch_steps,
+                                  Path(cap["session"]), args.preset)
         if proc.get("projection"):
-            summary["object"] = _demo_measured_object(out, Path(cap["session"]), cap, size_of(args), args.preset)
+            summary["object"] = _timed("measured object (materials, glTF, render)", summary,
+                                       _demo_measured_object, out, Path(cap["session"]), cap, size_of(args),
+                                       args.preset)
 
 
 def size_of(args: argparse.Namespace) -> tuple[int, int]:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["calibrate_station", "CAMERA_SIZE", "FRAME_BINNING", "MIRROR_RADIUS_MM"]
+__all__ = ["calibrate_station", "capture_station_sessions", "CAMERA_SIZE", "FRAME_BINNING", "MIRROR_RADIUS_MM"]
 
 #: The simulated camera's full frame (photosites); the object frames are binned by :data:`FRAME_BINNING`.
 CAMERA_SIZE = (960, 640)
@@ -86,7 +86,41 @@ def _lamp_truth_errors(lamps: Any, world: Any) -> list[dict[str, Any]]:
     return out
 
 
-def calibrate_station(out: Path, sphere_session: Path, *, seed: int = 1) -> dict[str, Any]:
+def _station_worlds() -> tuple[Any, Any]:
+    """The ChArUco board's and the chrome sphere's simulated worlds at the camera's full frame."""
+    from mocks.board_world import BoardWorld
+    from mocks.mirror_world import MirrorWorld
+
+    w, h = CAMERA_SIZE
+    return (BoardWorld.charuco(width=w, height=h),
+            MirrorWorld.mirror_sphere(MIRROR_RADIUS_MM, MIRROR_OFFSET_MM, width=w, height=h))
+
+
+def capture_station_sessions(out: Path, *, seed: int = 1) -> dict[str, Any]:
+    """Capture the board and mirror-sphere sessions on the simulated station (no calibration yet).
+
+    They need nothing from the scanner's calibration, so the demo captures them in a second process
+    while this one scans the reference sphere and the hawk.
+
+    Returns
+    -------
+    dict
+        ``camera_session`` and ``lamp_session`` (paths as text) and ``capture_s`` (seconds).
+    """
+    from app.capture.runner import CapturePlan
+
+    t0 = time.perf_counter()
+    board_world, mirror_world = _station_worlds()
+    board = _camera_only_session(board_world, out, "camera-calibration", CapturePlan("camera-calibration"), seed,
+                                 "ChArUco board, 7 x 5 squares of 8 mm")
+    lamp = _camera_only_session(mirror_world, out, "lamp-calibration",
+                                CapturePlan("lamp-calibration", sphere_radius_mm=MIRROR_RADIUS_MM), seed,
+                                f"chrome sphere, r = {MIRROR_RADIUS_MM:g} mm")
+    return {"camera_session": str(board), "lamp_session": str(lamp), "capture_s": time.perf_counter() - t0}
+
+
+def calibrate_station(out: Path, sphere_session: Path, *, seed: int = 1,
+                      sessions: dict[str, Any] | None = None) -> dict[str, Any]:
     """Capture the board and mirror-sphere sessions, calibrate camera and lamps, compare with the truth.
 
     Parameters
@@ -97,13 +131,15 @@ def calibrate_station(out: Path, sphere_session: Path, *, seed: int = 1) -> dict
         The scanner-calibrated reference sphere session with RAW frames of the sphere.
     seed
         The simulated station's seed.
+    sessions
+        The board and mirror-sphere sessions already captured (:func:`capture_station_sessions`'s
+        answer); None: capture them here.
 
     Returns
     -------
     dict
         Session paths, figures, errors against the simulation's truth, seconds.
     """
-    from app.capture.runner import CapturePlan
     from app.session import Session
     from app.workflows.station_calibration import (
         calibrate_camera_session,
@@ -111,22 +147,15 @@ def calibrate_station(out: Path, sphere_session: Path, *, seed: int = 1) -> dict
         session_camera_calibration,
         session_lamp_calibration,
     )
-    from mocks.board_world import BoardWorld
-    from mocks.mirror_world import MirrorWorld
 
     def say(text: str) -> None:
         print(f"station: {text}", file=sys.stderr)
 
-    t0 = time.perf_counter()
-    w, h = CAMERA_SIZE
-    board_world = BoardWorld.charuco(width=w, height=h)
-    board = _camera_only_session(board_world, out, "camera-calibration", CapturePlan("camera-calibration"), seed,
-                                 "ChArUco board, 7 x 5 squares of 8 mm")
-    mirror_world = MirrorWorld.mirror_sphere(MIRROR_RADIUS_MM, MIRROR_OFFSET_MM, width=w, height=h)
-    lamp = _camera_only_session(mirror_world, out, "lamp-calibration",
-                                CapturePlan("lamp-calibration", sphere_radius_mm=MIRROR_RADIUS_MM), seed,
-                                f"chrome sphere, r = {MIRROR_RADIUS_MM:g} mm")
-    capture_s = time.perf_counter() - t0
+    if sessions is None:
+        sessions = capture_station_sessions(out, seed=seed)
+    board, lamp = Path(sessions["camera_session"]), Path(sessions["lamp_session"])
+    board_world, mirror_world = _station_worlds()
+    capture_s = float(sessions["capture_s"])
     t1 = time.perf_counter()
     cam_ref = calibrate_camera_session(board, sphere_session, message=say)
     camera_s = time.perf_counter() - t1

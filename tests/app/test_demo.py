@@ -23,6 +23,13 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     assert hawk.std() > 5        # an object, not a blank frame
 
     summary = json.loads((out / "demo.json").read_text())
+    # every stage's seconds are in the summary, and the whole demo's
+    stages = summary["stages_s"]
+    assert {"scanner calibration (sphere scan)", "camera and lamp calibration", "capture session (profiles, RAW frames)",
+            "process (register, mesh, pose frames)", "batch (colour, materials, render, report)",
+            "measured object (materials, glTF, render)", "light", "colour (RAW frames, chart, identification)",
+            "hawk render", "spheres (D65 and A)", "cloth"} == set(stages)
+    assert all(v > 0 for v in stages.values()) and summary["seconds"] > 0
     cap = summary["capture"]
     manifest = json.loads((out / "capture" / "session" / "session.json").read_text())
     assert manifest["status"] == "complete" and cap["captures_taken"] == 2 * (1 + 60 + 12)

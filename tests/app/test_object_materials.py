@@ -16,20 +16,15 @@ import pytest
 from app.cli import main
 from app.errors import UsageError
 from mocks.world import World
-from tests.integration.object_session import build_object_session, tilted_pose
-
-ANGLES = np.arange(0.0, 360.0, 30.0)
+from tests.integration.object_session import projected_hawk_session
 
 
 @pytest.fixture(scope="module")
 def measured(tmp_path_factory):
     from app.workflows.object_materials import measure_object
-    from app.workflows.posed_frames import project_session
 
-    root = tmp_path_factory.mktemp("object") / "session"
+    root = projected_hawk_session(tmp_path_factory, tmp_path_factory.mktemp("object") / "session")
     world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-    build_object_session(root, world, ANGLES, placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
-    project_session(root)
     lines: list[str] = []
     doc = measure_object(root, message=lines.append)
     return root, world, doc, lines

@@ -212,15 +212,11 @@ def realistic_session(tmp_path_factory):
     the true mesh; a quarter of the angles held out."""
     from app.session import Session
     from app.workflows.object_materials import _load_inputs
-    from app.workflows.posed_frames import project_session
     from processing.appearance.observations import select_frames
-    from tests.integration.object_session import build_object_session, tilted_pose
+    from tests.integration.object_session import projected_hawk_session
 
-    root = tmp_path_factory.mktemp("realistic")
+    root = projected_hawk_session(tmp_path_factory, tmp_path_factory.mktemp("realistic") / "session")
     world = World.hawk(4_000, width=240, height=160, chart_layout="classic24")
-    build_object_session(root, world, np.arange(0.0, 360.0, 30.0),
-                         placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
-    project_session(root)
     report = json.loads((root / "products" / "projection-report.json").read_text())
     assert report["chart_calibrated_passes"] == [1, 2, 3]      # else a pass's frames keep raw camera RGB
     data = _load_inputs(root, Session.read(root))

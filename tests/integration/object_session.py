@@ -18,7 +18,7 @@ import numpy as np
 
 from tests.integration.posed_session import _camera_json
 
-__all__ = ["build_object_session", "tilted_pose", "SIZE"]
+__all__ = ["build_object_session", "projected_hawk_session", "tilted_pose", "SIZE"]
 
 SIZE = (480, 320)
 
@@ -103,3 +103,39 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     finally:
         s.close()
     return {"world": world, "vertices": v, "triangles": t}
+
+
+def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
+    """A copy at ``dst`` of the hawk's object session, projected: the world ``World.hawk(4000, width=240,
+    height=160, chart_layout="classic24")`` in three placements (upright, tilted +35 deg, tilted -35 deg about
+    azimuth 90 deg) x 12 table angles (0 to 330 deg), then :func:`app.workflows.posed_frames.project_session`.
+
+    Several test modules start from this session; it is built once per test run on disk and shared by the
+    xdist workers (a file lock lets one build it while the others wait), and each caller gets its own copy.
+    """
+    import fcntl
+    import os
+    import shutil
+
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared-projected-hawk"
+    shared.mkdir(parents=True, exist_ok=True)
+    root, done = shared / "session", shared / "built"
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not done.exists():
+                from app.workflows.posed_frames import project_session
+                from mocks.world import World
+
+                if root.exists():
+                    shutil.rmtree(root)
+                world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
+                build_object_session(root, world, np.arange(0.0, 360.0, 30.0),
+                                     placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
+                project_session(root)
+                done.write_text("ok\n")
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("*.lock"))
+    return dst

@@ -370,3 +370,25 @@ def test_stop_removes_ptys_and_temporary_folder():
         os.close(fd)
     assert not root.exists()
     st.stop()  # idempotent
+
+
+def test_gphoto2_frames_rendered_by_the_station_equal_those_it_renders_itself(tmp_path):
+    # The station renders the fake gphoto2's frames in its own process (modules loaded); the frame must be
+    # the one the program renders itself, byte for byte (same world, same seeded noise), and a stopped
+    # station hands the rendering back to the program.
+    import hashlib
+    import subprocess
+
+    from mocks.fake_gphoto2 import set_renderer
+
+    digests = {}
+    for mode in ("station", "program"):
+        with SimulatedStation(box_world(), root=tmp_path / mode, seed=7) as st:
+            assert read_config(st.config_path)["renderer"] == str(st.control_dir)
+            if mode == "program":
+                set_renderer(st.config_path, None)
+            subprocess.run([str(st.gphoto2_path), "--capture-image-and-download", "--filename",
+                            str(tmp_path / f"{mode}.%C")], cwd=tmp_path, check=True, capture_output=True)
+            digests[mode] = hashlib.sha1((tmp_path / f"{mode}.dng").read_bytes()).hexdigest()
+        assert "renderer" not in read_config(st.config_path)
+    assert digests["station"] == digests["program"]

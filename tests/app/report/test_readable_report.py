@@ -17,7 +17,6 @@ import json
 import re
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from app.batch.runner import process_one, run_batch
@@ -43,15 +42,9 @@ def image_only(tmp_path_factory):
 def on_mesh(tmp_path_factory):
     """The hawk posed on its mesh, materials fitted per region, rendered with them."""
     from app.workflows.object_materials import measure_object
-    from app.workflows.posed_frames import project_session
-    from mocks.world import World
-    from tests.integration.object_session import build_object_session, tilted_pose
+    from tests.integration.object_session import projected_hawk_session
 
-    root = tmp_path_factory.mktemp("readable") / "on-mesh"
-    world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-    build_object_session(root, world, np.arange(0.0, 360.0, 30.0),
-                         placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
-    project_session(root)
+    root = projected_hawk_session(tmp_path_factory, tmp_path_factory.mktemp("readable") / "on-mesh")
     measure_object(root)
     result = run_batch([root], "render", options=BatchOptions(preset="draft", render_size=(96, 72)),
                        workers=1).results[0]
