@@ -39,9 +39,12 @@ class PoseEvidence:
         Robust standard deviation of A's residuals (mm), the noise the
         evidence is weighed against.
     cells
-        Number of cells (independent blocks) compared.
+        Number of cells (independent blocks) tested.
     points
-        Number of points compared.
+        Number of points tested.
+    background_cells
+        Number of cells where the two poses predict the same surface, whose
+        spread calibrates the null (0 without ``gap_mm``).
     """
 
     sigma: float
@@ -49,6 +52,7 @@ class PoseEvidence:
     noise_mm: float
     cells: int
     points: int
+    background_cells: int = 0
 
 
 def pose_evidence(
@@ -59,6 +63,8 @@ def pose_evidence(
     compare: ArrayLike | None = None,
     cap_sigma: float = 6.0,
     min_noise: float = 0.0,
+    gap_mm: ArrayLike | None = None,
+    min_gap_sigma: float = 3.0,
 ) -> PoseEvidence:
     r"""Significance of pose A over pose B from the residuals that change between them.
 
@@ -85,6 +91,16 @@ def pose_evidence(
     min_noise
         Smallest noise deviation (the residuals' unit): the resolution of the
         measurement, for residuals that can be exactly zero.
+    gap_mm
+        Optional ``(N,)`` distance (mm) between the surfaces the two poses
+        predict at each point, measured on the clouds' own geometry (see
+        Notes); NaN where one pose predicts no surface.  When given, only the
+        cells where the predictions differ by more than the noise are tested
+        (the *informative* cells) and the others calibrate the null.
+        Default: every compared cell is tested.
+    min_gap_sigma
+        A cell is informative when the median gap of its points exceeds
+        ``min_gap_sigma`` noise deviations.
 
     Returns
     -------
@@ -176,9 +192,10 @@ def pose_evidence(
     ra = np.asarray(residuals_a_mm, dtype=np.float64).ravel()
     rb = np.asarray(residuals_b_mm, dtype=np.float64).ravel()
     pos = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 3)
-    if not (len(ra) == len(rb) == len(pos)):
-        raise ValueError(f"residuals_a_mm, residuals_b_mm and positions_mm must have one entry per point, "
-                         f"got {len(ra)}, {len(rb)} and {len(pos)}")
+    gap = None if gap_mm is None else np.asarray(gap_mm, dtype=np.float64).ravel()
+    if not (len(ra) == len(rb) == len(pos)) or (gap is not None and len(gap) != len(ra)):
+        raise ValueError(f"residuals_a_mm, residuals_b_mm, positions_mm (and gap_mm) must have one entry per point, "
+                         f"got {len(ra)}, {len(rb)}, {len(pos)}" + ("" if gap is None else f" and {len(gap)}"))
     if not (math.isfinite(cell_mm) and cell_mm > 0):
         raise ValueError(f"cell_mm must be a positive cell size in mm, got {cell_mm!r}")
     use = np.isfinite(ra) & np.isfinite(rb) & np.all(np.isfinite(pos), axis=1)
@@ -194,10 +211,55 @@ def pose_evidence(
     delta = np.minimum(rb * rb, cap) - np.minimum(ra * ra, cap)
     key = np.floor((pos - pos.min(axis=0)) / cell_mm).astype(np.int64)
     _, cell, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    sums = np.bincount(cell.ravel(), weights=delta)
+    cell = cell.ravel()
+    sums = np.bincount(cell, weights=delta)
+    point_var = (2.0 * noise * noise) ** 2        # of r_B^2 - r_A^2 for one independent point
+    background = 0
+    if gap is not None:
+        informative = _informative_cells(np.nan_to_num(gap[use], nan=0.0), cell, len(sums),
+                                         min_gap_sigma * noise)
+        back_sums, back_counts = sums[~informative], counts[~informative]
+        sums, counts = sums[informative], counts[informative]
+        background = len(back_sums)
+        if background >= _MIN_BACKGROUND_CELLS:
+            # the cells where both poses predict the same surface are samples of the null: their spread
+            # per point, correlations and mismatches included, is the spread the tested cells would have
+            # if the two poses were equally right there
+            # (its Gaussian core: the median absolute deviation of the cells' sums scaled to one point; the
+            # heavy tail of mismatches, where the tested cells have one, is in the cells favouring B)
+            core = _MAD_TO_SIGMA * float(np.median(np.abs(back_sums / np.sqrt(back_counts))))
+            point_var = max(point_var, core * core)
+        # the null's spread scales with the fourth power of the residuals' deviation: where the favoured
+        # pose fits no better than noise of a larger deviation (both poses wrong there), so does the spread
+        if np.any(informative):
+            local = _MAD_TO_SIGMA * float(np.median(np.abs(ra[informative[cell]])))
+            point_var *= max(1.0, local / noise) ** 4
     m = len(sums)
+    if m == 0:
+        return PoseEvidence(0.0, 0.0, noise, 0, 0, background)
     llr = float(sums.sum()) / float(counts.mean()) / (2.0 * noise * noise)
-    floor2 = m * float(np.median(counts)) * (2.0 * noise * noise) ** 2
+    floor2 = float(np.sum(counts)) * point_var if gap is not None else m * float(np.median(counts)) * point_var
     spread2 = max(2.0 * float(np.sum(np.minimum(sums, 0.0) ** 2)), floor2)
     z = float(sums.sum()) / math.sqrt(spread2)
-    return PoseEvidence(z, llr, noise, m, int(use.sum()))
+    return PoseEvidence(z, llr, noise, m, int(np.sum(counts)), background)
+
+
+#: Fewest background cells whose spread is trusted as the null's.
+_MIN_BACKGROUND_CELLS = 20
+
+
+def _informative_cells(gap: np.ndarray, cell: np.ndarray, cells: int, threshold: float) -> np.ndarray:
+    """Cells whose points' median ``|gap|`` exceeds ``threshold``: where the two poses predict different surfaces.
+
+    The median of a cell, not each point's gap, decides, so that the choice
+    hardly depends on the noise of the residuals tested (a point chosen for
+    its own large noise would bias the test).
+    """
+    order = np.lexsort((np.abs(gap), cell))
+    sorted_cell = cell[order]
+    start = np.searchsorted(sorted_cell, np.arange(cells), side="left")
+    stop = np.searchsorted(sorted_cell, np.arange(cells), side="right")
+    g = np.abs(gap)[order]
+    lo = g[(start + stop - 1) // 2]
+    hi = g[(start + stop) // 2]
+    return 0.5 * (lo + hi) > threshold
