@@ -103,7 +103,7 @@ def test_null_where_the_poses_predict_different_surfaces_equally_well():
     # 40 trials of two equally right poses, tested only where the predicted surfaces differ (a disc of
     # 1 % of the area marked as differing by 10 x the noise, residuals of both poses the same noise
     # there): the few tested cells, calibrated by the others, stay a standard normal within the
-    # sampling error of 40 trials (measured: sd 0.85, largest 2.5)
+    # sampling error of 40 trials (measured: sd 0.74, largest 1.9)
     rng = np.random.default_rng(1)
     xy, pos = _grid()
     z, quiet = [], []
