@@ -181,11 +181,14 @@ def section(r: dict[str, Any]) -> list[str]:
                     + ("" if r["feature_in_both"] else " (outside the condition)")
                     + ("" if r["best_pose_right"] or r["outcome"] == "registered" else ", best pose wrong")
                     for r in r_rows if r["object"] == "vase") + ".  "
-        "The evidence is tested only in the cells where the two poses predict surfaces farther apart than the "
-        "noise; the other cells calibrate its null ([processing.md](processing.md#nearly-symmetric-shapes-evidence)).  "
+        "The evidence is the stronger of two calibrated tests: over every moving cell, and over only the cells "
+        "where the two poses predict surfaces farther apart than the noise, the other cells calibrating its null "
+        "([processing.md](processing.md#nearly-symmetric-shapes-evidence)).  On the vase the focused test is "
+        "limited less by dilution than by the mismatched cells among those it tests (points paired across a "
+        "border under one pose), whose spread the boss's few hundred points do not overcome.  "
         "With the margin rule alone every one of these vase pairs was refused, and one pair (seed 5) was verified "
         "93.7 deg wrong because no competing pose had been searched; the sweep about a nearly weak axis finds its "
-        "competitors.  Times are with other jobs sharing the 2 cores.",
+        "competitors.  Times are with other jobs sharing the 2 cores (load up to 17 during this run).",
         "",
     ]
     return lines
