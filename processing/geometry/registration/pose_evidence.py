@@ -205,16 +205,15 @@ def pose_evidence(
     >>> bool(abs(pose_evidence(r_a, r_b - bump, pos, cell_mm=3.0).sigma) < 3)
     True
 
-    A bump of 1.5 mm radius (0.2 % of the overlap) is diluted over every
-    cell; tested where the predicted surfaces differ (the bump's own cells),
-    against the spread of the others, it is decided:
+    A bump half as high and of 1.5 mm radius (0.2 % of the overlap) is
+    diluted over every cell; tested where the predicted surfaces differ (the
+    bump's own cells), against the spread of the others, it weighs far more:
 
-    >>> small = 1.0 * np.exp(-0.5 * np.sum((xy - 30) ** 2, axis=1) / 1.5 ** 2)
+    >>> small = 0.5 * np.exp(-0.5 * np.sum((xy - 30) ** 2, axis=1) / 1.5 ** 2)
     >>> r_s = r_b - bump + small
-    >>> bool(pose_evidence(r_a, r_s, pos, cell_mm=3.0).sigma < 5)
-    True
-    >>> ev = pose_evidence(r_a, r_s, pos, cell_mm=3.0, gap_mm=small)
-    >>> bool(ev.sigma > 5), ev.cells < 10, ev.background_cells > 390
+    >>> diluted = pose_evidence(r_a, r_s, pos, cell_mm=3.0)
+    >>> focused = pose_evidence(r_a, r_s, pos, cell_mm=3.0, gap_mm=small)
+    >>> bool(focused.sigma > 3 * diluted.sigma), focused.cells < 10, focused.background_cells > 390
     (True, True, True)
     """
     ra = np.asarray(residuals_a_mm, dtype=np.float64).ravel()
