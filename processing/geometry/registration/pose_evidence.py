@@ -39,9 +39,12 @@ class PoseEvidence:
         Robust standard deviation of A's residuals (mm), the noise the
         evidence is weighed against.
     cells
-        Number of cells (independent blocks) compared.
+        Number of cells (independent blocks) tested.
     points
-        Number of points compared.
+        Number of points tested.
+    background_cells
+        Number of cells where the two poses predict the same surface, whose
+        spread calibrates the null (0 without ``gap_mm``).
     """
 
     sigma: float
@@ -49,6 +52,7 @@ class PoseEvidence:
     noise_mm: float
     cells: int
     points: int
+    background_cells: int = 0
 
 
 def pose_evidence(
@@ -59,6 +63,8 @@ def pose_evidence(
     compare: ArrayLike | None = None,
     cap_sigma: float = 6.0,
     min_noise: float = 0.0,
+    gap_mm: ArrayLike | None = None,
+    min_gap_sigma: float = 3.0,
 ) -> PoseEvidence:
     r"""Significance of pose A over pose B from the residuals that change between them.
 
@@ -85,6 +91,16 @@ def pose_evidence(
     min_noise
         Smallest noise deviation (the residuals' unit): the resolution of the
         measurement, for residuals that can be exactly zero.
+    gap_mm
+        Optional ``(N,)`` distance (mm) between the surfaces the two poses
+        predict at each point, measured on the clouds' own geometry (see
+        Notes); NaN where one pose predicts no surface.  When given, only the
+        cells where the predictions differ by more than the noise are tested
+        (the *informative* cells) and the others calibrate the null.
+        Default: every compared cell is tested.
+    min_gap_sigma
+        A cell is informative when the median of its points' gaps exceeds
+        ``min_gap_sigma`` noise deviations.
 
     Returns
     -------
@@ -133,7 +149,23 @@ def pose_evidence(
     A's residuals), ``n`` the median number of points per cell.  Under the
     null hypothesis ``z`` is about standard normal; a pose is worth accepting
     over its competitor only when ``z`` is overwhelming
-    (``RegistrationPreset.min_evidence``, 5 sigma).  The reported
+    (``RegistrationPreset.min_evidence``, 5 sigma).
+
+    A small feature is diluted when every cell is tested: the cells where the
+    two poses predict the same surface add nothing but spread.  Given
+    ``gap_mm``, the distance between the surfaces the two poses predict at
+    each point (each cloud against itself moved by the poses' relative
+    motion, so that it depends on neither pose's residuals), only the cells
+    whose median gap exceeds ``min_gap_sigma`` noise deviations are tested.
+    The other cells, where the poses predict the same surface, are samples of
+    the null whatever the truth: the spread per point of their sums (the
+    Gaussian core, from the median absolute deviation of ``S_j / sqrt(n_j)``,
+    correlations within a cell included) replaces ``(2 sigma_A^2)^2`` in the
+    floor of ``V`` (over the tested points), scaled by ``(s / sigma_A)^4``
+    when the tested points' robust deviation ``s`` of A's residuals is larger
+    (there A fits no better than a larger noise, and so does the spread).
+    The cells favouring B among the tested ones still bound ``V`` from below
+    (mismatches, heavy tails).  The reported
     log-likelihood ratio counts each cell once:
     ``sum_j S_j / (2 sigma_A^2)`` divided by the mean number of points per cell.
 
@@ -172,13 +204,25 @@ def pose_evidence(
 
     >>> bool(abs(pose_evidence(r_a, r_b - bump, pos, cell_mm=3.0).sigma) < 3)
     True
+
+    A bump half as high and of 1.5 mm radius (0.2 % of the overlap) is
+    diluted over every cell; tested where the predicted surfaces differ (the
+    bump's own cells), against the spread of the others, it weighs far more:
+
+    >>> small = 0.5 * np.exp(-0.5 * np.sum((xy - 30) ** 2, axis=1) / 1.5 ** 2)
+    >>> r_s = r_b - bump + small
+    >>> diluted = pose_evidence(r_a, r_s, pos, cell_mm=3.0)
+    >>> focused = pose_evidence(r_a, r_s, pos, cell_mm=3.0, gap_mm=small)
+    >>> bool(focused.sigma > 3 * diluted.sigma), focused.cells < 10, focused.background_cells > 390
+    (True, True, True)
     """
     ra = np.asarray(residuals_a_mm, dtype=np.float64).ravel()
     rb = np.asarray(residuals_b_mm, dtype=np.float64).ravel()
     pos = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 3)
-    if not (len(ra) == len(rb) == len(pos)):
-        raise ValueError(f"residuals_a_mm, residuals_b_mm and positions_mm must have one entry per point, "
-                         f"got {len(ra)}, {len(rb)} and {len(pos)}")
+    gap = None if gap_mm is None else np.asarray(gap_mm, dtype=np.float64).ravel()
+    if not (len(ra) == len(rb) == len(pos)) or (gap is not None and len(gap) != len(ra)):
+        raise ValueError(f"residuals_a_mm, residuals_b_mm, positions_mm (and gap_mm) must have one entry per point, "
+                         f"got {len(ra)}, {len(rb)}, {len(pos)}" + ("" if gap is None else f" and {len(gap)}"))
     if not (math.isfinite(cell_mm) and cell_mm > 0):
         raise ValueError(f"cell_mm must be a positive cell size in mm, got {cell_mm!r}")
     use = np.isfinite(ra) & np.isfinite(rb) & np.all(np.isfinite(pos), axis=1)
@@ -194,10 +238,53 @@ def pose_evidence(
     delta = np.minimum(rb * rb, cap) - np.minimum(ra * ra, cap)
     key = np.floor((pos - pos.min(axis=0)) / cell_mm).astype(np.int64)
     _, cell, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    sums = np.bincount(cell.ravel(), weights=delta)
+    cell = cell.ravel()
+    sums = np.bincount(cell, weights=delta)
+    point_var = (2.0 * noise * noise) ** 2        # of r_B^2 - r_A^2 for one independent point
+    background = 0
+    if gap is not None:
+        informative = _informative_cells(np.nan_to_num(gap[use], nan=0.0), cell, len(sums),
+                                         min_gap_sigma * noise)
+        back_sums, back_counts = sums[~informative], counts[~informative]
+        sums, counts = sums[informative], counts[informative]
+        background = len(back_sums)
+        if background >= _MIN_BACKGROUND_CELLS:
+            # the cells where both poses predict the same surface are samples of the null: their spread
+            # per point, correlations and mismatches included, is the spread the tested cells would have
+            # if the two poses were equally right there
+            # (its Gaussian core: the median absolute deviation of the cells' sums scaled to one point; the
+            # heavy tail of mismatches, where the tested cells have one, is in the cells favouring B)
+            core = _MAD_TO_SIGMA * float(np.median(np.abs(back_sums / np.sqrt(back_counts))))
+            point_var = max(point_var, core * core)
+        # the null's spread scales with the fourth power of the residuals' deviation: where the favoured
+        # pose fits no better than noise of a larger deviation (both poses wrong there), so does the spread
+        if np.any(informative):
+            local = _MAD_TO_SIGMA * float(np.median(np.abs(ra[informative[cell]])))
+            point_var *= max(1.0, local / noise) ** 4
     m = len(sums)
+    if m == 0:
+        return PoseEvidence(0.0, 0.0, noise, 0, 0, background)
     llr = float(sums.sum()) / float(counts.mean()) / (2.0 * noise * noise)
-    floor2 = m * float(np.median(counts)) * (2.0 * noise * noise) ** 2
+    floor2 = float(np.sum(counts)) * point_var if gap is not None else m * float(np.median(counts)) * point_var
     spread2 = max(2.0 * float(np.sum(np.minimum(sums, 0.0) ** 2)), floor2)
     z = float(sums.sum()) / math.sqrt(spread2)
-    return PoseEvidence(z, llr, noise, m, int(use.sum()))
+    return PoseEvidence(z, llr, noise, m, int(np.sum(counts)), background)
+
+
+#: Fewest background cells whose spread is trusted as the null's.
+_MIN_BACKGROUND_CELLS = 20
+
+
+def _informative_cells(gap: np.ndarray, cell: np.ndarray, cells: int, threshold: float) -> np.ndarray:
+    """Cells whose points' median ``|gap|`` exceeds ``threshold``: where the two poses predict different surfaces.
+
+    The median of a cell, not each point's gap, decides, so that the choice
+    hardly depends on the noise of single residuals (a point chosen for its
+    own large noise would widen the test's spread).
+    """
+    order = np.lexsort((np.abs(gap), cell))
+    sorted_cell = cell[order]
+    start = np.searchsorted(sorted_cell, np.arange(cells), side="left")
+    stop = np.searchsorted(sorted_cell, np.arange(cells), side="right")
+    g = np.abs(gap)[order]
+    return 0.5 * (g[(start + stop - 1) // 2] + g[(start + stop) // 2]) > threshold

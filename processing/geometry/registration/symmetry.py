@@ -191,7 +191,43 @@ def _evidence(
     pos = np.concatenate([xa, t_pts])
     ra = np.concatenate(sc_a.residuals)
     rb = np.concatenate(sc_b.residuals)
-    return pose_evidence(ra, rb, pos, EVIDENCE_CELL_VOXELS * voxel, moves)
+    reach = 2.0 * EVIDENCE_CELL_VOXELS * voxel
+    rel = np.linalg.inv(t_a) @ t_b
+    gap = np.concatenate([_self_gap(s_lvl, rel, reach, voxel), _self_gap(t_lvl, t_a @ np.linalg.inv(t_b), reach, voxel)])
+    # two tests, each calibrated: over every moving cell (a feature covering many cells) and over the cells
+    # where the predicted surfaces differ (a small one); the stronger counts, at most doubling the chance of
+    # a false accept (the union bound)
+    diluted = pose_evidence(ra, rb, pos, EVIDENCE_CELL_VOXELS * voxel, moves)
+    focused = pose_evidence(ra, rb, pos, EVIDENCE_CELL_VOXELS * voxel, moves, gap_mm=gap)
+    return focused if focused.sigma > diluted.sigma else diluted
+
+
+def _self_gap(level: _Level, motion: NDArray[np.float64], reach: float, spacing: float) -> NDArray[np.float64]:
+    """How far apart two poses predict the surface at each point of a cloud, from the cloud's own geometry.
+
+    Two poses of a pair differ by a rigid ``motion`` of one cloud relative to
+    itself (``inv(t_a) @ t_b`` for the source, ``t_a @ inv(t_b)`` for the
+    target).  Where the cloud moved by ``motion`` (or its inverse) lies on the
+    cloud itself, the poses predict the same surface there and no residual can
+    tell them apart; where it lands off it (a boss turned onto a plain belly),
+    the distance to the cloud's tangent plane is the difference the residuals
+    will show.  0 where the moved point has no point of the cloud within
+    ``reach`` (mm) and ``spacing`` (mm, the sample spacing) of the line along
+    its normal either way: the cloud cannot say what is there.
+    """
+    out = np.zeros(len(level.points))
+    for m in (motion, np.linalg.inv(motion)):
+        x = transform_points(m, level.points)
+        d, idx = level.tree.query(x, distance_upper_bound=reach, workers=-1)
+        hit = np.isfinite(d)
+        g = np.full(len(x), np.nan)
+        off = x[hit] - level.points[idx[hit]]
+        along = np.sum(off * level.normals[idx[hit]], axis=1)
+        # a point moved past the cloud's border finds its nearest neighbour beside it, not under it
+        under = np.linalg.norm(off - along[:, None] * level.normals[idx[hit]], axis=1) <= spacing
+        g[np.flatnonzero(hit)[under]] = np.abs(along[under])
+        out = np.fmax(out, g)
+    return out
 
 
 def _smooth(level: _Level, k: int = 12, factor: float = 4.0) -> NDArray[np.bool_]:
