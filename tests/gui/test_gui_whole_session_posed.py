@@ -2,7 +2,8 @@
 --mock``), through the window's own widgets only: connect; the reference sphere scanned with photos and the
 scanner calibrated; the ChArUco board put on the table, photographed and the camera calibrated; the chrome sphere
 put on the table, photographed and the lamps located; the hawk captured with photos; processed with its photos
-posed on the mesh; *Measure materials on the mesh*; the Preview showing the measured materials.  The step strip
+posed on the mesh; every pass's chart found (Camera tab) and a frame's spectra and material map (Spectra tab);
+*Measure materials on the mesh*; the Preview showing the measured materials.  The step strip
 says what comes next at each calibration.
 
 Ground truth: the simulated worlds (:mod:`mocks.board_world`, :mod:`mocks.mirror_world`, :mod:`mocks.world`):
@@ -37,6 +38,9 @@ from PySide6.QtCore import Qt
 
 from app.gui.devices_panel import SIMULATED_OBJECTS
 from app.session import Session
+from mocks.chart_scene import chart_corners
+from processing.camera.chart_layout import chart_layout
+from processing.materials.confidence import NEUTRAL_METAL, NO_FIT
 from tests.gui.helpers import make_window, wait_capture
 
 pytestmark = pytest.mark.slow
@@ -173,6 +177,22 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
              chart=True)
     phase("hawk capture")
 
+    # every pass's chart is found where the world put it (3 px: the detector's sub-pixel corners on 240 x 160)
+    truth = chart_corners(chart_layout("classic24"), hawk_world.width, hawk_world.height,
+                          hawk_world.chart_placement)
+    w.tabs.setCurrentWidget(w.camera)
+    w.camera.refresh_charts()
+    assert w.camera.chart_frames.count() == 2
+    for i in range(2):
+        w.camera.chart_frames.setCurrentIndex(i)
+        w.camera.frame = None
+        _click(qtbot, w.camera.chart_frame_button)
+        qtbot.waitUntil(lambda: w.camera.frame is not None, timeout=60_000)
+        assert w.camera.frame.chart is not None, w.camera.frame.chart_problem
+        np.testing.assert_allclose(w.camera.frame.chart.corners, truth, atol=3.0)
+        assert w.camera.chart_verdict.level == "pass"
+    phase("charts")
+
     # processed with the camera and lamps named: the photos are posed on the mesh
     w.tabs.setCurrentWidget(p)
     p.preset.setCurrentText("draft")
@@ -181,6 +201,23 @@ def test_camera_and_lamps_calibrated_then_materials_on_the_mesh(qtbot, tmp_path)
     assert p.report is not None and p.report.get("projection") is not None, w.error_line.text()
     qtbot.waitUntil(lambda: p.materials_button.isEnabled(), timeout=30_000)
     phase("processing with posed photos")
+
+    # spectra: a frame calibrated with its own pass's chart; the map names only what the world holds (or the
+    # alloys the head's nami-shibuichi cannot be told from in one image), or says it cannot tell
+    w.tabs.setCurrentWidget(w.spectra)
+    _click(qtbot, w.spectra.list_button)
+    _click(qtbot, w.spectra.load_button)
+    qtbot.waitUntil(lambda: w.spectra.scene is not None, timeout=120_000)
+    assert "pass 1 chart frame" in w.spectra.state.text() and w.spectra.scene.usable_patches >= 20
+    _click(qtbot, w.spectra.map_button)
+    qtbot.waitUntil(lambda: w.spectra.map is not None or "material map:" in w.error_line.text(), timeout=120_000)
+    assert w.spectra.map is not None, w.error_line.text()
+    named = set(w.spectra.map[1].values()) - {"uncertain", NO_FIT, NEUTRAL_METAL}
+    assert named <= set(hawk_world.materials.values()) | {
+        "nami-shibuichi", "shiro-shibuichi", "jo-shibuichi", "shakudo", "bronze", "nami-shibuichi-uchi-sanbu",
+        "nami-shibuichi-soto-sanbu"}, named
+    assert "of the object" in w.spectra.state.text()
+    phase("spectra")
 
     # materials on the mesh (no held-out validation: tests/app/test_object_materials.py checks it)
     p.materials_validate.setChecked(False)
