@@ -83,3 +83,32 @@ def library_capture(world, folder: Path, *, steps: int, passes: int, seed: int, 
         finally:
             s.close()
     return folder / "s"
+
+
+#: What a one-image material map of the simulated hawk may name besides the world's materials: the alloys the
+#: head's nami-shibuichi cannot be told from in one image.
+HAWK_LOOKALIKES = frozenset({"nami-shibuichi", "shiro-shibuichi", "jo-shibuichi", "shakudo", "bronze",
+                             "nami-shibuichi-uchi-sanbu", "nami-shibuichi-soto-sanbu"})
+
+
+def every_chart_found(qtbot, w, passes: int) -> None:
+    """Open each pass's chart frame on the Camera tab: found where the world put it (3 px), verdict pass."""
+    from PySide6.QtCore import Qt
+
+    from mocks.chart_scene import chart_corners
+    from processing.camera.chart_layout import chart_layout
+
+    world = w.station.world
+    truth = chart_corners(chart_layout("classic24"), world.width, world.height, world.chart_placement)
+    w.tabs.setCurrentWidget(w.camera)
+    w.camera.refresh_charts()
+    assert w.camera.chart_frames.count() == passes
+    for i in range(passes):
+        w.camera.chart_frames.setCurrentIndex(i)
+        w.camera.frame = None
+        assert w.camera.chart_frame_button.isEnabled()
+        qtbot.mouseClick(w.camera.chart_frame_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: w.camera.frame is not None, timeout=60_000)
+        assert w.camera.frame.chart is not None, w.camera.frame.chart_problem
+        np.testing.assert_allclose(w.camera.frame.chart.corners, truth, atol=3.0)
+        assert w.camera.chart_verdict.level == "pass"
