@@ -12,6 +12,10 @@ Cases (each prints one JSON object; ``--work DIR`` is shared):
   (``measure_object(..., normals="photometric")``, experimental).
 * ``normals``: each true region fitted with the scanned, the refined (when the ``photometric`` case
   left its products) and the true normals.
+* ``heldout``: where the held-out-photo error comes from -- the held-out frames re-shot by the
+  simulated camera (one frame, bursts of 4 and 16 frames averaged, noiseless), rendered from the truth
+  and from the product step by step, per pixel and in blocks, split by pixel category
+  (:mod:`bench.holdout_decomposition`).
 * ``large``: the procedural hawk at about 1M triangles, 24 table angles (every 15 degrees) at
   960 x 640 (simulated observations with the true camera and lamp,
   :func:`mocks.observation_sim.simulated_observations`): segmentation and fit timed, peak memory.
@@ -37,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["session_case", "normals_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
+__all__ = ["session_case", "normals_case", "heldout_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
 
 TARGETS = {"share_right": 0.95, "ag_pts": 3.0, "roughness_rel": 0.10, "mean_de2000": 2.0, "baseline_ratio": 3.0,
            "fit_s": 60.0, "large_s": 300.0, "large_gb": 4.0, "ece": 0.05, "high_accuracy": 0.90}
@@ -198,7 +202,7 @@ def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
             "agreement": _agreement(session, doc, summary["simulation_truth"]),
             "validation": {k: val.get(k) for k in ("mean_de2000", "p95_de2000", "baseline_mean_de2000",
                                                    "baseline_p95_de2000", "noise_floor_mean_de2000", "n_frames",
-                                                   "pixels")},
+                                                   "pixels", "pooled")},
             "normals": doc.get("normals"), "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
             "peak_rss_mb": round(_peak_mb(), 1)}
 
@@ -247,6 +251,17 @@ def floor_case(work: Path) -> dict[str, Any]:
                       "baseline_mean_de2000": o["baseline"]["mean_de2000"],
                       "noise_floor_mean_de2000": o["noise_floor"]["mean_de2000"]}
     return out
+
+
+def heldout_case(work: Path) -> dict[str, Any]:
+    """Where the held-out-photo error comes from (:mod:`bench.holdout_decomposition`), after ``session``.
+
+    Writes its figures to ``docs/images/heldout-*.png``.
+    """
+    from bench.common import ROOT
+    from bench.holdout_decomposition import decomposition
+
+    return decomposition(work, ROOT / "docs" / "images")
 
 
 def large_case(triangles: int = 1_000_000) -> dict[str, Any]:
@@ -508,8 +523,8 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "floor", "large",
-                                                      "trade", "reliability", "all"])
+    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "floor", "heldout",
+                                                      "large", "trade", "reliability", "all"])
     ap.add_argument("--work", default="out/bench-object")
     args = ap.parse_args(argv)
     work = Path(args.work)
@@ -518,7 +533,8 @@ def main(argv: list[str] | None = None) -> int:
         from bench.common import ROOT
 
         out = {"session": session_case(work), "photometric": session_case(work, "photometric"),
-               "normals": normals_case(work), "floor": floor_case(work), "trade": trade_case(work),
+               "normals": normals_case(work), "floor": floor_case(work), "heldout": heldout_case(work),
+               "trade": trade_case(work),
                "large": large_case(),
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
@@ -529,6 +545,8 @@ def main(argv: list[str] | None = None) -> int:
         out = normals_case(work)
     elif args.case == "floor":
         out = floor_case(work)
+    elif args.case == "heldout":
+        out = heldout_case(work)
     elif args.case == "trade":
         out = trade_case(work)
     elif args.case == "large":

@@ -45,6 +45,8 @@ OBJECT_SCENE = "products/object-scene.toml"
 VALIDATION_DIR = "products/validation"
 #: Every n-th table angle is held out of the fit and used to validate it (the validation's rule).
 HOLDOUT_EVERY = 4          # app.workflows.holdout_validation.HOLDOUT_EVERY (not imported: it loads Open3D)
+#: The held-out comparison is also made at this spatial scale (pixels per block side).
+POOL_PX = 4                # app.workflows.holdout_validation.POOL_PX
 #: Relative error of the forward model added to each observation's noise (0.02 = 2 %), the one default of
 #: ``kogei fit-materials --model-error`` and the batch's materials step on the mesh (docs/materials.md, "Weights").
 FIT_MODEL_ERROR = 0.02
@@ -431,8 +433,16 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
     result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
                              light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), 1.0,
                              irradiance_ref_mm=doc["irradiance_reference_mm"], grid=grid,
-                             clip_level=_clip_level(photos), noise=noise_model(records, photos.gains))
+                             clip_level=_clip_level(photos), noise=noise_model(records, photos.gains),
+                             cfa=_cfa(root, records[0], decode) if records else None, pool_px=POOL_PX)
     return _write_validation(session, result)
+
+
+def _cfa(root: Path, record: tuple[str, dict[str, Any]], decode: str) -> str | None:
+    """The photos' Bayer pattern when they are demosaicked (the noise floor then demosaicks its noise too)."""
+    from app.workflows.station_calibration import decode_frame
+
+    return decode_frame(root, record[0], record[1], decode).cfa_pattern if decode == "demosaic" else None
 
 
 def _clip_level(photos: Any) -> Any:
@@ -455,6 +465,10 @@ def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
            "noise_floor_mean_de2000": floor.get("mean_de2000"), "noise_floor_p95_de2000": floor.get("p95_de2000"),
            "n_skipped": overall["n_skipped"], "regions": overall["regions"], "baseline_spec": result["baseline_spec"],
            "camera_to_xyz": result["camera_to_xyz"], "frames": []}
+    if "pooled" in overall:
+        pooled = overall["pooled"]
+        out["pooled"] = {"block_px": pooled["block_px"], **_figures(pooled["measured"], pooled["baseline"]),
+                         "noise_floor_mean_de2000": (pooled.get("noise_floor") or {}).get("mean_de2000")}
     for entry in result["frames"]:
         row: dict[str, Any] = {"frame": entry["name"], "seconds": round(float(entry.get("seconds", 0.0)), 3)}
         if "skipped" in entry:
@@ -462,7 +476,9 @@ def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
         else:
             row.update(_figures(entry["measured"], entry["baseline"]))
             row["clipped_pixels"] = entry.get("clipped_pixels")
-        for key in ("triptych_png", "error_map_png", "baseline_error_map_png"):
+        if "pooled" in entry:
+            row["pooled"] = _figures(entry["pooled"]["measured"], entry["pooled"]["baseline"])
+        for key in ("triptych_png", "error_map_png", "baseline_error_map_png", "pooled_error_map_png"):
             if isinstance(entry.get(key), (bytes, bytearray)):
                 rel = f"{VALIDATION_DIR}/{str(entry['name']).replace('/', '_')}-{key[:-4].replace('_', '-')}.png"
                 session.write_file(rel, bytes(entry[key]))
