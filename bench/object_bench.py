@@ -394,6 +394,7 @@ def section(results: dict[str, Any]) -> list[str]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
         lines.append(f"| {r['index']} | {answer_text(r)} | {major.get(r['index'], '-')} | {p} | "
                      f"{r['area_mm2']:.0f} | {r['n_lit']} / {r['n_observations']} |")
+    lines += _heldout_lines(results.get("heldout"), v)
     lines += _photometric_lines(results.get("photometric"), answer_text)
     lines += _normals_lines(results.get("normals"), answer_text)
     big = results.get("large")
@@ -425,6 +426,46 @@ def _floor_rows(f: dict[str, Any] | None, v: dict[str, Any]) -> list[str]:
                  f"| the same at the simulated object's own normals (one material: "
                  f"{f['true']['baseline_mean_de2000']:.2f}) | {f['true']['mean_de2000']:.2f} | |"]
     return rows
+
+
+def _heldout_lines(h: dict[str, Any] | None, v: dict[str, Any]) -> list[str]:
+    """The ``heldout`` case: the held-out comparison per pixel and pooled, one frame and bursts, step by step."""
+    if not h:
+        return []
+    t, n = h["table"], h["burst"]
+    photos = ["single frame", f"burst of {n // 4}", f"burst of {n}", "noiseless"]
+    rungs = [("measured materials", "measured materials (the product)"),
+             ("one material (baseline)", "one material for the whole object (the paper's baseline)"),
+             ("true materials, scanned mesh", "true materials, scanned mesh and its shading normals"),
+             ("true materials, scanned mesh, true normals", "true materials, scanned mesh, the true object's normals"),
+             ("true object, estimated pose", "true object (mesh, normals, materials), the estimated frame pose"),
+             ("true object, true pose", "true object, true camera, lamp and placement")]
+    head = "| rendering | " + " | ".join(f"{p}, {s} px" for s in (1, 4) for p in photos[:3]) + " | noiseless, 1 px |"
+    lines = ["", f"Where the held-out error comes from (case `heldout`, `bench/holdout_decomposition.py`; "
+                 f"{h['frames']} held-out frames, each re-shot by the simulated camera: the session's photo, bursts "
+                 f"of {n // 4} and {n} frames with independent noise averaged in linear RAW, the noiseless photo; "
+                 "one pixel set per frame from the truth and the photo).  Mean CIEDE2000:", "",
+             head, "|---|" + "---:|" * 7]
+    for key, label in rungs:
+        cells = [t[f"{key} | {p} | {s}"]["mean"] for s in (1, 4) for p in photos[:3]] + \
+            [t[f"{key} | noiseless | 1"]["mean"]]
+        lines.append(f"| {label} | " + " | ".join(f"{c:.2f}" for c in cells) + " |")
+    mf = h["model_floor"]
+    lines.append("| noise floor, the model's (noise on the mosaic, demosaicked) | "
+                 + " | ".join(f"{mf[f'RGGB | {nf} | {s}']['mean']:.2f}" for s in (1, 4) for nf in (1, n // 4, n))
+                 + " | 0 |")
+    lines.append("| noise floor, real (the photo against its own noiseless photo) | "
+                 + " | ".join(f"{t[f'noiseless photo | {p} | {s}']['mean']:.2f}" for s in (1, 4)
+                              for p in photos[:3]) + " | 0 |")
+    c1, cn = h["categories"]["measured materials | single frame"], h["categories"][f"measured materials | burst of {n}"]
+    lines += ["", "Per pixel category (from the truth), measured materials: share of the pixels, mean CIEDE2000 "
+                  f"one frame / {n} frames, share of the summed error one frame / {n} frames: "
+              + "; ".join(f"{k} {100 * c1[k]['share_pixels']:.0f} %, {c1[k]['mean_de2000']:.2f} / "
+                          f"{cn[k]['mean_de2000']:.2f}, {100 * c1[k]['share_of_error']:.0f} / "
+                          f"{100 * cn[k]['share_of_error']:.0f} %" for k in c1) + ".",
+              f"Re-shooting cost: {h['per_frame_shot_s']:.2f} s per simulated frame (render excluded); the "
+              f"regenerated photos equal the session's to {h['regenerated_vs_session_max_abs']:.1e}."]
+    return lines
 
 
 def _photometric_lines(p: dict[str, Any] | None, answer_text: Any) -> list[str]:
