@@ -161,7 +161,7 @@ def decomposition(work: Path, images_dir: Path | None = None) -> dict[str, Any]:
     from processing.camera.response import camera_sensitivities
     from processing.spectral.spectra import SpectralGrid, light_spectrum
     from render.material_mesh import read_material_mesh
-    from render.photo_signal import render_signal
+    from render.photo_signal import pixel_faces, render_signal
 
     t_start = time.perf_counter()
     summary = json.loads((work / "summary.json").read_text())
@@ -207,6 +207,7 @@ def decomposition(work: Path, images_dir: Path | None = None) -> dict[str, Any]:
     }
     values: dict[tuple[str, str, int], list[np.ndarray]] = {}
     cats: dict[tuple[str, str], list[np.ndarray]] = {}
+    regions: dict[tuple[str, str], list[np.ndarray]] = {}
     floors: dict[tuple[str, int, int], list[np.ndarray]] = {}
     checks, scale_ratio, example = [], [], None
     t_shots = t_render = 0.0
@@ -232,6 +233,8 @@ def decomposition(work: Path, images_dir: Path | None = None) -> dict[str, Any]:
             common = (ndimage.binary_erosion(true_mask, iterations=2)
                       & ndimage.binary_erosion(rendered["measured materials"][1], iterations=2) & unclipped)
             rendered["noiseless photo"] = (clean, common)     # against the photos: the real noise floor
+            seen = pixel_faces(v, t, frame)
+            label = np.where(seen >= 0, face_truth[np.maximum(seen, 0)], -1)
             cat = _categories(clean, true_img, true_mask, matrix)
             lit = common & (cat == 4)
             scale_ratio.append(np.median(clean[lit] / np.maximum(true_img[lit], 1e-6), axis=0))
@@ -245,6 +248,8 @@ def decomposition(work: Path, images_dir: Path | None = None) -> dict[str, Any]:
                         if s == 1:
                             cats.setdefault((rname, pname), []).append(
                                 np.stack([em[common], cat[common].astype(np.float64)], axis=1))
+                            regions.setdefault((rname, pname), []).append(
+                                np.stack([em[common], label[common].astype(np.float64)], axis=1))
                         if rname == "measured materials" and pname in ("single frame", f"burst of {BURST}") \
                                 and s in (1, 4) and k == 0:
                             example = example or {}
@@ -269,7 +274,13 @@ def decomposition(work: Path, images_dir: Path | None = None) -> dict[str, Any]:
                                     "mean_de2000": float(a[a[:, 1] == i, 0].mean()) if np.any(a[:, 1] == i) else None,
                                     "share_of_error": float(a[a[:, 1] == i, 0].sum() / total) if total else None}
                                 for i, c in enumerate(CATEGORIES)}
-    out = {"frames": len(frames), "burst": BURST, "pools_px": list(POOLS), "table": table, "categories": by_cat,
+    by_region = {}
+    for (r, p), parts in regions.items():
+        a = np.concatenate(parts)
+        by_region[f"{r} | {p}"] = {nm: {"share_pixels": float(np.mean(a[:, 1] == i)),
+                                        "mean_de2000": float(a[a[:, 1] == i, 0].mean()) if np.any(a[:, 1] == i)
+                                        else None} for i, nm in enumerate(names)}
+    out = {"frames": len(frames), "burst": BURST, "true_materials": by_region, "pools_px": list(POOLS), "table": table, "categories": by_cat,
            "model_floor": {f"{c} | {nf} | {s}": _stats(x) for (c, nf, s), x in floors.items()},
            "regenerated_vs_session_max_abs": max(checks),
            "exposure_ratio_noiseless_over_true_render": np.median(np.array(scale_ratio), axis=0).tolist(),

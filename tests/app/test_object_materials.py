@@ -89,8 +89,13 @@ def test_held_out_frames_are_validated_and_never_fitted(measured):
     assert val["regions"][base]["measured"] == val["regions"][base]["baseline"]
     for f in val["frames"]:
         if "skipped" not in f:
-            for key in ("triptych", "error_map", "baseline_error_map"):
+            for key in ("triptych", "error_map", "baseline_error_map", "pooled_error_map"):
                 assert (root / f[key]).read_bytes()[:4] == b"\x89PNG"
+    # The comparison at 4 x 4 px is reported beside the per-pixel one, its noise floor (noise averaged over 16
+    # pixels, fewer after the demosaic's correlation) well below the per-pixel floor.
+    pooled = val["pooled"]
+    assert pooled["block_px"] == 4 and pooled["pixels"] > 100
+    assert pooled["noise_floor_mean_de2000"] < 0.6 * val["noise_floor_mean_de2000"]
 
 
 def test_cli_export_and_bad_input(measured, tmp_path, capsys):
