@@ -10,7 +10,11 @@ through one camera-RGB -> XYZ matrix
 (:func:`processing.appearance.photo_comparison.compare_images`): mean and
 95th percentile CIEDE2000 over the object's pixels per frame and overall,
 with false-colour error maps (0-10 dE) and photo | render | error triptychs
-as PNG bytes.  docs/validation.md describes the rule and the figures.
+as PNG bytes; beside a perfect model's score against photos with the sensor's
+noise (the noise floor), and, with ``pool_px``, the same comparisons at a
+stated spatial scale (linear values averaged in blocks before the colour
+conversion).  docs/validation.md describes the rule and the figures, and what
+the error is made of on the demo's session.
 """
 
 from __future__ import annotations
