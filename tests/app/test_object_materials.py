@@ -16,18 +16,15 @@ import pytest
 from app.cli import main
 from app.errors import UsageError
 from mocks.world import World
-from tests.integration.object_session import projected_hawk_session
+from tests.integration.object_session import measured_hawk_session
 
 
 @pytest.fixture(scope="module")
 def measured(tmp_path_factory):
-    from app.workflows.object_materials import measure_object
-
-    root = projected_hawk_session(tmp_path_factory, tmp_path_factory.mktemp("object") / "session")
+    """The projected hawk with its materials measured (built once per run, shared with the report's tests)."""
+    root, doc = measured_hawk_session(tmp_path_factory, tmp_path_factory.mktemp("object") / "session")
     world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-    lines: list[str] = []
-    doc = measure_object(root, message=lines.append)
-    return root, world, doc, lines
+    return root, world, doc, None
 
 
 def _face_areas(v, t):

@@ -18,7 +18,8 @@ import numpy as np
 
 from tests.integration.posed_session import _camera_json
 
-__all__ = ["build_object_session", "projected_hawk_session", "tilted_pose", "SIZE"]
+__all__ = ["build_object_session", "projected_hawk_session", "measured_hawk_session",
+           "projected_hawk_two_placements", "tilted_pose", "SIZE"]
 
 SIZE = (480, 320)
 
@@ -105,21 +106,23 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     return {"world": world, "vertices": v, "triangles": t}
 
 
-def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
-    """A copy at ``dst`` of the hawk's object session, projected: the world ``World.hawk(4000, width=240,
-    height=160, chart_layout="classic24")`` in three placements (upright, tilted +35 deg, tilted -35 deg about
-    azimuth 90 deg) x 12 table angles (0 to 330 deg), then :func:`app.workflows.posed_frames.project_session`.
-
-    Several test modules start from this session; it is built once per test run on disk and shared by the
-    xdist workers (a file lock lets one build it while the others wait), and each caller gets its own copy.
-    """
-    import fcntl
+def _shared_folder(tmp_path_factory, name: str) -> Path:
+    """A folder shared by the xdist workers of this run (the parent of their base temporary folders)."""
     import os
-    import shutil
 
     base = tmp_path_factory.getbasetemp()
-    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared-projected-hawk"
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / name
     shared.mkdir(parents=True, exist_ok=True)
+    return shared
+
+
+def _shared_projected(tmp_path_factory, dst: Path, name: str, angles_deg, placements: tuple) -> Path:
+    """A copy at ``dst`` of the projected hawk session of ``angles_deg`` x ``placements``, built once per run
+    in a folder shared by the xdist workers (a file lock lets one build it while the others wait)."""
+    import fcntl
+    import shutil
+
+    shared = _shared_folder(tmp_path_factory, name)
     root, done = shared / "session", shared / "built"
     with open(shared / "lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
@@ -131,11 +134,60 @@ def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
                 if root.exists():
                     shutil.rmtree(root)
                 world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-                build_object_session(root, world, np.arange(0.0, 360.0, 30.0),
-                                     placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
+                build_object_session(root, world, angles_deg, placements=placements)
                 project_session(root)
                 done.write_text("ok\n")
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
     shutil.copytree(root, dst, ignore=shutil.ignore_patterns("*.lock"))
     return dst
+
+
+def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
+    """A copy at ``dst`` of the hawk's object session, projected: the world ``World.hawk(4000, width=240,
+    height=160, chart_layout="classic24")`` in three placements (upright, tilted +35 deg, tilted -35 deg about
+    azimuth 90 deg) x 12 table angles (0 to 330 deg), then :func:`app.workflows.posed_frames.project_session`.
+
+    Several test modules start from this session; it is built once per test run on disk and shared by the
+    xdist workers (a file lock lets one build it while the others wait), and each caller gets its own copy.
+    """
+    return _shared_projected(tmp_path_factory, dst, "shared-projected-hawk", np.arange(0.0, 360.0, 30.0),
+                             (None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
+
+
+def projected_hawk_two_placements(tmp_path_factory, dst: Path) -> Path:
+    """As :func:`projected_hawk_session`, smaller: two placements (upright, tilted +35 deg) x 8 table angles
+    (0 to 315 deg).  The GUI's materials tests start from it; built once per run, shared likewise."""
+    return _shared_projected(tmp_path_factory, dst, "shared-projected-hawk-2x8", np.arange(0.0, 360.0, 45.0),
+                             (None, tilted_pose(35.0)))
+
+
+def measured_hawk_session(tmp_path_factory, dst: Path) -> tuple[Path, dict]:
+    """A copy at ``dst`` of :func:`projected_hawk_session` with its materials measured on the mesh
+    (:func:`app.workflows.object_materials.measure_object` with its defaults, held-out validation included),
+    and the document that call returned.
+
+    Built once per test run and shared by the xdist workers like the projected session (the report's
+    and the materials' tests both start from it); each caller gets its own copy.
+    """
+    import fcntl
+    import pickle
+    import shutil
+
+    shared = _shared_folder(tmp_path_factory, "shared-measured-hawk")
+    root, doc_file = shared / "session", shared / "measure_object.pickle"
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not doc_file.exists():
+                from app.workflows.object_materials import measure_object
+
+                if root.exists():
+                    shutil.rmtree(root)
+                projected_hawk_session(tmp_path_factory, root)
+                doc = measure_object(root)
+                doc_file.write_bytes(pickle.dumps(doc))
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("*.lock"))
+    return dst, pickle.loads(doc_file.read_bytes())
