@@ -224,7 +224,9 @@ def answer_text(region: dict[str, Any]) -> str:
         return f"{text}: one of {', '.join(group)}"
     others = [g for g in group if g != material]
     listed = ", ".join(others[:3]) + (f" and {len(others) - 3} others" if len(others) > 3 else "")
-    return text + (f"; cannot be told from {listed}" if others else "")
+    text += f"; cannot be told from {listed}" if others else ""
+    mixed = float(region.get("disagreeing_area_mm2") or 0.0)
+    return text + (f"; {mixed:.0f} mm2 of it fits another region's material better" if mixed > 0 else "")
 
 
 def _check_cancel(stop: Callable[[], bool]) -> None:
@@ -281,11 +283,15 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         note(f"normals: {100 * normals_doc['decided_share']:.0f} % of the vertices decided by their highlights, "
              f"median tilt {normals_doc['median_tilt_deg']:.1f} deg; fitting again")
         fits = _fit_regions(obs, v, t, data, seg, d_ref, model, model_error, stop)
+    _check_cancel(stop)
+    t_pieces = time.perf_counter()
+    fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
+    t_pieces = time.perf_counter() - t_pieces
     regions = []
     for r, fit in enumerate(fits):
         faces = seg.face_region == r
         regions.append({"index": r, **fit.to_dict(), "area_mm2": round(float(areas[faces].sum()), 3),
-                        "faces": int(faces.sum()), "vertices": int((seg.vertex_region == r).sum())})
+                        "faces": int(faces.sum()), "vertices": int((seg.vertex_region == r).sum()), **pieces[r]})
         note(f"region {r}: {answer_text(regions[-1])}, {int(faces.sum())} faces, {fit.n_lit} lit observations")
     t_fit = time.perf_counter() - t1
     unmeasured = seg.face_region < 0
@@ -300,7 +306,8 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
                        "held_out": [n for n, h in zip(obs.frame_names, held) if h]},
             "normals": {**(normals_doc or {"method": "mesh"}), "smoothing_mm": round(sigma_mm, 4)},
             "interior_margin_mm": round(_interior_margin_mm(v, data["frames"]), 4),
-            "timings_s": {"normals": round(t_normals, 3), "segmentation": round(t_seg, 3), "fit": round(t_fit, 3)},
+            "timings_s": {"normals": round(t_normals, 3), "segmentation": round(t_seg, 3), "fit": round(t_fit, 3),
+                          "pieces": round(t_pieces, 3)},
             "_face_region": seg.face_region, "_normals": vertex_normals}
 
 
@@ -325,6 +332,58 @@ def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
                              model_error=model_error)
         fits.append(fit)
     return fits
+
+
+def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
+                  d_ref: float | None, model: Any, model_error: float,
+                  areas: np.ndarray) -> tuple[list[Any], list[dict[str, Any]]]:
+    """Each region's connected pieces tested against the other regions' materials; confidences capped.
+
+    A piece with :data:`processing.materials.forward_fit.MIN_HIGHLIGHTS` highlight observations of its
+    own that another region's fitted material explains far better than its region's
+    (:func:`processing.materials.region_consistency.disagreeing_pieces`) shows that the region mixes
+    materials: its answer cannot hold for that piece's area, so the region's confidence is at most the
+    share of its area that does not disagree (docs/materials.md, "Parts that disagree with their region").
+    """
+    from processing.materials.forward_fit import HIGHLIGHT_DEG, INDEPENDENT, MIN_HIGHLIGHTS, region_samples
+    from processing.materials.presets import get_material
+    from processing.materials.region_consistency import disagreeing_pieces, fixed_material_chi2, mesh_components
+
+    piece = mesh_components(seg.vertex_region, t)
+    face_piece = np.where(seg.face_region >= 0, piece[t[:, 0]], -1)
+    mats = [get_material(f.spec) if f.spec else None for f in fits]
+    cos_hl = math.cos(math.radians(HIGHLIGHT_DEG))
+    rows, n_obs, own, ids = [], [], [], []
+    for r in range(seg.n_regions):
+        samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region == r), triangles=t,
+                                 reference_mm=d_ref)
+        sp = piece[samples.vertex]
+        lit = np.bincount(sp[samples.cos_h >= cos_hl], minlength=int(piece.max()) + 1)
+        for p in np.flatnonzero(lit >= MIN_HIGHLIGHTS):
+            chi2, n, _ = fixed_material_chi2(samples.subset(np.flatnonzero(sp == p)), model, mats,
+                                             model_error=model_error)
+            rows.append(chi2)
+            n_obs.append(n)
+            own.append(r)
+            ids.append(int(p))
+    disagrees = np.zeros(0, dtype=bool)
+    better = np.zeros(0, dtype=np.int64)
+    if rows:
+        disagrees, better = disagreeing_pieces(np.array(rows), n_obs, own, independent=INDEPENDENT)
+    out_fits, docs = [], []
+    for r, fit in enumerate(fits):
+        mine = [i for i, o in enumerate(own) if o == r]
+        bad = [i for i in mine if disagrees[i]]
+        region_area = float(areas[seg.face_region == r].sum())
+        bad_area = float(areas[np.isin(face_piece, [ids[i] for i in bad]) & (seg.face_region == r)].sum())
+        cap = 1.0 - bad_area / region_area if region_area > 0 else 1.0
+        if bad and fit.confidence > cap:
+            fit = dataclasses.replace(fit, confidence=float(cap))
+        out_fits.append(fit)
+        docs.append({"pieces_tested": len(mine), "pieces_disagreeing": len(bad),
+                     "disagreeing_area_mm2": round(bad_area, 3),
+                     "disagreeing_better_regions": sorted({int(better[i]) for i in bad})})
+    return out_fits, docs
 
 
 def _interior_margin_mm(vertices: np.ndarray, frames: list[Any]) -> float:

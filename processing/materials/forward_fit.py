@@ -49,7 +49,7 @@ from processing.materials.presets import get_material
 from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError",
-           "region_samples", "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
+           "region_samples", "fit_region", "prepared_observations", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
 
 #: The free Ag/Cu/Au alloy candidate.
 ALLOY = "alloy"
@@ -284,6 +284,47 @@ def _subsample(samples: RegionSamples, max_samples: int, seed: int) -> RegionSam
     return samples.subset(np.sort(np.concatenate([near, pick])))
 
 
+def _whitened(fitted: RegionSamples, model: ForwardModel, model_error: float, normal_error_deg: float,
+              robust: bool) -> tuple[RegionSamples, NDArray[np.float64], Whitener]:
+    """The fitted samples, their flattened signal and its whitener (noise, model error, normals, robust weights)."""
+    y = fitted.signal.reshape(-1)
+    var = np.maximum(fitted.sigma, _SIGMA_FLOOR) ** 2 + (model_error * np.maximum(fitted.signal, 0.0)) ** 2
+    provisional = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
+    common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg))
+    w = Whitener.of(var, common)
+    if robust:
+        w = w.scaled(np.sqrt(robust_weights(provisional, fitted, y, w)))
+    return fitted, y, w
+
+
+def prepared_observations(samples: RegionSamples, model: ForwardModel, *, model_error: float = 0.02,
+                          normal_error_deg: float = 0.5, max_samples: int = 20_000, seed: int = 0,
+                          robust: bool = True) -> tuple[RegionSamples, NDArray[np.float64], Whitener] | None:
+    """The observations as :func:`fit_region` weighs them, for scoring fixed materials on them.
+
+    Parameters
+    ----------
+    samples
+        The observations (:func:`region_samples`).
+    model
+        Camera and lamp.
+    model_error, normal_error_deg, max_samples, seed, robust
+        As in :func:`fit_region`.
+
+    Returns
+    -------
+    tuple or None
+        The subsampled observations, their ``(n * 3,)`` signal and the whitener ``w`` (so that
+        ``|w(signal - prediction)|^2`` is a chi-square), or None when there is no observation.
+    """
+    if not (np.isfinite(model_error) and model_error >= 0):
+        raise FitError(f"model_error must be >= 0 (relative), got {model_error!r}")
+    fitted = _subsample(samples, int(max_samples), seed)
+    if len(fitted) == 0:
+        return None
+    return _whitened(fitted, model, model_error, normal_error_deg, robust)
+
+
 def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Sequence[str] = SURFACE_CANDIDATES,
                model_error: float = 0.02, normal_error_deg: float = 0.5, independent: float = INDEPENDENT,
                max_samples: int = 20_000, seed: int = 0, robust: bool = True) -> RegionFit:
@@ -335,13 +376,7 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
     early = _not_measured(samples, n_hl, len(fitted))
     if early is not None:
         return early
-    y = fitted.signal.reshape(-1)
-    var = np.maximum(fitted.sigma, _SIGMA_FLOOR) ** 2 + (model_error * np.maximum(fitted.signal, 0.0)) ** 2
-    provisional = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
-    common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg))
-    w = Whitener.of(var, common)
-    if robust:
-        w = w.scaled(np.sqrt(robust_weights(provisional, fitted, y, w)))
+    fitted, y, w = _whitened(fitted, model, model_error, normal_error_deg, robust)
     bases = [_basis(c, model, fitted.cos_d) for c in candidates]
     fits = [fit_candidate(b, fitted, w(y), w) for b, _ in bases]
     from processing.materials._forward_fit_report import region_fit
