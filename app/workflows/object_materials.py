@@ -48,6 +48,9 @@ HOLDOUT_EVERY = 4          # app.workflows.holdout_validation.HOLDOUT_EVERY (not
 #: Relative error of the forward model added to each observation's noise (0.02 = 2 %), the one default of
 #: ``kogei fit-materials --model-error`` and the batch's materials step on the mesh (docs/materials.md, "Weights").
 FIT_MODEL_ERROR = 0.02
+#: A region's own material competes with the largest region's for its pieces only when it was named with at
+#: least this confidence (docs/materials.md, "Pieces that join the largest region").
+_RIVAL_CONFIDENCE = 0.5
 #: Spectral grid of the fit (nm).
 _GRID = (400.0, 700.0, 10.0)
 
@@ -285,6 +288,10 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         fits = _fit_regions(obs, v, t, data, seg, d_ref, model, model_error, stop)
     _check_cancel(stop)
     t_pieces = time.perf_counter()
+    seg, fits, joined = _join_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
+    if joined["pieces"]:
+        note(f"{joined['pieces']} pieces ({joined['area_mm2']:.0f} mm2) of other regions joined region "
+             f"{joined['target']}: its material explains their observations as well as their own")
     fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
     t_pieces = time.perf_counter() - t_pieces
     regions = []
@@ -298,7 +305,8 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
     return {"schema": "kogei.object_materials", "version": 1, "mesh": OBJECT_MESH, "light_spectrum": spectrum,
             "irradiance_reference_mm": d_ref,
             "model_error": model_error, "segmentation": {"method": seg.method, "regions": seg.n_regions,
-                                                          "features": list(seg.feature_names)},
+                                                          "features": list(seg.feature_names),
+                                                          "joined": joined},
             "regions": regions, "baseline": _baseline(regions),
             "not_measured": {"faces": int(unmeasured.sum()), "area_mm2": round(float(areas[unmeasured].sum()), 3)},
             "area_mm2": round(float(areas.sum()), 3),
@@ -312,8 +320,12 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
 
 
 def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, d_ref: float | None,
-                 model: Any, model_error: float, stop: Callable[[], bool]) -> list[Any]:
-    """Each region's :class:`processing.materials.forward_fit.RegionFit` from its interior's observations."""
+                 model: Any, model_error: float, stop: Callable[[], bool], only: Any = None,
+                 previous: list[Any] | None = None) -> list[Any]:
+    """Each region's :class:`processing.materials.forward_fit.RegionFit` from its interior's observations.
+
+    ``only``: the regions to fit; the others keep their fit from ``previous``.
+    """
     from processing.appearance.region_interior import border_distance_mm, interior_vertices
     from processing.materials.confidence import NOT_MEASURED
     from processing.materials.forward_fit import fit_region, region_samples
@@ -323,6 +335,9 @@ def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
     fits = []
     for r in range(seg.n_regions):
         _check_cancel(stop)
+        if only is not None and r not in only and previous is not None:
+            fits.append(previous[r])
+            continue
         every = np.flatnonzero(seg.vertex_region == r)
         ids = interior_vertices(every, distance, margin)
         fit = fit_region(region_samples(obs, v, data["frames"], ids, triangles=t, reference_mm=d_ref), model,
@@ -332,6 +347,73 @@ def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
                              model_error=model_error)
         fits.append(fit)
     return fits
+
+
+def _join_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
+                 d_ref: float | None, model: Any, model_error: float, areas: np.ndarray,
+                 stop: Callable[[], bool]) -> tuple[Any, list[Any], dict[str, Any]]:
+    """Pieces of the other regions that the largest region's material explains as well as their own join it.
+
+    Every connected piece of every other region is scored against its own region's fitted material and
+    the largest region's (:func:`processing.materials.region_consistency.joining_pieces`); the pieces
+    that join are relabelled, regions left empty are dropped, and the regions that lost pieces are
+    fitted again.  The largest region keeps its fit: the pieces joined because its material already
+    explains them (docs/materials.md, "Pieces that join the largest region").
+    """
+    from processing.materials.forward_fit import INDEPENDENT, region_samples
+    from processing.materials.presets import get_material
+    from processing.materials.region_consistency import (
+        face_regions,
+        fixed_material_chi2,
+        joining_pieces,
+        mesh_components,
+    )
+
+    none = {"target": None, "pieces": 0, "area_mm2": 0.0, "from_regions": []}
+    sizes = np.bincount(seg.face_region[seg.face_region >= 0], weights=areas[seg.face_region >= 0],
+                        minlength=seg.n_regions)
+    target = int(np.argmax(sizes)) if seg.n_regions > 1 else -1
+    if target < 0 or not fits[target].spec:
+        return seg, fits, none
+    piece = mesh_components(seg.vertex_region, t)
+    target_mat = get_material(fits[target].spec)
+    vertex_region = seg.vertex_region.copy()
+    moved_from, n_pieces = set(), 0
+    for r in range(seg.n_regions):
+        _check_cancel(stop)
+        if r == target:
+            continue
+        samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region == r), triangles=t,
+                                 reference_mm=d_ref)
+        sp = piece[samples.vertex]
+        # a region whose own fit cannot name its material (confidence under one half) offers no rival
+        # explanation: its pieces join when the largest region's material fits them within the misfit limit
+        own_mat = get_material(fits[r].spec) if fits[r].spec and fits[r].confidence >= _RIVAL_CONFIDENCE else None
+        ids = np.unique(sp)
+        scores = [fixed_material_chi2(samples.subset(np.flatnonzero(sp == p)), model, [target_mat, own_mat],
+                                      model_error=model_error) for p in ids]
+        if not scores:
+            continue
+        chi2 = np.array([c for c, _, _ in scores])
+        join = joining_pieces(chi2[:, 0], chi2[:, 1], [n for _, n, _ in scores], independent=INDEPENDENT)
+        if join.any():
+            vertex_region[np.isin(piece, ids[join]) & (seg.vertex_region == r)] = target
+            moved_from.add(r)
+            n_pieces += int(join.sum())
+    if not n_pieces:
+        return seg, fits, none
+    face_region = face_regions(vertex_region, t)
+    moved_area = float(areas[(face_region == target) & (seg.face_region != target)].sum())
+    keep = [r for r in range(seg.n_regions) if (vertex_region == r).any()]
+    lut = np.full(seg.n_regions + 1, -1, dtype=np.int32)
+    lut[keep] = np.arange(len(keep), dtype=np.int32)
+    new = dataclasses.replace(seg, vertex_region=lut[vertex_region].astype(np.int32),
+                              face_region=lut[face_region].astype(np.int32), n_regions=len(keep))
+    refit = {int(lut[r]) for r in moved_from if lut[r] >= 0}
+    fits = _fit_regions(obs, v, t, data, new, d_ref, model, model_error, stop, only=refit,
+                        previous=[fits[r] for r in keep])
+    return new, fits, {"target": int(lut[target]), "pieces": n_pieces, "area_mm2": round(moved_area, 3),
+                       "from_regions": sorted(int(r) for r in moved_from)}
 
 
 def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
@@ -373,7 +455,8 @@ def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], 
     out_fits, docs = [], []
     for r, fit in enumerate(fits):
         mine = [i for i, o in enumerate(own) if o == r]
-        bad = [i for i in mine if disagrees[i]]
+        # a piece better explained by another region of the same answer is no mixture
+        bad = [i for i in mine if disagrees[i] and fits[int(better[i])].material != fit.material]
         region_area = float(areas[seg.face_region == r].sum())
         bad_area = float(areas[np.isin(face_piece, [ids[i] for i in bad]) & (seg.face_region == r)].sum())
         cap = 1.0 - bad_area / region_area if region_area > 0 else 1.0

@@ -6,7 +6,9 @@ of its own is explained far better by another region's fitted material than by i
 region is a mixture and its answer cannot be right for the whole of it.  :func:`mesh_components`
 splits the regions into connected pieces; :func:`fixed_material_chi2` scores observations against
 fixed (already fitted) materials with the fit's own noise model; :func:`disagreeing_pieces` applies
-the likelihood-ratio test piece by piece.  docs/materials.md, section "Parts that disagree with
+the likelihood-ratio test piece by piece, and :func:`joining_pieces` the same test the other way: a
+piece whose observations do not reject a larger region's material (and which that material explains
+within the fit's misfit limit) joins it -- spatial coherence decided by the photos, not by a prior.  docs/materials.md, section "Parts that disagree with
 their region", says how the measurement uses it (the region's confidence is capped by the share of
 its area that does not disagree).
 
@@ -26,7 +28,8 @@ from numpy.typing import ArrayLike, NDArray
 from processing.materials._forward_fit_samples import HIGHLIGHT_DEG, FitError, RegionSamples
 from processing.materials.lobes import Material
 
-__all__ = ["mesh_components", "fixed_material_chi2", "disagreeing_pieces", "LIKELIHOOD_MARGIN"]
+__all__ = ["mesh_components", "face_regions", "fixed_material_chi2", "disagreeing_pieces", "joining_pieces",
+           "LIKELIHOOD_MARGIN"]
 
 #: A piece disagrees with its region when another region's material lowers its (independence-scaled)
 #: chi-square by more than this: a likelihood ratio of exp(50 / 2), far beyond the noise of the
@@ -76,6 +79,32 @@ def mesh_components(vertex_region: ArrayLike, triangles: ArrayLike) -> NDArray[n
     measured = region >= 0
     _, out[measured] = np.unique(label[measured], return_inverse=True)
     return out
+
+
+def face_regions(vertex_region: ArrayLike, triangles: ArrayLike) -> NDArray[np.int32]:
+    """Region of each face: the label of most of its measured corners (the first measured corner breaks a tie).
+
+    Parameters
+    ----------
+    vertex_region
+        ``(V,)`` region of each vertex (negative: not measured).
+    triangles
+        ``(T, 3)`` vertex indices.
+
+    Returns
+    -------
+    ndarray
+        ``(T,)`` region of each face (-1 where no corner is measured).
+
+    Examples
+    --------
+    >>> face_regions([0, 1, 1, -1], [[0, 1, 2], [0, 3, 3], [3, 3, 3]]).tolist()
+    [1, 0, -1]
+    """
+    c = np.asarray(vertex_region, dtype=np.int64)[np.asarray(triangles, dtype=np.int64)]
+    out = np.where(c[:, 0] >= 0, c[:, 0], np.where(c[:, 1] >= 0, c[:, 1], c[:, 2]))
+    out = np.where((c[:, 1] == c[:, 2]) & (c[:, 1] >= 0), c[:, 1], out)
+    return out.astype(np.int32)
 
 
 def fixed_material_chi2(samples: RegionSamples, model, materials: Sequence[Material | None], *,
@@ -175,3 +204,50 @@ def disagreeing_pieces(chi2: ArrayLike, n_observations: ArrayLike, own: ArrayLik
     best_chi2 = others[rows, best] if c.shape[1] > 1 else np.full(n.size, np.inf)
     disagrees = np.isfinite(own_chi2) & np.isfinite(best_chi2) & (own_chi2 - best_chi2 > margin)
     return disagrees, np.where(disagrees, best, -1)
+
+
+def joining_pieces(chi2_target: ArrayLike, chi2_own: ArrayLike, n_observations: ArrayLike, *,
+                   independent: float = 400.0, margin: float = LIKELIHOOD_MARGIN,
+                   max_misfit: float = 4.0) -> NDArray[np.bool_]:
+    """Pieces whose observations a target region's material explains as well as their own region's.
+
+    A piece joins when its own region's material is not better than the target's by more than
+    ``margin`` (scaled chi-square, as :func:`disagreeing_pieces`) and the target's material fits it
+    within ``max_misfit`` (reduced, scaled chi-square: the limit beyond which a fit reads "no
+    candidate fits").  A piece whose own region has no material (NaN) joins when the target's fits.
+    A piece without scored observations never joins: nothing shows it belongs anywhere.
+
+    Parameters
+    ----------
+    chi2_target, chi2_own
+        ``(P,)`` chi-square of each piece under the target's and its own region's material.
+    n_observations
+        ``(P,)`` observations scored (each of three channels).
+    independent
+        Observations counted as independent evidence.
+    margin
+        Largest advantage (scaled chi-square) of the own material that still lets the piece join.
+    max_misfit
+        Largest reduced chi-square of the target's material on the piece
+        (:data:`processing.materials._forward_fit_report.MAX_MISFIT_POOLED`).
+
+    Returns
+    -------
+    ndarray
+        ``(P,)`` True where the piece joins the target.
+
+    Examples
+    --------
+    >>> joining_pieces([1230.0, 9000.0, 1300.0, 50.0], [1200.0, 1200.0, np.nan, np.nan], [400, 400, 400, 0]).tolist()
+    [True, False, True, False]
+    """
+    target = np.asarray(chi2_target, dtype=np.float64).reshape(-1)
+    own = np.asarray(chi2_own, dtype=np.float64).reshape(-1)
+    n = np.asarray(n_observations, dtype=np.float64).reshape(-1)
+    if not (target.size == own.size == n.size):
+        raise FitError(f"chi2_target, chi2_own and n_observations must have one value per piece; got {target.size}, "
+                       f"{own.size}, {n.size}")
+    f = np.minimum(1.0, independent / np.maximum(n, 1.0))
+    st, so = target * f, np.where(np.isfinite(own), own * f, np.inf)
+    fits = st / np.maximum(3.0 * n * f, 1.0) <= max_misfit
+    return (n > 0) & np.isfinite(st) & fits & (st - so <= margin)
