@@ -404,7 +404,7 @@ def _join_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
         return seg, fits, none
     face_region = face_regions(vertex_region, t)
     moved_area = float(areas[(face_region == target) & (seg.face_region != target)].sum())
-    keep = [r for r in range(seg.n_regions) if (vertex_region == r).any()]
+    keep = [r for r in range(seg.n_regions) if (face_region == r).any()]      # a region left without faces goes
     lut = np.full(seg.n_regions + 1, -1, dtype=np.int32)
     lut[keep] = np.arange(len(keep), dtype=np.int32)
     new = dataclasses.replace(seg, vertex_region=lut[vertex_region].astype(np.int32),

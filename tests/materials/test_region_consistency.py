@@ -11,7 +11,13 @@ from mocks.world import World
 from processing.camera.response import camera_sensitivities
 from processing.materials.forward_fit import FitError, ForwardModel, fit_region, region_samples
 from processing.materials.presets import get_material
-from processing.materials.region_consistency import disagreeing_pieces, fixed_material_chi2, mesh_components
+from processing.materials.region_consistency import (
+    disagreeing_pieces,
+    face_regions,
+    fixed_material_chi2,
+    joining_pieces,
+    mesh_components,
+)
 from processing.spectral.spectra import SpectralGrid, light_spectrum
 
 ANGLES = np.arange(0.0, 360.0, 30.0)
@@ -91,3 +97,25 @@ def test_disagreement_needs_a_margin_and_scores():
     assert not d.any()
     with pytest.raises(FitError, match="chi2"):
         disagreeing_pieces([[1.0, 2.0]], [1, 2], [0])
+
+
+def test_a_piece_joins_the_region_whose_material_explains_it(model):
+    # Target: a region fitted as nami-shibuichi.  A truly nami piece (labelled with a gold region) joins it;
+    # a truly gold piece of a gold region does not (its own material is better by far and nami-shibuichi
+    # misses it beyond the misfit limit); a truly nami piece of a region without a material joins; a piece
+    # without observations never joins.
+    gold, gold_fit = _sphere("gold", model)
+    nami, nami_fit = _sphere("nami-shibuichi", model)
+    target, own_gold = get_material(nami_fit.spec), get_material(gold_fit.spec)
+    c_nami, n_nami, _ = fixed_material_chi2(nami, model, [target, own_gold])
+    c_gold, n_gold, _ = fixed_material_chi2(gold, model, [target, own_gold])
+    join = joining_pieces([c_nami[0], c_gold[0], c_nami[0], np.nan], [c_nami[1], c_gold[1], np.nan, np.nan],
+                          [n_nami, n_gold, n_nami, 0])
+    assert join.tolist() == [True, False, True, False]
+    with pytest.raises(FitError, match="one value per piece"):
+        joining_pieces([1.0], [1.0, 2.0], [1])
+
+
+def test_faces_take_the_region_of_most_corners():
+    tri = np.array([[0, 1, 2], [0, 3, 3], [3, 3, 3], [1, 2, 0]])
+    assert face_regions([0, 1, 1, -1], tri).tolist() == [1, 0, -1, 1]
