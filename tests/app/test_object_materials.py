@@ -184,7 +184,8 @@ def test_pieces_are_checked_and_joined_consistently(measured):
         assert {"pieces_tested", "pieces_disagreeing", "disagreeing_area_mm2"} <= set(r)
         assert 0 <= r["pieces_disagreeing"] <= r["pieces_tested"]
         if r["pieces_disagreeing"]:
-            assert r["confidence"] <= 1.0 - r["disagreeing_area_mm2"] / r["area_mm2"] + 1e-9
+            # the file rounds areas to 1e-3 mm2: the cap holds to 1e-5 (regions are tens of mm2 and more)
+            assert r["confidence"] <= 1.0 - r["disagreeing_area_mm2"] / r["area_mm2"] + 1e-5
         assert r["faces"] > 0
     if joined["pieces"]:
         largest = max(doc["regions"], key=lambda r: r["area_mm2"])
