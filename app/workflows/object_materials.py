@@ -362,12 +362,7 @@ def _join_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
     """
     from processing.materials.forward_fit import INDEPENDENT, region_samples
     from processing.materials.presets import get_material
-    from processing.materials.region_consistency import (
-        face_regions,
-        fixed_material_chi2,
-        joining_pieces,
-        mesh_components,
-    )
+    from processing.materials.region_consistency import face_regions, joining_pieces, mesh_components, pieces_chi2
 
     none = {"target": None, "pieces": 0, "area_mm2": 0.0, "from_regions": []}
     sizes = np.bincount(seg.face_region[seg.face_region >= 0], weights=areas[seg.face_region >= 0],
@@ -389,13 +384,10 @@ def _join_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
         # a region whose own fit cannot name its material (confidence under one half) offers no rival
         # explanation: its pieces join when the largest region's material fits them within the misfit limit
         own_mat = get_material(fits[r].spec) if fits[r].spec and fits[r].confidence >= _RIVAL_CONFIDENCE else None
-        ids = np.unique(sp)
-        scores = [fixed_material_chi2(samples.subset(np.flatnonzero(sp == p)), model, [target_mat, own_mat],
-                                      model_error=model_error) for p in ids]
-        if not scores:
+        ids, chi2, n_obs, _ = pieces_chi2(samples, sp, model, [target_mat, own_mat], model_error=model_error)
+        if not ids.size:
             continue
-        chi2 = np.array([c for c, _, _ in scores])
-        join = joining_pieces(chi2[:, 0], chi2[:, 1], [n for _, n, _ in scores], independent=INDEPENDENT)
+        join = joining_pieces(chi2[:, 0], chi2[:, 1], n_obs, independent=INDEPENDENT)
         if join.any():
             vertex_region[np.isin(piece, ids[join]) & (seg.vertex_region == r)] = target
             moved_from.add(r)
@@ -429,7 +421,7 @@ def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], 
     """
     from processing.materials.forward_fit import HIGHLIGHT_DEG, INDEPENDENT, MIN_HIGHLIGHTS, region_samples
     from processing.materials.presets import get_material
-    from processing.materials.region_consistency import disagreeing_pieces, fixed_material_chi2, mesh_components
+    from processing.materials.region_consistency import disagreeing_pieces, mesh_components, pieces_chi2
 
     piece = mesh_components(seg.vertex_region, t)
     face_piece = np.where(seg.face_region >= 0, piece[t[:, 0]], -1)
@@ -441,13 +433,14 @@ def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], 
                                  reference_mm=d_ref)
         sp = piece[samples.vertex]
         lit = np.bincount(sp[samples.cos_h >= cos_hl], minlength=int(piece.max()) + 1)
-        for p in np.flatnonzero(lit >= MIN_HIGHLIGHTS):
-            chi2, n, _ = fixed_material_chi2(samples.subset(np.flatnonzero(sp == p)), model, mats,
-                                             model_error=model_error)
-            rows.append(chi2)
-            n_obs.append(n)
-            own.append(r)
-            ids.append(int(p))
+        tested = np.flatnonzero(lit[sp] >= MIN_HIGHLIGHTS)
+        if not tested.size:
+            continue
+        p_ids, chi2, n, _ = pieces_chi2(samples.subset(tested), sp[tested], model, mats, model_error=model_error)
+        rows.extend(chi2)
+        n_obs.extend(n.tolist())
+        own.extend([r] * p_ids.size)
+        ids.extend(p_ids.tolist())
     disagrees = np.zeros(0, dtype=bool)
     better = np.zeros(0, dtype=np.int64)
     if rows:

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from processing.materials._forward_fit_samples import HIGHLIGHT_DEG, FitError, RegionSamples
 from processing.materials.lobes import Material
 
-__all__ = ["mesh_components", "face_regions", "fixed_material_chi2", "disagreeing_pieces", "joining_pieces",
+__all__ = ["mesh_components", "face_regions", "fixed_material_chi2", "pieces_chi2", "disagreeing_pieces", "joining_pieces",
            "LIKELIHOOD_MARGIN"]
 
 #: A piece disagrees with its region when another region's material lowers its (independence-scaled)
@@ -155,6 +155,63 @@ def fixed_material_chi2(samples: RegionSamples, model, materials: Sequence[Mater
             out[k] = float(r @ r)
     n_hl = int((fitted.cos_h >= np.cos(np.radians(HIGHLIGHT_DEG))).sum())
     return out, len(fitted), n_hl
+
+
+def pieces_chi2(samples: RegionSamples, piece: ArrayLike, model, materials: Sequence[Material | None], *,
+                model_error: float = 0.02, normal_error_deg: float = 0.5, max_samples: int = 4000,
+                seed: int = 0) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64],
+                                        NDArray[np.int64]]:
+    """Chi-square of every piece's observations under each of several fixed materials, in one pass.
+
+    The observations of all pieces are weighed together
+    (:func:`processing.materials.forward_fit.grouped_observations`: the noise, model error and
+    normal error of the fit, robust weights scaled and normalised per piece), each material's
+    prediction is evaluated once for all of them, and the whitened squared residuals are summed per
+    piece.  Each piece keeps the observations :func:`fixed_material_chi2` would score for it alone.
+
+    Parameters
+    ----------
+    samples
+        Observations of the pieces (:func:`processing.materials.forward_fit.region_samples`).
+    piece
+        ``(n,)`` piece of each observation (>= 0).
+    model
+        The :class:`processing.materials.forward_fit.ForwardModel`.
+    materials
+        Fitted materials (None: not scored, NaN).
+    model_error, normal_error_deg, max_samples, seed
+        As in :func:`fixed_material_chi2` (``max_samples`` per piece).
+
+    Returns
+    -------
+    ids : ndarray
+        ``(P,)`` the pieces with scored observations, ascending.
+    chi2 : ndarray
+        ``(P, M)`` chi-square of each of them under each material (NaN for None).
+    n : ndarray
+        ``(P,)`` observations scored per piece.
+    n_highlights : ndarray
+        ``(P,)`` of them, within :data:`HIGHLIGHT_DEG` of the mirror direction.
+    """
+    from processing.materials.forward_fit import grouped_observations
+
+    p_all = np.asarray(piece, dtype=np.int64).reshape(-1)
+    prep = grouped_observations(samples, p_all, model, model_error=model_error, normal_error_deg=normal_error_deg,
+                                max_samples=max_samples, seed=seed)
+    if prep is None:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, len(materials))), np.zeros(0, dtype=np.int64), \
+            np.zeros(0, dtype=np.int64)
+    fitted, kept_piece, y, w = prep
+    ids, g = np.unique(kept_piece, return_inverse=True)
+    n_pieces = ids.size
+    chi2 = np.full((n_pieces, len(materials)), np.nan)
+    for k, m in enumerate(materials):
+        if m is not None:
+            r = w(y - model.predict(m, fitted).reshape(-1)).reshape(-1, 3)
+            chi2[:, k] = np.bincount(g, weights=np.einsum("ij,ij->i", r, r), minlength=n_pieces)
+    n = np.bincount(g, minlength=n_pieces)
+    n_hl = np.bincount(g, weights=fitted.cos_h >= np.cos(np.radians(HIGHLIGHT_DEG)), minlength=n_pieces)
+    return ids, chi2, n, n_hl.astype(np.int64)
 
 
 def disagreeing_pieces(chi2: ArrayLike, n_observations: ArrayLike, own: ArrayLike, *, independent: float = 400.0,

@@ -9,7 +9,14 @@ import pytest
 from mocks.observation_sim import simulated_observations
 from mocks.world import World
 from processing.camera.response import camera_sensitivities
-from processing.materials.forward_fit import FitError, ForwardModel, fit_region, region_samples
+from processing.materials.forward_fit import (
+    FitError,
+    ForwardModel,
+    RegionSamples,
+    fit_region,
+    grouped_observations,
+    region_samples,
+)
 from processing.materials.presets import get_material
 from processing.materials.region_consistency import (
     disagreeing_pieces,
@@ -17,6 +24,7 @@ from processing.materials.region_consistency import (
     fixed_material_chi2,
     joining_pieces,
     mesh_components,
+    pieces_chi2,
 )
 from processing.spectral.spectra import SpectralGrid, light_spectrum
 
@@ -119,3 +127,52 @@ def test_a_piece_joins_the_region_whose_material_explains_it(model):
 def test_faces_take_the_region_of_most_corners():
     tri = np.array([[0, 1, 2], [0, 3, 3], [3, 3, 3], [1, 2, 0]])
     assert face_regions([0, 1, 1, -1], tri).tolist() == [1, 0, -1, 1]
+
+
+def _joined(a: RegionSamples, b: RegionSamples) -> RegionSamples:
+    """The observations of two simulations as one region's."""
+    cat = {f: np.concatenate([getattr(a, f), getattr(b, f)]) for f in
+           ("signal", "sigma", "cos_i", "cos_o", "cos_h", "cos_d", "irradiance", "vertex", "frame")}
+    return RegionSamples(**cat, clipped_share=0.0)
+
+
+def test_scoring_all_pieces_at_once_equals_scoring_each(model):
+    # Reference: each piece's observations scored on their own (their own prediction, their rows of the
+    # whitener); the one-pass sums per piece must equal it to rounding (rtol 1e-9: the same arithmetic,
+    # summed in another order).  Each piece keeps what fixed_material_chi2 keeps for it alone: the same
+    # count, also for the pieces cut to max_samples by the random draw.
+    gold, gold_fit = _sphere("gold", model)
+    nami, _ = _sphere("nami-shibuichi", model)
+    both = _joined(gold, nami)
+    piece = np.concatenate([gold.vertex % 7, 7 + nami.vertex % 3])          # 10 pieces of unequal size
+    mats = [get_material(gold_fit.spec), get_material("nami-shibuichi"), None]
+    ids, chi2, n, n_hl = pieces_chi2(both, piece, model, mats, max_samples=600)
+    fitted, kept, y, w = grouped_observations(both, piece, model, max_samples=600)
+    assert ids.tolist() == list(range(10)) and np.isnan(chi2[:, 2]).all()
+    for i, p in enumerate(ids):
+        rows = np.flatnonzero(kept == p)
+        sub = fitted.subset(rows)
+        y_p = y.reshape(-1, 3)[rows].reshape(-1)
+        for k in range(2):
+            r = w.take(rows)(y_p - model.predict(mats[k], sub).reshape(-1))
+            assert chi2[i, k] == pytest.approx(float(r @ r), rel=1e-9)
+        alone = both.subset(np.flatnonzero(piece == p))
+        _, n_alone, hl_alone = fixed_material_chi2(alone, model, [None], max_samples=600)
+        assert n[i] == n_alone and n_hl[i] == hl_alone
+    assert n.max() == 600                                                    # some pieces were cut
+
+
+def test_one_pass_scoring_keeps_the_decisions(model):
+    # A region fitted as gold holds a gold piece and a truly nami-shibuichi piece.  Weighted once for the
+    # whole region (the provisional fits shared, the robust scale per piece), the nami piece still
+    # disagrees and names the nami region, and the gold piece agrees -- as when each piece is weighted alone.
+    gold, gold_fit = _sphere("gold", model)
+    nami, nami_fit = _sphere("nami-shibuichi", model)
+    mats = [get_material(gold_fit.spec), get_material(nami_fit.spec)]
+    both = _joined(gold, nami)
+    piece = np.concatenate([np.zeros(len(gold), int), np.ones(len(nami), int)])
+    _, chi2, n, _ = pieces_chi2(both, piece, model, mats)
+    disagrees, better = disagreeing_pieces(chi2, n, [0, 0])
+    assert disagrees.tolist() == [False, True] and better.tolist() == [-1, 1]
+    join = joining_pieces(chi2[:, 1], chi2[:, 0], n)
+    assert join.tolist() == [False, True]
