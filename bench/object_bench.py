@@ -198,7 +198,9 @@ def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
     return {"fit_s": round(t_fit, 2), "with_validation_s": round(t_all, 2), "timings_s": doc.get("timings_s"),
             "regions": [{k: r.get(k) for k in ("index", "material", "confidence", "group", "parameters",
                                                "uncertainties", "area_mm2", "n_lit", "n_observations",
-                                               "chi2_per_dof")} for r in doc["regions"]],
+                                               "chi2_per_dof", "pieces_tested", "pieces_disagreeing",
+                                               "disagreeing_area_mm2")} for r in doc["regions"]],
+            "joined": (doc.get("segmentation") or {}).get("joined"),
             "agreement": _agreement(session, doc, summary["simulation_truth"]),
             "validation": {k: val.get(k) for k in ("mean_de2000", "p95_de2000", "baseline_mean_de2000",
                                                    "baseline_p95_de2000", "noise_floor_mean_de2000", "n_frames",
@@ -383,7 +385,7 @@ def section(results: dict[str, Any]) -> list[str]:
         "Per true material, share of its area with the right answer: "
         + ", ".join(f"{k} {100 * x:.0f} %" for k, x in a["per_true_material"].items()) + ".  Regions named "
         "with a confidence >= 0.9 whose largest true material is not the answer (target: none): "
-        + (", ".join(str(i) for i in a.get("confident_wrong", [])) or "none") + ".",
+        + (", ".join(str(i) for i in a.get("confident_wrong", [])) or "none") + "." + _joined_text(s),
         "",
         "| region | answer | largest true material | parameters of the best candidate | area (mm2) | "
         "lit / all observations |",
@@ -412,6 +414,16 @@ def section(results: dict[str, Any]) -> list[str]:
     if rel:
         lines += ["", "### Material confidence", ""] + _reliability_lines(rel)
     return lines + [""]
+
+
+def _joined_text(s: dict[str, Any]) -> str:
+    """The sentence on the pieces that joined the largest region and the time of the piece tests."""
+    j, secs = s.get("joined") or {}, (s.get("timings_s") or {}).get("pieces")
+    if not j:
+        return ""
+    return (f"  Pieces of smaller regions that joined the largest (region {j.get('target')}): {j.get('pieces')} "
+            f"({j.get('area_mm2', 0):.0f} mm2, from regions {', '.join(str(r) for r in j.get('from_regions', []))})"
+            + ("" if secs is None else f"; joining and checking the pieces took {secs:.1f} s of the fit") + ".")
 
 
 def _floor_rows(f: dict[str, Any] | None, v: dict[str, Any]) -> list[str]:

@@ -171,3 +171,25 @@ def test_refined_normals_stay_true_on_the_true_mesh(measured, tmp_path):
     assert reg["material"] == "nami-shibuichi" or "nami-shibuichi" in reg["group"]
     with pytest.raises(UsageError, match="--normals"):
         measure_object(copy, normals="smooth")
+
+
+def test_pieces_are_checked_and_joined_consistently(measured):
+    # Every region says how many of its pieces were tested against the other regions' materials and how much
+    # of its area disagrees; its confidence never exceeds the share of its area that does not disagree.  The
+    # pieces that joined went to the largest region (by area), and the mesh holds no region without faces.
+    from render.material_mesh import read_material_mesh
+
+    root, world, doc, _ = measured
+    mesh = read_material_mesh(root / "products/object-mesh.ply")
+    joined = doc["segmentation"]["joined"]
+    for r in doc["regions"]:
+        assert {"pieces_tested", "pieces_disagreeing", "disagreeing_area_mm2"} <= set(r)
+        assert 0 <= r["pieces_disagreeing"] <= r["pieces_tested"]
+        if r["pieces_disagreeing"]:
+            # the file rounds areas to 1e-3 mm2: the cap holds to 1e-5 (regions are tens of mm2 and more)
+            assert r["confidence"] <= 1.0 - r["disagreeing_area_mm2"] / r["area_mm2"] + 1e-5
+        assert r["faces"] > 0
+    if joined["pieces"]:
+        largest = max(doc["regions"], key=lambda r: r["area_mm2"])
+        assert joined["target"] == largest["index"] and joined["area_mm2"] > 0
+    assert set(np.unique(mesh.face_material)) <= set(range(-1, len(doc["regions"])))
