@@ -180,6 +180,8 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     if args.holdout_burst is not None:
         if args.plan != "scan":
             raise UsageError("--holdout-burst is for --plan scan (the held-out camera angles)")
+        if not 1 <= args.holdout_burst <= 99:
+            raise UsageError(f"--holdout-burst must be 1..99 frames per held-out angle, got {args.holdout_burst}")
         kw["holdout_burst"] = args.holdout_burst
     try:
         plan = CapturePlan(**kw)
