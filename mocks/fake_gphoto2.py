@@ -468,23 +468,37 @@ def _camera_faults(config_path: str, faults: dict[str, Any]) -> int | None:
     return None
 
 
+#: The last view rendered in this process (its world, spectral frame and key), which the next shots of a
+#: burst reuse: the same world, placement and kind render the same radiance, so only the noise is drawn anew.
+_LAST_VIEW: dict[str, Any] = {}
+
+
 def render_frame(config_path: str | os.PathLike[str], config: dict[str, Any], path: str, kind: str) -> None:
     """Render the configured world's ``kind`` frame (``"chart"`` or ``"object"``) and write it to ``path`` (DNG).
 
     The capture's sensor noise is seeded by (``seed``, ``placement``, frame kind, table angle, the shot's
-    number in a burst: ``shot_index``) and, for a bracket, its exposure, so the same frame renders the same wherever it is rendered: in this program or
-    in the simulated station's process (:func:`_render_at_station`).
+    number in a burst: ``shot_index``) and, for a bracket, its exposure, so the same frame renders the same
+    wherever it is rendered: in this program or in the simulated station's process
+    (:func:`_render_at_station`).  The shots after the first of a burst reuse the first shot's spectral
+    render when it was made in this process (same world, placement and kind).
     """
     from mocks.camera_sim import simulate_raw, write_raw
     from mocks.noise_seed import frame_seed
 
-    world = _world(config["world"], Path(config_path))
     placement = int(config.get("placement", 0))
-    frame = world.frame(kind)
+    shot = frame_shot(config, kind)
+    key = (str(Path(config_path).resolve()), json.dumps(config["world"], sort_keys=True, default=str), placement, kind)
+    if shot > 0 and _LAST_VIEW.get("key") == key:
+        world, frame = _LAST_VIEW["world"], _LAST_VIEW["frame"]     # a burst's next shot: only the noise is new
+    else:
+        world = _world(config["world"], Path(config_path))
+        frame = world.frame(kind)
+        if "shot_index" in config:                  # a capture that shoots bursts: keep the view for its next shot
+            _LAST_VIEW.update(key=key, world=world, frame=frame)
     exposure = float(config["exposure_s"])
     raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure,
                        seed=frame_seed(int(config["seed"]), placement, chart_seed_kind(config, kind),
-                                       world.table_angle_deg, shot=frame_shot(config, kind))
+                                       world.table_angle_deg, shot=shot)
                        + (int(round(1e6 * exposure)) if config.get("bracket") else 0),
                        exposure_boost=_SATURATION_BOOST if config["faults"]["saturate"] else 1.0)
     raw.f_number = getattr(world, "f_number", None)
