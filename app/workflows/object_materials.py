@@ -432,7 +432,8 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
     photos = calibrated_images(root, session.manifest, records, decode, note)
     if n_avg > 1:
         photos = _BurstMeans(photos, calibrated_images(root, session.manifest,
-                                                       [r for b in bursts for r in b[:n_avg]], decode, note), n_avg)
+                                                       [r for b in bursts for r in b[:n_avg]], decode, note), n_avg,
+                             _clip_level(photos))
         note(f"held-out photos: each the linear mean of a burst of {n_avg} frames")
     grid = SpectralGrid(*_GRID)
     note(f"validating on {len(frames)} held-out frames ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''})")
@@ -461,7 +462,9 @@ def burst_records(manifest: dict[str, Any], records: list[tuple[str, dict[str, A
     extra: dict[str, list[tuple[int, str, dict[str, Any]]]] = {}
     for cid, rec in (manifest.get("captures") or {}).items():
         if isinstance(rec, dict) and rec.get("kind") == "burst" and rec.get("status") == "done":
-            extra.setdefault(str(rec.get("burst_of")), []).append((int(rec.get("shot") or 0), cid, rec))
+            shot = rec.get("shot")
+            if isinstance(shot, int) and not isinstance(shot, bool) and shot >= 1:     # else not a usable shot
+                extra.setdefault(str(rec.get("burst_of")), []).append((shot, cid, rec))
     return [[(cid, rec)] + [(c, r) for _, c, r in sorted(extra.get(cid, []), key=lambda e: e[0])]
             for cid, rec in records]
 
@@ -472,20 +475,29 @@ class _BurstMeans(Sequence):
     ``singles[k]`` is frame k's first shot; ``shots`` holds every frame's ``n`` shots one after the
     other.  The bilinear demosaic and the chart gain are linear, so the mean of the decoded frames is
     the decoded mean of their RAW mosaics; its noise variance is the single frame's divided by ``n``.
+    A pixel that any shot clipped (at or above ``clip_level``) keeps that shot's value, so the
+    comparison still leaves it out.
     """
 
-    def __init__(self, singles: Sequence, shots: Sequence, n: int) -> None:
+    def __init__(self, singles: Sequence, shots: Sequence, n: int, clip_level: Any) -> None:
         self.singles, self.shots, self.n = singles, shots, n
+        self.clip_level = np.asarray(clip_level, dtype=np.float64)
         self.gains, self.frames = getattr(singles, "gains", {}), getattr(singles, "frames", [])
 
     def __len__(self) -> int:
         return len(self.singles)
 
     def __getitem__(self, k: Any) -> Any:
-        acc = np.zeros_like(np.asarray(self.shots[k * self.n], dtype=np.float64))
-        for j in range(self.n):
-            acc += np.asarray(self.shots[k * self.n + j], dtype=np.float64)
-        return (acc / self.n).astype(np.float32)
+        first = np.asarray(self.shots[k * self.n], dtype=np.float64)
+        acc, top = first.copy(), first.copy()
+        for j in range(1, self.n):
+            shot = np.asarray(self.shots[k * self.n + j], dtype=np.float64)
+            acc += shot
+            np.maximum(top, shot, out=top)
+        mean = acc / self.n
+        clipped = top >= self.clip_level
+        mean[clipped] = top[clipped]
+        return mean.astype(np.float32)
 
 
 def _cfa(root: Path, record: tuple[str, dict[str, Any]], decode: str) -> str | None:

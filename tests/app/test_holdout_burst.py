@@ -96,3 +96,14 @@ def test_a_burst_validates_with_the_lower_floor(validated):
     # the photos are cleaner, so the measured materials' error falls too (measured 2.12 against 2.99)
     assert burst["mean_de2000"] < 0.85 * single["mean_de2000"]
     assert burst["pooled"]["noise_floor_mean_de2000"] < 0.65 * single["pooled"]["noise_floor_mean_de2000"]
+
+
+def test_burst_mean_keeps_a_pixel_any_shot_clipped_out_of_the_comparison():
+    from app.workflows.object_materials import _BurstMeans
+
+    clip = np.array([1.0, 1.0, 1.0])
+    shots = [np.full((2, 2, 3), 0.2, np.float32), np.full((2, 2, 3), 0.4, np.float32)]
+    shots[1][0, 0, 1] = 1.0                              # one shot clipped one channel of one pixel
+    mean = _BurstMeans(shots[:1], shots, 2, clip)[0]
+    assert mean[0, 0, 1] >= 1.0                          # still at the clip level: the comparison drops it
+    assert np.allclose(np.delete(mean.reshape(-1), 1), 0.3)   # elsewhere the linear mean
