@@ -172,11 +172,12 @@ def normals_case(work: Path) -> dict[str, Any]:
             "refined_error_deg": refined_error, "rows": rows}
 
 
-def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
+def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1) -> dict[str, Any]:
     """The demo chain once into ``work``, then the materials on the mesh timed and checked.
 
     ``normals="photometric"``: with the normals refined by the photos (the ``normals`` case then
-    reads them from the products).
+    reads them from the products).  ``holdout_burst``: frames shot at each held-out table angle
+    (the capture plan's option; give the burst a ``work`` of its own).
     """
     from app.demo.capture import simulated_capture
     from app.workflows.object_materials import measure_object
@@ -185,7 +186,7 @@ def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
     if summary_path.exists():
         summary = json.loads(summary_path.read_text())
     else:
-        summary = simulated_capture(work)
+        summary = simulated_capture(work, holdout_burst=holdout_burst)
         summary_path.write_text(json.dumps(summary, indent=1, default=str))
     session = Path(summary["session"])
     t0 = time.perf_counter()
@@ -204,7 +205,8 @@ def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
             "agreement": _agreement(session, doc, summary["simulation_truth"]),
             "validation": {k: val.get(k) for k in ("mean_de2000", "p95_de2000", "baseline_mean_de2000",
                                                    "baseline_p95_de2000", "noise_floor_mean_de2000", "n_frames",
-                                                   "pixels", "pooled")},
+                                                   "pixels", "pooled", "frames_averaged")},
+            "capture_stages_s": summary.get("stages_s"), "captures_taken": summary.get("captures_taken"),
             "normals": doc.get("normals"), "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
             "peak_rss_mb": round(_peak_mb(), 1)}
 
@@ -590,6 +592,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "floor", "heldout",
                                                       "large", "trade", "reliability", "all"])
     ap.add_argument("--work", default="out/bench-object")
+    ap.add_argument("--holdout-burst", type=int, default=1, metavar="N",
+                    help="session case: frames shot at each held-out table angle (use its own --work)")
     args = ap.parse_args(argv)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -602,7 +606,7 @@ def main(argv: list[str] | None = None) -> int:
                "large": large_case(),
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
-        out = session_case(work)
+        out = session_case(work, holdout_burst=args.holdout_burst)
     elif args.case == "photometric":
         out = session_case(work, "photometric")
     elif args.case == "normals":

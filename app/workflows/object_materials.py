@@ -28,7 +28,7 @@ import dataclasses
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +36,7 @@ import numpy as np
 
 from app.errors import UsageError
 
-__all__ = ["measure_object", "answer_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
+__all__ = ["measure_object", "burst_records", "answer_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
            "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY", "FIT_MODEL_ERROR"]
 
 OBJECT_MATERIALS = "products/object-materials.json"
@@ -562,15 +562,77 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
     names = [nm for nm, h in zip(data["obs"].frame_names, held) if h]
     frames = [f for f, h in zip(data["frames"], held) if h]
     records = [(nm, r) for nm, r, h in zip(data["obs"].frame_names, data["records"], held) if h]
+    bursts = burst_records(session.manifest, records)
+    n_avg = min((len(b) for b in bursts), default=1)
     photos = calibrated_images(root, session.manifest, records, decode, note)
+    if n_avg > 1:
+        photos = _BurstMeans(photos, calibrated_images(root, session.manifest,
+                                                       [r for b in bursts for r in b[:n_avg]], decode, note), n_avg,
+                             _clip_level(photos))
+        note(f"held-out photos: each the linear mean of a burst of {n_avg} frames")
     grid = SpectralGrid(*_GRID)
     note(f"validating on {len(frames)} held-out frames ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''})")
     result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
                              light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), 1.0,
                              irradiance_ref_mm=doc["irradiance_reference_mm"], grid=grid,
                              clip_level=_clip_level(photos), noise=noise_model(records, photos.gains),
-                             cfa=_cfa(root, records[0], decode) if records else None, pool_px=POOL_PX)
+                             cfa=_cfa(root, records[0], decode) if records else None, pool_px=POOL_PX,
+                             frames_averaged=n_avg)
     return _write_validation(session, result)
+
+
+def burst_records(manifest: dict[str, Any], records: list[tuple[str, dict[str, Any]]]
+                  ) -> list[list[tuple[str, dict[str, Any]]]]:
+    """Per frame, its burst: the frame itself then its done ``"burst"`` shots in shot order.
+
+    A frame shot alone (no ``holdout_burst`` in the plan) is a burst of one.
+
+    Examples
+    --------
+    >>> m = {"captures": {"p01/frame/02/burst/01": {"kind": "burst", "status": "done", "burst_of": "p01/frame/02",
+    ...                                               "shot": 1}}}
+    >>> [[c for c, _ in b] for b in burst_records(m, [("p01/frame/02", {}), ("p01/frame/03", {})])]
+    [['p01/frame/02', 'p01/frame/02/burst/01'], ['p01/frame/03']]
+    """
+    extra: dict[str, list[tuple[int, str, dict[str, Any]]]] = {}
+    for cid, rec in (manifest.get("captures") or {}).items():
+        if isinstance(rec, dict) and rec.get("kind") == "burst" and rec.get("status") == "done":
+            shot = rec.get("shot")
+            if isinstance(shot, int) and not isinstance(shot, bool) and shot >= 1:     # else not a usable shot
+                extra.setdefault(str(rec.get("burst_of")), []).append((shot, cid, rec))
+    return [[(cid, rec)] + [(c, r) for _, c, r in sorted(extra.get(cid, []), key=lambda e: e[0])]
+            for cid, rec in records]
+
+
+class _BurstMeans(Sequence):
+    """Each held-out photo as the mean of its burst of ``n`` frames, in linear signal (a lazy sequence).
+
+    ``singles[k]`` is frame k's first shot; ``shots`` holds every frame's ``n`` shots one after the
+    other.  The bilinear demosaic and the chart gain are linear, so the mean of the decoded frames is
+    the decoded mean of their RAW mosaics; its noise variance is the single frame's divided by ``n``.
+    A pixel that any shot clipped (at or above ``clip_level``) keeps that shot's value, so the
+    comparison still leaves it out.
+    """
+
+    def __init__(self, singles: Sequence, shots: Sequence, n: int, clip_level: Any) -> None:
+        self.singles, self.shots, self.n = singles, shots, n
+        self.clip_level = np.asarray(clip_level, dtype=np.float64)
+        self.gains, self.frames = getattr(singles, "gains", {}), getattr(singles, "frames", [])
+
+    def __len__(self) -> int:
+        return len(self.singles)
+
+    def __getitem__(self, k: Any) -> Any:
+        first = np.asarray(self.shots[k * self.n], dtype=np.float64)
+        acc, top = first.copy(), first.copy()
+        for j in range(1, self.n):
+            shot = np.asarray(self.shots[k * self.n + j], dtype=np.float64)
+            acc += shot
+            np.maximum(top, shot, out=top)
+        mean = acc / self.n
+        clipped = top >= self.clip_level
+        mean[clipped] = top[clipped]
+        return mean.astype(np.float32)
 
 
 def _cfa(root: Path, record: tuple[str, dict[str, Any]], decode: str) -> str | None:
@@ -599,7 +661,8 @@ def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
     out = {**_figures(overall["measured"], overall["baseline"]), "n_frames": overall["n_frames"],
            "noise_floor_mean_de2000": floor.get("mean_de2000"), "noise_floor_p95_de2000": floor.get("p95_de2000"),
            "n_skipped": overall["n_skipped"], "regions": overall["regions"], "baseline_spec": result["baseline_spec"],
-           "camera_to_xyz": result["camera_to_xyz"], "frames": []}
+           "camera_to_xyz": result["camera_to_xyz"], "frames_averaged": int(result.get("frames_averaged", 1)),
+           "frames": []}
     if "pooled" in overall:
         pooled = overall["pooled"]
         out["pooled"] = {"block_px": pooled["block_px"], **_figures(pooled["measured"], pooled["baseline"]),

@@ -47,7 +47,7 @@ def tilted_pose(tilt_deg: float, about_mm=(0.0, 0.0, 37.0), azimuth_deg: float =
 
 
 def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0.0025,
-                         placements: tuple = (None,)) -> dict:
+                         placements: tuple = (None,), holdout_burst: int = 1) -> dict:
     """Write the session (not yet projected) under ``root``; returns the world and the mesh for checks.
 
     ``placements`` are the object -> table poses of the passes (None: the world's own pose); pass 1's
@@ -57,6 +57,9 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     one ``kogei`` detects, e.g. ``"classic24"``); the mesh is the world's mesh in its table pose.
     ``exposure_s`` is short enough that metal highlights stay below the white level, as a
     photographer exposes for them (the chart frame takes the same exposure).
+    ``holdout_burst`` > 1 shoots that many frames at each held-out angle (every 4th), recorded as a
+    capture plan with ``holdout_burst`` records them: ``pNN/frame/KK/burst/JJ`` of kind ``"burst"``, each
+    with its own noise; the first frame is the one a session without a burst has.
     """
     import dataclasses
 
@@ -75,6 +78,12 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     mesh.compute_vertex_normals()
     plan = {"kind": "scan", "steps": 4, "passes": len(poses), "camera_angles_deg": [float(a) for a in angles_deg],
             "chart": True, "lasers": [1], "camera": True, "chart_frames": 1}
+    held: set = set()
+    if holdout_burst > 1:
+        from app.workflows.holdout_validation import holdout_frames
+
+        plan.update(holdout_burst=holdout_burst, holdout_every=4)
+        held = holdout_frames([str(i) for i in range(len(angles_deg))], [float(a) for a in angles_deg], every=4)
     s = Session.create(root, plan=plan)
     try:
         stage = root / ".incoming"
@@ -101,6 +110,14 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
                 fi = s.adopt_file(write_raw(stage / "frame.dng", raw), f"passes/p{k:02d}/raw/frame_{i:02d}.dng")
                 s.add_capture(f"p{k:02d}/frame/{i:02d}", kind="frame", status="done", index=i,
                               angle_deg=float(angle), file=fi.path, sha256=fi.sha256, bytes=fi.bytes, **{"pass": k})
+                for j in range(1, holdout_burst if str(i - 1) in held else 1):
+                    raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure_s,
+                                       seed=100_000 * j + 1000 * k + i)
+                    fi = s.adopt_file(write_raw(stage / "frame.dng", raw),
+                                      f"passes/p{k:02d}/raw/frame_{i:02d}_burst_{j:02d}.dng")
+                    s.add_capture(f"p{k:02d}/frame/{i:02d}/burst/{j:02d}", kind="burst", status="done", index=i,
+                                  angle_deg=float(angle), burst_of=f"p{k:02d}/frame/{i:02d}", shot=j,
+                                  file=fi.path, sha256=fi.sha256, bytes=fi.bytes, **{"pass": k})
     finally:
         s.close()
     return {"world": world, "vertices": v, "triangles": t}
