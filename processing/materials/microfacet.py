@@ -273,6 +273,11 @@ def microfacet_lobe(
     return np.where(valid, np.nan_to_num(val, nan=0.0, posinf=0.0), 0.0)
 
 
+#: Smith's ``a = cot(theta) / sigma`` from which ``G1`` is 1.0 to the last bit (checked from 5 to 1e300: the
+#: largest ``a`` with ``G1 != 1`` is 5.44).
+_G1_IS_ONE = 6.0
+
+
 class SmithLobe:
     """:func:`microfacet_lobe` with Smith shadowing at fixed directions, for many roughnesses.
 
@@ -318,8 +323,12 @@ class SmithLobe:
         c, sin, fixed, value = terms
         with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
             a = c / (sigma * sin)
-            lam = 0.5 * (np.exp(-a * a) / (a * np.sqrt(np.pi)) - erfc(a))
-            g1 = 1.0 / (1.0 + lam)
+            # beyond _G1_IS_ONE, 1 + Lambda(a) rounds to 1 (Lambda < 1e-18): skip erfc and exp there
+            near = np.flatnonzero(~(a >= _G1_IS_ONE))
+            g1 = np.ones(a.shape)
+            an = a.reshape(-1)[near]
+            lam = 0.5 * (np.exp(-an * an) / (an * np.sqrt(np.pi)) - erfc(an))
+            g1.reshape(-1)[near] = 1.0 / (1.0 + lam)
         g1 = np.where(fixed, value, g1)
         return np.clip(np.nan_to_num(g1, nan=0.0), 0.0, 1.0)
 
