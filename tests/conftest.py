@@ -25,7 +25,7 @@ if os.environ.get("CI"):
 SLOWEST_FILES = (
     "tests/app/test_demo.py",                           # 162 s
     "tests/app/test_newcomer_path.py",                  # 139 s
-    "tests/geometry/test_registration.py",              # 125 s the pairs (measured CPU, -n 0)
+    "tests/geometry/test_registration.py",              # 105 s the pairs (measured CPU, -n 0)
     "tests/gui/test_gui_whole_session_posed.py",        # 101 s
     "tests/geometry/test_registration_passes.py",       # 70 s the pose graph, a pass that fits nowhere
     "tests/app/test_register_command.py",               # 70 s
