@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from processing.geometry.registration.cells import cell_labels
 from processing.geometry.registration.transforms import _rodrigues, transform_points
 
 __all__ = ["ColourClasses", "ColourTurn", "PointColours", "colour_classes", "label_evidence", "otsu_threshold",
@@ -352,8 +353,8 @@ def label_evidence(disagree_a: ArrayLike, disagree_b: ArrayLike, positions_mm: A
         return 0.0, 0, int(use.sum())
     delta = db[use] - da[use]
     key = np.floor((pos[use] - pos[use].min(axis=0)) / cell_mm).astype(np.int64)
-    _, cell = np.unique(key, axis=0, return_inverse=True)
-    sums = np.bincount(cell.ravel(), weights=delta)
+    cell, _ = cell_labels(key)
+    sums = np.bincount(cell, weights=delta)
     p = 0.5 * float(np.mean(da[use] + db[use]))
     var = max(2.0 * float(np.sum(np.minimum(sums, 0.0) ** 2)), 2.0 * len(delta) * p * (1.0 - p))
     z = float(sums.sum()) / math.sqrt(var) if var > 0 else 0.0
