@@ -22,7 +22,8 @@ image a camera at the station sees:
   ``L = f_r(lambda) E(lambda) cos_i`` (normals interpolated from the vertex normals: the
   object is smooth, its mesh only samples it) with ``f_r`` the project's spectral BRDF
   (:func:`processing.materials.lobes.material_brdf`, Matsuda et al. eq. (2) for
-  metals and alloys, eq. (5) for lacquer), a shadow ray toward the light,
+  metals and alloys, eq. (5) for lacquer; its spectral factors tabulated over
+  ``cos_d``, :func:`tabulated_brdf`), a shadow ray toward the light,
   and a dark grey backdrop.  Direct light only: mirror lobes reflect the
   light but not the surroundings (there is no environment in the booth),
   and there are no inter-reflections.
