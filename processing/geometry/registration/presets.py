@@ -70,6 +70,12 @@ class RegistrationPreset:
         pooled into independent cells).
     min_normal_agreement
         Smallest accepted mean cosine between matched normals.
+    max_partner_deg
+        A point's partner in the other cloud (in the ICP and in the scores)
+        is its nearest point whose normal is within this angle of its own
+        (of either sign when a cloud's normals are not oriented): across a
+        thin wall the nearest point is often on the other face, whose normal
+        points the other way.
     distinct_deg
         Hypotheses closer than this rotation (and ``distinct_fraction * D``
         displacement) count as the same pose.
@@ -123,6 +129,7 @@ class RegistrationPreset:
     min_margin: float = 0.05
     min_evidence: float = 5.0
     min_normal_agreement: float = 0.8
+    max_partner_deg: float = 60.0
     distinct_deg: float = 8.0
     distinct_fraction: float = 0.03
     min_stability: float = 0.01
@@ -131,6 +138,8 @@ class RegistrationPreset:
     sweep_steps: int = 72
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.max_partner_deg < 90.0:
+            raise RegistrationError(f"preset {self.name!r}: max_partner_deg must be in (0, 90) deg")
         if self.rotation_samples < 1:
             raise RegistrationError(f"preset {self.name!r}: rotation_samples must be >= 1")
         if not 0 < self.search_voxel < 1:
