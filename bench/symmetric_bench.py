@@ -26,7 +26,7 @@ import numpy as np
 
 from bench.common import machine_description
 
-__all__ = ["OBJECTS", "collect", "collect_colour", "colour_section", "section"]
+__all__ = ["OBJECTS", "collect", "collect_colour", "collect_colour_end_to_end", "colour_section", "section"]
 
 #: The objects and what should decide their pairs.
 OBJECTS = {"vase": "shape (the boss)", "inlaid-bowl": "colour (the motif; 0.1 mm relief)",
@@ -241,6 +241,51 @@ def colour_row(name: str, seed: int, offset_deg: float = 100.0) -> dict[str, Any
             "disagree_best": round(turn.disagree_best, 4), "disagree_second": round(turn.disagree_second, 4)}
 
 
+def colour_end_to_end_row(name: str, seed: int) -> dict[str, Any]:
+    """One placement pair of ``name`` registered automatically with the colours of its posed frames.
+
+    Each pass is coloured from the station camera's frames every 30 deg as a session with a camera
+    calibration colours it (:func:`mocks.pass_cloud.pass_posed_frames`, then
+    :func:`processing.geometry.registration.photo_consistency.colour_points`: the pass's own points are
+    the occluder), and :func:`processing.geometry.registration.register_pair` (``standard``) decides;
+    scored against the truth as :func:`pair_row`.
+    """
+    from mocks.pass_cloud import pass_posed_frames, simulated_pass
+    from mocks.world import World
+    from processing.geometry.registration import pose_difference, register_pair
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    world = World.turned(name)
+    a, b = simulated_pass(world, seed, 2), simulated_pass(world, seed, 3)
+    ca = colour_points(a.points, a.normals, *pass_posed_frames(world, a))
+    cb = colour_points(b.points, b.normals, *pass_posed_frames(world, b))
+    res = register_pair(b.points, a.points, source_normals=b.normals, target_normals=a.normals, preset="standard",
+                        seed=seed, source_colours=cb, target_colours=ca)
+    truth = a.pose @ np.linalg.inv(b.pose)
+    rot, disp = pose_difference(res.transform, truth, b.points)
+    right = rot <= LIMIT_DEG and disp <= LIMIT_MM
+    if res.verified:
+        outcome = ("resolved" if res.decided_by == "colour" else "registered") if right else "verified-but-wrong"
+    elif "ambiguous" in res.reason:
+        outcome = "ambiguous"
+    else:
+        outcome = "refused"
+    return {"object": name, "seed": seed, "outcome": outcome, "decided_by": res.decided_by,
+            "rotation_deg": round(float(rot), 3), "displacement_mm": round(float(disp), 3),
+            "evidence_sigma": None if not np.isfinite(res.evidence_sigma) else round(float(res.evidence_sigma), 1),
+            "rmse_mm": round(float(res.rmse_mm), 4), "seconds": round(res.seconds, 1), "reason": res.reason}
+
+
+def collect_colour_end_to_end(pairs: int) -> dict[str, Any]:
+    """:func:`colour_end_to_end_row` for the plain bowl, seeds 0 .. pairs - 1."""
+    rows = []
+    for seed in range(pairs):
+        r = colour_end_to_end_row("plain-bowl", seed)
+        print(json.dumps(r), file=sys.stderr, flush=True)
+        rows.append(r)
+    return {"machine": machine_description(), "pairs_per_object": pairs, "rows": rows}
+
+
 def collect_colour(pairs: int) -> dict[str, Any]:
     """:func:`colour_row` for the plain bowl and the bare bowl, seeds 0 .. pairs - 1."""
     rows = []
@@ -276,8 +321,13 @@ def main(argv: list[str] | None = None) -> None:
                     help="only the turn of the plain and bare bowls decided by colour (given the right shape fit)")
     ap.add_argument("--object", action="append", choices=sorted(OBJECTS), default=None,
                     help="only this object (repeatable; default all; shape evidence only)")
+    ap.add_argument("--colour-end-to-end", action="store_true",
+                    help="only the plain bowl registered automatically with colours from its posed frames")
     args = ap.parse_args(argv)
     n = 3 if args.quick else args.pairs
+    if args.colour_end_to_end:
+        print(json.dumps(collect_colour_end_to_end(n)))
+        return
     print(json.dumps(collect_colour(n) if args.colour else collect(n, args.object)))
 
 

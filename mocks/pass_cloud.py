@@ -114,12 +114,13 @@ def pass_colours(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(r
     return pass_colour_views(world, sim, table_angles_deg)[0]
 
 
-def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30))
+def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30)),
+                      frame_size: tuple[int, int] | None = None
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Colours ``(N, 3)`` of a pass's points from the station camera's frames of that placement.
 
     The frames are the simulated camera's (``world.frame("object", angle)``, at the station's
-    240 x 160 pixels) at each table angle, with the object in the pass's placement; the camera's
+    240 x 160 pixels, or ``frame_size`` (width, height): the same camera sampled finer) at each table angle, with the object in the pass's placement; the camera's
     true intrinsics and pose stand in for a camera calibration (posed photos).  A point takes the
     colour of the pixel it projects to in the frame that sees it most frontally, where the camera's
     ray reaches it unoccluded (the simulation's depth), the point is lit and the camera is more than
@@ -149,7 +150,8 @@ def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tu
 
     from mocks.world import rotation_z, station_world_settings
 
-    w = dataclasses.replace(world, pose=sim.pose, **station_world_settings())
+    size = {} if frame_size is None else {"width": int(frame_size[0]), "height": int(frame_size[1])}
+    w = dataclasses.replace(world, pose=sim.pose, **{**station_world_settings(), **size})
     k_mat, to_cam = w.camera_intrinsics(), w.room_to_camera()
     cam_room = -to_cam[:3, :3].T @ to_cam[:3, 3]
     wl = w.grid.wavelengths

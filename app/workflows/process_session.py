@@ -249,8 +249,8 @@ def _pass_colours(root: Path, manifest: dict[str, Any], usable: list[dict[str, A
     angle) and every point takes the colour of the frame that sees it most
     frontally (:func:`processing.geometry.registration.photo_consistency.colour_points`);
     the registration uses the colours only where the shape leaves a turn
-    about an axis of revolution free.  Frames are decoded at half size
-    (``bin2x2``) and normalised by the pass's chart, as the projection does.
+    about an axis of revolution free.  Frames are decoded at full size and
+    normalised by the pass's chart, as the projection does.
     """
     from app.workflows.posed_frames import calibrated_images
     from app.workflows.station_calibration import frame_records, session_camera_calibration, session_lamp_calibration
@@ -266,7 +266,7 @@ def _pass_colours(root: Path, manifest: dict[str, Any], usable: list[dict[str, A
     if not frames:
         return None
     note(f"colouring {len(usable)} pass(es) from {len(frames)} posed frame(s)")
-    images = calibrated_images(root, manifest, frames, "bin2x2", note)
+    images = calibrated_images(root, manifest, frames, "demosaic", note)
     out: list[Any] = []
     for e in usable:
         posed, imgs = [], []

@@ -135,7 +135,7 @@ def test_colour_points_from_posed_frames_match_the_simulated_truth():
     # r / (r + g + b) agrees within 0.05 (the motif's and the lacquer's differ by 0.3) on at least 98 %
     # (bilinear against nearest-pixel sampling at the motif's borders; measured 99.4 %); black (in a
     # cast shadow: the booth has no ambient light) in one and lit in the other on at most 4 % (a
-    # shadow's edge sampled by another frame or between pixels; measured 2.3 %).
+    # shadow's edge sampled by another frame or between pixels; measured 1.8 %).
     from mocks.pass_cloud import pass_posed_frames
     from processing.geometry.registration.photo_consistency import colour_points
 
