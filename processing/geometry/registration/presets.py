@@ -71,11 +71,12 @@ class RegistrationPreset:
     min_normal_agreement
         Smallest accepted mean cosine between matched normals.
     max_partner_deg
-        A point's partner in the other cloud (in the ICP and in the scores)
-        is its nearest point whose normal is within this angle of its own
-        (of either sign when a cloud's normals are not oriented): across a
-        thin wall the nearest point is often on the other face, whose normal
-        points the other way.
+        A point's partner in the other cloud in the ICP is its nearest point
+        whose normal is within this angle of its own (of either sign when a
+        cloud's normals are not oriented): across a thin wall the nearest
+        point is often on the other face, whose normal points the other way.
+        The scores leave out only partners more than ``180 -
+        max_partner_deg`` away (the other face, oriented clouds).
     distinct_deg
         Hypotheses closer than this rotation (and ``distinct_fraction * D``
         displacement) count as the same pose.
