@@ -173,9 +173,9 @@ def section(r: dict[str, Any]) -> list[str]:
         "0 verified-but-wrong over all objects -- "
         f"**{'met' if all(x['verified-but-wrong'] == 0 for x in s.values()) else 'not met'}**; plain bowl "
         f"ambiguous in shape -- {_pct(plain['ambiguous'], plain['pairs'])}; resolved by colour once posed frames "
-        "exist (100 %) -- **not met** end to end: the turn is decided by colour given a right shape fit "
-        "([below](#colour-where-shape-is-silent)), but `register_pair` does not reach one on these pairs "
-        "([processing.md](processing.md#colour-where-shape-is-silent)).",
+        "exist (100 %) -- **not met**: end to end 1/6 resolved by colour and 1/6 verified 0.66 deg off "
+        "([below](#end-to-end-register_pair-with-the-colours-of-posed-frames); "
+        "[processing.md](processing.md#colour-where-shape-is-silent)).",
         "",
         "Per vase pair (seed: outcome, evidence, feature's share of the overlap): "
         + "; ".join(f"{r['seed']}: {r['outcome']}, {r['evidence_sigma']} sigma, {100 * r['feature_share']:.2f} %"
