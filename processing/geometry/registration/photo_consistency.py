@@ -604,8 +604,6 @@ def colour_points(
     >>> bool(np.all(pc.colours[pts[:, 0] < -1, 0] > 0.7)), bool(np.all(pc.colours[pts[:, 0] > 1, 1] > 0.45))
     (True, True)
     """
-    from scipy.ndimage import minimum_filter
-
     from processing.appearance.frame_poses import AppearanceError
     from processing.appearance.observations import bilinear
     from processing.appearance.projection import project_points
@@ -646,17 +644,9 @@ def colour_points(
         candidate &= inside
         if not candidate.any():
             continue
-        focal = float(frame.K[0, 0])
-        cell = cell_px or max(1.0, 2.0 * spacing * focal / float(np.median(depth[inside])))
-        ij = np.floor(uv[inside] / cell).astype(np.int64)
-        shape = (int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1)
-        zbuf = np.full(shape, np.inf)
-        np.minimum.at(zbuf, (ij[:, 1], ij[:, 0]), depth[inside])
-        zbuf = minimum_filter(zbuf, size=3, mode="nearest")
-        surface = np.full(len(p), np.inf)
-        surface[inside] = zbuf[ij[:, 1], ij[:, 0]]
+        cell = cell_px or max(1.0, 2.0 * spacing * float(frame.K[0, 0]) / float(np.median(depth[inside])))
         tan_v = np.sqrt(np.maximum(1.0 - cos_v ** 2, 0.0)) / np.maximum(cos_v, min_cos)
-        candidate &= depth <= surface + spacing * (1.0 + 3.0 * tan_v)
+        candidate &= depth <= _surface_depth(uv, depth, inside, cell) + spacing * (1.0 + 3.0 * tan_v)
         if not candidate.any():
             continue
         img = np.asarray(images[k], dtype=np.float32)
@@ -669,6 +659,20 @@ def colour_points(
         camera[idx] = centre
         best[idx] = cos_v[idx]
     return PointColours(colours, lamp_dirs if lit else None, camera)
+
+
+def _surface_depth(uv: NDArray[np.float64], depth: NDArray[np.float64], inside: NDArray[np.bool_],
+                   cell_px: float) -> NDArray[np.float64]:
+    """The nearest camera depth (mm) in the 3 x 3 cells of ``cell_px`` around each point (inf outside the image)."""
+    from scipy.ndimage import minimum_filter
+
+    ij = np.floor(uv[inside] / cell_px).astype(np.int64)
+    zbuf = np.full((int(ij[:, 1].max()) + 1, int(ij[:, 0].max()) + 1), np.inf)
+    np.minimum.at(zbuf, (ij[:, 1], ij[:, 0]), depth[inside])
+    zbuf = minimum_filter(zbuf, size=3, mode="nearest")
+    out = np.full(len(depth), np.inf)
+    out[inside] = zbuf[ij[:, 1], ij[:, 0]]
+    return out
 
 
 def _lamp_directions(frame: Any, points: NDArray[np.float64]) -> NDArray[np.float64]:
