@@ -12,6 +12,10 @@ Cases (each prints one JSON object; ``--work DIR`` is shared):
   (``measure_object(..., normals="photometric")``, experimental).
 * ``normals``: each true region fitted with the scanned, the refined (when the ``photometric`` case
   left its products) and the true normals.
+* ``heldout``: where the held-out-photo error comes from -- the held-out frames re-shot by the
+  simulated camera (one frame, bursts of 4 and 16 frames averaged, noiseless), rendered from the truth
+  and from the product step by step, per pixel and in blocks, split by pixel category
+  (:mod:`bench.holdout_decomposition`).
 * ``large``: the procedural hawk at about 1M triangles, 24 table angles (every 15 degrees) at
   960 x 640 (simulated observations with the true camera and lamp,
   :func:`mocks.observation_sim.simulated_observations`): segmentation and fit timed, peak memory.
@@ -37,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["session_case", "normals_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
+__all__ = ["session_case", "normals_case", "heldout_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
 
 TARGETS = {"share_right": 0.95, "ag_pts": 3.0, "roughness_rel": 0.10, "mean_de2000": 2.0, "baseline_ratio": 3.0,
            "fit_s": 60.0, "large_s": 300.0, "large_gb": 4.0, "ece": 0.05, "high_accuracy": 0.90}
@@ -168,11 +172,12 @@ def normals_case(work: Path) -> dict[str, Any]:
             "refined_error_deg": refined_error, "rows": rows}
 
 
-def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
+def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1) -> dict[str, Any]:
     """The demo chain once into ``work``, then the materials on the mesh timed and checked.
 
     ``normals="photometric"``: with the normals refined by the photos (the ``normals`` case then
-    reads them from the products).
+    reads them from the products).  ``holdout_burst``: frames shot at each held-out table angle
+    (the capture plan's option; give the burst a ``work`` of its own).
     """
     from app.demo.capture import simulated_capture
     from app.workflows.object_materials import measure_object
@@ -181,7 +186,7 @@ def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
     if summary_path.exists():
         summary = json.loads(summary_path.read_text())
     else:
-        summary = simulated_capture(work)
+        summary = simulated_capture(work, holdout_burst=holdout_burst)
         summary_path.write_text(json.dumps(summary, indent=1, default=str))
     session = Path(summary["session"])
     t0 = time.perf_counter()
@@ -194,11 +199,14 @@ def session_case(work: Path, normals: str = "mesh") -> dict[str, Any]:
     return {"fit_s": round(t_fit, 2), "with_validation_s": round(t_all, 2), "timings_s": doc.get("timings_s"),
             "regions": [{k: r.get(k) for k in ("index", "material", "confidence", "group", "parameters",
                                                "uncertainties", "area_mm2", "n_lit", "n_observations",
-                                               "chi2_per_dof")} for r in doc["regions"]],
+                                               "chi2_per_dof", "pieces_tested", "pieces_disagreeing",
+                                               "disagreeing_area_mm2")} for r in doc["regions"]],
+            "joined": (doc.get("segmentation") or {}).get("joined"),
             "agreement": _agreement(session, doc, summary["simulation_truth"]),
             "validation": {k: val.get(k) for k in ("mean_de2000", "p95_de2000", "baseline_mean_de2000",
                                                    "baseline_p95_de2000", "noise_floor_mean_de2000", "n_frames",
-                                                   "pixels")},
+                                                   "pixels", "pooled", "frames_averaged")},
+            "capture_stages_s": summary.get("stages_s"), "captures_taken": summary.get("captures_taken"),
             "normals": doc.get("normals"), "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
             "peak_rss_mb": round(_peak_mb(), 1)}
 
@@ -247,6 +255,17 @@ def floor_case(work: Path) -> dict[str, Any]:
                       "baseline_mean_de2000": o["baseline"]["mean_de2000"],
                       "noise_floor_mean_de2000": o["noise_floor"]["mean_de2000"]}
     return out
+
+
+def heldout_case(work: Path) -> dict[str, Any]:
+    """Where the held-out-photo error comes from (:mod:`bench.holdout_decomposition`), after ``session``.
+
+    Writes its figures to ``docs/images/heldout-*.png``.
+    """
+    from bench.common import ROOT
+    from bench.holdout_decomposition import decomposition
+
+    return decomposition(work, ROOT / "docs" / "images")
 
 
 def large_case(triangles: int = 1_000_000) -> dict[str, Any]:
@@ -368,7 +387,7 @@ def section(results: dict[str, Any]) -> list[str]:
         "Per true material, share of its area with the right answer: "
         + ", ".join(f"{k} {100 * x:.0f} %" for k, x in a["per_true_material"].items()) + ".  Regions named "
         "with a confidence >= 0.9 whose largest true material is not the answer (target: none): "
-        + (", ".join(str(i) for i in a.get("confident_wrong", [])) or "none") + ".",
+        + (", ".join(str(i) for i in a.get("confident_wrong", [])) or "none") + "." + _joined_text(s),
         "",
         "| region | answer | largest true material | parameters of the best candidate | area (mm2) | "
         "lit / all observations |",
@@ -379,6 +398,7 @@ def section(results: dict[str, Any]) -> list[str]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
         lines.append(f"| {r['index']} | {answer_text(r)} | {major.get(r['index'], '-')} | {p} | "
                      f"{r['area_mm2']:.0f} | {r['n_lit']} / {r['n_observations']} |")
+    lines += _heldout_lines(results.get("heldout"), v)
     lines += _photometric_lines(results.get("photometric"), answer_text)
     lines += _normals_lines(results.get("normals"), answer_text)
     big = results.get("large")
@@ -398,18 +418,79 @@ def section(results: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
+def _joined_text(s: dict[str, Any]) -> str:
+    """The sentence on the pieces that joined the largest region and the time of the piece tests."""
+    j, secs = s.get("joined") or {}, (s.get("timings_s") or {}).get("pieces")
+    if not j:
+        return ""
+    return (f"  Pieces of smaller regions that joined the largest (region {j.get('target')}): {j.get('pieces')} "
+            f"({j.get('area_mm2', 0):.0f} mm2, from regions {', '.join(str(r) for r in j.get('from_regions', []))})"
+            + ("" if secs is None else f"; joining and checking the pieces took {secs:.1f} s of the fit") + ".")
+
+
 def _floor_rows(f: dict[str, Any] | None, v: dict[str, Any]) -> list[str]:
     """Rows of the ``floor`` case: what the simulation's true materials score on the same comparison."""
     rows = []
     if v.get("noise_floor_mean_de2000") is not None:
-        rows.append(f"| noise floor: the measured rendering against itself with the sensor's noise | "
-                    f"{v['noise_floor_mean_de2000']:.2f} | |")
+        rows.append(f"| noise floor: the measured rendering against itself with the sensor's noise (drawn on the "
+                    f"mosaic, demosaicked) | {v['noise_floor_mean_de2000']:.2f} | |")
+    pooled = v.get("pooled") or {}
+    if pooled.get("mean_de2000") is not None:
+        b = pooled["block_px"]
+        rows += [f"| held-out photos in {b} x {b} px blocks: mean / p95 CIEDE2000, measured materials | "
+                 f"{pooled['mean_de2000']:.2f} / {pooled['p95_de2000']:.2f} | mean <= 2.0 |",
+                 f"| the same, one material; noise floor | {pooled['baseline_mean_de2000']:.2f} / "
+                 f"{pooled['baseline_p95_de2000']:.2f}; {pooled['noise_floor_mean_de2000']:.2f} | |",
+                 f"| baseline / measured mean CIEDE2000 in {b} x {b} px blocks | "
+                 f"{pooled['baseline_mean_de2000'] / pooled['mean_de2000']:.2f} | >= 3 |"]
     if f:
         rows += [f"| the simulation's true materials on the scanned mesh, shading normals: mean CIEDE2000 "
                  f"(one material: {f['shading']['baseline_mean_de2000']:.2f}) | {f['shading']['mean_de2000']:.2f} | |",
                  f"| the same at the simulated object's own normals (one material: "
                  f"{f['true']['baseline_mean_de2000']:.2f}) | {f['true']['mean_de2000']:.2f} | |"]
     return rows
+
+
+def _heldout_lines(h: dict[str, Any] | None, v: dict[str, Any]) -> list[str]:
+    """The ``heldout`` case: the held-out comparison per pixel and pooled, one frame and bursts, step by step."""
+    if not h:
+        return []
+    t, n = h["table"], h["burst"]
+    photos = ["single frame", f"burst of {n // 4}", f"burst of {n}", "noiseless"]
+    rungs = [("measured materials", "measured materials (the product)"),
+             ("one material (baseline)", "one material for the whole object (the paper's baseline)"),
+             ("true materials, scanned mesh", "true materials, scanned mesh and its shading normals"),
+             ("true materials, scanned mesh, true normals", "true materials, scanned mesh, the true object's normals"),
+             ("true object, estimated pose", "true object (mesh, normals, materials), the estimated frame pose"),
+             ("true object, true pose", "true object, true camera, lamp and placement")]
+    head = "| rendering | " + " | ".join(f"{p}, {s} px" for s in (1, 4) for p in photos[:3]) + " | noiseless, 1 px |"
+    lines = ["", f"Where the held-out error comes from (case `heldout`, `bench/holdout_decomposition.py`; "
+                 f"{h['frames']} held-out frames, each re-shot by the simulated camera: one new frame, bursts "
+                 f"of {n // 4} and {n} frames with independent noise averaged in linear RAW, the noiseless photo; "
+                 "one pixel set per frame from the truth and the photos; docs/validation.md).  Mean CIEDE2000:", "",
+             head, "|---|" + "---:|" * 7]
+    for key, label in rungs:
+        cells = [t[f"{key} | {p} | {s}"]["mean"] for s in (1, 4) for p in photos[:3]] + \
+            [t[f"{key} | noiseless | 1"]["mean"]]
+        lines.append(f"| {label} | " + " | ".join(f"{c:.2f}" for c in cells) + " |")
+    mf = h["model_floor"]
+    lines.append("| noise floor, the model's (noise on the mosaic, demosaicked) | "
+                 + " | ".join(f"{mf[f'RGGB | {nf} | {s}']['mean']:.2f}" for s in (1, 4) for nf in (1, n // 4, n))
+                 + " | 0 |")
+    lines.append("| noise floor, real (the photo against its own noiseless photo) | "
+                 + " | ".join(f"{t[f'noiseless photo | {p} | {s}']['mean']:.2f}" for s in (1, 4)
+                              for p in photos[:3]) + " | 0 |")
+    c1, cn = h["categories"]["measured materials | single frame"], h["categories"][f"measured materials | burst of {n}"]
+    lines += ["", "Per pixel category (from the truth), measured materials: share of the pixels, mean CIEDE2000 "
+                  f"one frame / {n} frames, share of the summed error one frame / {n} frames: "
+              + "; ".join(f"{k} {100 * c1[k]['share_pixels']:.0f} %, {c1[k]['mean_de2000']:.2f} / "
+                          f"{cn[k]['mean_de2000']:.2f}, {100 * c1[k]['share_of_error']:.0f} / "
+                          f"{100 * cn[k]['share_of_error']:.0f} %" for k in c1) + ".",
+              f"Re-shooting check: the measured materials against the session's own photos "
+              f"{t['measured materials | session photo | 1']['mean']:.2f}, against a new frame "
+              f"{t['measured materials | single frame | 1']['mean']:.2f}.  Cost: {h['per_frame_shot_s']:.2f} s "
+              "per simulated frame (simulate, write the DNG, decode), besides its spectral render."]
+    return lines
 
 
 def _photometric_lines(p: dict[str, Any] | None, answer_text: Any) -> list[str]:
@@ -508,9 +589,11 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "floor", "large",
-                                                      "trade", "reliability", "all"])
+    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "floor", "heldout",
+                                                      "large", "trade", "reliability", "all"])
     ap.add_argument("--work", default="out/bench-object")
+    ap.add_argument("--holdout-burst", type=int, default=1, metavar="N",
+                    help="session case: frames shot at each held-out table angle (use its own --work)")
     args = ap.parse_args(argv)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -518,17 +601,20 @@ def main(argv: list[str] | None = None) -> int:
         from bench.common import ROOT
 
         out = {"session": session_case(work), "photometric": session_case(work, "photometric"),
-               "normals": normals_case(work), "floor": floor_case(work), "trade": trade_case(work),
+               "normals": normals_case(work), "floor": floor_case(work), "heldout": heldout_case(work),
+               "trade": trade_case(work),
                "large": large_case(),
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
-        out = session_case(work)
+        out = session_case(work, holdout_burst=args.holdout_burst)
     elif args.case == "photometric":
         out = session_case(work, "photometric")
     elif args.case == "normals":
         out = normals_case(work)
     elif args.case == "floor":
         out = floor_case(work)
+    elif args.case == "heldout":
+        out = heldout_case(work)
     elif args.case == "trade":
         out = trade_case(work)
     elif args.case == "large":

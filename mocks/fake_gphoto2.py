@@ -184,11 +184,14 @@ def config_lock(path: str | os.PathLike[str]) -> Iterator[None]:
 
 def update_config(path: str | os.PathLike[str], *, faults: dict[str, Any] | None = None,
                   placement: int | None = None, chart_next: bool | None = None, chart_index: int | None = None,
+                  shot_index: int | None = None,
                   **world_changes: Any) -> None:
     """Change fault switches, the placement, the chart flag and world settings (e.g. ``table_angle_deg``).
 
     ``chart_index`` numbers repeated chart frames of one placement: each is a
     new exposure (its own sensor noise), where index 0 is the single chart frame.
+    ``shot_index`` numbers the object frames of a burst shot at one view in the same
+    way (0: the first or only frame; the capture's ``before_frame`` hook sets it).
 
     The change is a read-modify-write under :func:`config_lock`, written
     atomically (temporary file + rename).
@@ -208,6 +211,8 @@ def update_config(path: str | os.PathLike[str], *, faults: dict[str, Any] | None
             config["chart_next"] = bool(chart_next)
         if chart_index is not None:
             config["chart_index"] = int(chart_index)
+        if shot_index is not None:
+            config["shot_index"] = int(shot_index)
         config["world"].update(world_changes)
         _atomic_json(Path(path), config)
 
@@ -238,6 +243,15 @@ def chart_seed_kind(config: dict[str, Any], kind: str) -> str:
     """
     k = int(config.get("chart_index", 0))
     return f"chart/{k}" if kind == "chart" and k > 0 else kind
+
+
+def frame_shot(config: dict[str, Any], kind: str) -> int:
+    """The number of an object frame in its burst (``shot_index``; 0 for a chart or a single frame).
+
+    >>> frame_shot({"shot_index": 3}, "object"), frame_shot({"shot_index": 3}, "chart"), frame_shot({}, "object")
+    (3, 0, 0)
+    """
+    return int(config.get("shot_index", 0)) if kind == "object" else 0
 
 
 def chart_taken(path: str | os.PathLike[str], placement: int) -> None:
@@ -454,23 +468,37 @@ def _camera_faults(config_path: str, faults: dict[str, Any]) -> int | None:
     return None
 
 
+#: The last view rendered in this process (its world, spectral frame and key), which the next shots of a
+#: burst reuse: the same world, placement and kind render the same radiance, so only the noise is drawn anew.
+_LAST_VIEW: dict[str, Any] = {}
+
+
 def render_frame(config_path: str | os.PathLike[str], config: dict[str, Any], path: str, kind: str) -> None:
     """Render the configured world's ``kind`` frame (``"chart"`` or ``"object"``) and write it to ``path`` (DNG).
 
-    The capture's sensor noise is seeded by (``seed``, ``placement``, frame kind, table angle) and, for a
-    bracket, its exposure, so the same frame renders the same wherever it is rendered: in this program or
-    in the simulated station's process (:func:`_render_at_station`).
+    The capture's sensor noise is seeded by (``seed``, ``placement``, frame kind, table angle, the shot's
+    number in a burst: ``shot_index``) and, for a bracket, its exposure, so the same frame renders the same
+    wherever it is rendered: in this program or in the simulated station's process
+    (:func:`_render_at_station`).  The shots after the first of a burst reuse the first shot's spectral
+    render when it was made in this process (same world, placement and kind).
     """
     from mocks.camera_sim import simulate_raw, write_raw
     from mocks.noise_seed import frame_seed
 
-    world = _world(config["world"], Path(config_path))
     placement = int(config.get("placement", 0))
-    frame = world.frame(kind)
+    shot = frame_shot(config, kind)
+    key = (str(Path(config_path).resolve()), json.dumps(config["world"], sort_keys=True, default=str), placement, kind)
+    if shot > 0 and _LAST_VIEW.get("key") == key:
+        world, frame = _LAST_VIEW["world"], _LAST_VIEW["frame"]     # a burst's next shot: only the noise is new
+    else:
+        world = _world(config["world"], Path(config_path))
+        frame = world.frame(kind)
+        if "shot_index" in config:                  # a capture that shoots bursts: keep the view for its next shot
+            _LAST_VIEW.update(key=key, world=world, frame=frame)
     exposure = float(config["exposure_s"])
     raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure,
                        seed=frame_seed(int(config["seed"]), placement, chart_seed_kind(config, kind),
-                                       world.table_angle_deg)
+                                       world.table_angle_deg, shot=shot)
                        + (int(round(1e6 * exposure)) if config.get("bracket") else 0),
                        exposure_boost=_SATURATION_BOOST if config["faults"]["saturate"] else 1.0)
     raw.f_number = getattr(world, "f_number", None)

@@ -4,7 +4,8 @@ The simulated station (:mod:`mocks.station`) must give *the same data* when a
 measurement is repeated: a profile re-taken at the same table angle after an
 unplugged cable, a camera frame re-shot after a "busy" error.  So the seed of
 every noise draw is a hash of the measurement's identity -- the station seed,
-the placement number, the frame kind and the table angle -- instead of a
+the placement number, the frame kind and the table angle (and, for the
+frames of a burst shot at one view, the shot's number) -- instead of a
 running counter.
 
 The angle enters as :func:`angle_key`: reduced modulo 360 deg (the same view)
@@ -87,12 +88,25 @@ def profile_seed(seed: int, placement: int, angle_deg: float) -> int:
     return stable_seed("profile", int(seed), int(placement), angle_key(angle_deg))
 
 
-def frame_seed(seed: int, placement: int, kind: str, angle_deg: float) -> int:
+def frame_seed(seed: int, placement: int, kind: str, angle_deg: float, shot: int = 0) -> int:
     """Seed of the sensor noise of a camera frame of ``kind`` (``"chart"``/``"object"``).
+
+    ``shot`` numbers the frames of a burst at one view (0 = the first, or the only one): every shot
+    is a new exposure with its own noise, and shot 0 keeps the seed a frame had before bursts
+    existed, so a session without bursts renders byte for byte as before.
 
     Examples
     --------
     >>> frame_seed(0, 1, "chart", 0.0) == frame_seed(0, 1, "object", 0.0)
     False
+    >>> frame_seed(0, 1, "object", 0.0, shot=0) == frame_seed(0, 1, "object", 0.0)
+    True
+    >>> frame_seed(0, 1, "object", 0.0, shot=1) == frame_seed(0, 1, "object", 0.0)
+    False
     """
-    return stable_seed("frame", int(seed), int(placement), str(kind), angle_key(angle_deg))
+    shot = int(shot)
+    if shot < 0:
+        raise ValueError(f"shot must be >= 0 (the frame's number in its burst), got {shot}")
+    if shot == 0:
+        return stable_seed("frame", int(seed), int(placement), str(kind), angle_key(angle_deg))
+    return stable_seed("frame", int(seed), int(placement), str(kind), angle_key(angle_deg), f"shot/{shot}")

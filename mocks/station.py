@@ -541,9 +541,19 @@ class SimulatedStation:
         """
         return Path(self._shoot()["file"])
 
+    def before_frame(self, pass_no: int, index: int, shot: int) -> None:
+        """The capture's ``before_frame`` hook: the next object frame is shot ``shot`` of its burst.
+
+        Each shot of a burst at one view is then a new exposure with its own sensor noise
+        (:func:`mocks.noise_seed.frame_seed`); shot 0 renders as a frame always did.
+        """
+        from mocks.fake_gphoto2 import update_config
+
+        update_config(self.config_path, shot_index=int(shot))
+
     def _shoot(self) -> dict[str, Any]:
         """:meth:`shoot`, returning what was shot (file, kind, angle, placement, partial)."""
-        from mocks.fake_gphoto2 import chart_seed_kind, chart_taken, read_config
+        from mocks.fake_gphoto2 import chart_seed_kind, chart_taken, frame_shot, read_config
         from mocks.hotfolder_writer import HotFolderWriter
 
         if not self._started or self._stopped:
@@ -562,7 +572,8 @@ class SimulatedStation:
         writer = HotFolderWriter(self.hotfolder, world, exposure_s=self.exposure_s, count=shot)
         path = writer.capture(kind, angle, chunks=self.hotfolder_chunks, interval_s=self.hotfolder_interval_s,
                               partial=partial, saturate=saturate,
-                              seed=frame_seed(self.seed, placement, chart_seed_kind(config, kind), angle))
+                              seed=frame_seed(self.seed, placement, chart_seed_kind(config, kind), angle,
+                                             shot=frame_shot(config, kind)))
         if chart and not partial:
             chart_taken(self.config_path, placement)
         return {"file": str(path), "kind": kind, "table_angle_deg": angle, "placement": placement,

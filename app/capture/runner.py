@@ -161,8 +161,10 @@ class Action:
     """One step of a plan.
 
     ``kind`` is ``"chart"`` (the colour-chart frame), ``"profile"`` or
-    ``"frame"`` (a RAW frame of the object); ``angle_deg`` is the table angle
-    within the pass; ``shutter`` the shutter speed to set first (a probe's brackets), else None.
+    ``"frame"`` (a RAW frame of the object) or ``"burst"`` (a further frame of a held-out
+    frame's burst, ``shot`` 1, 2, ...: the same view again with its own sensor noise, for the
+    held-out validation only); ``angle_deg`` is the table angle within the pass; ``shutter`` the
+    shutter speed to set first (a probe's brackets), else None.
     """
 
     id: str
@@ -171,6 +173,7 @@ class Action:
     index: int
     angle_deg: float
     shutter: str | None = None
+    shot: int = 0
 
     @property
     def stem(self) -> str:
@@ -179,6 +182,8 @@ class Action:
             return "chart" if self.id.endswith("/chart") else f"chart_{self.index:02d}"
         if self.kind == "frame":
             return f"frame_{self.index:02d}"
+        if self.kind == "burst":
+            return f"frame_{self.index:02d}_burst_{self.shot:02d}"
         return f"{self.index:04d}"
 
 
@@ -234,6 +239,18 @@ class CapturePlan:
         when capturing.
     brackets
         Shutter speeds of a ``probe`` plan's frames (default :data:`PROBE_BRACKETS`).
+    holdout_burst
+        Frames shot at each held-out camera angle of a ``scan`` (default 1: no burst).  The
+        held-out angles are those the material fit leaves out for the validation: of the distinct
+        camera angles ranked ascending, ranks ``holdout_every // 2``, ``holdout_every // 2 +
+        holdout_every``, ... (``app.workflows.holdout_validation.holdout_frames``).  The first
+        frame is the ordinary ``pNN/frame/KK``; the others are ``pNN/frame/KK/burst/01``, ...
+        (kind ``"burst"``, ignored by posing and fitting) and the validation averages them
+        with it in linear RAW, so the photo's noise falls as 1/sqrt(N).  Each extra frame costs
+        one exposure and download (about as long as any other frame; no table move) and a RAW
+        file's disk space.
+    holdout_every
+        One camera angle in ``holdout_every`` is held out (>= 2, default 4); used only with a burst.
 
     Examples
     --------
@@ -247,6 +264,10 @@ class CapturePlan:
     >>> sphere = CapturePlan("sphere-calibration", steps=4)
     >>> [a.id for a in sphere.actions()], sphere.camera
     (['p01/profile/0000', 'p01/profile/0001', 'p01/profile/0002', 'p01/profile/0003'], False)
+    >>> burst = CapturePlan("scan", steps=4, passes=1, camera_angles_deg=(0.0, 90.0, 180.0, 270.0),
+    ...                     chart=False, holdout_burst=3)
+    >>> [a.id for a in burst.actions() if a.kind != "profile"]
+    ['p01/frame/00', 'p01/frame/01', 'p01/frame/02', 'p01/frame/02/burst/01', 'p01/frame/02/burst/02', 'p01/frame/03']
     """
 
     kind: str = "scan"
@@ -260,6 +281,8 @@ class CapturePlan:
     board: dict[str, Any] | None = None
     sphere_radius_mm: float | None = None
     brackets: tuple[str, ...] | None = None
+    holdout_burst: int = 1
+    holdout_every: int = 4
 
     def __post_init__(self) -> None:
         if self.kind not in PLAN_KINDS:
@@ -282,6 +305,11 @@ class CapturePlan:
                 not 1 <= self.chart_frames <= 99:
             raise ValueError(f"chart_frames must be an integer in 1..99 (chart frames per pass), "
                              f"got {self.chart_frames!r}")
+        for name, value, low in (("holdout_burst", self.holdout_burst, 1), ("holdout_every", self.holdout_every, 2)):
+            if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= 99:
+                raise ValueError(f"{name} must be an integer in {low}..99, got {value!r}")
+        if self.holdout_burst > 1 and self.kind != "scan":
+            raise ValueError(f"holdout_burst is for a scan plan's held-out camera angles, not {self.kind!r}")
 
     def _resolve_defaults(self) -> None:
         """Fill the per-kind defaults and check the calibration plans' own fields."""
@@ -335,6 +363,25 @@ class CapturePlan:
     def _frame_steps(self) -> list[int]:
         return [int(round((a % 360.0) / self.step_deg)) % self.steps for a in self.camera_angles_deg]
 
+    def burst_frames(self) -> set[int]:
+        """Indices of the camera frames shot as a burst of :attr:`holdout_burst` (the held-out angles).
+
+        The rule of ``app.workflows.holdout_validation.holdout_frames`` on the frames' step angles:
+        distinct angles (to 0.01 deg) ranked ascending, ranks ``every // 2 + k * every`` held out.
+        Empty without a burst.
+
+        Examples
+        --------
+        >>> sorted(CapturePlan("scan", steps=12, holdout_burst=4).burst_frames())
+        [2, 6, 10]
+        """
+        if self.holdout_burst <= 1 or not self.camera:
+            return set()
+        keys = [round(self.step_angle(s) % 360.0, 2) for s in self._frame_steps()]
+        ranked = sorted(set(keys))
+        held = {a for r, a in enumerate(ranked) if r % self.holdout_every == self.holdout_every // 2}
+        return {k for k, a in enumerate(keys) if a in held}
+
     def pass_actions(self, pass_no: int) -> list[Action]:
         """The ordered actions of pass ``pass_no`` (1-based)."""
         p = f"p{pass_no:02d}"
@@ -356,9 +403,14 @@ class CapturePlan:
         if self.camera:
             for k, s in enumerate(self._frame_steps()):
                 frames[s].append(k)
+        burst = self.burst_frames()
         for i in range(self.steps):
             out.append(Action(f"{p}/profile/{i:04d}", "profile", pass_no, i, self.step_angle(i)))
-            out += [Action(f"{p}/frame/{k:02d}", "frame", pass_no, k, self.step_angle(i)) for k in frames.get(i, ())]
+            for k in frames.get(i, ()):
+                out.append(Action(f"{p}/frame/{k:02d}", "frame", pass_no, k, self.step_angle(i)))
+                if k in burst:
+                    out += [Action(f"{p}/frame/{k:02d}/burst/{j:02d}", "burst", pass_no, k, self.step_angle(i),
+                                   shot=j) for j in range(1, self.holdout_burst)]
         return out
 
     def actions(self) -> list[Action]:
@@ -377,13 +429,16 @@ class CapturePlan:
             out["sphere_radius_mm"] = float(self.sphere_radius_mm)
         if self.brackets is not None:
             out["brackets"] = list(self.brackets)
+        if self.holdout_burst > 1:          # a plan without a burst is stored as before bursts existed
+            out["holdout_burst"] = self.holdout_burst
+            out["holdout_every"] = self.holdout_every
         return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CapturePlan:
         """Inverse of :meth:`to_dict`."""
         known = {"kind", "steps", "passes", "camera_angles_deg", "chart", "lasers", "camera", "chart_frames",
-                 "board", "sphere_radius_mm", "brackets"}
+                 "board", "sphere_radius_mm", "brackets", "holdout_burst", "holdout_every"}
         args = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items() if k in known}
         # a manifest written before chart_frames existed was taken with one chart frame per pass
         args.setdefault("chart_frames", 1)
@@ -458,6 +513,10 @@ class CaptureHooks:
     after_chart
         ``after_chart(pass_no)``: the pass's last chart frame is taken
         (remove the chart).
+    before_frame
+        ``before_frame(pass_no, index, shot)``: object frame ``index`` is
+        next, as shot ``shot`` of its burst (0: the first or only frame).
+        A camera needs nothing; a simulated one numbers its exposures by it.
     low_return
         ``low_return(pass_no, valid_share, text)``: the pass's profiles
         (nearly) never saw the laser line; ask whether to go on (raise
@@ -473,6 +532,7 @@ class CaptureHooks:
     before_pass: Callable[[int, int], None] | None = None
     before_chart: Callable[[int, int], None] | None = None
     after_chart: Callable[[int], None] | None = None
+    before_frame: Callable[[int, int, int], None] | None = None
     low_return: Callable[[int, float, str], None] | None = None
     progress: Callable[[CaptureProgress], None] | None = None
     message: Callable[[str], None] | None = None
@@ -788,6 +848,8 @@ class _Runner:
             else:
                 if a.kind == "chart" and self.hooks.before_chart is not None:
                     self.hooks.before_chart(p, a.index)
+                if a.kind in ("frame", "burst") and self.hooks.before_frame is not None:
+                    self.hooks.before_frame(p, a.index, a.shot)
                 self._frame(a)
                 if a.kind == "chart" and a.index == self.plan.chart_frames - 1 and self.hooks.after_chart is not None:
                     self.hooks.after_chart(p)
@@ -909,7 +971,9 @@ class _Runner:
         angle = self._move(a.angle_deg, ())
         path = self._shoot(f"p{a.pass_no:02d}_{a.stem}", a.shutter)
         info = s.adopt_file(path, f"passes/p{a.pass_no:02d}/raw/{a.stem}{path.suffix.lower()}")
-        extra = {} if a.shutter is None else {"shutter": a.shutter}
+        extra: dict[str, Any] = {} if a.shutter is None else {"shutter": a.shutter}
+        if a.kind == "burst":
+            extra.update(burst_of=f"p{a.pass_no:02d}/frame/{a.index:02d}", shot=a.shot)
         s.add_capture(a.id, kind=a.kind, **{"pass": a.pass_no}, index=a.index, angle_deg=angle, **extra,
                       file=info.path, sha256=info.sha256, bytes=info.bytes,
                       state={"table_deg": angle, "moving_to": None,

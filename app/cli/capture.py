@@ -51,6 +51,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--brackets", default=None, metavar="T,T,...",
                    help="probe: the brackets' shutter speeds in seconds, as the camera names them (default "
                         "1/4000,1/1000,1/250,1/60,1/15,1/4,1: 7 frames 2 EV apart)")
+    p.add_argument("--holdout-burst", type=int, default=None, metavar="N",
+                   help="scan: shoot N frames at each held-out camera angle (every 4th angle, the frames "
+                        "kogei fit-materials validates on; default 1); the validation averages them, so its "
+                        "photos' noise falls as 1/sqrt(N).  Each extra frame costs one more exposure and "
+                        "download at that angle (no table move) and one RAW file")
     p.add_argument("--steps", type=int, default=None, metavar="N",
                    help="table positions per revolution, evenly spaced (default 200, i.e. 1.8 deg apart; 12 for the "
                         "camera and lamp calibration plans)")
@@ -172,6 +177,12 @@ def _new_session(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
         if args.plan != "probe":
             raise UsageError("--brackets is for --plan probe")
         kw["brackets"] = tuple(b.strip() for b in args.brackets.split(",") if b.strip())
+    if args.holdout_burst is not None:
+        if args.plan != "scan":
+            raise UsageError("--holdout-burst is for --plan scan (the held-out camera angles)")
+        if not 1 <= args.holdout_burst <= 99:
+            raise UsageError(f"--holdout-burst must be 1..99 frames per held-out angle, got {args.holdout_burst}")
+        kw["holdout_burst"] = args.holdout_burst
     try:
         plan = CapturePlan(**kw)
     except ValueError as exc:

@@ -65,6 +65,14 @@ def summary_lines(doc: dict) -> list[str]:
         if val.get("noise_floor_mean_de2000") is not None:
             lines.append(f"  the photos' own noise alone would give about {val['noise_floor_mean_de2000']:.2f} "
                          "(a perfect model against photos with the sensor's noise, from the nominal noise model)")
+        pooled = val.get("pooled") or {}
+        if pooled.get("mean_de2000") is not None:
+            s = pooled["block_px"]
+            floor = pooled.get("noise_floor_mean_de2000")
+            lines.append(f"  at {s} x {s} px (linear values averaged in blocks before the colour conversion): mean "
+                         f"{pooled['mean_de2000']:.2f}, p95 {pooled['p95_de2000']:.2f}; one material: mean "
+                         f"{pooled['baseline_mean_de2000']:.2f}"
+                         + ("" if floor is None else f"; the noise alone about {floor:.2f}"))
     elif val.get("note"):
         lines.append(f"held-out photos: {val['note']}")
     return lines

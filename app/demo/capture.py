@@ -36,7 +36,7 @@ SCAN_EXPOSURE_S = 0.002
 
 def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: str = "gphoto2",
                       triangles: int = 20_000, seed: int = 1, process_preset: str | None = "standard",
-                      pose_frames: bool = True, station_sessions: Any = None) -> dict[str, Any]:
+                      pose_frames: bool = True, station_sessions: Any = None, holdout_burst: int = 1) -> dict[str, Any]:
     """Calibrate the simulated scanner, capture a session of the procedural hawk into ``out``, process it.
 
     With ``pose_frames`` (and a camera) the camera and the lamp are calibrated
@@ -44,7 +44,8 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     poses every RAW frame on the mesh.  ``station_sessions``, a future of
     :func:`app.demo.station.capture_station_sessions` (into ``out``) running in
     another process, gives the board and mirror-sphere sessions; without it they
-    are captured here.
+    are captured here.  ``holdout_burst``: frames shot at each held-out table angle
+    (:class:`app.capture.runner.CapturePlan`), averaged by the held-out validation.
 
     Returns
     -------
@@ -75,7 +76,7 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
     stages_s["scanner calibration (sphere scan)"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none")
+    plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none", holdout_burst=holdout_burst)
     size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
     world = World.hawk(triangles, chart_layout="classic24", **size)
     with SimulatedStation(world, root=out / "station", seed=seed, exposure_s=SCAN_EXPOSURE_S) as st:
@@ -107,7 +108,8 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
             poses[p] = (rotation_z(st.table_angle_deg) @ st.place(p)).tolist()
 
         try:
-            report = run_capture(session, plan, devices, CaptureHooks(before_pass=place, progress=progress))
+            report = run_capture(session, plan, devices, CaptureHooks(
+                before_pass=place, progress=progress, before_frame=st.before_frame if holdout_burst > 1 else None))
         finally:
             session.close()
         truth = {"sensor_to_room": st.sensor_to_room.tolist(), "poses": poses, "triangles": triangles}

@@ -99,6 +99,12 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
               f"{val['mean_de2000']:.2f} (p95 {val['p95_de2000']:.2f}); the paper's one material for the whole "
               f"object: {val['baseline_mean_de2000']:.2f} (p95 {val['baseline_p95_de2000']:.2f}); the photos' noise "
               f"alone: about {val.get('noise_floor_mean_de2000') or float('nan'):.2f}", file=sys.stderr)
+        pooled = val.get("pooled") or {}
+        if pooled.get("mean_de2000") is not None:
+            b = pooled["block_px"]
+            print(f"  the same in {b} x {b} px blocks: {pooled['mean_de2000']:.2f}; one material "
+                  f"{pooled['baseline_mean_de2000']:.2f}; noise alone about "
+                  f"{pooled.get('noise_floor_mean_de2000') or float('nan'):.2f}", file=sys.stderr)
     t0 = time.perf_counter()
     glb = export_gltf(session, out / "hawk.glb")
     print(f"glTF: {out / 'hawk.glb'} ({len(glb['regions'])} primitives, PBR metallic-roughness, "
@@ -107,5 +113,5 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
                                                                    "uncertainties", "area_mm2")}
                                             for r in doc["regions"]],
             "validation": {k: val.get(k) for k in ("mean_de2000", "p95_de2000", "baseline_mean_de2000",
-                                                   "baseline_p95_de2000")},
+                                                   "baseline_p95_de2000", "noise_floor_mean_de2000", "pooled")},
             "glb": str(out / "hawk.glb"), "timings_s": doc.get("timings_s")}

@@ -321,7 +321,7 @@ class SessionPanel(Panel):
         self.manifest = manifest
         caps = manifest.get("captures", {})
         passes = manifest.get("passes", {})
-        done = sum(1 for r in caps.values() if r.get("kind") in ("profile", "frame", "chart"))
+        done = sum(1 for r in caps.values() if r.get("kind") in ("profile", "frame", "chart", "burst"))
         plan = manifest.get("plan", {})
         obj = manifest.get("object", {}).get("name", "")
         self.status.setText(f"{self.root}: <b>{manifest.get('status')}</b>{' · ' + obj if obj else ''} · "

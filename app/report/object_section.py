@@ -188,6 +188,14 @@ def _validation(ctx: Any, doc: dict[str, Any], kit: dict[str, Callable[..., Any]
         html += kit["lead"](f"A perfect model would not reach 0: the photos' own sensor noise alone gives about ΔE00 "
                             f"{float(val['noise_floor_mean_de2000']):.2f} on the same comparison (estimated from the "
                             "camera's nominal noise).")
+    pooled = val.get("pooled") or {}
+    if pooled.get("mean_de2000") is not None:
+        s = int(pooled["block_px"])
+        floor = pooled.get("noise_floor_mean_de2000")
+        html += kit["lead"](f"Compared at {s} x {s} pixels (the linear colours averaged in blocks before the "
+                            f"comparison, which averages the sensor's noise of one photo away): ΔE00 "
+                            f"{float(pooled['mean_de2000']):.2f}, one material {float(pooled['baseline_mean_de2000']):.2f}"
+                            + ("" if floor is None else f", the noise alone about {float(floor):.2f}") + ".")
     if not mean < base_mean:
         html += kit["caveat"]("the measured materials predict these photos no better than one material for the "
                               "whole object.")

@@ -10,7 +10,11 @@ through one camera-RGB -> XYZ matrix
 (:func:`processing.appearance.photo_comparison.compare_images`): mean and
 95th percentile CIEDE2000 over the object's pixels per frame and overall,
 with false-colour error maps (0-10 dE) and photo | render | error triptychs
-as PNG bytes.  docs/validation.md describes the rule and the figures.
+as PNG bytes; beside a perfect model's score against photos with the sensor's
+noise (the noise floor), and, with ``pool_px``, the same comparisons at a
+stated spatial scale (linear values averaged in blocks before the colour
+conversion).  docs/validation.md describes the rule and the figures, and what
+the error is made of on the demo's session.
 """
 
 from __future__ import annotations
@@ -30,12 +34,17 @@ from processing.common.png import png_bytes
 from processing.errors import InputError
 from render.photo_signal import SIGNAL_GRID, pixel_faces, render_signal
 
-__all__ = ["holdout_frames", "validate_frames", "error_map_png", "triptych_png", "ERROR_RANGE_DE", "HOLDOUT_EVERY"]
+__all__ = ["holdout_frames", "validate_frames", "error_map_png", "triptych_png", "ERROR_RANGE_DE", "HOLDOUT_EVERY",
+           "POOL_PX"]
 
 #: Colour range of the error maps: 0 to 10 CIEDE2000.
 ERROR_RANGE_DE = 10.0
 #: Every this many-th table angle is held out of the fit.
 HOLDOUT_EVERY = 4
+#: The spatial scale of the pooled comparison (block side, pixels) ``kogei fit-materials`` reports beside the
+#: per-pixel one: about the width of a highlight on the station's photos, so the colours are compared where
+#: they are resolved and the photo's single-frame sensor noise falls about 4-fold.
+POOL_PX = 4
 _COLORMAP = "magma"
 
 
@@ -200,20 +209,43 @@ def _compare_frame(frame: Any, photo: NDArray[Any], mesh: tuple, specs: Sequence
                 "seconds": time.perf_counter() - t0}, None, None
     res_m = compare_images(photo, measured, usable, matrix, edge_margin_px=margin)
     res_b = compare_images(photo, base, usable, matrix, edge_margin_px=margin)
-    floor = None if options["noise"] is None else noise_floor(measured, usable, matrix, options["noise"],
-                                                                edge_margin_px=margin)
+    floor_kw = dict(edge_margin_px=margin, cfa=options["cfa"], frames=options["frames_averaged"])
+    floor = None if options["noise"] is None else noise_floor(measured, usable, matrix, options["noise"], **floor_kw)
     faces = pixel_faces(vertices, triangles, frame)
     region = np.where(faces >= 0, np.asarray(face_material)[np.maximum(faces, 0)], -1)
     entry = {"name": frame.name, "measured": res_m.to_dict(), "baseline": res_b.to_dict(),
-             **({} if floor is None else {"noise_floor": floor.to_dict(),
-                                          "_floor_map": floor.error_map[np.isfinite(floor.error_map)].astype(np.float64)}),
+             **({} if floor is None else {"noise_floor": floor.to_dict(), "_floor_map": _values(floor)}),
              "regions": _by_region(region, res_m.error_map, res_b.error_map),
-             "clipped_pixels": int(np.sum(mask & ~usable)), "seconds": time.perf_counter() - t0}
+             "clipped_pixels": int(np.sum(mask & ~usable)), "seconds": 0.0}
+    pool = options["pool_px"]
+    if pool > 1:
+        pm = compare_images(photo, measured, usable, matrix, edge_margin_px=margin, pool_px=pool)
+        pb = compare_images(photo, base, usable, matrix, edge_margin_px=margin, pool_px=pool)
+        entry["pooled"] = {"block_px": pool, "measured": pm.to_dict(), "baseline": pb.to_dict(),
+                           "_maps": (_blocks(pm, pool), _blocks(pb, pool))}
+        if options["noise"] is not None:
+            pf = noise_floor(measured, usable, matrix, options["noise"], pool_px=pool, **floor_kw)
+            entry["pooled"]["noise_floor"] = pf.to_dict()
+            entry["pooled"]["_floor_map"] = _blocks(pf, pool)
+        if options["images"]:
+            entry["pooled_error_map_png"] = error_map_png(pm.error_map, f"{frame.name}: measured materials, "
+                                                                        f"{pool} x {pool} px blocks")
     if options["images"]:
         entry["error_map_png"] = error_map_png(res_m.error_map, f"{frame.name}: measured materials")
         entry["baseline_error_map_png"] = error_map_png(res_b.error_map, f"{frame.name}: one material")
         entry["triptych_png"] = triptych_png(photo, measured, res_m.error_map, matrix)
+    entry["seconds"] = time.perf_counter() - t0
     return entry, res_m, res_b
+
+
+def _values(res: ImageComparison) -> NDArray[np.float64]:
+    """The compared pixels' CIEDE2000 values."""
+    return res.error_map[np.isfinite(res.error_map)].astype(np.float64)
+
+
+def _blocks(res: ImageComparison, block_px: int) -> NDArray[np.float64]:
+    """One CIEDE2000 value per compared block (the map repeats it on the block's pixels)."""
+    return res.error_map[::block_px, ::block_px][np.isfinite(res.error_map[::block_px, ::block_px])].astype(np.float64)
 
 
 def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices: ArrayLike, triangles: ArrayLike,
@@ -221,7 +253,8 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
                     baseline_spec: str, light_spectrum: Any, sensitivities: Any, scale: float, *,
                     irradiance_ref_mm: float | None = None, grid: Any = SIGNAL_GRID, edge_margin_px: int = 2,
                     clip_level: float | ArrayLike | None = None, images: bool = True,
-                    noise: ArrayLike | None = None) -> dict[str, Any]:
+                    noise: ArrayLike | None = None, cfa: str | None = None, frames_averaged: int = 1,
+                    pool_px: int = 1) -> dict[str, Any]:
     """Render held-out frames with the measured materials and with one baseline material; CIEDE2000 to the photos.
 
     Parameters
@@ -249,6 +282,19 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
         ``a + b * signal``): each frame and the pool then also get ``"noise_floor"``, the figures of
         the measured rendering against itself plus that noise
         (:func:`processing.appearance.photo_comparison.noise_floor`) -- what a perfect model scores.
+    cfa
+        The photos' Bayer pattern (e.g. ``"RGGB"``) when they were demosaicked bilinearly: the noise
+        floor then draws its noise on the mosaic and demosaicks it as the photos were; None:
+        independent noise per pixel (an upper bound for demosaicked photos).
+    frames_averaged
+        Each photo is the linear mean of this many frames with independent noise (a burst shot at
+        the held-out angle): the noise floor's variance is divided by it.
+    pool_px
+        > 1: also compare at that spatial scale, both images' linear values averaged over
+        ``pool_px x pool_px`` blocks wholly inside the compared pixels before the colour conversion
+        (:func:`processing.appearance.photo_comparison.compare_images`); each frame and the pool
+        then get ``"pooled"`` with ``block_px``, ``"measured"``, ``"baseline"`` and (with ``noise``)
+        ``"noise_floor"``, and each frame its ``pooled_error_map_png``.  The per-pixel figures stay.
 
     Returns
     -------
@@ -273,11 +319,13 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
         matrix = camera_to_xyz_matrix(sens, light, grid)
         spectra = {"light": light, "sensitivities": sens, "grid": grid}
         options = {"scale": scale, "irradiance_ref_mm": irradiance_ref_mm, "edge_margin_px": edge_margin_px,
-                   "clip_level": clip_level, "images": images, "noise": None}
+                   "clip_level": clip_level, "images": images, "noise": None, "cfa": cfa,
+                   "frames_averaged": frames_averaged, "pool_px": _whole(pool_px, "pool_px")}
+        _whole(frames_averaged, "frames_averaged")
         ab = None if noise is None else np.broadcast_to(np.asarray(noise, dtype=np.float64), (len(frames), 2))
         mesh = (vertices, triangles, normals, face_material)
         out, de_m, de_b, regions = [], [], [], []
-        floors = []
+        floors, pooled = [], []
         for i, frame in enumerate(frames):
             options["noise"] = None if ab is None else ab[i]
             entry, res_m, res_b = _compare_frame(frame, photos[i], mesh, specs, baseline_spec, spectra, matrix, options)
@@ -287,14 +335,28 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
             regions.append(entry["regions"])
             entry["regions"] = _region_figures([entry["regions"]])
             out.append(entry)
-            de_m.append(res_m.error_map[np.isfinite(res_m.error_map)].astype(np.float64))
-            de_b.append(res_b.error_map[np.isfinite(res_b.error_map)].astype(np.float64))
+            de_m.append(_values(res_m))
+            de_b.append(_values(res_b))
             if "noise_floor" in entry:
                 floors.append(entry.pop("_floor_map"))
+            if "pooled" in entry:
+                pooled.append(entry["pooled"])
+                entry["pooled"] = {k: x for k, x in entry["pooled"].items() if not k.startswith("_")}
     except InputError as exc:
         raise UsageError(f"held-out validation: {exc}") from None
-    return {"frames": out, "overall": {"measured": _pooled(de_m), "baseline": _pooled(de_b), "n_frames": len(de_m),
-                                      **({"noise_floor": _pooled(floors)} if floors else {}),
-                                      "n_skipped": len(out) - len(de_m),
-                                      "regions": _region_figures(regions)},
+    overall = {"measured": _pooled(de_m), "baseline": _pooled(de_b), "n_frames": len(de_m),
+               **({"noise_floor": _pooled(floors)} if floors else {}), "n_skipped": len(out) - len(de_m),
+               "regions": _region_figures(regions)}
+    if options["pool_px"] > 1:
+        overall["pooled"] = {"block_px": options["pool_px"],
+                             "measured": _pooled([p["_maps"][0] for p in pooled]),
+                             "baseline": _pooled([p["_maps"][1] for p in pooled]),
+                             **({"noise_floor": _pooled([p["_floor_map"] for p in pooled])} if floors else {})}
+    return {"frames": out, "overall": overall, "frames_averaged": frames_averaged, "noise_cfa": cfa,
             "baseline_spec": baseline_spec, "camera_to_xyz": matrix.tolist()}
+
+
+def _whole(value: Any, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise UsageError(f"validate_frames: {name} must be a whole number >= 1, got {value!r}")
+    return int(value)

@@ -28,7 +28,7 @@ import dataclasses
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +36,7 @@ import numpy as np
 
 from app.errors import UsageError
 
-__all__ = ["measure_object", "answer_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
+__all__ = ["measure_object", "burst_records", "answer_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
            "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY", "FIT_MODEL_ERROR"]
 
 OBJECT_MATERIALS = "products/object-materials.json"
@@ -45,9 +45,14 @@ OBJECT_SCENE = "products/object-scene.toml"
 VALIDATION_DIR = "products/validation"
 #: Every n-th table angle is held out of the fit and used to validate it (the validation's rule).
 HOLDOUT_EVERY = 4          # app.workflows.holdout_validation.HOLDOUT_EVERY (not imported: it loads Open3D)
+#: The held-out comparison is also made at this spatial scale (pixels per block side).
+POOL_PX = 4                # app.workflows.holdout_validation.POOL_PX
 #: Relative error of the forward model added to each observation's noise (0.02 = 2 %), the one default of
 #: ``kogei fit-materials --model-error`` and the batch's materials step on the mesh (docs/materials.md, "Weights").
 FIT_MODEL_ERROR = 0.02
+#: A region's own material competes with the largest region's for its pieces only when it was named with at
+#: least this confidence (docs/materials.md, "Pieces that join the largest region").
+_RIVAL_CONFIDENCE = 0.5
 #: Spectral grid of the fit (nm).
 _GRID = (400.0, 700.0, 10.0)
 
@@ -224,7 +229,9 @@ def answer_text(region: dict[str, Any]) -> str:
         return f"{text}: one of {', '.join(group)}"
     others = [g for g in group if g != material]
     listed = ", ".join(others[:3]) + (f" and {len(others) - 3} others" if len(others) > 3 else "")
-    return text + (f"; cannot be told from {listed}" if others else "")
+    text += f"; cannot be told from {listed}" if others else ""
+    mixed = float(region.get("disagreeing_area_mm2") or 0.0)
+    return text + (f"; {mixed:.0f} mm2 of it fits another region's material better" if mixed > 0 else "")
 
 
 def _check_cancel(stop: Callable[[], bool]) -> None:
@@ -281,18 +288,27 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         note(f"normals: {100 * normals_doc['decided_share']:.0f} % of the vertices decided by their highlights, "
              f"median tilt {normals_doc['median_tilt_deg']:.1f} deg; fitting again")
         fits = _fit_regions(obs, v, t, data, seg, d_ref, model, model_error, stop)
+    _check_cancel(stop)
+    t_pieces = time.perf_counter()
+    seg, fits, joined = _join_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
+    if joined["pieces"]:
+        note(f"{joined['pieces']} pieces ({joined['area_mm2']:.0f} mm2) of other regions joined region "
+             f"{joined['target']}: its material explains their observations as well as their own")
+    fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
+    t_pieces = time.perf_counter() - t_pieces
     regions = []
     for r, fit in enumerate(fits):
         faces = seg.face_region == r
         regions.append({"index": r, **fit.to_dict(), "area_mm2": round(float(areas[faces].sum()), 3),
-                        "faces": int(faces.sum()), "vertices": int((seg.vertex_region == r).sum())})
+                        "faces": int(faces.sum()), "vertices": int((seg.vertex_region == r).sum()), **pieces[r]})
         note(f"region {r}: {answer_text(regions[-1])}, {int(faces.sum())} faces, {fit.n_lit} lit observations")
     t_fit = time.perf_counter() - t1
     unmeasured = seg.face_region < 0
     return {"schema": "kogei.object_materials", "version": 1, "mesh": OBJECT_MESH, "light_spectrum": spectrum,
             "irradiance_reference_mm": d_ref,
             "model_error": model_error, "segmentation": {"method": seg.method, "regions": seg.n_regions,
-                                                          "features": list(seg.feature_names)},
+                                                          "features": list(seg.feature_names),
+                                                          "joined": joined},
             "regions": regions, "baseline": _baseline(regions),
             "not_measured": {"faces": int(unmeasured.sum()), "area_mm2": round(float(areas[unmeasured].sum()), 3)},
             "area_mm2": round(float(areas.sum()), 3),
@@ -300,13 +316,18 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
                        "held_out": [n for n, h in zip(obs.frame_names, held) if h]},
             "normals": {**(normals_doc or {"method": "mesh"}), "smoothing_mm": round(sigma_mm, 4)},
             "interior_margin_mm": round(_interior_margin_mm(v, data["frames"]), 4),
-            "timings_s": {"normals": round(t_normals, 3), "segmentation": round(t_seg, 3), "fit": round(t_fit, 3)},
+            "timings_s": {"normals": round(t_normals, 3), "segmentation": round(t_seg, 3), "fit": round(t_fit, 3),
+                          "pieces": round(t_pieces, 3)},
             "_face_region": seg.face_region, "_normals": vertex_normals}
 
 
 def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, d_ref: float | None,
-                 model: Any, model_error: float, stop: Callable[[], bool]) -> list[Any]:
-    """Each region's :class:`processing.materials.forward_fit.RegionFit` from its interior's observations."""
+                 model: Any, model_error: float, stop: Callable[[], bool], only: Any = None,
+                 previous: list[Any] | None = None) -> list[Any]:
+    """Each region's :class:`processing.materials.forward_fit.RegionFit` from its interior's observations.
+
+    ``only``: the regions to fit; the others keep their fit from ``previous``.
+    """
     from processing.appearance.region_interior import border_distance_mm, interior_vertices
     from processing.materials.confidence import NOT_MEASURED
     from processing.materials.forward_fit import fit_region, region_samples
@@ -316,6 +337,9 @@ def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
     fits = []
     for r in range(seg.n_regions):
         _check_cancel(stop)
+        if only is not None and r not in only and previous is not None:
+            fits.append(previous[r])
+            continue
         every = np.flatnonzero(seg.vertex_region == r)
         ids = interior_vertices(every, distance, margin)
         fit = fit_region(region_samples(obs, v, data["frames"], ids, triangles=t, reference_mm=d_ref), model,
@@ -325,6 +349,119 @@ def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
                              model_error=model_error)
         fits.append(fit)
     return fits
+
+
+def _join_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
+                 d_ref: float | None, model: Any, model_error: float, areas: np.ndarray,
+                 stop: Callable[[], bool]) -> tuple[Any, list[Any], dict[str, Any]]:
+    """Pieces of the other regions that the largest region's material explains as well as their own join it.
+
+    Every connected piece of every other region is scored against its own region's fitted material and
+    the largest region's (:func:`processing.materials.region_consistency.joining_pieces`); the pieces
+    that join are relabelled, regions left empty are dropped, and the regions that lost pieces are
+    fitted again.  The largest region keeps its fit: the pieces joined because its material already
+    explains them (docs/materials.md, "Pieces that join the largest region").
+    """
+    from processing.materials.forward_fit import INDEPENDENT, region_samples
+    from processing.materials.presets import get_material
+    from processing.materials.region_consistency import face_regions, joining_pieces, mesh_components, pieces_chi2
+
+    none = {"target": None, "pieces": 0, "area_mm2": 0.0, "from_regions": []}
+    sizes = np.bincount(seg.face_region[seg.face_region >= 0], weights=areas[seg.face_region >= 0],
+                        minlength=seg.n_regions)
+    target = int(np.argmax(sizes)) if seg.n_regions > 1 else -1
+    if target < 0 or not fits[target].spec:
+        return seg, fits, none
+    piece = mesh_components(seg.vertex_region, t)
+    target_mat = get_material(fits[target].spec)
+    vertex_region = seg.vertex_region.copy()
+    moved_from, n_pieces = set(), 0
+    for r in range(seg.n_regions):
+        _check_cancel(stop)
+        if r == target:
+            continue
+        samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region == r), triangles=t,
+                                 reference_mm=d_ref)
+        sp = piece[samples.vertex]
+        # a region whose own fit cannot name its material (confidence under one half) offers no rival
+        # explanation: its pieces join when the largest region's material fits them within the misfit limit
+        own_mat = get_material(fits[r].spec) if fits[r].spec and fits[r].confidence >= _RIVAL_CONFIDENCE else None
+        ids, chi2, n_obs, _ = pieces_chi2(samples, sp, model, [target_mat, own_mat], model_error=model_error)
+        if not ids.size:
+            continue
+        join = joining_pieces(chi2[:, 0], chi2[:, 1], n_obs, independent=INDEPENDENT)
+        if join.any():
+            vertex_region[np.isin(piece, ids[join]) & (seg.vertex_region == r)] = target
+            moved_from.add(r)
+            n_pieces += int(join.sum())
+    if not n_pieces:
+        return seg, fits, none
+    face_region = face_regions(vertex_region, t)
+    moved_area = float(areas[(face_region == target) & (seg.face_region != target)].sum())
+    keep = [r for r in range(seg.n_regions) if (face_region == r).any()]      # a region left without faces goes
+    lut = np.full(seg.n_regions + 1, -1, dtype=np.int32)
+    lut[keep] = np.arange(len(keep), dtype=np.int32)
+    new = dataclasses.replace(seg, vertex_region=lut[vertex_region].astype(np.int32),
+                              face_region=lut[face_region].astype(np.int32), n_regions=len(keep))
+    refit = {int(lut[r]) for r in moved_from if lut[r] >= 0}
+    fits = _fit_regions(obs, v, t, data, new, d_ref, model, model_error, stop, only=refit,
+                        previous=[fits[r] for r in keep])
+    return new, fits, {"target": int(lut[target]), "pieces": n_pieces, "area_mm2": round(moved_area, 3),
+                       "from_regions": sorted(int(r) for r in moved_from)}
+
+
+def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
+                  d_ref: float | None, model: Any, model_error: float,
+                  areas: np.ndarray) -> tuple[list[Any], list[dict[str, Any]]]:
+    """Each region's connected pieces tested against the other regions' materials; confidences capped.
+
+    A piece with :data:`processing.materials.forward_fit.MIN_HIGHLIGHTS` highlight observations of its
+    own that another region's fitted material explains far better than its region's
+    (:func:`processing.materials.region_consistency.disagreeing_pieces`) shows that the region mixes
+    materials: its answer cannot hold for that piece's area, so the region's confidence is at most the
+    share of its area that does not disagree (docs/materials.md, "Parts that disagree with their region").
+    """
+    from processing.materials.forward_fit import HIGHLIGHT_DEG, INDEPENDENT, MIN_HIGHLIGHTS, region_samples
+    from processing.materials.presets import get_material
+    from processing.materials.region_consistency import disagreeing_pieces, mesh_components, pieces_chi2
+
+    piece = mesh_components(seg.vertex_region, t)
+    face_piece = np.where(seg.face_region >= 0, piece[t[:, 0]], -1)
+    mats = [get_material(f.spec) if f.spec else None for f in fits]
+    cos_hl = math.cos(math.radians(HIGHLIGHT_DEG))
+    rows, n_obs, own, ids = [], [], [], []
+    for r in range(seg.n_regions):
+        samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region == r), triangles=t,
+                                 reference_mm=d_ref)
+        sp = piece[samples.vertex]
+        lit = np.bincount(sp[samples.cos_h >= cos_hl], minlength=int(piece.max()) + 1)
+        tested = np.flatnonzero(lit[sp] >= MIN_HIGHLIGHTS)
+        if not tested.size:
+            continue
+        p_ids, chi2, n, _ = pieces_chi2(samples.subset(tested), sp[tested], model, mats, model_error=model_error)
+        rows.extend(chi2)
+        n_obs.extend(n.tolist())
+        own.extend([r] * p_ids.size)
+        ids.extend(p_ids.tolist())
+    disagrees = np.zeros(0, dtype=bool)
+    better = np.zeros(0, dtype=np.int64)
+    if rows:
+        disagrees, better = disagreeing_pieces(np.array(rows), n_obs, own, independent=INDEPENDENT)
+    out_fits, docs = [], []
+    for r, fit in enumerate(fits):
+        mine = [i for i, o in enumerate(own) if o == r]
+        # a piece better explained by another region of the same answer is no mixture
+        bad = [i for i in mine if disagrees[i] and fits[int(better[i])].material != fit.material]
+        region_area = float(areas[seg.face_region == r].sum())
+        bad_area = float(areas[np.isin(face_piece, [ids[i] for i in bad]) & (seg.face_region == r)].sum())
+        cap = 1.0 - bad_area / region_area if region_area > 0 else 1.0
+        if bad and fit.confidence > cap:
+            fit = dataclasses.replace(fit, confidence=float(cap))
+        out_fits.append(fit)
+        docs.append({"pieces_tested": len(mine), "pieces_disagreeing": len(bad),
+                     "disagreeing_area_mm2": round(bad_area, 3),
+                     "disagreeing_better_regions": sorted({int(better[i]) for i in bad})})
+    return out_fits, docs
 
 
 def _interior_margin_mm(vertices: np.ndarray, frames: list[Any]) -> float:
@@ -425,14 +562,84 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
     names = [nm for nm, h in zip(data["obs"].frame_names, held) if h]
     frames = [f for f, h in zip(data["frames"], held) if h]
     records = [(nm, r) for nm, r, h in zip(data["obs"].frame_names, data["records"], held) if h]
+    bursts = burst_records(session.manifest, records)
+    n_avg = min((len(b) for b in bursts), default=1)
     photos = calibrated_images(root, session.manifest, records, decode, note)
+    if n_avg > 1:
+        photos = _BurstMeans(photos, calibrated_images(root, session.manifest,
+                                                       [r for b in bursts for r in b[:n_avg]], decode, note), n_avg,
+                             _clip_level(photos))
+        note(f"held-out photos: each the linear mean of a burst of {n_avg} frames")
     grid = SpectralGrid(*_GRID)
     note(f"validating on {len(frames)} held-out frames ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''})")
     result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
                              light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), 1.0,
                              irradiance_ref_mm=doc["irradiance_reference_mm"], grid=grid,
-                             clip_level=_clip_level(photos), noise=noise_model(records, photos.gains))
+                             clip_level=_clip_level(photos), noise=noise_model(records, photos.gains),
+                             cfa=_cfa(root, records[0], decode) if records else None, pool_px=POOL_PX,
+                             frames_averaged=n_avg)
     return _write_validation(session, result)
+
+
+def burst_records(manifest: dict[str, Any], records: list[tuple[str, dict[str, Any]]]
+                  ) -> list[list[tuple[str, dict[str, Any]]]]:
+    """Per frame, its burst: the frame itself then its done ``"burst"`` shots in shot order.
+
+    A frame shot alone (no ``holdout_burst`` in the plan) is a burst of one.
+
+    Examples
+    --------
+    >>> m = {"captures": {"p01/frame/02/burst/01": {"kind": "burst", "status": "done", "burst_of": "p01/frame/02",
+    ...                                               "shot": 1}}}
+    >>> [[c for c, _ in b] for b in burst_records(m, [("p01/frame/02", {}), ("p01/frame/03", {})])]
+    [['p01/frame/02', 'p01/frame/02/burst/01'], ['p01/frame/03']]
+    """
+    extra: dict[str, list[tuple[int, str, dict[str, Any]]]] = {}
+    for cid, rec in (manifest.get("captures") or {}).items():
+        if isinstance(rec, dict) and rec.get("kind") == "burst" and rec.get("status") == "done":
+            shot = rec.get("shot")
+            if isinstance(shot, int) and not isinstance(shot, bool) and shot >= 1:     # else not a usable shot
+                extra.setdefault(str(rec.get("burst_of")), []).append((shot, cid, rec))
+    return [[(cid, rec)] + [(c, r) for _, c, r in sorted(extra.get(cid, []), key=lambda e: e[0])]
+            for cid, rec in records]
+
+
+class _BurstMeans(Sequence):
+    """Each held-out photo as the mean of its burst of ``n`` frames, in linear signal (a lazy sequence).
+
+    ``singles[k]`` is frame k's first shot; ``shots`` holds every frame's ``n`` shots one after the
+    other.  The bilinear demosaic and the chart gain are linear, so the mean of the decoded frames is
+    the decoded mean of their RAW mosaics; its noise variance is the single frame's divided by ``n``.
+    A pixel that any shot clipped (at or above ``clip_level``) keeps that shot's value, so the
+    comparison still leaves it out.
+    """
+
+    def __init__(self, singles: Sequence, shots: Sequence, n: int, clip_level: Any) -> None:
+        self.singles, self.shots, self.n = singles, shots, n
+        self.clip_level = np.asarray(clip_level, dtype=np.float64)
+        self.gains, self.frames = getattr(singles, "gains", {}), getattr(singles, "frames", [])
+
+    def __len__(self) -> int:
+        return len(self.singles)
+
+    def __getitem__(self, k: Any) -> Any:
+        first = np.asarray(self.shots[k * self.n], dtype=np.float64)
+        acc, top = first.copy(), first.copy()
+        for j in range(1, self.n):
+            shot = np.asarray(self.shots[k * self.n + j], dtype=np.float64)
+            acc += shot
+            np.maximum(top, shot, out=top)
+        mean = acc / self.n
+        clipped = top >= self.clip_level
+        mean[clipped] = top[clipped]
+        return mean.astype(np.float32)
+
+
+def _cfa(root: Path, record: tuple[str, dict[str, Any]], decode: str) -> str | None:
+    """The photos' Bayer pattern when they are demosaicked (the noise floor then demosaicks its noise too)."""
+    from app.workflows.station_calibration import decode_frame
+
+    return decode_frame(root, record[0], record[1], decode).cfa_pattern if decode == "demosaic" else None
 
 
 def _clip_level(photos: Any) -> Any:
@@ -454,7 +661,12 @@ def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
     out = {**_figures(overall["measured"], overall["baseline"]), "n_frames": overall["n_frames"],
            "noise_floor_mean_de2000": floor.get("mean_de2000"), "noise_floor_p95_de2000": floor.get("p95_de2000"),
            "n_skipped": overall["n_skipped"], "regions": overall["regions"], "baseline_spec": result["baseline_spec"],
-           "camera_to_xyz": result["camera_to_xyz"], "frames": []}
+           "camera_to_xyz": result["camera_to_xyz"], "frames_averaged": int(result.get("frames_averaged", 1)),
+           "frames": []}
+    if "pooled" in overall:
+        pooled = overall["pooled"]
+        out["pooled"] = {"block_px": pooled["block_px"], **_figures(pooled["measured"], pooled["baseline"]),
+                         "noise_floor_mean_de2000": (pooled.get("noise_floor") or {}).get("mean_de2000")}
     for entry in result["frames"]:
         row: dict[str, Any] = {"frame": entry["name"], "seconds": round(float(entry.get("seconds", 0.0)), 3)}
         if "skipped" in entry:
@@ -462,7 +674,9 @@ def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
         else:
             row.update(_figures(entry["measured"], entry["baseline"]))
             row["clipped_pixels"] = entry.get("clipped_pixels")
-        for key in ("triptych_png", "error_map_png", "baseline_error_map_png"):
+        if "pooled" in entry:
+            row["pooled"] = _figures(entry["pooled"]["measured"], entry["pooled"]["baseline"])
+        for key in ("triptych_png", "error_map_png", "baseline_error_map_png", "pooled_error_map_png"):
             if isinstance(entry.get(key), (bytes, bytearray)):
                 rel = f"{VALIDATION_DIR}/{str(entry['name']).replace('/', '_')}-{key[:-4].replace('_', '-')}.png"
                 session.write_file(rel, bytes(entry[key]))

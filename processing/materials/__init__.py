@@ -14,6 +14,7 @@ Modules
 - ``identification``: a region's material and alloy weights from camera values.
 - ``confidence``: the one rule from candidates' misfits to an answer and an honest confidence.
 - ``forward_fit``: a region of the mesh fitted at its observations' true angles.
+- ``region_consistency``: the pieces of a region scored against every region's fitted material.
 - ``photometric_normals``: mesh normals tilted to where the photos' highlights put them.
 - ``segmentation``: an object's pixels split into regions without ground truth.
 
@@ -80,6 +81,8 @@ from processing.materials.forward_fit import (
     RegionFit,
     RegionSamples,
     fit_region,
+    grouped_observations,
+    prepared_observations,
     region_samples,
 )
 from processing.materials.fresnel import fresnel_conductor, fresnel_dielectric
@@ -147,6 +150,15 @@ from processing.materials.presets import (
     parse_material_spec,
     preset_source,
 )
+from processing.materials.region_consistency import (
+    LIKELIHOOD_MARGIN,
+    disagreeing_pieces,
+    face_regions,
+    fixed_material_chi2,
+    joining_pieces,
+    mesh_components,
+    pieces_chi2,
+)
 from processing.materials.segmentation import (
     Segmentation,
     SegmentationError,
@@ -181,7 +193,10 @@ __all__ = [
     "Reliability", "ConfidenceError", "SINGLE_IMAGE_ERROR_DOF",
     # forward_fit
     "SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError", "region_samples",
-    "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT",
+    "fit_region", "prepared_observations", "grouped_observations", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT",
+    # region_consistency
+    "mesh_components", "face_regions", "fixed_material_chi2", "pieces_chi2", "disagreeing_pieces", "joining_pieces",
+    "LIKELIHOOD_MARGIN",
     # photometric_normals
     "NormalRefinement", "refine_normals", "MAX_TILT_DEG", "PRIOR_DEG", "SMOOTH_DEG", "MIN_DECIDING",
     # identification

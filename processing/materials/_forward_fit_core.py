@@ -18,7 +18,7 @@ from scipy.optimize import minimize_scalar, nnls
 from processing.materials.microfacet import microfacet_lobe
 
 __all__ = ["Basis", "CandidateFit", "Whitener", "fit_candidate", "ROUGHNESS_RANGE", "MIRROR_EXCLUDE_DEG",
-           "common_mode_error", "robust_weights", "CAUCHY_SCALE"]
+           "common_mode_error", "common_mode_of", "robust_weights", "CAUCHY_SCALE"]
 
 #: Search range of the gloss lobe's Beckmann RMS slope.
 ROUGHNESS_RANGE = (0.02, 0.8)
@@ -123,6 +123,10 @@ class Whitener:
     def scaled(self, s: NDArray[np.float64]) -> Whitener:
         """The same whitening with observation ``i`` weighted by ``s[i]`` (its whitened values times ``s``)."""
         return Whitener(self.inv_sd * s[:, None], self.v, self.beta)
+
+    def take(self, idx: NDArray[np.int64]) -> Whitener:
+        """The whitening of observations ``idx`` alone (each observation is whitened on its own)."""
+        return Whitener(self.inv_sd[idx], self.v[idx], self.beta[idx])
 
     def __call__(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Whiten ``(n * 3,)`` or ``(n * 3, p)`` flattened values."""
@@ -254,7 +258,29 @@ def common_mode_error(provisional: Sequence[Basis], samples, y: NDArray[np.float
     w = Whitener.of(var, np.zeros((n, 3)))
     fits = [fit_candidate(b, samples, w(y), w) for b in provisional]
     k = int(np.argmin([f.chi2 for f in fits]))
-    b, f = provisional[k], fits[k]
+    return common_mode_of(provisional[k], fits[k], samples, normal_error_rad)
+
+
+def common_mode_of(b: Basis, f: CandidateFit, samples, normal_error_rad: float) -> NDArray[np.float64]:
+    """``(n, 3)`` achromatic error of :func:`common_mode_error` for a given provisional fit ``f`` of ``b``.
+
+    Parameters
+    ----------
+    b
+        The provisional candidate's basis at the samples.
+    f
+        Its fit (roughness and amplitudes; they may come from other samples of the same surface).
+    samples
+        The samples the error is wanted at.
+    normal_error_rad
+        RMS error of the mesh normals.
+
+    Returns
+    -------
+    ndarray
+        ``(n, 3)``.
+    """
+    n = len(samples)
     geo = _geometry(samples, f.roughness, b)
     x = _columns(b, geo, np.pi * samples.irradiance * samples.cos_i).reshape(n, 3, -1)
     m = len(b.gloss_colours)

@@ -27,6 +27,7 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
@@ -34,10 +35,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.materials._forward_fit_core import (
+    CAUCHY_SCALE,
     MIRROR_EXCLUDE_DEG,
     Basis,
     Whitener,
+    _columns,
+    _geometry,
     common_mode_error,
+    common_mode_of,
     fit_candidate,
     robust_weights,
 )
@@ -49,7 +54,7 @@ from processing.materials.presets import get_material
 from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError",
-           "region_samples", "fit_region", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
+           "region_samples", "fit_region", "prepared_observations", "grouped_observations", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
 
 #: The free Ag/Cu/Au alloy candidate.
 ALLOY = "alloy"
@@ -284,6 +289,153 @@ def _subsample(samples: RegionSamples, max_samples: int, seed: int) -> RegionSam
     return samples.subset(np.sort(np.concatenate([near, pick])))
 
 
+def _whitened(fitted: RegionSamples, model: ForwardModel, model_error: float, normal_error_deg: float,
+              robust: bool) -> tuple[RegionSamples, NDArray[np.float64], Whitener]:
+    """The fitted samples, their flattened signal and its whitener (noise, model error, normals, robust weights)."""
+    y = fitted.signal.reshape(-1)
+    var = np.maximum(fitted.sigma, _SIGMA_FLOOR) ** 2 + (model_error * np.maximum(fitted.signal, 0.0)) ** 2
+    provisional = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
+    common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg))
+    w = Whitener.of(var, common)
+    if robust:
+        w = w.scaled(np.sqrt(robust_weights(provisional, fitted, y, w)))
+    return fitted, y, w
+
+
+def prepared_observations(samples: RegionSamples, model: ForwardModel, *, model_error: float = 0.02,
+                          normal_error_deg: float = 0.5, max_samples: int = 20_000, seed: int = 0,
+                          robust: bool = True) -> tuple[RegionSamples, NDArray[np.float64], Whitener] | None:
+    """The observations as :func:`fit_region` weighs them, for scoring fixed materials on them.
+
+    Parameters
+    ----------
+    samples
+        The observations (:func:`region_samples`).
+    model
+        Camera and lamp.
+    model_error, normal_error_deg, max_samples, seed, robust
+        As in :func:`fit_region`.
+
+    Returns
+    -------
+    tuple or None
+        The subsampled observations, their ``(n * 3,)`` signal and the whitener ``w`` (so that
+        ``|w(signal - prediction)|^2`` is a chi-square), or None when there is no observation.
+    """
+    if not (np.isfinite(model_error) and model_error >= 0):
+        raise FitError(f"model_error must be >= 0 (relative), got {model_error!r}")
+    fitted = _subsample(samples, int(max_samples), seed)
+    if len(fitted) == 0:
+        return None
+    return _whitened(fitted, model, model_error, normal_error_deg, robust)
+
+
+def _grouped_subsample(samples: RegionSamples, group: NDArray[np.int64], max_samples: int,
+                       seed: int) -> NDArray[np.int64]:
+    """Indices of :func:`_subsample` applied to each group on its own (same seed), in group order."""
+    keep = np.flatnonzero(samples.cos_h < np.cos(np.radians(MIRROR_EXCLUDE_DEG)))
+    keep = keep[np.argsort(group[keep], kind="stable")]
+    ids, start, count = np.unique(group[keep], return_index=True, return_counts=True)
+    parts = [keep]
+    for g, s0, c in zip(ids, start, count):
+        if c > max_samples:                 # the few large groups: the exact per-group draw
+            idx = keep[s0:s0 + c]
+            rng = np.random.default_rng(seed)
+            near = idx[samples.cos_h[idx] >= np.cos(np.radians(25.0))]
+            if near.size >= max_samples:
+                pick = np.sort(rng.choice(near, max_samples, replace=False))
+            else:
+                pick = np.sort(np.concatenate([near, rng.choice(np.setdiff1d(idx, near), max_samples - near.size,
+                                                                 replace=False)]))
+            parts[0] = parts[0][group[parts[0]] != g]
+            parts.append(pick)
+    out = np.concatenate(parts)
+    return out[np.lexsort((out, group[out]))]
+
+
+def _group_median(x: NDArray[np.float64], group: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Per element the median of ``x`` over its group (``group`` sorted, 0..G-1 dense)."""
+    order = np.lexsort((x, group))
+    xs, counts = x[order], np.bincount(group)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    lo, hi = start + (counts - 1) // 2, start + counts // 2
+    med = 0.5 * (xs[np.minimum(lo, len(xs) - 1)] + xs[np.minimum(hi, len(xs) - 1)])
+    return med[group]
+
+
+def grouped_observations(samples: RegionSamples, group: ArrayLike, model: ForwardModel, *,
+                         model_error: float = 0.02, normal_error_deg: float = 0.5, max_samples: int = 4000,
+                         fit_samples: int = 4000, seed: int = 0, robust: bool = True,
+                         ) -> tuple[RegionSamples, NDArray[np.int64], NDArray[np.float64], Whitener] | None:
+    """Observations of many groups (a region's pieces) weighed as :func:`fit_region` weighs one, in one pass.
+
+    Each group keeps the observations :func:`prepared_observations` would keep for it alone
+    (``max_samples`` each, the same draw).  The noise and model error are per observation, as in the
+    fit.  The provisional fits that set the common-mode (normal) error and the robust weights are made
+    once, on up to ``fit_samples`` of all the groups' observations, instead of once per group; the
+    robust weights' scale (the median misfit) and their normalisation to a mean of 1 stay per group,
+    so a group that the provisional fit misses as a whole keeps its weight and its misfit.
+
+    Parameters
+    ----------
+    samples
+        The observations (:func:`region_samples`).
+    group
+        ``(n,)`` group of each observation (>= 0).
+    model
+        Camera and lamp.
+    model_error, normal_error_deg, seed, robust
+        As in :func:`fit_region`.
+    max_samples
+        Most observations kept per group.
+    fit_samples
+        Most observations of the provisional fits (drawn as :func:`fit_region` draws its own: the
+        observations near the mirror direction first).
+
+    Returns
+    -------
+    tuple or None
+        The kept observations (in group order), the ``(n,)`` group of each, their ``(n * 3,)``
+        signal and the whitener, or None when no observation is kept.
+    """
+    if not (np.isfinite(model_error) and model_error >= 0):
+        raise FitError(f"model_error must be >= 0 (relative), got {model_error!r}")
+    g_all = np.asarray(group, dtype=np.int64).reshape(-1)
+    if g_all.size != len(samples) or (g_all.size and g_all.min() < 0):
+        raise FitError(f"group must give a group >= 0 for each of the {len(samples)} observations, "
+                       f"got {g_all.size} values")
+    keep = _grouped_subsample(samples, g_all, int(max_samples), seed)
+    if keep.size == 0:
+        return None
+    fitted = samples.subset(keep)
+    _, g = np.unique(g_all[keep], return_inverse=True)
+    n = len(fitted)
+    y = fitted.signal.reshape(-1)
+    var = np.maximum(fitted.sigma, _SIGMA_FLOOR) ** 2 + (model_error * np.maximum(fitted.signal, 0.0)) ** 2
+    sub = _grouped_subsample(fitted, np.zeros(n, dtype=np.int64), int(fit_samples), seed)
+    few = fitted.subset(sub)
+    y_few = few.signal.reshape(-1)
+    full = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
+    part = [dataclasses.replace(b, gloss_colours=b.gloss_colours[:, sub]) for b in full]
+    w0 = Whitener.of(var[sub], np.zeros((len(sub), 3)))
+    fits = [fit_candidate(b, few, w0(y_few), w0) for b in part]
+    k = int(np.argmin([f.chi2 for f in fits]))
+    w = Whitener.of(var, common_mode_of(full[k], fits[k], fitted, np.radians(normal_error_deg)))
+    if not robust:
+        return fitted, g_all[keep], y, w
+    weights = np.ones(n)
+    for _ in range(2):                       # as robust_weights: two reweighting passes
+        ws = w.scaled(np.sqrt(weights)).take(sub)
+        fits = [fit_candidate(b, few, ws(y_few), ws) for b in part]
+        k = int(np.argmin([f.chi2 for f in fits]))
+        x = _columns(full[k], _geometry(fitted, fits[k].roughness, full[k]),
+                     np.pi * fitted.irradiance * fitted.cos_i)
+        e = (w(y - x @ fits[k].amplitudes).reshape(n, 3) ** 2).mean(axis=1)
+        weights = 1.0 / (1.0 + e / (CAUCHY_SCALE ** 2 * np.maximum(_group_median(e, g), 1e-12)))
+        weights /= (np.bincount(g, weights=weights) / np.bincount(g))[g]
+    return fitted, g_all[keep], y, w.scaled(np.sqrt(weights))
+
+
 def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Sequence[str] = SURFACE_CANDIDATES,
                model_error: float = 0.02, normal_error_deg: float = 0.5, independent: float = INDEPENDENT,
                max_samples: int = 20_000, seed: int = 0, robust: bool = True) -> RegionFit:
@@ -335,13 +487,7 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
     early = _not_measured(samples, n_hl, len(fitted))
     if early is not None:
         return early
-    y = fitted.signal.reshape(-1)
-    var = np.maximum(fitted.sigma, _SIGMA_FLOOR) ** 2 + (model_error * np.maximum(fitted.signal, 0.0)) ** 2
-    provisional = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
-    common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg))
-    w = Whitener.of(var, common)
-    if robust:
-        w = w.scaled(np.sqrt(robust_weights(provisional, fitted, y, w)))
+    fitted, y, w = _whitened(fitted, model, model_error, normal_error_deg, robust)
     bases = [_basis(c, model, fitted.cos_d) for c in candidates]
     fits = [fit_candidate(b, fitted, w(y), w) for b, _ in bases]
     from processing.materials._forward_fit_report import region_fit

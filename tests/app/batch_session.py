@@ -4,6 +4,10 @@ A reference-sphere scan calibrates the simulated station; a one-pass scan of a s
 profiles, one 240 x 160 RAW frame after the chart frame, a ColorChecker Classic that ``cv2.mcc``
 finds) gives a session that ``kogei process`` can mesh in about two seconds.  The session is left unprocessed and uncalibrated (as ``kogei capture`` leaves
 it), so tests choose what to run; copy it before changing it.
+
+The sessions are captured once per test run: under xdist the first worker to need them builds them while
+the others wait on a file lock (as tests/integration/object_session.py shares the projected hawk), and
+every test process works on its own copy.
 """
 
 from __future__ import annotations
@@ -37,15 +41,49 @@ def _capture(world: World, root: Path, plan: CapturePlan, camera: bool, seed: in
             s.close()
 
 
+def _built_once(tmp_path_factory, name: str, build, sessions: tuple[str, ...]) -> Path:
+    """A folder of this process holding copies of ``sessions``, which ``build(folder)`` captured once per run.
+
+    The build goes to a folder shared by the xdist workers (the parent of their base temporary folders);
+    a file lock lets the first worker build it while the others wait.  The simulated stations' folders
+    are not copied (their device files belong to the station that made them).
+    """
+    import fcntl
+    import os
+
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / f"shared-{name}"
+    shared.mkdir(parents=True, exist_ok=True)
+    built, done = shared / "built", shared / "done"
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not done.exists():
+                if built.exists():
+                    shutil.rmtree(built)
+                built.mkdir()
+                build(built)
+                done.write_text("ok\n")
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    local = tmp_path_factory.mktemp(name)
+    for session in sessions:
+        copy_session(built / session, local / session)
+    return local
+
+
+def _build_batch_sessions(tmp: Path) -> None:
+    _capture(World.calibration_sphere(25.0, 60.0), tmp / "cal", CapturePlan("scan", steps=36, passes=1,
+                                                                            camera=False), False, 5)
+    calibrate_session(tmp / "cal", 25.0)
+    _capture(World.hawk(4_000, width=240, height=160, chart_layout="classic24"), tmp / "raw",
+             CapturePlan("scan", steps=24, passes=1, camera_angles_deg=(0.0,)), True, 3)
+
+
 def built_sessions(tmp_path_factory) -> SimpleNamespace:
     """``cal`` (a calibrated sphere session) and ``raw`` (a captured, unprocessed hawk session)."""
     if "s" not in _BUILT:
-        tmp = tmp_path_factory.mktemp("batch-sessions")
-        _capture(World.calibration_sphere(25.0, 60.0), tmp / "cal", CapturePlan("scan", steps=36, passes=1,
-                                                                                camera=False), False, 5)
-        calibrate_session(tmp / "cal", 25.0)
-        _capture(World.hawk(4_000, width=240, height=160, chart_layout="classic24"), tmp / "raw",
-                 CapturePlan("scan", steps=24, passes=1, camera_angles_deg=(0.0,)), True, 3)
+        tmp = _built_once(tmp_path_factory, "batch-sessions", _build_batch_sessions, ("cal", "raw"))
         _BUILT["s"] = SimpleNamespace(cal=tmp / "cal", raw=tmp / "raw")
     return _BUILT["s"]
 
@@ -64,8 +102,11 @@ MATERIALS_WORLD = {"materials": {"head": "gold", "beak": "urushi-red"}, "light_d
 def materials_session(tmp_path_factory) -> Path:
     """A captured, unprocessed one-pass session of :data:`MATERIALS_WORLD` (240 x 160, classic24 chart)."""
     if "m" not in _BUILT:
-        root = tmp_path_factory.mktemp("materials-session") / "raw"
-        _capture(materials_world(), root, CapturePlan("scan", steps=24, passes=1, camera_angles_deg=(0.0,)), True, 3)
+        def build(tmp: Path) -> None:
+            _capture(materials_world(), tmp / "raw", CapturePlan("scan", steps=24, passes=1,
+                                                                  camera_angles_deg=(0.0,)), True, 3)
+
+        root = _built_once(tmp_path_factory, "materials-session", build, ("raw",)) / "raw"
         _BUILT["m"] = SimpleNamespace(root=root)
     return _BUILT["m"].root
 

@@ -119,3 +119,34 @@ def test_a_scan_plan_shoots_frames_every_30_degrees_by_default():
 def test_calibration_plan_fields_are_checked(kw, match):
     with pytest.raises(ValueError, match=match):
         CapturePlan(**kw)
+
+
+def test_holdout_burst_shoots_the_held_out_angles_again():
+    from app.workflows.holdout_validation import holdout_frames
+
+    plan = CapturePlan("scan", steps=36, passes=2, holdout_burst=4)     # 12 camera angles, every 30 deg
+    frames = [a for a in plan.actions() if a.kind == "frame"]
+    burst = [a for a in plan.actions() if a.kind == "burst"]
+    # the burst's angles are the ones the validation holds out (the same rule on the same angles)
+    held = holdout_frames([a.id for a in frames], [a.angle_deg for a in frames], every=4)
+    assert {f"p{a.pass_no:02d}/frame/{a.index:02d}" for a in burst} == held
+    assert sorted({a.angle_deg for a in burst}) == [60.0, 180.0, 300.0]
+    assert len(burst) == 2 * 3 * 3 and {a.shot for a in burst} == {1, 2, 3}
+    ids = [a.id for a in plan.actions()]
+    assert len(ids) == len(set(ids))
+    k = ids.index("p01/frame/02")                     # the burst follows its first frame at the same angle
+    assert ids[k + 1:k + 4] == ["p01/frame/02/burst/01", "p01/frame/02/burst/02", "p01/frame/02/burst/03"]
+    assert [a.stem for a in burst[:1]] == ["frame_02_burst_01"]
+    assert CapturePlan.from_dict(plan.to_dict()) == plan
+    # without a burst the plan and its stored form are what they were before bursts existed
+    single = CapturePlan("scan", steps=36, passes=2)
+    assert "holdout_burst" not in single.to_dict() and not single.burst_frames()
+    assert [a.id for a in single.actions()] == [i for i in ids if "/burst/" not in i]
+
+
+@pytest.mark.parametrize("kw, match", [({"holdout_burst": 0}, "holdout_burst"), ({"holdout_burst": 2.5}, "holdout_burst"),
+                                       ({"holdout_every": 1, "holdout_burst": 2}, "holdout_every"),
+                                       ({"kind": "swatch", "holdout_burst": 2}, "scan plan")])
+def test_bad_holdout_burst_is_refused(kw, match):
+    with pytest.raises(ValueError, match=match):
+        CapturePlan(**{"kind": "scan", **kw})

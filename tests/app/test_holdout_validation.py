@@ -155,3 +155,40 @@ def test_the_noise_floor_is_what_a_perfect_model_scores(run):
     assert exact["overall"]["measured"]["mean_de2000"] < 0.05 < exact["overall"]["noise_floor"]["mean_de2000"]
     assert "noise_floor" not in validate_frames([frame], [clean], *args, irradiance_ref_mm=d0, grid=w.grid,
                                                 images=False)["overall"]
+
+
+def test_pooled_comparison_keeps_the_per_pixel_figures_and_lowers_the_noise(run):
+    # Photos = the true rendering + sensor noise of variance a + b * signal (so every error is noise): compared in
+    # 4 x 4 px blocks of linear values the noise's standard deviation falls 4-fold and the figures with it (the
+    # measured figure and the floor alike, within 20 % of each other); the per-pixel figures must be exactly
+    # those of a per-pixel run.
+    from render.photo_signal import render_signal
+
+    sim, idx, _, _, (w, specs, d0) = run
+    frames = [sim.frames[i] for i in idx]
+    args = (sim.vertices, sim.triangles, sim.normals, sim.face_region, specs, "nami-shibuichi", w.light_spectrum(),
+            sim.sensitivities, SIM_SCALE)
+    ab = (1e-6, 2e-4)
+    rng = np.random.default_rng(5)
+    photos = []
+    for f in frames:
+        clean, _ = render_signal(sim.vertices, sim.triangles, sim.normals, sim.face_region, specs, f,
+                                 w.light_spectrum(), sensitivities=sim.sensitivities, scale=SIM_SCALE, grid=w.grid,
+                                 irradiance_ref_mm=d0)
+        photos.append(clean + np.sqrt(ab[0] + ab[1] * np.maximum(clean, 0.0)) * rng.standard_normal(clean.shape))
+    kw = dict(irradiance_ref_mm=d0, grid=w.grid, noise=ab)
+    res = validate_frames(frames, photos, *args, images=True, pool_px=4, **kw)
+    plain = validate_frames(frames, photos, *args, images=False, **kw)
+    assert res["overall"]["measured"] == plain["overall"]["measured"]
+    per_pixel, pooled = res["overall"]["measured"]["mean_de2000"], res["overall"]["pooled"]
+    assert pooled["block_px"] == 4 and pooled["measured"]["n_pixels"] > 300
+    assert pooled["measured"]["mean_de2000"] < 0.4 * per_pixel
+    assert pooled["measured"]["mean_de2000"] == pytest.approx(pooled["noise_floor"]["mean_de2000"], rel=0.2)
+    assert all("pooled" in f and f["pooled_error_map_png"].startswith(b"\x89PNG") for f in res["frames"])
+    # the floor of a 16-frame mean: noise sd / 4; CIEDE2000 is close to linear in small differences (+-30 %)
+    burst = validate_frames(frames[:1], photos[:1], *args, images=False, frames_averaged=16, **kw)
+    single = validate_frames(frames[:1], photos[:1], *args, images=False, **kw)
+    ratio = burst["overall"]["noise_floor"]["mean_de2000"] / single["overall"]["noise_floor"]["mean_de2000"]
+    assert 0.25 / 1.3 < ratio < 0.25 * 1.3
+    with pytest.raises(UsageError, match="pool_px"):
+        validate_frames(frames[:1], photos[:1], *args, images=False, pool_px=0)

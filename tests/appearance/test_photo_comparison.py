@@ -137,3 +137,99 @@ def test_bad_inputs_give_one_line_errors():
     bad_outside = img.copy()
     bad_outside[0, 0] = np.nan                     # outside the eroded mask: ignored
     assert compare_images(bad_outside, img, mask, np.eye(3)).mean_de2000 == 0.0
+
+
+def test_pooled_blocks_are_the_means_of_whole_blocks_inside_the_mask():
+    from processing.appearance.photo_comparison import pool_blocks
+
+    img = np.random.default_rng(0).random((9, 10, 3))
+    mask = np.ones((9, 10), bool)
+    mask[4, 7] = False
+    pooled, kept = pool_blocks(img, mask, 3)
+    assert pooled.shape == (3, 3, 3) and kept.shape == (3, 3)          # the 10th column is past the last block
+    np.testing.assert_allclose(pooled[1, 2], img[3:6, 6:9].reshape(-1, 3).mean(axis=0))
+    assert kept.sum() == 8 and not kept[1, 2]                         # the block with the masked pixel is left out
+    with pytest.raises(PhotoComparisonError, match="pool_px"):
+        pool_blocks(img, mask, 0)
+
+
+def test_independent_noise_falls_by_the_block_side_when_pooled():
+    # Noise of standard deviation sd per pixel averages over s x s pixels to sd / s (independent draws):
+    # with 64 x 64 blocks per scale the sample standard deviation is within +-10 % at 3 sigma.
+    from processing.appearance.photo_comparison import pool_blocks
+
+    rng = np.random.default_rng(1)
+    for s in (2, 4):
+        noise = 0.01 * rng.standard_normal((64 * s, 64 * s, 3))
+        pooled, kept = pool_blocks(noise, np.ones(noise.shape[:2], bool), s)
+        assert kept.all()
+        assert np.std(pooled) == pytest.approx(0.01 / s, rel=0.1)
+
+
+def test_pooled_comparison_of_identical_images_is_zero_and_maps_each_block():
+    img = np.full((16, 16, 3), 0.2)
+    res = compare_images(img, img, np.ones((16, 16), bool), np.eye(3), white_xyz=D65_XYZ, edge_margin_px=2,
+                         pool_px=4)
+    # eroding 2 px leaves rows/columns 2..13: only the four central 4 x 4 blocks lie wholly inside
+    assert res.mean_de2000 == 0.0 and res.n_pixels == 4
+    assert np.isfinite(res.error_map).sum() == 4 * 16
+    with pytest.raises(PhotoComparisonError, match="no 8 x 8 px block"):
+        compare_images(img, img, np.ones((16, 16), bool), np.eye(3), edge_margin_px=2, pool_px=8)
+
+
+def _flat_photos(seeds, level=0.02, size=128):
+    """Flat grey frames from the simulated camera (its own shot and read noise per seed), bilinearly
+    demosaicked as the photos are; and the noiseless photo from the expected photosite values."""
+    from mocks.camera_sim import SensorModel, simulate_raw
+    from processing.camera.raw_decode import bilinear_demosaic
+
+    g = SpectralGrid(400, 700, 10)
+    rad = np.full((size, size, g.size), level)
+    sensor = SensorModel()
+    idx = np.array([0, 1, 1, 2])
+    none = np.zeros((size, size), bool)
+    out, raw = [], None
+    for s in seeds:
+        raw = simulate_raw(rad, g, np.ones(g.size), exposure_s=0.002, seed=s)
+        values = (raw.bayer.astype(np.float64) - raw.black_level) / (raw.white_level - raw.black_level)
+        out.append(bilinear_demosaic(values.astype(np.float32), idx, none, none)[0].astype(np.float64))
+    mean = raw.mean_electrons / sensor.gain_e_per_dn / (raw.white_level - raw.black_level)
+    clean = bilinear_demosaic(mean.astype(np.float32), idx, none, none)[0].astype(np.float64)
+    span = raw.white_level - raw.black_level
+    ab = (((sensor.read_noise_e / sensor.gain_e_per_dn) ** 2 + 1 / 12) / span ** 2, 1.0 / (sensor.gain_e_per_dn * span))
+    return out, clean, ab
+
+
+def test_averaging_independent_frames_lowers_the_noise_as_one_over_root_n():
+    # Truth from the simulated camera: 16 frames of a flat grey, each with its own seed.  The noise of the
+    # mean of N frames is the single frame's / sqrt(N); over ~15 000 demosaicked pixels (neighbours correlated
+    # by the interpolation, so fewer independent samples) the sample ratio is within +-8 %.
+    frames, clean, _ = _flat_photos(range(16))
+    inner = (slice(4, -4), slice(4, -4))
+    sd1 = np.std(frames[0][inner] - clean[inner])
+    for n in (4, 16):
+        sdn = np.std(np.mean(frames[:n], axis=0)[inner] - clean[inner])
+        assert sdn / sd1 == pytest.approx(1 / np.sqrt(n), rel=0.08)
+    # the same seed gives the same frame: the noise is the seed's, not the clock's
+    again, _, _ = _flat_photos([0])
+    np.testing.assert_array_equal(again[0], frames[0])
+
+
+def test_the_demosaicked_noise_floor_matches_the_simulated_cameras_photos():
+    # The floor's model (noise a + b * signal drawn on the RGGB mosaic, demosaicked bilinearly) against the
+    # simulated camera's own frames compared with its noiseless photo: the same CIEDE2000 within 10 % for one
+    # frame and for the mean of 16; independent noise per pixel (no mosaic) overstates it.
+    from processing.appearance.photo_comparison import noise_floor
+
+    frames, clean, ab = _flat_photos(range(16))
+    m = camera_to_xyz_matrix(camera_sensitivities(SpectralGrid(400, 700, 10)), np.ones(31), SpectralGrid(400, 700, 10))
+    white = clean.mean(axis=(0, 1)) / 0.2            # the grey reads 0.2 of the white: chart-normalise to that
+    ok = np.ones(clean.shape[:2], bool)
+    scaled_ab = (ab[0] / white.mean() ** 2, ab[1] / white.mean())
+    for n in (1, 16):
+        photo = np.mean(frames[:n], axis=0) / white
+        real = compare_images(photo, clean / white, ok, m, edge_margin_px=4).mean_de2000
+        model = noise_floor(clean / white, ok, m, scaled_ab, edge_margin_px=4, cfa="RGGB", frames=n).mean_de2000
+        independent = noise_floor(clean / white, ok, m, scaled_ab, edge_margin_px=4, frames=n).mean_de2000
+        assert model == pytest.approx(real, rel=0.1)
+        assert independent > 1.2 * real

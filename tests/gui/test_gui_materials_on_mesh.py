@@ -20,7 +20,7 @@ from PySide6.QtCore import Qt
 
 from mocks.world import World
 from tests.gui.helpers import make_window
-from tests.integration.object_session import build_object_session, tilted_pose
+from tests.integration.object_session import projected_hawk_two_placements
 
 LEFT = Qt.MouseButton.LeftButton
 
@@ -28,12 +28,8 @@ LEFT = Qt.MouseButton.LeftButton
 @pytest.fixture(scope="module")
 def posed(tmp_path_factory):
     """A session whose photos are posed on its mesh (products/observations.npz), materials not measured."""
-    from app.workflows.posed_frames import project_session
-
-    root = tmp_path_factory.mktemp("posed") / "session"
+    root = projected_hawk_two_placements(tmp_path_factory, tmp_path_factory.mktemp("posed") / "session")
     world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-    build_object_session(root, world, np.arange(0.0, 360.0, 45.0), placements=(None, tilted_pose(35.0)))
-    project_session(root)
     return root, world
 
 

@@ -14,23 +14,19 @@ pytest.importorskip("PySide6.QtWidgets", reason="the GUI tests need PySide6 (pip
 
 import numpy as np
 
-from mocks.world import World
 from tests.gui.helpers import make_window
-from tests.integration.object_session import build_object_session, tilted_pose
+from tests.integration.object_session import projected_hawk_two_placements
 
 
-def test_preview_renders_the_measured_object_and_plots_a_clicked_region(qtbot, tmp_path):
+def test_preview_renders_the_measured_object_and_plots_a_clicked_region(qtbot, tmp_path, tmp_path_factory):
     import open3d as o3d
 
     from app.gui.preview_panel import MEASURED, click_ray
     from app.workflows.object_materials import measure_object, read_object_materials
-    from app.workflows.posed_frames import project_session
     from render.material_mesh import read_material_mesh
 
-    root = tmp_path / "session"
-    world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-    build_object_session(root, world, np.arange(0.0, 360.0, 45.0), placements=(None, tilted_pose(35.0)))
-    project_session(root)
+    # projected once per run, shared with tests/gui/test_gui_materials_on_mesh.py
+    root = projected_hawk_two_placements(tmp_path_factory, tmp_path / "session")
     measure_object(root, validate=False)
     w = make_window(qtbot, tmp_path)
     w.session.open_session(str(root))

@@ -18,7 +18,8 @@ import numpy as np
 
 from tests.integration.posed_session import _camera_json
 
-__all__ = ["build_object_session", "projected_hawk_session", "tilted_pose", "SIZE"]
+__all__ = ["build_object_session", "projected_hawk_session", "measured_hawk_session",
+           "projected_hawk_two_placements", "tilted_pose", "SIZE"]
 
 SIZE = (480, 320)
 
@@ -46,7 +47,7 @@ def tilted_pose(tilt_deg: float, about_mm=(0.0, 0.0, 37.0), azimuth_deg: float =
 
 
 def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0.0025,
-                         placements: tuple = (None,)) -> dict:
+                         placements: tuple = (None,), holdout_burst: int = 1) -> dict:
     """Write the session (not yet projected) under ``root``; returns the world and the mesh for checks.
 
     ``placements`` are the object -> table poses of the passes (None: the world's own pose); pass 1's
@@ -56,6 +57,9 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     one ``kogei`` detects, e.g. ``"classic24"``); the mesh is the world's mesh in its table pose.
     ``exposure_s`` is short enough that metal highlights stay below the white level, as a
     photographer exposes for them (the chart frame takes the same exposure).
+    ``holdout_burst`` > 1 shoots that many frames at each held-out angle (every 4th), recorded as a
+    capture plan with ``holdout_burst`` records them: ``pNN/frame/KK/burst/JJ`` of kind ``"burst"``, each
+    with its own noise; the first frame is the one a session without a burst has.
     """
     import dataclasses
 
@@ -74,6 +78,12 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     mesh.compute_vertex_normals()
     plan = {"kind": "scan", "steps": 4, "passes": len(poses), "camera_angles_deg": [float(a) for a in angles_deg],
             "chart": True, "lasers": [1], "camera": True, "chart_frames": 1}
+    held: set = set()
+    if holdout_burst > 1:
+        from app.workflows.holdout_validation import holdout_frames
+
+        plan.update(holdout_burst=holdout_burst, holdout_every=4)
+        held = holdout_frames([str(i) for i in range(len(angles_deg))], [float(a) for a in angles_deg], every=4)
     s = Session.create(root, plan=plan)
     try:
         stage = root / ".incoming"
@@ -100,26 +110,36 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
                 fi = s.adopt_file(write_raw(stage / "frame.dng", raw), f"passes/p{k:02d}/raw/frame_{i:02d}.dng")
                 s.add_capture(f"p{k:02d}/frame/{i:02d}", kind="frame", status="done", index=i,
                               angle_deg=float(angle), file=fi.path, sha256=fi.sha256, bytes=fi.bytes, **{"pass": k})
+                for j in range(1, holdout_burst if str(i - 1) in held else 1):
+                    raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=exposure_s,
+                                       seed=100_000 * j + 1000 * k + i)
+                    fi = s.adopt_file(write_raw(stage / "frame.dng", raw),
+                                      f"passes/p{k:02d}/raw/frame_{i:02d}_burst_{j:02d}.dng")
+                    s.add_capture(f"p{k:02d}/frame/{i:02d}/burst/{j:02d}", kind="burst", status="done", index=i,
+                                  angle_deg=float(angle), burst_of=f"p{k:02d}/frame/{i:02d}", shot=j,
+                                  file=fi.path, sha256=fi.sha256, bytes=fi.bytes, **{"pass": k})
     finally:
         s.close()
     return {"world": world, "vertices": v, "triangles": t}
 
 
-def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
-    """A copy at ``dst`` of the hawk's object session, projected: the world ``World.hawk(4000, width=240,
-    height=160, chart_layout="classic24")`` in three placements (upright, tilted +35 deg, tilted -35 deg about
-    azimuth 90 deg) x 12 table angles (0 to 330 deg), then :func:`app.workflows.posed_frames.project_session`.
-
-    Several test modules start from this session; it is built once per test run on disk and shared by the
-    xdist workers (a file lock lets one build it while the others wait), and each caller gets its own copy.
-    """
-    import fcntl
+def _shared_folder(tmp_path_factory, name: str) -> Path:
+    """A folder shared by the xdist workers of this run (the parent of their base temporary folders)."""
     import os
-    import shutil
 
     base = tmp_path_factory.getbasetemp()
-    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared-projected-hawk"
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / name
     shared.mkdir(parents=True, exist_ok=True)
+    return shared
+
+
+def _shared_projected(tmp_path_factory, dst: Path, name: str, angles_deg, placements: tuple) -> Path:
+    """A copy at ``dst`` of the projected hawk session of ``angles_deg`` x ``placements``, built once per run
+    in a folder shared by the xdist workers (a file lock lets one build it while the others wait)."""
+    import fcntl
+    import shutil
+
+    shared = _shared_folder(tmp_path_factory, name)
     root, done = shared / "session", shared / "built"
     with open(shared / "lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
@@ -131,11 +151,60 @@ def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
                 if root.exists():
                     shutil.rmtree(root)
                 world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-                build_object_session(root, world, np.arange(0.0, 360.0, 30.0),
-                                     placements=(None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
+                build_object_session(root, world, angles_deg, placements=placements)
                 project_session(root)
                 done.write_text("ok\n")
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
     shutil.copytree(root, dst, ignore=shutil.ignore_patterns("*.lock"))
     return dst
+
+
+def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
+    """A copy at ``dst`` of the hawk's object session, projected: the world ``World.hawk(4000, width=240,
+    height=160, chart_layout="classic24")`` in three placements (upright, tilted +35 deg, tilted -35 deg about
+    azimuth 90 deg) x 12 table angles (0 to 330 deg), then :func:`app.workflows.posed_frames.project_session`.
+
+    Several test modules start from this session; it is built once per test run on disk and shared by the
+    xdist workers (a file lock lets one build it while the others wait), and each caller gets its own copy.
+    """
+    return _shared_projected(tmp_path_factory, dst, "shared-projected-hawk", np.arange(0.0, 360.0, 30.0),
+                             (None, tilted_pose(35.0), tilted_pose(-35.0, azimuth_deg=90)))
+
+
+def projected_hawk_two_placements(tmp_path_factory, dst: Path) -> Path:
+    """As :func:`projected_hawk_session`, smaller: two placements (upright, tilted +35 deg) x 8 table angles
+    (0 to 315 deg).  The GUI's materials tests start from it; built once per run, shared likewise."""
+    return _shared_projected(tmp_path_factory, dst, "shared-projected-hawk-2x8", np.arange(0.0, 360.0, 45.0),
+                             (None, tilted_pose(35.0)))
+
+
+def measured_hawk_session(tmp_path_factory, dst: Path) -> tuple[Path, dict]:
+    """A copy at ``dst`` of :func:`projected_hawk_session` with its materials measured on the mesh
+    (:func:`app.workflows.object_materials.measure_object` with its defaults, held-out validation included),
+    and the document that call returned.
+
+    Built once per test run and shared by the xdist workers like the projected session (the report's
+    and the materials' tests both start from it); each caller gets its own copy.
+    """
+    import fcntl
+    import pickle
+    import shutil
+
+    shared = _shared_folder(tmp_path_factory, "shared-measured-hawk")
+    root, doc_file = shared / "session", shared / "measure_object.pickle"
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if not doc_file.exists():
+                from app.workflows.object_materials import measure_object
+
+                if root.exists():
+                    shutil.rmtree(root)
+                projected_hawk_session(tmp_path_factory, root)
+                doc = measure_object(root)
+                doc_file.write_bytes(pickle.dumps(doc))
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("*.lock"))
+    return dst, pickle.loads(doc_file.read_bytes())

@@ -41,11 +41,10 @@ def image_only(tmp_path_factory):
 @pytest.fixture(scope="module")
 def on_mesh(tmp_path_factory):
     """The hawk posed on its mesh, materials fitted per region, rendered with them."""
-    from app.workflows.object_materials import measure_object
-    from tests.integration.object_session import projected_hawk_session
+    from tests.integration.object_session import measured_hawk_session
 
-    root = projected_hawk_session(tmp_path_factory, tmp_path_factory.mktemp("readable") / "on-mesh")
-    measure_object(root)
+    # measured once per run, shared with tests/app/test_object_materials.py
+    root, _ = measured_hawk_session(tmp_path_factory, tmp_path_factory.mktemp("readable") / "on-mesh")
     result = run_batch([root], "render", options=BatchOptions(preset="draft", render_size=(96, 72)),
                        workers=1).results[0]
     assert result.status == "ok", result.reason
