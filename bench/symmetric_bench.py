@@ -10,7 +10,12 @@ when it is verified and within 0.5 deg and 0.5 mm (largest displacement of the s
 *verified-but-wrong* when verified outside those limits, *ambiguous* when refused as ambiguous or
 undetermined (a symmetric shape), *refused* for another reason.
 
-Run ``python -m bench.symmetric_bench [--quick] [--pairs N]``; prints one JSON object (the last line).
+For the vase, further seeds are scanned until ``--condition`` pairs (default 20) meet the target's
+condition (:func:`feature_share`, from the truth, before registering), and only those further pairs are
+registered, so that the rate under the condition rests on enough pairs.
+
+Run ``python -m bench.symmetric_bench [--quick] [--pairs N] [--condition N]``; prints one JSON object (the
+last line).
 """
 
 from __future__ import annotations

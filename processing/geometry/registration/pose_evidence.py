@@ -4,7 +4,9 @@ A nearly symmetric object (a thrown vase with a small boss) has two or more
 poses that fit almost the whole overlap equally well; only the points near
 the distinguishing feature tell them apart.  A global margin (how much better
 one pose fits on average) dilutes that local evidence in the overlap's area;
-this module weighs it against the range noise instead.  See
+this module weighs it against the range noise instead, on the residuals of
+true surface partners (:func:`surface_residuals`: a partner under the point,
+normals agreeing, not on its cloud's border, :func:`border_points`).  See
 docs/processing.md, section "Nearly symmetric shapes: evidence".
 """
 
