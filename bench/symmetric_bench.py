@@ -181,7 +181,9 @@ def section(r: dict[str, Any]) -> list[str]:
     lines = [
         "## Nearly symmetric turned objects (registration by evidence)",
         "",
-        f"`python -m bench.symmetric_bench --pairs {r['pairs_per_object']}` ({r['machine']}).  Each object of "
+        f"`python -m bench.symmetric_bench --pairs {r['pairs_per_object']} --condition {r.get('condition_pairs', 0)}"
+        + ("" if len(s) == len(OBJECTS) else "".join(f" --object {n}" for n in s))
+        + f"` ({r['machine']}).  Each object of "
         "`mocks/turned_objects.py` ([simulator.md](simulator.md#turned-objects)) in two random placements (2 and 3) "
         "per station seed, scanned as the station does (`mocks/pass_cloud.py`: 72 profiles, 0.05 mm range noise) "
         "and registered automatically at `standard`; scored against the true placements "
