@@ -32,7 +32,8 @@ import numpy as np
 
 from bench.common import machine_description
 
-__all__ = ["OBJECTS", "collect", "collect_colour", "collect_colour_end_to_end", "colour_section", "section"]
+__all__ = ["OBJECTS", "collect", "collect_colour", "collect_colour_end_to_end", "collect_seeds", "colour_section",
+           "section"]
 
 #: The objects and what should decide their pairs.
 OBJECTS = {"vase": "shape (the boss)", "inlaid-bowl": "colour (the motif; 0.1 mm relief)",
@@ -95,17 +96,37 @@ def pair_row(name: str, seed: int, scans: tuple[Any, Any] | None = None) -> dict
     share = feature_share(name, a, b) if name == "vase" else 0.0
     feature = share >= MIN_FEATURE_SHARE
     right = rot <= LIMIT_DEG and disp <= LIMIT_MM
-    if res.verified:
-        outcome = "registered" if right else "verified-but-wrong"
-    elif "ambiguous" in res.reason or "undetermined" in res.reason:
-        outcome = "ambiguous"
-    else:
-        outcome = "refused"
+    outcome = _outcome(res, right)
     return {"object": name, "seed": seed, "outcome": outcome, "rotation_deg": round(float(rot), 3),
+            **_turn_figures(res, a, b),
             "displacement_mm": round(float(disp), 3), "best_pose_right": bool(right),
             "evidence_sigma": None if not np.isfinite(res.evidence_sigma) else round(float(res.evidence_sigma), 1),
             "margin": round(float(res.margin), 4), "seconds": round(res.seconds, 1), "reason": res.reason,
             "feature_share": round(share, 4), "feature_in_both": feature}
+
+
+def _outcome(res: Any, right: bool) -> str:
+    """A pair's outcome against the truth (``right``: within the limits)."""
+    if res.verified:
+        if not right:
+            return "verified-but-wrong"
+        return "resolved" if res.decided_by == "colour" else "registered"
+    if "turn about the symmetry axis is uncertain" in res.reason:
+        return "turn uncertain"
+    if "ambiguous" in res.reason or "undetermined" in res.reason:
+        return "ambiguous"
+    return "refused"
+
+
+def _turn_figures(res: Any, a: Any, b: Any) -> dict[str, Any]:
+    """The true error of the pair's turn about the object's axis (deg) and the stated bound on it (deg)."""
+    from scipy.spatial.transform import Rotation
+
+    truth = a.pose @ np.linalg.inv(b.pose)
+    rv = Rotation.from_matrix((res.transform @ np.linalg.inv(truth))[:3, :3]).as_rotvec()
+    bound = res.turn_uncertainty_deg
+    return {"turn_error_deg": round(float(np.degrees(rv @ a.pose[:3, 2])), 3),
+            "turn_bound_deg": None if not np.isfinite(bound) else round(float(bound), 3)}
 
 
 #: Most station seeds scanned in search of vase pairs that meet the condition.
@@ -153,7 +174,8 @@ def collect(pairs: int, objects: list[str] | None = None, condition: int = 0) ->
 def summarise(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
     """The summary of ``name``'s rows (as :func:`collect` makes it)."""
     mine = [r for r in rows if r["object"] == name]
-    count = {k: sum(r["outcome"] == k for r in mine) for k in ("registered", "verified-but-wrong", "ambiguous", "refused")}
+    count = {k: sum(r["outcome"] == k for r in mine) for k in ("registered", "verified-but-wrong", "turn uncertain", "ambiguous",
+                                                              "refused")}
     ev = [r["evidence_sigma"] for r in mine if r["evidence_sigma"] is not None]
     return {"pairs": len(mine), **count, "best_pose_right": sum(r["best_pose_right"] for r in mine),
             "condition": sum(bool(r["feature_in_both"]) for r in mine),
@@ -317,16 +339,25 @@ def colour_end_to_end_row(name: str, seed: int) -> dict[str, Any]:
     truth = a.pose @ np.linalg.inv(b.pose)
     rot, disp = pose_difference(res.transform, truth, b.points)
     right = rot <= LIMIT_DEG and disp <= LIMIT_MM
-    if res.verified:
-        outcome = ("resolved" if res.decided_by == "colour" else "registered") if right else "verified-but-wrong"
-    elif "ambiguous" in res.reason:
-        outcome = "ambiguous"
-    else:
-        outcome = "refused"
-    return {"object": name, "seed": seed, "outcome": outcome, "decided_by": res.decided_by,
+    outcome = _outcome(res, right)
+    return {"object": name, "seed": seed, "outcome": outcome, "decided_by": res.decided_by, **_turn_figures(res, a, b),
             "rotation_deg": round(float(rot), 3), "displacement_mm": round(float(disp), 3),
             "evidence_sigma": None if not np.isfinite(res.evidence_sigma) else round(float(res.evidence_sigma), 1),
             "rmse_mm": round(float(res.rmse_mm), 4), "seconds": round(res.seconds, 1), "reason": res.reason}
+
+
+def collect_seeds(seeds: list[int], objects: list[str], end_to_end: bool = False) -> dict[str, Any]:
+    """:func:`pair_row` of each object at the given seeds (:func:`colour_end_to_end_row` of the plain bowl)."""
+    rows = []
+    for name in ["plain-bowl"] if end_to_end else objects:
+        for seed in seeds:
+            t0, c0 = time.perf_counter(), time.process_time()
+            r = colour_end_to_end_row(name, seed) if end_to_end else pair_row(name, seed)
+            r.update(wall_s=round(time.perf_counter() - t0, 1), cpu_s=round(time.process_time() - c0, 1),
+                     load_1min=round(os.getloadavg()[0], 1))
+            print(json.dumps(r), file=sys.stderr, flush=True)
+            rows.append(r)
+    return {"machine": machine_description(), "rows": rows}
 
 
 def collect_colour_end_to_end(pairs: int) -> dict[str, Any]:
@@ -378,8 +409,14 @@ def main(argv: list[str] | None = None) -> None:
                     help="only this object (repeatable; default all; shape evidence only)")
     ap.add_argument("--colour-end-to-end", action="store_true",
                     help="only the plain bowl registered automatically with colours from its posed frames")
+    ap.add_argument("--seeds", type=lambda v: [int(x) for x in v.split(",")], default=None,
+                    help="only these station seeds (comma-separated) of each --object, or of the plain bowl with "
+                         "--colour-end-to-end; prints the rows")
     args = ap.parse_args(argv)
     n = 3 if args.quick else args.pairs
+    if args.seeds is not None:
+        print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end)))
+        return
     if args.colour_end_to_end:
         print(json.dumps(collect_colour_end_to_end(n)))
         return

@@ -44,6 +44,7 @@ from processing.geometry.registration.symmetry import (
     _weak_axis,
 )
 from processing.geometry.registration.transforms import _rodrigues, rigid_from_picks, transform_points
+from processing.geometry.registration.turn_uncertainty import _turn_spread
 
 __all__ = ["register_from_picks", "register_pair"]
 
@@ -279,14 +280,14 @@ def _register(
     if len(levels) > 1:
         t = _icp_pyramid(src, tgt, preset, t, levels[-1:], settled=True)
     # after the last ICP: where the shape leaves the turn free, the ICP would move it again
-    decided_by, colour_note = "shape", ""
+    decided_by, colour_note, colour_sd = "shape", "", math.nan
     if ambiguous and colours[0] is not None and colours[1] is not None:
         axis, spread = _pair_axis(src.level(decide), tgt.level(decide), t)
         if spread <= MAX_AXIS_SPREAD_DEG:
             t_c, colour_note = _turn_by_colour(src, tgt, colours[0], colours[1], t, axis, preset, int(rng.integers(1 << 30)))
             if t_c is not None:
                 t, decided_by, ambiguous = t_c[0], "colour", False
-                second_deg, evidence = t_c[1], t_c[2]
+                second_deg, evidence, colour_sd = t_c[1], t_c[2], t_c[3]
         else:
             colour_note = (f"colour cannot decide: the pair is no surface of revolution (its normals leave the "
                            f"meridian planes of the best axis by {spread:.1f} deg > {MAX_AXIS_SPREAD_DEG:g})")
@@ -298,8 +299,27 @@ def _register(
     if weak_reason:
         reason = weak_reason if ok else f"{reason}; {weak_reason}"
         ok = False
+    turn_deg = math.nan
+    if ok and (decided_by == "colour" or (sweep is not None and not isinstance(sweep, str))):
+        # a nearly symmetric pair: the turn about its axis rests on a small feature or on colour
+        if decided_by == "colour":
+            sd = colour_sd
+        else:
+            sd = _turn_spread(src, tgt, t, sweep[0], fine, preset)[0]   # type: ignore[index]
+        turn_deg = preset.turn_sigmas * sd
+        if not turn_deg <= preset.max_turn_deg:
+            ok = False
+            reason = _uncertain_turn(turn_deg, preset, decided_by)
     return replace(_pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence),
-                   decided_by=decided_by)
+                   decided_by=decided_by, turn_uncertainty_deg=turn_deg)
+
+
+def _uncertain_turn(bound_deg: float, preset: RegistrationPreset, decided_by: str) -> str:
+    """The reason a nearly symmetric pair is not verified: its turn about the axis is too uncertain."""
+    what = "the decoration's borders" if decided_by == "colour" else "the distinguishing feature (a boss, a chip)"
+    return (f"registered, but the turn about the symmetry axis is uncertain: +-{bound_deg:.2f} deg "
+            f"({preset.turn_sigmas:g} sigma) > {preset.max_turn_deg:g} deg; not verified: scan more of "
+            f"{what} in both passes, or pick points to register this pair")
 
 
 #: Largest robust deviation (deg) of the normals from the meridian planes of a pair's axis for the
@@ -341,7 +361,7 @@ def _as_colours(c: PointColours | ArrayLike | None, n: int, name: str) -> PointC
 def _turn_by_colour(
     src: _Cloud, tgt: _Cloud, cs: PointColours, ct: PointColours, t: NDArray[np.float64],
     axis: tuple[NDArray[np.float64], NDArray[np.float64]], preset: RegistrationPreset, seed: int,
-) -> tuple[tuple[NDArray[np.float64], float, float] | None, str]:
+) -> tuple[tuple[NDArray[np.float64], float, float, float] | None, str]:
     """The turn of ``t`` about a nearly free axis decided by the points' colour classes, or None and why not.
 
     Partners are at most one sample spacing apart and, with normals, on the
@@ -351,7 +371,8 @@ def _turn_by_colour(
     apart turned the result by 0.5 to 1.8 deg on three of six pairs, with
     5.8 to 12.3 sigma of evidence; one spacing: within 0.42 deg).  Evidence
     cells are three times the partner distance.  Returns
-    ``((pose, second_deg, sigma), note)``.
+    ``((pose, second_deg, sigma, turn_sd_deg), note)``, the last the
+    bootstrap standard deviation of the turn (``ColourTurn.sigma_deg``).
     """
     classes = colour_classes(src.points, cs, tgt.points, ct, source_normals=src.normals,
                              target_normals=tgt.normals)
@@ -364,7 +385,7 @@ def _turn_by_colour(
     if not turn.sigma >= preset.min_evidence:
         return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
                       f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
-    return (turn.transform, turn.second_deg, turn.sigma), ""
+    return (turn.transform, turn.second_deg, turn.sigma, turn.sigma_deg), ""
 
 
 def _as_transform(t: ArrayLike, name: str) -> NDArray[np.float64]:

@@ -103,6 +103,9 @@ class ColourTurn:
         Fraction of the compared points whose classes disagree under each turn.
     cells, points
         Cells and points the evidence rests on.
+    sigma_deg
+        Standard deviation of the turn (deg): the spread of the fine sweep's
+        vertex over bootstrap resamples of its cells (:func:`_bootstrap_vertex`).
     """
 
     transform: NDArray[np.float64]
@@ -113,6 +116,7 @@ class ColourTurn:
     disagree_second: float
     cells: int
     points: int
+    sigma_deg: float = math.nan
 
 
 def otsu_threshold(values: ArrayLike, bins: int = 256) -> tuple[float, float]:
@@ -524,6 +528,8 @@ def turn_by_colour(
                            _disagreement(tgt_all[tk], lt_all[tk], back_tree, ls_all, np.linalg.inv(fposes),
                                          max_distance_mm, bwd)], axis=1)
     best = _v_vertex(fine, np.nansum(both, axis=1))
+    at = np.concatenate([transform_points(_turned(t0, u, c, np.radians([a0]))[0], src_all), tgt_all[tk]])
+    sd = _bootstrap_vertex(fine, both, at, cell_mm, seed)
     away = np.abs((coarse - best + 180.0) % 360.0 - 180.0) >= distinct_deg
     second = float(coarse[away][int(np.argmin(cost[away]))]) if away.any() else best
     poses = _turned(t0, u, c, np.radians([best, second]))
@@ -537,7 +543,34 @@ def turn_by_colour(
     wrapped = (best + 180.0) % 360.0 - 180.0
     return ColourTurn(poses[0], wrapped, z, abs((second - best + 180.0) % 360.0 - 180.0),
                       float(np.nanmean(da)) if np.isfinite(da).any() else math.nan,
-                      float(np.nanmean(db)) if np.isfinite(db).any() else math.nan, cells, points)
+                      float(np.nanmean(db)) if np.isfinite(db).any() else math.nan, cells, points, sd)
+
+
+def _bootstrap_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.float64], positions_mm: NDArray[np.float64],
+                      cell_mm: float, seed: int, resamples: int = 200) -> float:
+    """Standard deviation (deg) of :func:`_v_vertex` of the summed ``(K, N)`` disagreements over resampled cells.
+
+    The points are pooled into cubic cells of ``cell_mm`` (neighbouring
+    points share a border and a colour fit); the cells are drawn with
+    replacement ``resamples`` times and the vertex found again each time
+    (Efron & Tibshirani 1993, doi:10.1007/978-1-4899-4541-9).
+    """
+    from processing.geometry.registration.turn_uncertainty import cell_labels
+
+    cell = cell_labels(positions_mm, cell_mm)
+    per_cell = np.zeros((int(cell.max()) + 1, len(angles_deg)))
+    np.add.at(per_cell, cell, np.nan_to_num(disagree).T)
+    n = len(per_cell)
+    counts = np.random.default_rng(seed).multinomial(n, np.full(n, 1.0 / n), size=resamples)
+    cost = counts @ per_cell                                        # (B, K)
+    step = float(angles_deg[1] - angles_deg[0]) / 4.0 if len(angles_deg) > 1 else 1.0
+    vertices = np.arange(angles_deg[0], angles_deg[-1] + 1e-9, step)
+    x = np.stack([np.ones((len(vertices), len(angles_deg))), np.abs(angles_deg[None] - vertices[:, None])], -1)
+    coef = np.linalg.pinv(x) @ cost.T                              # (V, 2, B)
+    err = np.sum((x @ coef - cost.T[None]) ** 2, axis=1)            # (V, B)
+    err = np.where(coef[:, 1] > 0, err, np.inf)
+    best = vertices[np.argmin(err, axis=0)]
+    return float(np.std(best))
 
 
 def colour_points(

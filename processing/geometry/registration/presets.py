@@ -100,6 +100,14 @@ class RegistrationPreset:
         (a voxel finer than the samples only leaves noisier normals).
     sweep_steps
         Starting angles of the sweep about a weak axis (full turn).
+    max_turn_deg
+        A nearly symmetric pair (a weak rotation, or a turn decided by
+        colour) is verified only when ``turn_sigmas`` standard deviations of
+        its turn about the axis are at most this (deg): the evidence can pick
+        the right turn while the refined angle is still this far off.
+    turn_sigmas
+        Standard deviations of the stated bound on the turn (2: about 95 %
+        of pairs within it if the errors are Gaussian).
 
     Raises
     ------
@@ -137,6 +145,8 @@ class RegistrationPreset:
     min_voxel_spacing: float = 1.0
     score_scale: float = 0.5
     sweep_steps: int = 72
+    max_turn_deg: float = 0.5
+    turn_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.max_partner_deg < 90.0:
