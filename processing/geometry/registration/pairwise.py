@@ -299,27 +299,38 @@ def _register(
     if weak_reason:
         reason = weak_reason if ok else f"{reason}; {weak_reason}"
         ok = False
-    turn_deg = math.nan
-    if ok and (decided_by == "colour" or (sweep is not None and not isinstance(sweep, str))):
-        # a nearly symmetric pair: the turn about its axis rests on a small feature or on colour
-        if decided_by == "colour":
-            sd = colour_sd
-        else:
-            sd = _turn_spread(src, tgt, t, sweep[0], fine, preset)[0]   # type: ignore[index]
-        turn_deg = preset.turn_sigmas * sd
-        if not turn_deg <= preset.max_turn_deg:
-            ok = False
-            reason = _uncertain_turn(turn_deg, preset, decided_by)
+    # a nearly symmetric pair: the turn about its axis rests on a small feature or on colour
+    ok, reason, turn_deg = _turn_gate(src, tgt, t, sweep, fine, preset, decided_by, colour_sd, (ok, reason))
     return replace(_pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence),
                    decided_by=decided_by, turn_uncertainty_deg=turn_deg)
 
 
-def _uncertain_turn(bound_deg: float, preset: RegistrationPreset, decided_by: str) -> str:
-    """The reason a nearly symmetric pair is not verified: its turn about the axis is too uncertain."""
-    what = "the decoration's borders" if decided_by == "colour" else "the distinguishing feature (a boss, a chip)"
-    return (f"registered, but the turn about the symmetry axis is uncertain: +-{bound_deg:.2f} deg "
-            f"({preset.turn_sigmas:g} sigma) > {preset.max_turn_deg:g} deg; not verified: scan more of "
-            f"{what} in both passes, or pick points to register this pair")
+def _turn_gate(
+    src: _Cloud, tgt: _Cloud, t: NDArray[np.float64],
+    sweep: tuple[NDArray[np.float64], NDArray[np.float64]] | str | None, voxel: float, preset: RegistrationPreset,
+    decided_by: str, colour_sd: float, verdict: tuple[bool, str],
+) -> tuple[bool, str, float]:
+    """``(verified, reason, bound_deg)`` of a pair after its ``verdict`` (verified, reason) on every other check.
+
+    Only a verified, nearly symmetric pair (colour decided its turn, or
+    ``sweep`` is the weak axis it was swept about) is judged: the bound is
+    ``turn_sigmas`` standard deviations of the turn about the axis, the
+    colour sweep's bootstrap ``colour_sd`` when colour decided it, else
+    :func:`~processing.geometry.registration.turn_uncertainty._turn_spread`
+    about the sweep's axis at the finest level ``voxel``.  Other pairs keep
+    their verdict, with a NaN bound.
+    """
+    colour = decided_by == "colour"
+    if not verdict[0] or not (colour or isinstance(sweep, tuple)):
+        return verdict[0], verdict[1], math.nan
+    sd = colour_sd if colour or not isinstance(sweep, tuple) else _turn_spread(src, tgt, t, sweep[0], voxel, preset)[0]
+    bound = preset.turn_sigmas * sd
+    if bound <= preset.max_turn_deg:
+        return True, "ok", bound
+    what = "the decoration's borders" if colour else "the distinguishing feature (a boss, a chip)"
+    return False, (f"registered, but the turn about the symmetry axis is uncertain: +-{bound:.2f} deg "
+                   f"({preset.turn_sigmas:g} sigma) > {preset.max_turn_deg:g} deg; not verified: scan more of "
+                   f"{what} in both passes, or pick points to register this pair"), bound
 
 
 #: Largest robust deviation (deg) of the normals from the meridian planes of a pair's axis for the

@@ -22,6 +22,18 @@ __all__ = ["cell_labels", "rotation_covariance", "turn_sigma_deg"]
 def cell_labels(positions_mm: ArrayLike, cell_mm: float) -> NDArray[np.int64]:
     """Index of the cubic cell of ``cell_mm`` (mm) each position falls in, 0 .. cells - 1.
 
+    Parameters
+    ----------
+    positions_mm
+        ``(N, 3)`` positions (mm).
+    cell_mm
+        Edge of the cells (mm), on a grid through the origin.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N,)`` cell indices, numbered in the order of the cells' grid coordinates.
+
     Examples
     --------
     >>> cell_labels([[0.1, 0, 0], [0.9, 0, 0], [1.2, 0, 0]], 1.0).tolist()
