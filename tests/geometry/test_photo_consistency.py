@@ -18,7 +18,7 @@ import pytest
 
 from mocks.pass_cloud import pass_colour_views, simulated_pass
 from mocks.world import World
-from processing.geometry.registration import PointColours, pose_difference
+from processing.geometry.registration import PointColours, pose_difference, transform_points
 from processing.geometry.registration.photo_consistency import _turned, colour_classes, turn_by_colour
 
 TOL_DEG, TOL_MM, MIN_SIGMA = 0.5, 0.5, 5.0
@@ -90,28 +90,43 @@ def _painted_egg(seed: int, n: int = 3000):
     return pts, normals, colours
 
 
-@pytest.mark.slow
-def test_register_pair_decides_a_free_turn_by_colour_and_says_so():
-    # the same painted egg sampled twice, the source turned 130 deg about its axis and shifted: without
-    # colours the turn is ambiguous in shape; with them it is decided by colour within the limits
-    from processing.geometry.registration import register_pair, transform_points
-
-    sp, sn, sc = _painted_egg(1)
-    tp, tn, tc = _painted_egg(2)
+def _egg_pair(n: int):
+    """The painted egg sampled twice (``n`` points each), the source turned 130 deg about its axis and shifted."""
+    sp, sn, sc = _painted_egg(1, n)
+    tp, tn, tc = _painted_egg(2, n)
     truth = np.eye(4)
     truth[:3, :3] = _turned(np.eye(4), np.array([0.0, 0.0, 1.0]), np.zeros(3), np.radians([130.0]))[0][:3, :3]
     truth[:3, 3] = [4.0, -3.0, 2.0]
     src, src_n = transform_points(np.linalg.inv(truth), sp), sn @ np.linalg.inv(truth)[:3, :3].T
+    return src, src_n, sc, tp, tn, tc, truth
+
+
+@pytest.mark.slow
+def test_register_pair_decides_a_free_turn_by_colour_and_says_so():
+    # without colours the turn is ambiguous in shape; with them it is decided by colour.  At 3000 points
+    # (about 2 mm apart) the patch's borders hold the turn to about +-0.7 deg only: the pair is reported
+    # with its turn uncertain, the true error within the stated bound; at 12000 points it is verified
+    # within the limits (measured: 0.18 deg off, bound 1.36 deg; 0.10 deg off, bound 0.37 deg)
+    from processing.geometry.registration import register_pair
+
+    src, src_n, sc, tp, tn, tc, truth = _egg_pair(3000)
     shape = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0)
     assert not shape.verified and "ambiguous" in shape.reason, shape.reason
     res = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
                         source_colours=sc, target_colours=tc)
     rot, disp = pose_difference(res.transform, truth, src)
-    assert res.verified and res.decided_by == "colour", res.reason
-    assert res.evidence_sigma >= MIN_SIGMA and rot < TOL_DEG and disp < TOL_MM, (res.evidence_sigma, rot, disp)
+    assert res.decided_by == "colour" and res.evidence_sigma >= MIN_SIGMA, res.reason
+    assert not res.verified and "turn about the symmetry axis is uncertain" in res.reason, res.reason
+    assert rot <= res.turn_uncertainty_deg, (rot, res.turn_uncertainty_deg)
     shuffled = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
                              source_colours=sc[np.random.default_rng(0).permutation(len(sc))], target_colours=tc)
     assert not shuffled.verified and shuffled.decided_by == "shape", shuffled.reason
+    src, src_n, sc, tp, tn, tc, truth = _egg_pair(12000)
+    dense = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
+                          source_colours=sc, target_colours=tc)
+    rot, disp = pose_difference(dense.transform, truth, src)
+    assert dense.verified and dense.decided_by == "colour", dense.reason
+    assert rot < TOL_DEG and disp < TOL_MM and rot <= dense.turn_uncertainty_deg <= 0.5, (rot, disp, dense.turn_uncertainty_deg)
 
 
 def test_colours_of_the_wrong_length_are_refused_with_the_parameter_named():
