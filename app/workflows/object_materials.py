@@ -171,6 +171,8 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
     dict
         The materials document (also ``products/object-materials.json``).
     """
+    from threadpoolctl import threadpool_limits
+
     from app.session import Session, SessionError
 
     note = message or (lambda text: None)
@@ -194,7 +196,10 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
         held = _held_out(data["obs"].frame_names, data["records"], holdout_every)
         if held.all():
             raise UsageError(f"session {root}: every frame would be held out; use --holdout-every >= 2 or 0")
-        doc = _fit(data, held, model_error, max_regions, note, stop, refine=normals == "photometric")
+        # one BLAS thread: the fit's products are small, and OpenBLAS's spinning threads cost the whole
+        # step several times its CPU on a shared machine (docs/BENCHMARKS.md, "Materials on the mesh")
+        with threadpool_limits(limits=1, user_api="blas"):
+            doc = _fit(data, held, model_error, max_regions, note, stop, refine=normals == "photometric")
         data["mesh"] = (*data["mesh"][:2], doc.pop("_normals"))       # the refined normals go with the object
         _check_cancel(stop)
         _write_products(session, root, data, doc)

@@ -234,7 +234,9 @@ def adjacency(triangles: NDArray[np.int64], n_vertices: int, vertices: NDArray[n
     from scipy import sparse
 
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = np.sort(e, axis=1).astype(np.int64)
+    key = np.unique(e[:, 0] * np.int64(max(n_vertices, 1)) + e[:, 1])     # rows in lexicographic order
+    e = np.stack([key // max(n_vertices, 1), key % max(n_vertices, 1)], axis=1)
     e = e[e[:, 0] != e[:, 1]]
     w = np.ones(len(e)) if vertices is None else np.maximum(
         np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1), 1e-9)

@@ -117,6 +117,7 @@ from processing.materials.metal_model import (
     normalise_composition,
 )
 from processing.materials.microfacet import (
+    SmithLobe,
     beckmann_d,
     microfacet_lobe,
     smith_g,
@@ -172,7 +173,7 @@ __all__ = [
     # fresnel
     "fresnel_conductor", "fresnel_dielectric",
     # microfacet
-    "beckmann_d", "smith_g1_beckmann", "smith_g", "torrance_sparrow_g", "microfacet_lobe",
+    "beckmann_d", "smith_g1_beckmann", "smith_g", "torrance_sparrow_g", "microfacet_lobe", "SmithLobe",
     # optical_constants
     "METALS", "complex_index", "metal_source", "metal_wavelength_range", "canonical_metal", "DrudeFit",
     "tin_drude_fit", "drude_index",

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize_scalar, nnls
 
-from processing.materials.microfacet import microfacet_lobe
+from processing.materials.microfacet import SmithLobe
 
 __all__ = ["Basis", "CandidateFit", "Whitener", "fit_candidate", "ROUGHNESS_RANGE", "MIRROR_EXCLUDE_DEG",
            "common_mode_error", "common_mode_of", "robust_weights", "CAUCHY_SCALE"]
@@ -146,18 +146,20 @@ def _columns(basis: Basis, geo: NDArray[np.float64], shade: NDArray[np.float64])
 
 
 _CACHE: dict[float, NDArray[np.float64]] = {}
-_OWNER: list = [None]       # the samples the cache belongs to (held, so no other object can match them)
+#: The samples the cache belongs to (held, so no other object can match them), their roughness-free lobe
+#: terms and their ``pi * irr * cos_i``.
+_OWNER: list = [None, None, None]
 
 
 def _lobe(samples, roughness: float) -> NDArray[np.float64]:
     """``pi * irr * cos_i * D G / (4 cos_i cos_o)``, cached for the samples last fitted."""
     if _OWNER[0] is not samples or len(_CACHE) > 256:
         _CACHE.clear()
-        _OWNER[0] = samples
+        s = samples
+        _OWNER[:] = [s, SmithLobe(s.cos_i, s.cos_o, s.cos_h), np.pi * s.irradiance * s.cos_i]
     key = float(roughness)
     if key not in _CACHE:
-        s = samples
-        _CACHE[key] = np.pi * s.irradiance * s.cos_i * microfacet_lobe(s.cos_i, s.cos_o, s.cos_h, s.cos_d, roughness)
+        _CACHE[key] = _OWNER[2] * _OWNER[1](roughness)
     return _CACHE[key]
 
 
@@ -179,15 +181,55 @@ def _solve(basis: Basis, samples, roughness: float, y: NDArray[np.float64],
 
 def _small_nnls(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
     """NNLS through the p x p normal equations (Cholesky factor), with the full residual sum of squares."""
-    g, b = np.einsum("ij,ik->jk", x, x), np.einsum("ij,i->j", x, y)
+    return _normal_nnls(np.einsum("ij,ik->jk", x, x), np.einsum("ij,i->j", x, y), float(y @ y))
+
+
+def _normal_nnls(g: NDArray[np.float64], b: NDArray[np.float64], yy: float) -> tuple[NDArray[np.float64], float]:
+    """NNLS from the normal equations ``g = X^T X``, ``b = X^T y`` and ``yy = y^T y`` (Cholesky factor)."""
     p = len(b)
     scale = np.sqrt(np.maximum(np.diag(g), 1e-300))
     gs = g / np.outer(scale, scale) + 1e-12 * np.eye(p)
     r = np.linalg.cholesky(gs).T
     q = np.linalg.solve(r.T, b / scale)
     a_s, rnorm = nnls(r, q)
-    chi2 = float(y @ y - q @ q + rnorm ** 2)
+    chi2 = float(yy - q @ q + rnorm ** 2)
     return a_s / scale, max(chi2, 0.0)
+
+
+class _NormalEquations:
+    """A candidate's whitened normal equations as functions of the geometric factor alone.
+
+    Every gloss column is ``geo * colour`` with ``geo`` one number per observation and the whitening
+    per observation and linear, so ``w(geo * colour) = geo * w(colour)``: the per-observation products
+    of the whitened colours (and of the diffuse column, which does not depend on the roughness) are
+    formed once, and each roughness of the search costs two matrix-vector products over the
+    observations instead of building, whitening and multiplying the ``(3 n, p)`` design matrix.
+    """
+
+    def __init__(self, basis: Basis, samples, y: NDArray[np.float64], w: Whitener) -> None:
+        n, m = len(samples), len(basis.gloss_colours)
+        cw = np.stack([w(c.reshape(-1)).reshape(n, 3) for c in basis.gloss_colours], axis=2)
+        yw = y.reshape(n, 3)
+        self.m, self.yy = m, float(y @ y)
+        self.pgg = np.einsum("ncj,nck->njk", cw, cw).reshape(n, m * m)
+        self.qg = np.einsum("ncj,nc->nj", cw, yw)
+        self.diffuse = basis.diffuse_colour is not None
+        if self.diffuse:
+            shade = np.pi * samples.irradiance * samples.cos_i
+            dw = w((shade[:, None] * basis.diffuse_colour[None, :] / np.pi).reshape(-1)).reshape(n, 3)
+            self.pgd = np.einsum("ncj,nc->nj", cw, dw)
+            self.gdd, self.bd = float(np.einsum("nc,nc->", dw, dw)), float(np.einsum("nc,nc->", dw, yw))
+
+    def solve(self, geo: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+        """Amplitudes and chi-square at the observations' geometric factor ``geo`` (``(n,)``)."""
+        m = self.m
+        g_gg, b_g = ((geo * geo) @ self.pgg).reshape(m, m), geo @ self.qg
+        if not self.diffuse:
+            return _normal_nnls(g_gg, b_g, self.yy)
+        g = np.empty((m + 1, m + 1))
+        g[:m, :m], g[m, m] = g_gg, self.gdd
+        g[:m, m] = g[m, :m] = geo @ self.pgd
+        return _normal_nnls(g, np.append(b_g, self.bd), self.yy)
 
 
 def fit_candidate(basis: Basis, samples, y: NDArray[np.float64], w: Whitener) -> CandidateFit:
@@ -209,8 +251,10 @@ def fit_candidate(basis: Basis, samples, y: NDArray[np.float64], w: Whitener) ->
     CandidateFit
         Covariance of (amplitudes..., roughness) from the Jacobian, scaled by max(1, reduced chi2).
     """
+    normal = _NormalEquations(basis, samples, y, w)
+
     def cost(log_r: float) -> float:
-        return _solve(basis, samples, float(np.exp(log_r)), y, w)[0]
+        return normal.solve(_geometry(samples, float(np.exp(log_r)), basis))[1]
 
     grid = [cost(float(np.log(r))) for r in _GRID]
     j = int(np.argmin(grid))

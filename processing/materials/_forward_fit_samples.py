@@ -7,6 +7,7 @@ test toward the lamp by Open3D ray casting.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -175,6 +176,47 @@ def _occluded(points: NDArray[np.float64], normals: NDArray[np.float64], toward:
     return out
 
 
+#: The last shadow tests: weak references to the observations, vertices and triangles they belong to,
+#: the lamps (per frame vector and kind), which observations were tested and their answers.
+_OCCLUSION: dict = {}
+
+
+def _weak(x) -> weakref.ref | None:
+    try:
+        return weakref.ref(x)
+    except TypeError:
+        return None
+
+
+def _occlusion(owners: tuple, vec: NDArray[np.float64], point: NDArray[np.bool_], obs_idx: NDArray[np.int64],
+               points: NDArray[np.float64], normals: NDArray[np.float64], toward: NDArray[np.float64],
+               point_obs: NDArray[np.bool_], vertices: NDArray[np.float64], triangles: ArrayLike) -> NDArray[np.bool_]:
+    """:func:`_occluded` for observations ``obs_idx``, each observation's ray cast once.
+
+    ``owners`` is ``(obs, vertices, triangles)`` as given to :func:`region_samples`, ``vec``/``point``
+    the lamps (:func:`_lamp_table`).  The fit gathers the observations of a region several times (its
+    interior, all of it, its pieces); an observation's shadow test depends only on the observation,
+    the mesh and the lamp, so the answers are kept for the objects of the last call (compared by
+    identity, held weakly) and the same lamps.
+    """
+    c = _OCCLUSION
+    refs = [_weak(o) for o in owners]
+    if any(r is None for r in refs):
+        return _occluded(points, normals, toward, point_obs, vertices, triangles)
+    if not (c and all(r() is o for r, o in zip(c["refs"], owners)) and np.array_equal(c["vec"], vec)
+            and np.array_equal(c["point"], point)):
+        n_obs = len(owners[0].frame)
+        c.clear()
+        c.update(refs=refs, vec=vec.copy(), point=point.copy(), tested=np.zeros(n_obs, dtype=bool),
+                 hidden=np.zeros(n_obs, dtype=bool))
+    tested, hidden = c["tested"], c["hidden"]
+    new = np.flatnonzero(~tested[obs_idx])
+    if new.size:
+        hidden[obs_idx[new]] = _occluded(points[new], normals[new], toward[new], point_obs[new], vertices, triangles)
+        tested[obs_idx[new]] = True
+    return hidden[obs_idx]
+
+
 def region_samples(obs, vertices: ArrayLike, frames: Sequence, vertex_ids: ArrayLike, *, lamp: int = 0,
                    drop_clipped: bool = True, triangles: ArrayLike | None = None,
                    reference_mm: float | None = None) -> RegionSamples:
@@ -238,7 +280,8 @@ def region_samples(obs, vertices: ArrayLike, frames: Sequence, vertex_ids: Array
     lit = (cos_i > 0) & (cos_o > 0)
     if triangles is not None and lit.any():
         s = np.flatnonzero(lit)
-        lit[s] &= ~_occluded(pos[s], n[s], vec[fr[s]], point[fr[s]], verts, triangles)
+        lit[s] &= ~_occlusion((obs, vertices, triangles), vec, point, idx[s], pos[s], n[s], vec[fr[s]],
+                              point[fr[s]], verts, triangles)
     clipped = np.asarray(obs.clipped[idx], dtype=bool)
     keep = lit & ~clipped if drop_clipped else lit
     share = float((lit & clipped).sum() / max(int(lit.sum()), 1))

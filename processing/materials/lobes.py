@@ -328,9 +328,13 @@ def material_brdf(
     shape = np.broadcast_shapes(*(np.shape(c) for c in (cos_i, cos_o, cos_h, cos_d)))
     total = np.zeros(shape + (wl.size,))
     cd = np.broadcast_to(np.asarray(cos_d, dtype=np.float64), shape)
+    spectra: dict[int, NDArray[np.float64]] = {}      # lobes sharing a spectral factor (a metal's gloss and mirror)
     for lobe in material.lobes:
         if lobe.weight == 0.0:
             continue
         g = lobe_geometry(lobe, cos_i, cos_o, cos_h, cos_d, tangential)
-        total += lobe.weight * np.broadcast_to(g, shape)[..., None] * lobe.spectral.reflectance(cd, wl)
+        key = id(lobe.spectral)
+        if key not in spectra:
+            spectra[key] = lobe.spectral.reflectance(cd, wl)
+        total += lobe.weight * np.broadcast_to(g, shape)[..., None] * spectra[key]
     return total

@@ -162,3 +162,30 @@ def test_a_few_observations_of_a_neighbour_do_not_pull_the_fit(model):
     assert abs(robust.parameters["roughness"] - 0.15) <= 0.015
     assert robust.material == "nami-shibuichi" or "nami-shibuichi" in robust.group
     assert plain.parameters["Au"] > robust.parameters["Au"] + 0.03              # the premise: the gold pulls
+
+
+@pytest.mark.parametrize("candidate", ["alloy", "urushi-black", "silver"])
+def test_normal_equations_give_the_design_matrix_solution(model, candidate):
+    # The roughness search solves each candidate's NNLS from per-observation products formed once
+    # (w(geo * colour) = geo * w(colour)); it must give what whitening and solving the full design
+    # matrix gives, at every roughness.  Tolerance 1e-9 relative: the two sum the same products in a
+    # different order (rounding ~1e-16 per term, the chi-square's cancellation y.y - q.q adds ~1e-12).
+    from processing.materials._forward_fit_core import (
+        _columns,
+        _geometry,
+        _NormalEquations,
+        _small_nnls,
+    )
+    from processing.materials.forward_fit import _basis, prepared_observations
+
+    _, s, _ = _fit("nami-shibuichi", model)
+    fitted, y, w = prepared_observations(s, model)
+    basis = _basis(candidate, model, fitted.cos_d)[0]
+    normal = _NormalEquations(basis, fitted, w(y), w)
+    shade = np.pi * fitted.irradiance * fitted.cos_i
+    for r in (0.03, 0.15, 0.5):
+        geo = _geometry(fitted, r, basis)
+        a_ref, chi2_ref = _small_nnls(w(_columns(basis, geo, shade)), w(y))
+        a, chi2 = normal.solve(geo)
+        assert chi2 == pytest.approx(chi2_ref, rel=1e-9)
+        np.testing.assert_allclose(a, a_ref, rtol=1e-9, atol=1e-12 * np.abs(a_ref).max())

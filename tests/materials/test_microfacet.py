@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from scipy import integrate
 
 from processing.materials.microfacet import (
+    SmithLobe,
     beckmann_d,
     microfacet_lobe,
     smith_g,
@@ -143,3 +144,24 @@ def test_bad_roughness_and_shadowing() -> None:
         smith_g1_beckmann(0.9, -0.1)
     with pytest.raises(ValueError, match="shadowing='ggx'"):
         microfacet_lobe(0.5, 0.5, 0.9, 0.8, 0.2, "ggx")
+
+
+def test_smith_lobe_is_d_g_over_4_cos_cos_to_the_bit() -> None:
+    # SmithLobe keeps the roughness-free terms of many evaluations; its values must be those of the
+    # lobe's definition D G / (4 cos_i cos_o) from beckmann_d and smith_g exactly (the fit's roughness
+    # search compares chi-squares of these values), including the edge cases: grazing, normal
+    # incidence, below the horizon, a half vector at 90 deg, tiny and large roughness.
+    rng = np.random.default_rng(3)
+    ci, co, ch = (rng.uniform(-0.2, 1.0, 4000) for _ in range(3))
+    ci[:5], co[5:10], ch[10:15], ch[15:20], co[20:25], ci[25:30] = 0.0, 1.0, 0.0, 1.0, -0.0, 1e-200
+    lobe = SmithLobe(ci, co, ch)
+    valid = (ci > 0) & (co > 0)
+    for sigma in (1e-3, 0.02, 0.1537, 0.8, 1.3):
+        with np.errstate(under="ignore", over="ignore", divide="ignore", invalid="ignore"):
+            expected = np.where(valid, beckmann_d(ch, sigma) * smith_g(ci, co, sigma)
+                                / (4.0 * np.where(valid, ci * co, 1.0)), 0.0)
+        expected = np.nan_to_num(expected, nan=0.0, posinf=0.0)
+        np.testing.assert_array_equal(lobe(sigma), expected)
+        np.testing.assert_array_equal(microfacet_lobe(ci, co, ch, 0.5, sigma), expected)
+    with pytest.raises(ValueError, match="roughness"):
+        lobe(0.0)
