@@ -6,13 +6,11 @@ finds) gives a session that ``kogei process`` can mesh in about two seconds.  Th
 it), so tests choose what to run; copy it before changing it.
 
 The sessions are captured once per test run: under xdist the first worker to need them builds them while
-the others wait on a file lock (as tests/integration/object_session.py shares the projected hawk), and
-every test process works on its own copy.
+the others wait on a file lock (:mod:`tests._shared_build`), and every test process works on its own copy.
 """
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,6 +20,7 @@ from app.session import Session
 from app.workflows.calibration import calibrate_session
 from mocks.station import SimulatedStation
 from mocks.world import World
+from tests._shared_build import built_once, copy_tree
 
 __all__ = ["built_sessions", "copy_session", "materials_session", "MATERIALS_WORLD"]
 
@@ -42,30 +41,10 @@ def _capture(world: World, root: Path, plan: CapturePlan, camera: bool, seed: in
 
 
 def _built_once(tmp_path_factory, name: str, build, sessions: tuple[str, ...]) -> Path:
-    """A folder of this process holding copies of ``sessions``, which ``build(folder)`` captured once per run.
-
-    The build goes to a folder shared by the xdist workers (the parent of their base temporary folders);
-    a file lock lets the first worker build it while the others wait.  The simulated stations' folders
-    are not copied (their device files belong to the station that made them).
-    """
-    import fcntl
-    import os
-
-    base = tmp_path_factory.getbasetemp()
-    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / f"shared-{name}"
-    shared.mkdir(parents=True, exist_ok=True)
-    built, done = shared / "built", shared / "done"
-    with open(shared / "lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            if not done.exists():
-                if built.exists():
-                    shutil.rmtree(built)
-                built.mkdir()
-                build(built)
-                done.write_text("ok\n")
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
+    """A folder of this process holding copies of ``sessions``, which ``build(folder)`` captured once per run
+    (:func:`tests._shared_build.built_once`).  The simulated stations' folders are not copied (their device
+    files belong to the station that made them)."""
+    built = built_once(tmp_path_factory, f"shared-{name}", build)
     local = tmp_path_factory.mktemp(name)
     for session in sessions:
         copy_session(built / session, local / session)
@@ -90,8 +69,7 @@ def built_sessions(tmp_path_factory) -> SimpleNamespace:
 
 def copy_session(src: Path, dst: Path) -> Path:
     """A copy of a session folder (without its lock files)."""
-    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("*.lock"))
-    return dst
+    return copy_tree(src, dst)
 
 
 #: Head and beak of distinct materials, the light 15 deg from the camera (as in app.demo.colour) so that

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tests._shared_build import built_once, copy_tree
 from tests.integration.posed_session import _camera_json
 
 __all__ = ["build_object_session", "projected_hawk_session", "measured_hawk_session",
@@ -123,41 +124,19 @@ def build_object_session(root: Path, world, angles_deg, *, exposure_s: float = 0
     return {"world": world, "vertices": v, "triangles": t}
 
 
-def _shared_folder(tmp_path_factory, name: str) -> Path:
-    """A folder shared by the xdist workers of this run (the parent of their base temporary folders)."""
-    import os
-
-    base = tmp_path_factory.getbasetemp()
-    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / name
-    shared.mkdir(parents=True, exist_ok=True)
-    return shared
-
-
 def _shared_projected(tmp_path_factory, dst: Path, name: str, angles_deg, placements: tuple) -> Path:
     """A copy at ``dst`` of the projected hawk session of ``angles_deg`` x ``placements``, built once per run
-    in a folder shared by the xdist workers (a file lock lets one build it while the others wait)."""
-    import fcntl
-    import shutil
+    (:func:`tests._shared_build.built_once`)."""
 
-    shared = _shared_folder(tmp_path_factory, name)
-    root, done = shared / "session", shared / "built"
-    with open(shared / "lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            if not done.exists():
-                from app.workflows.posed_frames import project_session
-                from mocks.world import World
+    def build(folder: Path) -> None:
+        from app.workflows.posed_frames import project_session
+        from mocks.world import World
 
-                if root.exists():
-                    shutil.rmtree(root)
-                world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
-                build_object_session(root, world, angles_deg, placements=placements)
-                project_session(root)
-                done.write_text("ok\n")
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
-    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("*.lock"))
-    return dst
+        world = World.hawk(4000, width=240, height=160, chart_layout="classic24")
+        build_object_session(folder / "session", world, angles_deg, placements=placements)
+        project_session(folder / "session")
+
+    return copy_tree(built_once(tmp_path_factory, name, build) / "session", dst)
 
 
 def projected_hawk_session(tmp_path_factory, dst: Path) -> Path:
@@ -187,24 +166,15 @@ def measured_hawk_session(tmp_path_factory, dst: Path) -> tuple[Path, dict]:
     Built once per test run and shared by the xdist workers like the projected session (the report's
     and the materials' tests both start from it); each caller gets its own copy.
     """
-    import fcntl
     import pickle
-    import shutil
 
-    shared = _shared_folder(tmp_path_factory, "shared-measured-hawk")
-    root, doc_file = shared / "session", shared / "measure_object.pickle"
-    with open(shared / "lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            if not doc_file.exists():
-                from app.workflows.object_materials import measure_object
+    def build(folder: Path) -> None:
+        from app.workflows.object_materials import measure_object
 
-                if root.exists():
-                    shutil.rmtree(root)
-                projected_hawk_session(tmp_path_factory, root)
-                doc = measure_object(root)
-                doc_file.write_bytes(pickle.dumps(doc))
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
-    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("*.lock"))
-    return dst, pickle.loads(doc_file.read_bytes())
+        projected_hawk_session(tmp_path_factory, folder / "session")
+        doc = measure_object(folder / "session")
+        (folder / "measure_object.pickle").write_bytes(pickle.dumps(doc))
+
+    built = built_once(tmp_path_factory, "shared-measured-hawk", build)
+    copy_tree(built / "session", dst)
+    return dst, pickle.loads((built / "measure_object.pickle").read_bytes())

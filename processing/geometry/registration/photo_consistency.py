@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from processing.geometry.registration.cells import cell_labels
 from processing.geometry.registration.clouds import SAME_FACE_DEG
 from processing.geometry.registration.transforms import _rodrigues, transform_points
 
@@ -359,8 +360,8 @@ def label_evidence(disagree_a: ArrayLike, disagree_b: ArrayLike, positions_mm: A
         return 0.0, 0, int(use.sum())
     delta = db[use] - da[use]
     key = np.floor((pos[use] - pos[use].min(axis=0)) / cell_mm).astype(np.int64)
-    _, cell = np.unique(key, axis=0, return_inverse=True)
-    sums = np.bincount(cell.ravel(), weights=delta)
+    cell, _ = cell_labels(key)
+    sums = np.bincount(cell, weights=delta)
     p = 0.5 * float(np.mean(da[use] + db[use]))
     var = max(2.0 * float(np.sum(np.minimum(sums, 0.0) ** 2)), 2.0 * len(delta) * p * (1.0 - p))
     z = float(sums.sum()) / math.sqrt(var) if var > 0 else 0.0
@@ -555,9 +556,9 @@ def _bootstrap_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.floa
     replacement ``resamples`` times and the vertex found again each time
     (Efron & Tibshirani 1993, doi:10.1007/978-1-4899-4541-9).
     """
-    from processing.geometry.registration.turn_uncertainty import cell_labels
+    from processing.geometry.registration.turn_uncertainty import position_cells
 
-    cell = cell_labels(positions_mm, cell_mm)
+    cell = position_cells(positions_mm, cell_mm)
     per_cell = np.zeros((int(cell.max()) + 1, len(angles_deg)))
     np.add.at(per_cell, cell, np.nan_to_num(disagree).T)
     n = len(per_cell)

@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.geometry.registration.cells import cell_labels
+
 __all__ = ["PoseEvidence", "border_points", "pose_evidence", "surface_residuals"]
 
 #: Consistency constant of the median absolute deviation for a Gaussian.
@@ -240,8 +242,7 @@ def pose_evidence(
     cap = (cap_sigma * noise) ** 2
     delta = np.minimum(rb * rb, cap) - np.minimum(ra * ra, cap)
     key = np.floor((pos - pos.min(axis=0)) / cell_mm).astype(np.int64)
-    _, cell, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    cell = cell.ravel()
+    cell, counts = cell_labels(key)
     sums = np.bincount(cell, weights=delta)
     point_var = (2.0 * noise * noise) ** 2        # of r_B^2 - r_A^2 for one independent point
     background = 0

@@ -16,10 +16,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["cell_labels", "rotation_covariance", "turn_sigma_deg"]
+from processing.geometry.registration.cells import cell_labels
+
+__all__ = ["position_cells", "rotation_covariance", "turn_sigma_deg"]
 
 
-def cell_labels(positions_mm: ArrayLike, cell_mm: float) -> NDArray[np.int64]:
+def position_cells(positions_mm: ArrayLike, cell_mm: float) -> NDArray[np.int64]:
     """Index of the cubic cell of ``cell_mm`` (mm) each position falls in, 0 .. cells - 1.
 
     Parameters
@@ -36,12 +38,14 @@ def cell_labels(positions_mm: ArrayLike, cell_mm: float) -> NDArray[np.int64]:
 
     Examples
     --------
-    >>> cell_labels([[0.1, 0, 0], [0.9, 0, 0], [1.2, 0, 0]], 1.0).tolist()
+    >>> position_cells([[0.1, 0, 0], [0.9, 0, 0], [1.2, 0, 0]], 1.0).tolist()
     [0, 0, 1]
     """
     p = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 3)
     key = np.floor(p / float(cell_mm)).astype(np.int64)
-    return np.unique(key, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    if len(key):
+        key -= key.min(axis=0)
+    return cell_labels(key)[0].astype(np.int64)
 
 
 def rotation_covariance(
@@ -136,7 +140,7 @@ def rotation_covariance(
     centre = np.average(xh, axis=0, weights=np.maximum(w, 1e-12))
     jac[:, :3] = np.cross(xh - centre, n)
     a = (jac * w[:, None]).T @ jac
-    cells = cell_labels(xh, cell_mm)
+    cells = position_cells(xh, cell_mm)
     g = np.zeros((int(cells.max()) + 1, 6))
     np.add.at(g, cells, jac * (w * r)[:, None])
     b = g.T @ g
