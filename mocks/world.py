@@ -22,7 +22,8 @@ image a camera at the station sees:
   ``L = f_r(lambda) E(lambda) cos_i`` (normals interpolated from the vertex normals: the
   object is smooth, its mesh only samples it) with ``f_r`` the project's spectral BRDF
   (:func:`processing.materials.lobes.material_brdf`, Matsuda et al. eq. (2) for
-  metals and alloys, eq. (5) for lacquer), a shadow ray toward the light,
+  metals and alloys, eq. (5) for lacquer; its spectral factors tabulated over
+  ``cos_d``, :func:`tabulated_brdf`), a shadow ray toward the light,
   and a dark grey backdrop.  Direct light only: mirror lobes reflect the
   light but not the surroundings (there is no environment in the booth),
   and there are no inter-reflections.
@@ -57,6 +58,8 @@ __all__ = [
     "STATION_FRAME_SIZE",
     "STATION_CHART_LAYOUT",
     "station_world_settings",
+    "tabulated_brdf",
+    "SPECTRAL_NODE_STEP",
 ]
 
 #: Reflectance of the booth's grey backdrop and of gaps between chart patches.
@@ -664,7 +667,6 @@ class World:
     def _object_frame(self, angle: float) -> Frame:
         import open3d as o3d
 
-        from processing.materials.lobes import material_brdf
         from processing.materials.presets import get_material
 
         grid, e = self.grid, self.light_spectrum()
@@ -711,9 +713,76 @@ class World:
                 if sel.size == 0:
                     continue
                 mat = get_material(self.materials[name])
-                f = material_brdf(mat, ci[sel], co[sel], ch[sel], cd[sel], grid.wavelengths)
+                f = tabulated_brdf(mat, ci[sel], co[sel], ch[sel], cd[sel], grid.wavelengths)
                 radiance[idx[sel]] = f * (ci[sel] * irradiance[sel])[:, None] * e
         return Frame(radiance.reshape(h, w, grid.size), grid, e, labels.reshape(h, w), "object", angle)
+
+
+#: Spacing (in cos_d) of the nodes on which :func:`tabulated_brdf` evaluates a lobe's spectral factor.
+SPECTRAL_NODE_STEP = 1e-4
+
+
+def tabulated_brdf(material: Any, cos_i: NDArray[np.float64], cos_o: NDArray[np.float64],
+                   cos_h: NDArray[np.float64], cos_d: NDArray[np.float64],
+                   wavelengths: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:func:`processing.materials.lobes.material_brdf` of ``material`` at N points, its spectral factors tabulated.
+
+    A lobe is a wavelength-free geometric factor times a spectral factor of ``cos_d`` alone
+    (:mod:`processing.materials.lobes`).  The spectral factor -- a metal's complex Fresnel reflectance,
+    most of a frame's cost when evaluated at every pixel -- is evaluated on nodes
+    :data:`SPECTRAL_NODE_STEP` apart over the points' range of ``cos_d`` and interpolated linearly, an
+    error below ``step^2 / 8 max|F''|`` (about 1e-9 of the factor; the simulated sensor's shot noise is
+    1e-2 and more).  Isotropic lobes only, as the world's object has no tangent frame.
+
+    Parameters
+    ----------
+    material
+        A :class:`processing.materials.lobes.Material`.
+    cos_i, cos_o, cos_h, cos_d
+        ``(N,)`` cosines as for :func:`processing.materials.lobes.lobe_geometry`.
+    wavelengths
+        ``(L,)`` nm.
+
+    Returns
+    -------
+    ndarray
+        ``(N, L)`` BRDF (1/sr).
+
+    Examples
+    --------
+    >>> from processing.materials.lobes import material_brdf
+    >>> from processing.materials.presets import get_material
+    >>> c = np.linspace(0.3, 1.0, 50)
+    >>> wl = np.arange(400.0, 701.0, 10.0)
+    >>> gold = get_material("gold")
+    >>> exact = material_brdf(gold, c, c, np.ones(50), c, wl)
+    >>> bool(np.allclose(tabulated_brdf(gold, c, c, np.ones(50), c, wl), exact, rtol=1e-8, atol=0))
+    True
+    """
+    from processing.materials.lobes import lobe_geometry
+
+    wl = np.asarray(wavelengths, dtype=np.float64)
+    cd = np.asarray(cos_d, dtype=np.float64)
+    total = np.zeros((cd.size, wl.size))
+    if cd.size == 0:
+        return total
+    lo, hi = float(cd.min()), float(cd.max())
+    n = max(2, int(math.ceil((hi - lo) / SPECTRAL_NODE_STEP)) + 1)
+    nodes = np.linspace(lo, hi, n)
+    pos = (cd - lo) * ((n - 1) / (hi - lo)) if hi > lo else np.zeros_like(cd)
+    k = np.clip(np.floor(pos).astype(np.int64), 0, n - 2)
+    frac = (pos - k)[:, None]
+    for lobe in material.lobes:
+        if lobe.weight == 0.0:
+            continue
+        g = np.broadcast_to(lobe_geometry(lobe, cos_i, cos_o, cos_h, cd, None), cd.shape)
+        if lobe.spectral.angle_dependent:
+            table = lobe.spectral.reflectance(nodes, wl)
+            spectral = table[k] * (1.0 - frac) + table[k + 1] * frac
+        else:
+            spectral = lobe.spectral.reflectance(cd[:1], wl)
+        total += lobe.weight * g[:, None] * spectral
+    return total
 
 
 def world_settings(data: dict[str, Any]) -> dict[str, Any]:

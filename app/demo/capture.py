@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["simulated_capture", "profiles_figure", "REFERENCE_RADIUS_MM", "REFERENCE_OFFSET_MM", "SCAN_EXPOSURE_S"]
+__all__ = ["simulated_capture", "scan_reference_sphere", "profiles_figure", "REFERENCE_RADIUS_MM", "REFERENCE_OFFSET_MM",
+           "SCAN_EXPOSURE_S", "SCANNER_STAGE", "CAPTURE_STAGE", "STATION_STAGE", "PROCESS_STAGE"]
 
 #: The reference sphere of the scanner calibration: radius and distance from the axis (mm); its photos,
 #: taken at the camera's full resolution while it is scanned, tie the camera to the scanner's frame, so
@@ -32,11 +33,17 @@ REFERENCE_OFFSET_MM = 30.0
 #: gloss highlights (about 5 x a white diffuser's signal) stay below the white level, as a
 #: photographer exposes a metal object for its highlights.
 SCAN_EXPOSURE_S = 0.002
+#: The stage names of ``simulated_capture``'s ``stages_s`` (the demo's table), in the capture chain's order.
+SCANNER_STAGE = "scanner calibration (sphere scan)"
+CAPTURE_STAGE = "capture session (profiles, RAW frames)"
+STATION_STAGE = "camera and lamp calibration"
+PROCESS_STAGE = "process (register, mesh, pose frames)"
 
 
 def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: str = "gphoto2",
                       triangles: int = 20_000, seed: int = 1, process_preset: str | None = "standard",
-                      pose_frames: bool = True, station_sessions: Any = None, holdout_burst: int = 1) -> dict[str, Any]:
+                      pose_frames: bool = True, station_sessions: Any = None, holdout_burst: int = 1,
+                      scan_after_capture: bool = False, lamp_session_here: bool = False) -> dict[str, Any]:
     """Calibrate the simulated scanner, capture a session of the procedural hawk into ``out``, process it.
 
     With ``pose_frames`` (and a camera) the camera and the lamp are calibrated
@@ -46,6 +53,12 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     another process, gives the board and mirror-sphere sessions; without it they
     are captured here.  ``holdout_burst``: frames shot at each held-out table angle
     (:class:`app.capture.runner.CapturePlan`), averaged by the held-out validation.
+    ``lamp_session_here``: the ``station_sessions`` future captures the board only; the mirror
+    sphere's session is captured here after the hawk's, while the other process captures the
+    board's.  ``scan_after_capture``: the reference sphere (the scanner's calibration,
+    :func:`scan_reference_sphere`) is scanned after the hawk's capture (and the mirror sphere's),
+    which need nothing from it, rather than first -- the demo's order, so that the other process's
+    longer board session is done by the time the calibrations need it.
 
     Returns
     -------
@@ -64,17 +77,16 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
 
     session_dir = out / "session"
     cal_dir = out / "calibration"
-    for d in (session_dir, cal_dir):
-        if d.exists():
-            shutil.rmtree(d)
+    if session_dir.exists():
+        shutil.rmtree(session_dir)
     from app.demo.station import CAMERA_SIZE, FRAME_BINNING, calibrate_station
 
     t0 = time.perf_counter()
     stages_s: dict[str, float] = {}
     pose_frames = pose_frames and camera != "none"
-    calibration = _calibration_scan(out, cal_dir, seed, camera=pose_frames)
-    print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
-    stages_s["scanner calibration (sphere scan)"] = time.perf_counter() - t0
+    calibration = None
+    if not scan_after_capture:
+        calibration = _print_scan(scan_reference_sphere(out, seed=seed, camera=pose_frames))
     t1 = time.perf_counter()
     plan = CapturePlan("scan", steps=steps, passes=passes, camera=camera != "none", holdout_burst=holdout_burst)
     size = dict(width=CAMERA_SIZE[0] // FRAME_BINNING, height=CAMERA_SIZE[1] // FRAME_BINNING)
@@ -116,13 +128,26 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     seconds = time.perf_counter() - t0
     profiles = [load_pass_profiles(session_dir, p) for p in range(1, passes + 1)]
     profiles_figure(profiles, out / "capture-profiles.png")
-    stages_s["capture session (profiles, RAW frames)"] = time.perf_counter() - t1
+    stages_s[CAPTURE_STAGE] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    lamp: dict[str, Any] = {}
+    if pose_frames and station_sessions is not None and lamp_session_here:
+        from app.demo.station import capture_station_sessions
+
+        lamp = capture_station_sessions(out, seed=seed, kinds=("lamp",))
+    lamp_s = time.perf_counter() - t1
+    if calibration is None:
+        calibration = _print_scan(scan_reference_sphere(out, seed=seed, camera=pose_frames))
+    stages_s = {SCANNER_STAGE: calibration["seconds"], **stages_s}
+    t1 = time.perf_counter() - lamp_s          # the mirror sphere's capture counts with the calibrations
     station = None
     if pose_frames:
-        t1 = time.perf_counter()
-        sessions = None if station_sessions is None else station_sessions.result()
+        sessions = None
+        if station_sessions is not None:
+            sessions = {**station_sessions.result(), **lamp}
+            sessions["capture_s"] = float(sessions["capture_s"]) + float(lamp.get("capture_s", 0.0))
         station = calibrate_station(out, cal_dir, seed=seed, sessions=sessions)
-        stages_s["camera and lamp calibration"] = time.perf_counter() - t1
+        stages_s[STATION_STAGE] = time.perf_counter() - t1
         _print_station(station)
     summary = {
         "session": str(session_dir),
@@ -138,7 +163,7 @@ def simulated_capture(out: Path, *, steps: int = 120, passes: int = 3, camera: s
     if process_preset:
         t1 = time.perf_counter()
         summary["process"] = _process(session_dir, cal_dir, process_preset, truth, station)
-        stages_s["process (register, mesh, pose frames)"] = time.perf_counter() - t1
+        stages_s[PROCESS_STAGE] = time.perf_counter() - t1
     summary["stages_s"] = {k: round(v, 2) for k, v in stages_s.items()}
     return summary
 
@@ -153,6 +178,34 @@ def _print_station(station: dict[str, Any]) -> None:
                 f"position {e['position_error_mm']:.2f} mm" if "position_error_mm" in e else
                 f"kind {e['kind']} (truth {e.get('truth_kind')})")
         print(f"lamp {e['lamp']} ({e['kind']}): vs the simulation's truth {what}", file=sys.stderr)
+
+
+def scan_reference_sphere(out: Path, *, seed: int = 1, camera: bool = True) -> dict[str, Any]:
+    """Scan the reference sphere into ``out / "calibration"`` (a fresh session) and calibrate the scanner.
+
+    The hawk's capture needs nothing from it, so the demo scans it after the hawk
+    (``simulated_capture``'s ``scan_after_capture``).  With ``camera`` the sphere is photographed
+    too (the photos that tie the camera to the scanner).
+
+    Returns
+    -------
+    dict
+        Session path, sphere residual (``rms_mm``, ``max_mm``), error against the simulation's
+        truth, and ``seconds`` of the scan and the calibration.
+    """
+    import shutil
+
+    t0 = time.perf_counter()
+    cal_dir = out / "calibration"
+    if cal_dir.exists():
+        shutil.rmtree(cal_dir)
+    result = _calibration_scan(out, cal_dir, seed, camera=camera)
+    return {**result, "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def _print_scan(calibration: dict[str, Any]) -> dict[str, Any]:
+    print(f"calibration: sphere residual rms {calibration['rms_mm']:.4f} mm", file=sys.stderr)
+    return calibration
 
 
 def _calibration_scan(out: Path, cal_dir: Path, seed: int, *, camera: bool = False) -> dict[str, Any]:

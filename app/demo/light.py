@@ -122,9 +122,15 @@ def render_lit_hawk(base: SceneSpec, environment: str | Path, path: Path, *, def
     return time.perf_counter() - t0
 
 
-def demo_light(out: Path, base: SceneSpec, source: str, *, default_hawk_triangles: int) -> dict[str, Any]:
-    """The simulated probe (``probe.exr``) and the hawk under it and under the sky; printed and returned."""
-    probe = simulated_probe(out / "probe-capture", out / "probe.exr")
+def demo_light(out: Path, base: SceneSpec, source: str, *, default_hawk_triangles: int,
+               probe: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The simulated probe (``probe.exr``) and the hawk under it and under the sky; printed and returned.
+
+    ``probe``: :func:`simulated_probe`'s answer for ``out`` when the probe was already shot and built (the
+    demo does that in its second process, as it needs nothing from the capture); None: here.
+    """
+    if probe is None:
+        probe = simulated_probe(out / "probe-capture", out / "probe.exr")
     s = probe["seconds"]
     print(f"light probe: {probe['frames']} brackets of the simulated room ({probe['frame_size'][0]} x "
           f"{probe['frame_size'][1]}) merged and unwrapped to a {probe['map'][0]} x {probe['map'][1]} map, "

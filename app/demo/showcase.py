@@ -32,6 +32,8 @@ from app.workflows.scene_spec import CameraSpec, LightSpec, ObjectSpec, SceneSpe
 
 __all__ = ["run_demo", "hawk_spec", "spheres_spec", "label_spheres"]
 
+#: The stage of the second process that shoots and builds the light probe (the "light" stage renders with it).
+PROBE_STAGE = "light probe (shots, merge, unwrap)"
 SPHERE_COLUMNS = 6
 SPHERE_SPACING = 2.6
 
@@ -116,13 +118,14 @@ def _render(spec: SceneSpec, hawk_triangles: int):
 def run_demo(args: argparse.Namespace) -> int:
     """The showcase into ``args.out``: a simulated capture, the colour demo, the renders; ``demo.json``.
 
-    Two chains of stages run at once, one per core: the capture chain (the scanner's calibration, the
-    hawk's capture, the camera and lamp calibrations, the processing, the batch, the measured object,
-    the measured light, each needing the one before) in this process; in a second process first the
-    board and chrome-sphere captures the camera and lamp calibrations need, then the stages that need
-    nothing from the capture (:func:`_independent_stages`: the colour demo, the hawk, the spheres, the
-    cloth).  ``demo.json``'s ``stages_s`` and the
-    console's last lines give each stage's seconds and the whole demo's.
+    Two chains of stages run at once, one per core: the capture chain (the hawk's capture, the chrome
+    sphere's capture, the reference sphere's scan that calibrates the scanner, the camera and lamp
+    calibrations, the processing, the batch, the measured object, the hawk under the measured light)
+    in this process; in a second process first what the capture chain needs from outside it -- the
+    board's capture the camera calibration needs, the simulated light probe --
+    then the stages that need nothing from the capture (:func:`_independent_stages`: the colour demo,
+    the hawk, the spheres, the cloth).  ``demo.json``'s ``stages_s`` and the console's last lines give
+    each stage's seconds (each measured in the process that ran it) and the whole demo's.
     """
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
@@ -144,13 +147,17 @@ def run_demo(args: argparse.Namespace) -> int:
         if args.capture_steps and args.capture_camera != "none":
             from app.demo.station import capture_station_sessions
 
-            # first in the second process: the board and chrome-sphere sessions the capture chain needs
-            # after its hawk capture, then the stages that need nothing from it
-            station = pool.submit(capture_station_sessions, out / "capture", seed=1)
+            # first in the second process: the board's session, which the capture chain needs only after
+            # the hawk's capture, the mirror sphere's and the reference sphere's (all three here); then
+            # the light probe and the stages that need nothing from the capture
+            station = pool.submit(capture_station_sessions, out / "capture", seed=1, kinds=("camera",))
+        probe = pool.submit(_probe_stage, out)
         other = pool.submit(_independent_stages, out, size, args.preset, triangles)
         if args.capture_steps:
             _demo_capture(out, args, summary, station)
-        _timed("light", summary, _demo_light, out, size, args.preset, triangles, summary)
+        probe_result, probe_s = probe.result()
+        summary["stages_s"][PROBE_STAGE] = probe_s
+        _timed("light", summary, _demo_light, out, size, args.preset, triangles, summary, probe_result)
         parts = other.result()
     summary["colour"] = parts["colour"]
     summary["renders"] = parts["renders"] + summary["renders"]
@@ -174,6 +181,15 @@ def _timed(name: str, summary: dict, stage, *args):
     return result
 
 
+def _probe_stage(out: Path) -> tuple[dict, float]:
+    """The simulated light probe shot and built (``probe.exr``), and its seconds (in the second process)."""
+    from app.demo.light import simulated_probe
+
+    t0 = time.perf_counter()
+    probe = simulated_probe(out / "probe-capture", out / "probe.exr")
+    return probe, time.perf_counter() - t0
+
+
 def _independent_stages(out: Path, size: tuple[int, int], preset: str, triangles: int) -> dict:
     """The stages that need nothing from the capture: colour demo, hawk, spheres, cloth (a process of their own)."""
     summary: dict = {"renders": [], "stages_s": {}}
@@ -187,13 +203,15 @@ def _independent_stages(out: Path, size: tuple[int, int], preset: str, triangles
 def _demo_capture(out: Path, args: argparse.Namespace, summary: dict, station_sessions=None) -> None:
     """A simulated capture session, processed, then the batch's other steps on it.
 
-    ``station_sessions``: a future of the board and chrome-sphere sessions captured in the other process.
+    ``station_sessions``: a future of the board's session, captured in the other process (the chrome
+    sphere's is captured here after the hawk's, then the reference sphere is scanned).
     """
     from app.demo.capture import simulated_capture
 
     cap = simulated_capture(out / "capture", steps=args.capture_steps, passes=args.capture_passes,
                             camera=args.capture_camera, process_preset=args.preset, seed=1,
-                            station_sessions=station_sessions)
+                            station_sessions=station_sessions, scan_after_capture=True,
+                            lamp_session_here=station_sessions is not None)
     summary["capture"] = cap
     summary["stages_s"].update(cap["stages_s"])
     print(f"capture: {cap['captures_taken']} captures in {cap['seconds']:.1f} s -> {cap['session']}",
@@ -285,11 +303,13 @@ def _demo_hawk(out: Path, size: tuple[int, int], preset: str, triangles: int, su
     print(f"hawk: {n_tri} triangles, {secs:.1f} s -> {out / 'hawk.png'}", file=sys.stderr)
 
 
-def _demo_light(out: Path, size: tuple[int, int], preset: str, triangles: int, summary: dict) -> None:
+def _demo_light(out: Path, size: tuple[int, int], preset: str, triangles: int, summary: dict,
+                probe: dict | None = None) -> None:
     """The simulated light probe and the hawk under it and under a daylight sky (app.demo.light).
 
     The hawk is the measured object (its scene file) when the capture produced one, else the preset
-    hawk; rendered at half the demo's size to keep the added time small.
+    hawk; rendered at half the demo's size to keep the added time small.  ``probe``: the probe already
+    shot and built (:func:`_probe_stage`).
     """
     from app.demo.light import demo_light
     from app.workflows.object_materials import OBJECT_SCENE
@@ -302,7 +322,7 @@ def _demo_light(out: Path, size: tuple[int, int], preset: str, triangles: int, s
     else:
         base, source = hawk_spec(half, preset, triangles), "the preset hawk"
     base.size, base.preset = half, preset
-    summary["light"] = demo_light(out, base, source, default_hawk_triangles=triangles)
+    summary["light"] = demo_light(out, base, source, default_hawk_triangles=triangles, probe=probe)
 
 
 def _demo_spheres(out: Path, size: tuple[int, int], preset: str, triangles: int, summary: dict) -> None:

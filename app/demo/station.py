@@ -96,27 +96,41 @@ def _station_worlds() -> tuple[Any, Any]:
             MirrorWorld.mirror_sphere(MIRROR_RADIUS_MM, MIRROR_OFFSET_MM, width=w, height=h))
 
 
-def capture_station_sessions(out: Path, *, seed: int = 1) -> dict[str, Any]:
+def capture_station_sessions(out: Path, *, seed: int = 1,
+                             kinds: tuple[str, ...] = ("camera", "lamp")) -> dict[str, Any]:
     """Capture the board and mirror-sphere sessions on the simulated station (no calibration yet).
 
-    They need nothing from the scanner's calibration, so the demo captures them in a second process
-    while this one scans the reference sphere and the hawk.
+    They need nothing from the scanner's calibration, so the demo captures the board's in a second
+    process while the first captures the hawk, and the mirror sphere's in the first after the hawk.
+
+    Parameters
+    ----------
+    out
+        Folder for the sessions (``camera-calibration``, ``lamp-calibration``).
+    seed
+        The simulated station's seed.
+    kinds
+        Which to capture: ``"camera"`` (the board), ``"lamp"`` (the mirror sphere).
 
     Returns
     -------
     dict
-        ``camera_session`` and ``lamp_session`` (paths as text) and ``capture_s`` (seconds).
+        ``camera_session`` and/or ``lamp_session`` (paths as text) and ``capture_s`` (seconds).
     """
     from app.capture.runner import CapturePlan
 
     t0 = time.perf_counter()
     board_world, mirror_world = _station_worlds()
-    board = _camera_only_session(board_world, out, "camera-calibration", CapturePlan("camera-calibration"), seed,
-                                 "ChArUco board, 7 x 5 squares of 8 mm")
-    lamp = _camera_only_session(mirror_world, out, "lamp-calibration",
-                                CapturePlan("lamp-calibration", sphere_radius_mm=MIRROR_RADIUS_MM), seed,
-                                f"chrome sphere, r = {MIRROR_RADIUS_MM:g} mm")
-    return {"camera_session": str(board), "lamp_session": str(lamp), "capture_s": time.perf_counter() - t0}
+    result: dict[str, Any] = {}
+    if "camera" in kinds:
+        result["camera_session"] = str(_camera_only_session(
+            board_world, out, "camera-calibration", CapturePlan("camera-calibration"), seed,
+            "ChArUco board, 7 x 5 squares of 8 mm"))
+    if "lamp" in kinds:
+        result["lamp_session"] = str(_camera_only_session(
+            mirror_world, out, "lamp-calibration", CapturePlan("lamp-calibration", sphere_radius_mm=MIRROR_RADIUS_MM),
+            seed, f"chrome sphere, r = {MIRROR_RADIUS_MM:g} mm"))
+    return {**result, "capture_s": time.perf_counter() - t0}
 
 
 def calibrate_station(out: Path, sphere_session: Path, *, seed: int = 1,

@@ -11,16 +11,21 @@ Modules
     Rotation matrices (about the axes, about any axis, from Euler angles).
 """
 
-from processing.common.files import (
-    atomic_path,
-    atomic_write_bytes,
-    atomic_write_json,
-    atomic_write_text,
-    fsync_dir,
-    sha256_file,
-)
-from processing.common.png import png_bytes
-from processing.common.rotation import rotation_about, rotation_xyz_deg, rotation_z, rotation_z_deg
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+#: Where each re-exported name lives.  They are imported on first use (PEP 562), so that a program
+#: needing only the file helpers -- the simulator's fake ``gphoto2``, started once per photograph --
+#: does not import NumPy through the PNG and rotation modules.
+_HOMES = {
+    "atomic_path": "files", "atomic_write_bytes": "files", "atomic_write_json": "files",
+    "atomic_write_text": "files", "fsync_dir": "files", "sha256_file": "files",
+    "png_bytes": "png",
+    "rotation_about": "rotation", "rotation_xyz_deg": "rotation", "rotation_z": "rotation",
+    "rotation_z_deg": "rotation",
+}
 
 __all__ = [
     "atomic_path",
@@ -35,3 +40,15 @@ __all__ = [
     "rotation_z",
     "rotation_z_deg",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """The re-exported helper ``name``, imported from its module on first use."""
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'processing.common' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"processing.common.{home}"), name)
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

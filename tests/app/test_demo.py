@@ -22,13 +22,23 @@ def test_demo_writes_images_and_alloys_shift_more_than_neutral_metals(tmp_path, 
     assert hawk.shape == (180, 240, 3)
     assert hawk.std() > 5        # an object, not a blank frame
 
+    # every product, whichever of the two processes wrote it (the stages moved between them since)
+    assert {"capture", "colour", "demo.json", "hawk.png", "hawk.tiff", "hawk.glb", "hawk-measured.png", "probe.exr",
+            "probe.json", "hawk-probe.png", "hawk-sky.png", "spheres-D65.png", "spheres-D65.tiff", "spheres-A.png",
+            "spheres-A.tiff", "spheres-A-unadapted.png", "cloth-silk.png", "cloth-tamamushi.png"} <= {
+        p.name for p in out.iterdir()}
+    assert {"calibration", "camera-calibration", "lamp-calibration", "session", "capture-profiles.png"} <= {
+        p.name for p in (out / "capture").iterdir()}
+    for name in ("identify.json", "spectra.png"):
+        assert (out / "colour" / name).stat().st_size > 0, name
+
     summary = json.loads((out / "demo.json").read_text())
     # every stage's seconds are in the summary, and the whole demo's
     stages = summary["stages_s"]
     assert {"scanner calibration (sphere scan)", "camera and lamp calibration", "capture session (profiles, RAW frames)",
             "process (register, mesh, pose frames)", "batch (colour, materials, render, report)",
-            "measured object (materials, glTF, render)", "light", "colour (RAW frames, chart, identification)",
-            "hawk render", "spheres (D65 and A)", "cloth"} == set(stages)
+            "measured object (materials, glTF, render)", "light", "light probe (shots, merge, unwrap)",
+            "colour (RAW frames, chart, identification)", "hawk render", "spheres (D65 and A)", "cloth"} == set(stages)
     assert all(v > 0 for v in stages.values()) and summary["seconds"] > 0
     cap = summary["capture"]
     manifest = json.loads((out / "capture" / "session" / "session.json").read_text())
