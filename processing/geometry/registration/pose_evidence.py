@@ -389,8 +389,8 @@ def surface_residuals(points_mm: ArrayLike, normals: ArrayLike, target_points_mm
     >>> src = np.array([[5.0, 5.0, 0.1], [11.0, 5.0, 0.1], [5.0, 5.0, 0.1]])
     >>> n = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
     >>> r = surface_residuals(src, n, tgt, up, np.eye(4), 2.0, 0.5, target_border=border_points(tgt, up, 0.5))
-    >>> np.round(r, 3)
-    array([0.1, nan, nan])
+    >>> np.round(r, 3).tolist()
+    [0.1, nan, nan]
     """
     from scipy.spatial import cKDTree
 
