@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from mocks.noise_seed import profile_seed
 from mocks.station_geometry import placement_pose, rest_on_table, station_sensor_to_room
 
-__all__ = ["SimulatedPass", "pass_colour_views", "pass_colours", "simulated_pass"]
+__all__ = ["SimulatedPass", "pass_colour_views", "pass_colours", "pass_posed_frames", "simulated_pass"]
 
 
 @dataclass(frozen=True)
@@ -114,12 +114,13 @@ def pass_colours(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(r
     return pass_colour_views(world, sim, table_angles_deg)[0]
 
 
-def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30))
+def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30)),
+                      frame_size: tuple[int, int] | None = None
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Colours ``(N, 3)`` of a pass's points from the station camera's frames of that placement.
 
     The frames are the simulated camera's (``world.frame("object", angle)``, at the station's
-    240 x 160 pixels) at each table angle, with the object in the pass's placement; the camera's
+    240 x 160 pixels, or ``frame_size`` (width, height): the same camera sampled finer) at each table angle, with the object in the pass's placement; the camera's
     true intrinsics and pose stand in for a camera calibration (posed photos).  A point takes the
     colour of the pixel it projects to in the frame that sees it most frontally, where the camera's
     ray reaches it unoccluded (the simulation's depth), the point is lit and the camera is more than
@@ -149,7 +150,8 @@ def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tu
 
     from mocks.world import rotation_z, station_world_settings
 
-    w = dataclasses.replace(world, pose=sim.pose, **station_world_settings())
+    size = {} if frame_size is None else {"width": int(frame_size[0]), "height": int(frame_size[1])}
+    w = dataclasses.replace(world, pose=sim.pose, **{**station_world_settings(), **size})
     k_mat, to_cam = w.camera_intrinsics(), w.room_to_camera()
     cam_room = -to_cam[:3, :3].T @ to_cam[:3, 3]
     wl = w.grid.wavelengths
@@ -193,3 +195,42 @@ def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tu
         camera[better] = rz.T @ cam_room
         best_cos[better] = cos[better]
     return colours, lamp, camera
+
+
+def pass_posed_frames(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30))
+                      ) -> tuple[list[Any], list[NDArray[np.float32]]]:
+    """The station camera's frames of a pass, posed in the pass's frame, and their linear images.
+
+    What a session with a camera and lamp calibration gives the registration
+    before any pass is registered: per table angle a
+    :class:`processing.appearance.frame_poses.FramePose` (the camera's true
+    intrinsics and pose, the lamp, the pass pose the identity) and the frame
+    as ``(H, W, 3)`` band sums of its spectral radiance (600-700, 500-590,
+    400-490 nm), as :func:`pass_colour_views` reads them.  For
+    :func:`processing.geometry.registration.photo_consistency.colour_points`.
+
+    Examples
+    --------
+    >>> from mocks.world import World
+    >>> w = World.calibration_sphere(20.0, 0.0)
+    >>> p = simulated_pass(w, 0, 1, steps=36, n_points=160)
+    >>> frames, images = pass_posed_frames(w, p, (0, 90))
+    >>> [f.table_angle_deg for f in frames], images[0].shape
+    ([0.0, 90.0], (160, 240, 3))
+    """
+    import dataclasses
+
+    from mocks.world import station_world_settings
+    from processing.appearance.frame_poses import FramePose
+
+    w = dataclasses.replace(world, pose=sim.pose, **station_world_settings())
+    wl = w.grid.wavelengths
+    bands = [(wl >= lo) & (wl <= hi) for lo, hi in ((600, 700), (500, 590), (400, 490))]
+    lamp = {"name": "lamp", **{k: v for k, v in w.lamp_truth().items() if k in ("position_mm", "direction")}}
+    frames, images = [], []
+    for angle in table_angles_deg:
+        frames.append(FramePose.from_chain(f"angle-{float(angle):g}", sim.placement, w.room_to_camera(), float(angle),
+                                           np.eye(4), w.camera_intrinsics(), np.zeros(5), (w.width, w.height), [lamp]))
+        radiance = w.frame("object", float(angle)).radiance
+        images.append(np.stack([radiance[..., b].sum(axis=-1) for b in bands], axis=-1).astype(np.float32))
+    return frames, images

@@ -30,6 +30,7 @@ registering and writing are :mod:`app.workflows.cloud_registration`.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -124,8 +125,10 @@ def _register(args: argparse.Namespace) -> int:
     for r in result.pairs:
         head = f"{files[r.source]} -> {files[r.target]}"
         if r.verified:
+            turn = (f", turn about the symmetry axis +-{r.turn_uncertainty_deg:.2f} deg"
+                    if math.isfinite(r.turn_uncertainty_deg) else "")
             say(f"{head}: verified ({r.method}), overlap {r.overlap:.1%}, RMS {r.rmse_mm:.3g} mm "
-                f"(expected {r.expected_rmse_mm:.3g}), margin {r.margin:.2f}, {r.seconds:.1f} s")
+                f"(expected {r.expected_rmse_mm:.3g}), margin {r.margin:.2f}{turn}, {r.seconds:.1f} s")
         else:
             say(f"{head}: NOT verified ({r.method}): {r.reason}")
     if result.consistency is not None:

@@ -194,7 +194,10 @@ def process_session(session_dir: str | Path, *, preset: str = "standard", calibr
             raise UsageError(f"session {root}: no pass has usable points ({'; '.join(e.get('skipped', '') for e in passes)})")
         note(f"registering {len(usable)} pass(es) ({', '.join(str(e['points']) for e in usable)} points)")
         t = time.perf_counter()
-        reg = _register(root, usable, preset, picks)
+        colours = _pass_colours(root, manifest, usable, note)
+        timings["colours"] = time.perf_counter() - t
+        t = time.perf_counter()
+        reg = _register(root, usable, preset, picks, colours)
         timings["registration"] = time.perf_counter() - t
         _note_poses(usable, reg, note)
         points, normals, confidence = _merged(usable, reg)
@@ -237,9 +240,59 @@ def _install_station(session: Any, camera: str | Path | None, lamps: str | Path 
         install_station_calibration(session, key, {**data, "installed_from": str(Path(source).resolve())})
 
 
+def _pass_colours(root: Path, manifest: dict[str, Any], usable: list[dict[str, Any]],
+                  note: Callable[[str], None]) -> list[Any] | None:
+    """Each usable pass's points coloured from its own RAW frames, or None without a camera calibration.
+
+    A pass's cloud is in its table frame, so its frames are posed with the
+    pass pose the identity (the camera calibration and each frame's table
+    angle) and every point takes the colour of the frame that sees it most
+    frontally (:func:`processing.geometry.registration.photo_consistency.colour_points`);
+    the registration uses the colours only where the shape leaves a turn
+    about an axis of revolution free.  Frames are decoded at full size and
+    normalised by the pass's chart, as the projection does.
+    """
+    from app.workflows.posed_frames import calibrated_images
+    from app.workflows.station_calibration import frame_records, session_camera_calibration, session_lamp_calibration
+    from processing.appearance.frame_poses import FramePose
+    from processing.geometry.camera_calibration import CameraCalibrationError
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    calib = session_camera_calibration(root, manifest)
+    if calib is None or calib.room_to_camera is None:
+        return None
+    lamps = session_lamp_calibration(root, manifest)
+    frames = frame_records(root, manifest, passes={int(e["pass"]) for e in usable})
+    if not frames:
+        return None
+    note(f"colouring {len(usable)} pass(es) from {len(frames)} posed frame(s)")
+    images = calibrated_images(root, manifest, frames, "demosaic", note)
+    out: list[Any] = []
+    for e in usable:
+        posed, imgs = [], []
+        for k, (cid, rec) in enumerate(frames):
+            if int(rec["pass"]) != int(e["pass"]):
+                continue
+            img = images[k]
+            h, w = img.shape[:2]
+            try:
+                k_mat, dist = calib.for_image_size(w, h)
+            except CameraCalibrationError as exc:
+                raise UsageError(f"session {root}: {cid}: {exc}") from None
+            posed.append(FramePose.from_chain(cid, int(e["pass"]), calib.room_to_camera, float(rec["angle_deg"]),
+                                              np.eye(4), k_mat, dist, (w, h), [] if lamps is None else lamps.lamps))
+            imgs.append(img)
+        cloud = e["cloud"]
+        out.append(colour_points(cloud[0], cloud[1], posed, imgs) if posed else None)
+        if posed:
+            seen = float(np.mean(np.isfinite(out[-1].colours).all(axis=1)))
+            e["coloured"] = round(seen, 4)
+    return out
+
+
 def _register(root: Path, usable: list[dict[str, Any]], preset: str,
-              picks: dict[tuple[int, int], tuple[Any, Any]] | None) -> Any:
-    """Register the usable passes into pass 1's frame (picks name passes by number)."""
+              picks: dict[tuple[int, int], tuple[Any, Any]] | None, colours: list[Any] | None = None) -> Any:
+    """Register the usable passes into pass 1's frame (picks name passes by number; colours per pass or None)."""
     from processing.geometry.registration import RegistrationError, register_passes
 
     names = [f"pass {e['pass']}" for e in usable]
@@ -249,7 +302,7 @@ def _register(root: Path, usable: list[dict[str, Any]], preset: str,
         if unknown:
             raise UsageError(f"session {root}: picks name passes without usable points: {unknown}")
         return register_passes([e["cloud"][0] for e in usable], [e["cloud"][1] for e in usable],
-                               preset=preset, names=names,
+                               preset=preset, names=names, colours=colours,
                                picks={(index_of[a], index_of[b]): v for (a, b), v in (picks or {}).items()})
     except RegistrationError as exc:
         raise UsageError(f"session {root}: registration: {exc}") from None

@@ -305,3 +305,50 @@ def test_the_noise_model_follows_the_chart_gain():
 
 def _fails(argv: list[str], capsys, base: Path, *needles: str) -> str:
     return fails_with_one_line(argv, capsys, base, *needles, manifests_may_change=True)
+
+
+def test_a_pass_is_coloured_from_its_own_posed_frames(sessions):
+    # What `kogei process` gives the registration when the session has a camera calibration: the
+    # pass's points (here the sphere's exact surface in pass 1's table frame, outward normals) coloured
+    # from its frames posed with the pass pose the identity.  Against the simulation's camera: every
+    # point that some frame shows (inside the image by 2 px) facing its camera at more than cos 0.3 is
+    # coloured (the limit is 0.2; the margins keep the boundaries out), none that no frame shows (within
+    # 2 px of the image) facing it at more than cos 0.1, and each coloured point's camera is the true
+    # centre of one of the frames.
+    from app.workflows.process_session import _pass_colours
+    from processing.common.rotation import rotation_z_deg
+
+    root = sessions / "good"
+    manifest = json.loads((root / MANIFEST).read_text())
+    k = np.arange(3000) + 0.5
+    z = 1.0 - 2.0 * k / 3000
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    nrm = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], 1)
+    pts = nrm * RADIUS_MM + [OFFSET_MM, 0.0, RADIUS_MM]
+    entry = {"pass": 1, "cloud": (pts, nrm, np.ones(len(pts)))}
+    (pc,) = _pass_colours(root, manifest, [entry], lambda text: None)
+    world = World.calibration_sphere(RADIUS_MM, OFFSET_MM, width=FULL[0] // 4, height=FULL[1] // 4)
+    k_mat, room_to_camera = world.camera_intrinsics(), world.room_to_camera()
+    centres, shown = [], []
+    for rec in manifest["captures"].values():
+        if rec.get("kind") != "frame":
+            continue
+        rz = np.eye(4)
+        rz[:3, :3] = rotation_z_deg(rec["angle_deg"])
+        to_cam = room_to_camera @ rz
+        centres.append(np.linalg.inv(to_cam)[:3, 3])
+        x = pts @ to_cam[:3, :3].T + to_cam[:3, 3]
+        uv = (x @ k_mat.T)[:, :2] / x[:, 2:]
+        view = centres[-1] - pts
+        cos = np.sum(view * nrm, axis=1) / np.linalg.norm(view, axis=1)
+        well_in = np.all((uv >= 2.0) & (uv <= [world.width - 3.0, world.height - 3.0]), axis=1)
+        near = np.all((uv >= -2.0) & (uv <= [world.width + 1.0, world.height + 1.0]), axis=1)
+        shown.append((np.where(well_in, cos, -1.0), np.where(near, cos, -1.0)))
+    best_in = np.max([a for a, _ in shown], axis=0)
+    best_near = np.max([b for _, b in shown], axis=0)
+    seen = np.isfinite(pc.colours).all(axis=1)
+    assert seen[best_in > 0.3].all() and not seen[best_near < 0.1].any()
+    assert pc.lamp_dirs is None          # this session has no lamp calibration: only the view is checked
+    nearest = np.min(np.linalg.norm(pc.camera_mm[seen][:, None, :] - np.array(centres)[None], axis=2), axis=1)
+    assert nearest.max() < 1e-6
+    assert entry["coloured"] == pytest.approx(seen.mean(), abs=1e-4)

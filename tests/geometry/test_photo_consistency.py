@@ -18,7 +18,7 @@ import pytest
 
 from mocks.pass_cloud import pass_colour_views, simulated_pass
 from mocks.world import World
-from processing.geometry.registration import PointColours, pose_difference
+from processing.geometry.registration import PointColours, pose_difference, transform_points
 from processing.geometry.registration.photo_consistency import _turned, colour_classes, turn_by_colour
 
 TOL_DEG, TOL_MM, MIN_SIGMA = 0.5, 0.5, 5.0
@@ -90,28 +90,43 @@ def _painted_egg(seed: int, n: int = 3000):
     return pts, normals, colours
 
 
-@pytest.mark.slow
-def test_register_pair_decides_a_free_turn_by_colour_and_says_so():
-    # the same painted egg sampled twice, the source turned 130 deg about its axis and shifted: without
-    # colours the turn is ambiguous in shape; with them it is decided by colour within the limits
-    from processing.geometry.registration import register_pair, transform_points
-
-    sp, sn, sc = _painted_egg(1)
-    tp, tn, tc = _painted_egg(2)
+def _egg_pair(n: int):
+    """The painted egg sampled twice (``n`` points each), the source turned 130 deg about its axis and shifted."""
+    sp, sn, sc = _painted_egg(1, n)
+    tp, tn, tc = _painted_egg(2, n)
     truth = np.eye(4)
     truth[:3, :3] = _turned(np.eye(4), np.array([0.0, 0.0, 1.0]), np.zeros(3), np.radians([130.0]))[0][:3, :3]
     truth[:3, 3] = [4.0, -3.0, 2.0]
     src, src_n = transform_points(np.linalg.inv(truth), sp), sn @ np.linalg.inv(truth)[:3, :3].T
+    return src, src_n, sc, tp, tn, tc, truth
+
+
+@pytest.mark.slow
+def test_register_pair_decides_a_free_turn_by_colour_and_says_so():
+    # without colours the turn is ambiguous in shape; with them it is decided by colour.  At 3000 points
+    # (about 2 mm apart) the patch's borders hold the turn to about +-0.7 deg only: the pair is reported
+    # with its turn uncertain, the true error within the stated bound; at 12000 points it is verified
+    # within the limits (measured: 0.18 deg off, bound 1.36 deg; 0.10 deg off, bound 0.37 deg)
+    from processing.geometry.registration import register_pair
+
+    src, src_n, sc, tp, tn, tc, truth = _egg_pair(3000)
     shape = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0)
     assert not shape.verified and "ambiguous" in shape.reason, shape.reason
     res = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
                         source_colours=sc, target_colours=tc)
     rot, disp = pose_difference(res.transform, truth, src)
-    assert res.verified and res.decided_by == "colour", res.reason
-    assert res.evidence_sigma >= MIN_SIGMA and rot < TOL_DEG and disp < TOL_MM, (res.evidence_sigma, rot, disp)
+    assert res.decided_by == "colour" and res.evidence_sigma >= MIN_SIGMA, res.reason
+    assert not res.verified and "turn about the symmetry axis is uncertain" in res.reason, res.reason
+    assert rot <= res.turn_uncertainty_deg, (rot, res.turn_uncertainty_deg)
     shuffled = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
                              source_colours=sc[np.random.default_rng(0).permutation(len(sc))], target_colours=tc)
     assert not shuffled.verified and shuffled.decided_by == "shape", shuffled.reason
+    src, src_n, sc, tp, tn, tc, truth = _egg_pair(12000)
+    dense = register_pair(src, tp, source_normals=src_n, target_normals=tn, preset="draft", seed=0,
+                          source_colours=sc, target_colours=tc)
+    rot, disp = pose_difference(dense.transform, truth, src)
+    assert dense.verified and dense.decided_by == "colour", dense.reason
+    assert rot < TOL_DEG and disp < TOL_MM and rot <= dense.turn_uncertainty_deg <= 0.5, (rot, disp, dense.turn_uncertainty_deg)
 
 
 def test_colours_of_the_wrong_length_are_refused_with_the_parameter_named():
@@ -120,3 +135,60 @@ def test_colours_of_the_wrong_length_are_refused_with_the_parameter_named():
     sp, sn, sc = _painted_egg(1, 600)
     with pytest.raises(RegistrationError, match="source_colours: colours must be"):
         register_pair(sp, sp, source_normals=sn, target_normals=sn, source_colours=sc[:-1], target_colours=sc)
+
+
+# ---------------------------------------------------------------------------
+# Colouring a pass from its posed frames (no mesh yet: the cloud is its own occluder)
+
+
+@pytest.mark.slow
+def test_colour_points_from_posed_frames_match_the_simulated_truth():
+    # The simulation's own colouring (pass_colour_views) knows the mesh and casts rays against it;
+    # colour_points sees only the pass's points.  Limits: a point the truth leaves uncoloured (hidden,
+    # unlit, in a highlight or grazing in every frame) is coloured on at most 1 % of the points; at
+    # least 90 % of the points the truth colours are coloured; of those lit in both, the chromaticity
+    # r / (r + g + b) agrees within 0.05 (the motif's and the lacquer's differ by 0.3) on at least 98 %
+    # (bilinear against nearest-pixel sampling at the motif's borders; measured 99.4 %); black (in a
+    # cast shadow: the booth has no ambient light) in one and lit in the other on at most 4 % (a
+    # shadow's edge sampled by another frame or between pixels; measured 1.8 %).
+    from mocks.pass_cloud import pass_posed_frames
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    a, _, ca, _ = _pair("plain-bowl", 1)
+    frames, images = pass_posed_frames(World.turned("plain-bowl"), a, ANGLES)
+    pc = colour_points(a.points, a.normals, frames, images)
+    mine, truth = np.isfinite(pc.colours).all(axis=1), np.isfinite(ca.colours).all(axis=1)
+    assert np.mean(mine & ~truth) <= 0.01
+    assert np.sum(mine & truth) >= 0.9 * np.sum(truth)
+    both = mine & truth
+    s_mine, s_truth = pc.colours[both].sum(axis=1), ca.colours[both].sum(axis=1)
+    dark = (s_mine <= 0) & (s_truth <= 0)                     # in a cast shadow (the booth has no ambient light)
+    lit = (s_mine > 0) & (s_truth > 0)
+    r_mine = pc.colours[both, 0][lit] / s_mine[lit]
+    r_truth = ca.colours[both, 0][lit] / s_truth[lit]
+    assert np.mean(np.abs(r_mine - r_truth) <= 0.05) >= 0.98
+    assert np.sum(~dark & ~lit) <= 0.04 * np.sum(both)        # black in one, lit in the other: a shadow's edge
+    assert np.all(np.isfinite(pc.lamp_dirs[mine])) and np.all(np.isfinite(pc.camera_mm[mine]))
+
+
+def test_colour_points_leave_a_hidden_surface_uncoloured():
+    # two parallel 20 x 20 mm sheets 5 mm apart, facing a camera 100 mm above; the lower one is
+    # hidden where the upper one covers it (x < 0) and seen beside it
+    from processing.appearance.frame_poses import FramePose, MeshLamp
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    xy = np.stack(np.meshgrid(np.arange(-10, 10.0, 0.5), np.arange(-10, 10.0, 0.5)), -1).reshape(-1, 2)
+    upper = np.column_stack([xy[xy[:, 0] < 0], np.zeros(int(np.sum(xy[:, 0] < 0)))])
+    lower = np.column_stack([xy, np.full(len(xy), -5.0)])
+    pts = np.concatenate([upper, lower])
+    nrm = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    cam = np.diag([1.0, -1.0, -1.0, 1.0])
+    cam[2, 3] = 100.0
+    frame = FramePose("f", 1, 0.0, (200, 200), [[400.0, 0, 100], [0, 400.0, 100], [0, 0, 1]], np.zeros(5), cam,
+                      (MeshLamp("lamp", "distant", [0.6, 0.0, 0.8]),))
+    pc = colour_points(pts, nrm, [frame], [np.full((200, 200, 3), 0.5, np.float32)])
+    seen = np.isfinite(pc.colours).all(axis=1)
+    low = np.arange(len(pts)) >= len(upper)
+    assert seen[~low].all()
+    assert not seen[low & (pts[:, 0] < -1.0)].any()          # under the upper sheet (a margin of 2 samples)
+    assert seen[low & (pts[:, 0] > 1.0)].all()

@@ -160,3 +160,86 @@ def test_self_gap_finds_where_a_motion_moves_a_bump_off_itself():
     assert gap[inside].max() > 0.9
     flat = np.linalg.norm(xy - 30.0, axis=1) > 15.0
     assert np.abs(gap[flat & inside]).max() < 1e-3     # the Gaussian tail, 15 mm = 5 sd out
+
+
+# ------------------------------------------------------------------ surface partners on a curved surface
+CYL_RADIUS_MM, CYL_SPACING_MM = 30.0, 0.5
+
+
+def _cylinder_pass(rng: np.random.Generator, az_deg: tuple[float, float], boss_mm: float = 0.0,
+                   boss_sigma_mm: float = 1.25) -> tuple[np.ndarray, np.ndarray]:
+    """A pass over part of a cylinder (axis z, azimuths ``az_deg``, z 0-40 mm), jittered samples, radial noise.
+
+    An optional Gaussian boss of ``boss_mm`` stands on the surface at azimuth 45 deg, 20 mm up.  Normals
+    by PCA of the 12 nearest neighbours, turned outward (as a pass's normals are fitted).
+    """
+    from scipy.spatial import cKDTree
+
+    arc = np.arange(np.radians(az_deg[0]) * CYL_RADIUS_MM, np.radians(az_deg[1]) * CYL_RADIUS_MM, CYL_SPACING_MM)
+    s, z = (a.ravel() for a in np.meshgrid(arc, np.arange(0.0, 40.0, CYL_SPACING_MM)))
+    s = s + rng.uniform(-0.2, 0.2, s.shape) * CYL_SPACING_MM
+    z = z + rng.uniform(-0.2, 0.2, z.shape) * CYL_SPACING_MM
+    d2 = (s - np.radians(45.0) * CYL_RADIUS_MM) ** 2 + (z - 20.0) ** 2
+    r = CYL_RADIUS_MM + boss_mm * np.exp(-0.5 * d2 / boss_sigma_mm ** 2) + rng.normal(0.0, NOISE_MM, s.shape)
+    phi = s / CYL_RADIUS_MM
+    pts = np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+    _, idx = cKDTree(pts).query(pts, k=12)
+    nb = pts[idx] - pts[idx].mean(axis=1, keepdims=True)
+    nrm = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb))[1][:, :, 0]
+    out = np.column_stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)])
+    return pts, nrm * np.sign(np.sum(nrm * out, axis=1))[:, None]
+
+
+def _turn_deg(deg: float) -> np.ndarray:
+    t = np.eye(4)
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    t[:2, :2] = [[c, -s], [s, c]]
+    return t
+
+
+def _cylinder_evidence(a, b, t_a, t_b) -> tuple[float, float]:
+    """The two tests registration uses (every moving cell, focused), on true surface partners of both passes."""
+    from processing.geometry.registration.clouds import _Level
+    from processing.geometry.registration.pose_evidence import border_points, surface_residuals
+    from processing.geometry.registration.symmetry import _self_gap
+
+    sp, tp = CYL_SPACING_MM, CYL_SPACING_MM
+    (bp, bn), (ap, an) = b, a
+    b_edge, a_edge = border_points(bp, bn, sp), border_points(ap, an, tp)
+
+    def residuals(t):
+        return np.concatenate([surface_residuals(bp, bn, ap, an, t, 2 * sp, sp, 30.0, a_edge),
+                               surface_residuals(ap, an, bp, bn, np.linalg.inv(t), 2 * sp, sp, 30.0, b_edge)])
+
+    pos = np.concatenate([bp @ t_a[:3, :3].T + t_a[:3, 3], ap])
+    gap = np.concatenate([_self_gap(_Level(bp, bn), np.linalg.inv(t_a) @ t_b, 6 * sp, sp),
+                          _self_gap(_Level(ap, an), t_a @ np.linalg.inv(t_b), 6 * sp, sp)])
+    ra, rb = residuals(t_a), residuals(t_b)
+    return (pose_evidence(ra, rb, pos, 3 * sp).sigma, pose_evidence(ra, rb, pos, 3 * sp, gap_mm=gap).sigma)
+
+
+def test_surface_partners_keep_the_null_on_two_equally_right_poses_of_a_cylinder():
+    # two passes over different azimuths of a plain cylinder (their borders apart): the true pose and the
+    # pose turned 12 deg about the axis fit equally well; 30 trials, both tests stay a standard normal
+    # within the sampling error of 30 trials (and far below the 5 sigma of acceptance)
+    rng = np.random.default_rng(7)
+    z = np.array([_cylinder_evidence(_cylinder_pass(rng, (0.0, 80.0)), _cylinder_pass(rng, (15.0, 95.0)),
+                                     np.eye(4), _turn_deg(12.0)) for _ in range(30)])
+    assert np.abs(z).max() < 4.0, "no trial may come near the acceptance level"
+    assert z[:, 0].std() < 1.5 and abs(z[:, 0].mean()) < 0.6
+    assert z[:, 1].std() < 1.5 and abs(z[:, 1].mean()) < 0.6
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_boss_of_ten_times_the_noise_over_half_a_percent_of_a_cylinder_is_decided(seed):
+    # a 1 mm boss (20 x the noise) whose part 10 x the noise high covers about 0.5 % of the two passes'
+    # overlap (65 deg x 40 mm): the true pose over the pose turned 12 deg (the boss landing on plain
+    # surface) is decided, the other way round it is evidence against
+    rng = np.random.default_rng(seed)
+    a, b = _cylinder_pass(rng, (0.0, 80.0), 1.0), _cylinder_pass(rng, (15.0, 95.0), 1.0)
+    share = np.pi * (1.25 * np.sqrt(2 * np.log(2.0))) ** 2 / (np.radians(65.0) * CYL_RADIUS_MM * 40.0)
+    assert 0.004 < share < 0.006
+    right = _cylinder_evidence(a, b, np.eye(4), _turn_deg(12.0))
+    wrong = _cylinder_evidence(a, b, _turn_deg(12.0), np.eye(4))
+    assert max(right) >= 5.0, right
+    assert max(wrong) < 1.0, wrong

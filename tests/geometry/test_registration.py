@@ -442,3 +442,52 @@ def test_messages_number_passes_from_1_throughout():
     reason = res.poses[2].reason
     assert reason.startswith("pass 3 is not connected to pass 1 by verified pairs (pass 1 - pass 3: "), reason
     assert "pass 2 - pass 3: " in reason and "pass 0" not in reason and not re.search(r"pair \d", reason), reason
+
+
+# ---------------------------------------------------------------------------
+# Thin walls: partners on the other face
+
+
+def _thin_shell(rng: np.random.Generator, wall_mm: float, view: np.ndarray, n: int = 9000):
+    """Both faces of an egg-shaped bowl's wall ``wall_mm`` thick, as seen from ``view`` (outward normals).
+
+    The outer face is the lower part of an ellipsoid (semi-axes 40, 30, 25 mm, a bump that fixes every
+    turn); the inner face lies ``wall_mm`` inside it along the normal, its normals into the cavity.  A
+    face point is kept when its normal is within 80 deg of ``view`` (a partial view), with 0.05 mm noise
+    along the normal.
+    """
+    theta = np.arccos(rng.uniform(np.cos(np.radians(100.0)), 1.0, n))
+    phi = rng.uniform(-np.pi, np.pi, n)
+    d = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], 1)
+    bump = 1.0 + 0.15 * np.exp(-30.0 * np.sum((d - [0.6, 0.5, -0.6]) ** 2, axis=1))
+    outer = d * [40.0, 30.0, 25.0] * bump[:, None]
+    normal = outer / np.array([40.0, 30.0, 25.0]) ** 2
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    inner = outer - wall_mm * normal
+    pts = np.concatenate([outer, inner])
+    nrm = np.concatenate([normal, -normal])
+    keep = nrm @ view > np.cos(np.radians(80.0))
+    pts = pts[keep] + rng.normal(0.0, NOISE_MM, (int(keep.sum()), 1)) * nrm[keep]
+    return pts, nrm[keep]
+
+
+@pytest.mark.parametrize("wall_mm", [1.0, 2.0])
+def test_thin_wall_stays_at_the_true_pose(wall_mm):
+    # Started at the truth, the ICP and the checks must keep it: partners across the wall (the other
+    # face, its normal reversed, a wall's thickness away) once pulled the pose toward the middle of the
+    # wall and inflated the residual past the RMS check.  Tolerance 0.1 deg / 0.1 mm: a tenth of the
+    # ~1 mm sample spacing, and well under the wall's thickness.
+    rng = np.random.default_rng(3)
+    view_a = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    view_b = np.array([-0.4, 0.3, 1.0]) / np.linalg.norm([-0.4, 0.3, 1.0])
+    a, na = _thin_shell(rng, wall_mm, view_a)
+    b, nb = _thin_shell(rng, wall_mm, view_b)
+    truth = np.eye(4)
+    truth[:3, :3] = Rotation.from_euler("xyz", [20.0, -10.0, 35.0], degrees=True).as_matrix()
+    truth[:3, 3] = [4.0, -3.0, 2.0]
+    res = register_pair(b, transform_points(truth, a), source_normals=nb, target_normals=na @ truth[:3, :3].T,
+                        preset="draft", initial=truth)
+    rot, disp = pose_difference(res.transform, truth, b)
+    assert res.verified, res.reason
+    assert rot < 0.1 and disp < 0.1, (rot, disp)
+    assert res.normal_agreement > 0.9

@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from processing.geometry.registration.presets import RegistrationError
 
-__all__ = ["MIN_POINTS"]
+__all__ = ["MIN_POINTS", "SAME_FACE_DEG"]
 
 
 #: Fewest points a cloud must have to be registered.
@@ -72,12 +72,48 @@ class _Level:
             self._pcd.normals = o3d.utility.Vector3dVector(self.normals)
         return self._pcd
 
-    def source_pcd(self, max_points: int) -> Any:
-        """The level as an ICP source: at most ``max_points`` points (an even stride)."""
-        if len(self.points) <= max_points:
-            return self.pcd
-        every = math.ceil(len(self.points) / max_points)
-        return self.pcd.uniform_down_sample(every)
+    def source_sample(self, max_points: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Points and normals of the level as an ICP source: at most ``max_points`` (an even stride)."""
+        every = max(1, math.ceil(len(self.points) / max_points))
+        return self.points[::every], self.normals[::every]
+
+    def partners(
+        self, x: NDArray[np.float64], nx: NDArray[np.float64], reach: float, min_cos: float,
+        signed: bool = True, k: int = 8,
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Nearest point of the level within ``reach`` (mm) whose normal agrees with ``nx``, for each of ``x``.
+
+        The normals agree when their cosine is at least ``min_cos`` (its
+        absolute value unless ``signed``).  Across a thin wall (a bowl's, a
+        cup's) the nearest point is often on the other face, a wall's
+        thickness away with its normal reversed; pairing it pulls the pose
+        toward the middle of the wall.  Where the nearest point disagrees,
+        the ``k`` nearest are searched for one that agrees.
+
+        Returns
+        -------
+        distance, index
+            ``(N,)`` each: the partner's distance (inf where there is none)
+            and index (``len(points)`` where there is none), as
+            :meth:`scipy.spatial.cKDTree.query` reports a miss.
+        """
+        n = len(self.points)
+        d, idx = self.tree.query(x, distance_upper_bound=reach, workers=-1)
+        hit = np.isfinite(d)
+        cos = np.einsum("ij,ij->i", nx[hit], self.normals[idx[hit]])
+        bad = np.flatnonzero(hit)[(cos if signed else np.abs(cos)) < min_cos]
+        if len(bad):
+            d[bad], idx[bad] = np.inf, n
+            if k > 1 and n > 1:
+                kk = min(k, n)
+                d2, i2 = self.tree.query(x[bad], k=kk, distance_upper_bound=reach, workers=-1)
+                c2 = np.einsum("ikj,ij->ik", self.normals[np.minimum(i2, n - 1)], nx[bad])
+                ok = np.isfinite(d2) & ((c2 if signed else np.abs(c2)) >= min_cos)
+                has = ok.any(axis=1)
+                first = np.argmax(ok, axis=1)[has]
+                d[bad[has]] = d2[has, first]
+                idx[bad[has]] = i2[has, first]
+        return d, idx
 
     def grid(self, cell: float, reach: float) -> _NearestGrid:
         """Nearest-neighbour lookup grid of the level (cached), see :class:`_NearestGrid`."""
@@ -170,6 +206,10 @@ class _Cloud:
         return self.levels[key]
 
 
+#: Neighbours whose input normals differ by more than this angle are on another face (deg).
+SAME_FACE_DEG = 60.0
+
+
 def _downsample(
     points: NDArray[np.float64],
     normals: NDArray[np.float64] | None,
@@ -180,11 +220,22 @@ def _downsample(
 
     Fitted normals describe the sampled surface at this scale better than
     averaged input normals; the input normals, when given, only orient them
-    (otherwise they point away from the centroid).  Scan data is sampled
+    (otherwise they point away from the centroid) and keep the other face of
+    a thin wall out of the fit: of the 20 nearest neighbours within
+    ``3 voxel``, those whose averaged input normal is more than
+    :data:`SAME_FACE_DEG` from the point's are left out (a bowl's wall is
+    thinner than the gap between a scan's profiles, and its inner face's
+    points would tilt the outer face's normals).  Scan data is sampled
     unevenly (dense along a profile, sparser across profiles): where the
-    neighbours within ``3 voxel`` are nearly collinear (the middle eigenvalue
-    of their covariance below 5 % of the largest), the normal of the nearest
-    point of the ``coarser`` level (a callable returning it) is used instead.
+    neighbours are nearly collinear (the middle eigenvalue of their
+    covariance below 5 % of the largest), fewer than three, or fit a normal
+    more than :data:`SAME_FACE_DEG` from the averaged input normal (one
+    profile's points across a rounded rim lie in the profile's plane, and
+    the fit returns that plane's normal), the normal of
+    the nearest point of the ``coarser`` level (a callable returning it) is
+    used instead; without a coarser level, the averaged input normal made
+    perpendicular to the line the neighbours lie on (along a rounded rim:
+    across it, not tilted along it).
     """
     import open3d as o3d
 
@@ -194,14 +245,35 @@ def _downsample(
     down = pcd.voxel_down_sample(voxel)
     p = np.asarray(down.points).copy()
     guide = np.asarray(down.normals).copy() if normals is not None else p - p.mean(axis=0)
-    down.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(radius=3.0 * voxel, max_nn=20))
-    evals, evecs = np.linalg.eigh(np.asarray(down.covariances))
+    k = min(20, len(p))
+    dist, idx = cKDTree(p).query(p, k=k, distance_upper_bound=3.0 * voxel, workers=-1)
+    dist, idx = dist.reshape(len(p), k), idx.reshape(len(p), k)
+    use = np.isfinite(dist)
+    idx = np.minimum(idx, len(p) - 1)
+    if normals is not None:
+        unit = guide / np.maximum(np.linalg.norm(guide, axis=1, keepdims=True), 1e-300)
+        use &= np.einsum("ikj,ij->ik", unit[idx], unit) >= math.cos(math.radians(SAME_FACE_DEG))
+    count = use.sum(axis=1)
+    w = use / np.maximum(count, 1)[:, None]
+    centred = p[idx] - np.einsum("ik,ikj->ij", w, p[idx])[:, None, :]
+    cov = np.einsum("ik,ikj,ikl->ijl", w, centred, centred)
+    evals, evecs = np.linalg.eigh(cov)
     n = evecs[:, :, 0].copy()
-    bad = evals[:, 1] < 0.05 * np.maximum(evals[:, 2], 1e-300)
+    bad = (evals[:, 1] < 0.05 * np.maximum(evals[:, 2], 1e-300)) | (count < 3)
+    if normals is not None:
+        # neighbours all from one profile across a curved rim lie in the profile's plane, whose
+        # normal the fit returns: a fitted normal far from the input normals is not the surface's
+        bad |= np.abs(np.sum(n * unit, axis=1)) < math.cos(math.radians(SAME_FACE_DEG))
     if bad.any() and coarser is not None:
         lvl = coarser()
-        _, idx = lvl.tree.query(p[bad], workers=-1)
-        n[bad] = lvl.normals[idx]
+        _, near = lvl.tree.query(p[bad], workers=-1)
+        n[bad] = lvl.normals[near]
+    elif bad.any() and normals is not None:
+        # no coarser level: the input normal made perpendicular to the line the neighbours lie on
+        line = np.where((count[bad] >= 2)[:, None], evecs[bad, :, 2], 0.0)
+        g = guide[bad] - np.sum(guide[bad] * line, axis=1, keepdims=True) * line
+        size = np.linalg.norm(g, axis=1, keepdims=True)
+        n[bad] = np.where(size > 1e-9, g / np.maximum(size, 1e-300), n[bad])
     flip = np.sum(n * guide, axis=1) < 0
     n[flip] *= -1.0
     return p, n

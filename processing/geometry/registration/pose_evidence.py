@@ -4,7 +4,9 @@ A nearly symmetric object (a thrown vase with a small boss) has two or more
 poses that fit almost the whole overlap equally well; only the points near
 the distinguishing feature tell them apart.  A global margin (how much better
 one pose fits on average) dilutes that local evidence in the overlap's area;
-this module weighs it against the range noise instead.  See
+this module weighs it against the range noise instead, on the residuals of
+true surface partners (:func:`surface_residuals`: a partner under the point,
+normals agreeing, not on its cloud's border, :func:`border_points`).  See
 docs/processing.md, section "Nearly symmetric shapes: evidence".
 """
 
@@ -12,13 +14,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.cells import cell_labels
 
-__all__ = ["PoseEvidence", "pose_evidence"]
+__all__ = ["PoseEvidence", "border_points", "pose_evidence", "surface_residuals"]
 
 #: Consistency constant of the median absolute deviation for a Gaussian.
 _MAD_TO_SIGMA = 1.482602218505602
@@ -289,3 +292,126 @@ def _informative_cells(gap: np.ndarray, cell: np.ndarray, cells: int, threshold:
     stop = np.searchsorted(sorted_cell, np.arange(cells), side="right")
     g = np.abs(gap)[order]
     return 0.5 * (g[(start + stop - 1) // 2] + g[(start + stop) // 2]) > threshold
+
+
+def border_points(points_mm: ArrayLike, normals: ArrayLike, spacing_mm: float, k: int = 12,
+                  max_offset: float = 0.4) -> NDArray[np.bool_]:
+    """Points on a cloud's border: their neighbourhood lies to one side of them.
+
+    Parameters
+    ----------
+    points_mm, normals
+        ``(N, 3)`` the cloud's points (mm) and unit normals.
+    spacing_mm
+        Sample spacing (mm); neighbours are the ``k`` nearest within 2.5 spacings.
+    k
+        Neighbours looked at.
+    max_offset
+        A point is on the border when the centroid of its neighbours, in the
+        tangent plane, lies farther from it than ``max_offset`` times their
+        RMS distance from it (0 for a full disc of neighbours, about 0.6 for a
+        half disc), or when it has fewer than ``k / 3`` neighbours.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N,)`` booleans, True on the border.
+
+    Examples
+    --------
+    >>> g = np.arange(0.0, 10.0, 0.5)
+    >>> xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    >>> pts = np.column_stack([xy, np.zeros(len(xy))])
+    >>> edge = border_points(pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)), 0.5)
+    >>> bool(edge[(xy[:, 0] == 0) & (xy[:, 1] == 5)][0]), bool(edge[(xy[:, 0] == 5) & (xy[:, 1] == 5)][0])
+    (True, False)
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    k = min(int(k) + 1, len(pts))
+    dist, idx = cKDTree(pts).query(pts, k=k, distance_upper_bound=2.5 * spacing_mm, workers=-1)
+    dist, idx = dist.reshape(len(pts), -1)[:, 1:], idx.reshape(len(pts), -1)[:, 1:]
+    found = np.isfinite(dist)
+    nb = pts[np.minimum(idx, len(pts) - 1)] - pts[:, None, :]
+    nb = nb - np.einsum("nkj,nj->nk", nb, nrm)[:, :, None] * nrm[:, None, :]   # in the tangent plane
+    nb[~found] = 0.0
+    n = found.sum(axis=1)
+    centroid = nb.sum(axis=1) / np.maximum(n, 1)[:, None]
+    rms = np.sqrt(np.sum(nb * nb, axis=(1, 2)) / np.maximum(n, 1))
+    return (n < max(3, (k - 1) / 3.0)) | (np.linalg.norm(centroid, axis=1) > max_offset * np.maximum(rms, 1e-300))
+
+
+def surface_residuals(points_mm: ArrayLike, normals: ArrayLike, target_points_mm: ArrayLike,
+                      target_normals: ArrayLike, transform: ArrayLike, reach_mm: float, spacing_mm: float,
+                      max_angle_deg: float = 30.0, target_border: ArrayLike | None = None,
+                      tree: Any = None) -> NDArray[np.float64]:
+    """Point-to-plane residuals of points moved by a pose, only where the partner is a true surface partner.
+
+    Parameters
+    ----------
+    points_mm, normals
+        ``(N, 3)`` the points (mm) and their unit normals, in their own frame.
+    target_points_mm, target_normals
+        ``(M, 3)`` the surface they are compared with (mm) and its unit normals.
+    transform
+        ``(4, 4)`` the pose taking the points into the target's frame.
+    reach_mm
+        Farthest partner (mm).
+    spacing_mm
+        The target's sample spacing (mm): a moved point lies *over* its
+        partner when its offset from it in the partner's tangent plane is at
+        most one spacing.
+    max_angle_deg
+        Largest angle between the moved point's normal and its partner's (sign ignored).
+    target_border
+        Optional ``(M,)`` booleans, the target's border points
+        (:func:`border_points`), which are not partners: a point beyond the
+        target's border finds one beside it, not under it.
+    tree
+        Optional ``scipy.spatial.cKDTree`` of ``target_points_mm`` (built when absent).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N,)`` signed distances (mm) along the partner's normal to its
+        tangent plane; NaN where the point has no true partner.
+
+    Examples
+    --------
+    A plane 0.1 mm above a 10 x 10 mm plane: a partner inside, none beyond the border or on it:
+
+    >>> g = np.arange(0.0, 10.0, 0.5)
+    >>> xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    >>> tgt = np.column_stack([xy, np.zeros(len(xy))])
+    >>> up = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+    >>> src = np.array([[5.0, 5.0, 0.1], [11.0, 5.0, 0.1], [5.0, 5.0, 0.1]])
+    >>> n = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    >>> r = surface_residuals(src, n, tgt, up, np.eye(4), 2.0, 0.5, target_border=border_points(tgt, up, 0.5))
+    >>> np.round(r, 3).tolist()
+    [0.1, nan, nan]
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    tp = np.asarray(target_points_mm, dtype=np.float64).reshape(-1, 3)
+    tn = np.asarray(target_normals, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(transform, dtype=np.float64)
+    x = pts @ t[:3, :3].T + t[:3, 3]
+    nx = nrm @ t[:3, :3].T
+    d, idx = (tree if tree is not None else cKDTree(tp)).query(x, distance_upper_bound=reach_mm, workers=-1)
+    out = np.full(len(x), np.nan)
+    hit = np.flatnonzero(np.isfinite(d))
+    if not len(hit):
+        return out
+    j = idx[hit]
+    off = x[hit] - tp[j]
+    along = np.einsum("ij,ij->i", off, tn[j])
+    lateral = np.linalg.norm(off - along[:, None] * tn[j], axis=1)
+    ok = (lateral <= spacing_mm) & (np.abs(np.einsum("ij,ij->i", nx[hit], tn[j])) >= math.cos(math.radians(max_angle_deg)))
+    if target_border is not None:
+        ok &= ~np.asarray(target_border, dtype=bool)[j]
+    out[hit[ok]] = along[ok]
+    return out

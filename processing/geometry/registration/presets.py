@@ -70,6 +70,13 @@ class RegistrationPreset:
         pooled into independent cells).
     min_normal_agreement
         Smallest accepted mean cosine between matched normals.
+    max_partner_deg
+        A point's partner in the other cloud in the ICP is its nearest point
+        whose normal is within this angle of its own (of either sign when a
+        cloud's normals are not oriented): across a thin wall the nearest
+        point is often on the other face, whose normal points the other way.
+        The scores leave out only partners more than ``180 -
+        max_partner_deg`` away (the other face, oriented clouds).
     distinct_deg
         Hypotheses closer than this rotation (and ``distinct_fraction * D``
         displacement) count as the same pose.
@@ -93,6 +100,14 @@ class RegistrationPreset:
         (a voxel finer than the samples only leaves noisier normals).
     sweep_steps
         Starting angles of the sweep about a weak axis (full turn).
+    max_turn_deg
+        A nearly symmetric pair (a weak rotation, or a turn decided by
+        colour) is verified only when ``turn_sigmas`` standard deviations of
+        its turn about the axis are at most this (deg): the evidence can pick
+        the right turn while the refined angle is still this far off.
+    turn_sigmas
+        Standard deviations of the stated bound on the turn (2: about 95 %
+        of pairs within it if the errors are Gaussian).
 
     Raises
     ------
@@ -123,14 +138,19 @@ class RegistrationPreset:
     min_margin: float = 0.05
     min_evidence: float = 5.0
     min_normal_agreement: float = 0.8
+    max_partner_deg: float = 60.0
     distinct_deg: float = 8.0
     distinct_fraction: float = 0.03
     min_stability: float = 0.01
     min_voxel_spacing: float = 1.0
     score_scale: float = 0.5
     sweep_steps: int = 72
+    max_turn_deg: float = 0.5
+    turn_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.max_partner_deg < 90.0:
+            raise RegistrationError(f"preset {self.name!r}: max_partner_deg must be in (0, 90) deg")
         if self.rotation_samples < 1:
             raise RegistrationError(f"preset {self.name!r}: rotation_samples must be >= 1")
         if not 0 < self.search_voxel < 1:

@@ -74,6 +74,15 @@ class PairResult:
     decided_by
         ``"shape"``, or ``"colour"`` when the shape left the turn about a
         nearly free axis ambiguous and the points' colours decided it.
+    turn_uncertainty_deg
+        For a nearly symmetric pair that passed every other check, the
+        stated bound on its turn about the symmetry axis:
+        ``RegistrationPreset.turn_sigmas`` standard deviations (deg), from
+        the fit's residuals and refits
+        (:mod:`~processing.geometry.registration.turn_uncertainty`) or, when
+        colour decided the turn, from a bootstrap of its colour cells.  The
+        pair is verified only when it is at most ``max_turn_deg``.  NaN for
+        other pairs.
     """
 
     source: int
@@ -94,6 +103,7 @@ class PairResult:
     method: str
     evidence_sigma: float = math.nan
     decided_by: str = "shape"
+    turn_uncertainty_deg: float = math.nan
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (the transform as nested lists).

@@ -16,7 +16,12 @@ from numpy.typing import NDArray
 
 from processing.geometry.registration.clouds import _Cloud, _Level
 from processing.geometry.registration.global_search import _batch_score, _chunked_icp, _distinct, _subsample
-from processing.geometry.registration.pose_evidence import PoseEvidence, pose_evidence
+from processing.geometry.registration.pose_evidence import (
+    PoseEvidence,
+    border_points,
+    pose_evidence,
+    surface_residuals,
+)
 from processing.geometry.registration.presets import RegistrationPreset
 from processing.geometry.registration.refinement import _common_quality, _icp_pyramid, _Score
 from processing.geometry.registration.transforms import (
@@ -180,7 +185,11 @@ def _evidence(
 
     Source points are placed in the target frame by ``t_a``; a point moves when
     the two poses put it more than two voxels apart (elsewhere the two cannot
-    differ).  See :func:`~processing.geometry.registration.pose_evidence.pose_evidence`.
+    differ).  The residuals are those of true surface partners under each
+    pose (:func:`_partner_residuals`), not the fits' nearest neighbours
+    (``sc_a``, ``sc_b`` are kept for the interface): a point paired across a
+    border under one pose only would weigh as a feature.  See
+    :func:`~processing.geometry.registration.pose_evidence.pose_evidence`.
     """
     s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
     s_pts, t_pts = s_lvl.points, t_lvl.points
@@ -189,8 +198,9 @@ def _evidence(
     moves = np.concatenate([np.linalg.norm(xa - xb, axis=1), np.linalg.norm(ya - yb, axis=1)]) > 2.0 * voxel
     moves &= np.concatenate([_smooth(s_lvl), _smooth(t_lvl)])
     pos = np.concatenate([xa, t_pts])
-    ra = np.concatenate(sc_a.residuals)
-    rb = np.concatenate(sc_b.residuals)
+    reach_partner = EVIDENCE_REACH_VOXELS * voxel
+    ra = _partner_residuals(s_lvl, t_lvl, t_a, reach_partner, voxel)
+    rb = _partner_residuals(s_lvl, t_lvl, t_b, reach_partner, voxel)
     reach = 2.0 * EVIDENCE_CELL_VOXELS * voxel
     rel = np.linalg.inv(t_a) @ t_b
     gap = np.concatenate([_self_gap(s_lvl, rel, reach, voxel), _self_gap(t_lvl, t_a @ np.linalg.inv(t_b), reach, voxel)])
@@ -200,6 +210,38 @@ def _evidence(
     diluted = pose_evidence(ra, rb, pos, EVIDENCE_CELL_VOXELS * voxel, moves)
     focused = pose_evidence(ra, rb, pos, EVIDENCE_CELL_VOXELS * voxel, moves, gap_mm=gap)
     return focused if focused.sigma > diluted.sigma else diluted
+
+
+#: Farthest surface partner of the evidence test, in voxels (the fits' correspondence distance at ``standard``).
+EVIDENCE_REACH_VOXELS = 2.0
+#: Largest angle between a point's normal and its partner's in the evidence test (deg): a point paired with a
+#: surface at a steeper angle (a rim, the far side of a thin wall) is no surface partner.
+EVIDENCE_MAX_ANGLE_DEG = 30.0
+
+
+def _partner_residuals(s_lvl: _Level, t_lvl: _Level, t: NDArray[np.float64], reach: float,
+                       spacing: float) -> NDArray[np.float64]:
+    """Residuals of both levels' points under pose ``t`` (source then target), NaN without a true partner.
+
+    See :func:`~processing.geometry.registration.pose_evidence.surface_residuals`:
+    the partner lies under the point (tangent offset within one ``spacing``),
+    its normal agrees within :data:`EVIDENCE_MAX_ANGLE_DEG` and it is not on
+    its cloud's border (:func:`_border`).
+    """
+    rs = surface_residuals(s_lvl.points, s_lvl.normals, t_lvl.points, t_lvl.normals, t, reach, spacing,
+                           EVIDENCE_MAX_ANGLE_DEG, _border(t_lvl, spacing), t_lvl.tree)
+    rt = surface_residuals(t_lvl.points, t_lvl.normals, s_lvl.points, s_lvl.normals, np.linalg.inv(t), reach,
+                           spacing, EVIDENCE_MAX_ANGLE_DEG, _border(s_lvl, spacing), s_lvl.tree)
+    return np.concatenate([rs, rt])
+
+
+def _border(level: _Level, spacing: float) -> NDArray[np.bool_]:
+    """The level's border points (:func:`~processing.geometry.registration.pose_evidence.border_points`), cached."""
+    cache = level.__dict__.setdefault("_border_masks", {})
+    key = round(float(spacing), 9)
+    if key not in cache:
+        cache[key] = border_points(level.points, level.normals, spacing)
+    return cache[key]
 
 
 def _self_gap(level: _Level, motion: NDArray[np.float64], reach: float, spacing: float) -> NDArray[np.float64]:
