@@ -80,6 +80,26 @@ def test_an_alloy_between_two_grades_is_not_named_with_confidence(model):
     assert f.uncertainties["Ag"] >= 0.03                        # the systematic error is in the stated one
 
 
+def test_a_grade_read_through_a_camera_model_off_by_10_nm_is_not_named_with_confidence():
+    # a nami-shibuichi sphere's highlight observations only (within 25 deg of the mirror direction: the
+    # colour-rich evidence a large region of a scanned object has plenty of), fitted with a camera model
+    # whose sensitivities are 10 nm off: the Ag share reads ~28 %, nearer uchi-sanbu (29.7 %) than the
+    # truth (25 %).  Named at its nominal composition, each grade's chi-square made that 0.99 sure.
+    from processing.spectral.spectra import SpectralGrid
+
+    g = SpectralGrid(400, 700, 10)
+    s0 = camera_sensitivities(g)
+    shifted = np.stack([np.interp(g.wavelengths - 10.0, g.wavelengths, s0[:, c]) for c in range(3)], axis=1)
+    off = ForwardModel(shifted + 1e-6, light_spectrum("D65", g), g)
+    exact = ForwardModel(s0, light_spectrum("D65", g), g)
+    _, s, _ = _fit("nami-shibuichi", exact)
+    near = s.subset(np.flatnonzero(s.cos_h >= np.cos(np.radians(25.0))))
+    f = fit_region(near, off)
+    assert abs(f.parameters["Ag"] - 0.25) > 0.02                 # the camera's error moved the reading
+    assert not (f.material != "nami-shibuichi" and f.confidence >= 0.9), (f.material, f.confidence)
+    assert "nami-shibuichi" in f.group
+    assert f.uncertainties["Ag"] >= 0.03
+
 def test_grades_ten_points_apart_are_told_apart(model):
     # jo-shibuichi (Ag 39.6 %) is 9.9 points from the nearest other grade: more than 3 systematic errors
     _, _, f = _fit("jo-shibuichi", model)
