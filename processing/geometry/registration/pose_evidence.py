@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.cells import cell_labels
 
-__all__ = ["PoseEvidence", "border_points", "pose_evidence", "surface_residuals"]
+__all__ = ["PoseEvidence", "border_points", "pose_evidence", "posed_nearest", "surface_residuals"]
 
 #: Consistency constant of the median absolute deviation for a Gaussian.
 _MAD_TO_SIGMA = 1.482602218505602
@@ -343,6 +343,50 @@ def border_points(points_mm: ArrayLike, normals: ArrayLike, spacing_mm: float, k
     return (n < max(3, (k - 1) / 3.0)) | (np.linalg.norm(centroid, axis=1) > max_offset * np.maximum(rms, 1e-300))
 
 
+def posed_nearest(points_mm: ArrayLike, normals: ArrayLike, target_points_mm: ArrayLike, target_normals: ArrayLike,
+                  transform: ArrayLike, reach_mm: float, tree: Any = None) -> tuple[NDArray[np.float64], ...]:
+    """Points and normals moved by ``transform`` and each one's nearest target point within ``reach_mm``.
+
+    Parameters
+    ----------
+    points_mm, normals
+        ``(n, 3)`` source points (mm) and their unit normals.
+    target_points_mm, target_normals
+        ``(m, 3)`` target points (mm) and their unit normals.
+    transform
+        ``(4, 4)`` source -> target pose.
+    reach_mm
+        Farthest partner (mm).
+    tree
+        A ``scipy.spatial.cKDTree`` of the target points to reuse; None builds one.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(x, nx, target_points, target_normals, d, idx)``: the moved points and normals, the target
+        arrays as float ``(m, 3)``, and each point's distance to its nearest target point (inf beyond
+        the reach) and that point's index (``m`` beyond the reach).
+
+    Examples
+    --------
+    >>> x, nx, tp, tn, d, idx = posed_nearest([[0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]],
+    ...                                       [[0.0, 0.0, 1.0]], np.eye(4), 2.0)
+    >>> float(d[0]), int(idx[0])
+    (1.0, 0)
+    """
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    tp = np.asarray(target_points_mm, dtype=np.float64).reshape(-1, 3)
+    tn = np.asarray(target_normals, dtype=np.float64).reshape(-1, 3)
+    t = np.asarray(transform, dtype=np.float64)
+    x = pts @ t[:3, :3].T + t[:3, 3]
+    nx = nrm @ t[:3, :3].T
+    d, idx = (tree if tree is not None else cKDTree(tp)).query(x, distance_upper_bound=reach_mm, workers=-1)
+    return x, nx, tp, tn, d, idx
+
+
 def surface_residuals(points_mm: ArrayLike, normals: ArrayLike, target_points_mm: ArrayLike,
                       target_normals: ArrayLike, transform: ArrayLike, reach_mm: float, spacing_mm: float,
                       max_angle_deg: float = 30.0, target_border: ArrayLike | None = None,
@@ -392,16 +436,8 @@ def surface_residuals(points_mm: ArrayLike, normals: ArrayLike, target_points_mm
     >>> np.round(r, 3).tolist()
     [0.1, nan, nan]
     """
-    from scipy.spatial import cKDTree
-
-    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
-    nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    tp = np.asarray(target_points_mm, dtype=np.float64).reshape(-1, 3)
-    tn = np.asarray(target_normals, dtype=np.float64).reshape(-1, 3)
-    t = np.asarray(transform, dtype=np.float64)
-    x = pts @ t[:3, :3].T + t[:3, 3]
-    nx = nrm @ t[:3, :3].T
-    d, idx = (tree if tree is not None else cKDTree(tp)).query(x, distance_upper_bound=reach_mm, workers=-1)
+    x, nx, tp, tn, d, idx = posed_nearest(points_mm, normals, target_points_mm, target_normals, transform, reach_mm,
+                                          tree)
     out = np.full(len(x), np.nan)
     hit = np.flatnonzero(np.isfinite(d))
     if not len(hit):

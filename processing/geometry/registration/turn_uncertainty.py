@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.cells import cell_labels
+from processing.geometry.registration.pose_evidence import posed_nearest
 
 __all__ = ["position_cells", "rotation_covariance", "turn_sigma_deg"]
 
@@ -117,16 +118,7 @@ def rotation_covariance(
     >>> bool(np.degrees(np.sqrt(np.max(np.linalg.eigvalsh(cov)))) < 0.01)
     True
     """
-    from scipy.spatial import cKDTree
-
-    src = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
-    ns = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    tp = np.asarray(target_points_mm, dtype=np.float64).reshape(-1, 3)
-    tn = np.asarray(target_normals, dtype=np.float64).reshape(-1, 3)
-    t = np.asarray(transform, dtype=np.float64)
-    x = src @ t[:3, :3].T + t[:3, 3]
-    nx = ns @ t[:3, :3].T
-    d, idx = cKDTree(tp).query(x, distance_upper_bound=reach_mm, workers=-1)
+    x, nx, tp, tn, d, idx = posed_nearest(points_mm, normals, target_points_mm, target_normals, transform, reach_mm)
     hit = np.isfinite(d)
     hit[hit] = np.einsum("ij,ij->i", nx[hit], tn[idx[hit]]) >= min_cos
     free = np.full((3, 3), np.inf)
