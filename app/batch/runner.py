@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from app.batch.steps import STEPS, BatchOptions, parse_steps, run_step, up_to_date
-from app.errors import UsageError
+from app.errors import UsageError, caused_by_ctrl_c
 
 __all__ = ["StepResult", "SessionResult", "BatchSummary", "run_batch", "process_one", "partial_mesh_reason", "LOG_FILE",
            "EXIT_OK", "EXIT_FAILED", "EXIT_INTERRUPTED"]
@@ -175,6 +175,12 @@ def _lock_and_log(root: Path) -> tuple[int, _SessionLog]:
         raise
 
 
+def _reraise_ctrl_c(exc: BaseException) -> None:
+    """Raise :class:`KeyboardInterrupt` when a step's error was a Ctrl-C in disguise (:func:`caused_by_ctrl_c`)."""
+    if caused_by_ctrl_c(exc):
+        raise KeyboardInterrupt from exc
+
+
 def process_one(session: str, steps: tuple[str, ...], options: BatchOptions,
                 queue: _Queue | None = None) -> SessionResult:
     """Run ``steps`` on one session; never raises for a bad session (the result says why it failed).
@@ -246,11 +252,13 @@ def process_one(session: str, steps: tuple[str, ...], options: BatchOptions,
                 log(f"{name}: done in {secs:.2f} s")
                 _emit(queue, "step", session, name, "ran", f"{secs:.1f} s")
             except (ValueError, OSError) as exc:     # UsageError, SessionError and the library's input errors
+                _reraise_ctrl_c(exc)
                 failed.add(name)
                 result.steps.append(StepResult(name, "failed", str(exc), round(time.perf_counter() - t, 3)))
                 log(f"{name}: FAILED: {exc}")
                 _emit(queue, "step", session, name, "failed", str(exc))
             except Exception as exc:  # a bug in a step must not stop the other sessions: logged with its traceback
+                _reraise_ctrl_c(exc)
                 failed.add(name)
                 reason = f"{type(exc).__name__}: {exc} (traceback in {log.path})"
                 result.steps.append(StepResult(name, "failed", reason, round(time.perf_counter() - t, 3)))

@@ -19,6 +19,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from app.errors import caused_by_ctrl_c
 from processing.errors import InputError
 
 __all__ = ["main", "build_parser", "version", "COMMANDS", "EXIT_USAGE", "EXIT_BROKEN_PIPE"]
@@ -116,6 +117,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:
         from app.capture.runner import CaptureInterrupted
 
+        if caused_by_ctrl_c(exc):       # a Ctrl-C wrapped by a compiled module's import
+            print(f"kogei {args.command}: interrupted", file=sys.stderr)
+            return 130
         if not isinstance(exc, CaptureInterrupted):
             raise
         print(f"kogei {args.command}: {exc}", file=sys.stderr)

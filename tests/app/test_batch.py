@@ -282,6 +282,26 @@ def _run_until(cmd: list[str], log: Path, marker: str, sig: int, delay_s: float)
     return proc.returncode
 
 
+def test_a_ctrl_c_wrapped_by_a_module_import_interrupts_the_step(base, tmp_path, monkeypatch):
+    # a Ctrl-C during Open3D's first import surfaces as "ImportError: initialization failed" caused by the
+    # KeyboardInterrupt (pybind11 wraps it); the step is interrupted, not failed
+    import app.batch.runner as runner
+
+    def ctrl_c_in_an_import(*_args, **_kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    monkeypatch.setattr(runner, "run_step", ctrl_c_in_an_import)
+    root = copy_session(base.raw, tmp_path / "s")
+    result = process_one(str(root), ("geometry",), BatchOptions(preset="draft", calibration=str(base.cal)))
+    assert result.status == "interrupted", result
+    assert [(s.name, s.status) for s in result.steps] == [("geometry", "interrupted")]
+    log = (root / LOG_FILE).read_text()
+    assert "batch: interrupted" in log and "FAILED" not in log
+
+
 def test_ctrl_c_and_a_killed_worker_leave_sessions_consistent(base, done, tmp_path):
     root = copy_session(base.raw, tmp_path / "s")
     other = copy_session(done[0], tmp_path / "other")

@@ -211,3 +211,18 @@ def test_capture_states_the_device_defaults_the_drivers_get(tmp_path):
                           ("--speed", f"{devices.turntable.speed_deg_s:g}"),
                           ("--exposure-us", str(devices.profiler.exposure_us))):
         assert f"default {value}" in _help(*by_name[option]), (option, value)
+
+
+def test_a_ctrl_c_wrapped_by_a_module_import_exits_130_without_a_traceback(monkeypatch, capsys):
+    # a Ctrl-C during Open3D's first import reaches the command as ImportError caused by KeyboardInterrupt
+    import app.cli.devices as devices
+
+    def run(_args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    monkeypatch.setattr(devices, "run", run)
+    assert main(["devices"]) == 130
+    assert capsys.readouterr().err.strip() == "kogei devices: interrupted"
