@@ -263,9 +263,9 @@ def test_worker_pool_isolates_failed_sessions(base, done, tmp_path):
     assert re.search(r"report .* 3/3 +1 failed, 1 ran, 1 skipped", bars)
 
 
-#: Run argv[1:] with Ctrl-C at its default disposition, as a terminal's shell starts a command: an ignored
-#: SIGINT is inherited through exec, and a test run may ignore it (the whole suite did, once other tests had run
-#: in the same worker; the Ctrl-C then reached nobody and the batch ran to the end).
+#: Run argv[1:] with Ctrl-C at its default disposition, as a terminal's shell starts a foreground command: an
+#: ignored SIGINT is inherited through exec, and a test run started in the background by a non-interactive shell
+#: ignores it (the Ctrl-C then reached nobody and the batch ran to the end).
 _FROM_A_TERMINAL = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
                     "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); os.execv(sys.argv[1], sys.argv[1:])")
 
