@@ -8,12 +8,14 @@ percentage points of silver apart, and the composition this instrument reads car
 error of that size (the camera's sensitivities, the mesh's normals: :data:`COMPOSITION_SD`).  Fitted
 one by one at their nominal composition, the thousands of observations of a large region would pick
 one of two neighbouring alloys with a confidence near 1 either way.  Instead each named alloy is
-judged by the free alloy's fit: its composition ``w`` with covariance ``C`` (scaled like the
-chi-squares) against the alloy's nominal ``w_i``, with the systematic spread ``S = COMPOSITION_SD^2 I``
-on Ag and Au.  Integrating the Gaussian likelihood of the composition over
-``N(w_i, S)`` (Laplace's approximation; Bishop 2006, section 4.4) gives the named alloy the chi-square
+judged by the free alloy's fit: its composition ``w`` (Ag and Au) with covariance ``C`` (scaled like
+the chi-squares) against the alloy's nominal ``w_i``, each variance of ``C`` raised to at least
+``COMPOSITION_SD^2`` (``C'``; the ``INDEPENDENT`` scaling already stands for errors shared across a
+region, so the systematic error is a floor under the composition's variance, not added to it).  The
+Gaussian likelihood of the composition integrated over the grade's spread (Laplace's approximation;
+Bishop 2006, section 4.4) gives the named alloy the chi-square
 
-    chi2_i = chi2_alloy + (w - w_i)^T (C + S)^-1 (w - w_i) + ln det(C + S) - ln det C
+    chi2_i = chi2_alloy + (w - w_i)^T C'^-1 (w - w_i) + ln det C' - ln det C
 
 so neighbouring alloys within the systematic error share the posterior, and the answer says so.
 
