@@ -23,6 +23,15 @@ __all__ = ["MIN_POINTS", "SAME_FACE_DEG"]
 #: Fewest points a cloud must have to be registered.
 MIN_POINTS = 10
 
+#: Fewest query points for which a k-d tree query is split over threads: below it, starting the threads
+#: costs more than they save (a few hundred microseconds a query; the registration makes thousands).
+THREADED_QUERY_POINTS = 5_000
+
+
+def _workers(n_queries: int) -> int:
+    """``workers`` argument of :meth:`scipy.spatial.cKDTree.query` for ``n_queries`` points (same result either way)."""
+    return -1 if n_queries >= THREADED_QUERY_POINTS else 1
+
 
 class _NearestGrid:
     """Nearest target point of every cell of a regular grid: O(1) approximate nearest neighbours.
@@ -98,7 +107,7 @@ class _Level:
             :meth:`scipy.spatial.cKDTree.query` reports a miss.
         """
         n = len(self.points)
-        d, idx = self.tree.query(x, distance_upper_bound=reach, workers=-1)
+        d, idx = self.tree.query(x, distance_upper_bound=reach, workers=_workers(len(x)))
         hit = np.isfinite(d)
         cos = np.einsum("ij,ij->i", nx[hit], self.normals[idx[hit]])
         bad = np.flatnonzero(hit)[(cos if signed else np.abs(cos)) < min_cos]
@@ -106,7 +115,7 @@ class _Level:
             d[bad], idx[bad] = np.inf, n
             if k > 1 and n > 1:
                 kk = min(k, n)
-                d2, i2 = self.tree.query(x[bad], k=kk, distance_upper_bound=reach, workers=-1)
+                d2, i2 = self.tree.query(x[bad], k=kk, distance_upper_bound=reach, workers=_workers(len(bad)))
                 c2 = np.einsum("ikj,ij->ik", self.normals[np.minimum(i2, n - 1)], nx[bad])
                 ok = np.isfinite(d2) & ((c2 if signed else np.abs(c2)) >= min_cos)
                 has = ok.any(axis=1)

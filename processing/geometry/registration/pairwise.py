@@ -264,7 +264,8 @@ def _register(
         scores = _scored(scores, tau_s)
         best = int(np.argmax([sc.score for sc in scores]))
     centre = src.level(decide).points.mean(axis=0)
-    rivals = _competitors(src, tgt, decide, refined, scores, best, centre, scale, preset)
+    memo: dict = {}  # each pose's evidence residuals, computed once for all the comparisons
+    rivals = _competitors(src, tgt, decide, refined, scores, best, centre, scale, preset, memo)
     if sweep is not None and not isinstance(sweep, str):
         again = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset, nearly=10.0)
         if again is not None and not isinstance(again, str):
@@ -274,8 +275,9 @@ def _register(
                 t2 = _refined_competitor(src, tgt, turned, decide, preset)
                 sc2 = _scored([_evaluate(src, tgt, t2, decide, preset)], tau_s)[0]
                 rivals += _competitors(src, tgt, decide, [refined[best], t2], [scores[best], sc2], 0,
-                                       centre, scale, preset)
-    t, sc_best, rivals = _by_evidence(src, tgt, decide, refined[best], scores[best], rivals, centre, scale, preset)
+                                       centre, scale, preset, memo)
+    t, sc_best, rivals = _by_evidence(src, tgt, decide, refined[best], scores[best], rivals, centre, scale, preset,
+                                      memo)
     margin, second_deg, evidence, ambiguous = _decision(rivals, preset)
     if len(levels) > 1:
         t = _icp_pyramid(src, tgt, preset, t, levels[-1:], settled=True)

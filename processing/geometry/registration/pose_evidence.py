@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.cells import cell_labels
+from processing.geometry.registration.clouds import _workers
 
 __all__ = ["PoseEvidence", "border_points", "pose_evidence", "posed_nearest", "surface_residuals"]
 
@@ -383,7 +384,8 @@ def posed_nearest(points_mm: ArrayLike, normals: ArrayLike, target_points_mm: Ar
     t = np.asarray(transform, dtype=np.float64)
     x = pts @ t[:3, :3].T + t[:3, 3]
     nx = nrm @ t[:3, :3].T
-    d, idx = (tree if tree is not None else cKDTree(tp)).query(x, distance_upper_bound=reach_mm, workers=-1)
+    tree = tree if tree is not None else cKDTree(tp)
+    d, idx = tree.query(x, distance_upper_bound=reach_mm, workers=_workers(len(x)))
     return x, nx, tp, tn, d, idx
 
 

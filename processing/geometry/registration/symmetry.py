@@ -9,12 +9,13 @@ section "Registration of passes".
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from processing.geometry.registration.clouds import _Cloud, _Level
+from processing.geometry.registration.clouds import _Cloud, _Level, _workers
 from processing.geometry.registration.global_search import _batch_score, _chunked_icp, _distinct, _subsample
 from processing.geometry.registration.pose_evidence import (
     PoseEvidence,
@@ -50,7 +51,7 @@ def _stability(
     the centre ``c`` (target frame) and ``L``.
     """
     x = transform_points(t, src.points)
-    d, idx = tgt.tree.query(x, distance_upper_bound=tau, workers=-1)
+    d, idx = tgt.tree.query(x, distance_upper_bound=tau, workers=_workers(len(x)))
     hit = np.isfinite(d)
     if hit.sum() < 6:
         return np.zeros(6), np.eye(6), x.mean(axis=0), 1.0
@@ -179,7 +180,7 @@ EVIDENCE_CELL_VOXELS = 3.0
 
 def _evidence(
     src: _Cloud, tgt: _Cloud, t_a: NDArray[np.float64], sc_a: _Score, t_b: NDArray[np.float64], sc_b: _Score,
-    voxel: float,
+    voxel: float, memo: dict[Any, Any] | None = None,
 ) -> PoseEvidence:
     """Evidence for pose ``t_a`` over ``t_b`` on the points of both levels that move between them.
 
@@ -190,6 +191,9 @@ def _evidence(
     (``sc_a``, ``sc_b`` are kept for the interface): a point paired across a
     border under one pose only would weigh as a feature.  See
     :func:`~processing.geometry.registration.pose_evidence.pose_evidence`.
+    A pose's residuals depend on the pose alone: ``memo`` (a dict kept for
+    one pair of clouds) holds them, so that a pose weighed against many
+    others is paired once.
     """
     s_lvl, t_lvl = src.level(voxel), tgt.level(voxel)
     s_pts, t_pts = s_lvl.points, t_lvl.points
@@ -199,8 +203,9 @@ def _evidence(
     moves &= np.concatenate([_smooth(s_lvl), _smooth(t_lvl)])
     pos = np.concatenate([xa, t_pts])
     reach_partner = EVIDENCE_REACH_VOXELS * voxel
-    ra = _partner_residuals(s_lvl, t_lvl, t_a, reach_partner, voxel)
-    rb = _partner_residuals(s_lvl, t_lvl, t_b, reach_partner, voxel)
+    memo = {} if memo is None else memo
+    ra, rb = (_memo(memo, (t.tobytes(), voxel), lambda t=t: _partner_residuals(s_lvl, t_lvl, t, reach_partner, voxel))
+              for t in (t_a, t_b))
     reach = 2.0 * EVIDENCE_CELL_VOXELS * voxel
     rel = np.linalg.inv(t_a) @ t_b
     gap = np.concatenate([_self_gap(s_lvl, rel, reach, voxel), _self_gap(t_lvl, t_a @ np.linalg.inv(t_b), reach, voxel)])
@@ -235,6 +240,13 @@ def _partner_residuals(s_lvl: _Level, t_lvl: _Level, t: NDArray[np.float64], rea
     return np.concatenate([rs, rt])
 
 
+def _memo(memo: dict[Any, Any], key: Any, make: Callable[[], Any]) -> Any:
+    """``memo[key]``, made by ``make()`` the first time it is asked for."""
+    if key not in memo:
+        memo[key] = make()
+    return memo[key]
+
+
 def _border(level: _Level, spacing: float) -> NDArray[np.bool_]:
     """The level's border points (:func:`~processing.geometry.registration.pose_evidence.border_points`), cached."""
     cache = level.__dict__.setdefault("_border_masks", {})
@@ -260,7 +272,7 @@ def _self_gap(level: _Level, motion: NDArray[np.float64], reach: float, spacing:
     out = np.zeros(len(level.points))
     for m in (motion, np.linalg.inv(motion)):
         x = transform_points(m, level.points)
-        d, idx = level.tree.query(x, distance_upper_bound=reach, workers=-1)
+        d, idx = level.tree.query(x, distance_upper_bound=reach, workers=_workers(len(x)))
         hit = np.isfinite(d)
         g = np.full(len(x), np.nan)
         off = x[hit] - level.points[idx[hit]]
@@ -298,13 +310,14 @@ def _smooth(level: _Level, k: int = 12, factor: float = 4.0) -> NDArray[np.bool_
 def _competitors(
     src: _Cloud, tgt: _Cloud, voxel: float, poses: Sequence[NDArray[np.float64]], scores: Sequence[_Score],
     best: int, centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
+    memo: dict[Any, Any] | None = None,
 ) -> list[_Competitor]:
     """The distinct poses that compete with ``poses[best]``: margin, rotation, evidence and pose of each.
 
     A competitor explains at least half as much of the clouds and shares at
     least a quarter of the best pose's matched points (see
     :func:`_competitor_margin`); its evidence is :func:`_evidence` at
-    ``voxel`` (the level where the fits were evaluated).
+    ``voxel`` (the level where the fits were evaluated), with ``memo`` as there.
     """
     b = scores[best]
     rb = np.concatenate(b.residuals)
@@ -317,13 +330,14 @@ def _competitors(
             own, theirs, n = _common_quality(rb, np.concatenate(sc.residuals), b.tau_s)
             if max(sc.overlap_source, sc.overlap_target) >= 0.5 * overlap and n >= 0.25 * matched:
                 m = (own - theirs) / own if own > 0 else 0.0
-                out.append((m, rot, _evidence(src, tgt, poses[best], b, t, sc, voxel), t, sc))
+                out.append((m, rot, _evidence(src, tgt, poses[best], b, t, sc, voxel, memo), t, sc))
     return out
 
 
 def _by_evidence(
     src: _Cloud, tgt: _Cloud, voxel: float, pose: NDArray[np.float64], score: _Score,
     rivals: Sequence[_Competitor], centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
+    memo: dict[Any, Any] | None = None,
 ) -> tuple[NDArray[np.float64], _Score, list[_Competitor]]:
     """Of a pose and its competitors, the one with the most evidence against all the others.
 
@@ -334,15 +348,16 @@ def _by_evidence(
     infinitely supported only if it was the given pose).  The candidates are
     the given pose and the ``hypotheses`` competitors with the least evidence
     against them (those that fit better than it where they differ); each is
-    weighed against all.  Returns that pose,
-    its fit and its competitors.
+    weighed against all (``memo`` as in :func:`_evidence`).  Returns that
+    pose, its fit and its competitors.
     """
     poses = [pose] + [c[3] for c in rivals]
     scores = [score] + [c[4] for c in rivals]
     best_key, out = -math.inf, (pose, score, list(rivals))
     top = [0] + [1 + k for k in np.argsort([c[2].sigma for c in rivals])[: preset.hypotheses]]
     for i in top:
-        mine = list(rivals) if i == 0 else _competitors(src, tgt, voxel, poses, scores, i, centre, scale, preset)
+        mine = list(rivals) if i == 0 else _competitors(src, tgt, voxel, poses, scores, i, centre, scale, preset,
+                                                        memo)
         if not mine and i > 0:
             continue
         key = min((c[2].sigma for c in mine), default=math.inf)
