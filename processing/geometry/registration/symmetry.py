@@ -9,7 +9,7 @@ section "Registration of passes".
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -319,19 +319,26 @@ def _competitors(
     :func:`_competitor_margin`); its evidence is :func:`_evidence` at
     ``voxel`` (the level where the fits were evaluated), with ``memo`` as there.
     """
+    return list(_each_competitor(src, tgt, voxel, poses, scores, best, centre, scale, preset, memo))
+
+
+def _each_competitor(
+    src: _Cloud, tgt: _Cloud, voxel: float, poses: Sequence[NDArray[np.float64]], scores: Sequence[_Score],
+    best: int, centre: NDArray[np.float64], scale: float, preset: RegistrationPreset,
+    memo: dict[Any, Any] | None = None,
+) -> Iterator[_Competitor]:
+    """:func:`_competitors` one at a time, in the order of ``poses`` (the evidence of each computed when asked for)."""
     b = scores[best]
     rb = np.concatenate(b.residuals)
     matched = int(np.sum(~np.isnan(rb)))
     overlap = max(b.overlap_source, b.overlap_target)
-    out: list[_Competitor] = []
     for t, sc in zip(poses, scores):
         rot, disp = pose_difference(poses[best], t, centre[None])
         if rot >= preset.distinct_deg or disp >= preset.distinct_fraction * scale:
             own, theirs, n = _common_quality(rb, np.concatenate(sc.residuals), b.tau_s)
             if max(sc.overlap_source, sc.overlap_target) >= 0.5 * overlap and n >= 0.25 * matched:
                 m = (own - theirs) / own if own > 0 else 0.0
-                out.append((m, rot, _evidence(src, tgt, poses[best], b, t, sc, voxel, memo), t, sc))
-    return out
+                yield m, rot, _evidence(src, tgt, poses[best], b, t, sc, voxel, memo), t, sc
 
 
 def _by_evidence(
@@ -348,18 +355,26 @@ def _by_evidence(
     infinitely supported only if it was the given pose).  The candidates are
     the given pose and the ``hypotheses`` competitors with the least evidence
     against them (those that fit better than it where they differ); each is
-    weighed against all (``memo`` as in :func:`_evidence`).  Returns that
-    pose, its fit and its competitors.
+    weighed against all (``memo`` as in :func:`_evidence`), and no further
+    once one competitor's evidence shows it cannot beat the best so far (the
+    answer is the same).  Returns that pose, its fit and its competitors.
     """
     poses = [pose] + [c[3] for c in rivals]
     scores = [score] + [c[4] for c in rivals]
     best_key, out = -math.inf, (pose, score, list(rivals))
     top = [0] + [1 + k for k in np.argsort([c[2].sigma for c in rivals])[: preset.hypotheses]]
     for i in top:
-        mine = list(rivals) if i == 0 else _competitors(src, tgt, voxel, poses, scores, i, centre, scale, preset,
-                                                        memo)
-        if not mine and i > 0:
-            continue
+        if i == 0:
+            mine = list(rivals)
+        else:
+            mine, beaten = [], False
+            for c in _each_competitor(src, tgt, voxel, poses, scores, i, centre, scale, preset, memo):
+                mine.append(c)
+                if c[2].sigma <= best_key:   # its weakest evidence cannot exceed the best so far: no need for the rest
+                    beaten = True
+                    break
+            if beaten or not mine:
+                continue
         key = min((c[2].sigma for c in mine), default=math.inf)
         if key > best_key:
             best_key, out = key, (poses[i], scores[i], mine)
