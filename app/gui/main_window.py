@@ -692,6 +692,7 @@ class MainWindow(QMainWindow):
         final = getattr(self.preview, "_process_job", None)
         if final is not None and not final.done:
             final.cancel()                   # a full-size preview render in its worker process
+        self.preview.render_worker.stop()    # the process the preview's full-size renders run in
         mesh_view = self.processing.mesh_job
         if mesh_view is not None and not mesh_view.done:
             mesh_view.cancel()               # the Processing tab's mesh view, rendering in its worker process

@@ -61,7 +61,7 @@ from PySide6.QtWidgets import (
 
 from app.gui.session_panel import rgb_to_qimage
 from app.gui.widgets import Panel
-from app.gui.workers import JobContext, Lane, ProcessJob
+from app.gui.workers import JobContext, Lane, ProcessJob, WorkerProcess
 
 __all__ = ["PreviewPanel", "orbit_eye", "light_vector", "render_view", "click_ray", "display_srgb8", "MEASURED",
            "LIGHTINGS"]
@@ -316,6 +316,8 @@ class PreviewPanel(Panel):
         self.last_kind = ""
         self._busy = False
         self._waiting: tuple[str, dict[str, Any]] | None = None
+        #: The process the full-size renders run in, kept between them (its imports and the mesh's ray tracer).
+        self.render_worker = WorkerProcess()
         outer = QHBoxLayout(self)
         left = QVBoxLayout()
         outer.addLayout(left, 1)
@@ -605,8 +607,10 @@ class PreviewPanel(Panel):
         if kind == "final":
             # Open3D's cast_rays holds the interpreter lock for a whole call (45 ms for 480 x 360 rays on an
             # idle core, over 100 ms on a busy one), so a full-size render in a thread stalls the event loop:
-            # it runs in a worker process; drafts (a sixteenth of the rays) stay on the lane for the orbit.
-            job = ProcessJob(_render_final, args, parent=self)
+            # it runs in a worker process; drafts (a sixteenth of the rays) stay on the lane for the orbit.  The
+            # process is kept for the next final render: starting one (Python, Qt's bindings, Open3D, colour-science)
+            # took longer than the render itself
+            job = ProcessJob(_render_final, args, parent=self, worker=self.render_worker)
             job.succeeded.connect(lambda out: self._shown((kind, out, args)))
             job.failed.connect(self._failed)
             job.finished.connect(self._done)

@@ -15,6 +15,13 @@ receivers living in the GUI thread).  Three kinds of lane:
   interpreter lock for long stretches (registration, meshing) or cannot be
   interrupted; cancel terminates the process.  Files the library writes are
   atomic, so a terminated job leaves the session as it was.
+* :class:`WorkerProcess` -- one long-lived spawned process that runs the
+  :class:`ProcessJob` s given it, one after another, for work asked for
+  again and again (the preview's full-size renders): a fresh process
+  imports Python, Qt's bindings, NumPy, Open3D and colour-science again,
+  seconds each time on a busy machine, and loses what the previous job
+  kept in memory.  Cancelling its job terminates it; the next job starts
+  a new one.
 
 Errors never escape as tracebacks: :func:`describe_error` turns an exception
 into the one readable line the window shows (the full traceback goes to the
@@ -41,7 +48,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QRunnable, QThreadPool, QTimer, Signal
 
-__all__ = ["describe_error", "JobContext", "JobSignals", "Job", "Lane", "ProcessJob", "WindowClosing"]
+__all__ = ["describe_error", "JobContext", "JobSignals", "Job", "Lane", "ProcessJob", "WorkerProcess", "WindowClosing"]
 
 _LOG = logging.getLogger("kogei.gui")
 
@@ -188,11 +195,79 @@ def _process_main(fn: Callable[..., Any], args: tuple[Any, ...], out: Any) -> No
         out.put(("succeeded", result))
 
 
+def _serve_jobs(requests: Any, out: Any) -> None:
+    """A :class:`WorkerProcess`: run each ``(fn, args)`` received as :func:`_process_main` would, until ``None``."""
+    while True:
+        try:
+            request = requests.get()
+        except (EOFError, OSError):
+            return                                   # the window has gone
+        if request is None:
+            return
+        _process_main(*request, out)
+
+
+class WorkerProcess:
+    """One spawned process that runs the :class:`ProcessJob` s given it, one at a time (module docstring).
+
+    The process starts with its first job and is kept for the next; a job
+    cancelled, or a process that died, leaves none, and the next job starts a
+    new one (new queues too: a terminated process can leave a queue broken).
+    Whoever owns it runs one job at a time and calls :meth:`stop` when done.
+    """
+
+    def __init__(self) -> None:
+        self._proc: Any = None
+        self.requests: Any = None
+        self.replies: Any = None
+        self.processes_started = 0
+
+    def ensure(self) -> tuple[Any, Any]:
+        """The running process and its reply queue, started now if there is none."""
+        if self._proc is None or not self._proc.is_alive():
+            self.stop()
+            ctx = mp.get_context("spawn")       # never fork a process that runs Qt threads
+            self.requests, self.replies = ctx.Queue(), ctx.Queue()
+            self._proc = ctx.Process(target=_serve_jobs, args=(self.requests, self.replies), daemon=True,
+                                     name="kogei-worker")
+            self._proc.start()
+            self.processes_started += 1
+        return self._proc, self.replies
+
+    def submit(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> tuple[Any, Any]:
+        """Send ``fn(*args)`` to the process (started if needed); returns the process and its reply queue."""
+        proc, replies = self.ensure()
+        self.requests.put((fn, args))
+        return proc, replies
+
+    def terminate(self) -> None:
+        """Stop the process now (its job's partial results are not recorded)."""
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            proc.terminate()
+            proc.join(5.0)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Ask the process to end after its job, then stop it if it has not within ``timeout_s``."""
+        proc, self._proc = self._proc, None
+        if proc is not None and proc.is_alive():
+            try:
+                self.requests.put(None)
+            except (OSError, ValueError):
+                pass
+            proc.join(timeout_s)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join(5.0)
+
+
 class ProcessJob(QObject):
     """``fn(*args, message=callback)`` in a spawned process; messages and the result arrive as signals.
 
     ``fn`` and its arguments and result must be picklable (a module-level
-    function and plain data).  :meth:`cancel` terminates the process.
+    function and plain data).  :meth:`cancel` terminates the process.  With
+    ``worker`` (a :class:`WorkerProcess`), the job runs in that process
+    instead of a new one.
     """
 
     message = Signal(str)
@@ -200,11 +275,16 @@ class ProcessJob(QObject):
     failed = Signal(str, object)
     finished = Signal()
 
-    def __init__(self, fn: Callable[..., Any], *args: Any, poll_ms: int = 50, parent: QObject | None = None) -> None:
+    def __init__(self, fn: Callable[..., Any], *args: Any, poll_ms: int = 50, parent: QObject | None = None,
+                 worker: WorkerProcess | None = None) -> None:
         super().__init__(parent)
-        ctx = mp.get_context("spawn")       # never fork a process that runs Qt threads
-        self._queue = ctx.Queue()
-        self._proc = ctx.Process(target=_process_main, args=(fn, args, self._queue), daemon=True)
+        self._fn, self._args, self._worker = fn, args, worker
+        self._queue: Any = None
+        self._proc: Any = None
+        if worker is None:
+            ctx = mp.get_context("spawn")       # never fork a process that runs Qt threads
+            self._queue = ctx.Queue()
+            self._proc = ctx.Process(target=_process_main, args=(fn, args, self._queue), daemon=True)
         self._timer = QTimer(self)
         self._timer.setInterval(poll_ms)
         self._timer.timeout.connect(self._poll)
@@ -212,7 +292,10 @@ class ProcessJob(QObject):
         self.cancelled = False
 
     def start(self) -> ProcessJob:
-        self._proc.start()
+        if self._worker is not None:
+            self._proc, self._queue = self._worker.submit(self._fn, self._args)
+        else:
+            self._proc.start()
         self._timer.start()
         return self
 
@@ -225,8 +308,11 @@ class ProcessJob(QObject):
         if self.done:
             return
         self.cancelled = True
-        self._proc.terminate()
-        self._proc.join(5.0)
+        if self._worker is not None:
+            self._worker.terminate()
+        else:
+            self._proc.terminate()
+            self._proc.join(5.0)
         self._finish()
         self.failed.emit("cancelled by the user; the session is unchanged", None)
         self.finished.emit()
