@@ -109,10 +109,18 @@ class ChartCheck:
 
 
 def _trim_mean(values: NDArray[np.float64], trim: float) -> NDArray[np.float64]:
-    """Mean per column with the ``trim`` fraction cut from each end (scipy's ``trim_mean``)."""
-    from scipy.stats import trim_mean
+    """Mean per column with the ``trim`` fraction cut from each end (scipy's ``trim_mean``).
 
-    return np.asarray(trim_mean(values, trim, axis=0), dtype=np.float64)
+    The same partition and slice as :func:`scipy.stats.trim_mean`, so the same values bit for bit,
+    without importing :mod:`scipy.stats` (about a second of every colour step's start-up).
+    """
+    a = np.asarray(values, dtype=np.float64)
+    n = a.shape[0]
+    low = int(trim * n)
+    high = n - low
+    if low > high:
+        raise ValueError("Proportion too big.")
+    return np.partition(a, (low, high - 1), axis=0)[low:high].mean(axis=0)
 
 
 def sample_patches(raw_image: RawImage, detection: ChartDetection, *, inset: float = 0.6,

@@ -39,7 +39,7 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import f as f_dist
+from scipy.special import fdtrc
 
 from processing.errors import InputError
 from processing.geometry.sphere_image import SphereImageError, fit_sphere_centre, pixel_rays, sphere_silhouette
@@ -332,7 +332,7 @@ def _fit_lamp(p: NDArray[np.float64], r: NDArray[np.float64], model: str, name: 
     ahead = bool(np.all(np.sum((x - p) * r, axis=1) > 0))
     ss_d, ss_p, dof = float(miss_d @ miss_d), float(miss_p @ miss_p), 2 * len(r) - 3
     f_stat = (ss_d - ss_p) / max(ss_p / dof, 1e-300)
-    point = model == "point" or (model == "auto" and ahead and f_dist.sf(f_stat, 1, dof) < 1e-3)
+    point = model == "point" or (model == "auto" and ahead and fdtrc(1, dof, f_stat) < 1e-3)
     if point:
         return Lamp(name, "point", position_mm=x, covariance=cov_p, n_observations=len(r),
                     rms_deg=float(np.degrees(np.sqrt(np.mean(miss_p ** 2))))), miss_p

@@ -17,21 +17,40 @@ from scipy.spatial import cKDTree
 
 from processing.geometry.registration.presets import RegistrationError
 
-__all__ = ["MIN_POINTS", "SAME_FACE_DEG"]
+__all__ = ["MIN_POINTS", "PARALLEL_QUERY_POINTS", "SAME_FACE_DEG", "query_workers"]
 
 
 #: Fewest points a cloud must have to be registered.
 MIN_POINTS = 10
 
-#: Fewest query points for which a k-d tree query is split over threads: below it, starting the threads
-#: costs about what they save on 2 cores (measured: 10 000 points, 8.1 ms in one thread, 9.5 ms in two),
-#: and more when other work holds the cores; the registration makes thousands of such queries.
-THREADED_QUERY_POINTS = 20_000
+#: Fewest query points for which a k-d tree query runs on every core (``workers=-1``).  SciPy starts
+#: one thread per core for every such query; the registration makes thousands of queries of at most
+#: a preset's ``icp_points`` (5000 for draft), where starting the threads costs more than they save:
+#: one thread for them took a draft registration of three hawk passes from 37.9 to 26.3 s of CPU (53
+#: to 33 s on 2 busy cores), the same poses and mesh bit for bit (a query's answer does not depend on
+#: its threads); a 10 000-point query took 8.1 ms in one thread and 9.5 ms in two on an idle machine.
+PARALLEL_QUERY_POINTS = 50_000
 
 
-def _workers(n_queries: int) -> int:
-    """``workers`` argument of :meth:`scipy.spatial.cKDTree.query` for ``n_queries`` points (same result either way)."""
-    return -1 if n_queries >= THREADED_QUERY_POINTS else 1
+def query_workers(n_points: int) -> int:
+    """The ``workers`` argument of a :meth:`scipy.spatial.cKDTree.query` of ``n_points`` points.
+
+    Parameters
+    ----------
+    n_points
+        Number of query points.
+
+    Returns
+    -------
+    int
+        ``-1`` (every core) from :data:`PARALLEL_QUERY_POINTS` points on, else ``1``.
+
+    Examples
+    --------
+    >>> query_workers(5_000), query_workers(200_000)
+    (1, -1)
+    """
+    return -1 if n_points >= PARALLEL_QUERY_POINTS else 1
 
 
 class _NearestGrid:
@@ -50,7 +69,7 @@ class _NearestGrid:
         axes = [lo[k] + (np.arange(shape[k]) + 0.5) * cell for k in range(3)]
         centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         # cells farther than ``reach`` from the cloud point at a sentinel far away (no match)
-        _, idx = cKDTree(points).query(centres, distance_upper_bound=reach + cell, workers=-1)
+        _, idx = cKDTree(points).query(centres, distance_upper_bound=reach + cell, workers=query_workers(len(centres)))
         self.lo, self.cell, self.shape = lo, cell, shape
         self.index = idx.astype(np.int32)  # len(points) where nothing is within reach
 
@@ -108,7 +127,7 @@ class _Level:
             :meth:`scipy.spatial.cKDTree.query` reports a miss.
         """
         n = len(self.points)
-        d, idx = self.tree.query(x, distance_upper_bound=reach, workers=_workers(len(x)))
+        d, idx = self.tree.query(x, distance_upper_bound=reach, workers=query_workers(len(x)))
         hit = np.isfinite(d)
         cos = np.einsum("ij,ij->i", nx[hit], self.normals[idx[hit]])
         bad = np.flatnonzero(hit)[(cos if signed else np.abs(cos)) < min_cos]
@@ -116,7 +135,7 @@ class _Level:
             d[bad], idx[bad] = np.inf, n
             if k > 1 and n > 1:
                 kk = min(k, n)
-                d2, i2 = self.tree.query(x[bad], k=kk, distance_upper_bound=reach, workers=_workers(len(bad)))
+                d2, i2 = self.tree.query(x[bad], k=kk, distance_upper_bound=reach, workers=query_workers(len(bad)))
                 c2 = np.einsum("ikj,ij->ik", self.normals[np.minimum(i2, n - 1)], nx[bad])
                 ok = np.isfinite(d2) & ((c2 if signed else np.abs(c2)) >= min_cos)
                 has = ok.any(axis=1)
@@ -158,7 +177,7 @@ class _Level:
         key = round(float(spacing), 9)
         if key not in self._roughness:
             k = min(9, len(self.points))
-            dist, idx = self.tree.query(self.points, k=k, workers=-1)
+            dist, idx = self.tree.query(self.points, k=k, workers=query_workers(len(self.points)))
             far = dist[:, 1:] >= 0.5 * spacing
             first = np.where(far.any(axis=1), np.argmax(far, axis=1), k - 2) + 1
             j = idx[np.arange(len(idx)), first]
@@ -197,7 +216,7 @@ class _Cloud:
         if self._spacing is None:
             every = max(1, len(self.points) // 2000)
             k = min(9, len(self.points))
-            d, _ = cKDTree(self.points).query(self.points[::every], k=k, workers=-1)
+            d, _ = cKDTree(self.points).query(self.points[::every], k=k, workers=query_workers(len(self.points) // every))
             self._spacing = float(np.median(d[:, -1]) * math.sqrt(math.pi / max(k - 1, 1)))
         return self._spacing
 
@@ -256,7 +275,7 @@ def _downsample(
     p = np.asarray(down.points).copy()
     guide = np.asarray(down.normals).copy() if normals is not None else p - p.mean(axis=0)
     k = min(20, len(p))
-    dist, idx = cKDTree(p).query(p, k=k, distance_upper_bound=3.0 * voxel, workers=-1)
+    dist, idx = cKDTree(p).query(p, k=k, distance_upper_bound=3.0 * voxel, workers=query_workers(len(p)))
     dist, idx = dist.reshape(len(p), k), idx.reshape(len(p), k)
     use = np.isfinite(dist)
     idx = np.minimum(idx, len(p) - 1)
@@ -276,7 +295,7 @@ def _downsample(
         bad |= np.abs(np.sum(n * unit, axis=1)) < math.cos(math.radians(SAME_FACE_DEG))
     if bad.any() and coarser is not None:
         lvl = coarser()
-        _, near = lvl.tree.query(p[bad], workers=-1)
+        _, near = lvl.tree.query(p[bad], workers=query_workers(len(p[bad])))
         n[bad] = lvl.normals[near]
     elif bad.any() and normals is not None:
         # no coarser level: the input normal made perpendicular to the line the neighbours lie on

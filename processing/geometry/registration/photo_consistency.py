@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from processing.geometry.registration.cells import cell_labels
-from processing.geometry.registration.clouds import SAME_FACE_DEG, _workers
+from processing.geometry.registration.clouds import SAME_FACE_DEG, query_workers
 from processing.geometry.registration.transforms import _rodrigues, transform_points
 
 __all__ = ["ColourClasses", "ColourTurn", "PointColours", "colour_classes", "colour_points", "label_evidence",
@@ -391,7 +391,8 @@ def _disagreement(src: NDArray[np.float64], ls: NDArray[np.int8], tree: cKDTree,
     out = np.full((len(poses), len(src)), np.nan)
     min_cos = math.cos(math.radians(SAME_FACE_DEG))
     for k, t in enumerate(poses):   # a few hundred poses, each a vectorised query
-        d, idx = tree.query(transform_points(t, src), distance_upper_bound=max_distance_mm, workers=_workers(len(src)))
+        d, idx = tree.query(transform_points(t, src), distance_upper_bound=max_distance_mm,
+                            workers=query_workers(len(src)))
         hit = np.isfinite(d)
         i = np.minimum(idx, len(lt) - 1)
         other = lt[i]
@@ -722,7 +723,7 @@ def _lamp_directions(frame: Any, points: NDArray[np.float64]) -> NDArray[np.floa
 def _median_spacing(points: NDArray[np.float64]) -> float:
     """Median distance from a point to its nearest neighbour (mm), from at most 5000 points."""
     every = max(1, len(points) // 5000)
-    d, _ = cKDTree(points).query(points[::every], k=2, workers=-1)
+    d, _ = cKDTree(points).query(points[::every], k=2, workers=query_workers(len(points) // every))
     return float(np.median(d[:, 1]))
 
 

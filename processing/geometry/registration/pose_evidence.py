@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.cells import cell_labels
-from processing.geometry.registration.clouds import _workers
+from processing.geometry.registration.clouds import query_workers
 
 __all__ = ["PoseEvidence", "border_points", "pose_evidence", "posed_nearest", "surface_residuals"]
 
@@ -332,7 +332,8 @@ def border_points(points_mm: ArrayLike, normals: ArrayLike, spacing_mm: float, k
     pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
     nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     k = min(int(k) + 1, len(pts))
-    dist, idx = cKDTree(pts).query(pts, k=k, distance_upper_bound=2.5 * spacing_mm, workers=-1)
+    dist, idx = cKDTree(pts).query(pts, k=k, distance_upper_bound=2.5 * spacing_mm,
+                                   workers=query_workers(len(pts)))
     dist, idx = dist.reshape(len(pts), -1)[:, 1:], idx.reshape(len(pts), -1)[:, 1:]
     found = np.isfinite(dist)
     nb = pts[np.minimum(idx, len(pts) - 1)] - pts[:, None, :]
@@ -384,8 +385,8 @@ def posed_nearest(points_mm: ArrayLike, normals: ArrayLike, target_points_mm: Ar
     t = np.asarray(transform, dtype=np.float64)
     x = pts @ t[:3, :3].T + t[:3, 3]
     nx = nrm @ t[:3, :3].T
-    tree = tree if tree is not None else cKDTree(tp)
-    d, idx = tree.query(x, distance_upper_bound=reach_mm, workers=_workers(len(x)))
+    d, idx = (tree if tree is not None else cKDTree(tp)).query(x, distance_upper_bound=reach_mm,
+                                                               workers=query_workers(len(x)))
     return x, nx, tp, tn, d, idx
 
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from processing.geometry.registration.clouds import _Cloud, _Level, _workers
+from processing.geometry.registration.clouds import _Cloud, _Level, query_workers
 from processing.geometry.registration.global_search import _batch_score, _chunked_icp, _distinct, _subsample
 from processing.geometry.registration.pose_evidence import (
     PoseEvidence,
@@ -51,7 +51,7 @@ def _stability(
     the centre ``c`` (target frame) and ``L``.
     """
     x = transform_points(t, src.points)
-    d, idx = tgt.tree.query(x, distance_upper_bound=tau, workers=_workers(len(x)))
+    d, idx = tgt.tree.query(x, distance_upper_bound=tau, workers=query_workers(len(x)))
     hit = np.isfinite(d)
     if hit.sum() < 6:
         return np.zeros(6), np.eye(6), x.mean(axis=0), 1.0
@@ -272,7 +272,7 @@ def _self_gap(level: _Level, motion: NDArray[np.float64], reach: float, spacing:
     out = np.zeros(len(level.points))
     for m in (motion, np.linalg.inv(motion)):
         x = transform_points(m, level.points)
-        d, idx = level.tree.query(x, distance_upper_bound=reach, workers=_workers(len(x)))
+        d, idx = level.tree.query(x, distance_upper_bound=reach, workers=query_workers(len(x)))
         hit = np.isfinite(d)
         g = np.full(len(x), np.nan)
         off = x[hit] - level.points[idx[hit]]
@@ -297,7 +297,7 @@ def _smooth(level: _Level, k: int = 12, factor: float = 4.0) -> NDArray[np.bool_
     if cached is not None:
         return cached
     k = min(k, len(level.points))
-    _, idx = level.tree.query(level.points, k=k, workers=-1)
+    _, idx = level.tree.query(level.points, k=k, workers=query_workers(len(level.points)))
     nb = level.points[idx]
     d = nb - nb.mean(axis=1, keepdims=True)
     evals = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", d, d))
