@@ -34,7 +34,7 @@ from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import QLabel, QSizePolicy, QWidget
 
 from app.gui.figures import axes_pixel, empty_figure, render_figure
-from app.gui.workers import JobContext, Lane, WindowClosing
+from app.gui.workers import JobContext, Lane, WindowClosing, serve_requests
 
 __all__ = ["FigureDrawer", "PlotImage"]
 
@@ -47,22 +47,20 @@ MIN_DRAW_SIZE = (320, 240)
 def _serve(conn: Any) -> None:
     """The drawing process: lay out text once, then draw each ``(build, data, w, h)`` received until ``None``."""
     render_figure(empty_figure, {"title": "warm-up: 0.0 (mm) °", "hint": "x"}, 64, 64)
-    while True:
-        try:
-            request = conn.recv()
-        except (EOFError, OSError):
-            return                                   # the window has gone
-        if request is None:
-            return
-        build, data, w, h = request
-        try:
-            reply = ("drawn", *render_figure(build, data, w, h))
-        except BaseException as exc:  # noqa: BLE001 - reported to the window as a failed plot
-            reply = ("failed", f"{type(exc).__name__}: {exc}", traceback.format_exc())
-        try:
-            conn.send(reply)
-        except (EOFError, OSError):
-            return
+    serve_requests(conn.recv, lambda request: _draw(conn, *request))
+
+
+def _draw(conn: Any, build: Any, data: Any, w: int, h: int) -> bool:
+    """Draw one figure and send it (or the failure) back; False when the window has gone."""
+    try:
+        reply = ("drawn", *render_figure(build, data, w, h))
+    except BaseException as exc:  # noqa: BLE001 - reported to the window as a failed plot
+        reply = ("failed", f"{type(exc).__name__}: {exc}", traceback.format_exc())
+    try:
+        conn.send(reply)
+    except (EOFError, OSError):
+        return False
+    return True
 
 
 class FigureDrawer:

@@ -48,7 +48,8 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QRunnable, QThreadPool, QTimer, Signal
 
-__all__ = ["describe_error", "JobContext", "JobSignals", "Job", "Lane", "ProcessJob", "WorkerProcess", "WindowClosing"]
+__all__ = ["describe_error", "JobContext", "JobSignals", "Job", "Lane", "ProcessJob", "WorkerProcess", "WindowClosing",
+           "serve_requests"]
 
 _LOG = logging.getLogger("kogei.gui")
 
@@ -195,16 +196,23 @@ def _process_main(fn: Callable[..., Any], args: tuple[Any, ...], out: Any) -> No
         out.put(("succeeded", result))
 
 
-def _serve_jobs(requests: Any, out: Any) -> None:
-    """A :class:`WorkerProcess`: run each ``(fn, args)`` received as :func:`_process_main` would, until ``None``."""
+def serve_requests(receive: Callable[[], Any], handle: Callable[[Any], bool]) -> None:
+    """A worker process's loop: ``handle`` each request ``receive`` gives until ``None``, a closed pipe or False.
+
+    ``handle`` returns False when the window can no longer be answered.
+    """
     while True:
         try:
-            request = requests.get()
+            request = receive()
         except (EOFError, OSError):
             return                                   # the window has gone
-        if request is None:
+        if request is None or not handle(request):
             return
-        _process_main(*request, out)
+
+
+def _serve_jobs(requests: Any, out: Any) -> None:
+    """A :class:`WorkerProcess`: run each ``(fn, args)`` received as :func:`_process_main` would, until ``None``."""
+    serve_requests(requests.get, lambda request: _process_main(*request, out) or True)
 
 
 class WorkerProcess:
