@@ -242,10 +242,15 @@ class WorkerProcess:
             self.processes_started += 1
         return self._proc, self.replies
 
-    def submit(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> tuple[Any, Any]:
-        """Send ``fn(*args)`` to the process (started if needed); returns the process and its reply queue."""
+    def submit(self, fn: Callable[..., Any], args: tuple[Any, ...], *, last: bool = False) -> tuple[Any, Any]:
+        """Send ``fn(*args)`` to the process (started if needed); returns the process and its reply queue.
+
+        ``last``: the process ends on its own after this job (a one-off job's process).
+        """
         proc, replies = self.ensure()
         self.requests.put((fn, args))
+        if last:
+            self.requests.put(None)
         return proc, replies
 
     def terminate(self) -> None:
@@ -274,8 +279,8 @@ class ProcessJob(QObject):
 
     ``fn`` and its arguments and result must be picklable (a module-level
     function and plain data).  :meth:`cancel` terminates the process.  With
-    ``worker`` (a :class:`WorkerProcess`), the job runs in that process
-    instead of a new one.
+    ``worker`` (a :class:`WorkerProcess`), the job runs in that process;
+    without, in a process of its own that ends after it.
     """
 
     message = Signal(str)
@@ -286,13 +291,11 @@ class ProcessJob(QObject):
     def __init__(self, fn: Callable[..., Any], *args: Any, poll_ms: int = 50, parent: QObject | None = None,
                  worker: WorkerProcess | None = None) -> None:
         super().__init__(parent)
-        self._fn, self._args, self._worker = fn, args, worker
+        self._fn, self._args = fn, args
+        self._one_off = worker is None
+        self._worker = WorkerProcess() if worker is None else worker
         self._queue: Any = None
         self._proc: Any = None
-        if worker is None:
-            ctx = mp.get_context("spawn")       # never fork a process that runs Qt threads
-            self._queue = ctx.Queue()
-            self._proc = ctx.Process(target=_process_main, args=(fn, args, self._queue), daemon=True)
         self._timer = QTimer(self)
         self._timer.setInterval(poll_ms)
         self._timer.timeout.connect(self._poll)
@@ -300,10 +303,7 @@ class ProcessJob(QObject):
         self.cancelled = False
 
     def start(self) -> ProcessJob:
-        if self._worker is not None:
-            self._proc, self._queue = self._worker.submit(self._fn, self._args)
-        else:
-            self._proc.start()
+        self._proc, self._queue = self._worker.submit(self._fn, self._args, last=self._one_off)
         self._timer.start()
         return self
 
@@ -316,11 +316,7 @@ class ProcessJob(QObject):
         if self.done:
             return
         self.cancelled = True
-        if self._worker is not None:
-            self._worker.terminate()
-        else:
-            self._proc.terminate()
-            self._proc.join(5.0)
+        self._worker.terminate()
         self._finish()
         self.failed.emit("cancelled by the user; the session is unchanged", None)
         self.finished.emit()

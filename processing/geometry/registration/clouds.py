@@ -295,7 +295,7 @@ def _downsample(
         bad |= np.abs(np.sum(n * unit, axis=1)) < math.cos(math.radians(SAME_FACE_DEG))
     if bad.any() and coarser is not None:
         lvl = coarser()
-        _, near = lvl.tree.query(p[bad], workers=query_workers(len(p[bad])))
+        _, near = lvl.tree.query(p[bad], workers=query_workers(int(np.count_nonzero(bad))))
         n[bad] = lvl.normals[near]
     elif bad.any() and normals is not None:
         # no coarser level: the input normal made perpendicular to the line the neighbours lie on
