@@ -82,6 +82,7 @@ from processing.materials.forward_fit import (
     RegionSamples,
     fit_region,
     grouped_observations,
+    highlight_colour_scatter,
     prepared_observations,
     region_samples,
 )
@@ -194,7 +195,8 @@ __all__ = [
     "Reliability", "ConfidenceError", "SINGLE_IMAGE_ERROR_DOF",
     # forward_fit
     "SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError", "region_samples",
-    "fit_region", "prepared_observations", "grouped_observations", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT",
+    "fit_region", "highlight_colour_scatter", "prepared_observations", "grouped_observations", "MIN_HIGHLIGHTS",
+    "HIGHLIGHT_DEG", "INDEPENDENT",
     # region_consistency
     "mesh_components", "face_regions", "fixed_material_chi2", "pieces_chi2", "disagreeing_pieces", "joining_pieces",
     "LIKELIHOOD_MARGIN",

@@ -173,7 +173,7 @@ def _answer_fit(names: Sequence[str], d, fits, bases) -> tuple[str, int]:
 
 
 def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Sequence[bool], n_obs: int, n_lit: int,
-               independent: float):
+               independent: float, colour_scatter: float = 1.0):
     """The :class:`RegionFit` of the candidates' fits.
 
     Parameters
@@ -187,6 +187,10 @@ def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Se
     independent
         Observations counted as independent evidence: chi-squares and degrees of freedom are scaled by
         ``min(1, independent / n_obs)`` before :func:`decide`, uncertainties by its inverse square root.
+    colour_scatter
+        How many times their noise variance the highlights' colours scatter
+        (:func:`processing.materials.forward_fit.highlight_colour_scatter`, >= 1): the scale above is
+        divided by it, so colours that disagree beyond their noise weigh as little as they deserve.
 
     Returns
     -------
@@ -195,7 +199,7 @@ def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Se
     from processing.materials.forward_fit import RegionFit
 
     names = [f.name for f in fits]
-    f_ind = min(1.0, float(independent) / max(n_obs, 1))
+    f_ind = min(1.0, float(independent) / max(n_obs, 1)) / max(float(colour_scatter), 1.0)
     chi2 = _composition_chi2(names, fits, np.array([f.chi2 * f_ind for f in fits]), f_ind)
     d = decide(names, chi2, [max(f.dof * f_ind, 1.0) for f in fits],
                [f.n_params for f in fits], neutral=neutral, max_misfit=MAX_MISFIT_POOLED)
@@ -209,4 +213,5 @@ def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Se
     cands = tuple({"name": n, "chi2": float(f.chi2), "dof": int(f.dof), "posterior": float(q)}
                   for n, f, q in zip(names, fits, d.posterior))
     return RegionFit(material, float(d.confidence), tuple(d.group), spec_of(base, p), p, u,
-                     float(fits[d.best].chi2 / fits[d.best].dof), n_obs, n_lit, cands, "")
+                     float(fits[d.best].chi2 / fits[d.best].dof), n_obs, n_lit, cands, "",
+                     max(float(colour_scatter), 1.0))

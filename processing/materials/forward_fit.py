@@ -55,7 +55,7 @@ from processing.materials.presets import get_material
 from processing.spectral.spectra import SpectralGrid
 
 __all__ = ["SURFACE_CANDIDATES", "ALLOY", "ForwardModel", "RegionFit", "RegionSamples", "FitError",
-           "region_samples", "fit_region", "prepared_observations", "grouped_observations", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
+           "region_samples", "fit_region", "highlight_colour_scatter", "prepared_observations", "grouped_observations", "MIN_HIGHLIGHTS", "HIGHLIGHT_DEG", "INDEPENDENT"]
 
 #: The free Ag/Cu/Au alloy candidate.
 ALLOY = "alloy"
@@ -203,6 +203,9 @@ class RegionFit:
         Per candidate: name, chi2, dof, posterior.
     reason
         Why not measured and what to capture ("" otherwise).
+    colour_scatter
+        How many times their noise variance the highlight observations' colours scatter about their
+        median (:func:`highlight_colour_scatter`; 1 when within the noise).
     """
 
     material: str
@@ -216,6 +219,7 @@ class RegionFit:
     n_lit: int = 0
     candidates: tuple[dict, ...] = ()
     reason: str = ""
+    colour_scatter: float = 1.0
 
     def to_dict(self) -> dict:
         """A JSON-ready dict of every field (NaN as None, tuples as lists).
@@ -437,6 +441,64 @@ def grouped_observations(samples: RegionSamples, group: ArrayLike, model: Forwar
     return fitted, g_all[keep], y, w.scaled(np.sqrt(weights))
 
 
+def highlight_colour_scatter(samples: RegionSamples, model_error: float = 0.02) -> float:
+    """How many times their noise variance the colours of a region's highlight observations scatter.
+
+    With one lamp and one camera every highlight of a material is seen at about the same angle
+    between light and half vector, so its chromaticity ``(r, b) = (R, B) / (R + G + B)`` is the same
+    in every view up to noise.  The spread about the median, against the noise of each observation
+    (its sigma and ``model_error`` of the signal, propagated to first order), is a variance ratio
+    ``median(z^2) / 0.455`` (0.455 is the median of a chi-square with one degree of freedom) averaged
+    over ``r`` and ``b``.  Well above 1 it says the region's colours disagree among themselves: the
+    false colour a demosaic gives a highlight narrower than the colour filter's cell, or materials
+    mixed in the region.  Such errors do not average down over the observations (they repeat
+    along an edge), so :func:`fit_region` weighs the region's evidence by its inverse (the Birge
+    ratio: Birge, R. T. (1932). The calculation of errors by the method of least squares. Phys. Rev.
+    40(2), 207-227. doi:10.1103/PhysRev.40.207).
+
+    Parameters
+    ----------
+    samples
+        The region's observations.
+    model_error
+        Relative error of the signal beyond its noise.
+
+    Returns
+    -------
+    float
+        The ratio, at least 1; 1 with fewer than :data:`MIN_HIGHLIGHTS` highlight observations.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> n = 400
+    >>> sig = np.tile([0.5, 0.4, 0.3], (n, 1)) + rng.normal(0.0, 0.001, (n, 3))
+    >>> s = RegionSamples(sig, np.full((n, 3), 0.001), *np.ones((5, n)), np.zeros(n, np.int64),
+    ...                   np.zeros(n, np.int64), 0.0)
+    >>> highlight_colour_scatter(s, 0.0) < 1.5                 # within the noise
+    True
+    >>> fringed = s.subset(np.arange(n))
+    >>> fringed.signal[:, 0] *= 1.0 + rng.normal(0.0, 0.2, n)  # red +-20 %: a demosaic's false colour
+    >>> highlight_colour_scatter(fringed, 0.0) > 100
+    True
+    """
+    hl = samples.cos_h >= np.cos(np.radians(HIGHLIGHT_DEG))
+    x = np.maximum(samples.signal[hl], 0.0)
+    total = x.sum(axis=1)
+    ok = total > 0.0
+    if int(ok.sum()) < MIN_HIGHLIGHTS:
+        return 1.0
+    x, total = x[ok], total[ok]
+    var = np.maximum(samples.sigma[hl][ok], _SIGMA_FLOOR) ** 2 + (float(model_error) * x) ** 2
+    ratios = []
+    for c, (o1, o2) in ((0, (1, 2)), (2, (0, 1))):
+        share = x[:, c] / total
+        sd = np.sqrt((1 - share) ** 2 * var[:, c] + share ** 2 * (var[:, o1] + var[:, o2])) / total
+        z = (share - np.median(share)) / sd
+        ratios.append(float(np.median(z * z)) / 0.4549)
+    return max(1.0, float(np.mean(ratios)))
+
+
 def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Sequence[str] = SURFACE_CANDIDATES,
                model_error: float = 0.02, normal_error_deg: float = 0.5, independent: float = INDEPENDENT,
                max_samples: int = 20_000, seed: int = 0, robust: bool = True) -> RegionFit:
@@ -459,7 +521,8 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
     independent
         Observations counted as independent evidence (:data:`INDEPENDENT`): beyond it the errors of
         the normals, the colour calibration and the camera, which are shared across a region, stop
-        averaging down, so the chi-squares given to ``decide`` are scaled by ``independent / n``.
+        averaging down, so the chi-squares given to ``decide`` are scaled by ``independent / n``, and
+        further by the inverse of :func:`highlight_colour_scatter`.
     max_samples
         Largest number of observations fitted (all within 25 deg of the mirror direction are kept
         first, the rest sampled at random with ``seed``).
@@ -496,4 +559,5 @@ def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Seque
         fits = [fit_candidate(b, fitted, w(y), w) for b, _ in bases]
     from processing.materials._forward_fit_report import region_fit
 
-    return region_fit(fits, [b for b, _ in bases], [n for _, n in bases], len(fitted), n_hl, independent)
+    return region_fit(fits, [b for b, _ in bases], [n for _, n in bases], len(fitted), n_hl, independent,
+                      highlight_colour_scatter(fitted, model_error))
