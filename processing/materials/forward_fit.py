@@ -484,19 +484,16 @@ def highlight_colour_scatter(samples: RegionSamples, model_error: float = 0.02) 
     """
     hl = samples.cos_h >= np.cos(np.radians(HIGHLIGHT_DEG))
     x = np.maximum(samples.signal[hl], 0.0)
-    total = x.sum(axis=1)
-    ok = total > 0.0
+    ok = x.sum(axis=1) > 0.0
     if int(ok.sum()) < MIN_HIGHLIGHTS:
         return 1.0
-    x, total = x[ok], total[ok]
+    from processing.appearance._surface_features import chromaticity, chromaticity_sd
+
+    x = x[ok]
     var = np.maximum(samples.sigma[hl][ok], _SIGMA_FLOOR) ** 2 + (float(model_error) * x) ** 2
-    ratios = []
-    for c, (o1, o2) in ((0, (1, 2)), (2, (0, 1))):
-        share = x[:, c] / total
-        sd = np.sqrt((1 - share) ** 2 * var[:, c] + share ** 2 * (var[:, o1] + var[:, o2])) / total
-        z = (share - np.median(share)) / sd
-        ratios.append(float(np.median(z * z)) / 0.4549)
-    return max(1.0, float(np.mean(ratios)))
+    rb = chromaticity(x, 0.0)
+    z = (rb - np.median(rb, axis=0)) / chromaticity_sd(x, var)
+    return max(1.0, float(np.mean(np.median(z * z, axis=0))) / 0.4549)
 
 
 def fit_region(samples: RegionSamples, model: ForwardModel, *, candidates: Sequence[str] = SURFACE_CANDIDATES,
