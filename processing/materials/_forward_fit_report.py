@@ -199,7 +199,8 @@ def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Se
     from processing.materials.forward_fit import RegionFit
 
     names = [f.name for f in fits]
-    f_ind = min(1.0, float(independent) / max(n_obs, 1)) / max(float(colour_scatter), 1.0)
+    scatter = max(float(colour_scatter), 1.0)
+    f_ind = min(1.0, float(independent) / max(n_obs, 1)) / scatter
     chi2 = _composition_chi2(names, fits, np.array([f.chi2 * f_ind for f in fits]), f_ind)
     d = decide(names, chi2, [max(f.dof * f_ind, 1.0) for f in fits],
                [f.n_params for f in fits], neutral=neutral, max_misfit=MAX_MISFIT_POOLED)
@@ -213,5 +214,4 @@ def region_fit(fits: Sequence[CandidateFit], bases: Sequence[Basis], neutral: Se
     cands = tuple({"name": n, "chi2": float(f.chi2), "dof": int(f.dof), "posterior": float(q)}
                   for n, f, q in zip(names, fits, d.posterior))
     return RegionFit(material, float(d.confidence), tuple(d.group), spec_of(base, p), p, u,
-                     float(fits[d.best].chi2 / fits[d.best].dof), n_obs, n_lit, cands, "",
-                     max(float(colour_scatter), 1.0))
+                     float(fits[d.best].chi2 / fits[d.best].dof), n_obs, n_lit, cands, "", scatter)
