@@ -26,7 +26,10 @@ image a camera at the station sees:
   ``cos_d``, :func:`tabulated_brdf`), a shadow ray toward the light,
   and a dark grey backdrop.  Direct light only: mirror lobes reflect the
   light but not the surroundings (there is no environment in the booth),
-  and there are no inter-reflections.
+  and there are no inter-reflections.  One ray per pixel, then the lens and
+  optical low-pass filter's spread (``lens_sigma_px``,
+  :func:`mocks.camera_sim.lens_blur`) over the image, as a camera's optics do
+  before the colour filter array.
 
 The light is scaled so that a white diffuser facing it has luminance Y = 1
 (:func:`processing.spectral.display.xyz_scale`).
@@ -43,6 +46,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from mocks.camera_sim import LENS_SIGMA_PX, lens_blur
 from processing.common.rotation import rotation_z_deg
 from processing.errors import InputError
 from processing.spectral.spectra import SpectralGrid, light_spectrum, resample
@@ -218,6 +222,10 @@ class World:
         The station shows the colour chart in the first frame after each
         placement (a technician holding the chart up); False for a scan
         whose plan takes no chart (the reference sphere's).
+    lens_sigma_px
+        Point spread of the camera's lens and optical low-pass filter on
+        the object photos (Gaussian standard deviation, photosites;
+        :func:`mocks.camera_sim.lens_blur`); 0: a pinhole.
     """
 
     vertices: NDArray[np.float64]
@@ -244,6 +252,7 @@ class World:
     light_position_mm: tuple[float, float, float] | None = None
     lamp_radius_mm: float = 15.0
     chart_first: bool = True
+    lens_sigma_px: float = LENS_SIGMA_PX
 
     def __post_init__(self) -> None:
         self.vertices = np.asarray(self.vertices, dtype=np.float64)
@@ -283,6 +292,9 @@ class World:
         if not (isinstance(self.lamp_radius_mm, (int, float)) and math.isfinite(self.lamp_radius_mm)
                 and self.lamp_radius_mm > 0):
             raise WorldError(f"lamp_radius_mm must be > 0 mm, got {self.lamp_radius_mm!r}")
+        if not (isinstance(self.lens_sigma_px, (int, float)) and math.isfinite(self.lens_sigma_px)
+                and 0 <= self.lens_sigma_px <= 10):
+            raise WorldError(f"lens_sigma_px must be in [0, 10] photosites, got {self.lens_sigma_px!r}")
         _ = self.grid  # validates spectral_step
         from mocks.chart_scene import ChartPlacement, ChartSceneError
 
@@ -483,6 +495,7 @@ class World:
             "light_position_mm": None if self.light_position_mm is None else list(self.light_position_mm),
             "lamp_radius_mm": float(self.lamp_radius_mm),
             "chart_first": bool(self.chart_first),
+            "lens_sigma_px": float(self.lens_sigma_px),
         }
 
     def fixed_placement_pose(self, placement: int) -> NDArray[np.float64] | None:
@@ -715,7 +728,8 @@ class World:
                 mat = get_material(self.materials[name])
                 f = tabulated_brdf(mat, ci[sel], co[sel], ch[sel], cd[sel], grid.wavelengths)
                 radiance[idx[sel]] = f * (ci[sel] * irradiance[sel])[:, None] * e
-        return Frame(radiance.reshape(h, w, grid.size), grid, e, labels.reshape(h, w), "object", angle)
+        image = lens_blur(radiance.reshape(h, w, grid.size), self.lens_sigma_px)
+        return Frame(image, grid, e, labels.reshape(h, w), "object", angle)
 
 
 #: Spacing (in cos_d) of the nodes on which :func:`tabulated_brdf` evaluates a lobe's spectral factor.
@@ -796,7 +810,7 @@ def world_settings(data: dict[str, Any]) -> dict[str, Any]:
     allowed = {"pose", "light", "light_direction", "chart", "chart_present", "chart_layout", "chart_placement",
                "width", "height",
                "camera_distance_mm", "camera_elevation_deg", "fov_deg", "spectral_step", "table_angle_deg",
-               "camera_target_mm", "light_position_mm", "lamp_radius_mm", "chart_first"}
+               "camera_target_mm", "light_position_mm", "lamp_radius_mm", "chart_first", "lens_sigma_px"}
     unknown = set(data) - allowed
     if unknown:
         raise WorldError(f"unknown world setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(allowed))}")

@@ -30,7 +30,8 @@ candidates do not follow; without it thousands of pooled pixels would make
 every answer look certain.
 
 The radiance is blurred by a Gaussian of one sensor pixel before the mosaic
-(a lens and its anti-aliasing filter); region labels leave out the ring of
+(a lens and its anti-aliasing filter, :func:`mocks.camera_sim.lens_blur`: the
+world's object photos carry it, the chart is blurred here); region labels leave out the ring of
 pixels the blur mixes with the neighbouring region.
 
 Writes into ``out_dir``: ``chart.dng``, ``object_<angle>.dng`` and
@@ -56,17 +57,6 @@ __all__ = ["colour_demo", "LIGHT_DIRECTION", "model_spectrum"]
 #: Toward the light, table frame: about 15 deg from the camera (which looks from -y, 15 deg up).
 LIGHT_DIRECTION = (0.2, -0.93, 0.45)
 _CHART_EXPOSURE_S = 0.01        # the simulated camera's white diffuser at about 70 % of full scale
-_BLUR_SIGMA = 1.0               # sensor pixels: a lens and an optical low-pass filter
-
-
-def _lens_blur(radiance: NDArray[np.float64], sigma: float = _BLUR_SIGMA) -> NDArray[np.float64]:
-    """The lens and anti-aliasing filter: a Gaussian of ``sigma`` sensor pixels over the image plane.
-
-    Without it a mirror-sharp highlight one photosite wide lights a single colour of its CFA cell.
-    """
-    from scipy.ndimage import gaussian_filter
-
-    return gaussian_filter(radiance, sigma=(sigma, sigma, 0.0), mode="nearest")
 
 
 def _binned_labels(labels: NDArray[np.integer]) -> NDArray[np.int64]:
@@ -206,10 +196,10 @@ def _shoot_and_estimate(world: Any, out: Path, angles: tuple[float, ...], method
     """The chart and object frames as DNGs (and label PNGs), each view estimated through the chart measured once."""
     from app.workflows.chart import measure_chart
     from app.workflows.spectral import estimate_spectral
-    from mocks.camera_sim import simulate_raw, write_raw
+    from mocks.camera_sim import lens_blur, simulate_raw, write_raw
 
     chart = world.frame("chart")
-    chart_raw = simulate_raw(_lens_blur(chart.radiance), chart.grid, chart.light, seed=seed,
+    chart_raw = simulate_raw(lens_blur(chart.radiance), chart.grid, chart.light, seed=seed,
                              exposure_s=_CHART_EXPOSURE_S)
     chart_path = write_raw(out / "chart.dng", chart_raw)
     chart_measured = measure_chart(chart_path)
@@ -217,7 +207,7 @@ def _shoot_and_estimate(world: Any, out: Path, angles: tuple[float, ...], method
     for k, angle in enumerate(angles):
         frame = world.frame("object", angle)
         name = f"object_{angle:+04.0f}"
-        raw = simulate_raw(_lens_blur(frame.radiance), frame.grid, frame.light, seed=seed + 1 + k,
+        raw = simulate_raw(frame.radiance, frame.grid, frame.light, seed=seed + 1 + k,
                            exposure_s=_CHART_EXPOSURE_S * object_exposure)
         dng = write_raw(out / f"{name}.dng", raw)
         labels = _binned_labels(frame.labels)
