@@ -16,7 +16,12 @@ point lamp at distance ``d`` (1 for a distant lamp) and ``k`` the lamp's
 intensity scale.  Direct light only, with shadow rays (the booth is dark: no
 environment, no inter-reflections).  One ray per pixel centre (the photo's
 pixels are point samples of the same model); hits are found with Open3D's
-``RaycastingScene``.
+``RaycastingScene``.  A camera's lens and optical low-pass filter spread each
+point over about a photosite before the colour filter array: with
+``spread_px`` the rendered signal is blurred by that Gaussian point spread
+within the object (a normalised convolution over the measured pixels: the
+backdrop a photo mixes into its outline's outer pixels is not rendered, so
+compare those eroded by ``4 * spread_px + 1`` pixels, the kernel's reach).
 
 References
 ----------
@@ -42,7 +47,7 @@ from processing.spectral.spectra import SpectralGrid, light_spectrum
 from render.calibrated_camera import CalibratedCamera
 from render.errors import RenderInputError
 
-__all__ = ["render_signal", "pixel_faces", "SIGNAL_GRID"]
+__all__ = ["render_signal", "spread_within", "pixel_faces", "SIGNAL_GRID"]
 
 #: Wavelength grid of :func:`render_signal` unless one is given: 400-700 nm every 10 nm.
 SIGNAL_GRID = SpectralGrid(400.0, 700.0, 10.0)
@@ -144,7 +149,8 @@ def _reference_distance(frame_pose: Any, vertices: NDArray[np.float64], irradian
 def render_signal(vertices: ArrayLike, triangles: ArrayLike, normals: ArrayLike | None, face_material: ArrayLike,
                   specs: Sequence[str | None], frame_pose: Any, light_spectrum: Any, *, sensitivities: Any = None,
                   scale: float = 1.0, irradiance_ref_mm: float | None = None,
-                  grid: SpectralGrid = SIGNAL_GRID) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+                  grid: SpectralGrid = SIGNAL_GRID, spread_px: float = 0.0
+                  ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
     """Render a posed frame as chart-normalised camera RGB (the observations' signal).
 
     Parameters
@@ -172,6 +178,9 @@ def render_signal(vertices: ArrayLike, triangles: ArrayLike, normals: ArrayLike 
         None: the first point lamp's distance to the mesh's bounding-box centre.
     grid
         Wavelength grid of the spectral sums.
+    spread_px
+        The camera's point spread (Gaussian standard deviation, pixels) to
+        blur the rendering with, within the measured pixels; 0: a pinhole.
 
     Returns
     -------
@@ -197,6 +206,9 @@ def render_signal(vertices: ArrayLike, triangles: ArrayLike, normals: ArrayLike 
         raise RenderInputError(f"render_signal scale: give a lamp scale > 0, got {scale!r}")
     if not frame_pose.lamps:
         raise RenderInputError(f"render_signal: frame {frame_pose.name!r} has no lamp; pose it with its lamps")
+    if not (math.isfinite(float(spread_px)) and 0 <= float(spread_px) <= 10):
+        raise RenderInputError(f"render_signal spread_px: give the camera's point spread in [0, 10] px, "
+                               f"got {spread_px!r}")
     camera = CalibratedCamera.from_frame(frame_pose)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(t.astype(np.uint32)))
@@ -217,7 +229,38 @@ def render_signal(vertices: ArrayLike, triangles: ArrayLike, normals: ArrayLike 
     signal[hits["idx"]] = rgb
     mask = np.zeros(h * w, dtype=bool)
     mask[hits["idx"]] = measured
-    return signal.reshape(h, w, 3), mask.reshape(h, w)
+    signal, mask = signal.reshape(h, w, 3), mask.reshape(h, w)
+    if spread_px > 0:
+        signal[mask] = spread_within(signal, mask, float(spread_px))[mask]
+    return signal, mask
+
+
+def spread_within(image: ArrayLike, mask: ArrayLike, sigma_px: float) -> NDArray[np.float32]:
+    """A Gaussian point spread of ``sigma_px`` pixels over the ``mask`` pixels of ``image`` only.
+
+    Normalised convolution: ``G * (image mask) / G * mask``, so pixels outside
+    the mask (the backdrop, unmeasured faces) neither enter nor dim it.
+
+    Examples
+    --------
+    >>> img = np.zeros((15, 15, 3)); img[7, 7] = 1.0
+    >>> out = spread_within(img, np.ones((15, 15), bool), 1.0)
+    >>> round(float(out[..., 0].sum()), 4), round(float(out[7, 7, 0]), 3)
+    (1.0, 0.159)
+    >>> half = np.ones((15, 15, 3)); left = np.zeros((15, 15), bool); left[:, :8] = True
+    >>> float(spread_within(half, left, 1.0)[7, 7, 0])     # the unmasked half does not dim the edge
+    1.0
+    """
+    from scipy.ndimage import gaussian_filter
+
+    img = np.asarray(image, dtype=np.float64)
+    m = np.asarray(mask, dtype=bool)
+    vals = np.where(m[..., None], np.nan_to_num(img), 0.0)
+    sig = (sigma_px, sigma_px, 0.0)
+    num = gaussian_filter(vals, sigma=sig, mode="constant")
+    den = gaussian_filter(m.astype(np.float64), sigma=(sigma_px, sigma_px), mode="constant")
+    out = np.where(m[..., None], num / np.maximum(den, 1e-12)[..., None], img)
+    return out.astype(np.float32)
 
 
 def _add_lamp(rgb: NDArray[np.float64], region: NDArray[np.int64], specs: Sequence[str | None],
