@@ -19,7 +19,8 @@ pixels are point samples of the same model); hits are found with Open3D's
 ``RaycastingScene``.  A camera's lens and optical low-pass filter spread each
 point over about a photosite before the colour filter array: with
 ``spread_px`` the rendered signal is blurred by that Gaussian point spread
-within the object (a normalised convolution over the measured pixels: the
+within the object (a normalised convolution over the measured pixels,
+:func:`processing.camera.point_spread.spread_within`: the
 backdrop a photo mixes into its outline's outer pixels is not rendered, so
 compare those eroded by ``4 * spread_px + 1`` pixels, the kernel's reach).
 
@@ -40,6 +41,7 @@ import numpy as np
 import open3d as o3d
 from numpy.typing import ArrayLike, NDArray
 
+from processing.camera.point_spread import spread_within
 from processing.camera.response import camera_sensitivities
 from processing.materials.lobes import material_brdf
 from processing.materials.presets import get_material
@@ -47,7 +49,7 @@ from processing.spectral.spectra import SpectralGrid, light_spectrum
 from render.calibrated_camera import CalibratedCamera
 from render.errors import RenderInputError
 
-__all__ = ["render_signal", "spread_within", "pixel_faces", "SIGNAL_GRID"]
+__all__ = ["render_signal", "pixel_faces", "SIGNAL_GRID"]
 
 #: Wavelength grid of :func:`render_signal` unless one is given: 400-700 nm every 10 nm.
 SIGNAL_GRID = SpectralGrid(400.0, 700.0, 10.0)
@@ -233,34 +235,6 @@ def render_signal(vertices: ArrayLike, triangles: ArrayLike, normals: ArrayLike 
     if spread_px > 0:
         signal[mask] = spread_within(signal, mask, float(spread_px))[mask]
     return signal, mask
-
-
-def spread_within(image: ArrayLike, mask: ArrayLike, sigma_px: float) -> NDArray[np.float32]:
-    """A Gaussian point spread of ``sigma_px`` pixels over the ``mask`` pixels of ``image`` only.
-
-    Normalised convolution: ``G * (image mask) / G * mask``, so pixels outside
-    the mask (the backdrop, unmeasured faces) neither enter nor dim it.
-
-    Examples
-    --------
-    >>> img = np.zeros((15, 15, 3)); img[7, 7] = 1.0
-    >>> out = spread_within(img, np.ones((15, 15), bool), 1.0)
-    >>> round(float(out[..., 0].sum()), 4), round(float(out[7, 7, 0]), 3)
-    (1.0, 0.159)
-    >>> half = np.ones((15, 15, 3)); left = np.zeros((15, 15), bool); left[:, :8] = True
-    >>> float(spread_within(half, left, 1.0)[7, 7, 0])     # the unmasked half does not dim the edge
-    1.0
-    """
-    from scipy.ndimage import gaussian_filter
-
-    img = np.asarray(image, dtype=np.float64)
-    m = np.asarray(mask, dtype=bool)
-    vals = np.where(m[..., None], np.nan_to_num(img), 0.0)
-    sig = (sigma_px, sigma_px, 0.0)
-    num = gaussian_filter(vals, sigma=sig, mode="constant")
-    den = gaussian_filter(m.astype(np.float64), sigma=(sigma_px, sigma_px), mode="constant")
-    out = np.where(m[..., None], num / np.maximum(den, 1e-12)[..., None], img)
-    return out.astype(np.float32)
 
 
 def _add_lamp(rgb: NDArray[np.float64], region: NDArray[np.int64], specs: Sequence[str | None],

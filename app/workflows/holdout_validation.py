@@ -190,7 +190,7 @@ def _compare_frame(frame: Any, photo: NDArray[Any], mesh: tuple, specs: Sequence
                    ) -> tuple[dict[str, Any], ImageComparison | None, ImageComparison | None]:
     vertices, triangles, normals, face_material = mesh
     kw = dict(sensitivities=spectra["sensitivities"], scale=options["scale"], grid=spectra["grid"],
-              irradiance_ref_mm=options["irradiance_ref_mm"])
+              irradiance_ref_mm=options["irradiance_ref_mm"], spread_px=options["spread_px"])
     t0 = time.perf_counter()
     measured, mask = render_signal(vertices, triangles, normals, face_material, specs, frame, spectra["light"], **kw)
     base, _ = render_signal(vertices, triangles, normals, np.zeros(len(triangles), np.int64), [baseline_spec], frame,
@@ -254,7 +254,7 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
                     irradiance_ref_mm: float | None = None, grid: Any = SIGNAL_GRID, edge_margin_px: int = 2,
                     clip_level: float | ArrayLike | None = None, images: bool = True,
                     noise: ArrayLike | None = None, cfa: str | None = None, frames_averaged: int = 1,
-                    pool_px: int = 1) -> dict[str, Any]:
+                    pool_px: int = 1, spread_px: float = 0.0) -> dict[str, Any]:
     """Render held-out frames with the measured materials and with one baseline material; CIEDE2000 to the photos.
 
     Parameters
@@ -271,7 +271,9 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
     light_spectrum, sensitivities, scale, irradiance_ref_mm, grid
         The lamp, the camera and the chart-calibrated exposure (as ``render_signal``).
     edge_margin_px
-        Mask erosion before comparing.
+        Mask erosion before comparing; with a ``spread_px`` it is at least
+        ``ceil(3 * spread_px)`` (the photo mixes the backdrop into its outline's outer pixels, the
+        rendering does not draw the backdrop).
     clip_level
         Photo signal at which the sensor saturates (scalar or per channel);
         pixels at or above it are left out.  None: keep all.
@@ -289,6 +291,10 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
     frames_averaged
         Each photo is the linear mean of this many frames with independent noise (a burst shot at
         the held-out angle): the noise floor's variance is divided by it.
+    spread_px
+        The camera's point spread (Gaussian standard deviation, pixels; :func:`fit_point_spread`): the
+        renderings are blurred by it within the object as the photos were by the lens
+        (:func:`render.photo_signal.render_signal`); 0: a pinhole.
     pool_px
         > 1: also compare at that spatial scale, both images' linear values averaged over
         ``pool_px x pool_px`` blocks wholly inside the compared pixels before the colour conversion
@@ -318,7 +324,11 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
             if sensitivities is None or isinstance(sensitivities, str) else np.asarray(sensitivities, np.float64)
         matrix = camera_to_xyz_matrix(sens, light, grid)
         spectra = {"light": light, "sensitivities": sens, "grid": grid}
-        options = {"scale": scale, "irradiance_ref_mm": irradiance_ref_mm, "edge_margin_px": edge_margin_px,
+        if not (np.isfinite(spread_px) and 0 <= spread_px <= 10):
+            raise UsageError(f"validate_frames spread_px: give the camera's point spread in [0, 10] px, got {spread_px!r}")
+        margin = max(int(edge_margin_px), int(np.ceil(3 * spread_px)))
+        options = {"scale": scale, "irradiance_ref_mm": irradiance_ref_mm, "edge_margin_px": margin,
+                   "spread_px": float(spread_px),
                    "clip_level": clip_level, "images": images, "noise": None, "cfa": cfa,
                    "frames_averaged": frames_averaged, "pool_px": _whole(pool_px, "pool_px")}
         _whole(frames_averaged, "frames_averaged")
@@ -353,6 +363,7 @@ def validate_frames(frames: Sequence[Any], photos: Sequence[ArrayLike], vertices
                              "baseline": _pooled([p["_maps"][1] for p in pooled]),
                              **({"noise_floor": _pooled([p["_floor_map"] for p in pooled])} if floors else {})}
     return {"frames": out, "overall": overall, "frames_averaged": frames_averaged, "noise_cfa": cfa,
+            "spread_px": float(spread_px), "edge_margin_px": margin,
             "baseline_spec": baseline_spec, "camera_to_xyz": matrix.tolist()}
 
 

@@ -53,6 +53,8 @@ FIT_MODEL_ERROR = 0.02
 #: A region's own material competes with the largest region's for its pieces only when it was named with at
 #: least this confidence (docs/materials.md, "Pieces that join the largest region").
 _RIVAL_CONFIDENCE = 0.5
+#: The camera's point spread is measured on this many fitted frames (evenly spread over the table's turn).
+SPREAD_FRAMES = 3
 #: Spectral grid of the fit (nm).
 _GRID = (400.0, 700.0, 10.0)
 
@@ -576,14 +578,52 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
                              _clip_level(photos))
         note(f"held-out photos: each the linear mean of a burst of {n_avg} frames")
     grid = SpectralGrid(*_GRID)
+    spread = _point_spread(root, session.manifest, data, doc, held, decode, grid, note)
     note(f"validating on {len(frames)} held-out frames ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''})")
     result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
                              light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), 1.0,
                              irradiance_ref_mm=doc["irradiance_reference_mm"], grid=grid,
                              clip_level=_clip_level(photos), noise=noise_model(records, photos.gains),
                              cfa=_cfa(root, records[0], decode) if records else None, pool_px=POOL_PX,
-                             frames_averaged=n_avg)
+                             frames_averaged=n_avg, spread_px=0.0 if spread is None else spread.sigma_px)
+    result["point_spread"] = None if spread is None else spread.to_dict()
     return _write_validation(session, result)
+
+
+def _point_spread(root: Path, manifest: dict[str, Any], data: dict[str, Any], doc: dict[str, Any], held: np.ndarray,
+                  decode: str, grid: Any, note: Callable[[str], None]) -> Any:
+    """The camera's point spread measured on up to ``SPREAD_FRAMES`` fitted (not held-out) frames, or None.
+
+    Each is rendered with the measured materials through a pinhole and the Gaussian spread that
+    brings the renderings closest to their photos is kept
+    (:func:`processing.camera.point_spread.fit_point_spread`); the held-out renderings then carry it.
+    """
+    from app.workflows.posed_frames import calibrated_images
+    from processing.camera.point_spread import PointSpreadError, fit_point_spread
+    from processing.camera.response import camera_sensitivities
+    from processing.spectral.spectra import light_spectrum
+    from render.photo_signal import render_signal
+
+    fitted = np.flatnonzero(~np.asarray(held, dtype=bool))
+    if fitted.size == 0:
+        return None
+    pick = fitted[np.linspace(0, fitted.size - 1, min(SPREAD_FRAMES, fitted.size)).round().astype(int)]
+    records = [(data["obs"].frame_names[i], data["records"][i]) for i in pick]
+    photos = calibrated_images(root, manifest, records, decode, note)
+    v, t, n = data["mesh"]
+    kw = dict(sensitivities=camera_sensitivities(grid), scale=1.0, grid=grid,
+              irradiance_ref_mm=doc["irradiance_reference_mm"])
+    light = light_spectrum(doc["light_spectrum"], grid)
+    renders = [render_signal(v, t, n, doc["_face_region"], _specs(doc), data["frames"][i], light, **kw) for i in pick]
+    try:
+        fit = fit_point_spread([photos[k] for k in range(len(pick))], [r for r, _ in renders],
+                               [m for _, m in renders], clip_level=_clip_level(photos))
+    except PointSpreadError as exc:
+        note(f"camera point spread not measured ({exc}); the held-out renderings are compared as a pinhole's")
+        return None
+    note(f"camera point spread: {fit.sigma_px:.2f} px (Gaussian sd) from {len(pick)} fitted frames; rms "
+         f"{fit.rms_at_sigma:.4f} against {fit.rms_pinhole:.4f} through a pinhole")
+    return fit
 
 
 def burst_records(manifest: dict[str, Any], records: list[tuple[str, dict[str, Any]]]
@@ -667,6 +707,7 @@ def _write_validation(session: Any, result: dict[str, Any]) -> dict[str, Any]:
            "noise_floor_mean_de2000": floor.get("mean_de2000"), "noise_floor_p95_de2000": floor.get("p95_de2000"),
            "n_skipped": overall["n_skipped"], "regions": overall["regions"], "baseline_spec": result["baseline_spec"],
            "camera_to_xyz": result["camera_to_xyz"], "frames_averaged": int(result.get("frames_averaged", 1)),
+           "point_spread": result.get("point_spread"), "edge_margin_px": result.get("edge_margin_px"),
            "frames": []}
     if "pooled" in overall:
         pooled = overall["pooled"]

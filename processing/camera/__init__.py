@@ -20,6 +20,8 @@ from_chart
     Smooth non-negative sensitivities estimated from a chart of known reflectances.
 charuco
     ChArUco board definitions and their checked, sub-pixel detection in a linear frame.
+point_spread
+    The lens and low-pass filter's point spread, by matching posed renderings to their photos.
 
 The function ``chart_layout`` shares its module's name, so this front door
 does not export it (the package attribute stays the module); use
@@ -71,6 +73,7 @@ from processing.camera.chart_sampling import (
     sample_patches,
 )
 from processing.camera.from_chart import SensitivityFit, estimate_sensitivities
+from processing.camera.point_spread import PointSpreadError, PointSpreadFit, fit_point_spread, spread_within
 from processing.camera.raw_decode import (
     DECODE_MODES,
     RawDecodeError,
@@ -105,6 +108,11 @@ __all__ = [
     "CfaFringeError",
     "cfa_fringe",
     "transformed_fringe",
+    # point_spread
+    "PointSpreadError",
+    "PointSpreadFit",
+    "fit_point_spread",
+    "spread_within",
     # chart_layout
     "CHARTS",
     "ChartLayout",
