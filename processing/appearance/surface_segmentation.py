@@ -42,8 +42,14 @@ on its linear scale keeps metals and black lacquers apart), gives every other ve
 geodesically nearest such vertex that its own features allow, relaxes a Potts
 model on the mesh's edge graph by iterated conditional modes (Besag 1986), and
 merges regions smaller than ``min_region_share`` of the measured area into the
-neighbour they share most edges with.  Vertices without a lit observation are
--1 ("not measured").
+neighbour they share most edges with.  A camera's lens spreads each point over
+about a photosite, so along the edge between two materials every view sees a
+mix of both: where such a band comes out as a region of its own -- every
+vertex within ``BAND_PX`` photo pixels (on the surface, from the frames'
+cameras) of both of the two regions it borders, its mean features between
+theirs -- it is their shared edge, not a material, and each of its vertices
+joins the geodesically nearer of the two (with ``frames`` only).  Vertices
+without a lit observation are -1 ("not measured").
 
 References
 ----------
@@ -285,6 +291,11 @@ _MIN_SEEDS = 8           # confident vertices a region needs: fewer are a few of
 _DROPPED = 1e6           # data cost of a forbidden label
 _KMEANS_STARTS = 6       # k-means++ starts per k (besides the greedy one): EM's local optima vary with the start
 _FIT_SAMPLE = 10_000     # vertices the mixture is fitted on (a seeded random subset)
+#: Width (photo pixels, on the surface) within which a region touching two others counts as their mixed edge: a
+#: point spread of up to 1.5 px mixes the two materials over about +-3 px of their boundary.
+BAND_PX = 6.0
+_BAND_SHARE = 0.95       # share of a band's vertices that must lie that close to both of its neighbours
+_BAND_OFF_LINE = 0.5     # a band's mean features lie within this share of its neighbours' distance of the line
 
 
 def _component_loglik(x: NDArray[np.float64], mask: NDArray[np.bool_], extra: NDArray[np.float64],
@@ -514,6 +525,65 @@ def _merge_small(labels: NDArray[np.intp], area: NDArray[np.float64], adj, share
         labels[members] = int(np.argmax(votes))
 
 
+def _footprint_mm(obs, frames: Sequence) -> NDArray[np.float64]:
+    """``(V,)`` median size (mm) of a photo pixel on the surface at each vertex over its views (NaN: none)."""
+    focal = np.array([0.5 * (float(f.K[0][0]) + float(f.K[1][1])) for f in frames])
+    size = np.asarray(obs.distance_mm, dtype=np.float64) / focal[np.asarray(obs.frame)]
+    out = np.full(obs.n_vertices, np.nan)
+    counts = np.diff(obs.offsets)
+    has = np.flatnonzero(counts > 0)
+    key = np.lexsort((size, np.asarray(obs.vertex)))       # rows grouped by vertex, each group by size
+    out[has] = size[key][obs.offsets[has] + (counts[has] - 1) // 2]
+    return out
+
+
+def _dissolve_bands(labels: NDArray[np.intp], x: NDArray[np.float64], area: NDArray[np.float64], adj, lengths,
+                    width_mm: NDArray[np.float64], k: int) -> NDArray[np.intp]:
+    """Regions that are the lens-mixed edge between two others, handed to the geodesically nearer of the two."""
+    from scipy.sparse.csgraph import dijkstra
+
+    labels = labels.copy()
+    reach = float(np.nanmax(width_mm)) if np.isfinite(width_mm).any() else 0.0
+    if reach <= 0:
+        return labels
+    for c in np.argsort(np.bincount(labels, weights=area, minlength=k)):
+        members = np.flatnonzero(labels == c)
+        if members.size == 0 or np.count_nonzero(np.bincount(labels, minlength=k)) < 3:
+            continue
+        votes = _neighbour_votes(adj, labels, k)[members].sum(axis=0)
+        votes[c] = 0.0
+        a, b = np.argsort(-votes)[:2]
+        if votes[b] <= 0 or not _between(x, labels, c, a, b):
+            continue
+        near = np.stack([dijkstra(lengths, indices=np.flatnonzero(labels == r), min_only=True, limit=reach)[members]
+                         for r in (a, b)], axis=1)
+        close = np.all(near <= width_mm[members, None], axis=1)
+        if close.mean() >= _BAND_SHARE:
+            labels[members] = np.where(near[:, 0] <= near[:, 1], a, b)
+    return labels
+
+
+def _between(x: NDArray[np.float64], labels: NDArray[np.intp], c: int, a: int, b: int) -> bool:
+    """Region ``c``'s mean features lie between ``a``'s and ``b``'s (a mix of the two), on their common features."""
+    mean = []
+    for r in (c, a, b):
+        rows = x[labels == r]
+        seen = np.isfinite(rows)
+        n = seen.sum(axis=0)
+        mean.append(np.where(n > 0, np.where(seen, rows, 0.0).sum(axis=0) / np.maximum(n, 1), np.nan))
+    ok = np.all(np.isfinite(mean), axis=0)
+    if not ok.any():
+        return False
+    mc, ma, mb = (m[ok] for m in mean)
+    d = mb - ma
+    span = float(d @ d)
+    if span == 0:
+        return False
+    alpha = float((mc - ma) @ d) / span
+    off = float(np.linalg.norm(mc - (ma + alpha * d)))
+    return 0.0 < alpha < 1.0 and off <= _BAND_OFF_LINE * np.sqrt(span)
+
+
 def _face_labels(vertex_region: NDArray[np.int32], triangles: NDArray[np.int64]) -> NDArray[np.int32]:
     """Majority label of each face's measured corners (the first measured corner breaks a three-way tie)."""
     c = vertex_region[triangles]
@@ -590,6 +660,10 @@ def segment_surface(obs, vertices: ArrayLike, triangles: ArrayLike, *, max_regio
     area = sf.vertex_areas(v, t)[meas]
     k = cost.shape[1]
     labels = _merge_small(labels, area, adj, float(min_region_share), k)
+    if frames is not None:
+        width_mm = BAND_PX * _footprint_mm(obs, frames)[meas]
+        labels = _dissolve_bands(labels, feats.values[meas][:, _CLUSTER_FEATURES] / _SCALES, area, adj, lengths,
+                                 width_mm, k)
     sizes = np.bincount(labels, weights=area, minlength=k)
     used = np.flatnonzero(sizes > 0)
     rank = np.full(k, -1)

@@ -150,6 +150,41 @@ def test_two_material_sphere_boundary_within_tolerance():
     assert not wrong.any() or distance_mm[wrong].max() <= 3.0
 
 
+def test_the_lens_mixed_edge_between_two_materials_is_not_a_third(monkeypatch):
+    """The simulated camera's lens mixes gold and red lacquer along their edge: that band clusters apart, and is
+    handed back to its two neighbours only because it is narrower than ``BAND_PX`` photo pixels."""
+    from processing.appearance import surface_segmentation as seg_mod
+
+    sim = simulated_observations(_sphere_world(width=240, height=160, light_position_mm=(-60.0, -260.0, 120.0)),
+                                 np.arange(0.0, 360.0, 30.0))
+    monkeypatch.setattr(seg_mod, "BAND_PX", 0.0)
+    kept = segment_surface(sim.observations, sim.vertices, sim.triangles, frames=sim.frames)
+    monkeypatch.undo()
+    joined = segment_surface(sim.observations, sim.vertices, sim.triangles, frames=sim.frames)
+    assert kept.n_regions == 3 and joined.n_regions == 2
+    band = kept.vertex_region == 2
+    assert np.abs(sim.vertices[band, 0]).max() <= 3.0          # the third region hugs the boundary plane x = 0
+
+
+def test_a_stripe_wider_than_the_lens_band_stays_a_region():
+    """An 8 mm copper stripe (about 18 photo pixels wide) between red lacquer and gold is a material, not an edge."""
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh.create_sphere(radius=25.0, resolution=40)
+    v = np.asarray(m.vertices) + [0.0, 0.0, 37.0]
+    t = np.asarray(m.triangles).astype(np.int64)
+    cx = v[t].mean(axis=1)[:, 0]
+    region = np.where(cx < -4.0, 0, np.where(cx < 4.0, 1, 2))
+    world = World(v, t, region, ("lacquer", "stripe", "gold"),
+                  {"lacquer": "urushi-red", "stripe": "copper", "gold": "gold"}, width=240, height=160,
+                  light_position_mm=(-60.0, -260.0, 120.0))
+    sim = simulated_observations(world, np.arange(0.0, 360.0, 30.0))
+    seg = segment_surface(sim.observations, sim.vertices, sim.triangles, frames=sim.frames)
+    assert seg.n_regions == 3
+    stripe = [r for r in range(3) if np.mean(sim.vertex_region[seg.vertex_region == r] == 1) >= 0.9]
+    assert len(stripe) == 1                                     # measured: 177 vertices, all copper
+
+
 def test_bad_input_raises_one_line_errors(hawk):
     sim, obs, _ = hawk
     with pytest.raises(SegmentationError, match="vertices") as err:
