@@ -27,7 +27,12 @@ from processing.geometry.registration.clouds import SAME_FACE_DEG, query_workers
 from processing.geometry.registration.transforms import _rodrigues, transform_points
 
 __all__ = ["ColourClasses", "ColourTurn", "PointColours", "colour_classes", "colour_points", "label_evidence",
-           "otsu_threshold", "revolution_axis", "turn_by_colour"]
+           "otsu_threshold", "revolution_axis", "turn_by_colour", "MIXED_SHARE"]
+
+#: Points whose chromaticity lies farther than this share of the way from both classes' means are left
+#: unlabelled: the camera's lens mixes the two pigments along a motif's edge, and because chromaticity weighs
+#: the brighter pigment more, the mix's midpoint moves off the edge by an amount that grows with the spread.
+MIXED_SHARE = 0.35
 
 
 @dataclass(frozen=True)
@@ -198,7 +203,7 @@ def colour_classes(
     source_mm: ArrayLike, source: PointColours, target_mm: ArrayLike, target: PointColours, *,
     source_normals: ArrayLike | None = None, target_normals: ArrayLike | None = None,
     highlight_deg: float = 30.0, min_cos: float = 0.2, min_eta: float = 0.8, min_gap: float = 0.05,
-    min_minority: float = 0.002,
+    min_minority: float = 0.002, mixed_share: float = MIXED_SHARE,
 ) -> ColourClasses:
     """Body and decoration of two clouds by their chromaticity, with Otsu's threshold on both together.
 
@@ -223,6 +228,10 @@ def colour_classes(
         times the spread an 8-bit colour or a shading error gives a mid-grey).
     min_minority
         Smallest fraction of the smaller class in each cloud.
+    mixed_share
+        Points whose projected chromaticity lies more than this share of the way from both classes'
+        means toward the other (0.35: the middle 30 % of the interval) are left unlabelled (-1): a
+        lens-mixed edge of the motif, whose chromaticity midpoint sits off the true edge.
 
     Returns
     -------
@@ -276,8 +285,13 @@ def colour_classes(
     thr, eta = otsu_threshold(proj)
     hi = proj > thr
     gap = float(np.linalg.norm(both[hi].mean(axis=0) - both[~hi].mean(axis=0))) if 0 < hi.sum() < len(hi) else 0.0
-    ls[oks] = hi[: oks.sum()]
-    lt[okt] = hi[oks.sum():]
+    label = hi.astype(np.int8)
+    if 0 < hi.sum() < len(hi):                       # a mixed edge: neither pigment's chromaticity, left out
+        lo_mean, hi_mean = float(proj[~hi].mean()), float(proj[hi].mean())
+        span = hi_mean - lo_mean
+        label[(proj > lo_mean + mixed_share * span) & (proj < hi_mean - mixed_share * span)] = -1
+    ls[oks] = label[: oks.sum()]
+    lt[okt] = label[oks.sum():]
     minor = 1 if hi.mean() < 0.5 else 0
     frac = min(float(np.mean(ls[oks] == minor)), float(np.mean(lt[okt] == minor)))
     if not (eta >= min_eta):
