@@ -12,9 +12,14 @@ pooled side by side, split into regions without ground truth
 by its level and colour measured on the frame's border, lit pixels clustered
 by chromaticity), each cluster identified (:func:`app.workflows.identification.
 identify_result`: eq. (11), (3)-(4)), and clusters whose identified material
-agrees merged and identified again as one region.
+agrees merged and identified again as one region.  The camera's lens mixes
+neighbouring colours over about a pixel: a cluster that is only the mixed
+edge between two others (no pixel with all of its neighbours in it) is given
+back to them, and each cluster is identified from its interior pixels (its
+edge pixels hold its neighbours' light too); the map and the pixel counts
+keep every pixel (``pixels_identified`` says how many were used).
 
-Products: ``products/materials.json`` (per region: pixel count, frames,
+Products: ``products/materials.json`` (per region: pixel count, pixels identified, frames,
 material, confidence, runner-up, chi-square, alloy weights with their
 standard deviations, mean reflectance with its uncertainty) and a material
 map PNG per object frame (``products/materials/pNN-frame_KK.png``, each
@@ -169,7 +174,8 @@ def _identify_merged(result: Any, labels: NDArray[np.int64]) -> tuple[NDArray[np
     from app.workflows.identification import identify_result
     from processing.materials.identification import NO_FIT
 
-    reports = identify_result(result, labels, light_deg=LIGHT_DEG, model_error=MODEL_ERROR)
+    labels = _mixed_edges(labels)
+    reports = identify_result(result, _interior(labels), light_deg=LIGHT_DEG, model_error=MODEL_ERROR)
     groups: dict[Any, list[int]] = {}
     for rep in reports:
         # an unidentified cluster, one no candidate fits, or one whose answer is less likely than not (a short
@@ -184,7 +190,77 @@ def _identify_merged(result: Any, labels: NDArray[np.int64]) -> tuple[NDArray[np
         lut[members] = new
     merged = lut[labels]
     counts = {new: len(members) for new, members in enumerate(order, start=1)}
-    return merged, identify_result(result, merged, light_deg=LIGHT_DEG, model_error=MODEL_ERROR), counts
+    return merged, identify_result(result, _interior(merged), light_deg=LIGHT_DEG, model_error=MODEL_ERROR), counts
+
+
+def _mixed_edges(labels: NDArray[np.int64], rounds: int = 4) -> NDArray[np.int64]:
+    """Clusters that are only the lens-mixed edge between two others, given pixel by pixel to their neighbours.
+
+    A cluster none of whose pixels has all of its 3 x 3 neighbours in it, and which borders at least two
+    other clusters, is at most two pixels wide along their common edge: the camera's point spread mixes the
+    two there, so it is no material of its own.  Each of its pixels takes the most frequent other cluster
+    among its 3 x 3 neighbours (repeated ``rounds`` times inward); the backdrop (0) is never given pixels.
+
+    Examples
+    --------
+    >>> lab = np.ones((5, 8), np.int64); lab[:, 4:] = 2; lab[:, 3] = 3
+    >>> _mixed_edges(lab).tolist()[2]
+    [1, 1, 1, 1, 2, 2, 2, 2]
+    >>> line = np.ones((5, 8), np.int64); line[2, 1:7] = 3      # a thin highlight inside one cluster stays
+    >>> _mixed_edges(line).tolist()[2]
+    [1, 3, 3, 3, 3, 3, 3, 1]
+    """
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    lab = np.asarray(labels, dtype=np.int64).copy()
+    same = (maximum_filter(lab, size=3, mode="nearest") == lab) & (minimum_filter(lab, size=3, mode="nearest") == lab)
+    ids = np.unique(lab[lab > 0])
+    thin = [c for c in ids.tolist() if not same[lab == c].any()]
+    h, w = lab.shape
+    pad = np.pad(lab, 1, mode="edge")
+    shifts = [pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+    for c in thin:
+        members = lab == c
+        around = np.unique(np.concatenate([s[members] for s in shifts]))
+        if np.count_nonzero((around != c) & (around > 0)) < 2:
+            continue
+        for _ in range(rounds):
+            pad = np.pad(lab, 1, mode="edge")
+            near = np.stack([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                             if dy or dx])[:, lab == c]
+            near = np.where((near != c) & (near > 0), near, 0)
+            if not near.any():
+                break
+            counts = np.stack([(near == k).sum(axis=0) for k in range(int(lab.max()) + 1)])
+            counts[0] = 0
+            best = counts.argmax(axis=0)
+            rows = np.flatnonzero(counts.max(axis=0) > 0)
+            idx = np.flatnonzero((lab == c).ravel())[rows]
+            lab.ravel()[idx] = best[rows]
+    return lab
+
+
+def _interior(labels: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``labels`` with 0 on a cluster's edge pixels (a 3 x 3 neighbour in another cluster or the backdrop).
+
+    The camera's lens mixes the neighbour's light into those pixels, so they hold neither material's colour;
+    a cluster with no interior pixel (a thin one) keeps all of its pixels.
+
+    Examples
+    --------
+    >>> lab = np.ones((5, 8), np.int64); lab[:, 4:] = 2; lab[:, 7] = 3
+    >>> _interior(lab).tolist()[2]               # 3 is one column wide: it keeps its pixels
+    [1, 1, 1, 0, 0, 2, 0, 3]
+    """
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    lab = np.asarray(labels, dtype=np.int64)
+    same = (maximum_filter(lab, size=3, mode="nearest") == lab) & (minimum_filter(lab, size=3, mode="nearest") == lab)
+    out = np.where(same, lab, 0)
+    lost = np.setdiff1d(np.unique(lab[lab > 0]), np.unique(out[out > 0]))
+    keep = np.isin(lab, lost)
+    out[keep] = lab[keep]
+    return out
 
 
 def estimate_frame(frame: Path, chart: dict[str, Any], chart_type: str = "classic24") -> Any:
@@ -236,7 +312,8 @@ def _pass_materials(root: Path, tag: str, chart: dict[str, Any], frames: list[tu
         in_frames = [cid for (cid, _), a, b in zip(frames, edges[:-1], edges[1:]) if np.any((cols >= a) & (cols < b))]
         colours[rep.label] = material_colour(rep.material)
         regions.append({"region": f"{tag}-r{rep.label}", "pass": tag, "clusters": counts.get(rep.label, 1),
-                        "frames": in_frames, **{k: v for k, v in rep.as_dict().items() if k != "label"}})
+                        "frames": in_frames, **{k: v for k, v in rep.as_dict().items() if k != "label"},
+                        "pixels": int((live == rep.label).sum()), "pixels_identified": rep.as_dict()["pixels"]})
     maps = {}
     for (cid, _), a, b in zip(frames, edges[:-1], edges[1:]):
         img = colours[np.where(live[:, a:b] > 0, live[:, a:b], 0)]
