@@ -621,8 +621,9 @@ def _point_spread(root: Path, manifest: dict[str, Any], data: dict[str, Any], do
     except PointSpreadError as exc:
         note(f"camera point spread not measured ({exc}); the held-out renderings are compared as a pinhole's")
         return None
-    note(f"camera point spread: {fit.sigma_px:.2f} px (Gaussian sd) from {len(pick)} fitted frames; rms "
-         f"{fit.rms_at_sigma:.4f} against {fit.rms_pinhole:.4f} through a pinhole")
+    note(f"camera point spread: {'at least ' if fit.at_limit else ''}{fit.sigma_px:.2f} px (Gaussian sd) from "
+         f"{len(pick)} fitted frames; rms {fit.rms_at_sigma:.4f} against {fit.rms_pinhole:.4f} through a pinhole"
+         + ("; the largest spread tried: the renderings may lack fine detail the photos blur" if fit.at_limit else ""))
     return fit
 
 

@@ -72,6 +72,9 @@ class PointSpreadFit:
         ``(sigma, rms)`` per grid node.
     n_pixels
         Pixels compared (all images).
+    at_limit
+        The best spread is the grid's largest: the true one may be larger (or the rendering
+        misses fine detail the photos have not: a material fitted too smooth).
     """
 
     sigma_px: float
@@ -79,11 +82,12 @@ class PointSpreadFit:
     rms_pinhole: float
     curve: tuple[tuple[float, float], ...]
     n_pixels: int
+    at_limit: bool = False
 
     def to_dict(self) -> dict[str, object]:
         """JSON-ready figures."""
         return {"sigma_px": self.sigma_px, "rms_at_sigma": self.rms_at_sigma, "rms_pinhole": self.rms_pinhole,
-                "n_pixels": self.n_pixels, "curve": [list(c) for c in self.curve]}
+                "n_pixels": self.n_pixels, "at_limit": self.at_limit, "curve": [list(c) for c in self.curve]}
 
 
 def fit_point_spread(photos: Sequence[ArrayLike], renderings: Sequence[ArrayLike], masks: Sequence[ArrayLike], *,
@@ -169,7 +173,8 @@ def fit_point_spread(photos: Sequence[ArrayLike], renderings: Sequence[ArrayLike
         if a > 0:
             sigma = float(np.clip(-b / (2 * a), x[0], x[2]))
     curve = tuple((float(s), float(e)) for s, e in zip(grid, rms, strict=True))
-    return PointSpreadFit(sigma, float(rms[j]), float(rms[0]) if grid[0] == 0 else float("nan"), curve, n)
+    return PointSpreadFit(sigma, float(rms[j]), float(rms[0]) if grid[0] == 0 else float("nan"), curve, n,
+                          j == grid.size - 1)
 
 
 def spread_within(image: ArrayLike, mask: ArrayLike, sigma_px: float) -> NDArray[np.float32]:

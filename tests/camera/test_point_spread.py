@@ -39,6 +39,14 @@ def test_clipped_glints_are_left_out_and_do_not_bias_the_spread():
     assert unclipped.n_pixels > fit.n_pixels
 
 
+def test_a_spread_beyond_the_grid_is_flagged_not_hidden():
+    sharp, mask = _scene(4)
+    photo = gaussian_filter(sharp, (2.6, 2.6, 0))
+    fit = fit_point_spread([photo], [sharp], [mask])
+    assert fit.sigma_px == 2.0 and fit.at_limit
+    assert not fit_point_spread([gaussian_filter(sharp, (1.0, 1.0, 0))], [sharp], [mask]).at_limit
+
+
 def test_a_sharp_photo_gives_no_spread():
     sharp, mask = _scene(3)
     assert fit_point_spread([sharp], [sharp], [mask]).sigma_px == 0.0
