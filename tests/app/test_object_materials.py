@@ -74,8 +74,7 @@ def test_held_out_frames_are_validated_and_never_fitted(measured):
     assert {f["frame"] for f in val["frames"]} == held
     assert val["noise_floor_mean_de2000"] > 0.0          # the sensor noise costs something even for a perfect model
     # Where the baseline (the largest region's material everywhere) is not the region's own material, the
-    # measured materials predict the photos better (measured: 6.6 against 8.0 mean CIEDE2000); on the baseline's
-    # own region the two renders are the same.
+    # measured materials predict the photos better (measured: 6.6 against 8.0 mean CIEDE2000).
     base = str(doc["baseline"]["region"])
     others = {k: r for k, r in val["regions"].items() if k != base and r["measured"]["n_pixels"]}
     n = sum(r["measured"]["n_pixels"] for r in others.values())
@@ -83,7 +82,10 @@ def test_held_out_frames_are_validated_and_never_fitted(measured):
     measured_de = sum(r["measured"]["mean_de2000"] * r["measured"]["n_pixels"] for r in others.values()) / n
     baseline_de = sum(r["baseline"]["mean_de2000"] * r["baseline"]["n_pixels"] for r in others.values()) / n
     assert measured_de < 0.9 * baseline_de
-    assert val["regions"][base]["measured"] == val["regions"][base]["baseline"]
+    # the same there, but where the camera's spread mixes a neighbouring region into the edge pixels
+    same, mixed = val["regions"][base]["measured"], val["regions"][base]["baseline"]
+    assert same["n_pixels"] == mixed["n_pixels"]
+    assert same["mean_de2000"] == pytest.approx(mixed["mean_de2000"], rel=0.01)      # measured: 0.1 % apart
     for f in val["frames"]:
         if "skipped" not in f:
             for key in ("triptych", "error_map", "baseline_error_map", "pooled_error_map"):
