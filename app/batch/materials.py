@@ -210,33 +210,23 @@ def _mixed_edges(labels: NDArray[np.int64], rounds: int = 4) -> NDArray[np.int64
     >>> _mixed_edges(line).tolist()[2]
     [1, 3, 3, 3, 3, 3, 3, 1]
     """
-    from scipy.ndimage import maximum_filter, minimum_filter
-
     lab = np.asarray(labels, dtype=np.int64).copy()
-    same = (maximum_filter(lab, size=3, mode="nearest") == lab) & (minimum_filter(lab, size=3, mode="nearest") == lab)
-    ids = np.unique(lab[lab > 0])
-    thin = [c for c in ids.tolist() if not same[lab == c].any()]
-    h, w = lab.shape
-    pad = np.pad(lab, 1, mode="edge")
-    shifts = [pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
+    same = _uniform(lab)
+    thin = [c for c in np.unique(lab[lab > 0]).tolist() if not same[lab == c].any()]
     for c in thin:
-        members = lab == c
-        around = np.unique(np.concatenate([s[members] for s in shifts]))
+        around = np.unique(_neighbours(lab)[:, lab == c])
         if np.count_nonzero((around != c) & (around > 0)) < 2:
             continue
         for _ in range(rounds):
-            pad = np.pad(lab, 1, mode="edge")
-            near = np.stack([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
-                             if dy or dx])[:, lab == c]
+            members = np.flatnonzero((lab == c).ravel())
+            near = _neighbours(lab).reshape(8, -1)[:, members]
             near = np.where((near != c) & (near > 0), near, 0)
             if not near.any():
                 break
             counts = np.stack([(near == k).sum(axis=0) for k in range(int(lab.max()) + 1)])
             counts[0] = 0
-            best = counts.argmax(axis=0)
             rows = np.flatnonzero(counts.max(axis=0) > 0)
-            idx = np.flatnonzero((lab == c).ravel())[rows]
-            lab.ravel()[idx] = best[rows]
+            lab.ravel()[members[rows]] = counts.argmax(axis=0)[rows]
     return lab
 
 
@@ -252,15 +242,26 @@ def _interior(labels: NDArray[np.int64]) -> NDArray[np.int64]:
     >>> _interior(lab).tolist()[2]               # 3 is one column wide: it keeps its pixels
     [1, 1, 1, 0, 0, 2, 0, 3]
     """
-    from scipy.ndimage import maximum_filter, minimum_filter
-
     lab = np.asarray(labels, dtype=np.int64)
-    same = (maximum_filter(lab, size=3, mode="nearest") == lab) & (minimum_filter(lab, size=3, mode="nearest") == lab)
-    out = np.where(same, lab, 0)
+    out = np.where(_uniform(lab), lab, 0)
     lost = np.setdiff1d(np.unique(lab[lab > 0]), np.unique(out[out > 0]))
     keep = np.isin(lab, lost)
     out[keep] = lab[keep]
     return out
+
+
+def _uniform(lab: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Pixels whose 3 x 3 neighbourhood (edges extended) holds only their own label."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    return (maximum_filter(lab, size=3, mode="nearest") == lab) & (minimum_filter(lab, size=3, mode="nearest") == lab)
+
+
+def _neighbours(lab: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``(8, H, W)`` each pixel's eight neighbours' labels (edges extended)."""
+    h, w = lab.shape
+    pad = np.pad(lab, 1, mode="edge")
+    return np.stack([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])
 
 
 def estimate_frame(frame: Path, chart: dict[str, Any], chart_type: str = "classic24") -> Any:
