@@ -30,6 +30,17 @@ def test_the_spread_the_photo_was_blurred_with_is_found(truth_px):
     assert fit.n_pixels > 2000 and len(fit.curve) == 17
 
 
+def test_a_misfit_highlight_does_not_decide_the_spread():
+    """A rendering whose glints are 3 times too bright (a material fitted too smooth) against a photo blurred by
+    1 px: in linear least squares the glints ask for the most blur tried; on the asinh scale the rest of the image
+    weighs in (measured 0.77 px; a gross misfit, 20 times, pulls it the other way, to 0.34)."""
+    sharp, mask = _scene(5)
+    photo = gaussian_filter(sharp, (1.0, 1.0, 0))
+    hot = np.where(sharp > 1.0, 3 * sharp, sharp)
+    assert fit_point_spread([photo], [hot], [mask], level=1e6).at_limit           # ~linear: the glints decide
+    assert fit_point_spread([photo], [hot], [mask]).sigma_px == pytest.approx(1.0, abs=0.25)
+
+
 def test_clipped_glints_are_left_out_and_do_not_bias_the_spread():
     sharp, mask = _scene(2)
     photo = np.minimum(gaussian_filter(sharp, (1.0, 1.0, 0)), 0.3)       # the brightest glints saturate
@@ -63,6 +74,7 @@ def test_the_spread_stays_inside_the_mask():
 
 @pytest.mark.parametrize("case, message", [
     ("shape", "differ"), ("nan", "NaN"), ("small", "need 200"), ("grid", "ascending"), ("count", "one rendering"),
+    ("level", "level"),
 ])
 def test_bad_input_is_refused_in_one_line(case, message):
     sharp, mask = _scene()
@@ -76,6 +88,8 @@ def test_bad_input_is_refused_in_one_line(case, message):
         masks[0][40:50, 40:50] = True
     elif case == "grid":
         kw = {"sigmas_px": [1.0, 0.5, 2.0]}
+    elif case == "level":
+        kw = {"level": 0.0}
     else:
         masks = []
     with pytest.raises(PointSpreadError, match=message) as err:
