@@ -14,6 +14,7 @@ from mocks.camera_sim import (
     camera_sensitivities,
     channel_signal,
     expose,
+    lens_blur,
     mosaic,
     simulate_raw,
     white_balance_neutral,
@@ -153,8 +154,27 @@ def test_white_balance_neutral():
         (lambda: SensorModel(gain_e_per_dn=0), "gain_e_per_dn"),
         (lambda: SensorModel(cfa_pattern="RGB"), "cfa_pattern"),
         (lambda: simulate_raw(np.ones((4, GRID.size)), GRID, np.ones(GRID.size)), r"\(H, W, L\)"),
+        (lambda: lens_blur(np.ones((4, 4)), -1.0), "sigma_px"),
+        (lambda: lens_blur(np.ones((4, 4)), float("nan")), "sigma_px"),
+        (lambda: lens_blur(np.ones(4)), r"\(H, W\)"),
     ],
 )
 def test_bad_input(call, words):
     with pytest.raises(CameraSimError, match=words):
         call()
+
+
+def test_the_lens_lets_a_one_photosite_glint_reach_every_colour_of_its_cfa_cell():
+    """Why the simulated camera has a lens: through a pinhole a glint one photosite wide lights one colour of its
+    RGGB cell (false colour no demosaic undoes); spread by a Gaussian of one photosite every colour sees it, and the
+    spread conserves the light."""
+    white = np.ones(GRID.size)
+    glint = np.zeros((16, 16, GRID.size))
+    glint[8, 8] = 50.0 * white                                   # a red site of the RGGB mosaic (even row, even column)
+    sharp = mosaic(channel_signal(glint, GRID))
+    spread = mosaic(channel_signal(lens_blur(glint, 1.0), GRID))
+    cell = (slice(8, 10), slice(8, 10))
+    assert np.count_nonzero(sharp[cell]) == 1
+    assert np.all(spread[cell] > 0.05 * spread[cell].max())
+    assert lens_blur(glint, 1.0).sum() == pytest.approx(glint.sum(), rel=1e-9)
+    assert np.array_equal(lens_blur(glint, 0.0), glint)          # 0: a pinhole

@@ -80,6 +80,8 @@ def test_light_behind_the_object_leaves_it_dark():
 def test_round_trip_through_dict(hawk):
     again = World.from_dict(hawk.to_dict())
     assert np.array_equal(again.vertices, hawk.vertices)
+    pinhole = World.from_dict({**hawk.to_dict(), "lens_sigma_px": 0.0})
+    assert pinhole.lens_sigma_px == 0.0 and World.from_dict(pinhole.to_dict()).lens_sigma_px == 0.0
     assert again.materials == hawk.materials and again.width == hawk.width
 
 
@@ -92,6 +94,8 @@ def test_round_trip_through_dict(hawk):
         ({"fov_deg": 180}, "fov_deg"),
         ({"spectral_step": 7}, "spectral_step"),
         ({"pose": np.zeros((4, 4))}, "pose"),
+        ({"lens_sigma_px": -1.0}, "lens_sigma_px"),
+        ({"lens_sigma_px": float("inf")}, "lens_sigma_px"),
     ],
 )
 def test_bad_settings(change, words):
