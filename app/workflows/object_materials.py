@@ -578,10 +578,13 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
                              _clip_level(photos))
         note(f"held-out photos: each the linear mean of a burst of {n_avg} frames")
     grid = SpectralGrid(*_GRID)
-    spread = _point_spread(root, session.manifest, data, doc, held, decode, grid, note)
+    signal_kw = dict(sensitivities=camera_sensitivities(grid), scale=1.0, grid=grid,
+                     irradiance_ref_mm=doc["irradiance_reference_mm"])
+    light = light_spectrum(doc["light_spectrum"], grid)
+    spread = _point_spread(root, session.manifest, data, doc, held, decode, light, signal_kw, note)
     note(f"validating on {len(frames)} held-out frames ({', '.join(names[:4])}{' ...' if len(names) > 4 else ''})")
     result = validate_frames(frames, photos, v, t, n, doc["_face_region"], _specs(doc), doc["baseline"].get("spec"),
-                             light_spectrum(doc["light_spectrum"], grid), camera_sensitivities(grid), 1.0,
+                             light, signal_kw["sensitivities"], signal_kw["scale"],
                              irradiance_ref_mm=doc["irradiance_reference_mm"], grid=grid,
                              clip_level=_clip_level(photos), noise=noise_model(records, photos.gains),
                              cfa=_cfa(root, records[0], decode) if records else None, pool_px=POOL_PX,
@@ -591,17 +594,17 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
 
 
 def _point_spread(root: Path, manifest: dict[str, Any], data: dict[str, Any], doc: dict[str, Any], held: np.ndarray,
-                  decode: str, grid: Any, note: Callable[[str], None]) -> Any:
+                  decode: str, light: Any, signal_kw: dict[str, Any], note: Callable[[str], None]) -> Any:
     """The camera's point spread measured on up to ``SPREAD_FRAMES`` fitted (not held-out) frames, or None.
 
     Each is rendered with the measured materials through a pinhole and the Gaussian spread that
     brings the renderings closest to their photos is kept
     (:func:`processing.camera.point_spread.fit_point_spread`); the held-out renderings then carry it.
+    ``light`` and ``signal_kw`` are the validation's lamp spectrum and :func:`render.photo_signal.render_signal`
+    settings.
     """
     from app.workflows.posed_frames import calibrated_images
     from processing.camera.point_spread import PointSpreadError, fit_point_spread
-    from processing.camera.response import camera_sensitivities
-    from processing.spectral.spectra import light_spectrum
     from render.photo_signal import render_signal
 
     fitted = np.flatnonzero(~np.asarray(held, dtype=bool))
@@ -611,10 +614,8 @@ def _point_spread(root: Path, manifest: dict[str, Any], data: dict[str, Any], do
     records = [(data["obs"].frame_names[i], data["records"][i]) for i in pick]
     photos = calibrated_images(root, manifest, records, decode, note)
     v, t, n = data["mesh"]
-    kw = dict(sensitivities=camera_sensitivities(grid), scale=1.0, grid=grid,
-              irradiance_ref_mm=doc["irradiance_reference_mm"])
-    light = light_spectrum(doc["light_spectrum"], grid)
-    renders = [render_signal(v, t, n, doc["_face_region"], _specs(doc), data["frames"][i], light, **kw) for i in pick]
+    renders = [render_signal(v, t, n, doc["_face_region"], _specs(doc), data["frames"][i], light, **signal_kw)
+               for i in pick]
     try:
         fit = fit_point_spread([photos[k] for k in range(len(pick))], [r for r, _ in renders],
                                [m for _, m in renders], clip_level=_clip_level(photos))

@@ -180,10 +180,8 @@ def fit_point_spread(photos: Sequence[ArrayLike], renderings: Sequence[ArrayLike
     j = int(np.argmin(rms))
     sigma = float(grid[j])
     if 0 < j < grid.size - 1:
-        x, y = grid[j - 1:j + 2], sse[j - 1:j + 2]
-        denom = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
-        a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / denom
-        b = (x[2] ** 2 * (y[0] - y[1]) + x[1] ** 2 * (y[2] - y[0]) + x[0] ** 2 * (y[1] - y[2])) / denom
+        x = grid[j - 1:j + 2]
+        a, b, _ = np.polyfit(x, sse[j - 1:j + 2], 2)         # the parabola through the three nodes
         if a > 0:
             sigma = float(np.clip(-b / (2 * a), x[0], x[2]))
     curve = tuple((float(s), float(e)) for s, e in zip(grid, rms, strict=True))
