@@ -49,7 +49,7 @@ from processing.materials._forward_fit_core import (
 )
 from processing.materials._forward_fit_samples import HIGHLIGHT_DEG, FitError, RegionSamples, region_samples
 from processing.materials.confidence import NOT_MEASURED
-from processing.materials.lobes import Material, material_brdf
+from processing.materials.lobes import Material, lobe_geometry, material_brdf
 from processing.materials.metal_model import ConductorFresnel
 from processing.materials.presets import get_material
 from processing.spectral.spectra import SpectralGrid
@@ -172,8 +172,25 @@ class ForwardModel:
             ``(n, 3)``.
         """
         s = samples
-        f = material_brdf(material, s.cos_i, s.cos_o, s.cos_h, s.cos_d, self.wavelengths)
-        return (f @ self._weights) * (np.pi * s.irradiance * s.cos_i)[:, None]
+        if any(lobe.kind == "anisotropic" for lobe in material.lobes):
+            f = material_brdf(material, s.cos_i, s.cos_o, s.cos_h, s.cos_d, self.wavelengths)
+            return (f @ self._weights) * (np.pi * s.irradiance * s.cos_i)[:, None]
+        # each lobe is a geometric factor times a spectral factor of cos_d alone: the spectral factor's camera
+        # colour on the 257-node table, interpolated, instead of the spectrum at every observation (a metal's
+        # complex Fresnel reflectance there is most of the cost); error ~ step^2 / 8 * |colour''| ~ 1e-6
+        cd = np.asarray(s.cos_d, dtype=np.float64)
+        total = np.zeros((cd.size, 3))
+        colours: dict[int, NDArray[np.float64]] = {}
+        for lobe in material.lobes:
+            if lobe.weight == 0.0:
+                continue
+            key = id(lobe.spectral)
+            if key not in colours:
+                table = self.colour(lobe.spectral, _TABLE)
+                colours[key] = np.stack([np.interp(cd, _TABLE, table[:, c]) for c in range(3)], axis=1)
+            g = np.broadcast_to(lobe_geometry(lobe, s.cos_i, s.cos_o, s.cos_h, cd, None), cd.shape)
+            total += lobe.weight * g[:, None] * colours[key]
+        return total * (np.pi * s.irradiance * s.cos_i)[:, None]
 
 
 @dataclass(frozen=True)
