@@ -301,8 +301,14 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
     if joined["pieces"]:
         note(f"{joined['pieces']} pieces ({joined['area_mm2']:.0f} mm2) of other regions joined region "
              f"{joined['target']}: its material explains their observations as well as their own")
+    t_relabel = time.perf_counter()
+    seg, fits, relabelled = _relabel(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
+    if relabelled["vertices"]:
+        note(f"{relabelled['vertices']} vertices ({relabelled['area_mm2']:.0f} mm2) moved to the region whose fitted "
+             "material explains their own observations better")
+    t_relabel = time.perf_counter() - t_relabel
     fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
-    t_pieces = time.perf_counter() - t_pieces
+    t_pieces = time.perf_counter() - t_pieces - t_relabel
     regions = []
     for r, fit in enumerate(fits):
         faces = seg.face_region == r
@@ -315,7 +321,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
             "irradiance_reference_mm": d_ref,
             "model_error": model_error, "segmentation": {"method": seg.method, "regions": seg.n_regions,
                                                           "features": list(seg.feature_names),
-                                                          "joined": joined},
+                                                          "joined": joined, "relabelled": relabelled},
             "regions": regions, "baseline": _baseline(regions),
             "not_measured": {"faces": int(unmeasured.sum()), "area_mm2": round(float(areas[unmeasured].sum()), 3)},
             "area_mm2": round(float(areas.sum()), 3),
@@ -324,7 +330,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
             "normals": {**(normals_doc or {"method": "mesh"}), "smoothing_mm": round(sigma_mm, 4)},
             "interior_margin_mm": round(_interior_margin_mm(v, data["frames"]), 4),
             "timings_s": {"normals": round(t_normals, 3), "segmentation": round(t_seg, 3), "fit": round(t_fit, 3),
-                          "pieces": round(t_pieces, 3)},
+                          "pieces": round(t_pieces, 3), "relabel": round(t_relabel, 3)},
             "_face_region": seg.face_region, "_normals": vertex_normals}
 
 
@@ -415,6 +421,46 @@ def _join_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
                         previous=[fits[r] for r in keep])
     return new, fits, {"target": int(lut[target]), "pieces": n_pieces, "area_mm2": round(moved_area, 3),
                        "from_regions": sorted(int(r) for r in moved_from)}
+
+
+def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
+             d_ref: float | None, model: Any, model_error: float, areas: np.ndarray,
+             stop: Callable[[], bool]) -> tuple[Any, list[Any], dict[str, Any]]:
+    """Every measured vertex given to the region whose fitted material explains its observations; refitted.
+
+    :func:`processing.materials.vertex_relabelling.relabel_vertices` from the segmentation's labels
+    (docs/materials.md, "Vertices the fitted materials claim"); the regions that gained or lost
+    vertices are fitted again and a region left without faces goes.
+    """
+    from processing.materials.forward_fit import region_samples
+    from processing.materials.presets import get_material
+    from processing.materials.region_consistency import face_regions
+    from processing.materials.vertex_relabelling import relabel_vertices, vertex_material_costs
+
+    none = {"vertices": 0, "area_mm2": 0.0, "regions": []}
+    mats = [get_material(f.spec) if f.spec else None for f in fits]
+    if seg.n_regions < 2 or sum(m is not None for m in mats) < 2:
+        return seg, fits, none
+    _check_cancel(stop)
+    samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region >= 0), triangles=t,
+                             reference_mm=d_ref)
+    cost = vertex_material_costs(samples, model, mats, len(v), model_error=model_error)
+    labels = relabel_vertices(cost, seg.vertex_region, t)
+    moved = labels != seg.vertex_region
+    if not moved.any():
+        return seg, fits, none
+    face_region = face_regions(labels, t)
+    moved_area = float(areas[face_region != seg.face_region].sum())
+    keep = [r for r in range(seg.n_regions) if (face_region == r).any()]
+    lut = np.full(seg.n_regions + 1, -1, dtype=np.int32)
+    lut[keep] = np.arange(len(keep), dtype=np.int32)
+    new = dataclasses.replace(seg, vertex_region=lut[labels].astype(np.int32),
+                              face_region=lut[face_region].astype(np.int32), n_regions=len(keep))
+    changed = {int(lut[r]) for r in np.unique(np.concatenate([seg.vertex_region[moved], labels[moved]])) if lut[r] >= 0}
+    _check_cancel(stop)
+    fits = _fit_regions(obs, v, t, data, new, d_ref, model, model_error, stop, only=changed,
+                        previous=[fits[r] for r in keep])
+    return new, fits, {"vertices": int(moved.sum()), "area_mm2": round(moved_area, 3), "regions": sorted(changed)}
 
 
 def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],

@@ -15,6 +15,7 @@ Modules
 - ``confidence``: the one rule from candidates' misfits to an answer and an honest confidence.
 - ``forward_fit``: a region of the mesh fitted at its observations' true angles.
 - ``region_consistency``: the pieces of a region scored against every region's fitted material.
+- ``vertex_relabelling``: every vertex given to the fitted material that explains its own observations.
 - ``photometric_normals``: mesh normals tilted to where the photos' highlights put them.
 - ``segmentation``: an object's pixels split into regions without ground truth.
 
@@ -167,6 +168,12 @@ from processing.materials.segmentation import (
     border_backdrop,
     segment_regions,
 )
+from processing.materials.vertex_relabelling import (
+    SMOOTHNESS_NATS,
+    UNARY_CAP_NATS,
+    relabel_vertices,
+    vertex_material_costs,
+)
 
 __all__ = [
     # lobes
@@ -200,6 +207,8 @@ __all__ = [
     # region_consistency
     "mesh_components", "face_regions", "fixed_material_chi2", "pieces_chi2", "disagreeing_pieces", "joining_pieces",
     "LIKELIHOOD_MARGIN",
+    # vertex_relabelling
+    "vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS",
     # photometric_normals
     "NormalRefinement", "refine_normals", "MAX_TILT_DEG", "PRIOR_DEG", "SMOOTH_DEG", "MIN_DECIDING",
     # identification
