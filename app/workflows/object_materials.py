@@ -53,6 +53,10 @@ FIT_MODEL_ERROR = 0.02
 #: A region's own material competes with the largest region's for its pieces only when it was named with at
 #: least this confidence (docs/materials.md, "Pieces that join the largest region").
 _RIVAL_CONFIDENCE = 0.5
+#: A region answered below this confidence has a material its fit cannot name (a dull, dark fit that a dozen
+#: candidates explain alike, e.g. "bronze 0.07"); the largest region's alloy grades that cannot be told apart
+#: (three at about 0.5) stay named.  Such a region takes no vertex in the relabelling.
+_NAMED_CONFIDENCE = 0.25
 #: The camera's point spread is measured on this many fitted frames (evenly spread over the table's turn).
 SPREAD_FRAMES = 3
 #: Spectral grid of the fit (nm).
@@ -336,10 +340,11 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
 
 def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, d_ref: float | None,
                  model: Any, model_error: float, stop: Callable[[], bool], only: Any = None,
-                 previous: list[Any] | None = None) -> list[Any]:
+                 previous: list[Any] | None = None, fit_on: np.ndarray | None = None) -> list[Any]:
     """Each region's :class:`processing.materials.forward_fit.RegionFit` from its interior's observations.
 
-    ``only``: the regions to fit; the others keep their fit from ``previous``.
+    ``only``: the regions to fit; the others keep their fit from ``previous``.  ``fit_on``: ``(V,)`` bool,
+    the vertices whose observations may be fitted (a region's interior without any keeps them all).
     """
     from processing.appearance.region_interior import border_distance_mm, interior_vertices
     from processing.materials.confidence import NOT_MEASURED
@@ -355,6 +360,8 @@ def _fit_regions(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
             continue
         every = np.flatnonzero(seg.vertex_region == r)
         ids = interior_vertices(every, distance, margin)
+        if fit_on is not None and fit_on[ids].any():
+            ids = ids[fit_on[ids]]
         fit = fit_region(region_samples(obs, v, data["frames"], ids, triangles=t, reference_mm=d_ref), model,
                          model_error=model_error)
         if fit.material == NOT_MEASURED and len(ids) < len(every):     # a small region: its interior saw too little
@@ -429,22 +436,28 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     """Every measured vertex given to the region whose fitted material explains its observations; refitted.
 
     :func:`processing.materials.vertex_relabelling.relabel_vertices` from the segmentation's labels
-    (docs/materials.md, "Vertices the fitted materials claim"); the regions that gained or lost
-    vertices are fitted again and a region left without faces goes.
+    (docs/materials.md, "Vertices the fitted materials claim"); a smaller region whose fit cannot name
+    its material (confidence under :data:`_NAMED_CONFIDENCE`) takes no vertex.  The regions that gained
+    or lost vertices are fitted again on the vertices that did not move, and a region left without
+    faces goes.
     """
     from processing.materials.forward_fit import region_samples
     from processing.materials.presets import get_material
     from processing.materials.region_consistency import face_regions
     from processing.materials.vertex_relabelling import relabel_vertices, vertex_material_costs
 
-    none = {"vertices": 0, "area_mm2": 0.0, "regions": []}
+    none = {"vertices": 0, "area_mm2": 0.0, "regions": [], "unnamed": []}
     mats = [get_material(f.spec) if f.spec else None for f in fits]
     if seg.n_regions < 2 or sum(m is not None for m in mats) < 2:
         return seg, fits, none
     _check_cancel(stop)
     samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region >= 0), triangles=t,
                              reference_mm=d_ref)
-    cost = vertex_material_costs(samples, model, mats, len(v), model_error=model_error)
+    sizes = np.bincount(seg.face_region[seg.face_region >= 0], weights=areas[seg.face_region >= 0],
+                        minlength=seg.n_regions)
+    unnamed = [f.confidence < _NAMED_CONFIDENCE and r != int(np.argmax(sizes)) for r, f in enumerate(fits)]
+    named_not = [f"{fits[r].material} {fits[r].confidence:.2f}" for r, u in enumerate(unnamed) if u]
+    cost = vertex_material_costs(samples, model, mats, len(v), model_error=model_error, unnamed=unnamed)
     labels = relabel_vertices(cost, seg.vertex_region, t)
     moved = labels != seg.vertex_region
     if not moved.any():
@@ -458,9 +471,12 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
                               face_region=lut[face_region].astype(np.int32), n_regions=len(keep))
     changed = {int(lut[r]) for r in np.unique(np.concatenate([seg.vertex_region[moved], labels[moved]])) if lut[r] >= 0}
     _check_cancel(stop)
+    # the moved vertices say which material they are, by the colour of light the model does not follow; they
+    # do not say its parameters: each region is fitted again on the vertices that stayed
     fits = _fit_regions(obs, v, t, data, new, d_ref, model, model_error, stop, only=changed,
-                        previous=[fits[r] for r in keep])
-    return new, fits, {"vertices": int(moved.sum()), "area_mm2": round(moved_area, 3), "regions": sorted(changed)}
+                        previous=[fits[r] for r in keep], fit_on=~moved)
+    return new, fits, {"vertices": int(moved.sum()), "area_mm2": round(moved_area, 3), "regions": sorted(changed),
+                       "unnamed": named_not}
 
 
 def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
