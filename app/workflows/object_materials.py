@@ -313,11 +313,16 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
     t_relabel = time.perf_counter() - t_relabel
     fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
     t_pieces = time.perf_counter() - t_pieces - t_relabel
+    own = relabelled.pop("_own_views")
+    # a face whose corners' own views mostly cannot tell the materials apart carries its neighbours' label
+    by_neighbours = np.zeros(len(t), dtype=bool) if own is None else (~own)[t].sum(axis=1) >= 2
     regions = []
     for r, fit in enumerate(fits):
         faces = seg.face_region == r
+        extra = {} if own is None else {"area_by_neighbours_mm2": round(float(areas[faces & by_neighbours].sum()), 3)}
         regions.append({"index": r, **fit.to_dict(), "area_mm2": round(float(areas[faces].sum()), 3),
-                        "faces": int(faces.sum()), "vertices": int((seg.vertex_region == r).sum()), **pieces[r]})
+                        "faces": int(faces.sum()), "vertices": int((seg.vertex_region == r).sum()), **extra,
+                        **pieces[r]})
         note(f"region {r}: {answer_text(regions[-1])}, {int(faces.sum())} faces, {fit.n_lit} lit observations")
     t_fit = time.perf_counter() - t1
     unmeasured = seg.face_region < 0
@@ -446,7 +451,7 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     from processing.materials.region_consistency import face_regions
     from processing.materials.vertex_relabelling import relabel_vertices, vertex_material_costs
 
-    none = {"vertices": 0, "area_mm2": 0.0, "regions": [], "unnamed": []}
+    none: dict[str, Any] = {"vertices": 0, "area_mm2": 0.0, "regions": [], "unnamed": [], "_own_views": None}
     mats = [get_material(f.spec) if f.spec else None for f in fits]
     if seg.n_regions < 2 or sum(m is not None for m in mats) < 2:
         return seg, fits, none
@@ -459,6 +464,7 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     named_not = [f"{fits[r].material} {fits[r].confidence:.2f}" for r, u in enumerate(unnamed) if u]
     cost = vertex_material_costs(samples, model, mats, len(v), model_error=model_error, unnamed=unnamed)
     labels = relabel_vertices(cost, seg.vertex_region, t)
+    none["_own_views"] = own = _decided_by_own_views(cost, unnamed)
     moved = labels != seg.vertex_region
     if not moved.any():
         return seg, fits, none
@@ -476,7 +482,23 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     fits = _fit_regions(obs, v, t, data, new, d_ref, model, model_error, stop, only=changed,
                         previous=[fits[r] for r in keep], fit_on=~moved)
     return new, fits, {"vertices": int(moved.sum()), "area_mm2": round(moved_area, 3), "regions": sorted(changed),
-                       "unnamed": named_not}
+                       "unnamed": named_not, "_own_views": own}
+
+
+def _decided_by_own_views(cost: np.ndarray, unnamed: list[bool]) -> np.ndarray:
+    """``(V,)`` bool: the vertex's own observations favour one material by the relabelling's margin.
+
+    Scored among the named materials (without the unnamed ones' added cost); elsewhere the label is the
+    neighbours' (docs/materials.md, "Vertices the fitted materials claim").
+    """
+    from processing.materials.vertex_relabelling import DECIDED_NATS
+
+    named = cost[:, [r for r, u in enumerate(unnamed) if not u]]
+    named = np.where(np.isfinite(named), named, np.nan)
+    if named.shape[1] < 2:
+        return np.zeros(len(cost), dtype=bool)
+    two = np.sort(np.where(np.isnan(named), np.inf, named), axis=1)[:, :2]
+    return np.isfinite(two[:, 1]) & (two[:, 1] - two[:, 0] >= DECIDED_NATS)
 
 
 def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],

@@ -169,6 +169,7 @@ from processing.materials.segmentation import (
     segment_regions,
 )
 from processing.materials.vertex_relabelling import (
+    DECIDED_NATS,
     LEVEL_CAP_CHI2,
     SMOOTHNESS_NATS,
     UNARY_CAP_NATS,
@@ -209,7 +210,7 @@ __all__ = [
     "mesh_components", "face_regions", "fixed_material_chi2", "pieces_chi2", "disagreeing_pieces", "joining_pieces",
     "LIKELIHOOD_MARGIN",
     # vertex_relabelling
-    "vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2",
+    "vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2", "DECIDED_NATS",
     # photometric_normals
     "NormalRefinement", "refine_normals", "MAX_TILT_DEG", "PRIOR_DEG", "SMOOTH_DEG", "MIN_DECIDING",
     # identification

@@ -43,7 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 from processing.materials._forward_fit_samples import FitError, RegionSamples
 from processing.materials.lobes import Material
 
-__all__ = ["vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2"]
+__all__ = ["vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2",
+           "DECIDED_NATS"]
 
 #: Most data cost (nats) one vertex's observations put on a label: a single vertex's few views
 #: (a demosaicing error, a view that mixes a neighbour through the lens) cannot outweigh all its
@@ -51,6 +52,9 @@ __all__ = ["vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOT
 UNARY_CAP_NATS = 4.0
 #: Potts weight (nats per neighbour of another label), as in the surface segmentation.
 SMOOTHNESS_NATS = 1.0
+#: A vertex's own observations decide its material when they favour it by this much (nats) over every other:
+#: the surface segmentation's confidence margin.  Elsewhere its label is its neighbours'.
+DECIDED_NATS = 2.0
 #: Most chi-square one observation's level (its brightness against the prediction's, the colour aside) adds:
 #: three standard deviations.  On the demo session 4 and 16 give within 0.15 points of the same share of the
 #: area right, no cap 0.45 points less.

@@ -195,3 +195,17 @@ def test_pieces_are_checked_and_joined_consistently(measured):
         largest = max(doc["regions"], key=lambda r: r["area_mm2"])
         assert joined["target"] == largest["index"] and joined["area_mm2"] > 0
     assert set(np.unique(mesh.face_material)) <= set(range(-1, len(doc["regions"])))
+
+
+def test_the_relabelling_is_recorded_and_each_region_says_what_its_neighbours_decided(measured):
+    # After the fits every vertex went to the fitted material its own views favour (or its neighbours');
+    # the file says how many moved, and each region how much of its area its own views could not decide.
+    root, world, doc, _ = measured
+    relabelled = doc["segmentation"]["relabelled"]
+    assert {"vertices", "area_mm2", "regions", "unnamed"} <= set(relabelled)
+    assert "_own_views" not in relabelled
+    assert relabelled["vertices"] >= 0 and relabelled["area_mm2"] >= 0
+    for r in doc["regions"]:
+        if len(doc["regions"]) > 1:
+            assert 0.0 <= r["area_by_neighbours_mm2"] <= r["area_mm2"] + 1e-3
+    json.dumps(doc)
