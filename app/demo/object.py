@@ -91,7 +91,9 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
           "area has the simulation's true material", file=sys.stderr)
     for r in doc["regions"]:
         params = ", ".join(f"{k} {v:.3g}" for k, v in (r.get("parameters") or {}).items())
-        print(f"  region {r['index']}: {answer_text(r)}, {r['area_mm2']:.0f} mm^2{'; ' + params if params else ''}",
+        nb = r.get("area_by_neighbours_mm2")
+        print(f"  region {r['index']}: {answer_text(r)}, {r['area_mm2']:.0f} mm^2"
+              f"{f' ({nb:.0f} labelled by its neighbours)' if nb else ''}{'; ' + params if params else ''}",
               file=sys.stderr)
     val = doc.get("validation") or {}
     if val.get("mean_de2000") is not None:

@@ -51,8 +51,13 @@ def _judged(doc: dict[str, Any]) -> list[tuple[dict[str, Any], Any]]:
 
 def _rows(judged: list[tuple[dict[str, Any], Any]]) -> list[list[Any]]:
     """The plain table: region, answer, verdict, why, confidence, area."""
-    return [[r.get("index"), v.answer, v.label, v.why, _confidence(r, v), f"{float(r.get('area_mm2') or 0):.0f}"]
-            for r, v in judged]
+    return [[r.get("index"), v.answer, v.label, v.why, _confidence(r, v), _area(r)] for r, v in judged]
+
+
+def _area(r: dict[str, Any]) -> str:
+    """The region's area, and how much of it only its neighbours decided (its own views could not)."""
+    nb = r.get("area_by_neighbours_mm2")
+    return f"{float(r.get('area_mm2') or 0):.0f}" + (f" ({float(nb):.0f} by its neighbours)" if nb else "")
 
 
 def _confidence(r: dict[str, Any], v: Any) -> str:
