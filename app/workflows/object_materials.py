@@ -464,7 +464,7 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     named_not = [f"{fits[r].material} {fits[r].confidence:.2f}" for r, u in enumerate(unnamed) if u]
     cost = vertex_material_costs(samples, model, mats, len(v), model_error=model_error, unnamed=unnamed)
     labels = relabel_vertices(cost, seg.vertex_region, t)
-    none["_own_views"] = own = _decided_by_own_views(cost, unnamed)
+    none.update(unnamed=named_not, _own_views=(own := _decided_by_own_views(cost, unnamed)))
     moved = labels != seg.vertex_region
     if not moved.any():
         return seg, fits, none
@@ -494,10 +494,9 @@ def _decided_by_own_views(cost: np.ndarray, unnamed: list[bool]) -> np.ndarray:
     from processing.materials.vertex_relabelling import DECIDED_NATS
 
     named = cost[:, [r for r, u in enumerate(unnamed) if not u]]
-    named = np.where(np.isfinite(named), named, np.nan)
     if named.shape[1] < 2:
         return np.zeros(len(cost), dtype=bool)
-    two = np.sort(np.where(np.isnan(named), np.inf, named), axis=1)[:, :2]
+    two = np.sort(named, axis=1)[:, :2]          # a region without a material costs infinity: never the best two
     return np.isfinite(two[:, 1]) & (two[:, 1] - two[:, 0] >= DECIDED_NATS)
 
 

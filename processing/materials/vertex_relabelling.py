@@ -103,7 +103,8 @@ def vertex_material_costs(samples: RegionSamples, model, materials: Sequence[Mat
     Raises
     ------
     FitError
-        ``cap_nats`` not positive, ``n_vertices`` too small for the samples, or no material.
+        ``cap_nats`` or ``level_cap`` not positive, ``n_vertices`` too small for the samples, no material,
+        or ``unnamed`` not one flag per material.
     """
     if not (np.isfinite(cap_nats) and cap_nats > 0):
         raise FitError(f"cap_nats must be > 0, got {cap_nats!r}")
