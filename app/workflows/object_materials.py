@@ -213,6 +213,9 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
             doc["validation"] = {"frames": [], "note": "no region has a fitted material: nothing to render"}
         elif validate and held.any():
             doc["validation"] = _validate(session, root, data, doc, held, decode, note, stop)
+            spread = doc["validation"].get("point_spread") or {}
+            if spread.get("sigma_px"):
+                _lens_share_of_roughness(data, doc, held, float(spread["sigma_px"]))
         elif validate:
             doc["validation"] = {"frames": [], "note": "no frame held out (--holdout-every 0): not validated"}
         _record(session, doc)
@@ -674,6 +677,36 @@ def _validate(session: Any, root: Path, data: dict[str, Any], doc: dict[str, Any
                              frames_averaged=n_avg, spread_px=0.0 if spread is None else spread.sigma_px)
     result["point_spread"] = None if spread is None else spread.to_dict()
     return _write_validation(session, result)
+
+
+def _lens_share_of_roughness(data: dict[str, Any], doc: dict[str, Any], held: np.ndarray, spread_px: float) -> None:
+    """Each region's roughness overstatement by the measured point spread, added to its uncertainty.
+
+    The normal smear (:func:`processing.materials.lens_smear.normal_smear_rad`) is the median over the
+    region's fitted observations near the mirror direction, at the curvature of the normals the fit
+    used (the mesh's shading normals); the overstatement goes in ``systematics.roughness_lens`` and, in
+    quadrature, into the roughness uncertainty (docs/materials.md, "The lens's share of the roughness").
+    """
+    from processing.materials.forward_fit import HIGHLIGHT_DEG
+    from processing.materials.lens_smear import mesh_curvature, normal_smear_rad, roughness_overstatement
+
+    v, t, n = data["mesh"]
+    curvature = mesh_curvature(v, t, n)
+    obs = data["obs"]
+    focal = np.array([0.5 * (float(f.K[0][0]) + float(f.K[1][1])) for f in data["frames"]])
+    near = (obs.half_angle_deg[:, 0] < HIGHLIGHT_DEG) & ~held[obs.frame]
+    region = _vertex_regions(t, doc["_face_region"], len(v))[obs.vertex]
+    smear = normal_smear_rad(spread_px, obs.distance_mm / focal[obs.frame], curvature[obs.vertex])
+    for r in doc["regions"]:
+        m = (r.get("parameters") or {}).get("roughness")
+        rows = near & (region == r["index"])
+        if not m or not rows.any():
+            continue
+        s = float(np.median(smear[rows]))
+        bias = roughness_overstatement(m, s)
+        r["systematics"] = {"roughness_lens": round(bias, 6), "normal_smear_rad": round(s, 6)}
+        unc = r.setdefault("uncertainties", {})
+        unc["roughness"] = float(np.hypot(float(unc.get("roughness") or 0.0), bias))
 
 
 def _point_spread(root: Path, manifest: dict[str, Any], data: dict[str, Any], doc: dict[str, Any], held: np.ndarray,

@@ -16,6 +16,7 @@ Modules
 - ``forward_fit``: a region of the mesh fitted at its observations' true angles.
 - ``region_consistency``: the pieces of a region scored against every region's fitted material.
 - ``vertex_relabelling``: every vertex given to the fitted material that explains its own observations.
+- ``lens_smear``: the roughness a pinhole fit overstates through a camera's point spread.
 - ``photometric_normals``: mesh normals tilted to where the photos' highlights put them.
 - ``segmentation``: an object's pixels split into regions without ground truth.
 
@@ -103,6 +104,7 @@ from processing.materials.identification import (
     identify_material,
     identify_regions,
 )
+from processing.materials.lens_smear import mesh_curvature, normal_smear_rad, roughness_overstatement
 from processing.materials.lobes import (
     Lobe,
     Material,
@@ -211,6 +213,8 @@ __all__ = [
     "LIKELIHOOD_MARGIN",
     # vertex_relabelling
     "vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2", "DECIDED_NATS",
+    # lens_smear
+    "mesh_curvature", "normal_smear_rad", "roughness_overstatement",
     # photometric_normals
     "NormalRefinement", "refine_normals", "MAX_TILT_DEG", "PRIOR_DEG", "SMOOTH_DEG", "MIN_DECIDING",
     # identification
