@@ -151,9 +151,10 @@ def _colour_and_capped_level_chi2(samples: RegionSamples, model, materials: Sequ
         if m is None:
             continue
         wp = w(model.predict(m, fitted).reshape(-1)).reshape(n, 3)
-        full = np.einsum("ij,ij->i", wy - wp, wy - wp)
-        scale = np.maximum(np.einsum("ij,ij->i", wy, wp), 0.0) / np.maximum(np.einsum("ij,ij->i", wp, wp), 1e-300)
-        colour = np.einsum("ij,ij->i", wy - scale[:, None] * wp, wy - scale[:, None] * wp)
+        full = ((wy - wp) ** 2).sum(axis=1)
+        # the best brightness scale >= 0 of the prediction: what is left is the colour's misfit (<= full)
+        scale = np.maximum((wy * wp).sum(axis=1), 0.0) / np.maximum((wp * wp).sum(axis=1), 1e-300)
+        colour = ((wy - scale[:, None] * wp) ** 2).sum(axis=1)
         chi2[:, k] = np.bincount(g, weights=colour + np.minimum(full - colour, level_cap), minlength=ids.size)
     return ids, chi2
 
