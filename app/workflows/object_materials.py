@@ -446,8 +446,8 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     :func:`processing.materials.vertex_relabelling.relabel_vertices` from the segmentation's labels
     (docs/materials.md, "Vertices the fitted materials claim"); a smaller region whose fit cannot name
     its material (confidence under :data:`_NAMED_CONFIDENCE`) takes no vertex.  The regions that gained
-    or lost vertices are fitted again on the vertices that did not move, and a region left without
-    faces goes.
+    or lost vertices are fitted again on the vertices that stayed and those their own views moved, and
+    a region left without faces goes.
     """
     from processing.materials.forward_fit import region_samples
     from processing.materials.presets import get_material
@@ -480,10 +480,11 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
                               face_region=lut[face_region].astype(np.int32), n_regions=len(keep))
     changed = {int(lut[r]) for r in np.unique(np.concatenate([seg.vertex_region[moved], labels[moved]])) if lut[r] >= 0}
     _check_cancel(stop)
-    # the moved vertices say which material they are, by the colour of light the model does not follow; they
-    # do not say its parameters: each region is fitted again on the vertices that stayed
+    # a vertex moved by its neighbours alone (its own views cannot tell the materials apart: a dark underside, an
+    # eye in shadow) says nothing of its new region's parameters: the regions are fitted again on the vertices
+    # that stayed and those their own views moved
     fits = _fit_regions(obs, v, t, data, new, d_ref, model, model_error, stop, only=changed,
-                        previous=[fits[r] for r in keep], fit_on=~moved)
+                        previous=[fits[r] for r in keep], fit_on=~moved | own)
     return new, fits, {"vertices": int(moved.sum()), "area_mm2": round(moved_area, 3), "regions": sorted(changed),
                        "unnamed": named_not, "_own_views": own}
 
