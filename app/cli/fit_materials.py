@@ -39,17 +39,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def summary_lines(doc: dict) -> list[str]:
     """The human-readable lines of a materials document (regions, baseline, validation)."""
-    from app.workflows.object_materials import answer_text
+    from app.workflows.object_materials import answer_text, area_text
 
     lines = []
     for r in doc["regions"]:
         params = ", ".join(f"{k} {v:.3g} +- {r.get('uncertainties', {}).get(k, float('nan')):.2g}"
                            for k, v in (r.get("parameters") or {}).items())
         why = f" -- {r['reason']}" if r.get("reason") else ""
-        nb = r.get("area_by_neighbours_mm2")
-        lines.append(f"  region {r['index']}: {answer_text(r)}, "
-                     f"{r['area_mm2']:.0f} mm^2" + (f" ({nb:.0f} of it labelled by its neighbours)" if nb else "")
-                     + f", {r['n_lit']} lit of {r['n_observations']} observations"
+        lines.append(f"  region {r['index']}: {answer_text(r)}, {area_text(r)}, "
+                     f"{r['n_lit']} lit of {r['n_observations']} observations"
                      + (f"; {params}" if params else "") + why)
     nd = doc.get("normals") or {}
     if nd.get("method") == "photometric":

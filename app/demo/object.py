@@ -80,7 +80,7 @@ def material_agreement(doc: dict[str, Any], face_region: np.ndarray, face_area: 
 def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray) -> dict[str, Any]:
     """Check the measured materials against the truth, export ``hawk.glb`` and render the measured object."""
     from app.workflows.gltf_export import export_gltf, read_object_model
-    from app.workflows.object_materials import answer_text
+    from app.workflows.object_materials import answer_text, area_text
 
     doc, mesh = read_object_model(session)
     v, t = mesh.vertices, mesh.triangles
@@ -91,9 +91,7 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
           "area has the simulation's true material", file=sys.stderr)
     for r in doc["regions"]:
         params = ", ".join(f"{k} {v:.3g}" for k, v in (r.get("parameters") or {}).items())
-        nb = r.get("area_by_neighbours_mm2")
-        print(f"  region {r['index']}: {answer_text(r)}, {r['area_mm2']:.0f} mm^2"
-              f"{f' ({nb:.0f} labelled by its neighbours)' if nb else ''}{'; ' + params if params else ''}",
+        print(f"  region {r['index']}: {answer_text(r)}, {area_text(r)}{'; ' + params if params else ''}",
               file=sys.stderr)
     val = doc.get("validation") or {}
     if val.get("mean_de2000") is not None:

@@ -36,7 +36,7 @@ import numpy as np
 
 from app.errors import UsageError
 
-__all__ = ["measure_object", "burst_records", "answer_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
+__all__ = ["measure_object", "burst_records", "answer_text", "area_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
            "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY", "FIT_MODEL_ERROR"]
 
 OBJECT_MATERIALS = "products/object-materials.json"
@@ -248,6 +248,20 @@ def answer_text(region: dict[str, Any]) -> str:
     return text + (f"; {mixed:.0f} mm2 of it fits another region's material better" if mixed > 0 else "")
 
 
+def area_text(region: dict[str, Any]) -> str:
+    """A region's area for people, with how much of it only its neighbours decided.
+
+    Examples
+    --------
+    >>> area_text({"area_mm2": 347.2, "area_by_neighbours_mm2": 114.0})
+    '347 mm^2 (114 of it labelled by its neighbours)'
+    >>> area_text({"area_mm2": 12.0})
+    '12 mm^2'
+    """
+    nb = region.get("area_by_neighbours_mm2")
+    return f"{float(region['area_mm2']):.0f} mm^2" + (f" ({float(nb):.0f} of it labelled by its neighbours)" if nb else "")
+
+
 def _check_cancel(stop: Callable[[], bool]) -> None:
     if stop():
         raise UsageError("cancelled: no product written")
@@ -395,9 +409,7 @@ def _join_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], s
     from processing.materials.region_consistency import face_regions, joining_pieces, mesh_components, pieces_chi2
 
     none = {"target": None, "pieces": 0, "area_mm2": 0.0, "from_regions": []}
-    sizes = np.bincount(seg.face_region[seg.face_region >= 0], weights=areas[seg.face_region >= 0],
-                        minlength=seg.n_regions)
-    target = int(np.argmax(sizes)) if seg.n_regions > 1 else -1
+    target = int(np.argmax(_region_areas(seg, areas))) if seg.n_regions > 1 else -1
     if target < 0 or not fits[target].spec:
         return seg, fits, none
     piece = mesh_components(seg.vertex_region, t)
@@ -461,9 +473,8 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     _check_cancel(stop)
     samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region >= 0), triangles=t,
                              reference_mm=d_ref)
-    sizes = np.bincount(seg.face_region[seg.face_region >= 0], weights=areas[seg.face_region >= 0],
-                        minlength=seg.n_regions)
-    unnamed = [f.confidence < _NAMED_CONFIDENCE and r != int(np.argmax(sizes)) for r, f in enumerate(fits)]
+    largest = int(np.argmax(_region_areas(seg, areas)))
+    unnamed = [f.confidence < _NAMED_CONFIDENCE and r != largest for r, f in enumerate(fits)]
     named_not = [f"{fits[r].material} {fits[r].confidence:.2f}" for r, u in enumerate(unnamed) if u]
     cost = vertex_material_costs(samples, model, mats, len(v), model_error=model_error, unnamed=unnamed)
     labels = relabel_vertices(cost, seg.vertex_region, t)
@@ -487,6 +498,12 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
                         previous=[fits[r] for r in keep], fit_on=~moved | own)
     return new, fits, {"vertices": int(moved.sum()), "area_mm2": round(moved_area, 3), "regions": sorted(changed),
                        "unnamed": named_not, "_own_views": own}
+
+
+def _region_areas(seg: Any, areas: np.ndarray) -> np.ndarray:
+    """``(R,)`` area (mm2) of each region's faces."""
+    measured = seg.face_region >= 0
+    return np.bincount(seg.face_region[measured], weights=areas[measured], minlength=seg.n_regions)
 
 
 def _decided_by_own_views(cost: np.ndarray, unnamed: list[bool]) -> np.ndarray:

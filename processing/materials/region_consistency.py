@@ -159,8 +159,8 @@ def fixed_material_chi2(samples: RegionSamples, model, materials: Sequence[Mater
 
 def pieces_chi2(samples: RegionSamples, piece: ArrayLike, model, materials: Sequence[Material | None], *,
                 model_error: float = 0.02, normal_error_deg: float = 0.5, max_samples: int = 4000,
-                seed: int = 0) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64],
-                                        NDArray[np.int64]]:
+                seed: int = 0, level_cap: float = np.inf) -> tuple[NDArray[np.int64], NDArray[np.float64],
+                                                                  NDArray[np.int64], NDArray[np.int64]]:
     """Chi-square of every piece's observations under each of several fixed materials, in one pass.
 
     The observations of all pieces are weighed together
@@ -168,6 +168,12 @@ def pieces_chi2(samples: RegionSamples, piece: ArrayLike, model, materials: Sequ
     normal error of the fit, robust weights scaled and normalised per piece), each material's
     prediction is evaluated once for all of them, and the whitened squared residuals are summed per
     piece.  Each piece keeps the observations :func:`fixed_material_chi2` would score for it alone.
+
+    With a finite ``level_cap`` each observation's whitened residual is split into its level (the part
+    a free brightness scale >= 0 of the prediction removes) and its colour (the rest, never more than
+    the whole); the colour counts in full, the level up to ``level_cap``.  Light the model does not
+    follow (a neighbour's highlight spread by the lens, a normal a few degrees off) brightens a
+    surface in its own colour: far from the prediction in level, right in colour.
 
     Parameters
     ----------
@@ -181,6 +187,8 @@ def pieces_chi2(samples: RegionSamples, piece: ArrayLike, model, materials: Sequ
         Fitted materials (None: not scored, NaN).
     model_error, normal_error_deg, max_samples, seed
         As in :func:`fixed_material_chi2` (``max_samples`` per piece).
+    level_cap
+        Most chi-square one observation's level adds (> 0; infinity: the whole residual, as the fit).
 
     Returns
     -------
@@ -205,10 +213,20 @@ def pieces_chi2(samples: RegionSamples, piece: ArrayLike, model, materials: Sequ
     ids, g = np.unique(kept_piece, return_inverse=True)
     n_pieces = ids.size
     chi2 = np.full((n_pieces, len(materials)), np.nan)
+    wy = w(y).reshape(-1, 3) if np.isfinite(level_cap) else None
     for k, m in enumerate(materials):
-        if m is not None:
-            r = w(y - model.predict(m, fitted).reshape(-1)).reshape(-1, 3)
-            chi2[:, k] = np.bincount(g, weights=np.einsum("ij,ij->i", r, r), minlength=n_pieces)
+        if m is None:
+            continue
+        pred = model.predict(m, fitted).reshape(-1)
+        r = w(y - pred).reshape(-1, 3)
+        e = np.einsum("ij,ij->i", r, r)
+        if wy is not None:
+            wp = w(pred).reshape(-1, 3)         # whitened on its own: a prediction 1e-30 of the signal keeps its colour
+            scale = np.maximum(np.einsum("ij,ij->i", wy, wp), 0.0) / np.maximum(np.einsum("ij,ij->i", wp, wp), 1e-300)
+            rc = wy - scale[:, None] * wp
+            colour = np.einsum("ij,ij->i", rc, rc)
+            e = colour + np.minimum(e - colour, level_cap)
+        chi2[:, k] = np.bincount(g, weights=e, minlength=n_pieces)
     n = np.bincount(g, minlength=n_pieces)
     n_hl = np.bincount(g, weights=fitted.cos_h >= np.cos(np.radians(HIGHLIGHT_DEG)), minlength=n_pieces)
     return ids, chi2, n, n_hl.astype(np.int64)

@@ -8,8 +8,8 @@ the angles: a gold seen near normal incidence is a deeper yellow than the same g
 one, and a metal's faint lobe tail has its own colour.  Once every region has a material fitted at
 the observations' true angles, the forward model itself can say which of them explains a vertex's
 observations.  :func:`vertex_material_costs` scores each vertex's observations under every region's
-fitted material with the fit's noise model (the whitening of
-:func:`processing.materials.forward_fit.grouped_observations`, one group per vertex).  Each
+fitted material with the fit's noise model
+(:func:`processing.materials.region_consistency.pieces_chi2`, one piece per vertex).  Each
 observation's whitened residual is split in two: its level (what a free brightness scale of the
 prediction removes) and its colour (the rest).  Light the model does not follow -- a neighbour's
 highlight spread over a photosite or two by the lens, a normal a few degrees off near a highlight --
@@ -106,6 +106,8 @@ def vertex_material_costs(samples: RegionSamples, model, materials: Sequence[Mat
         ``cap_nats`` or ``level_cap`` not positive, ``n_vertices`` too small for the samples, no material,
         or ``unnamed`` not one flag per material.
     """
+    from processing.materials.region_consistency import pieces_chi2
+
     if not (np.isfinite(cap_nats) and cap_nats > 0):
         raise FitError(f"cap_nats must be > 0, got {cap_nats!r}")
     if not level_cap > 0:
@@ -121,42 +123,12 @@ def vertex_material_costs(samples: RegionSamples, model, materials: Sequence[Mat
     absent = np.array([m is None for m in materials])
     cost = np.where(absent, np.inf, 0.0)[None, :].repeat(n_vertices, axis=0)
     if len(samples) and not absent.all():
-        ids, chi2 = _colour_and_capped_level_chi2(samples, model, materials, model_error, level_cap)
+        ids, chi2, _, _ = pieces_chi2(samples, samples.vertex, model, materials, model_error=model_error,
+                                      level_cap=level_cap)
         if ids.size:
             best = np.nanmin(np.where(absent, np.nan, chi2), axis=1, keepdims=True)
             cost[ids] = np.where(absent, np.inf, np.minimum(0.5 * (chi2 - best), cap_nats))
     return cost + np.where(weak & ~absent, cap_nats, 0.0)[None, :]
-
-
-def _colour_and_capped_level_chi2(samples: RegionSamples, model, materials: Sequence[Material | None],
-                                  model_error: float, level_cap: float) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Per vertex: the whitened misfit of each observation's colour, plus its level's misfit capped, summed.
-
-    Each observation's whitened residual splits into the part a free brightness scale of the prediction
-    removes (the level: light the model does not follow, a neighbour's highlight spread by the lens or a
-    normal a few degrees off, adds brightness of the surface's own colour) and the rest (the colour);
-    the level part counts up to ``level_cap`` per observation.
-    """
-    from processing.materials.forward_fit import grouped_observations
-
-    prep = grouped_observations(samples, samples.vertex, model, model_error=model_error)
-    if prep is None:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, len(materials)))
-    fitted, vertex, y, w = prep
-    ids, g = np.unique(vertex, return_inverse=True)
-    n = len(fitted)
-    wy = w(y).reshape(n, 3)
-    chi2 = np.full((ids.size, len(materials)), np.nan)
-    for k, m in enumerate(materials):
-        if m is None:
-            continue
-        wp = w(model.predict(m, fitted).reshape(-1)).reshape(n, 3)
-        full = ((wy - wp) ** 2).sum(axis=1)
-        # the best brightness scale >= 0 of the prediction: what is left is the colour's misfit (<= full)
-        scale = np.maximum((wy * wp).sum(axis=1), 0.0) / np.maximum((wp * wp).sum(axis=1), 1e-300)
-        colour = ((wy - scale[:, None] * wp) ** 2).sum(axis=1)
-        chi2[:, k] = np.bincount(g, weights=colour + np.minimum(full - colour, level_cap), minlength=ids.size)
-    return ids, chi2
 
 
 def relabel_vertices(cost: ArrayLike, labels: ArrayLike, triangles: ArrayLike, *,

@@ -156,13 +156,14 @@ def test_a_region_whose_material_is_unnamed_takes_no_vertex(two_metals, model):
 
 
 def test_with_the_level_counted_in_full_the_score_is_the_fits_chi_square(two_metals, model):
-    # colour part + level part = the whole whitened residual: uncapped, the costs are half the differences of
-    # the fit's own per-vertex chi-square (region_consistency.pieces_chi2, one piece per vertex)
+    # colour part + level part = the whole whitened residual: with a level cap no observation reaches (the split
+    # made), the costs are half the differences of the fit's own per-vertex chi-square (pieces_chi2 without a
+    # cap, one piece per vertex: the whole residual, no split)
     from processing.materials.region_consistency import pieces_chi2
 
     sim, truth, _, _, samples = _patch_and_samples(two_metals)
     mats = [get_material("nami-shibuichi"), get_material("gold")]
-    cost = vertex_material_costs(samples, model, mats, len(truth), cap_nats=1e12, level_cap=np.inf)
+    cost = vertex_material_costs(samples, model, mats, len(truth), cap_nats=1e12, level_cap=1e300)
     ids, chi2, _, _ = pieces_chi2(samples, samples.vertex, model, mats)
     np.testing.assert_allclose(cost[ids], 0.5 * (chi2 - chi2.min(axis=1, keepdims=True)), rtol=1e-9, atol=1e-6)
 
