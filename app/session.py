@@ -895,6 +895,9 @@ def _check_record(field: str, rec: Any) -> None:
         _need(isinstance(rec["sha256"], str), f"{field}.sha256", "a hex digest", rec["sha256"])
     if "status" in rec:
         _need(isinstance(rec["status"], str), f"{field}.status", "a text", rec["status"])
+    if "table_frame" in rec:
+        _need(_is_int(rec["table_frame"], 0, 1 << 20), f"{field}.table_frame", "a table frame number",
+              rec["table_frame"])
 
 
 def _check_plan(plan: Any) -> None:
@@ -941,6 +944,9 @@ def _check_field(key: str, value: Any) -> None:
               f"an object of at most {MAX_PASSES} pass records", value)
         for number, rec in value.items():
             _need(isinstance(rec, dict), f"passes.{number}", "an object", rec)
+            if "table_frame" in rec:
+                _need(_is_int(rec["table_frame"], 0, 1 << 20), f"passes.{number}.table_frame",
+                      "a table frame number", rec["table_frame"])
     elif key == "captures":
         _need(isinstance(value, dict) and len(value) <= MAX_CAPTURES, key,
               f"an object of at most {MAX_CAPTURES} capture records", value)

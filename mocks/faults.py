@@ -78,6 +78,12 @@ class Faults:
     mute
         While True the device ignores everything it receives (a hung
         firmware: no replies, no status, no reset).
+    silent_after_move
+        For the turntable: number of next moves after which the device
+        sends nothing (the move's ``ok``, status replies, messages) until it
+        is reset; the move itself runs to its end.  What the host sees when
+        the board's replies stop reaching it mid-move (a stalled USB link, a
+        host too busy to read them in time): a move whose end it cannot know.
     laser_watchdog_after_moves
         For the turntable: counts down by one per finished move; when it
         reaches 0 the laser watchdog fires as the next command line arrives
@@ -102,6 +108,7 @@ class Faults:
     replug_after_s: float | None = None
     alarm_on_move: str | None = None
     mute: bool = False
+    silent_after_move: int = 0
     laser_watchdog_after_moves: int = 0
     corrupt_frames: int = 0
     drop_frames: int = 0
@@ -166,6 +173,7 @@ FAULT_NAMES: dict[str, dict[str, str]] = {
         "garbage_replies": "count", "drop_replies": "count", "reply_delay_s": "seconds",
         "reset_on_command": "count", "unplug_on_command": "count", "replug_after_s": "seconds",
         "alarm_on_move": "text", "mute": "switch", "laser_watchdog_after_moves": "count",
+        "silent_after_move": "count",
     },
     "profiler": {
         "garbage_replies": "count", "drop_replies": "count", "reply_delay_s": "seconds",
@@ -245,7 +253,7 @@ def parse_faults(spec: str | Sequence[str]) -> dict[str, dict[str, Any]]:
     >>> parse_faults("turntable.garbage=3")
     Traceback (most recent call last):
     ...
-    mocks.faults.FaultSpecError: fault 'turntable.garbage=3': unknown turntable fault 'garbage'; known: garbage_replies, drop_replies, reply_delay_s, reset_on_command, unplug_on_command, replug_after_s, alarm_on_move, mute, laser_watchdog_after_moves
+    mocks.faults.FaultSpecError: fault 'turntable.garbage=3': unknown turntable fault 'garbage'; known: garbage_replies, drop_replies, reply_delay_s, reset_on_command, unplug_on_command, replug_after_s, alarm_on_move, mute, laser_watchdog_after_moves, silent_after_move
     """
     items: list[str] = []
     for part in ([spec] if isinstance(spec, str) else list(spec)):

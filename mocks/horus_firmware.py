@@ -278,6 +278,7 @@ class HorusFirmware(PtyDevice):
         self._out = bytearray()
         self._pending: deque[tuple[float, bytes]] = deque()  # (due, reply) command replies
         self._discard_line = False
+        self._silent = False
 
     def _state(self) -> str:
         if self._alarm:
@@ -314,6 +315,8 @@ class HorusFirmware(PtyDevice):
             self._move = None
 
     def _send(self, data: bytes) -> None:
+        if self._silent:            # the silent_after_move fault: nothing reaches the host until a reset
+            return
         self._out += data
 
     def _reply(self, text: str, now: float) -> None:
@@ -496,6 +499,8 @@ class HorusFirmware(PtyDevice):
         t_sim = trapezoid_time(d, self._feed, self.accel) if d > 0 else 0.0
         self._move = _Move(line, self._pos_units, target, self._phys_deg, self._motor, now,
                            t_sim * self.time_scale, t_sim)
+        if self.faults.take("silent_after_move"):
+            self._silent = True
 
 
 class _FirmwareError(Exception):

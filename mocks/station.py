@@ -583,6 +583,18 @@ class SimulatedStation:
     def _angle(self) -> float:
         return self.table_angle_deg
 
+    def profile_at(self, angle_deg: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Ground truth: the profile of the current placement with the table at physical ``angle_deg``.
+
+        ``(x_um, z_um, valid)`` as the profiler measures it, noise included (seeded by the
+        angle, so the profile a capture took at that angle exactly); the laser is taken as on.
+        """
+        with self._lock:
+            source = self._source
+        if source is None:
+            raise RuntimeError("no object placed yet: call place() first")
+        return source.profile_at(float(angle_deg))
+
     def _profile(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
         """The profiler's source: the current placement at the current angle, dark while T1 is off."""
         with self._lock:

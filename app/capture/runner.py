@@ -34,8 +34,14 @@ Resuming knows the table's angle: the session journals the target before
 every move and the confirmed angle after it; on resume the firmware's own
 position counter is read (``?``) before the board is reset, and the angle
 is taken from it when it agrees with the journal.  If the board lost its
-counter while a move was in flight, the remaining steps of that pass carry
-the possible error in ``angle_uncertain_deg`` of the pass record.
+counter while a move was in flight (or a reset reached it before the move's
+end could be heard), the table's angle is known only to within that move:
+its confirmed angle becomes the zero of a new *table frame* of the pass
+(``table_frame`` in the pass record, counted from 0, and in each profile's
+and frame's record), and every profile and frame of the pass taken in an
+earlier frame is taken again in the new one once the pass's other steps are
+done -- all of a pass's data then share one zero, as registration assumes
+(it places each pass as one rigid whole).
 """
 
 from __future__ import annotations
@@ -798,11 +804,7 @@ class _Runner:
         p = state.get("pass_no")
         self.session.set_state(table_deg=angle, moving_to=None, fw_offset_deg=tt.firmware_offset_deg)
         if uncertain > 0:
-            prev = float(self.session.pass_record(p).get("angle_uncertain_deg", 0.0))
-            self.session.update_pass(p, angle_uncertain_deg=max(prev, uncertain))
-            self._note(f"turntable: the board lost its position during an interrupted move of pass {p}; the "
-                       f"table is assumed at {angle:g} deg, uncertain by up to {uncertain:g} deg "
-                       "(recorded in the pass; registration absorbs it)")
+            self._angle_lost(p, uncertain, f"the board lost its position during an interrupted move of pass {p}")
         else:
             self._note(f"turntable: resumed pass {p} at {angle:g} deg "
                        f"({'read from the firmware' if read is not None else 'last confirmed angle'})")
@@ -841,30 +843,67 @@ class _Runner:
             if a.id not in pending:
                 self._skip([a])
                 continue
-            self._check_cancel()
-            t = time.monotonic()
-            if a.kind == "profile":
-                self._profile(a)
-            else:
-                if a.kind == "chart" and self.hooks.before_chart is not None:
-                    self.hooks.before_chart(p, a.index)
-                if a.kind in ("frame", "burst") and self.hooks.before_frame is not None:
-                    self.hooks.before_frame(p, a.index, a.shot)
-                self._frame(a)
-                if a.kind == "chart" and a.index == self.plan.chart_frames - 1 and self.hooks.after_chart is not None:
-                    self.hooks.after_chart(p)
-            self.durations[a.kind].append(time.monotonic() - t)
-            self.report.taken += 1
-            self._progress(a)
+            self._take(p, a)
+        rounds = 0
+        while stale := [a for a in actions if not self._held(a)]:
+            rounds += 1
+            if rounds > self.settings.max_recoveries:
+                raise CaptureInterrupted(self._resume_hint(
+                    f"turntable: the table's angle was lost again while pass {p}'s earlier captures were being "
+                    "taken again; check the turntable's cable and power"), session=s.root)
+            frame = self._table_frame(p)
+            self._note(f"pass {p}: {len(stale)} capture(s) taken before the table's angle was lost are taken "
+                       f"again in its table frame {frame} (the pass's profiles and frames must share one zero)")
+            self.actions.extend(stale)                # the progress counts them
+            for a in stale:
+                self._take(p, a)
         if self.plan.kind in PROFILE_KINDS:
             self._gather(p)
         s.update_pass(p, status="complete", completed=utc_now())
         s.checkpoint()
 
+    def _take(self, p: int, a: Action) -> None:
+        self._check_cancel()
+        t = time.monotonic()
+        if a.kind == "profile":
+            self._profile(a)
+        else:
+            if a.kind == "chart" and self.hooks.before_chart is not None:
+                self.hooks.before_chart(p, a.index)
+            if a.kind in ("frame", "burst") and self.hooks.before_frame is not None:
+                self.hooks.before_frame(p, a.index, a.shot)
+            self._frame(a)
+            if a.kind == "chart" and a.index == self.plan.chart_frames - 1 and self.hooks.after_chart is not None:
+                self.hooks.after_chart(p)
+        self.durations[a.kind].append(time.monotonic() - t)
+        self.report.taken += 1
+        self._progress(a)
+
+    def _table_frame(self, p: int) -> int:
+        """The pass's table frame: how many times the table's angle was lost in it (see the module docstring)."""
+        return int(self.session.pass_record(p).get("table_frame", 0))
+
+    def _frame_fields(self, a: Action) -> dict[str, Any]:
+        """The table frame a profile or frame is taken in, for its record (nothing in frame 0)."""
+        frame = self._table_frame(a.pass_no)
+        return {"table_frame": frame} if frame and a.kind != "chart" else {}
+
+    def _angle_lost(self, p: int | None, uncertain_deg: float, how: str) -> None:
+        """The table's angle is known only to within ``uncertain_deg``: start a new table frame of pass ``p``."""
+        if p is None:
+            return
+        frame = self._table_frame(p) + 1
+        self.session.update_pass(p, table_frame=frame)
+        self._note(f"turntable: {how}; the table's angle is known only to within {uncertain_deg:g} deg, so its "
+                   f"confirmed angle starts table frame {frame} of pass {p} and the pass's earlier profiles "
+                   "and frames are taken again in it")
+
     def _held(self, a: Action) -> bool:
         rec = self.session.capture(a.id)
         if rec is None or rec.get("status") != "done":
             return False
+        if a.kind != "chart" and int(rec.get("table_frame", 0)) != self._table_frame(a.pass_no):
+            return False                              # taken before the table's angle was lost
         problem = self.session.verify_file(rec)
         if problem is None:
             return True
@@ -917,12 +956,8 @@ class _Runner:
                         f"{self.settings.reconnect_timeout_s:g} s ({again}); plug it back in and power it"),
                         session=self.session.root) from again
                 if name == "turntable" and dev.position_uncertain_deg > 0:
-                    p = self.session.manifest["state"].get("pass_no")
-                    if p is not None:
-                        prev = float(self.session.pass_record(p).get("angle_uncertain_deg", 0.0))
-                        self.session.update_pass(p, angle_uncertain_deg=max(prev, dev.position_uncertain_deg))
-                    self._note(f"turntable: the port vanished mid-move; angle uncertain by up to "
-                               f"{dev.position_uncertain_deg:g} deg")
+                    self._angle_lost(self.session.manifest["state"].get("pass_no"), dev.position_uncertain_deg,
+                                     "the board was reset before the end of a move could be heard")
             except DeviceAlarm as exc:
                 raise CaptureInterrupted(self._resume_hint(
                     f"{name}: {exc}; the move was aborted (a jam?): clear it, then resume"),
@@ -962,7 +997,7 @@ class _Runner:
                               angle_deg=np.float64(angle), seq=np.int64(prof.seq),
                               timestamp_us=np.int64(prof.timestamp_us))
         s.add_capture(a.id, kind="profile", **{"pass": a.pass_no}, index=a.index, angle_deg=angle,
-                      valid=int(prof.valid.sum()), file=info.path, sha256=info.sha256, bytes=info.bytes,
+                      **self._frame_fields(a), valid=int(prof.valid.sum()), file=info.path, sha256=info.sha256, bytes=info.bytes,
                       state={"table_deg": angle, "moving_to": None,
                              "fw_offset_deg": self.dev.turntable.firmware_offset_deg})
 
@@ -975,6 +1010,7 @@ class _Runner:
         if a.kind == "burst":
             extra.update(burst_of=f"p{a.pass_no:02d}/frame/{a.index:02d}", shot=a.shot)
         s.add_capture(a.id, kind=a.kind, **{"pass": a.pass_no}, index=a.index, angle_deg=angle, **extra,
+                      **self._frame_fields(a),
                       file=info.path, sha256=info.sha256, bytes=info.bytes,
                       state={"table_deg": angle, "moving_to": None,
                              "fw_offset_deg": self.dev.turntable.firmware_offset_deg})

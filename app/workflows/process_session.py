@@ -123,8 +123,10 @@ def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[
             angle_uncertain = manifest["passes"].get(str(p), {}).get("angle_uncertain_deg")
             if angle_uncertain:
                 entry["angle_uncertain_deg"] = angle_uncertain
-                note(f"pass {p}: the table angle may be off by up to {angle_uncertain:g} deg after an interrupted "
-                     "capture (kept; registration aligns the pass as a whole)")
+                note(f"pass {p}: its profiles after an interrupted move may be turned by up to "
+                     f"{angle_uncertain:g} deg against those before it (a session captured before passes were "
+                     "taken again in one table frame); registration places the pass as one whole and cannot "
+                     "undo that: capture the pass again if the mesh shows a seam")
         out.append(entry)
     return out
 

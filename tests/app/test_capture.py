@@ -26,6 +26,7 @@ from app.capture.runner import (
 )
 from app.session import Session
 from mocks.station import SimulatedStation
+from mocks.waiting import wait_until
 from mocks.world import World
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -235,6 +236,64 @@ def test_unplugged_device_is_reported_and_the_session_resumes(reference, tmp_pat
         report = _capture(st, tmp_path / "s", PLAN, session=s)
     assert report.status == "complete" and report.skipped == len(done) and report.taken == 24 - len(done)
     _same(_profiles(tmp_path / "s", PLAN.passes), expected)
+
+
+def test_a_move_whose_end_is_lost_retakes_the_pass_in_one_table_frame(tmp_path):
+    """The host hears nothing from the board during a move (the move runs to its end): after the reset
+    the table's angle is known only to within that move, so the profiles taken before it are taken again
+    in the table's new frame -- every profile of the pass one revolution seen from one zero."""
+    plan = CapturePlan("scan", steps=12, passes=1, camera=False)
+    with _station(tmp_path) as st:
+        report = _capture(st, tmp_path / "s", plan, progress=_at_step(5, _set(st.turntable_faults,
+                                                                                silent_after_move=1)))
+        got = _profiles(tmp_path / "s", 1)[0]
+        # the lost move (120 -> 150 deg) ran to its end: the table's new zero is the old one turned by
+        # that move, and the last capture (a profile taken again) says by how much
+        offset_deg = st.table_angle_deg - got["angles_deg"][4]
+        truth = [st.profile_at(a + offset_deg) for a in got["angles_deg"]]
+    assert report.status == "complete"
+    assert _noted(report, "stopped answering") and _noted(report, "taken again")
+    assert offset_deg == pytest.approx(30.0, abs=0.1)
+    for i, (x_um, z_um, _) in enumerate(truth):          # every profile, before the loss and after it
+        np.testing.assert_allclose(got["z_mm"][i], z_um / 1000.0, rtol=0, atol=1e-3,
+                                   err_msg=f"profile {i}")
+        np.testing.assert_allclose(got["x_mm"][i], x_um / 1000.0, rtol=0, atol=1e-3)   # the wire: whole um
+    np.testing.assert_allclose(got["angles_deg"], np.arange(12) * 30.0, atol=0.5 * 360 / 3200 + 1e-9)
+    m = Session.read(tmp_path / "s")
+    assert m["passes"]["1"]["table_frame"] == 1 and not m["passes"]["1"].get("angle_uncertain_deg")
+    assert report.taken == 12 + 5                          # the five profiles before the loss, again
+
+
+def test_resume_after_a_crash_mid_move_retakes_the_pass_in_one_table_frame(tmp_path):
+    """A crash while a move was in flight, the board reset since: on --resume the angle is known only to
+    within that move, so the pass's profiles are all taken (again) in one new table frame."""
+    plan = CapturePlan("scan", steps=12, passes=1, camera=False)
+    with _station(tmp_path) as st:
+        with pytest.raises(CaptureInterrupted):
+            _capture(st, tmp_path / "s", plan, settings=CaptureSettings(reconnect_timeout_s=0.5),
+                     progress=_at_step(7, _set(st.profiler_faults, unplug_on_command=1)))
+        st.profiler.replug()
+        s = Session.open(tmp_path / "s")
+        held = sum(r["kind"] == "profile" for r in s.manifest["captures"].values())
+        last = float(s.manifest["state"]["table_deg"])
+        s.set_state(moving_to=last + 30.0)           # the crash came during the next move, which went on ...
+        import serial
+
+        with serial.serial_for_url(str(st.turntable_path), baudrate=115200, timeout=5.0) as port:
+            port.write(f"M17\nG1 X{last + 30.0:.4f}\n".encode())
+            assert wait_until(lambda: st.table_angle_deg == pytest.approx(last + 30.0, abs=0.1), timeout=5.0)
+        st.turntable.unplug()                        # ... and the board lost power since
+        st.turntable.replug()
+        report = _capture(st, tmp_path / "s", plan, session=s)
+        got = _profiles(tmp_path / "s", 1)[0]
+        offset_deg = st.table_angle_deg - got["angles_deg"][-1]      # the last profile taken
+        truth = [st.profile_at(a + offset_deg) for a in got["angles_deg"]]
+    assert report.status == "complete" and _noted(report, "lost its position")
+    assert offset_deg == pytest.approx(30.0, abs=0.1)
+    assert report.taken == 12 and report.skipped == 0 and held >= 5   # every profile of the pass, in frame 1
+    for i, (_, z_um, _) in enumerate(truth):
+        np.testing.assert_allclose(got["z_mm"][i], z_um / 1000.0, rtol=0, atol=1e-3, err_msg=f"profile {i}")
+    assert Session.read(tmp_path / "s")["passes"]["1"]["table_frame"] == 1
 
 
 def test_tampered_capture_is_taken_again(reference, tmp_path):

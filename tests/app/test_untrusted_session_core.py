@@ -224,6 +224,8 @@ def _with_manifest(tmp_path: Path, **fields) -> Path:
     ("plan", {"steps": 0}, r"plan.steps must be an integer in 1..100000"),
     ("plan", {"camera_angles_deg": list(range(5000))}, "plan.camera_angles_deg"),
     ("passes", {"1": 5}, "passes.1 must be an object"),
+    ("passes", {"1": {"table_frame": "x"}}, "passes.1.table_frame must be a table frame number"),
+    ("captures", {"a": {"file": "a", "table_frame": -1}}, "captures.a.table_frame must be"),
     ("history", {}, "history must be a list"),
     ("history", ["x"], r"history\[0\] must be an object"),
     ("status", "bogus", "status must be one of"),

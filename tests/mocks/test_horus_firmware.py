@@ -212,6 +212,21 @@ def test_mute_device_answers_nothing(port, fw):
     fw.faults.mute = False
 
 
+def test_silent_after_move_turns_the_table_but_says_nothing_until_reset(port, fw):
+    assert port.cmd("M17") == ["ok"]
+    fw.faults.silent_after_move = 1
+    port.s.timeout = 0.3
+    port.s.write(b"G1 X30\r\n")
+    assert port.s.read(1) == b""                               # no ok
+    assert wait_until(lambda: fw.angle_deg == pytest.approx(30.0, abs=0.1), timeout=5.0)
+    port.s.write(b"?")
+    assert port.s.read(1) == b""                               # no status either
+    port.s.timeout = 5.0
+    assert port.reset() == BANNER                              # a reset brings it back ...
+    assert fw.position_units == 0 and fw.angle_deg == pytest.approx(30.0, abs=0.1)   # ... counting from 0 again
+    assert port.cmd("M17") == ["ok"] and fw.faults.silent_after_move == 0
+
+
 def test_bad_configuration_is_rejected(tmp_path):
     with pytest.raises(ValueError, match="time_scale"):
         HorusFirmware(tmp_path / "a", time_scale=-1)
