@@ -290,7 +290,9 @@ _MIN_COMPONENT_WEIGHT = 0.01  # share of the fitted vertices below which a compo
 _MIN_SEEDS = 8           # confident vertices a region needs: fewer are a few off-colour views, no material
 _DROPPED = 1e6           # data cost of a forbidden label
 _KMEANS_STARTS = 6       # k-means++ starts per k (besides the greedy one): EM's local optima vary with the start
-_FIT_SAMPLE = 10_000     # vertices the mixture is fitted on (a seeded random subset)
+_FIT_SAMPLE = 200_000    # the mixture is fitted on every informative vertex up to this many (then a seeded subset):
+                         # a material with about 1 % of them is near _MIN_COMPONENT_WEIGHT, and a subset's draw
+                         # decided whether it was found
 #: Width (photo pixels, on the surface) within which a region touching two others counts as their mixed edge: a
 #: point spread of up to 1.5 px mixes the two materials over about +-3 px of their boundary.
 BAND_PX = 6.0
