@@ -441,7 +441,8 @@ class _progress:
         if self._bar is not None:
             if self._task is None:
                 self._task = self._bar.add_task("capture", total=p.total)
-            self._bar.update(self._task, completed=p.done, description=f"pass {p.pass_no}: {p.action}")
+            # the total grows when a pass's earlier captures are taken again (the table's angle was lost)
+            self._bar.update(self._task, completed=p.done, total=p.total, description=f"pass {p.pass_no}: {p.action}")
             return
         decile = int(10 * p.done / p.total)
         if decile != self._last_decile or p.done == p.total:

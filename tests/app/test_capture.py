@@ -264,6 +264,24 @@ def test_a_move_whose_end_is_lost_retakes_the_pass_in_one_table_frame(tmp_path):
     assert report.taken == 12 + 5                          # the five profiles before the loss, again
 
 
+def test_the_progress_bar_follows_a_growing_total():
+    """Captures taken again add to the plan's total: the terminal's bar must not run past its end."""
+    import io
+
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from app.capture.runner import CaptureProgress
+    from app.cli.capture import _progress
+
+    pr = _progress(quiet=False)
+    pr._bar = Progress(console=Console(file=io.StringIO()))
+    pr.update(CaptureProgress(5, 12, 1, "p01/profile/0004", 1.0, 2.0))
+    pr.update(CaptureProgress(13, 17, 1, "p01/profile/0000", 3.0, 1.0))      # five taken again
+    task = pr._bar.tasks[0]
+    assert (task.completed, task.total) == (13, 17)
+
+
 def test_resume_after_a_crash_mid_move_retakes_the_pass_in_one_table_frame(tmp_path):
     """A crash while a move was in flight, the board reset since: on --resume the angle is known only to
     within that move, so the pass's profiles are all taken (again) in one new table frame."""
