@@ -890,7 +890,10 @@ class _Runner:
 
     def _angle_lost(self, p: int | None, uncertain_deg: float, how: str) -> None:
         """The table's angle is known only to within ``uncertain_deg``: start a new table frame of pass ``p``."""
-        if p is None:
+        if p is None or self.session.pass_record(p).get("status") == "complete":
+            # between passes (the swatch's turn back to pass 1's zero): the next pass's zero is set anew
+            self._note(f"turntable: {how}; the table's angle is known only to within {uncertain_deg:g} deg "
+                       "before the next pass is zeroed")
             return
         frame = self._table_frame(p) + 1
         self.session.update_pass(p, table_frame=frame)
@@ -997,7 +1000,8 @@ class _Runner:
                               angle_deg=np.float64(angle), seq=np.int64(prof.seq),
                               timestamp_us=np.int64(prof.timestamp_us))
         s.add_capture(a.id, kind="profile", **{"pass": a.pass_no}, index=a.index, angle_deg=angle,
-                      **self._frame_fields(a), valid=int(prof.valid.sum()), file=info.path, sha256=info.sha256, bytes=info.bytes,
+                      **self._frame_fields(a), valid=int(prof.valid.sum()), file=info.path, sha256=info.sha256,
+                      bytes=info.bytes,
                       state={"table_deg": angle, "moving_to": None,
                              "fw_offset_deg": self.dev.turntable.firmware_offset_deg})
 

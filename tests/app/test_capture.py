@@ -391,6 +391,20 @@ def test_swatch_plan_takes_frames_at_every_angle(tmp_path):
     assert not any(r["kind"] == "profile" for r in m["captures"].values())
 
 
+def test_an_angle_lost_between_passes_leaves_the_finished_pass_alone(tmp_path):
+    """A swatch's turn back to pass 1's zero comes after pass 1 is complete: losing the angle there must not
+    make pass 1's frames stale (nor be taken again on a resume); the next pass is zeroed anew."""
+    plan = CapturePlan("swatch", steps=3, passes=2)
+    n_pass1 = len(plan.pass_actions(1))
+    with _station(tmp_path) as st:
+        report = _capture(st, tmp_path / "s", plan, "hotfolder",
+                          progress=_at_step(n_pass1, _set(st.turntable_faults, silent_after_move=1)))
+    m = Session.read(tmp_path / "s")
+    assert report.status == "complete" and _noted(report, "before the next pass is zeroed")
+    assert report.taken == len(plan.actions()) and "table_frame" not in m["passes"]["1"]
+    assert not _noted(report, "taken again")
+
+
 # ------------------------------------------------------------------ the command line in a subprocess
 def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "app.cli", *args]
