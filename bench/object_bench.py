@@ -8,6 +8,10 @@ Cases (each prints one JSON object; ``--work DIR`` is shared):
   with the simulation's truth (:mod:`app.demo.object`), the head's Ag share and roughness against
   the preset's, the held-out-photo CIEDE2000 of the measured materials and of the one-material
   baseline, peak memory.
+* ``captures``: the ``session`` case once per station seed (``--station-seeds``, default 1, 2, 3:
+  other rest poses for the placements after the first, other noise; seed 1 is the demo's capture),
+  each into ``DIR/seed-N``: how much the share right, the head's answer and the held-out error move
+  with the capture.
 * ``photometric``: the ``session`` case with the normals refined by the photos
   (``measure_object(..., normals="photometric")``, experimental).
 * ``normals``: each true region fitted with the scanned, the refined (when the ``photometric`` case
@@ -42,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["session_case", "normals_case", "heldout_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
+__all__ = ["session_case", "captures_case", "normals_case", "heldout_case", "large_case", "trade_case", "reliability_case", "section", "main", "TARGETS"]
 
 TARGETS = {"share_right": 0.95, "ag_pts": 3.0, "roughness_rel": 0.10, "mean_de2000": 2.0, "baseline_ratio": 3.0,
            "fit_s": 60.0, "large_s": 300.0, "large_gb": 4.0, "ece": 0.05, "high_accuracy": 0.90}
@@ -173,12 +177,13 @@ def normals_case(work: Path) -> dict[str, Any]:
             "refined_error_deg": refined_error, "rows": rows}
 
 
-def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1) -> dict[str, Any]:
+def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1, station_seed: int = 1) -> dict[str, Any]:
     """The demo chain once into ``work``, then the materials on the mesh timed and checked.
 
     ``normals="photometric"``: with the normals refined by the photos (the ``normals`` case then
     reads them from the products).  ``holdout_burst``: frames shot at each held-out table angle
-    (the capture plan's option; give the burst a ``work`` of its own).
+    (the capture plan's option; give the burst a ``work`` of its own).  ``station_seed``: the
+    simulated station's seed (1: the demo's capture; give another a ``work`` of its own).
     """
     from app.demo.capture import simulated_capture
     from app.workflows.object_materials import measure_object
@@ -187,7 +192,7 @@ def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1) -> d
     if summary_path.exists():
         summary = json.loads(summary_path.read_text())
     else:
-        summary = simulated_capture(work, holdout_burst=holdout_burst)
+        summary = simulated_capture(work, holdout_burst=holdout_burst, seed=station_seed)
         summary_path.write_text(json.dumps(summary, indent=1, default=str))
     session = Path(summary["session"])
     load = [round(x, 1) for x in os.getloadavg()]
@@ -213,7 +218,42 @@ def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1) -> d
                                                    "pixels", "pooled", "frames_averaged")},
             "capture_stages_s": summary.get("stages_s"), "captures_taken": summary.get("captures_taken"),
             "normals": doc.get("normals"), "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
+            "not_measured_mm2": (doc.get("not_measured") or {}).get("area_mm2"),
             "peak_rss_mb": round(_peak_mb(), 1)}
+
+
+def captures_case(work: Path, station_seeds: tuple[int, ...] = (1, 2, 3)) -> dict[str, Any]:
+    """The ``session`` case per station seed, in ``work/seed-N`` (seed 1, the demo's, in ``work`` as the
+    ``session`` case): the figures that move with the capture."""
+    rows = []
+    for seed in station_seeds:
+        s = session_case(work if seed == 1 else work / f"seed-{seed}", station_seed=seed)
+        a, v = s["agreement"], s["validation"]
+        not_measured = s.get("not_measured_mm2")
+        rows.append({"station_seed": seed, "share_right": a["share_right"], "per_true_material": a["per_true_material"],
+                     "head": a["head"], "confident_wrong": a.get("confident_wrong", []),
+                     "regions": [{k: r.get(k) for k in ("material", "confidence", "area_mm2", "parameters")}
+                                 for r in s["regions"]],
+                     "not_measured_mm2": not_measured, "mean_de2000": v.get("mean_de2000"),
+                     "baseline_mean_de2000": v.get("baseline_mean_de2000"),
+                     "pooled": v.get("pooled"), "fit_s": s["fit_s"]})
+    return {"rows": rows}
+
+
+def _captures_lines(c: dict[str, Any] | None) -> list[str]:
+    if not c:
+        return []
+    lines = ["", "Per capture (`bench/object_bench.py`, case `captures`; station seed 1 is the demo's):", "",
+             "| station seed | share right | per true material | head: answer (Ag, roughness) | not measured (mm2) | "
+             "held-out mean dE00: measured / one material | 4 x 4 blocks |", "|---:|---:|---|---|---:|---|---|"]
+    for r in c["rows"]:
+        h, pooled = r["head"], r.get("pooled") or {}
+        per = ", ".join(f"{k} {100 * x:.0f} %" for k, x in r["per_true_material"].items())
+        lines.append(f"| {r['station_seed']} | {100 * r['share_right']:.2f} % | {per} | {h['material']} "
+                     f"{h['confidence'] or 0:.2f} ({h['Ag']}, {h['roughness']}) | {r['not_measured_mm2']} | "
+                     f"{r['mean_de2000']:.2f} / {r['baseline_mean_de2000']:.2f} | "
+                     f"{pooled.get('mean_de2000', float('nan')):.2f} / {pooled.get('baseline_mean_de2000', float('nan')):.2f} |")
+    return lines
 
 
 def floor_case(work: Path) -> dict[str, Any]:
@@ -405,6 +445,7 @@ def section(results: dict[str, Any]) -> list[str]:
         p = ", ".join(f"{k} {x:.3g}" for k, x in (r.get("parameters") or {}).items())
         lines.append(f"| {r['index']} | {answer_text(r)} | {major.get(r['index'], '-')} | {p} | "
                      f"{r['area_mm2']:.0f} | {r['n_lit']} / {r['n_observations']} |")
+    lines += _captures_lines(results.get("captures"))
     lines += _heldout_lines(results.get("heldout"), v)
     lines += _photometric_lines(results.get("photometric"), answer_text)
     lines += _normals_lines(results.get("normals"), answer_text)
@@ -601,24 +642,33 @@ def _reliability_lines(rel: dict[str, Any]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", required=True, choices=["session", "photometric", "normals", "floor", "heldout",
+    ap.add_argument("--case", required=True, choices=["session", "captures", "photometric", "normals", "floor", "heldout",
                                                       "large", "trade", "reliability", "all"])
     ap.add_argument("--work", default="out/bench-object")
     ap.add_argument("--holdout-burst", type=int, default=1, metavar="N",
                     help="session case: frames shot at each held-out table angle (use its own --work)")
+    ap.add_argument("--station-seeds", default="1,2,3", metavar="N,N,...",
+                    help="captures case: the simulated station's seeds (1: the demo's capture)")
     args = ap.parse_args(argv)
+    try:
+        seeds = tuple(int(x) for x in args.station_seeds.split(","))
+    except ValueError:
+        ap.error(f"--station-seeds: give whole numbers separated by commas, got {args.station_seeds!r}")
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     if args.case == "all":
         from bench.common import ROOT
 
-        out = {"session": session_case(work), "photometric": session_case(work, "photometric"),
+        out = {"session": session_case(work), "captures": captures_case(work, seeds),
+               "photometric": session_case(work, "photometric"),
                "normals": normals_case(work), "floor": floor_case(work), "heldout": heldout_case(work),
                "trade": trade_case(work),
                "large": large_case(),
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
         out = session_case(work, holdout_burst=args.holdout_burst)
+    elif args.case == "captures":
+        out = captures_case(work, seeds)
     elif args.case == "photometric":
         out = session_case(work, "photometric")
     elif args.case == "normals":
