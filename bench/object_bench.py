@@ -249,8 +249,9 @@ def _captures_lines(c: dict[str, Any] | None) -> list[str]:
     for r in c["rows"]:
         h, pooled = r["head"], r.get("pooled") or {}
         per = ", ".join(f"{k} {100 * x:.0f} %" for k, x in r["per_true_material"].items())
+        ag, rough = (f"{x:.3f}" if x is not None else "-" for x in (h["Ag"], h["roughness"]))
         lines.append(f"| {r['station_seed']} | {100 * r['share_right']:.2f} % | {per} | {h['material']} "
-                     f"{h['confidence'] or 0:.2f} ({h['Ag']}, {h['roughness']}) | {r['not_measured_mm2']} | "
+                     f"{h['confidence'] or 0:.2f} ({ag}, {rough}) | {r['not_measured_mm2'] or 0:.0f} | "
                      f"{r['mean_de2000']:.2f} / {r['baseline_mean_de2000']:.2f} | "
                      f"{pooled.get('mean_de2000', float('nan')):.2f} / {pooled.get('baseline_mean_de2000', float('nan')):.2f} |")
     return lines
