@@ -845,7 +845,7 @@ class _Runner:
                 continue
             self._take(p, a)
         rounds = 0
-        while stale := [a for a in actions if not self._held(a)]:
+        while stale := [a for a in actions if self._in_earlier_frame(a)]:
             rounds += 1
             if rounds > self.settings.max_recoveries:
                 raise CaptureInterrupted(self._resume_hint(
@@ -901,12 +901,16 @@ class _Runner:
                    f"confirmed angle starts table frame {frame} of pass {p} and the pass's earlier profiles "
                    "and frames are taken again in it")
 
+    def _in_earlier_frame(self, a: Action) -> bool:
+        """True if ``a`` was taken in an earlier table frame of its pass (before the table's angle was lost)."""
+        rec = self.session.capture(a.id)
+        return (rec is not None and a.kind != "chart"
+                and int(rec.get("table_frame", 0)) != self._table_frame(a.pass_no))
+
     def _held(self, a: Action) -> bool:
         rec = self.session.capture(a.id)
-        if rec is None or rec.get("status") != "done":
+        if rec is None or rec.get("status") != "done" or self._in_earlier_frame(a):
             return False
-        if a.kind != "chart" and int(rec.get("table_frame", 0)) != self._table_frame(a.pass_no):
-            return False                              # taken before the table's angle was lost
         problem = self.session.verify_file(rec)
         if problem is None:
             return True
