@@ -79,9 +79,9 @@ class Faults:
         While True the device ignores everything it receives (a hung
         firmware: no replies, no status, no reset).
     silent_after_move
-        For the turntable: number of next moves after which the device
-        sends nothing (the move's ``ok``, status replies, messages) until it
-        is reset; the move itself runs to its end.  What the host sees when
+        For the turntable: number of next moves that turn the table after
+        which the device sends nothing (the move's ``ok``, status replies,
+        messages) until it is reset; the move itself runs to its end.  What the host sees when
         the board's replies stop reaching it mid-move (a stalled USB link, a
         host too busy to read them in time): a move whose end it cannot know.
     laser_watchdog_after_moves

@@ -499,7 +499,7 @@ class HorusFirmware(PtyDevice):
         t_sim = trapezoid_time(d, self._feed, self.accel) if d > 0 else 0.0
         self._move = _Move(line, self._pos_units, target, self._phys_deg, self._motor, now,
                            t_sim * self.time_scale, t_sim)
-        if self.faults.take("silent_after_move"):
+        if d > 0 and self.faults.take("silent_after_move"):     # a move that turns the table
             self._silent = True
 
 

@@ -215,6 +215,7 @@ def test_mute_device_answers_nothing(port, fw):
 def test_silent_after_move_turns_the_table_but_says_nothing_until_reset(port, fw):
     assert port.cmd("M17") == ["ok"]
     fw.faults.silent_after_move = 1
+    assert port.cmd("G1 X0") == ["ok"] and fw.faults.silent_after_move == 1     # no turn: not yet
     port.s.timeout = 0.3
     port.s.write(b"G1 X30\r\n")
     assert port.s.read(1) == b""                               # no ok
