@@ -9,8 +9,8 @@ Cases (each prints one JSON object; ``--work DIR`` is shared):
   the preset's, the held-out-photo CIEDE2000 of the measured materials and of the one-material
   baseline, peak memory.
 * ``captures``: the ``session`` case once per station seed (``--station-seeds``, default 1, 2, 3:
-  other rest poses for the placements after the first, other noise; seed 1 is the demo's capture),
-  each into ``DIR/seed-N``: how much the share right, the head's answer and the held-out error move
+  other rest poses for the placements after the first, other noise; seed 1 is the demo's capture,
+  in ``DIR`` as the ``session`` case), the others into ``DIR/seed-N``: how much the share right, the head's answer and the held-out error move
   with the capture.
 * ``photometric``: the ``session`` case with the normals refined by the photos
   (``measure_object(..., normals="photometric")``, experimental).
@@ -222,19 +222,21 @@ def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1, stat
             "peak_rss_mb": round(_peak_mb(), 1)}
 
 
-def captures_case(work: Path, station_seeds: tuple[int, ...] = (1, 2, 3)) -> dict[str, Any]:
+def captures_case(work: Path, station_seeds: tuple[int, ...] = (1, 2, 3),
+                  measured: dict[int, dict[str, Any]] | None = None) -> dict[str, Any]:
     """The ``session`` case per station seed, in ``work/seed-N`` (seed 1, the demo's, in ``work`` as the
-    ``session`` case): the figures that move with the capture."""
+    ``session`` case): the figures that move with the capture.  ``measured``: results of the ``session``
+    case already at hand, by station seed (not measured again)."""
     rows = []
     for seed in station_seeds:
-        s = session_case(work if seed == 1 else work / f"seed-{seed}", station_seed=seed)
+        s = (measured or {}).get(seed) or session_case(work if seed == 1 else work / f"seed-{seed}",
+                                                        station_seed=seed)
         a, v = s["agreement"], s["validation"]
-        not_measured = s.get("not_measured_mm2")
         rows.append({"station_seed": seed, "share_right": a["share_right"], "per_true_material": a["per_true_material"],
                      "head": a["head"], "confident_wrong": a.get("confident_wrong", []),
                      "regions": [{k: r.get(k) for k in ("material", "confidence", "area_mm2", "parameters")}
                                  for r in s["regions"]],
-                     "not_measured_mm2": not_measured, "mean_de2000": v.get("mean_de2000"),
+                     "not_measured_mm2": s.get("not_measured_mm2"), "mean_de2000": v.get("mean_de2000"),
                      "baseline_mean_de2000": v.get("baseline_mean_de2000"),
                      "pooled": v.get("pooled"), "fit_s": s["fit_s"]})
     return {"rows": rows}
@@ -660,7 +662,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.case == "all":
         from bench.common import ROOT
 
-        out = {"session": session_case(work), "captures": captures_case(work, seeds),
+        demo = session_case(work)
+        out = {"session": demo, "captures": captures_case(work, seeds, measured={1: demo}),
                "photometric": session_case(work, "photometric"),
                "normals": normals_case(work), "floor": floor_case(work), "heldout": heldout_case(work),
                "trade": trade_case(work),

@@ -516,19 +516,17 @@ def _relabel_rounds(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any]
     better -- which the first round gave to its neighbours -- must be scored against it.  The report
     sums the rounds' moves; ``unnamed`` and the views that decided are the last round's.
     """
-    total: dict[str, Any] | None = None
-    for k in range(RELABEL_ROUNDS):
+    named_before = _named_regions(fits)
+    seg, fits, rep = _relabel(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
+    total = {**rep, "rounds": 1}
+    while rep["vertices"] and _named_regions(fits) > named_before and total["rounds"] < RELABEL_ROUNDS:
         named_before = _named_regions(fits)
         seg, fits, rep = _relabel(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
-        if total is None:
-            total = {**rep, "rounds": 1}
-        elif rep["vertices"]:
-            total.update(vertices=total["vertices"] + rep["vertices"], area_mm2=round(total["area_mm2"] +
-                         rep["area_mm2"], 3), regions=sorted(set(total["regions"]) | set(rep["regions"])),
-                         unnamed=rep["unnamed"], _own_views=rep["_own_views"], rounds=k + 1)
-        if not rep["vertices"] or _named_regions(fits) <= named_before:
+        if not rep["vertices"]:
             break
-    assert total is not None
+        total.update(vertices=total["vertices"] + rep["vertices"], area_mm2=round(total["area_mm2"] + rep["area_mm2"], 3),
+                     regions=sorted(set(total["regions"]) | set(rep["regions"])), unnamed=rep["unnamed"],
+                     _own_views=rep["_own_views"], rounds=total["rounds"] + 1)
     return seg, fits, total
 
 
