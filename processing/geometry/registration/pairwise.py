@@ -31,6 +31,7 @@ from processing.geometry.registration.refinement import (
     _Score,
     _score_scale,
     _scored,
+    _settle,
     _verdict,
 )
 from processing.geometry.registration.results import PairResult
@@ -264,6 +265,9 @@ def _register(
         scores = _scored(scores, tau_s)
         best = int(np.argmax([sc.score for sc in scores]))
     centre = src.level(decide).points.mean(axis=0)
+    # the pose settled where the poses are compared (its rivals are, as each is weighed, in _by_evidence)
+    refined[best] = _settle(src, tgt, preset, refined[best], decide)
+    scores[best] = _evaluate(src, tgt, refined[best], decide, preset).at(tau_s)
     memo: dict = {}  # each pose's evidence residuals, computed once for all the comparisons
     rivals = _competitors(src, tgt, decide, refined, scores, best, centre, scale, preset, memo)
     if sweep is not None and not isinstance(sweep, str):

@@ -24,7 +24,7 @@ from processing.geometry.registration.pose_evidence import (
     surface_residuals,
 )
 from processing.geometry.registration.presets import RegistrationPreset
-from processing.geometry.registration.refinement import _common_quality, _icp_pyramid, _Score
+from processing.geometry.registration.refinement import _common_quality, _evaluate, _icp_pyramid, _Score, _settle
 from processing.geometry.registration.transforms import (
     _rodrigues,
     _rotation_angle_deg,
@@ -367,6 +367,9 @@ def _by_evidence(
         if i == 0:
             mine = list(rivals)
         else:
+            # weighed at its own settled fit, as the given pose is (see refinement._settle)
+            poses[i] = _settle(src, tgt, preset, poses[i], voxel)
+            scores[i] = _evaluate(src, tgt, poses[i], voxel, preset).at(scores[i].tau_s)
             mine, beaten = [], False
             for c in _each_competitor(src, tgt, voxel, poses, scores, i, centre, scale, preset, memo):
                 mine.append(c)
