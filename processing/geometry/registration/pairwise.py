@@ -271,15 +271,8 @@ def _register(
     memo: dict = {}  # each pose's evidence residuals, computed once for all the comparisons
     rivals = _competitors(src, tgt, decide, refined, scores, best, centre, scale, preset, memo)
     if sweep is not None and not isinstance(sweep, str):
-        again = _weak_axis(src.level(decide), tgt.level(decide), refined[best], decide, preset, nearly=10.0)
-        if again is not None and not isinstance(again, str):
-            m2, _, turned = _sweep_margin(src, tgt, refined[best], again[0], again[1], decide, preset, rng, tau_s)
-            if turned is not None and m2 < preset.min_margin:
-                # judge the rigidly turned competitor at its best fit, as the others
-                t2 = _refined_competitor(src, tgt, turned, decide, preset)
-                sc2 = _scored([_evaluate(src, tgt, t2, decide, preset)], tau_s)[0]
-                rivals += _competitors(src, tgt, decide, [refined[best], t2], [scores[best], sc2], 0,
-                                       centre, scale, preset, memo)
+        rivals += _turned_rivals(src, tgt, refined[best], scores[best], decide, centre, scale, preset, rng, tau_s,
+                                 memo)
     t, sc_best, rivals = _by_evidence(src, tgt, decide, refined[best], scores[best], rivals, centre, scale, preset,
                                       memo)
     margin, second_deg, evidence, ambiguous = _decision(rivals, preset)
@@ -309,6 +302,25 @@ def _register(
     ok, reason, turn_deg = _turn_gate(src, tgt, t, sweep, fine, preset, decided_by, colour_sd, (ok, reason))
     return replace(_pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence),
                    decided_by=decided_by, turn_uncertainty_deg=turn_deg)
+
+
+def _turned_rivals(
+    src: _Cloud, tgt: _Cloud, t: NDArray[np.float64], score: _Score, decide: float, centre: NDArray[np.float64],
+    scale: float, preset: RegistrationPreset, rng: np.random.Generator, tau_s: float, memo: dict,
+) -> list:
+    """The pose ``t`` turned rigidly about its weak axis, as a competitor, when it fits within the margin.
+
+    The turned pose is judged at its best fit (refined at ``decide``), as the other competitors are.
+    """
+    again = _weak_axis(src.level(decide), tgt.level(decide), t, decide, preset, nearly=10.0)
+    if again is None or isinstance(again, str):
+        return []
+    m2, _, turned = _sweep_margin(src, tgt, t, again[0], again[1], decide, preset, rng, tau_s)
+    if turned is None or not m2 < preset.min_margin:
+        return []
+    t2 = _refined_competitor(src, tgt, turned, decide, preset)
+    sc2 = _scored([_evaluate(src, tgt, t2, decide, preset)], tau_s)[0]
+    return _competitors(src, tgt, decide, [t, t2], [score, sc2], 0, centre, scale, preset, memo)
 
 
 def _turn_gate(
