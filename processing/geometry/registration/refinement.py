@@ -69,8 +69,9 @@ SETTLE_ITERATIONS = 4
 def _settle(
     src: _Cloud, tgt: _Cloud, preset: RegistrationPreset, init: NDArray[np.float64], voxel: float,
 ) -> NDArray[np.float64]:
-    """The pose refined at one level (``voxel`` mm) until ICP converges, up to :data:`SETTLE_ITERATIONS` rounds.
+    """The pose refined at one level (``voxel`` mm) until ICP converges.
 
+    At most :data:`SETTLE_ITERATIONS` times the preset's ``icp_iterations``.
     Along a nearly free axis (a surface of revolution with a small boss) the
     fit's basin is flat and point-to-plane ICP creeps: the ``icp_iterations``
     of a pyramid level can leave the turn degrees from where the fit
@@ -78,11 +79,8 @@ def _settle(
     one level's iterations, 1.2 deg converged), and poses compared there are
     compared where neither fits the feature that tells them apart.
     """
-    s_lvl = src.level(voxel)
-    points, normals = s_lvl.source_sample(preset.icp_points)
-    return _icp(points, normals, tgt.level(voxel), np.asarray(init, dtype=np.float64), preset.icp_distance * voxel,
-                0.5 * voxel, math.cos(math.radians(preset.max_partner_deg)), src.oriented and tgt.oriented,
-                SETTLE_ITERATIONS * preset.icp_iterations)
+    longer = replace(preset, icp_iterations=SETTLE_ITERATIONS * preset.icp_iterations)
+    return _icp_pyramid(src, tgt, longer, init, [voxel], settled=True)
 
 
 def _icp(
