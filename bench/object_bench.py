@@ -10,8 +10,8 @@ Cases (each prints one JSON object; ``--work DIR`` is shared):
   baseline, peak memory.
 * ``captures``: the ``session`` case once per station seed (``--station-seeds``, default 1, 2, 3:
   other rest poses for the placements after the first, other noise; seed 1 is the demo's capture,
-  in ``DIR`` as the ``session`` case), the others into ``DIR/seed-N``: how much the share right, the head's answer and the held-out error move
-  with the capture.
+  in ``DIR`` as the ``session`` case), the others into ``DIR/seed-N``: how much the share right,
+  the head's answer and the held-out error move with the capture.
 * ``photometric``: the ``session`` case with the normals refined by the photos
   (``measure_object(..., normals="photometric")``, experimental).
 * ``normals``: each true region fitted with the scanned, the refined (when the ``photometric`` case

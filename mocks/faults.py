@@ -81,9 +81,10 @@ class Faults:
     silent_after_move
         For the turntable: number of next moves that turn the table after
         which the device sends nothing (the move's ``ok``, status replies,
-        messages) until it is reset; the move itself runs to its end.  What the host sees when
-        the board's replies stop reaching it mid-move (a stalled USB link, a
-        host too busy to read them in time): a move whose end it cannot know.
+        messages) until it is reset; the move itself runs to its end.  What
+        the host sees when the board's replies stop reaching it mid-move (a
+        stalled USB link, a host too busy to read them in time): a move whose
+        end it cannot know.
     laser_watchdog_after_moves
         For the turntable: counts down by one per finished move; when it
         reaches 0 the laser watchdog fires as the next command line arrives

@@ -38,6 +38,7 @@ from processing.geometry.registration.results import PairResult
 from processing.geometry.registration.symmetry import (
     _axis_sweep,
     _by_evidence,
+    _Competitor,
     _competitors,
     _decision,
     _refined_competitor,
@@ -267,7 +268,7 @@ def _register(
     centre = src.level(decide).points.mean(axis=0)
     # the pose settled where the poses are compared (its rivals are, as each is weighed, in _by_evidence)
     refined[best] = _settle(src, tgt, preset, refined[best], decide)
-    scores[best] = _evaluate(src, tgt, refined[best], decide, preset).at(tau_s)
+    scores[best] = _scored([_evaluate(src, tgt, refined[best], decide, preset)], tau_s)[0]
     memo: dict = {}  # each pose's evidence residuals, computed once for all the comparisons
     rivals = _competitors(src, tgt, decide, refined, scores, best, centre, scale, preset, memo)
     if sweep is not None and not isinstance(sweep, str):
@@ -307,7 +308,7 @@ def _register(
 def _turned_rivals(
     src: _Cloud, tgt: _Cloud, t: NDArray[np.float64], score: _Score, decide: float, centre: NDArray[np.float64],
     scale: float, preset: RegistrationPreset, rng: np.random.Generator, tau_s: float, memo: dict,
-) -> list:
+) -> list[_Competitor]:
     """The pose ``t`` turned rigidly about its weak axis, as a competitor, when it fits within the margin.
 
     The turned pose is judged at its best fit (refined at ``decide``), as the other competitors are.
