@@ -320,7 +320,8 @@ def _whitened(fitted: RegionSamples, model: ForwardModel, model_error: float, no
     y = fitted.signal.reshape(-1)
     var = np.maximum(fitted.sigma, _SIGMA_FLOOR) ** 2 + (model_error * np.maximum(fitted.signal, 0.0)) ** 2
     provisional = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
-    common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg))
+    first = robust_weights(provisional, fitted, y, Whitener.of(var, np.zeros_like(var))) if robust else None
+    common = common_mode_error(provisional, fitted, y, var, np.radians(normal_error_deg), weights=first)
     w = Whitener.of(var, common)
     if robust:
         w = w.scaled(np.sqrt(robust_weights(provisional, fitted, y, w)))
@@ -443,6 +444,8 @@ def grouped_observations(samples: RegionSamples, group: ArrayLike, model: Forwar
     full = [_basis(c, model, fitted.cos_d)[0] for c in (ALLOY, "urushi-black")]
     part = [dataclasses.replace(b, gloss_colours=b.gloss_colours[:, sub]) for b in full]
     w0 = Whitener.of(var[sub], np.zeros((len(sub), 3)))
+    if robust:                               # as _whitened: the provisional lobe fitted robustly
+        w0 = w0.scaled(np.sqrt(robust_weights(part, few, y_few, w0)))
     fits = [fit_candidate(b, few, w0(y_few), w0) for b in part]
     k = int(np.argmin([f.chi2 for f in fits]))
     w = Whitener.of(var, common_mode_of(full[k], fits[k], fitted, np.radians(normal_error_deg)))

@@ -222,6 +222,29 @@ def test_a_few_observations_of_a_neighbour_do_not_pull_the_fit(model):
     assert plain.parameters["Au"] > robust.parameters["Au"] + 0.03              # the premise: the gold pulls
 
 
+def test_dark_observations_where_the_lobe_predicts_light_do_not_move_the_composition(model):
+    # 1 % of a nami-shibuichi sphere's observations 10-20 deg from the mirror direction read dark (a dark pixel's
+    # noise), as where another material's narrower lobe or a shadow the mesh misses sits inside the region.  The
+    # provisional fit that sets every observation's normal error was made by plain squares: they widened its lobe,
+    # the highlights were weighed by the wrong lobe's slope, and the silver share read 28 % (truth 25 %, answered
+    # uchi-sanbu).  Fitted robustly, it stays within 1 point of the clean sphere's and the roughness within 10 %.
+    import dataclasses
+
+    _, nami, clean = _fit("nami-shibuichi", model)
+    rng = np.random.default_rng(0)
+    cos_h = nami.cos_h
+    near = np.flatnonzero((cos_h < np.cos(np.radians(10.0))) & (cos_h >= np.cos(np.radians(20.0))))
+    take = np.sort(rng.choice(near, int(0.01 * len(nami)), replace=False))
+    floor = np.median(nami.sigma[cos_h < np.cos(np.radians(30.0))], axis=0)       # a dark pixel's noise
+    dark = dataclasses.replace(nami.subset(take), signal=rng.normal(0.0, 1.0, (len(take), 3)) * floor,
+                               sigma=np.tile(floor, (len(take), 1)))
+    assert np.median(nami.signal[take].sum(axis=1)) > 30 * floor.sum()           # the premise: light expected
+    f = fit_region(_mixed(nami, dark, len(take) / len(nami)), model)
+    assert abs(f.parameters["Ag"] - clean.parameters["Ag"]) <= 0.01
+    assert abs(f.parameters["roughness"] - 0.15) <= 0.015
+    assert f.material == "nami-shibuichi"
+
+
 @pytest.mark.parametrize("candidate", ["alloy", "urushi-black", "silver"])
 def test_normal_equations_give_the_design_matrix_solution(model, candidate):
     # The roughness search solves each candidate's NNLS from per-observation products formed once
