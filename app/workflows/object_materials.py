@@ -60,6 +60,10 @@ _NAMED_CONFIDENCE = 0.25
 
 #: Most rounds of the relabelling (:func:`_relabel_rounds`): another round only when a refit named a region.
 RELABEL_ROUNDS = 3
+#: A connected piece of a region whose vertices' own views a preset explains better than the region's fitted
+#: material (by the relabelling's cap) is fitted as a region of its own from this area (mm2) on
+#: (docs/materials.md, "Pieces no region explains").
+SPLIT_MIN_AREA_MM2 = 10.0
 #: The camera's point spread is measured on this many fitted frames (evenly spread over the table's turn).
 SPREAD_FRAMES = 3
 #: Spectral grid of the fit (nm).
@@ -331,6 +335,15 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         rounds = f" ({relabelled['rounds']} rounds)" if relabelled["rounds"] > 1 else ""
         note(f"{relabelled['vertices']} vertices ({relabelled['area_mm2']:.0f} mm2) moved to the region whose fitted "
              f"material explains their own observations better{rounds}")
+    seg, fits, split = _split(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
+    if split["regions"]:
+        note(f"{split['regions']} piece(s) that no region's material explains ({sum(split['area_mm2']):.0f} mm2) "
+             "fitted as regions of their own; relabelling again")
+        seg, fits, again = _relabel_rounds(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
+        relabelled = {**again, "vertices": relabelled["vertices"] + again["vertices"],
+                      "area_mm2": round(relabelled["area_mm2"] + again["area_mm2"], 3),
+                      "regions": sorted(set(relabelled["regions"]) | set(again["regions"])),
+                      "rounds": relabelled["rounds"] + again["rounds"]}
     t_relabel = time.perf_counter() - t_relabel
     fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
     t_pieces = time.perf_counter() - t_pieces - t_relabel
@@ -351,7 +364,8 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
             "irradiance_reference_mm": d_ref,
             "model_error": model_error, "segmentation": {"method": seg.method, "regions": seg.n_regions,
                                                           "features": list(seg.feature_names),
-                                                          "joined": joined, "relabelled": relabelled},
+                                                          "joined": joined, "relabelled": relabelled,
+                                                          "split": split},
             "regions": regions, "baseline": _baseline(regions),
             "not_measured": {"faces": int(unmeasured.sum()), "area_mm2": round(float(areas[unmeasured].sum()), 3)},
             "area_mm2": round(float(areas.sum()), 3),
@@ -528,6 +542,56 @@ def _relabel_rounds(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any]
                      regions=sorted(set(total["regions"]) | set(rep["regions"])), unnamed=rep["unnamed"],
                      _own_views=rep["_own_views"], rounds=total["rounds"] + 1)
     return seg, fits, total
+
+
+def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
+           d_ref: float | None, model: Any, model_error: float, areas: np.ndarray,
+           stop: Callable[[], bool]) -> tuple[Any, list[Any], dict[str, Any]]:
+    """Pieces of regions that a preset explains better than their region's fitted material, as regions of their own.
+
+    Each region's vertices are scored under its fitted material and every preset candidate
+    (:func:`processing.materials.vertex_relabelling.vertex_material_costs`); connected pieces at the
+    cap of at least :data:`SPLIT_MIN_AREA_MM2`
+    (:func:`~processing.materials.vertex_relabelling.unexplained_pieces`) are fitted, and a piece
+    whose fit names another material with at least :data:`_RIVAL_CONFIDENCE` (as a region that
+    competes for pieces) becomes a region.  The report lists the new regions' areas (mm2).
+    """
+    from processing.materials.forward_fit import ALLOY, SURFACE_CANDIDATES, fit_region, region_samples
+    from processing.materials.presets import get_material
+    from processing.materials.region_consistency import face_regions
+    from processing.materials.vertex_relabelling import unexplained_pieces, vertex_material_costs
+
+    report: dict[str, Any] = {"regions": 0, "area_mm2": []}
+    if not any(f.spec for f in fits):
+        return seg, fits, report
+    rivals = [get_material(c) for c in SURFACE_CANDIDATES if c != ALLOY]
+    samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region >= 0), triangles=t,
+                             reference_mm=d_ref)
+    own = np.zeros(len(v))
+    for r, fit in enumerate(fits):
+        mine = np.flatnonzero(seg.vertex_region[samples.vertex] == r)
+        if not fit.spec or not mine.size:
+            continue
+        _check_cancel(stop)
+        cost = vertex_material_costs(samples.subset(mine), model, [get_material(fit.spec), *rivals], len(v),
+                                     model_error=model_error)
+        own[seg.vertex_region == r] = cost[seg.vertex_region == r, 0]
+    vertex_area = np.bincount(t.ravel(), weights=np.repeat(areas / 3.0, 3), minlength=len(v))
+    labels, fits = seg.vertex_region.copy(), list(fits)
+    for piece in unexplained_pieces(own, seg.vertex_region, t, vertex_area, min_area=SPLIT_MIN_AREA_MM2):
+        _check_cancel(stop)
+        fit = fit_region(region_samples(obs, v, data["frames"], piece, triangles=t, reference_mm=d_ref), model,
+                         model_error=model_error)
+        if fit.spec and fit.confidence >= _RIVAL_CONFIDENCE and fit.material != fits[int(labels[piece[0]])].material:
+            labels[piece] = len(fits)
+            fits.append(fit)
+            report["area_mm2"].append(round(float(vertex_area[piece].sum()), 3))
+    report["regions"] = len(report["area_mm2"])
+    if not report["regions"]:
+        return seg, fits, report
+    new = dataclasses.replace(seg, vertex_region=labels.astype(np.int32),
+                              face_region=face_regions(labels, t).astype(np.int32), n_regions=len(fits))
+    return new, fits, report
 
 
 def _named_regions(fits: list[Any]) -> int:

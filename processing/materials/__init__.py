@@ -176,6 +176,7 @@ from processing.materials.vertex_relabelling import (
     SMOOTHNESS_NATS,
     UNARY_CAP_NATS,
     relabel_vertices,
+    unexplained_pieces,
     vertex_material_costs,
 )
 
@@ -212,7 +213,7 @@ __all__ = [
     "mesh_components", "face_regions", "fixed_material_chi2", "pieces_chi2", "disagreeing_pieces", "joining_pieces",
     "LIKELIHOOD_MARGIN",
     # vertex_relabelling
-    "vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2", "DECIDED_NATS",
+    "vertex_material_costs", "relabel_vertices", "unexplained_pieces", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2", "DECIDED_NATS",
     # lens_smear
     "mesh_curvature", "normal_smear_rad", "roughness_overstatement",
     # photometric_normals

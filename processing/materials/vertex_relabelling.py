@@ -43,8 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 from processing.materials._forward_fit_samples import FitError, RegionSamples
 from processing.materials.lobes import Material
 
-__all__ = ["vertex_material_costs", "relabel_vertices", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2",
-           "DECIDED_NATS"]
+__all__ = ["vertex_material_costs", "relabel_vertices", "unexplained_pieces", "UNARY_CAP_NATS", "SMOOTHNESS_NATS",
+           "LEVEL_CAP_CHI2", "DECIDED_NATS"]
 
 #: Most data cost (nats) one vertex's observations put on a label: a single vertex's few views
 #: (a demosaicing error, a view that mixes a neighbour through the lens) cannot outweigh all its
@@ -208,3 +208,63 @@ def relabel_vertices(cost: ArrayLike, labels: ArrayLike, triangles: ArrayLike, *
         change = better & (rng.random(v) < 0.5)
         lab[change] = new[change]
     return lab.astype(np.int32)
+
+
+def unexplained_pieces(cost_own: ArrayLike, labels: ArrayLike, triangles: ArrayLike, vertex_area: ArrayLike, *,
+                       min_area: float, cap_nats: float = UNARY_CAP_NATS) -> list[NDArray[np.int64]]:
+    """Connected pieces of one region whose vertices another material explains better, by the cap, than the region's.
+
+    A region's fitted material can be the best of the regions' and still not explain some of its
+    vertices: a material the segmentation never gave a region of its own (a gold beak split between
+    the head's region and the lacquer's) has no region to move to in :func:`relabel_vertices`.  Scored
+    against rival materials as well (:func:`vertex_material_costs` with the region's material first),
+    such vertices cost the region's material the full cap.  A connected piece of them within one
+    region, of at least ``min_area``, is a candidate region of its own.
+
+    Parameters
+    ----------
+    cost_own
+        ``(V,)`` each vertex's cost (nats) of its own region's material against the rivals.
+    labels
+        ``(V,)`` region of each vertex, -1 not measured.
+    triangles
+        ``(T, 3)`` the mesh's triangles (their edges join a piece).
+    vertex_area
+        ``(V,)`` area of each vertex (mm2; a third of its faces').
+    min_area
+        Smallest piece (mm2).
+    cap_nats
+        The cost at which a vertex counts as unexplained (the cap of :func:`vertex_material_costs`).
+
+    Returns
+    -------
+    list of ndarray
+        The pieces' vertex indices, largest first.
+
+    Examples
+    --------
+    Two triangles of one region; three vertices at the cap form one piece of 3 mm2:
+
+    >>> p = unexplained_pieces([4, 4, 4, 0], [0, 0, 0, 0], [[0, 1, 2], [1, 2, 3]], [1, 1, 1, 1], min_area=2)
+    >>> [x.tolist() for x in p]
+    [[0, 1, 2]]
+    """
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    c = np.asarray(cost_own, dtype=np.float64)
+    lab = np.asarray(labels, dtype=np.int64)
+    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    area = np.asarray(vertex_area, dtype=np.float64)
+    if c.shape != lab.shape or area.shape != lab.shape or (t.size and t.max() >= len(lab)):
+        raise FitError(f"cost {c.shape}, labels {lab.shape}, areas {area.shape} and triangles {t.shape} do not "
+                       "agree; give (V,), (V,), (V,) and (T, 3) indices below V")
+    bad = (lab >= 0) & (c >= cap_nats * (1.0 - 1e-9))
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    e = e[bad[e[:, 0]] & bad[e[:, 1]] & (lab[e[:, 0]] == lab[e[:, 1]])]
+    graph = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(lab), len(lab)))
+    _, piece = connected_components(graph, directed=False)
+    piece = np.where(bad, piece, -1)
+    sizes = np.bincount(piece[bad], weights=area[bad], minlength=int(piece.max()) + 1 if bad.any() else 0)
+    keep = [int(k) for k in np.argsort(-sizes) if sizes[k] >= min_area]
+    return [np.flatnonzero(piece == k) for k in keep]

@@ -270,3 +270,45 @@ def test_the_lens_share_of_each_roughness_is_in_its_uncertainty(measured):
         lens = r["systematics"]["roughness_lens"]
         assert 0.0 < lens <= r["parameters"]["roughness"]
         assert r["uncertainties"]["roughness"] >= lens - 1e-12
+
+
+def test_a_piece_no_region_explains_becomes_a_region_of_its_own():
+    # A sphere a quarter gold and three quarters nami-shibuichi (the simulation's truth per vertex), given to one
+    # region as if the segmentation had never seen the gold: the region's fitted material is the best of the
+    # regions' for every vertex, so the relabelling has nowhere to move the gold.  Scored against the presets,
+    # the gold's vertices are not explained by the region's fit; the piece they form is fitted and becomes a
+    # region named gold, made of gold vertices.
+    import open3d as o3d
+
+    from app.workflows import object_materials as om
+    from mocks.observation_sim import simulated_observations
+    from mocks.world import World
+    from processing.appearance.surface_segmentation import SurfaceSegmentation
+    from processing.camera.response import camera_sensitivities
+    from processing.materials.forward_fit import ForwardModel, fit_region, region_samples
+    from processing.spectral.spectra import SpectralGrid, light_spectrum
+
+    m = o3d.geometry.TriangleMesh.create_sphere(radius=30.0, resolution=50)
+    v = np.asarray(m.vertices) + [0.0, 0.0, 37.0]
+    t = np.asarray(m.triangles)
+    c = v[t].mean(axis=1)
+    region = ((np.degrees(np.arctan2(c[:, 1], c[:, 0])) + 360.0) % 360.0 < 90.0).astype(int)
+    world = World(v, t, region, ("body", "inlay"), {"body": "nami-shibuichi", "inlay": "gold"},
+                  light_position_mm=(-150.0, -250.0, 300.0), width=240, height=160)
+    sim = simulated_observations(world, np.arange(0.0, 360.0, 20.0), exposure_s=0.0005)
+    g = SpectralGrid(400, 700, 10)
+    model = ForwardModel(camera_sensitivities(g), light_spectrum("D65", g), g)
+    n = len(sim.vertices)
+    seg = SurfaceSegmentation(np.zeros(n, np.int32), np.zeros(len(t), np.int32), 1, np.zeros((n, 0), np.float32),
+                              (), "one region")
+    whole = fit_region(region_samples(sim.observations, sim.vertices, sim.frames, np.arange(n), triangles=t), model)
+    areas = _face_areas(sim.vertices, t)
+    new, fits, report = om._split(sim.observations, sim.vertices, t, {"frames": sim.frames}, seg, [whole], None,
+                                  model, 0.02, areas, lambda: False)
+    gold_vertex = np.zeros(n, bool)
+    gold_vertex[t[region == 1].ravel()] = True
+    assert whole.material != "gold"                                   # the premise: the region is not gold
+    assert report["regions"] >= 1 and new.n_regions == 1 + report["regions"]
+    assert fits[1].material == "gold"
+    piece = new.vertex_region == 1
+    assert gold_vertex[piece].mean() >= 0.9

@@ -188,3 +188,19 @@ def test_views_near_the_highlight_decide_a_vertex_and_dark_views_do_not(two_meta
     assert with_highlight.sum() >= 50
     assert np.mean(decided(samples)[with_highlight]) >= 0.9              # measured: 1.00 (124 vertices)
     assert np.mean(decided(underside)[judged]) <= 0.1                    # measured: 0.00
+
+
+def test_unexplained_pieces_stay_within_one_region_and_keep_the_smallest_area():
+    from processing.materials._forward_fit_samples import FitError
+    from processing.materials.vertex_relabelling import UNARY_CAP_NATS, unexplained_pieces
+
+    # a strip of four triangles over six vertices; all six at the cap, the last two in another region
+    tri = [[0, 1, 2], [1, 2, 3], [2, 3, 4], [3, 4, 5]]
+    cap = [UNARY_CAP_NATS] * 6
+    pieces = unexplained_pieces(cap, [0, 0, 0, 0, 1, 1], tri, [1.0] * 6, min_area=1.5)
+    assert [p.tolist() for p in pieces] == [[0, 1, 2, 3], [4, 5]]              # largest first, never across regions
+    assert [p.tolist() for p in unexplained_pieces(cap, [0, 0, 0, 0, 1, 1], tri, [1.0] * 6, min_area=3)] == [[0, 1, 2, 3]]
+    below = [UNARY_CAP_NATS - 0.5] + cap[1:]                                      # under the cap: explained
+    assert [p.tolist() for p in unexplained_pieces(below, [0, 0, 0, 0, -1, -1], tri, [1.0] * 6, min_area=1)] == [[1, 2, 3]]
+    with pytest.raises(FitError, match="do not agree"):
+        unexplained_pieces(cap[:5], [0] * 6, tri, [1.0] * 6, min_area=1)
