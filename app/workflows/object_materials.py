@@ -335,7 +335,8 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         rounds = f" ({relabelled['rounds']} rounds)" if relabelled["rounds"] > 1 else ""
         note(f"{relabelled['vertices']} vertices ({relabelled['area_mm2']:.0f} mm2) moved to the region whose fitted "
              f"material explains their own observations better{rounds}")
-    seg, fits, split = _split(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
+    seg, fits, split = _split(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop,
+                              samples=relabelled.pop("_samples", None))
     if split["regions"]:
         note(f"{split['regions']} piece(s) that no region's material explains ({sum(split['area_mm2']):.0f} mm2) "
              "fitted as regions of their own; relabelling again")
@@ -344,6 +345,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
                       "area_mm2": round(relabelled["area_mm2"] + again["area_mm2"], 3),
                       "regions": sorted(set(relabelled["regions"]) | set(again["regions"])),
                       "rounds": relabelled["rounds"] + again["rounds"]}
+        relabelled.pop("_samples", None)
     t_relabel = time.perf_counter() - t_relabel
     fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
     t_pieces = time.perf_counter() - t_pieces - t_relabel
@@ -496,7 +498,7 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     named_not = [f"{fits[r].material} {fits[r].confidence:.2f}" for r, u in enumerate(unnamed) if u]
     cost = vertex_material_costs(samples, model, mats, len(v), model_error=model_error, unnamed=unnamed)
     labels = relabel_vertices(cost, seg.vertex_region, t)
-    none.update(unnamed=named_not, _own_views=(own := _decided_by_own_views(cost, unnamed)))
+    none.update(unnamed=named_not, _own_views=(own := _decided_by_own_views(cost, unnamed)), _samples=samples)
     moved = labels != seg.vertex_region
     if not moved.any():
         return seg, fits, none
@@ -515,7 +517,7 @@ def _relabel(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: 
     fits = _fit_regions(obs, v, t, data, new, d_ref, model, model_error, stop, only=changed,
                         previous=[fits[r] for r in keep], fit_on=~moved | own)
     return new, fits, {"vertices": int(moved.sum()), "area_mm2": round(moved_area, 3), "regions": sorted(changed),
-                       "unnamed": named_not, "_own_views": own}
+                       "unnamed": named_not, "_own_views": own, "_samples": samples}
 
 
 def _relabel_rounds(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
@@ -540,13 +542,13 @@ def _relabel_rounds(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any]
             break
         total.update(vertices=total["vertices"] + rep["vertices"], area_mm2=round(total["area_mm2"] + rep["area_mm2"], 3),
                      regions=sorted(set(total["regions"]) | set(rep["regions"])), unnamed=rep["unnamed"],
-                     _own_views=rep["_own_views"], rounds=total["rounds"] + 1)
+                     _own_views=rep["_own_views"], _samples=rep.get("_samples"), rounds=total["rounds"] + 1)
     return seg, fits, total
 
 
 def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
            d_ref: float | None, model: Any, model_error: float, areas: np.ndarray,
-           stop: Callable[[], bool]) -> tuple[Any, list[Any], dict[str, Any]]:
+           stop: Callable[[], bool], samples: Any = None) -> tuple[Any, list[Any], dict[str, Any]]:
     """Pieces of regions that a preset explains better than their region's fitted material, as regions of their own.
 
     Each region's vertices are scored under its fitted material and every preset candidate
@@ -554,7 +556,8 @@ def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: An
     cap of at least :data:`SPLIT_MIN_AREA_MM2`
     (:func:`~processing.materials.vertex_relabelling.unexplained_pieces`) are fitted, and a piece
     whose fit names another material with at least :data:`_RIVAL_CONFIDENCE` (as a region that
-    competes for pieces) becomes a region.  The report lists the new regions' areas (mm2).
+    competes for pieces) becomes a region.  The report lists the new regions' areas (mm2).  ``samples``:
+    the observations of every measured vertex, as the relabelling drew them (drawn here when None).
     """
     from processing.materials.forward_fit import ALLOY, SURFACE_CANDIDATES, fit_region, region_samples
     from processing.materials.presets import get_material
@@ -565,8 +568,9 @@ def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: An
     if not any(f.spec for f in fits):
         return seg, fits, report
     rivals = [get_material(c) for c in SURFACE_CANDIDATES if c != ALLOY]
-    samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region >= 0), triangles=t,
-                             reference_mm=d_ref)
+    if samples is None:
+        samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region >= 0), triangles=t,
+                                 reference_mm=d_ref)
     own = np.zeros(len(v))
     for r, fit in enumerate(fits):
         mine = np.flatnonzero(seg.vertex_region[samples.vertex] == r)
