@@ -61,7 +61,7 @@ _NAMED_CONFIDENCE = 0.25
 #: Most rounds of the relabelling (:func:`_relabel_rounds`): another round only when a refit named a region.
 RELABEL_ROUNDS = 3
 #: A connected piece of a region whose vertices' own views a preset explains better than the region's fitted
-#: material (by the relabelling's cap) is fitted as a region of its own from this area (mm2) on
+#: material (neighbours agreeing) is fitted as a region of its own from this area (mm2) on
 #: (docs/materials.md, "Pieces no region explains").
 SPLIT_MIN_AREA_MM2 = 10.0
 #: The camera's point spread is measured on this many fitted frames (evenly spread over the table's turn).
@@ -551,13 +551,15 @@ def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: An
            stop: Callable[[], bool], samples: Any = None) -> tuple[Any, list[Any], dict[str, Any]]:
     """Pieces of regions that a preset explains better than their region's fitted material, as regions of their own.
 
-    Each region's vertices are scored under its fitted material and every preset candidate
-    (:func:`processing.materials.vertex_relabelling.vertex_material_costs`); connected pieces at the
-    cap of at least :data:`SPLIT_MIN_AREA_MM2`
-    (:func:`~processing.materials.vertex_relabelling.unexplained_pieces`) are fitted, and a piece
-    whose fit names another material with at least :data:`_RIVAL_CONFIDENCE` (as a region that
-    competes for pieces) becomes a region.  The report lists the new regions' areas (mm2).  ``samples``:
-    the observations of every measured vertex, as the relabelling drew them (drawn here when None).
+    Each region's vertices are scored under its fitted material and every preset candidate outside the
+    materials its fit could not tell from it (:func:`processing.materials.vertex_relabelling.vertex_material_costs`);
+    connected pieces where the best rival wins, neighbours agreeing, of at least
+    :data:`SPLIT_MIN_AREA_MM2` (:func:`~processing.materials.vertex_relabelling.unexplained_pieces`) are
+    fitted, and a piece whose fit names a material with at least :data:`_RIVAL_CONFIDENCE` (as a region
+    that competes for pieces) becomes a region when neither its answer nor its region's stands for the
+    other (a piece of the head read "nami-shibuichi-uchi-sanbu", a grade its fit cannot tell from the
+    head's, stays).  The report lists the new regions' areas (mm2).  ``samples``: the observations of every
+    measured vertex, as the relabelling drew them (drawn here when None).
     """
     from processing.materials.forward_fit import ALLOY, SURFACE_CANDIDATES, fit_region, region_samples
     from processing.materials.presets import get_material
@@ -567,27 +569,34 @@ def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: An
     report: dict[str, Any] = {"regions": 0, "area_mm2": []}
     if not any(f.spec for f in fits):
         return seg, fits, report
-    rivals = [get_material(c) for c in SURFACE_CANDIDATES if c != ALLOY]
     if samples is None:
         samples = region_samples(obs, v, data["frames"], np.flatnonzero(seg.vertex_region >= 0), triangles=t,
                                  reference_mm=d_ref)
-    own = np.zeros(len(v))
+    own, rival = np.zeros(len(v)), np.zeros(len(v))
     for r, fit in enumerate(fits):
         mine = np.flatnonzero(seg.vertex_region[samples.vertex] == r)
-        if not fit.spec or not mine.size:
+        names = [c for c in SURFACE_CANDIDATES if c != ALLOY and c != fit.material and c not in fit.group]
+        if not fit.spec or not mine.size or not names:
             continue
         _check_cancel(stop)
-        cost = vertex_material_costs(samples.subset(mine), model, [get_material(fit.spec), *rivals], len(v),
-                                     model_error=model_error)
-        own[seg.vertex_region == r] = cost[seg.vertex_region == r, 0]
+        cost = vertex_material_costs(samples.subset(mine), model, [get_material(fit.spec), *map(get_material, names)],
+                                     len(v), model_error=model_error)
+        in_r = seg.vertex_region == r
+        own[in_r], rival[in_r] = cost[in_r, 0], cost[in_r, 1:].min(axis=1)
     vertex_area = np.bincount(t.ravel(), weights=np.repeat(areas / 3.0, 3), minlength=len(v))
     labels, fits = seg.vertex_region.copy(), list(fits)
-    for piece in unexplained_pieces(own, seg.vertex_region, t, vertex_area, min_area=SPLIT_MIN_AREA_MM2):
+    taken = np.zeros(len(v), dtype=bool)
+    for piece in unexplained_pieces(own, rival, seg.vertex_region, t, vertex_area, min_area=SPLIT_MIN_AREA_MM2):
+        if taken[piece].any():
+            continue
         _check_cancel(stop)
+        parent = fits[int(seg.vertex_region[piece[0]])]
         fit = fit_region(region_samples(obs, v, data["frames"], piece, triangles=t, reference_mm=d_ref), model,
                          model_error=model_error)
-        if fit.spec and fit.confidence >= _RIVAL_CONFIDENCE and fit.material != fits[int(labels[piece[0]])].material:
+        other = fit.material != parent.material and parent.material not in fit.group and fit.material not in parent.group
+        if fit.spec and fit.confidence >= _RIVAL_CONFIDENCE and other:
             labels[piece] = len(fits)
+            taken[piece] = True
             fits.append(fit)
             report["area_mm2"].append(round(float(vertex_area[piece].sum()), 3))
     report["regions"] = len(report["area_mm2"])

@@ -174,6 +174,7 @@ from processing.materials.vertex_relabelling import (
     DECIDED_NATS,
     LEVEL_CAP_CHI2,
     SMOOTHNESS_NATS,
+    SPLIT_MARGINS_NATS,
     UNARY_CAP_NATS,
     relabel_vertices,
     unexplained_pieces,
@@ -214,6 +215,7 @@ __all__ = [
     "LIKELIHOOD_MARGIN",
     # vertex_relabelling
     "vertex_material_costs", "relabel_vertices", "unexplained_pieces", "UNARY_CAP_NATS", "SMOOTHNESS_NATS", "LEVEL_CAP_CHI2", "DECIDED_NATS",
+    "SPLIT_MARGINS_NATS",
     # lens_smear
     "mesh_curvature", "normal_smear_rad", "roughness_overstatement",
     # photometric_normals

@@ -310,5 +310,7 @@ def test_a_piece_no_region_explains_becomes_a_region_of_its_own():
     assert whole.material != "gold"                                   # the premise: the region is not gold
     assert report["regions"] >= 1 and new.n_regions == 1 + report["regions"]
     assert fits[1].material == "gold"
+    # no piece of the body becomes a region under a name its fit cannot tell from the body's (another grade)
+    assert all(f.material not in whole.group and whole.material not in f.group for f in fits[1:])
     piece = new.vertex_region == 1
     assert gold_vertex[piece].mean() >= 0.9
