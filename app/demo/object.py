@@ -87,7 +87,7 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
     area = 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
     truth = true_face_materials(v, t, world, object_to_mesh)
     agree = material_agreement(doc, mesh.face_material, area, truth)
-    print(f"materials on the mesh: {len(doc['regions'])} regions; {100 * agree['share_right']:.1f} % of the "
+    print(f"materials on the mesh: {len(doc['regions'])} regions; {100 * agree['share_right']:.2f} % of the "
           "area has the simulation's true material", file=sys.stderr)
     for r in doc["regions"]:
         params = ", ".join(f"{k} {v:.3g}" for k, v in (r.get("parameters") or {}).items())
