@@ -282,8 +282,7 @@ def unexplained_pieces(cost_own: ArrayLike, cost_rival: ArrayLike, labels: Array
     >>> unexplained_pieces([0, 0, 0, 0, 0, 1.5, 0, 0, 0, 0], rival, [0] * 10, tri, [1] * 10, min_area=1)
     []
     """
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
+    from processing.materials.region_consistency import mesh_components
 
     own = np.asarray(cost_own, dtype=np.float64)
     rival = np.asarray(cost_rival, dtype=np.float64)
@@ -306,7 +305,6 @@ def unexplained_pieces(cost_own: ArrayLike, cost_rival: ArrayLike, labels: Array
     # label 2r: region r's own material, 2r + 1: a rival within region r -- two regions never agree
     cols = np.full((len(lab), 2 * n_regions), np.inf)
     rows = np.flatnonzero(measured)
-    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
     pieces, seen = [], set()
     for margin in margins:
         cols[rows, 2 * lab[rows]] = own[rows]
@@ -314,10 +312,7 @@ def unexplained_pieces(cost_own: ArrayLike, cost_rival: ArrayLike, labels: Array
         start = np.where(measured, 2 * lab + (rival + margin < own), -1)
         relaxed = relabel_vertices(cols, start, t, smoothness=smoothness)
         other = measured & (relaxed % 2 == 1)
-        keep = e[other[e[:, 0]] & other[e[:, 1]] & (lab[e[:, 0]] == lab[e[:, 1]])]
-        graph = sparse.coo_matrix((np.ones(len(keep)), (keep[:, 0], keep[:, 1])), shape=(len(lab), len(lab)))
-        _, piece = connected_components(graph, directed=False)
-        piece = np.where(other, piece, -1)
+        piece = mesh_components(np.where(other, lab, -1), t)             # within one region
         sizes = np.bincount(piece[other], weights=area[other], minlength=int(piece.max()) + 1 if other.any() else 0)
         piece_region = np.zeros(len(sizes), dtype=np.int64)
         piece_region[piece[other]] = lab[other]                            # a piece lies within one region
