@@ -341,10 +341,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
         note(f"{split['regions']} piece(s) that no region's material explains ({sum(split['area_mm2']):.0f} mm2) "
              "fitted as regions of their own; relabelling again")
         seg, fits, again = _relabel_rounds(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
-        relabelled = {**again, "vertices": relabelled["vertices"] + again["vertices"],
-                      "area_mm2": round(relabelled["area_mm2"] + again["area_mm2"], 3),
-                      "regions": sorted(set(relabelled["regions"]) | set(again["regions"])),
-                      "rounds": relabelled["rounds"] + again["rounds"]}
+        relabelled = _summed_moves(relabelled, again)
         relabelled.pop("_samples", None)
     t_relabel = time.perf_counter() - t_relabel
     fits, pieces = _check_pieces(obs, v, t, data, seg, fits, d_ref, model, model_error, areas)
@@ -540,10 +537,16 @@ def _relabel_rounds(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any]
         seg, fits, rep = _relabel(obs, v, t, data, seg, fits, d_ref, model, model_error, areas, stop)
         if not rep["vertices"]:
             break
-        total.update(vertices=total["vertices"] + rep["vertices"], area_mm2=round(total["area_mm2"] + rep["area_mm2"], 3),
-                     regions=sorted(set(total["regions"]) | set(rep["regions"])), unnamed=rep["unnamed"],
-                     _own_views=rep["_own_views"], _samples=rep.get("_samples"), rounds=total["rounds"] + 1)
+        total = _summed_moves(total, rep)
     return seg, fits, total
+
+
+def _summed_moves(total: dict[str, Any], rep: dict[str, Any]) -> dict[str, Any]:
+    """Two relabelling reports as one: moves and rounds (one when ``rep`` counts none) summed, the rest (what the
+    last one decided) ``rep``'s."""
+    return {**rep, "vertices": total["vertices"] + rep["vertices"],
+            "area_mm2": round(total["area_mm2"] + rep["area_mm2"], 3),
+            "regions": sorted(set(total["regions"]) | set(rep["regions"])), "rounds": total["rounds"] + rep.get("rounds", 1)}
 
 
 def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: Any, fits: list[Any],
@@ -561,6 +564,7 @@ def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: An
     head's, stays).  The report lists the new regions' areas (mm2).  ``samples``: the observations of every
     measured vertex, as the relabelling drew them (drawn here when None).
     """
+    from processing.appearance._surface_features import vertex_areas
     from processing.materials.forward_fit import ALLOY, SURFACE_CANDIDATES, fit_region, region_samples
     from processing.materials.presets import get_material
     from processing.materials.region_consistency import face_regions
@@ -583,7 +587,7 @@ def _split(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], seg: An
                                      len(v), model_error=model_error)
         in_r = seg.vertex_region == r
         own[in_r], rival[in_r] = cost[in_r, 0], cost[in_r, 1:].min(axis=1)
-    vertex_area = np.bincount(t.ravel(), weights=np.repeat(areas / 3.0, 3), minlength=len(v))
+    vertex_area = vertex_areas(v, t)
     labels, fits = seg.vertex_region.copy(), list(fits)
     taken = np.zeros(len(v), dtype=bool)
     for piece in unexplained_pieces(own, rival, seg.vertex_region, t, vertex_area, min_area=SPLIT_MIN_AREA_MM2):
