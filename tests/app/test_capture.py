@@ -435,7 +435,7 @@ def test_kill_9_mid_pass_then_resume_completes_with_the_same_data(reference, tmp
     _, expected, _ = reference
     out = tmp_path / "s"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    with _station(tmp_path) as st:
+    with _station(tmp_path, time_scale=0.02) as st:    # slow motion, so the kill lands mid-pass
         proc = subprocess.Popen(_cli(*_capture_args(st, out, 12, 2)), cwd=ROOT, env=env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         _wait_for_profiles(out, 17, proc)
