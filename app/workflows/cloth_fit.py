@@ -54,9 +54,11 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
     toward the light, z > 0) makes one pass per light, the lamp moved between
     passes (default: one pass under the world's light).  ``chart_frames``
     chart frames open each pass.  Writes the set-up to
-    ``out/swatch.json``.  Returns the session folder.
+    ``out/swatch.json``.  Returns the session folder.  ``out`` must be new
+    or an empty folder; the simulated station runs in a temporary folder
+    that is removed afterwards.
     """
-    import shutil
+    import tempfile
 
     from app.capture.devices import build_devices
     from app.capture.runner import CaptureHooks, CapturePlan, run_capture
@@ -68,11 +70,8 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
     if camera not in ("hotfolder", "gphoto2"):
         raise UsageError(f"simulated swatch camera must be 'hotfolder' or 'gphoto2', got {camera!r}")
     out = Path(out)
-    if out.exists():
-        shutil.rmtree(out)
-    import tempfile
-
-    station_dir = Path(tempfile.mkdtemp(prefix="kogei-swatch-station-"))   # nothing written beside ``out``
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise UsageError(f"{out} exists and is not an empty folder; give a new folder for the swatch session")
     world = SwatchWorld.swatch(cloth, width=width, height=height)
     pass_lights = [tuple(float(v) for v in world.light_direction)] if lights is None else \
         [tuple(float(v) for v in d) for d in lights]
@@ -82,7 +81,9 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
         plan = CapturePlan("swatch", steps=steps, passes=len(pass_lights), chart_frames=chart_frames)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    with SimulatedStation(world, root=station_dir, seed=seed) as st:
+    # the station's ports and hot folder live in a private folder removed afterwards: nothing beside ``out``
+    with tempfile.TemporaryDirectory(prefix="kogei-swatch-station-") as station_dir, \
+            SimulatedStation(world, root=Path(station_dir), seed=seed) as st:
         cam = ({"kind": "hotfolder", "folder": str(st.hotfolder), "stable_s": 0.1} if camera == "hotfolder" else
                {"kind": "gphoto2", "executable": str(st.gphoto2_path)})
         config = {"turntable": {"port": str(st.turntable_path)}, "profiler": {"port": str(st.profiler_path)},
@@ -106,7 +107,6 @@ def capture_swatch_session(out: str | Path, cloth: str = "silk", *, steps: int =
             run_capture(session, plan, devices, CaptureHooks(before_pass=before_pass, before_chart=before_chart))
         finally:
             session.close()
-    shutil.rmtree(station_dir, ignore_errors=True)
     geometry = {**world.geometry(), "light_direction": list(pass_lights[0]),
                 "pass_light_directions": [list(d) for d in pass_lights[1:]]}
     (out / GEOMETRY_FILE).write_text(json.dumps(geometry, indent=2) + "\n")

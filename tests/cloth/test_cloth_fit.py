@@ -286,3 +286,29 @@ def test_swatch_pass_is_calibrated_by_several_chart_exposures(tmp_path):
     assert np.all(np.abs(gains / gains.mean() - 1.0) < 0.0006)
     with pytest.raises(UsageError, match="chart_frames"):
         capture_swatch_session(tmp_path / "t", COTTON, steps=2, width=64, height=48, chart_frames=0)
+
+
+def test_swatch_capture_refuses_a_used_folder_and_leaves_no_station_behind(tmp_path, monkeypatch):
+    # the station's ports and hot folder live in a temporary folder: it must be gone after a capture and after a
+    # refusal, and a folder holding anything is never emptied to make room for a session
+    import tempfile
+
+    from app.errors import UsageError
+    from app.workflows.cloth_fit import capture_swatch_session
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "notes.txt").write_text("keep me")
+    with pytest.raises(UsageError, match="not an empty folder"):
+        capture_swatch_session(used, COTTON, steps=2, width=64, height=48)
+    assert (used / "notes.txt").read_text() == "keep me"
+    with pytest.raises(UsageError, match="chart_frames"):
+        capture_swatch_session(tmp_path / "t", COTTON, steps=2, width=64, height=48, chart_frames=0)
+    with pytest.raises(UsageError, match="lights"):
+        capture_swatch_session(tmp_path / "u", COTTON, steps=2, width=64, height=48, lights=[(0.0, 0.0, -1.0)])
+    shot = capture_swatch_session(tmp_path / "s", COTTON, steps=2, width=64, height=48, chart_frames=1)
+    assert (shot / "swatch.json").is_file()
+    assert list(scratch.iterdir()) == []
