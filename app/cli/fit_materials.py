@@ -55,7 +55,9 @@ def summary_lines(doc: dict) -> list[str]:
                      f"their highlights, median tilt {nd['median_tilt_deg']:.1f} deg")
     nm = doc.get("not_measured") or {}
     if nm.get("faces"):
-        lines.append(f"  not measured: {nm['faces']} faces, {nm['area_mm2']:.0f} mm^2 (no usable observation)")
+        share = f", {100 * nm['share']:.1f} % of the surface" if nm.get("share") is not None else ""
+        advice = f": {nm['advice']}" if nm.get("advice") else " (no usable observation)"
+        lines.append(f"  not measured: {nm['faces']} faces, {nm['area_mm2']:.0f} mm^2{share}{advice}")
     val = doc.get("validation") or {}
     if val.get("mean_de2000") is not None:
         lines.append(f"held-out photos ({len(val.get('frames', []))} frames): mean CIEDE2000 "

@@ -30,8 +30,10 @@ Every quality figure the window shows gets a verdict -- ``pass``, ``warn`` or
   photos, the measured materials predict them no worse than one material for
   the whole object); warn when a region is not measured, fits no candidate or
   cannot be told from another candidate, or, with two or more materials fitted,
-  the held-out photos are predicted worse than by one material; fail when no
-  region has a fitted material.
+  the held-out photos are predicted worse than by one material, or
+  :data:`UNMEASURED_WARN_SHARE` of the surface or more has no usable
+  observation (the why is the materials file's advice: which way that surface
+  faces and what to capture); fail when no region has a fitted material.
 
 Examples
 --------
@@ -196,6 +198,11 @@ def _undecided(region: dict[str, Any]) -> bool:
     return any(g != material for g in (region.get("group") or []))
 
 
+#: Share of the surface without a measured material from which the materials' verdict warns (a hawk standing on
+#: its neck's cut face leaves about 2 % of its surface unseen; a placement plan that never lights a whole side, 10 %).
+UNMEASURED_WARN_SHARE = 0.05
+
+
 def materials_verdict(doc: dict[str, Any]) -> Verdict:
     """The materials measured on the mesh (``products/object-materials.json``; see the module docstring).
 
@@ -210,27 +217,42 @@ def materials_verdict(doc: dict[str, Any]) -> Verdict:
     >>> materials_verdict({"regions": [gold, urushi], "validation": {"mean_de2000": 6.0,
     ...                                                              "baseline_mean_de2000": 5.0}}).level
     'warn'
+    >>> unseen = {"share": 0.095, "advice": "seen but never lit, on the side facing down: add a placement"}
+    >>> v = materials_verdict({"regions": [gold, urushi], "not_measured": unseen})
+    >>> v.level, v.text
+    ('warn', '2 regions, 9.5 % of the surface not measured: warn')
+    >>> v.why
+    '9.5 % of the surface not measured: seen but never lit, on the side facing down: add a placement'
     """
     regions = list(doc.get("regions") or [])
     thresholds = ("pass: every region has one material told apart from the others (and the held-out photos are "
                   "predicted no worse than by one material); warn: a region not measured, fitting no candidate or "
-                  "not told apart, or worse than one material; fail: no region measured")
+                  f"not told apart, worse than one material, or {100 * UNMEASURED_WARN_SHARE:.0f} % of the surface "
+                  "or more not measured; fail: no region measured")
     undecided = sum(_undecided(r) for r in regions)
     fitted = sum(r.get("material") not in ("not measured", "no candidate fits") for r in regions)
     val = doc.get("validation") or {}
     de, base = val.get("mean_de2000"), val.get("baseline_mean_de2000")
     # with one material fitted the measured render is the one-material render: nothing to compare
     worse = fitted >= 2 and de is not None and base is not None and float(de) > float(base)
+    unmeasured = doc.get("not_measured") or {}
+    share = float(unmeasured.get("share") or 0.0)
+    unseen = share >= UNMEASURED_WARN_SHARE
     figure = f"{len(regions)} region{'s' if len(regions) != 1 else ''}" + (
-        f", {undecided} not decided" if undecided else "")
+        f", {undecided} not decided" if undecided else "") + (
+        f", {100 * share:.1f} % of the surface not measured" if unseen else "")
     if not fitted:
         return Verdict("fail", figure, thresholds, "no region has a fitted material: check the lamp and camera "
                        "calibrations and that the photos show the object")
-    if undecided or worse:
-        why = ("a region has no single answer: photograph it under more lamp angles or name the catalogued "
-               "materials" if undecided else "the measured materials predict the held-out photos worse than one "
-               "material for the whole object")
-        return Verdict("warn", figure, thresholds, why)
+    causes = [why for flag, why in (
+        (undecided, "a region has no single answer: photograph it under more lamp angles or name the catalogued "
+                    "materials"),
+        (worse, "the measured materials predict the held-out photos worse than one material for the whole object"),
+        (unseen, f"{100 * share:.1f} % of the surface not measured: "
+                 + str(unmeasured.get("advice") or "add a placement that shows it to the camera and the lamp")))
+        if flag]
+    if causes:
+        return Verdict("warn", figure, thresholds, "; ".join(causes))
     return Verdict("pass", figure, thresholds, "every region has one material, told apart from the other candidates")
 
 

@@ -135,8 +135,11 @@ def materials_summary(doc: dict[str, Any]) -> str:
 
     Examples
     --------
-    >>> materials_summary({"regions": [{"index": 0, "material": "gold", "confidence": 0.934, "group": ["gold"]}]})
+    >>> gold = {"index": 0, "material": "gold", "confidence": 0.934, "group": ["gold"]}
+    >>> materials_summary({"regions": [gold]})
     '1 region: 0 gold (confidence 0.93) · not validated on held-out photos'
+    >>> materials_summary({"regions": [gold], "not_measured": {"faces": 12, "share": 0.0951}})
+    '1 region: 0 gold (confidence 0.93) · 9.5 % of the surface not measured · not validated on held-out photos'
     """
     from app.workflows.object_materials import answer_text
 
@@ -147,7 +150,10 @@ def materials_summary(doc: dict[str, Any]) -> str:
     held = (f"held-out photos: mean ΔE00 {de:.2f} (one material for the whole object: {base:.2f})"
             if de is not None and base is not None else
             "not validated on held-out photos" if not val else str(val.get("note") or "not validated"))
-    return f"{len(regions)} region{'s' if len(regions) != 1 else ''}: {answers} · {held}"
+    unmeasured = doc.get("not_measured") or {}
+    share = (f" · {100 * float(unmeasured['share']):.1f} % of the surface not measured"
+             if unmeasured.get("faces") and unmeasured.get("share") is not None else "")
+    return f"{len(regions)} region{'s' if len(regions) != 1 else ''}: {answers}{share} · {held}"
 
 
 def _stamp(path: Path) -> tuple[int, int] | None:

@@ -123,7 +123,8 @@ def object_materials_section(ctx: Any, kit: dict[str, Callable[..., Any]]) -> tu
         ("segmentation", (doc.get("segmentation") or {}).get("method")),
         ("lamp spectrum assumed", doc.get("light_spectrum")),
         ("model error", f"{100 * float(doc.get('model_error') or 0):.1f} % (added to the noise)"),
-        ("not measured", f"{nm.get('faces', 0)} faces, {float(nm.get('area_mm2', 0)):.0f} mm²"),
+        ("not measured", f"{nm.get('faces', 0)} faces, {float(nm.get('area_mm2', 0)):.0f} mm²"
+                         + (f"; {nm['advice']}" if isinstance(nm.get("advice"), str) else "")),
         ("fit / held-out frames", f"{len((doc.get('frames') or {}).get('fit') or [])} / "
                                   f"{len((doc.get('frames') or {}).get('held_out') or [])}"),
         ("misfit", "reduced chi-square of the fit: 1 means it matches within the measurement noise; above 25 no "

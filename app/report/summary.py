@@ -221,8 +221,9 @@ def _materials(ctx: Any, g: Glance) -> None:
         doc = ctx.product_json("object_materials") or {}
         nm = doc.get("not_measured") or {}
         if _num(nm.get("area_mm2")):
+            advice = f": {nm['advice']}" if isinstance(nm.get("advice"), str) else ""
             g.uncertain.append(f"{float(nm['area_mm2']):,.0f} mm² of the surface has no measured material "
-                               "(shown grey)")
+                               f"(shown grey){advice}")
         val = doc.get("validation") or {}
         mean, base = _num(val.get("mean_de2000")), _num(val.get("baseline_mean_de2000"))
         if mean is not None:

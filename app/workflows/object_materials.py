@@ -366,7 +366,7 @@ def _fit(data: dict[str, Any], held: np.ndarray, model_error: float, max_regions
                                                           "joined": joined, "relabelled": relabelled,
                                                           "split": split},
             "regions": regions, "baseline": _baseline(regions),
-            "not_measured": {"faces": int(unmeasured.sum()), "area_mm2": round(float(areas[unmeasured].sum()), 3)},
+            "not_measured": _not_measured(obs, v, t, areas, unmeasured),
             "area_mm2": round(float(areas.sum()), 3),
             "frames": {"fit": [n for n, h in zip(obs.frame_names, held) if not h],
                        "held_out": [n for n, h in zip(obs.frame_names, held) if h]},
@@ -689,6 +689,44 @@ def _check_pieces(obs: Any, v: np.ndarray, t: np.ndarray, data: dict[str, Any], 
                      "disagreeing_area_mm2": round(bad_area, 3),
                      "disagreeing_better_regions": sorted({int(better[i]) for i in bad})})
     return out_fits, docs
+
+
+def _not_measured(obs: Any, v: np.ndarray, t: np.ndarray, areas: np.ndarray, unmeasured: np.ndarray) -> dict[str, Any]:
+    """What of the surface no region holds, why, which way it faces, and what to capture for it.
+
+    A face is ``never_seen`` when no corner of it is in any fitted frame's view, else seen but never usable (the
+    lamp below it or hidden by the object, or its highlights clipped).  ``facing`` is the unit mean of the faces'
+    area-weighted normals in the mesh's frame (z up the table's axis) and ``coherence`` its length before
+    normalising: near 1 one side of the object, near 0 hollows facing every way.
+    """
+    area = float(areas[unmeasured].sum())
+    out: dict[str, Any] = {"faces": int(unmeasured.sum()), "area_mm2": round(area, 3),
+                           "share": round(area / max(float(areas.sum()), 1e-300), 5)}
+    if not unmeasured.any():
+        return out
+    seen = np.zeros(len(v), dtype=bool)
+    seen[obs.vertex] = True
+    never = unmeasured & ~seen[t].any(axis=1)
+    n = np.cross(v[t[unmeasured, 1]] - v[t[unmeasured, 0]], v[t[unmeasured, 2]] - v[t[unmeasured, 0]])
+    total = n.sum(axis=0)                                    # twice the area-weighted normal
+    coherence = float(np.linalg.norm(total) / max(2.0 * area, 1e-300))
+    facing = total / max(float(np.linalg.norm(total)), 1e-300)
+    never_area = float(areas[never].sum())
+    if coherence < 0.5:
+        side = "in hollows and undersides facing every way"
+    elif facing[2] <= -0.7:
+        side = "on the side facing down"
+    elif facing[2] >= 0.7:
+        side = "on the side facing up"
+    else:
+        side = f"on the side facing {round(float(np.degrees(np.arctan2(facing[1], facing[0])))) % 360} deg about the table's axis"
+    if never_area >= 0.5 * area:
+        advice = f"mostly never in the camera's view ({never_area:.0f} mm^2), {side}: add a placement that shows it"
+    else:
+        advice = (f"seen but never lit ({area - never_area:.0f} mm^2: the lamp below the surface or hidden by the "
+                  f"object, or every view of it clipped), {side}: add a placement that turns it toward the lamp")
+    return {**out, "never_seen_mm2": round(never_area, 3), "facing": [round(float(c), 4) for c in facing],
+            "coherence": round(coherence, 4), "advice": advice}
 
 
 def _interior_margin_mm(vertices: np.ndarray, frames: list[Any]) -> float:

@@ -314,3 +314,54 @@ def test_a_piece_no_region_explains_becomes_a_region_of_its_own():
     assert all(f.material not in whole.group and whole.material not in f.group for f in fits[1:])
     piece = new.vertex_region == 1
     assert gold_vertex[piece].mean() >= 0.9
+
+
+def _sphere(resolution: int = 30):
+    """A 10 mm sphere whose rings of vertices lie every 180 / ``resolution`` deg of latitude."""
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh.create_sphere(radius=10.0, resolution=resolution)
+    return np.asarray(m.vertices), np.asarray(m.triangles)
+
+
+def test_the_surface_not_measured_says_which_way_it_faces_and_what_to_capture():
+    # a sphere of 10 mm whose cap below z = -5 mm (a ring of vertices) no region holds: by geometry a quarter
+    # of the area (h / 2r), facing straight down, with |mean normal| = sin^2(60 deg) / (2 (1 - cos 60 deg)) = 0.75
+    from types import SimpleNamespace
+
+    from app.workflows.object_materials import _not_measured
+
+    v, t = _sphere()
+    areas = _face_areas(v, t)
+    centre = v[t].mean(axis=1)
+    cap = centre[:, 2] < -5.0
+    unseen = SimpleNamespace(vertex=np.flatnonzero(v[:, 2] > -4.0))      # the camera never saw the cap
+    nm = _not_measured(unseen, v, t, areas, cap)
+    assert nm["faces"] == int(cap.sum()) and abs(nm["share"] - 0.25) < 0.01
+    assert nm["facing"][2] < -0.999 and abs(nm["coherence"] - 0.75) < 0.01
+    assert abs(nm["never_seen_mm2"] - nm["area_mm2"]) < 0.1 * nm["area_mm2"]
+    assert "never in the camera's view" in nm["advice"] and "facing down" in nm["advice"]
+    everywhere = SimpleNamespace(vertex=np.arange(len(v)))               # seen in some frame, never lit
+    nm = _not_measured(everywhere, v, t, areas, cap)
+    assert nm["never_seen_mm2"] == 0 and "never lit" in nm["advice"] and "facing down" in nm["advice"]
+    side = centre[:, 0] > 5.0                                             # the cap facing +x
+    assert "facing 0 deg about the table's axis" in _not_measured(everywhere, v, t, areas, side)["advice"]
+    scattered = np.arange(len(t)) % 7 == 0                                # faces all over: no one side
+    nm = _not_measured(everywhere, v, t, areas, scattered)
+    assert nm["coherence"] < 0.1 and "facing every way" in nm["advice"]
+    assert _not_measured(everywhere, v, t, areas, np.zeros(len(t), dtype=bool)) == {"faces": 0, "area_mm2": 0.0,
+                                                                                    "share": 0.0}
+
+
+def test_fit_materials_prints_what_to_capture_for_the_surface_not_measured(measured):
+    # the hawk's cut face (z = 0, facing down), out of the camera's view in the fixture's session
+    from app.cli.fit_materials import summary_lines
+
+    _, _, doc, _ = measured
+    nm = doc["not_measured"]
+    line = next(x for x in summary_lines(doc) if x.strip().startswith("not measured:"))
+    assert f"{nm['faces']} faces, {nm['area_mm2']:.0f} mm^2, {100 * nm['share']:.1f} % of the surface" in line
+    assert line.endswith(": add a placement that shows it") and "facing down" in line, line
+    old = {k: nm[k] for k in ("faces", "area_mm2")}           # a document written before the advice existed
+    assert any(x.strip() == f"not measured: {old['faces']} faces, {old['area_mm2']:.0f} mm^2 (no usable observation)"
+               for x in summary_lines({**doc, "not_measured": old}))

@@ -73,11 +73,15 @@ def test_measure_materials_on_the_mesh_from_the_window(qtbot, tmp_path, posed):
     assert abs(reg["parameters"]["Ag"] - 0.25) <= 0.03                   # truth 25 % (Matsuda et al., Table 1)
     assert abs(reg["parameters"]["roughness"] - 0.15) <= 0.015           # truth 0.15: within 10 %
     # the result line: every region's answer and a verdict; a region not measured or not told apart is a warn
+    from app.gui.guidance import UNMEASURED_WARN_SHARE
+
     text = p.materials_state.text()
     assert f"{len(doc['regions'])} region" in text and "not validated on held-out photos" in text
     undecided = any(r["material"] in ("not measured", "no candidate fits", "neutral metal")
                     or set(r["group"]) - {r["material"]} for r in doc["regions"])
-    assert p.materials_verdict.level == ("warn" if undecided else "pass")
+    unseen = doc["not_measured"]["share"] >= UNMEASURED_WARN_SHARE     # a side never measured is a warn too
+    assert p.materials_verdict.level == ("warn" if undecided or unseen else "pass")
+    assert f"{100 * doc['not_measured']['share']:.1f} % of the surface not measured" in text
     assert p.materials_verdict.level.upper() in text
     # the window re-read the session: the Preview offers the measured material on the measured mesh
     qtbot.waitUntil(lambda: (w.session.manifest.get("products") or {}).get("object_materials") is not None,

@@ -187,6 +187,9 @@ def test_summary_and_renders_of_the_measured_object(on_mesh):
     val = doc["validation"]
     assert f"ΔE00 {val['mean_de2000']:.2f}" in box and f"{val['baseline_mean_de2000']:.2f}" in box
     assert "show the measured materials, region by region" in box
+    nm = doc["not_measured"]            # the cut face the hawk stands on: how much, which way it faces, what to capture
+    assert nm["faces"] and nm["facing"][2] < -0.9 and "facing down" in nm["advice"]
+    assert f"{nm['area_mm2']:,.0f} mm² of the surface has no measured material (shown grey): {nm['advice']}" in box
     for r in regions:
         cls, _ = _row(page, str(r["index"]))
         assert (cls == "v-unreliable") == (r in poor), (r["index"], cls)
