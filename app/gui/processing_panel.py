@@ -140,6 +140,8 @@ def materials_summary(doc: dict[str, Any]) -> str:
     '1 region: 0 gold (confidence 0.93) · not validated on held-out photos'
     >>> materials_summary({"regions": [gold], "not_measured": {"faces": 12, "share": 0.0951}})
     '1 region: 0 gold (confidence 0.93) · 9.5 % of the surface not measured · not validated on held-out photos'
+    >>> materials_summary({"regions": [gold], "not_measured": {"faces": 1, "share": 0.0002}}).split(" · ")[1]
+    'under 0.1 % of the surface not measured'
     """
     from app.workflows.object_materials import answer_text
 
@@ -151,8 +153,10 @@ def materials_summary(doc: dict[str, Any]) -> str:
             if de is not None and base is not None else
             "not validated on held-out photos" if not val else str(val.get("note") or "not validated"))
     unmeasured = doc.get("not_measured") or {}
-    share = (f" · {100 * float(unmeasured['share']):.1f} % of the surface not measured"
-             if unmeasured.get("faces") and unmeasured.get("share") is not None else "")
+    share = ""
+    if unmeasured.get("faces") and unmeasured.get("share") is not None:
+        pct = 100 * float(unmeasured["share"])
+        share = f" · {'under 0.1' if pct < 0.05 else f'{pct:.1f}'} % of the surface not measured"
     return f"{len(regions)} region{'s' if len(regions) != 1 else ''}: {answers}{share} · {held}"
 
 
