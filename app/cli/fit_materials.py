@@ -39,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def summary_lines(doc: dict) -> list[str]:
     """The human-readable lines of a materials document (regions, baseline, validation)."""
-    from app.workflows.object_materials import answer_text, area_text
+    from app.workflows.object_materials import answer_text, area_text, unmeasured_share_text
 
     lines = []
     for r in doc["regions"]:
@@ -55,7 +55,7 @@ def summary_lines(doc: dict) -> list[str]:
                      f"their highlights, median tilt {nd['median_tilt_deg']:.1f} deg")
     nm = doc.get("not_measured") or {}
     if nm.get("faces"):
-        share = f", {100 * nm['share']:.1f} % of the surface" if nm.get("share") is not None else ""
+        share = f", {text}" if (text := unmeasured_share_text(nm)) else ""
         advice = f": {nm['advice']}" if nm.get("advice") else " (no usable observation)"
         lines.append(f"  not measured: {nm['faces']} faces, {nm['area_mm2']:.0f} mm^2{share}{advice}")
     val = doc.get("validation") or {}

@@ -143,7 +143,7 @@ def materials_summary(doc: dict[str, Any]) -> str:
     >>> materials_summary({"regions": [gold], "not_measured": {"faces": 1, "share": 0.0002}}).split(" · ")[1]
     'under 0.1 % of the surface not measured'
     """
-    from app.workflows.object_materials import answer_text
+    from app.workflows.object_materials import answer_text, unmeasured_share_text
 
     regions = list(doc.get("regions") or [])
     answers = "; ".join(f"{r.get('index', i)} {answer_text(r)}" for i, r in enumerate(regions))
@@ -152,11 +152,8 @@ def materials_summary(doc: dict[str, Any]) -> str:
     held = (f"held-out photos: mean ΔE00 {de:.2f} (one material for the whole object: {base:.2f})"
             if de is not None and base is not None else
             "not validated on held-out photos" if not val else str(val.get("note") or "not validated"))
-    unmeasured = doc.get("not_measured") or {}
-    share = ""
-    if unmeasured.get("faces") and unmeasured.get("share") is not None:
-        pct = 100 * float(unmeasured["share"])
-        share = f" · {'under 0.1' if pct < 0.05 else f'{pct:.1f}'} % of the surface not measured"
+    unmeasured = unmeasured_share_text(doc.get("not_measured") or {})
+    share = f" · {unmeasured} not measured" if unmeasured else ""
     return f"{len(regions)} region{'s' if len(regions) != 1 else ''}: {answers}{share} · {held}"
 
 

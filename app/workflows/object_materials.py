@@ -36,7 +36,7 @@ import numpy as np
 
 from app.errors import UsageError
 
-__all__ = ["measure_object", "burst_records", "answer_text", "area_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
+__all__ = ["measure_object", "burst_records", "answer_text", "area_text", "unmeasured_share_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
            "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY", "FIT_MODEL_ERROR"]
 
 OBJECT_MATERIALS = "products/object-materials.json"
@@ -253,6 +253,24 @@ def answer_text(region: dict[str, Any]) -> str:
     text += f"; cannot be told from {listed}" if others else ""
     mixed = float(region.get("disagreeing_area_mm2") or 0.0)
     return text + (f"; {mixed:.0f} mm2 of it fits another region's material better" if mixed > 0 else "")
+
+
+def unmeasured_share_text(not_measured: dict[str, Any]) -> str:
+    """The share of the surface no region holds, for people ("" when none, or a document without it).
+
+    Examples
+    --------
+    >>> unmeasured_share_text({"faces": 12, "share": 0.0951})
+    '9.5 % of the surface'
+    >>> unmeasured_share_text({"faces": 1, "share": 0.0002})
+    'under 0.1 % of the surface'
+    >>> unmeasured_share_text({"faces": 0, "share": 0.0})
+    ''
+    """
+    if not not_measured.get("faces") or not_measured.get("share") is None:
+        return ""
+    pct = 100 * float(not_measured["share"])
+    return f"{'under 0.1' if pct < 0.05 else f'{pct:.1f}'} % of the surface"
 
 
 def area_text(region: dict[str, Any]) -> str:
@@ -704,11 +722,12 @@ def _not_measured(obs: Any, v: np.ndarray, t: np.ndarray, areas: np.ndarray, unm
                            "share": round(area / max(float(areas.sum()), 1e-300), 5)}
     if not unmeasured.any():
         return out
+    from render.meshio import face_normals
+
     seen = np.zeros(len(v), dtype=bool)
     seen[obs.vertex] = True
     never = unmeasured & ~seen[t].any(axis=1)
-    n = np.cross(v[t[unmeasured, 1]] - v[t[unmeasured, 0]], v[t[unmeasured, 2]] - v[t[unmeasured, 0]])
-    total = n.sum(axis=0)                                    # twice the area-weighted normal
+    total = face_normals(v, t[unmeasured], unit=False).sum(axis=0)        # twice the area-weighted normal
     coherence = float(np.linalg.norm(total) / max(2.0 * area, 1e-300))
     facing = total / max(float(np.linalg.norm(total)), 1e-300)
     never_area = float(areas[never].sum())
