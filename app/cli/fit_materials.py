@@ -37,6 +37,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
+def _de(figures: dict, key: str) -> str:
+    """A CIEDE2000 figure for people: two decimals, or "-" where the document has none.
+
+    >>> _de({"mean_de2000": 3.0312, "p95_de2000": None}, "mean_de2000"), _de({"p95_de2000": None}, "p95_de2000")
+    ('3.03', '-')
+    """
+    x = figures.get(key)
+    return "-" if x is None else f"{x:.2f}"
+
+
 def summary_lines(doc: dict) -> list[str]:
     """The human-readable lines of a materials document (regions, baseline, validation)."""
     from app.workflows.object_materials import answer_text, area_text, unmeasured_share_text
@@ -60,20 +70,20 @@ def summary_lines(doc: dict) -> list[str]:
         lines.append(f"  not measured: {nm['faces']} faces, {nm['area_mm2']:.0f} mm^2{share}{advice}")
     val = doc.get("validation") or {}
     if val.get("mean_de2000") is not None:
-        lines.append(f"held-out photos ({len(val.get('frames', []))} frames): mean CIEDE2000 "
-                     f"{val['mean_de2000']:.2f}, p95 {val['p95_de2000']:.2f}; one material for the whole object "
-                     f"({doc['baseline'].get('material')}): mean {val['baseline_mean_de2000']:.2f}, p95 "
-                     f"{val['baseline_p95_de2000']:.2f}")
+        lines.append(f"held-out photos ({len(val.get('frames') or [])} frames): mean CIEDE2000 "
+                     f"{_de(val, 'mean_de2000')}, p95 {_de(val, 'p95_de2000')}; one material for the whole object "
+                     f"({(doc.get('baseline') or {}).get('material')}): mean {_de(val, 'baseline_mean_de2000')}, p95 "
+                     f"{_de(val, 'baseline_p95_de2000')}")
         if val.get("noise_floor_mean_de2000") is not None:
-            lines.append(f"  the photos' own noise alone would give about {val['noise_floor_mean_de2000']:.2f} "
+            lines.append(f"  the photos' own noise alone would give about {_de(val, 'noise_floor_mean_de2000')} "
                          "(a perfect model against photos with the sensor's noise, from the nominal noise model)")
         pooled = val.get("pooled") or {}
         if pooled.get("mean_de2000") is not None:
-            s = pooled["block_px"]
+            s = pooled.get("block_px")
             floor = pooled.get("noise_floor_mean_de2000")
             lines.append(f"  at {s} x {s} px (linear values averaged in blocks before the colour conversion): mean "
-                         f"{pooled['mean_de2000']:.2f}, p95 {pooled['p95_de2000']:.2f}; one material: mean "
-                         f"{pooled['baseline_mean_de2000']:.2f}"
+                         f"{_de(pooled, 'mean_de2000')}, p95 {_de(pooled, 'p95_de2000')}; one material: mean "
+                         f"{_de(pooled, 'baseline_mean_de2000')}"
                          + ("" if floor is None else f"; the noise alone about {floor:.2f}"))
     elif val.get("note"):
         lines.append(f"held-out photos: {val['note']}")

@@ -231,11 +231,33 @@ class _Context:
 
     def product_json(self, key: str) -> dict[str, Any] | None:
         """A JSON product (``products.<key>``), checked, or None."""
-        blob = self.product_bytes(self.products.get(key), f"products.{key}", MAX_JSON_BYTES)
-        doc = None if blob is None else json.loads(blob)
-        return doc if isinstance(doc, dict) else None
+        rec = self.products.get(key)
+        blob = self.product_bytes(rec, f"products.{key}", MAX_JSON_BYTES)
+        if blob is None:
+            return None
+        try:
+            doc = json.loads(blob)
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            self.problems.append(f"{rec['file']} is not JSON; it is not shown")
+            return None
+        if not isinstance(doc, dict):
+            self.problems.append(f"{rec['file']} is not a JSON object; it is not shown")
+            return None
+        problem = _PRODUCT_CHECKS[key](doc) if key in _PRODUCT_CHECKS else None
+        if problem:
+            self.problems.append(f"{rec['file']}: {problem}; it is not shown")
+            return None
+        return doc
 
 
+def _materials_problem(doc: dict[str, Any]) -> str | None:
+    from app.workflows._materials_document import materials_document_problem
+
+    return materials_document_problem(doc)
+
+
+#: The checks of a JSON product's fields before a section reads it: ``products`` key -> first problem or None.
+_PRODUCT_CHECKS: dict[str, Callable[[dict[str, Any]], str | None]] = {"object_materials": _materials_problem}
 #: Expected types of the manifest's top-level fields (a wrong type is listed under "problems found").
 _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "object": (dict,), "devices": (dict,), "settings": (dict,), "plan": (dict,), "passes": (dict,),

@@ -1076,6 +1076,7 @@ def read_object_materials(session_dir: str | Path) -> dict[str, Any]:
 
     from app.session import Session
     from app.session_paths import MAX_JSON_BYTES, read_confined_bytes
+    from app.workflows._materials_document import materials_document_problem
 
     root = Path(session_dir)
     ref = (Session.read(root).get("products") or {}).get("object_materials")
@@ -1091,6 +1092,10 @@ def read_object_materials(session_dir: str | Path) -> dict[str, Any]:
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UsageError(f"{where}: not valid JSON ({exc}); run kogei fit-materials {root} again") from None
     _region_list(doc, where)
+    problem = materials_document_problem(doc)
+    if problem:
+        raise UsageError(f"{where}: {problem}; the file is damaged or was not written by kogei: run kogei "
+                         f"fit-materials {root} again")
     return doc
 
 

@@ -365,3 +365,89 @@ def test_fit_materials_prints_what_to_capture_for_the_surface_not_measured(measu
     old = {k: nm[k] for k in ("faces", "area_mm2")}           # a document written before the advice existed
     assert any(x.strip() == f"not measured: {old['faces']} faces, {old['area_mm2']:.0f} mm^2 (no usable observation)"
                for x in summary_lines({**doc, "not_measured": old}))
+
+
+def _damaged_copy(root, tmp_path, change):
+    """A copy of the session whose materials document was changed by ``change`` and its checksum made to match,
+    as a session from elsewhere could be."""
+    import copy
+    import hashlib
+    import shutil
+
+    from app.session import Session
+
+    dst = tmp_path / "elsewhere"
+    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("session.lock"))
+    path = dst / "products/object-materials.json"
+    doc = copy.deepcopy(json.loads(path.read_text()))
+    change(doc)
+    blob = json.dumps(doc).encode()
+    path.write_bytes(blob)
+    manifest = Session.read(dst)
+    manifest["products"]["object_materials"].update(sha256=hashlib.sha256(blob).hexdigest(), bytes=len(blob))
+    (dst / "session.json").write_text(json.dumps(manifest))
+    return dst
+
+
+@pytest.mark.parametrize("where, change, named", [
+    ("a region's confidence", lambda d: d["regions"][0].update(confidence="high"), "regions[0].confidence"),
+    ("the share not measured", lambda d: d["not_measured"].update(share=[0.1]), "not_measured.share"),
+    ("the validation", lambda d: d.update(validation=3.2), "validation must be a table"),
+    ("a held-out frame's error", lambda d: d["validation"]["frames"][0].update(mean_de2000="2.5"),
+     "validation.frames[0].mean_de2000"),
+    ("a region's candidates", lambda d: d["regions"][0].update(group=5), "regions[0].group"),
+])
+def test_a_checksummed_document_of_the_wrong_kind_is_refused_by_name(measured, tmp_path, capsys, where, change, named):
+    """The window, the report and the export read fields of products/object-materials.json; a session from
+    elsewhere whose document matches its checksum but holds a field of the wrong kind is refused with one line
+    naming the field (before, the window failed on it when the session was opened), and the report lists it."""
+    from app.report.html import build_report
+    from app.workflows.object_materials import read_object_materials
+
+    root, _, _, _ = measured
+    dst = _damaged_copy(root, tmp_path, change)
+    with pytest.raises(UsageError, match=named.replace("[", r"\[").replace("]", r"\]")) as err:
+        read_object_materials(dst)
+    assert "\n" not in str(err.value) and "kogei fit-materials" in str(err.value)
+    assert main(["export", str(dst), "--gltf", str(tmp_path / "out.glb")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and named.split(" must")[0] in lines[0], lines
+    html = build_report(dst)
+    assert "Problems found" in html and named.split(" must")[0] in html
+
+
+def test_every_field_of_the_wrong_kind_is_refused_or_harmless(measured):
+    """Each field of the measured document (top level, a region, the surface not measured, the validation and
+    its first frame) replaced by a value of another kind: either the check names it, or the window's verdict
+    and result line and the command's summary still read the document."""
+    import copy
+
+    from app.cli.fit_materials import summary_lines
+    from app.gui.guidance import materials_verdict
+    from app.gui.processing_panel import materials_summary
+    from app.workflows._materials_document import materials_document_problem
+
+    _, _, doc, _ = measured
+    places = [(), ("regions", 0), ("not_measured",), ("validation",), ("validation", "frames", 0), ("baseline",)]
+    tried = refused = 0
+    for place in places:
+        node = doc
+        for p in place:
+            node = node[p]
+        for key in list(node):
+            for bad in ("x", None, [], {}, -1, 1e308, True):
+                damaged = copy.deepcopy(doc)
+                target = damaged
+                for p in place:
+                    target = target[p]
+                target[key] = bad
+                tried += 1
+                problem = materials_document_problem(damaged)
+                if problem:
+                    refused += 1
+                    assert problem.split(" must")[0].endswith(str(key)) or "regions" in problem, problem
+                    continue
+                materials_verdict(damaged)
+                materials_summary(damaged)
+                summary_lines(damaged)
+    assert tried > 300 and 0 < refused < tried
