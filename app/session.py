@@ -57,6 +57,7 @@ import fcntl
 import hashlib
 import io
 import json
+import math
 import os
 import shutil
 import stat
@@ -898,13 +899,43 @@ def _check_record(field: str, rec: Any) -> None:
     if "table_frame" in rec:
         _need(_is_int(rec["table_frame"], 0, 1 << 20), f"{field}.table_frame", "a table frame number",
               rec["table_frame"])
+    if "pass" in rec:
+        _need(_is_int(rec["pass"], 1, MAX_PASSES), f"{field}.pass", f"a pass number in 1..{MAX_PASSES}", rec["pass"])
+    if "index" in rec:
+        _need(_is_int(rec["index"], 0, MAX_STEPS), f"{field}.index", f"an index in 0..{MAX_STEPS}", rec["index"])
+    if rec.get("angle_deg") is not None:
+        _need(_is_number(rec["angle_deg"]), f"{field}.angle_deg", "an angle in degrees", rec["angle_deg"])
+    if "kind" in rec:
+        _need(isinstance(rec["kind"], str), f"{field}.kind", "a text", rec["kind"])
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_calibration_ref(key: str, ref: Any) -> None:
+    """A calibration's record in the manifest: an object or null, and the fields the window and report show."""
+    _need(ref is None or isinstance(ref, dict), key, "an object or null", ref)
+    if not isinstance(ref, dict):
+        return
+    if "source" in ref:
+        _need(isinstance(ref["source"], dict), f"{key}.source", "an object", ref["source"])
+        rejected = ref["source"].get("frames_rejected", [])
+        _need(isinstance(rejected, list), f"{key}.source.frames_rejected", "a list of frames", rejected)
+    if "image_size" in ref:
+        size = ref["image_size"]
+        _need(isinstance(size, list) and len(size) == 2 and all(_is_int(n, 1, 1 << 20) for n in size),
+              f"{key}.image_size", "[width, height] in pixels", size)
+    for name in ("rms_px", "rms_mm", "max_mm"):
+        if ref.get(name) is not None:
+            _need(_is_number(ref[name]), f"{key}.{name}", "a finite number", ref[name])
 
 
 def _check_plan(plan: Any) -> None:
     _need(isinstance(plan, dict), "plan", "an object", plan)
     bounds = {"steps": (1, MAX_STEPS), "passes": (1, MAX_PASSES), "chart_frames": (1, 99)}
     for key, (low, high) in bounds.items():
-        if plan.get(key) is not None:
+        if plan.get(key) is not None or (key in plan and key != "chart_frames"):   # steps and passes: never null
             _need(_is_int(plan[key], low, high), f"plan.{key}", f"an integer in {low}..{high}", plan[key])
     if "kind" in plan:
         _need(isinstance(plan["kind"], str), "plan.kind", "a text", plan["kind"])
@@ -935,8 +966,11 @@ def _check_field(key: str, value: Any) -> None:
         _need(isinstance(value, str), key, "a UTC time as text", value)
     elif key in _DICT_FIELDS:
         _need(isinstance(value, dict), key, "an object", value)
+        if key == "object":                 # the object's description: texts the window shows and edits
+            for name, text in value.items():
+                _need(isinstance(text, str), f"object.{name}", "a text", text)
     elif key in ("calibration", "camera_calibration", "lamp_calibration"):
-        _need(value is None or isinstance(value, dict), key, "an object or null", value)
+        _check_calibration_ref(key, value)
     elif key == "plan":
         _check_plan(value)
     elif key == "passes":

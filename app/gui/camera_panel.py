@@ -146,7 +146,7 @@ def session_chart_frames(root: Path) -> list[tuple[str, int, Path]]:
 
     caps = Session.read(root)["captures"]
     found = [(cid, int(r.get("pass", 0)), root / r["file"]) for cid, r in caps.items()
-             if r.get("kind") == "chart" and r.get("status", "done") == "done"]
+             if r.get("kind") == "chart" and r.get("status", "done") == "done" and r.get("file")]
     return sorted(found, key=lambda t: (t[1], t[0]))
 
 

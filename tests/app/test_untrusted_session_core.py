@@ -230,6 +230,17 @@ def _with_manifest(tmp_path: Path, **fields) -> Path:
     ("history", ["x"], r"history\[0\] must be an object"),
     ("status", "bogus", "status must be one of"),
     ("products", "x", "products must be an object"),
+    # fields the window shows when the session is opened (each made the window fail before it was checked)
+    ("object", {"name": 7}, "object.name must be a text"),
+    ("plan", {"kind": "scan", "steps": None, "passes": 1}, "plan.steps must be an integer"),
+    ("captures", {"a": {"file": "a", "pass": "x"}}, "captures.a.pass must be a pass number"),
+    ("captures", {"a": {"file": "a", "angle_deg": [1]}}, "captures.a.angle_deg must be an angle"),
+    ("captures", {"a": {"file": "a", "angle_deg": float("nan")}}, "captures.a.angle_deg must be an angle"),
+    ("captures", {"a": {"file": "a", "kind": 3}}, "captures.a.kind must be a text"),
+    ("camera_calibration", {"source": "x"}, "camera_calibration.source must be an object"),
+    ("camera_calibration", {"source": {"frames_rejected": 3}}, "camera_calibration.source.frames_rejected"),
+    ("camera_calibration", {"image_size": "x"}, r"camera_calibration.image_size must be \[width, height\]"),
+    ("lamp_calibration", {"rms_mm": "x"}, "lamp_calibration.rms_mm must be a finite number"),
 ])
 @pytest.mark.parametrize("how", ["read", "open"])
 def test_wrong_types_and_bounds_in_the_manifest_are_named(tmp_path, field, value, match, how):
