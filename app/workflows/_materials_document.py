@@ -5,8 +5,8 @@ and still hold a confidence that is a string, a share that is a list or a valida
 window, the report and the export format those fields; :func:`materials_document_problem` finds the first
 field of the wrong kind, so that the reader refuses the file with one line instead of failing on it later.
 
-Rules by field name apply at any depth (a region's ``confidence``, a validation frame's ``mean_de2000``);
-the containers are checked where they stand (the top level, each region).
+Rules by a field's whole path come first (the top level's containers), then by its name at any depth (a
+region's ``confidence``, a validation frame's ``mean_de2000``), then by the end of its name (``_mm2``).
 """
 
 from __future__ import annotations
@@ -52,6 +52,7 @@ _BY_NAME: dict[str, tuple[Callable[[Any], bool], str]] = {
     "note": _TEXT, "reason": _TEXT, "light_spectrum": _TEXT, "frame": _TEXT, "faces": _COUNT,
     "vertices": _COUNT, "n_observations": _COUNT, "n_lit": _COUNT, "pixels": _COUNT, "n_frames": _COUNT,
     "block_px": _COUNT, "pieces_tested": _COUNT, "pieces_disagreeing": _COUNT, "timings_s": _VALUES,
+    "candidates": _LIST, "disagreeing_better_regions": _LIST,
 }
 #: Rules by the end of a field's name, at any depth.
 _BY_SUFFIX: tuple[tuple[str, tuple[Callable[[Any], bool], str]], ...] = (
@@ -59,17 +60,9 @@ _BY_SUFFIX: tuple[tuple[str, tuple[Callable[[Any], bool], str]], ...] = (
 )
 #: Rules by a field's whole path, before those by name.
 _BY_PATH: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "segmentation.split.area_mm2": _AREAS, "validation.frames": _LIST, "validation.pooled": _TABLE,
+    "not_measured": _TABLE, "validation": _TABLE, "baseline": _TABLE, "segmentation": _TABLE, "frames": _TABLE,
+    "normals": _TABLE, "segmentation.split.area_mm2": _AREAS, "validation.frames": _LIST, "validation.pooled": _TABLE,
     "validation.regions": _TABLE, "validation.point_spread": _TABLE, "frames.fit": _NAMES, "frames.held_out": _NAMES,
-}
-#: The containers of the top level.
-_TOP: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "regions": _LIST, "not_measured": _TABLE, "validation": _TABLE, "baseline": _TABLE, "segmentation": _TABLE,
-    "frames": _TABLE, "normals": _TABLE, "timings_s": _VALUES,
-}
-#: The containers of a region.
-_REGION: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "candidates": _LIST, "disagreeing_better_regions": _LIST,
 }
 
 
@@ -124,15 +117,10 @@ def materials_document_problem(doc: dict[str, Any]) -> str | None:
     >>> materials_document_problem({**ok, "validation": {"frames": [{"mean_de2000": float("nan")}]}})
     'validation.frames[0].mean_de2000 must be a finite number or null, got nan'
     """
-    for key, (check, what) in _TOP.items():
-        if key in doc and not check(doc[key]):
-            return f"{key} must be {what}, got {_shown(doc[key])}"
-    if not doc.get("regions"):
-        return "regions must be a non-empty list of the regions"
-    for i, region in enumerate(doc["regions"]):
+    regions = doc.get("regions")
+    if not isinstance(regions, list) or not regions:
+        return f"regions must be a non-empty list of the regions, got {_shown(regions)}"
+    for i, region in enumerate(regions):
         if not isinstance(region, dict) or region.get("index") != i:
             return f"regions[{i}] must be a table with index {i}, got {_shown(region)}"
-        for key, (check, what) in _REGION.items():
-            if key in region and not check(region[key]):
-                return f"regions[{i}].{key} must be {what}, got {_shown(region[key])}"
     return _walk(doc, "")
