@@ -918,11 +918,11 @@ def _check_calibration_ref(key: str, ref: Any) -> None:
     _need(ref is None or isinstance(ref, dict), key, "an object or null", ref)
     if not isinstance(ref, dict):
         return
-    if "source" in ref:
-        _need(isinstance(ref["source"], dict), f"{key}.source", "an object", ref["source"])
-        rejected = ref["source"].get("frames_rejected", [])
+    if ref.get("source") is not None:
+        _need(isinstance(ref["source"], dict), f"{key}.source", "an object or null", ref["source"])
+        rejected = ref["source"].get("frames_rejected") or []
         _need(isinstance(rejected, list), f"{key}.source.frames_rejected", "a list of frames", rejected)
-    if "image_size" in ref:
+    if ref.get("image_size") is not None:
         size = ref["image_size"]
         _need(isinstance(size, list) and len(size) == 2 and all(_is_int(n, 1, 1 << 20) for n in size),
               f"{key}.image_size", "[width, height] in pixels", size)
