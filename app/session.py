@@ -918,7 +918,7 @@ def _check_calibration_ref(key: str, ref: Any) -> None:
     _need(ref is None or isinstance(ref, dict), key, "an object or null", ref)
     if not isinstance(ref, dict):
         return
-    if ref.get("source") is not None:
+    if key == "camera_calibration" and ref.get("source") is not None:   # the scanner's may name a pass: read leniently
         _need(isinstance(ref["source"], dict), f"{key}.source", "an object or null", ref["source"])
         rejected = ref["source"].get("frames_rejected") or []
         _need(isinstance(rejected, list), f"{key}.source.frames_rejected", "a list of frames", rejected)
