@@ -630,24 +630,19 @@ def main(argv: list[str] | None = None) -> None:
                     help="regenerate only this section (repeatable), keeping the others of --out")
     args = ap.parse_args(argv)
     out = Path(args.out)
-    if args.only:
-        if not out.exists():
-            raise SystemExit(f"--only needs an existing {out}; run without --only first")
+    if args.only and not out.exists():
+        raise SystemExit(f"--only needs an existing {out}; run without --only first")
+    if out.exists():
+        # each section regenerated in place: the text around them, sections without a builder (measured by
+        # hand) and the blocks measured by hand inside them stay
         text = out.read_text(encoding="utf-8")
-        for name in args.only:
+        if not args.only:
+            text = with_machine(text, machine_description())
+        for name in args.only or list(SECTIONS):
             heading, build = SECTIONS[name]
             text = replace_section(text, heading, build())
         out.write_text(text, encoding="utf-8")
-        print(f"updated {', '.join(args.only)} in {out} ({dt.datetime.now():%Y-%m-%d %H:%M})")
-        return
-    if out.exists():
-        # every section regenerated in place: the text around them, sections without a builder (measured by
-        # hand) and the blocks measured by hand inside them stay
-        text = with_machine(out.read_text(encoding="utf-8"), machine_description())
-        for heading, build in SECTIONS.values():
-            text = replace_section(text, heading, build())
-        out.write_text(text, encoding="utf-8")
-        print(f"updated every section of {out} ({dt.datetime.now():%Y-%m-%d %H:%M})")
+        print(f"updated {', '.join(args.only or ['every section'])} in {out} ({dt.datetime.now():%Y-%m-%d %H:%M})")
         return
     lines = [
         "# Benchmarks",
