@@ -50,6 +50,7 @@ from app.session_paths import (
     confined_file,
     read_confined_bytes,
 )
+from app.workflows._materials_document import materials_document_problem
 from processing.common.png import png_bytes
 
 __all__ = ["Section", "build_report", "write_report", "report_sections", "REPORT_FILE"]
@@ -250,14 +251,8 @@ class _Context:
         return doc
 
 
-def _materials_problem(doc: dict[str, Any]) -> str | None:
-    from app.workflows._materials_document import materials_document_problem
-
-    return materials_document_problem(doc)
-
-
 #: The checks of a JSON product's fields before a section reads it: ``products`` key -> first problem or None.
-_PRODUCT_CHECKS: dict[str, Callable[[dict[str, Any]], str | None]] = {"object_materials": _materials_problem}
+_PRODUCT_CHECKS: dict[str, Callable[[dict[str, Any]], str | None]] = {"object_materials": materials_document_problem}
 #: Expected types of the manifest's top-level fields (a wrong type is listed under "problems found").
 _FIELD_TYPES: dict[str, tuple[type, ...]] = {
     "object": (dict,), "devices": (dict,), "settings": (dict,), "plan": (dict,), "passes": (dict,),
