@@ -1091,29 +1091,13 @@ def read_object_materials(session_dir: str | Path) -> dict[str, Any]:
         doc = json.loads(blob.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UsageError(f"{where}: not valid JSON ({exc}); run kogei fit-materials {root} again") from None
-    _region_list(doc, where)
-    problem = materials_document_problem(doc)
+    if not isinstance(doc, dict) or doc.get("schema") != "kogei.object_materials" or doc.get("version") != 1:
+        raise UsageError(f"{where}: not a kogei.object_materials version 1 document; rerun kogei fit-materials")
+    problem = materials_document_problem(doc)       # the regions' list and indices, then every field by kind
     if problem:
         raise UsageError(f"{where}: {problem}; the file is damaged or was not written by kogei: run kogei "
                          f"fit-materials {root} again")
     return doc
-
-
-def _region_list(doc: Any, where: str) -> list[dict[str, Any]]:
-    """The regions of an object-materials document, checked: indices 0..R-1 in order, specs strings or None."""
-    if not isinstance(doc, dict) or doc.get("schema") != "kogei.object_materials" or doc.get("version") != 1:
-        raise UsageError(f"{where}: not a kogei.object_materials version 1 document; rerun kogei fit-materials")
-    regions = doc.get("regions")
-    if not isinstance(regions, list) or not regions:
-        raise UsageError(f"{where}: 'regions' must be a non-empty list; rerun kogei fit-materials")
-    for i, r in enumerate(regions):
-        if not isinstance(r, dict) or r.get("index") != i:
-            raise UsageError(f"{where}: region {i} is not a table with index {i}; the file is damaged")
-        if r.get("spec") is not None and not isinstance(r.get("spec"), str):
-            raise UsageError(f"{where}: region {i} spec must be a string or null, got {r.get('spec')!r}")
-        if not isinstance(r.get("material", ""), str):
-            raise UsageError(f"{where}: region {i} material must be a string")
-    return regions
 
 
 def _vertex_regions(triangles: np.ndarray, face_region: np.ndarray, n_vertices: int) -> np.ndarray:
