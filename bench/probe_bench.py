@@ -17,7 +17,7 @@ same light at 960 x 640.  Then, each in a fresh process so its peak memory is it
   reflectances), and the estimator's own luminance and chromaticity errors on training reflectances
   it did not see (10-fold), by CIELAB chroma under D65;
 * ``channels`` (no frames): three camera channels against six (a second bracket set through a colour
-  filter, :data:`FILTERS`), per wall and on 29 test colours no estimator was trained on.
+  filter, :data:`mocks.probe_world.FILTERS`), per wall and on 29 test colours no estimator was trained on.
 
 Run ``python -m bench.probe_bench`` (all cases; one JSON line) or ``--case NAME --dir DIR``.
 """
@@ -40,6 +40,9 @@ __all__ = ["make_shots", "section", "main"]
 
 WIDTH, HEIGHT = 6000, 4000
 MAP_HEIGHT = 512
+#: The probe from two bracket sets (the second through :data:`mocks.probe_world.PROBE_FILTER`), with the chart's
+#: light stated as D65 and as measured.
+TWO_SET_CASES = ("probe-two-sets", "probe-two-sets-measured-light")
 
 
 def _world(width: int, height: int):
@@ -60,27 +63,46 @@ def make_shots(folder: Path) -> dict:
         write_raw,
         xyz_to_camera_matrix,
     )
-    from mocks.probe_world import BRACKET_TIMES_S, PROBE_F_NUMBER, write_probe_shots
+    from mocks.probe_world import (
+        BRACKET_TIMES_S,
+        FILTERS,
+        PROBE_F_NUMBER,
+        PROBE_FILTER,
+        filter_transmission,
+        write_filter_csv,
+        write_probe_shots,
+    )
     from processing.geometry.camera_calibration import CameraCalibration
 
     folder.mkdir(parents=True, exist_ok=True)
     small = _world(960, 640)
     chart, _ = write_probe_shots(small, folder / "chart", times_s=())
     world = _world(WIDTH, HEIGHT)
-    t0 = time.perf_counter()
-    signal = world.camera_signal(camera_sensitivities(world.grid))
-    render_s = time.perf_counter() - t0
+    transmission = filter_transmission(*FILTERS[PROBE_FILTER], world.grid.wavelengths)
+    write_probe_shots(small, folder / "filtered" / "chart", times_s=(), transmission=transmission, seed=1)
+    write_filter_csv(folder / "filter.csv")
+    # the chart's light as a spectroradiometer on the table would measure it
+    light = world.light_spectrum()
+    (folder / "light.csv").write_text("wavelength_nm,value\n" + "".join(
+        f"{a:g},{b:.8g}\n" for a, b in zip(world.grid.wavelengths, light)), encoding="utf-8")
+    sens = camera_sensitivities(world.grid)
     sensor = SensorModel()
-    cfa = mosaic(signal, sensor.cfa_pattern).astype(np.float32)
-    del signal
-    frames = []
-    for i, t in enumerate(BRACKET_TIMES_S):
-        bayer, _ = expose(cfa, sensor, float(t), np.random.default_rng(i))
-        raw = RawFrame(bayer, sensor.black_level, sensor.white_level, sensor.cfa_pattern, float(t), sensor.iso,
-                       np.array(xyz_to_camera_matrix(world.grid)), white_balance_neutral(world.light_spectrum(),
-                                                                                         world.grid),
-                       np.zeros((1, 1)), f_number=PROBE_F_NUMBER)
-        frames.append(str(write_raw(folder / f"probe-{i + 1}.dng", raw)))
+    frames, render_s = [], 0.0
+    for sub, s_filter, seed0 in (("", sens, 0), ("filtered", sens * transmission[:, None], 100)):
+        t0 = time.perf_counter()
+        signal = world.camera_signal(s_filter)
+        render_s += time.perf_counter() - t0
+        cfa = mosaic(signal, sensor.cfa_pattern).astype(np.float32)
+        del signal
+        (folder / sub).mkdir(exist_ok=True)
+        for i, t in enumerate(BRACKET_TIMES_S):
+            bayer, _ = expose(cfa, sensor, float(t), np.random.default_rng(seed0 + i))
+            raw = RawFrame(bayer, sensor.black_level, sensor.white_level, sensor.cfa_pattern, float(t), sensor.iso,
+                           np.array(xyz_to_camera_matrix(world.grid)), white_balance_neutral(light, world.grid),
+                           np.zeros((1, 1)), f_number=PROBE_F_NUMBER)
+            path = write_raw(folder / sub / f"probe-{i + 1}.dng", raw)
+            if not sub:
+                frames.append(str(path))
     cal = CameraCalibration((WIDTH, HEIGHT), world.camera_intrinsics(), np.zeros(5), np.eye(4),
                             room_to_camera=world.room_to_camera())
     (folder / "camera_calibration.json").write_text(json.dumps(cal.to_dict()))
@@ -138,18 +160,27 @@ def _region_errors(env, observed, world) -> dict:
     return {"regions": rows, "total_luminance_ratio": float((rec[..., 1] * w).sum() / (truth[..., 1] * w).sum())}
 
 
-def case_probe(folder: Path) -> dict:
+def case_probe(folder: Path, filtered: bool = False, measured_light: bool = False) -> dict:
+    """The whole probe: one bracket set (wiener), or two with the filtered set (twolight, 6 basis spectra);
+    the chart's light stated as D65 or given as measured (``light.csv``)."""
     from app.workflows.light_probe import build_probe, probe_inputs
 
+    extra = {"filter_frames": str(folder / "filtered"), "filter_chart": str(folder / "filtered" / "chart" / "chart.dng"),
+             "filter_transmission": str(folder / "filter.csv")} if filtered else {}
     inputs = probe_inputs([str(p) for p in _frames(folder)], chart=str(folder / "chart" / "chart.dng"),
-                          camera_calibration=str(folder / "camera_calibration.json"), sphere_radius_mm=20.0)
+                          camera_calibration=str(folder / "camera_calibration.json"), sphere_radius_mm=20.0, **extra)
+    light = str(folder / "light.csv") if measured_light else "D65"
     c0, t0 = _cpu_s(), time.perf_counter()
-    result = build_probe(inputs, height=MAP_HEIGHT)
+    result = build_probe(inputs, height=MAP_HEIGHT, light=light)
     seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     errors = _region_errors(result.environment, result.observed, _world(96, 64))
+    spectral = result.report["spectral"]
     return {"case": "probe", "seconds": seconds, "cpu_s": cpu, "load_average": os.getloadavg()[0], "steps_s": result.report["seconds"], "peak_rss_mb": peak_rss_mb(),
             "radius_px": result.report["sphere"]["radius_px"], "observed": result.report["map"]["observed_fraction"],
-            "chart_rmse": result.report["spectral"]["chart_rmse"], **errors}
+            "chart_rmse": spectral["chart_rmse"], "light": "measured" if measured_light else "D65",
+            "method": spectral["method"], **{k: spectral[k] for k in ("components", "projection_dxy_p99",
+                                                                      "projection_spectral_median") if k in spectral},
+            **errors}
 
 
 #: CIELAB chroma classes (under D65) of the held-out reflectance errors.
@@ -211,31 +242,6 @@ def case_limits() -> dict:
             "wall_chroma": wall_chroma}
 
 
-#: Colour filters for a second bracket set (idealised smooth curves, not a product's measured transmission):
-#: name -> (kind, centre or edge nm, width nm).  A long-pass rises at its edge, a short-pass falls, a band
-#: passes a Gaussian band, a notch removes one.
-FILTERS = {"yellow long-pass 500 nm": ("long", 500.0, 12.0), "orange long-pass 550 nm": ("long", 550.0, 12.0),
-           "red long-pass 600 nm": ("long", 600.0, 12.0), "cyan short-pass 560 nm": ("short", 560.0, 12.0),
-           "green band 530 nm": ("band", 530.0, 40.0), "magenta notch 540 nm": ("notch", 540.0, 30.0)}
-
-
-def filter_transmission(kind: str, centre_nm: float, width_nm: float, wavelengths_nm: np.ndarray) -> np.ndarray:
-    """An idealised filter's transmission (0.03-0.95) on ``wavelengths_nm`` (see :data:`FILTERS`).
-
-    Examples
-    --------
-    >>> t = filter_transmission("long", 550.0, 12.0, np.array([450.0, 550.0, 650.0]))
-    >>> [round(float(x), 3) for x in t]
-    [0.05, 0.5, 0.95]
-    """
-    x = np.asarray(wavelengths_nm, dtype=np.float64)
-    if kind in ("long", "short"):
-        rise = 1.0 / (1.0 + np.exp(-(x - centre_nm) / width_nm))
-        return 0.05 + 0.9 * (rise if kind == "long" else 1.0 - rise)
-    bump = np.exp(-0.5 * ((x - centre_nm) / width_nm) ** 2)
-    return 0.05 + 0.9 * bump if kind == "band" else 1.0 - 0.8 * bump
-
-
 def case_channels(draws: int = 20) -> dict:
     """Three camera channels against six (a second bracket set through a colour filter), wall by wall.
 
@@ -249,7 +255,7 @@ def case_channels(draws: int = 20) -> dict:
     from colour.quality.datasets import SDS_TCS, SDS_VS
 
     from app.workflows.spectral import estimator_setup
-    from mocks.probe_world import ROOM_REGIONS
+    from mocks.probe_world import FILTERS, ROOM_REGIONS, filter_transmission
     from processing.spectral.display import spectra_to_xyz
     from processing.spectral.estimation.estimator import fit_estimator
     from processing.spectral.estimation.two_light import fit_two_light
@@ -307,7 +313,7 @@ def run_all() -> dict:
         made = run_case_subprocess("bench.probe_bench", "make", "--dir", tmp, timeout=3600)
         out = {"machine": machine_description(), "size": [WIDTH, HEIGHT], **made,
                "load_average": [os.getloadavg()[0]]}
-        for case in ("merge-demosaic", "merge-bin2x2", "probe", "limits", "channels"):
+        for case in ("merge-demosaic", "merge-bin2x2", "probe", *TWO_SET_CASES, "limits", "channels"):
             out[case] = run_case_subprocess("bench.probe_bench", case, "--dir", tmp, timeout=3600)
         out["load_average"].append(os.getloadavg()[0])
     return out
@@ -355,8 +361,37 @@ def section(results: dict | None = None) -> list[str]:
     for name, row in p["regions"].items():
         lines.append(f"| {name} | {row['luminance_ratio']:.3f} | {row['dxy']:.4f} | {row['pixels']} |")
     lines.append("")
+    lines += two_set_lines(r)
     return lines + limits_lines(r["limits"]) + (channels_lines(r["channels"], p["regions"].get("red wall", {}).get("dxy"))
                                              if "channels" in r else [])
+
+
+def two_set_lines(r: dict) -> list[str]:
+    """The probe from two bracket sets (the second through the magenta notch filter), with the chart's light
+    stated as D65 and as measured."""
+    cases = [c for c in TWO_SET_CASES if c in r]
+    if not cases:
+        return []
+    names = list(r[cases[0]]["regions"])
+    lines = [
+        "The same probe from two bracket sets, the second shot through the magenta notch filter (the chart too): "
+        "six camera values per direction, the two-light root polynomial, a map of "
+        f"{r[cases[0]]['components']} non-negative basis spectra; the chart's light stated as D65, and given as "
+        "measured (the room's irradiance on the table, as a spectroradiometer there would give it).  Per region: "
+        "luminance ratio / xy distance.",
+        "",
+        "| chart's light | wall time (s) | CPU time (s) | peak RSS (MB) | basis: xy p99 | "
+        + " | ".join(names) + " |",
+        "|---|---:|---:|---:|---:|" + "---:|" * len(names),
+    ]
+    for c in cases:
+        p = r[c]
+        cells = [f"{x['luminance_ratio']:.3f} / {x['dxy']:.4f}" for x in p["regions"].values()]
+        ok = all(abs(x["luminance_ratio"] - 1) <= 0.05 and x["dxy"] <= 0.005 for x in p["regions"].values())
+        lines.append(f"| {p['light']}{' (all within target)' if ok else ''} | {p['seconds']:.1f} | {p['cpu_s']:.1f} | "
+                     f"{p['peak_rss_mb']:.0f} | {p['projection_dxy_p99']:.4f} | " + " | ".join(cells) + " |")
+    lines.append("")
+    return lines
 
 
 def limits_lines(lim: dict) -> list[str]:
@@ -433,17 +468,15 @@ def channels_lines(ch: dict, chain_red_dxy: float | None = None) -> list[str]:
               + ".  These figures leave out the "
               "chain's own errors (merge, demosaic, the chart's calibration)"
               + ("" if chain_red_dxy is None else f": through the chain the red wall reads {chain_red_dxy:.4f} in the "
-                 f"table above, against {three['walls_dxy'][0]:.4f} here") + ".  The probe takes one bracket set: a second set through a "
-              "filter is not built (it needs the filter's measured transmission, the chart shot through it too, "
-              "and, for the root polynomial, a map that keeps a spectrum per direction instead of three "
-              "coefficients).", ""]
+                 f"table above, against {three['walls_dxy'][0]:.4f} here") + ".  `kogei probe --filter-frames` reads such a second set "
+              "(the magenta notch): the whole chain's figures are in the table above.", ""]
     return lines
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--case", default="all", choices=["all", "make", "merge-demosaic", "merge-bin2x2", "probe",
-                                                       "limits", "channels"])
+                                                       *TWO_SET_CASES, "limits", "channels"])
     ap.add_argument("--dir", default=None, help="the folder of the shots (cases other than all)")
     args = ap.parse_args(argv)
     if args.case == "all":
@@ -458,6 +491,8 @@ def main(argv: list[str] | None = None) -> None:
         out = make_shots(Path(args.dir))
     elif args.case == "probe":
         out = case_probe(Path(args.dir))
+    elif args.case in TWO_SET_CASES:
+        out = case_probe(Path(args.dir), filtered=True, measured_light=args.case.endswith("measured-light"))
     else:
         out = case_merge(Path(args.dir), args.case.split("-", 1)[1])
     print(json.dumps(out))

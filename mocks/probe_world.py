@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from mocks.mirror_world import CHROME_REFLECTANCE, MirrorWorld
 from mocks.world import BACKDROP_REFLECTANCE, Frame, WorldError, chart_reflectances
@@ -42,7 +42,8 @@ from processing.spectral.display import spectra_to_xyz
 from processing.spectral.spectra import SpectralGrid, light_spectrum
 
 __all__ = ["ProbeWorld", "room_environment", "region_labels", "write_probe_shots", "BRACKET_TIMES_S",
-           "CHART_TIME_S", "PROBE_F_NUMBER", "ROOM_REGIONS", "WALL_PATCHES"]
+           "CHART_TIME_S", "PROBE_F_NUMBER", "ROOM_REGIONS", "WALL_PATCHES", "FILTERS", "filter_transmission",
+           "write_filter_csv", "PROBE_FILTER"]
 
 #: Exposure times (s) of the probe's brackets: 2 EV apart, as gphoto2 shutter settings 1/4000 ... 1.
 BRACKET_TIMES_S = (1 / 4000, 1 / 1000, 1 / 250, 1 / 60, 1 / 15, 1 / 4, 1.0)
@@ -53,6 +54,15 @@ PROBE_F_NUMBER = 8.0
 #: Names of the room's regions (:func:`region_labels`), in label order.
 ROOM_REGIONS = ("floor", "ceiling", "red wall", "green wall", "blue wall", "yellow wall", "window",
                 "lamp 1", "lamp 2", "lamp 3")
+
+#: Colour filters in front of the lens for a second bracket set (idealised smooth curves, not a product's
+#: measured transmission): name -> (kind, centre or edge nm, width nm).  A long-pass rises at its edge, a
+#: short-pass falls, a band passes a Gaussian band, a notch removes one.
+FILTERS = {"yellow long-pass 500 nm": ("long", 500.0, 12.0), "orange long-pass 550 nm": ("long", 550.0, 12.0),
+           "red long-pass 600 nm": ("long", 600.0, 12.0), "cyan short-pass 560 nm": ("short", 560.0, 12.0),
+           "green band 530 nm": ("band", 530.0, 40.0), "magenta notch 540 nm": ("notch", 540.0, 30.0)}
+#: The filter the probe's second bracket set is shot through by default (:data:`FILTERS`).
+PROBE_FILTER = "magenta notch 540 nm"
 
 #: ColorChecker patches (0-based, reading order) of the walls: red, green, blue, yellow (white: the ceiling)
 WALL_PATCHES = (14, 13, 12, 15)
@@ -355,9 +365,42 @@ class ProbeWorld(MirrorWorld):
         return out.reshape(h, w, 3)
 
 
+def filter_transmission(kind: str, centre_nm: float, width_nm: float, wavelengths_nm: ArrayLike) -> NDArray[np.float64]:
+    """An idealised filter's transmission (0.05-0.95) on ``wavelengths_nm`` (see :data:`FILTERS`).
+
+    Examples
+    --------
+    >>> t = filter_transmission("long", 550.0, 12.0, np.array([450.0, 550.0, 650.0]))
+    >>> [round(float(x), 3) for x in t]
+    [0.05, 0.5, 0.95]
+    >>> [round(float(x), 2) for x in filter_transmission(*FILTERS[PROBE_FILTER], np.array([440.0, 540.0, 650.0]))]
+    [1.0, 0.2, 1.0]
+    """
+    x = np.asarray(wavelengths_nm, dtype=np.float64)
+    if kind in ("long", "short"):
+        rise = 1.0 / (1.0 + np.exp(-(x - centre_nm) / width_nm))
+        return 0.05 + 0.9 * (rise if kind == "long" else 1.0 - rise)
+    bump = np.exp(-0.5 * ((x - centre_nm) / width_nm) ** 2)
+    return 0.05 + 0.9 * bump if kind == "band" else 1.0 - 0.8 * bump
+
+
+def write_filter_csv(path: str | os.PathLike[str], name: str = PROBE_FILTER, step_nm: float = 5.0) -> Path:
+    """Write a filter of :data:`FILTERS` as the CSV a filter's data sheet gives: ``wavelength_nm,transmission``.
+
+    380-780 nm every ``step_nm``.
+    """
+    wl = np.arange(380.0, 780.0 + step_nm / 2, step_nm)
+    t = filter_transmission(*FILTERS[name], wl)
+    out = Path(path)
+    out.write_text("wavelength_nm,transmission\n" + "".join(f"{a:g},{b:.6f}\n" for a, b in zip(wl, t)),
+                   encoding="utf-8")
+    return out
+
+
 def write_probe_shots(world: ProbeWorld, folder: str | os.PathLike[str], *,
                       times_s: tuple[float, ...] = BRACKET_TIMES_S, chart_time_s: float | None = CHART_TIME_S,
-                      seed: int = 0, f_number: float | None = PROBE_F_NUMBER) -> tuple[Path | None, list[Path]]:
+                      seed: int = 0, f_number: float | None = PROBE_F_NUMBER,
+                      transmission: ArrayLike | None = None) -> tuple[Path | None, list[Path]]:
     """Photograph the chart (on the table) and the ball at each exposure time, as DNG files.
 
     Parameters
@@ -374,6 +417,9 @@ def write_probe_shots(world: ProbeWorld, folder: str | os.PathLike[str], *,
         Seed of the sensor noise (each frame has its own stream).
     f_number
         The aperture the files record (None: none recorded).
+    transmission
+        ``(L,)`` on the world's grid: a filter in front of the lens for every frame (the second bracket
+        set of a two-channel-set probe); None: no filter.
 
     Returns
     -------
@@ -384,16 +430,18 @@ def write_probe_shots(world: ProbeWorld, folder: str | os.PathLike[str], *,
 
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
+    t_filter = 1.0 if transmission is None else np.asarray(transmission, dtype=np.float64)
     chart_path = None
     if chart_time_s is not None:
         f = world.frame("chart")
-        raw = simulate_raw(f.radiance, f.grid, f.light, exposure_s=chart_time_s, seed=seed * 1000 + 999)
+        raw = simulate_raw(f.radiance * t_filter, f.grid, f.light, exposure_s=chart_time_s, seed=seed * 1000 + 999)
         raw.f_number = f_number
         chart_path = write_raw(out / "chart.dng", raw)
     frame = world.frame("object")
     paths = []
     for i, t in enumerate(times_s):
-        raw = simulate_raw(frame.radiance, frame.grid, frame.light, exposure_s=float(t), seed=seed * 1000 + i)
+        raw = simulate_raw(frame.radiance * t_filter, frame.grid, frame.light, exposure_s=float(t),
+                           seed=seed * 1000 + i)
         raw.f_number = f_number
         paths.append(write_raw(out / f"probe-{i + 1}.dng", raw))
     return chart_path, paths

@@ -60,6 +60,9 @@ class ProbeInputs:
     sphere_radius_mm: float | None = None
     source: str = ""
     session: Path | None = None       # the probe session the frames came from, if any
+    filter_frames: list[Path] = field(default_factory=list)   # a second bracket set through a colour filter
+    filter_chart: Path | None = None  # the chart shot through that filter
+    filter_transmission: Path | None = None    # the filter's transmission (CSV)
 
 
 @dataclass
@@ -87,13 +90,17 @@ def _raw_files(folder: Path) -> list[Path]:
 
 
 def probe_inputs(sources: Sequence[str | os.PathLike[str]], *, chart: str | None = None,
-                 camera_calibration: str | None = None, sphere_radius_mm: float | None = None) -> ProbeInputs:
+                 camera_calibration: str | None = None, sphere_radius_mm: float | None = None,
+                 filter_frames: str | None = None, filter_chart: str | None = None,
+                 filter_transmission: str | None = None) -> ProbeInputs:
     """The probe's inputs from the command line's SESSION_OR_FRAMES and options.
 
     A session folder (``session.json``) of a ``probe`` plan gives its brackets, its chart frame, its
     sphere radius and, when installed, its camera calibration; any folder else gives its RAW files;
     files are the brackets themselves.  ``chart``, ``camera_calibration`` and ``sphere_radius_mm``
-    override the session's.
+    override the session's.  ``filter_frames`` (a probe session or a folder of RAW files) is the second
+    bracket set, shot through the filter whose transmission CSV is ``filter_transmission``, with its
+    chart frame (the session's, or ``filter_chart``).
     """
     from app.workflows.station_calibration import load_station_source, parse_station_calibration
 
@@ -130,10 +137,43 @@ def probe_inputs(sources: Sequence[str | os.PathLike[str]], *, chart: str | None
                          "frame; calibrate it with --scanner SPHERE_SESSION")
     if inputs.sphere_radius_mm is None:
         raise UsageError(f"{inputs.source}: give the mirror sphere's radius with --sphere-radius MM")
+    _filter_inputs(inputs, filter_frames, filter_chart, filter_transmission)
     r = inputs.sphere_radius_mm
     if isinstance(r, bool) or not isinstance(r, (int, float)) or not (math.isfinite(r) and r > 0):
         raise UsageError(f"--sphere-radius must be the mirror sphere's radius in mm (> 0), got {r!r}")
     return inputs
+
+
+def _filter_inputs(inputs: ProbeInputs, frames: str | None, chart: str | None, transmission: str | None) -> None:
+    """The filtered bracket set, its chart and the filter's transmission into ``inputs`` (all or none)."""
+    if frames is None:
+        if chart is not None or transmission is not None:
+            raise UsageError("--filter-chart and --filter belong to --filter-frames (the bracket set shot through "
+                             "the filter); give it too, or neither")
+        return
+    if transmission is None:
+        raise UsageError(f"--filter-frames {frames}: give the filter's transmission with --filter CSV "
+                         "(wavelength_nm, transmission 0-1, from its data sheet)")
+    folder = Path(frames)
+    if not folder.is_dir():
+        raise UsageError(f"--filter-frames {folder}: not a folder; give the probe session or the folder of the "
+                         "brackets shot through the filter")
+    if (folder / "session.json").is_file():
+        second = _session_inputs(folder, inputs.sphere_radius_mm)
+        inputs.filter_frames, inputs.filter_chart = second.frames, second.chart
+    else:
+        inputs.filter_frames = [p for p in _raw_files(folder)
+                                if chart is None or p.resolve() != Path(chart).resolve()]
+        if not inputs.filter_frames:
+            raise UsageError(f"--filter-frames {folder}: no RAW files ({', '.join(RAW_SUFFIXES)}) in this folder")
+    if chart is not None:
+        inputs.filter_chart = Path(chart)
+    if inputs.filter_chart is None:
+        raise UsageError(f"--filter-frames {folder}: no chart frame shot through the filter; give --filter-chart RAW")
+    inputs.filter_transmission = Path(transmission)
+    if not inputs.filter_transmission.is_file():
+        raise UsageError(f"--filter {transmission}: no such file; give the filter's transmission as a CSV of "
+                         "wavelength_nm, transmission rows")
 
 
 def _session_inputs(root: Path, sphere_radius_mm: float | None) -> ProbeInputs:
@@ -199,53 +239,102 @@ def _find_sphere(hdr, calib, radius_mm: float, name: str) -> tuple[np.ndarray, f
     return centre, float(rms)
 
 
-def _chart_fit(chart: Path, *, light: str, method: str, chart_type: str, decode: str, f_number: float | None,
-               noise: float) -> tuple[Any, Any, dict[str, Any]]:
-    """The estimator calibrated by the chart frame, in the HDR image's units (exposure by its metadata)."""
+def _chart_rgb(chart: Path, chart_type: str, decode: str, f_number: float | None):
+    """The chart frame's patch means in the HDR image's units (exposure by its metadata) and its measurement."""
     from app.workflows.chart import measure_chart
-    from app.workflows.spectral import estimator_setup
     from processing.camera.raw_decode import decode_raw
     from processing.lighting.hdr_merge import exposure_scale, exposure_settings
-    from processing.spectral.estimation.estimator import fit_estimator
-    from processing.spectral.estimation.fit import SpectralEstimationError
 
-    setup = estimator_setup(light=light, chart_type=chart_type)
     ch = measure_chart(chart, chart=chart_type, mode=decode)
     scale = exposure_scale(*exposure_settings(decode_raw(chart, mode="bin2x2"), f_number))
-    rgb = ch.mean * scale
+    return ch.mean * scale, ch
+
+
+def _chart_fit(chart: Path, *, light: str, method: str, chart_type: str, decode: str, f_number: float | None,
+               noise: float, filter_chart: Path | None = None,
+               transmission: Path | None = None) -> tuple[Any, Any, dict[str, Any]]:
+    """The estimator calibrated by the chart frame (and the chart through the filter), in the HDR image's units."""
+    from app.workflows.spectral import estimator_setup
+    from processing.errors import InputError
+    from processing.spectral.estimation.estimator import fit_estimator
+    from processing.spectral.estimation.fit import SpectralEstimationError
+    from processing.spectral.spectra import transmission_spectrum
+
+    setup = estimator_setup(light=light, chart_type=chart_type)
+    rgb, ch = _chart_rgb(chart, chart_type, decode, f_number)
     usable = ch.usable
+    warnings = list(ch.warnings)
+    lights = setup.lights[0]
+    info: dict[str, Any] = {}
+    if filter_chart is not None:
+        try:
+            t = transmission_spectrum(transmission, setup.grid)
+        except InputError as exc:
+            raise UsageError(f"--filter {exc}" if str(transmission) not in str(exc) else str(exc)) from None
+        rgb2, ch2 = _chart_rgb(filter_chart, chart_type, decode, f_number)
+        rgb = np.hstack([rgb, rgb2])
+        usable = usable & ch2.usable
+        warnings += list(ch2.warnings)
+        lights = np.stack([setup.lights[0], setup.lights[0] * t])
+        info = {"filter_chart": os.fspath(filter_chart), "filter": os.fspath(transmission),
+                "filter_transmission_mean": float(t.mean())}
     try:
-        fit = fit_estimator(method, setup.training, setup.sensitivities, setup.lights[0], setup.grid, noise=noise,
+        fit = fit_estimator(method, setup.training, setup.sensitivities, lights, setup.grid, noise=noise,
                             chart_rgb=rgb[usable], chart_reflectance=setup.reflectances[usable])
     except SpectralEstimationError as exc:
         raise UsageError(f"{chart}: {exc}") from None
     est = fit.estimate_weights(rgb[usable]).astype(np.float64) @ fit.basis.T
     info = {"chart": os.fspath(chart), "chart_type": chart_type, "light": light, "method": method,
-            "patches_used": int(usable.sum()), "chart_warnings": list(ch.warnings),
-            "chart_rmse": float(np.sqrt(np.mean((est - setup.reflectances[usable]) ** 2)))}
+            "patches_used": int(usable.sum()), "chart_warnings": warnings,
+            "chart_rmse": float(np.sqrt(np.mean((est - setup.reflectances[usable]) ** 2))), **info}
     return fit, setup.lights[0], info
 
 
-def build_probe(inputs: ProbeInputs, *, light: str = "D65", method: str = "wiener", chart_type: str = "classic24",
+def build_probe(inputs: ProbeInputs, *, light: str = "D65", method: str | None = None, chart_type: str = "classic24",
                 decode: str = "demosaic", reflectance: float = 0.6, height: int | None = None,
                 f_number: float | None = None, camera_mask_deg: float = 12.0, back_mask_deg: float = 45.0,
-                noise: float = 0.01, message: Callable[[str], None] | None = None) -> ProbeResult:
+                noise: float = 0.01, components: int | None = None,
+                message: Callable[[str], None] | None = None) -> ProbeResult:
     """Merge, find the sphere, unwrap, make spectral (see the module).
+
+    ``method``: the estimator; default ``wiener`` for one bracket set, ``twolight`` (the root
+    polynomial of six channels) when ``inputs`` has a set shot through a filter, the only one that reads
+    six.  ``components``: basis spectra of a two-set map
+    (:data:`processing.lighting.probe_spectral.COMPONENTS` by default).
 
     Every bad input raises :class:`processing.errors.InputError` with a one-line message naming the file.
     """
     from processing.lighting.hdr_merge import merge_brackets
-    from processing.lighting.probe_spectral import probe_environment
+    from processing.lighting.probe_spectral import COMPONENTS, probe_environment, two_set_environment
     from processing.lighting.probe_unwrap import unwrap_probe
 
     note = message or (lambda text: None)
+    two = bool(inputs.filter_frames)
+    if method is None:
+        method = "twolight" if two else "wiener"
+    if two != (method == "twolight"):
+        raise UsageError("--method twolight reads two bracket sets: give --filter-frames, --filter-chart and --filter"
+                         if not two else f"--method {method} reads one bracket set; two (--filter-frames) are read by "
+                         "the default, twolight")
+    if components is not None and not two:
+        raise UsageError("--components sets the basis of a map from two bracket sets; give --filter-frames too")
     t0 = time.perf_counter()
     fit, chart_light, chart_info = _chart_fit(inputs.chart, light=light, method=method, chart_type=chart_type,
-                                              decode=decode, f_number=f_number, noise=noise)
+                                              decode=decode, f_number=f_number, noise=noise,
+                                              filter_chart=inputs.filter_chart,
+                                              transmission=inputs.filter_transmission)
     t1 = time.perf_counter()
     hdr = merge_brackets(inputs.frames, mode=decode, f_number=f_number)
     for line in hdr.notes:
         note(line)
+    hdr2 = None
+    if two:
+        hdr2 = merge_brackets(inputs.filter_frames, mode=decode, f_number=f_number)
+        for line in hdr2.notes:
+            note(f"through the filter: {line}")
+        if hdr2.shape != hdr.shape:
+            raise UsageError(f"--filter-frames {inputs.filter_frames[0]}: {hdr2.shape[1]} x {hdr2.shape[0]} pixels, "
+                             f"but the brackets are {hdr.shape[1]} x {hdr.shape[0]}; shoot both sets from one place")
     t2 = time.perf_counter()
     name = f"{inputs.frames[0]} (HDR of {len(inputs.frames)} brackets)"
     calib = inputs.camera_calibration
@@ -261,7 +350,20 @@ def build_probe(inputs: ProbeInputs, *, light: str = "D65", method: str = "wiene
     for line in unwrap.notes:
         note(line)
     t3 = time.perf_counter()
-    env = probe_environment(unwrap.rgb, fit, chart_light, source=f"probe {inputs.source}")
+    if hdr2 is None:
+        env = probe_environment(unwrap.rgb, fit, chart_light, source=f"probe {inputs.source}")
+    else:
+        # the filter is in front of the lens: the same sphere, the same pixels
+        second = unwrap_probe(hdr2.rgb, centre, float(inputs.sphere_radius_mm), k, dist, calib.room_to_camera,
+                              height=height, reflectance=reflectance, camera_mask_deg=camera_mask_deg,
+                              back_mask_deg=back_mask_deg)
+        del hdr2
+        env, kept = two_set_environment(np.concatenate([unwrap.rgb, second.rgb], axis=2), fit, chart_light,
+                                        components=COMPONENTS if components is None else components,
+                                        source=f"probe {inputs.source}")
+        chart_info = {**chart_info, "filter_frames": [os.fspath(p) for p in inputs.filter_frames], **kept}
+        note(f"the map keeps {kept['components']} basis spectra: 99 % of directions within "
+             f"{kept['projection_dxy_p99']:.4f} in xy of the estimated spectra")
     t4 = time.perf_counter()
     lum = env.pixel_luminance()
     report = {

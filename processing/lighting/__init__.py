@@ -13,7 +13,11 @@ probe_unwrap
     A mirror sphere's HDR photo unwrapped into an equirectangular map in the
     room frame with the calibrated camera; the unseen caps marked and filled.
 probe_spectral
-    The probe's camera RGB made spectral by the chart-calibrated estimator.
+    The probe's camera RGB made spectral by the chart-calibrated estimator;
+    two bracket sets (the second through a colour filter) as six channels.
+nmf_lee2001
+    A few non-negative basis spectra that a map's spectra mix (Lee and Seung's
+    non-negative matrix factorisation), colour kept first.
 daylight_sky
     :func:`~processing.lighting.daylight_sky.daylight_sky`: an outdoor sky
     (CIE general sky luminance, CIE daylight spectra, a sun disc, a ground).
@@ -41,7 +45,8 @@ from processing.lighting.environment_map import (
     write_environment,
 )
 from processing.lighting.hdr_merge import HdrImage, HdrMergeError, exposure_scale, merge_brackets
-from processing.lighting.probe_spectral import ProbeSpectralError, probe_environment
+from processing.lighting.nmf_lee2001 import NonnegativeBasisError, nonnegative_basis, nonnegative_coefficients
+from processing.lighting.probe_spectral import ProbeSpectralError, probe_environment, two_set_environment
 from processing.lighting.probe_unwrap import ProbeUnwrap, ProbeUnwrapError, unwrap_probe
 
 __all__ = [
@@ -60,6 +65,10 @@ __all__ = [
     "merge_brackets",
     "ProbeSpectralError",
     "probe_environment",
+    "two_set_environment",
+    "NonnegativeBasisError",
+    "nonnegative_basis",
+    "nonnegative_coefficients",
     "ProbeUnwrap",
     "ProbeUnwrapError",
     "unwrap_probe",

@@ -26,7 +26,9 @@ Files: OpenEXR (``.exr``, float RGB, linear) and Radiance (``.hdr``).
 viewer shows the map) and the spectral basis matched to those channels in
 the header attribute ``kogeiSpectralBasis`` (JSON: ``wavelengths_nm`` and
 three rows ``basis``; a map with colours outside sRGB stores its own
-coefficients and basis instead, ``channels: "coefficients"``);
+coefficients and basis instead, ``channels: "coefficients"``; a map of
+``K != 3`` basis spectra stores its coefficients in channels ``kogei.c0``
+... beside sRGB clipped at 0, ``channels: "coefficient channels"``);
 :func:`read_environment` uses that basis when the attribute is there and
 Mallett-Yuksel upsampling otherwise.
 
@@ -59,6 +61,7 @@ import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -81,6 +84,8 @@ __all__ = [
 
 #: OpenEXR header attribute holding the spectral basis of the RGB channels.
 HEADER_KEY = "kogeiSpectralBasis"
+#: Name stem of the channels of a map of K != 3 basis spectra (``kogei.c0`` ...).
+COEFFICIENT_CHANNEL = "kogei.c"
 
 # Linear sRGB (Rec. 709 primaries, D65) from CIE XYZ, IEC 61966-2-1.
 _XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
@@ -372,6 +377,20 @@ def uniform_environment(radiance_y: float, height: int = 16, spectrum: str = "D6
     return EnvironmentMap(coeff, basis, grid, source=f"uniform {spectrum}")
 
 
+def _coefficient_channels(raw: Any) -> list[str] | None:
+    """The coefficient channels a kogei header names (``coefficient_channels``), or None."""
+    try:
+        meta = json.loads(raw if isinstance(raw, str) else raw.decode()) if raw is not None else None
+    except (ValueError, UnicodeDecodeError, AttributeError):
+        return None                                                   # reported by the caller
+    names = meta.get("coefficient_channels") if isinstance(meta, dict) else None
+    if names is None:
+        return None
+    if not isinstance(names, list) or not 1 <= len(names) <= 64 or not all(isinstance(n, str) for n in names):
+        return []
+    return names
+
+
 def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
     import OpenEXR
 
@@ -380,7 +399,17 @@ def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
             # the header's attributes are copied while the file is open: closing it empties the dict
             raw = f.header().get(HEADER_KEY)
             channels = f.channels()
-            if "RGB" in channels:
+            names = _coefficient_channels(raw)
+            if names == []:
+                raise EnvironmentMapError(f"{path}: header attribute {HEADER_KEY} names its coefficient channels "
+                                          "wrongly; write the map again with kogei")
+            if names is not None:
+                missing = [n for n in names if n not in channels]
+                if missing:
+                    raise EnvironmentMapError(f"{path}: the header names coefficient channels the file lacks "
+                                              f"({', '.join(missing[:3])}); write the map again with kogei")
+                rgb = np.stack([np.asarray(channels[n].pixels, dtype=np.float32) for n in names], axis=-1)
+            elif "RGB" in channels:
                 rgb = np.asarray(channels["RGB"].pixels, dtype=np.float32)
             elif all(k in channels for k in "RGB"):
                 rgb = np.stack([np.asarray(channels[k].pixels, dtype=np.float32) for k in "RGB"], axis=-1)
@@ -454,7 +483,7 @@ def read_environment(path: str | os.PathLike[str], grid: SpectralGrid = REFERENC
         try:
             wl = np.asarray(meta["wavelengths_nm"], dtype=np.float64)
             rows = np.asarray(meta["basis"], dtype=np.float64)
-            if wl.ndim != 1 or rows.ndim != 2 or rows.shape != (3, wl.size) or wl.size < 2:
+            if wl.ndim != 1 or rows.ndim != 2 or rows.shape != (rgb.shape[2], wl.size) or wl.size < 2:
                 raise ValueError(f"basis shape {rows.shape} for {wl.size} wavelengths")
             if not (np.isfinite(wl).all() and np.isfinite(rows).all()):
                 raise ValueError("NaN or infinite values")
@@ -481,7 +510,8 @@ def write_environment(path: str | os.PathLike[str], env: EnvironmentMap) -> Path
     path
         Output ``.exr`` file (its folder must exist).
     env
-        The map; ``K = 3`` coefficients with an invertible sRGB matrix.
+        The map: ``K = 3`` coefficients with an invertible sRGB matrix, or any other ``K`` (stored
+        in channels of their own).
 
     Returns
     -------
@@ -501,22 +531,34 @@ def write_environment(path: str | os.PathLike[str], env: EnvironmentMap) -> Path
     if not p.parent.is_dir():
         raise EnvironmentMapError(f"{p}: the folder {p.parent} does not exist; create it first")
     m = _coefficients_to_srgb(env.basis, env.grid)                      # (K, 3)
-    if m.shape != (3, 3) or abs(np.linalg.det(m)) < 1e-12 * max(1.0, float(np.abs(m).max()) ** 3):
-        raise EnvironmentMapError(f"{env.source}: its spectral basis has no invertible sRGB matrix; "
-                                  "it cannot be stored as RGB")
-    rgb = env.to_linear_srgb()
-    basis_rgb = np.linalg.solve(m, env.basis)                            # rgb @ B' = c @ B
-    channels = "linear sRGB"
-    if float(rgb.min()) < 0.0:
-        # colours outside sRGB (a saturated wall in a probe) have negative sRGB, which no reader accepts as
-        # radiance: store the map's own non-negative coefficients and basis instead (kogei reads them exactly;
-        # other viewers show them as if they were sRGB)
-        rgb = (env.intensity * env.coefficients).astype(np.float32)
-        basis_rgb = env.basis
-        channels = "coefficients"
-    meta = {"wavelengths_nm": env.grid.wavelengths.tolist(), "basis": basis_rgb.tolist(), "source": env.source,
-            "channels": channels}
+    k = m.shape[0]
+    extra: dict[str, np.ndarray] = {}
+    if k != 3:
+        # K basis spectra (a probe of two bracket sets): the K coefficients in channels of their own, and
+        # the map's sRGB (clipped at 0) in R, G, B for viewers
+        rgb = np.maximum(env.to_linear_srgb(), 0.0)
+        names = [f"{COEFFICIENT_CHANNEL}{i}" for i in range(k)]
+        extra = {n: np.ascontiguousarray(env.intensity * env.coefficients[..., i], dtype=np.float32)
+                 for i, n in enumerate(names)}
+        meta = {"wavelengths_nm": env.grid.wavelengths.tolist(), "basis": env.basis.tolist(), "source": env.source,
+                "channels": "coefficient channels", "coefficient_channels": names}
+    else:
+        if abs(np.linalg.det(m)) < 1e-12 * max(1.0, float(np.abs(m).max()) ** 3):
+            raise EnvironmentMapError(f"{env.source}: its spectral basis has no invertible sRGB matrix; "
+                                      "it cannot be stored as RGB")
+        rgb = env.to_linear_srgb()
+        basis_rgb = np.linalg.solve(m, env.basis)                        # rgb @ B' = c @ B
+        channels = "linear sRGB"
+        if float(rgb.min()) < 0.0:
+            # colours outside sRGB (a saturated wall in a probe) have negative sRGB, which no reader accepts as
+            # radiance: store the map's own non-negative coefficients and basis instead (kogei reads them
+            # exactly; other viewers show them as if they were sRGB)
+            rgb = (env.intensity * env.coefficients).astype(np.float32)
+            basis_rgb = env.basis
+            channels = "coefficients"
+        meta = {"wavelengths_nm": env.grid.wavelengths.tolist(), "basis": basis_rgb.tolist(), "source": env.source,
+                "channels": channels}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, HEADER_KEY: json.dumps(meta)}
-    with OpenEXR.File(header, {"RGB": np.ascontiguousarray(rgb)}) as f:
+    with OpenEXR.File(header, {"RGB": np.ascontiguousarray(rgb), **extra}) as f:
         f.write(str(p))
     return p

@@ -38,6 +38,7 @@ __all__ = [
     "light_spectrum",
     "resample",
     "illuminant_names",
+    "transmission_spectrum",
 ]
 
 #: Wavelength range (nm) of the CIE 1931 2 degree tables used here.
@@ -555,3 +556,37 @@ def light_spectrum(spec: str | float | os.PathLike[str], grid: SpectralGrid = RE
         if not ref > 0:
             raise InputError(f"light {label} has no power on {grid.start:g}-{grid.stop:g} nm")
     return out / ref
+
+
+def transmission_spectrum(path: str | os.PathLike[str], grid: SpectralGrid = REFERENCE_GRID) -> NDArray[np.float64]:
+    r"""A filter's transmission (fraction 0-1) from a CSV of ``wavelength_nm, transmission`` rows, on ``grid``.
+
+    Not normalised (a transmission is absolute).  The rows must cover the grid.
+
+    Raises
+    ------
+    InputError
+        A bad CSV file (the message names the line), rows that do not cover the grid, values above
+        1.05 (a data sheet in percent: divide by 100), a filter that passes less than 1 % everywhere.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "filter.csv"
+    >>> _ = p.write_text("wavelength_nm,transmission\n380,0.5\n780,0.9\n")
+    >>> [round(float(v), 2) for v in transmission_spectrum(p, SpectralGrid(400, 700, 150))]
+    [0.52, 0.67, 0.82]
+    """
+    p = Path(path)
+    wl, values = _read_spectrum_csv(p)
+    if wl[0] > grid.start + 1e-9 or wl[-1] < grid.stop - 1e-9:
+        raise InputError(f"{p}: the transmission covers {wl[0]:g}-{wl[-1]:g} nm, but {grid.start:g}-{grid.stop:g} nm "
+                         "are needed; give the filter's whole data sheet")
+    if float(values.max()) > 1.05:
+        raise InputError(f"{p}: transmission up to {float(values.max()):g}; give it as a fraction 0-1 (a data sheet "
+                         "in percent: divide by 100)")
+    out = resample(wl, values, grid)
+    if not float(out.max()) >= 0.01:
+        raise InputError(f"{p}: the filter passes less than 1 % at every wavelength of {grid.start:g}-{grid.stop:g} nm; "
+                         "no bracket set can be shot through it")
+    return np.clip(out, 0.0, None)

@@ -259,3 +259,33 @@ def test_colours_outside_srgb_round_trip_through_exr(tmp_path):
     back = read_environment(write_environment(tmp_path / "g.exr", env))
     d = env.directions()
     assert np.allclose(back.spectral_radiance(d), env.spectral_radiance(d), rtol=1e-6, atol=1e-9)
+
+
+def test_exr_of_six_basis_spectra_keeps_them_and_shows_srgb(tmp_path):
+    # a probe of two bracket sets keeps six basis spectra: six channels of their own, read back exactly, and
+    # the map's sRGB (clipped at 0) in R, G, B for any viewer
+    import OpenEXR
+
+    rng = np.random.default_rng(3)
+    env = EnvironmentMap(rng.uniform(0, 4, (8, 16, 6)).astype(np.float32), rng.uniform(0, 1, (6, REFERENCE_GRID.size)),
+                         REFERENCE_GRID, source="six", intensity=2.0)
+    path = write_environment(tmp_path / "six.exr", env)
+    back = read_environment(path)
+    d = env.directions().reshape(-1, 3)
+    np.testing.assert_allclose(back.spectral_radiance(d), env.spectral_radiance(d), rtol=1e-6)
+    with OpenEXR.File(str(path)) as f:
+        rgb = np.asarray(f.channels()["RGB"].pixels)
+    np.testing.assert_allclose(rgb, np.maximum(env.to_linear_srgb(), 0.0), rtol=1e-6, atol=1e-7)
+
+
+def test_exr_header_naming_missing_coefficient_channels_is_refused(tmp_path):
+    import OpenEXR
+
+    meta = {"wavelengths_nm": REFERENCE_GRID.wavelengths.tolist(), "basis": np.ones((2, REFERENCE_GRID.size)).tolist(),
+            "channels": "coefficient channels", "coefficient_channels": ["kogei.c0", "kogei.c1"]}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, HEADER_KEY: json.dumps(meta)}
+    with OpenEXR.File(header, {"RGB": np.ones((4, 8, 3), np.float32), "kogei.c0": np.ones((4, 8), np.float32)}) as f:
+        f.write(str(tmp_path / "bad.exr"))
+    with pytest.raises(EnvironmentMapError, match=r"bad\.exr: the header names coefficient channels the file lacks "
+                                                   r"\(kogei\.c1\)"):
+        read_environment(tmp_path / "bad.exr")
