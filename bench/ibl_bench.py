@@ -73,6 +73,24 @@ def sample_environment(height: int = MAP_HEIGHT):
     return EnvironmentMap(rgb, srgb_basis(), source=f"test map {height} rows")
 
 
+def six_basis_environment(height: int = MAP_HEIGHT):
+    """The test map as 6 basis spectra (the size of a map from two bracket sets): D65 of luminance 1 split by
+    six hat functions over 400-700 nm, every coefficient the map's luminance -- the same light as
+    :func:`sample_environment`, at the renderer's cost of six."""
+    from processing.lighting.environment_map import EnvironmentMap
+    from processing.spectral.display import spectra_to_xyz
+    from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
+
+    g = REFERENCE_GRID
+    d65 = light_spectrum("D65", g)
+    d65 = d65 / float(spectra_to_xyz(d65, g)[1])
+    nodes = np.linspace(g.start, g.stop, 6)
+    hats = np.clip(1.0 - np.abs(g.wavelengths[None, :] - nodes[:, None]) / (nodes[1] - nodes[0]), 0.0, None)
+    y = sample_map_luminance(height)
+    coeff = np.repeat(y[..., None], 6, axis=-1).astype(np.float32)
+    return EnvironmentMap(coeff, hats * d65[None, :], g, source=f"test map {height} rows, 6 basis spectra")
+
+
 def uv_sphere(n_theta: int = 160, n_phi: int = 320):
     """Vertices, triangles and exact unit normals of a UV sphere of radius 1."""
     theta = np.linspace(0.0, math.pi, n_theta + 1)[1:-1]
@@ -324,14 +342,17 @@ def case_speed(repeats: int = 3) -> dict:
     job = _hawk_job((1024, 1024), "standard", tri, material="gold:mirror=0", sky="none")
     n_tri = sum(o.mesh.n_triangles for o in job.scene.objects)
     env_scene = Scene(job.scene.objects, [], Sky("none"), environment=env)
+    six_scene = Scene(job.scene.objects, [], Sky("none"), environment=six_basis_environment())
     render(job.scene, job.camera, job.settings)                     # warm-up
-    times = {"directional": [], "environment": []}
+    times = {"directional": [], "environment": [], "environment_6": []}
     stats = {}
+    images = {}
     for _ in range(repeats):                                       # interleaved
-        for name, scene in (("directional", job.scene), ("environment", env_scene)):
+        for name, scene in (("directional", job.scene), ("environment", env_scene), ("environment_6", six_scene)):
             t0 = time.perf_counter()
             res = render(scene, job.camera, job.settings)
             times[name].append(time.perf_counter() - t0)
+            images[name] = res.xyz
             stats[name] = {"refined_fraction": res.stats["refined_fraction"],
                            "environment_rays": res.stats.get("environment_rays", 0),
                            "shadow_rays": res.stats["shadow_rays"], "timings": res.timings}
@@ -339,6 +360,11 @@ def case_speed(repeats: int = 3) -> dict:
                        "directional_s": statistics.median(times["directional"]),
                        "environment_s": statistics.median(times["environment"]),
                        "ratio": statistics.median(times["environment"]) / statistics.median(times["directional"]),
+                       "environment_6_s": statistics.median(times["environment_6"]),
+                       "ratio_6": statistics.median(times["environment_6"]) / statistics.median(times["directional"]),
+                       # the same light in 6 basis spectra: the images agree but for the spectral integration
+                       "six_vs_three_max_rel": float(np.abs(images["environment_6"] - images["environment"]).max()
+                                                     / max(float(np.abs(images["environment"]).max()), 1e-30)),
                        "times": times, "stats": stats}
     draft = _hawk_job((640, 480), "draft", tri, material="gold:mirror=0", sky="none")
     cam = Camera(draft.camera.eye, draft.camera.target, draft.camera.up, draft.camera.fov_deg, 640, 480)

@@ -43,6 +43,8 @@ MAP_HEIGHT = 512
 #: The probe from two bracket sets (the second through :data:`mocks.probe_world.PROBE_FILTER`), with the chart's
 #: light stated as D65 and as measured.
 TWO_SET_CASES = ("probe-two-sets", "probe-two-sets-measured-light")
+#: Basis sizes of the two-set map tried beside the default 6 (``components`` case, the light as measured).
+COMPONENT_TRADE = (3, 4, 5)
 
 
 def _world(width: int, height: int):
@@ -160,9 +162,9 @@ def _region_errors(env, observed, world) -> dict:
     return {"regions": rows, "total_luminance_ratio": float((rec[..., 1] * w).sum() / (truth[..., 1] * w).sum())}
 
 
-def case_probe(folder: Path, filtered: bool = False, measured_light: bool = False) -> dict:
-    """The whole probe: one bracket set (wiener), or two with the filtered set (twolight, 6 basis spectra);
-    the chart's light stated as D65 or given as measured (``light.csv``)."""
+def case_probe(folder: Path, filtered: bool = False, measured_light: bool = False, components: int | None = None) -> dict:
+    """The whole probe: one bracket set (wiener), or two with the filtered set (twolight, ``components`` basis
+    spectra, default 6); the chart's light stated as D65 or given as measured (``light.csv``)."""
     from app.workflows.light_probe import build_probe, probe_inputs
 
     extra = {"filter_frames": str(folder / "filtered"), "filter_chart": str(folder / "filtered" / "chart" / "chart.dng"),
@@ -171,7 +173,7 @@ def case_probe(folder: Path, filtered: bool = False, measured_light: bool = Fals
                           camera_calibration=str(folder / "camera_calibration.json"), sphere_radius_mm=20.0, **extra)
     light = str(folder / "light.csv") if measured_light else "D65"
     c0, t0 = _cpu_s(), time.perf_counter()
-    result = build_probe(inputs, height=MAP_HEIGHT, light=light)
+    result = build_probe(inputs, height=MAP_HEIGHT, light=light, components=components)
     seconds, cpu = time.perf_counter() - t0, _cpu_s() - c0
     errors = _region_errors(result.environment, result.observed, _world(96, 64))
     spectral = result.report["spectral"]
@@ -313,7 +315,7 @@ def run_all() -> dict:
         made = run_case_subprocess("bench.probe_bench", "make", "--dir", tmp, timeout=3600)
         out = {"machine": machine_description(), "size": [WIDTH, HEIGHT], **made,
                "load_average": [os.getloadavg()[0]]}
-        for case in ("merge-demosaic", "merge-bin2x2", "probe", *TWO_SET_CASES, "limits", "channels"):
+        for case in ("merge-demosaic", "merge-bin2x2", "probe", *TWO_SET_CASES, "components", "limits", "channels"):
             out[case] = run_case_subprocess("bench.probe_bench", case, "--dir", tmp, timeout=3600)
         out["load_average"].append(os.getloadavg()[0])
     return out
@@ -384,13 +386,16 @@ def two_set_lines(r: dict) -> list[str]:
         + " | ".join(names) + " |",
         "|---|---:|---:|---:|---:|" + "---:|" * len(names),
     ]
-    for c in cases:
-        p = r[c]
+    rows = [r[c] for c in cases] + [x for x in r.get("components", {}).get("rows", [])]
+    for p in rows:
         cells = [f"{x['luminance_ratio']:.3f} / {x['dxy']:.4f}" for x in p["regions"].values()]
         ok = all(abs(x["luminance_ratio"] - 1) <= 0.05 and x["dxy"] <= 0.005 for x in p["regions"].values())
-        lines.append(f"| {p['light']}{' (all within target)' if ok else ''} | {p['seconds']:.1f} | {p['cpu_s']:.1f} | "
+        label = p["light"] + ("" if p["components"] == r[cases[0]]["components"] else f", {p['components']} basis spectra")
+        lines.append(f"| {label}{' (all within target)' if ok else ''} | {p['seconds']:.1f} | {p['cpu_s']:.1f} | "
                      f"{p['peak_rss_mb']:.0f} | {p['projection_dxy_p99']:.4f} | " + " | ".join(cells) + " |")
-    lines.append("")
+    lines += ["", "'basis: xy p99': what the map's basis loses against the estimated spectra (99th percentile over "
+              "the map's pixels of the xy distance); the rows with fewer basis spectra are the trade against the "
+              "render's cost, which grows with them.", ""]
     return lines
 
 
@@ -476,7 +481,7 @@ def channels_lines(ch: dict, chain_red_dxy: float | None = None) -> list[str]:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--case", default="all", choices=["all", "make", "merge-demosaic", "merge-bin2x2", "probe",
-                                                       *TWO_SET_CASES, "limits", "channels"])
+                                                       *TWO_SET_CASES, "components", "limits", "channels"])
     ap.add_argument("--dir", default=None, help="the folder of the shots (cases other than all)")
     args = ap.parse_args(argv)
     if args.case == "all":
@@ -493,6 +498,9 @@ def main(argv: list[str] | None = None) -> None:
         out = case_probe(Path(args.dir))
     elif args.case in TWO_SET_CASES:
         out = case_probe(Path(args.dir), filtered=True, measured_light=args.case.endswith("measured-light"))
+    elif args.case == "components":
+        out = {"rows": [case_probe(Path(args.dir), filtered=True, measured_light=True, components=k)
+                        for k in COMPONENT_TRADE]}
     else:
         out = case_merge(Path(args.dir), args.case.split("-", 1)[1])
     print(json.dumps(out))

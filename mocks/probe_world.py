@@ -16,7 +16,10 @@ Frames are rendered analytically (ray-sphere intersection, mirror reflection, ra
 bilinear look-up of the environment) at ``supersample x supersample`` rays per pixel, in the
 environment's coefficients, then turned into spectra once per pixel.  :func:`write_probe_shots`
 writes a chart frame and exposure brackets of the ball as DNG files with the simulated camera
-(:mod:`mocks.camera_sim`), as a tethered bracketed capture would.
+(:mod:`mocks.camera_sim`), as a tethered bracketed capture would.  A colour filter over the lens
+(:data:`FILTERS`, idealised smooth curves; ``lens_filter`` of the world, or ``transmission`` of
+:func:`write_probe_shots`) gives the second bracket set of a probe from two sets;
+:func:`write_filter_csv` writes its transmission as a data sheet would.
 
 Truth for tests: :attr:`ProbeWorld.environment` (the room's radiance in the units of the world's
 light), :meth:`ProbeWorld.chart_white_luminance` (the luminance of a white diffuser where the chart
@@ -28,7 +31,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -159,12 +162,16 @@ class ProbeWorld(MirrorWorld):
         Distance of the grey card behind the ball's centre along the camera's axis.
     room_height, lamp_light
         The rows and the lamps' spectrum of :func:`room_environment` when ``environment`` is None.
+    lens_filter
+        A filter of :data:`FILTERS` in front of the lens for every frame (the chart's too): the second
+        bracket set of a probe from two sets.  None: no filter.
     """
 
     environment: EnvironmentMap | None = None
     card_distance_mm: float = 150.0
     room_height: int = 128
     lamp_light: str = "D65"
+    lens_filter: str | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -177,6 +184,22 @@ class ProbeWorld(MirrorWorld):
             raise WorldError(f"environment: its grid {self.environment.grid} differs from the world's {self.grid}")
         if not (math.isfinite(self.card_distance_mm) and self.card_distance_mm > self.sphere_radius_mm):
             raise WorldError(f"card_distance_mm must exceed the ball's radius, got {self.card_distance_mm!r}")
+        if self.lens_filter is not None and self.lens_filter not in FILTERS:
+            raise WorldError(f"lens_filter {self.lens_filter!r} is not one of the simulated filters: "
+                             f"{', '.join(FILTERS)}")
+
+    def lens_transmission(self) -> NDArray[np.float64] | float:
+        """The lens filter's transmission on the world's grid (1.0 without a filter)."""
+        if self.lens_filter is None:
+            return 1.0
+        return filter_transmission(*FILTERS[self.lens_filter], self.grid.wavelengths)
+
+    def frame(self, kind: str = "object", table_angle_deg: float | None = None) -> Frame:
+        """The frame as :meth:`World.frame`, through the lens filter if there is one."""
+        f = super().frame(kind, table_angle_deg)
+        if self.lens_filter is None:
+            return f
+        return replace(f, radiance=f.radiance * self.lens_transmission())
 
     @classmethod
     def probe(cls, radius_mm: float = 20.0, environment: EnvironmentMap | None = None, **kwargs: Any) -> ProbeWorld:
@@ -189,7 +212,7 @@ class ProbeWorld(MirrorWorld):
         ((64, 96), True)
         """
         kwargs.setdefault("chart_layout", "classic24")
-        own = {k: kwargs.pop(k) for k in ("card_distance_mm", "room_height", "lamp_light", "supersample")
+        own = {k: kwargs.pop(k) for k in ("card_distance_mm", "room_height", "lamp_light", "supersample", "lens_filter")
                if k in kwargs}
         base = MirrorWorld.mirror_sphere(radius_mm, 0.0, **kwargs)
         fields = {f: getattr(base, f) for f in base.__dataclass_fields__}
@@ -234,7 +257,7 @@ class ProbeWorld(MirrorWorld):
                              "with write_probe_shots")
         out = super().to_dict()
         out["probe"] = {"card_distance_mm": float(self.card_distance_mm), "room_height": int(self.room_height),
-                        "lamp_light": str(self.lamp_light)}
+                        "lamp_light": str(self.lamp_light), "lens_filter": self.lens_filter}
         return out
 
     @classmethod
@@ -251,7 +274,8 @@ class ProbeWorld(MirrorWorld):
             raise WorldError(f"world 'probe' entry must map card_distance_mm, room_height and lamp_light, got {spec!r}")
         return cls.probe(float(mirror["sphere_radius_mm"]), supersample=int(mirror.get("supersample", 3)),
                          card_distance_mm=float(spec["card_distance_mm"]), room_height=int(spec["room_height"]),
-                         lamp_light=str(spec["lamp_light"]), **world_settings(data))
+                         lamp_light=str(spec["lamp_light"]), lens_filter=spec.get("lens_filter"),
+                         **world_settings(data))
 
     def _card(self) -> tuple[NDArray[np.float64], NDArray[np.float64], float, float]:
         """The card's centre (room, mm), its normal toward the camera, its half width and height (mm)."""
@@ -352,7 +376,7 @@ class ProbeWorld(MirrorWorld):
         """
         env, grid = self.environment, self.grid
         h, w = self.height, self.width
-        s_step = np.asarray(sensitivities, dtype=np.float64) * grid.step
+        s_step = np.asarray(sensitivities, dtype=np.float64) * grid.step * np.reshape(self.lens_transmission(), (-1, 1))
         card = (BACKDROP_REFLECTANCE * self.light_spectrum() / math.pi) @ s_step
         basis_sig = env.basis @ s_step                                      # (K, 3)
         out = np.empty((h * w, 3), np.float32)

@@ -2,7 +2,7 @@
 
 The simulated devices are described in ``docs/simulator.md``.  Three actions:
 
-``kogei mock [--world hawk|vase|inlaid-bowl|plain-bowl[:bare]|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
+``kogei mock [--world hawk|vase|inlaid-bowl|plain-bowl[:bare]|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R[:filtered]]|MESH] [--triangles N] [--material SPEC] [--faults SPEC,...]
 [--time-scale S] [--root DIR] [--seed N]``
     Starts :class:`mocks.station.SimulatedStation`, prints its turntable
     port, profiler port, gphoto2 shim, hot folder and control folder with
@@ -73,7 +73,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                     "pseudo-terminals, a fake gphoto2 and a hot folder, all looking at one simulated object. "
                     "'kogei mock place' and 'kogei mock shoot' talk to a running station.",
     )
-    p.add_argument("--world", default="hawk", metavar="hawk|vase|inlaid-bowl|plain-bowl[:bare]|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R]|MESH",
+    p.add_argument("--world", default="hawk", metavar="hawk|vase|inlaid-bowl|plain-bowl[:bare]|sphere[:R[:OFF]]|board[:TILT]|mirror-sphere[:R[:OFF]]|probe[:R[:filtered]]|MESH",
                    help="the procedural hawk head (default); a turned object (a thrown vase with a boss and a "
                         "faint band, a bowl with an inlaid motif, a plain bowl with a painted motif, or bare; "
                         "docs/simulator.md, Turned objects); a calibration sphere of radius R mm (default 25) "
@@ -83,7 +83,9 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "a chrome ball for lamp calibration, radius R mm (default 20) OFF mm from the axis "
                         "(default 35), 960 x 640 frames; a chrome ball of radius R mm (default 20) on the table "
                         "centre in a simulated lit room with the chart beside it, for a light probe (kogei capture "
-                        "--plan probe); or a mesh file (PLY/OBJ/STL/glTF, millimetres; glTF in metres); "
+                        "--plan probe; probe:R:filtered shoots every frame through a magenta notch filter, whose "
+                        "transmission it writes as lens-filter.csv in the station folder, for the second bracket "
+                        "set of kogei probe --filter-frames); or a mesh file (PLY/OBJ/STL/glTF, millimetres; glTF in metres); "
                         "a mesh with per-face materials (a PLY with a face 'material' property such as "
                         "products/object-mesh.ply, a glTF with a primitive per material such as kogei export "
                         "writes) keeps them, one region each")
@@ -254,17 +256,19 @@ def _mirror_world(spec: str) -> Any:
 
 
 def _probe_world(spec: str) -> Any:
-    """``probe`` or ``probe:R`` (mm): the chrome ball on the table centre in the simulated room."""
-    from mocks.probe_world import ProbeWorld
+    """``probe``, ``probe:R`` (mm) or ``probe:R:filtered``: the chrome ball on the table centre in the simulated
+    room; ``filtered``: every frame through the magenta notch filter (:data:`mocks.probe_world.PROBE_FILTER`), the
+    second bracket set of a probe from two sets."""
+    from mocks.probe_world import PROBE_FILTER, ProbeWorld
 
     parts = spec.split(":")[1:]
     try:
-        if len(parts) > 1:
+        if len(parts) > 2 or (len(parts) == 2 and parts[1] != "filtered"):
             raise ValueError
         radius = float(parts[0]) if parts and parts[0] else 20.0
     except ValueError:
-        raise UsageError(f"--world {spec}: use probe or probe:RADIUS_MM") from None
-    return ProbeWorld.probe(radius)
+        raise UsageError(f"--world {spec}: use probe, probe:RADIUS_MM or probe:RADIUS_MM:filtered") from None
+    return ProbeWorld.probe(radius, lens_filter=PROBE_FILTER if len(parts) == 2 else None)
 
 
 def _calibration_plan(world: Any) -> str | None:
@@ -284,15 +288,17 @@ def _calibration_plan(world: Any) -> str | None:
     return None
 
 
-def _session_name(plan: str | None) -> str:
+def _session_name(plan: str | None, world: Any = None) -> str:
     """The ``--out`` folder of the printed capture command."""
+    if getattr(world, "lens_filter", None):
+        return "probe-filtered-session"
     if plan is None:
         return "kogei-session"
     return "calibration-session" if plan == "sphere" else plan.split()[1] + "-session"
 
 
-def _next_command(world: Any, plan: str | None) -> str:
-    """The command that processes the printed capture's session."""
+def _next_command(world: Any, plan: str | None, filter_csv: Path | None = None) -> str:
+    """The command that processes the printed capture's session (``filter_csv``: the lens filter's data sheet)."""
     if plan == "sphere":
         radius = world.mesh_source.split(":")[1]
         return f"kogei calibrate calibration-session --sphere-radius {radius}"
@@ -300,6 +306,10 @@ def _next_command(world: Any, plan: str | None) -> str:
         return "kogei process kogei-session --calibration calibration-session   # after a kogei mock --world sphere scan"
     if plan.startswith("--plan camera-calibration"):
         return "kogei calibrate --camera camera-calibration-session --scanner calibration-session"
+    if plan.startswith("--plan probe") and filter_csv is not None:
+        return ("kogei probe probe-session --camera-calibration camera-calibration-session --filter-frames "
+                f"probe-filtered-session --filter {filter_csv} --out probe.exr   # with a probe-session shot "
+                "without the filter")
     if plan.startswith("--plan probe"):
         return "kogei probe probe-session --camera-calibration camera-calibration-session --out probe.exr"
     return "kogei calibrate --lamp lamp-calibration-session --camera-calibration camera-calibration-session"
@@ -370,8 +380,14 @@ def _serve(args: argparse.Namespace) -> int:
         info = {**station.info(), "station_file": str(station_file), "pid": os.getpid(),
                 "faults": format_faults(faults)}
         plan = _calibration_plan(world)
-        info["capture"] = capture_commands(info, plan=plan, session=_session_name(plan))
-        info["then"] = _next_command(world, plan)
+        filter_csv = None
+        if getattr(world, "lens_filter", None):
+            # the filter's data sheet, as the lab has it for a real filter
+            from mocks.probe_world import write_filter_csv
+
+            filter_csv = write_filter_csv(station.root / "lens-filter.csv", world.lens_filter)
+        info["capture"] = capture_commands(info, plan=plan, session=_session_name(plan, world))
+        info["then"] = _next_command(world, plan, filter_csv)
         _write_station_file(station_file, info)
         _print_block(info, format_faults(faults))
         try:

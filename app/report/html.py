@@ -943,8 +943,17 @@ def _probe(ctx: _Context) -> Section:
                              f"{_q(m.get('back_mask_deg'), '.0f', 'deg')} behind the sphere"),
              ("spectral calibration", f"{spectral.get('method', 'unknown')} estimator, chart light "
                                       f"{spectral.get('light', 'unknown')}, chart RMS reflectance error "
-                                      f"{_q(spectral.get('chart_rmse'), '.3f')}"),
-             ("time", ", ".join(f"{k} {_q(v, '.1f', 's')}" for k, v in seconds.items()))]
+                                      f"{_q(spectral.get('chart_rmse'), '.3f')}")]
+    second = spectral.get("filter_frames")
+    if isinstance(second, list) and second:
+        median = spectral.get("projection_spectral_median")
+        median_pct = 100 * median if isinstance(median, (int, float)) and not isinstance(median, bool) else None
+        pairs += [("second bracket set", f"{len(second)} brackets through the filter {spectral.get('filter', 'unknown')}, "
+                                         f"its chart {spectral.get('filter_chart', 'unknown')}"),
+                  ("basis spectra kept", f"{spectral.get('components', 'unknown')}: 99 % of directions within "
+                                         f"{_q(spectral.get('projection_dxy_p99'), '.4f')} in xy of the estimated "
+                                         f"spectra, median spectral error {_q(median_pct, '.1f', '%')}")]
+    pairs.append(("time", ", ".join(f"{k} {_q(v, '.1f', 's')}" for k, v in seconds.items())))
     body += _details(_kv(pairs) + "<p>Render under it with <code>kogei render MESH --environment "
                      f"{_e(_shown(path))}</code>.</p>")
     return Section("probe", title, body, True)

@@ -168,6 +168,10 @@ def _filter_inputs(inputs: ProbeInputs, frames: str | None, chart: str | None, t
             raise UsageError(f"--filter-frames {folder}: no RAW files ({', '.join(RAW_SUFFIXES)}) in this folder")
     if chart is not None:
         inputs.filter_chart = Path(chart)
+    shared = {p.resolve() for p in inputs.filter_frames} & {p.resolve() for p in inputs.frames}
+    if shared:
+        raise UsageError(f"--filter-frames {folder}: {sorted(shared)[0].name} is also one of the brackets without the "
+                         "filter; give the set shot through the filter")
     if inputs.filter_chart is None:
         raise UsageError(f"--filter-frames {folder}: no chart frame shot through the filter; give --filter-chart RAW")
     inputs.filter_transmission = Path(transmission)

@@ -89,3 +89,26 @@ def test_probe_world_and_its_printed_commands():
     assert _next_command(w, plan).startswith("kogei probe probe-session")
     with pytest.raises(UsageError, match="RADIUS_MM"):
         _build_world(_args("--world", "probe:big"))
+
+
+def test_filtered_probe_world_shoots_through_the_filter_and_suggests_two_sets(tmp_path):
+    """probe:R:filtered: every frame (the chart's too) through the magenta notch; kept through the station file."""
+    import numpy as np
+
+    from app.cli.mock import _calibration_plan, _next_command, _session_name
+    from mocks.probe_world import FILTERS, PROBE_FILTER, ProbeWorld, filter_transmission
+
+    w = _build_world(_args("--world", "probe:15:filtered"))
+    plain = ProbeWorld.probe(15.0)
+    assert w.lens_filter == PROBE_FILTER and plain.lens_filter is None
+    t = filter_transmission(*FILTERS[PROBE_FILTER], w.grid.wavelengths)
+    for kind in ("chart", "object"):
+        np.testing.assert_allclose(w.frame(kind).radiance, plain.frame(kind).radiance * t, rtol=1e-12)
+    # the fake gphoto2 program rebuilds the world from the station file's mapping
+    assert ProbeWorld.from_dict(w.to_dict()).lens_filter == PROBE_FILTER
+    plan = _calibration_plan(w)
+    assert _session_name(plan, w) == "probe-filtered-session"
+    then = _next_command(w, plan, tmp_path / "lens-filter.csv")
+    assert "--filter-frames probe-filtered-session" in then and "lens-filter.csv" in then
+    with pytest.raises(UsageError, match="filtered"):
+        _build_world(_args("--world", "probe:15:red"))

@@ -100,3 +100,46 @@ def test_the_session_report_shows_the_probe(probe_session, tmp_path, capsys):
     assert f"{100 * report['map']['observed_fraction']:.0f} %" in html
     assert f"chart RMS reflectance error {report['spectral']['chart_rmse']:.3f}" in html
     assert "<th>brackets</th><td>7</td>" in html
+
+
+@pytest.fixture(scope="module")
+def filtered_session(probe_session):
+    """The same room captured through the lens filter (``kogei mock --world probe:20:filtered``), 4 brackets 4 EV
+    apart (the merge reads each frame's exposure; fewer frames keep the test short)."""
+    from mocks.probe_world import PROBE_FILTER
+
+    root0, _ = probe_session
+    base = root0.parent
+    world = ProbeWorld.probe(20.0, width=SIZE[0], height=SIZE[1], lens_filter=PROBE_FILTER)
+    plan = CapturePlan("probe", sphere_radius_mm=20.0, brackets=("1/4000", "1/250", "1/15", "1"))
+    root = base / "probe-filtered"
+    with SimulatedStation(world, root=base / "station-filtered", seed=4) as st:
+        config = {"turntable": {"port": str(st.turntable_path)},
+                  "camera": {"kind": "gphoto2", "executable": str(st.gphoto2_path)}}
+        s = Session.create(root, plan=plan.to_dict())
+        try:
+            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
+        finally:
+            s.close()
+    return root
+
+
+def test_two_probe_sessions_make_a_six_channel_probe_and_the_report_says_so(probe_session, filtered_session,
+                                                                           tmp_path):
+    from mocks.probe_world import write_filter_csv
+
+    root, world = probe_session
+    csv = write_filter_csv(tmp_path / "lens-filter.csv")
+    assert main(["probe", str(root), "--filter-frames", str(filtered_session), "--filter", str(csv), "--out",
+                 str(tmp_path / "room.exr"), "--quiet"]) == 0
+    env = read_environment(tmp_path / "room.exr", world.grid)
+    assert env.coefficients.shape[2] == 6
+    # through the station's fake gphoto2 the filtered frames are darker where the notch is: the second set's
+    # chart is the filter's (the floor is still right in units of the chart's white, within 5 %)
+    truth = float(world.environment.luminance([[0.0, 0.0, -1.0]])[0]) / world.chart_white_luminance()
+    assert abs(float(env.luminance([[0.0, 0.0, -1.0]])[0]) / truth - 1.0) < 0.05
+    report = json.loads((root / "products" / "probe.json").read_text())
+    assert report["spectral"]["method"] == "twolight" and len(report["spectral"]["filter_frames"]) == 4
+    assert main(["report", str(root)]) == 0
+    html = (root / "products" / "report.html").read_text()
+    assert "4 brackets through the filter" in html and "basis spectra kept</th><td>6: 99 % of directions" in html

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from processing.lighting.nmf_lee2001 import NonnegativeBasisError, nonnegative_basis, nonnegative_coefficients
+from processing.lighting.nmf_lee2001 import (
+    COLOUR_WEIGHT,
+    NonnegativeBasisError,
+    nonnegative_basis,
+    nonnegative_coefficients,
+)
 from processing.spectral.display import spectra_to_xyz
 from processing.spectral.spectra import SpectralGrid
 
@@ -36,16 +41,24 @@ def test_an_exact_mixture_is_recovered(k):
 
 
 def test_fewer_basis_spectra_than_parts_keep_the_colour_first():
-    # four parts held by three basis spectra: the spectra cannot all be kept; the colour weight keeps their xy
-    # closer than the spectral error alone would (measured: xy p99 0.013 against spectral errors p99 of 10 %+)
+    # four parts held by three basis spectra: the spectra cannot all be kept.  On the same basis, the
+    # coefficients with the colour weighted keep the colour and luminance of most spectra (measured median xy
+    # 0.0001 against 0.031 without it, luminance 0.01 % against 2.7 %) at some cost in spectral error (median
+    # 22 % against 17 %); colours outside the basis's cone stay off either way (90th percentile 0.04)
     v = _mixes(_parts())
     b = nonnegative_basis(v, 3, G)
-    kept = nonnegative_coefficients(v, b, G).astype(np.float64) @ b
-    xyz_v, xyz_k = spectra_to_xyz(v, G), spectra_to_xyz(kept, G)
-    dxy = np.linalg.norm(xyz_v[:, :2] / xyz_v.sum(1, keepdims=True) - xyz_k[:, :2] / xyz_k.sum(1, keepdims=True), axis=1)
-    spectral = np.abs(kept - v).sum(1) / v.sum(1)
-    assert np.quantile(dxy, 0.99) < 0.02
-    assert np.quantile(spectral, 0.99) > 2 * np.quantile(dxy, 0.99)
+    xyz_v = spectra_to_xyz(v, G)
+    figures = {}
+    for weight in (0.0, COLOUR_WEIGHT):
+        kept = nonnegative_coefficients(v, b, G, colour_weight=weight).astype(np.float64) @ b
+        xyz_k = spectra_to_xyz(kept, G)
+        dxy = np.linalg.norm(xyz_v[:, :2] / xyz_v.sum(1, keepdims=True) - xyz_k[:, :2] / xyz_k.sum(1, keepdims=True),
+                             axis=1)
+        figures[weight] = (np.median(dxy), np.median(np.abs(xyz_k[:, 1] / xyz_v[:, 1] - 1)),
+                           np.median(np.abs(kept - v).sum(1) / v.sum(1)))
+    (dxy0, lum0, spec0), (dxy1, lum1, spec1) = figures[0.0], figures[COLOUR_WEIGHT]
+    assert dxy1 < 0.002 < dxy0 / 5 and lum1 < 0.002 < lum0 / 5
+    assert spec1 >= spec0
 
 
 @pytest.mark.parametrize("scale", [1e-12, 1e12])
