@@ -201,10 +201,17 @@ class EnvironmentPlan:
     @staticmethod
     def basis_on_grid(env: EnvironmentMap, grid: SpectralGrid) -> NDArray[np.float64]:
         """``(K, L)``: the map's basis resampled to ``grid``, each row keeping its luminance."""
-        b = resample(env.grid.wavelengths, env.basis, grid)
-        y_src = spectra_to_xyz(env.basis, env.grid)[:, 1]
+        return EnvironmentPlan.spectrum_on_grid(env.basis, env.grid, grid)
+
+    @staticmethod
+    def spectrum_on_grid(spectra: NDArray[np.float64], source: SpectralGrid, grid: SpectralGrid) -> NDArray[np.float64]:
+        """Spectra ``(..., n)`` on ``source`` resampled to ``grid``, each keeping its luminance."""
+        s = np.atleast_2d(np.asarray(spectra, dtype=np.float64))
+        b = resample(source.wavelengths, s, grid)
+        y_src = spectra_to_xyz(s, source)[:, 1]
         y_dst = spectra_to_xyz(b, grid)[:, 1]
-        return b * np.where(y_dst > 0, y_src / np.where(y_dst > 0, y_dst, 1.0), 1.0)[:, None]
+        out = b * np.where(y_dst > 0, y_src / np.where(y_dst > 0, y_dst, 1.0), 1.0)[:, None]
+        return out if np.ndim(spectra) == 2 else out[0]
 
     @property
     def channels(self) -> int:

@@ -444,10 +444,11 @@ def _lighting(scene: Scene, grid: SpectralGrid, lo: NDArray[np.float64], hi: NDA
         white = white_xyz(spectra[0], grid)
         key_spectrum = spectra[0]
     else:
-        # no lights: the environment alone; the white (and the unit of a synthetic sky) is the spectrum of
-        # its basis rows together (D65 for an sRGB map)
+        # no lights: the environment alone; the white (and the unit of a synthetic sky) is the map's white: the
+        # spectrum it names (a probe's chart white), else its basis rows together (D65 for an sRGB map)
         key_irradiance = 1.0
-        key_spectrum = EnvironmentPlan.basis_on_grid(env, grid).sum(axis=0)
+        key_spectrum = (EnvironmentPlan.basis_on_grid(env, grid).sum(axis=0) if env.white is None
+                        else EnvironmentPlan.spectrum_on_grid(env.white, env.grid, grid))
         k = xyz_scale(key_spectrum, grid)
         white = white_xyz(key_spectrum, grid)
     lights = tuple(

@@ -106,7 +106,7 @@ def demo_object(session: Path, out: Path, world: Any, object_to_mesh: np.ndarray
                   f"{pooled['baseline_mean_de2000']:.2f}; noise alone about "
                   f"{pooled.get('noise_floor_mean_de2000') or float('nan'):.2f}", file=sys.stderr)
     t0 = time.perf_counter()
-    glb = export_gltf(session, out / "hawk.glb")
+    glb = export_gltf(session, out / "hawk.glb", force=True)          # the demo rewrites its own output folder
     print(f"glTF: {out / 'hawk.glb'} ({len(glb['regions'])} primitives, PBR metallic-roughness, "
           f"{time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return {"agreement": agree, "regions": [{k: r.get(k) for k in ("index", "material", "confidence", "parameters",

@@ -309,6 +309,7 @@ def build_probe(inputs: ProbeInputs, *, light: str = "D65", method: str | None =
     Every bad input raises :class:`processing.errors.InputError` with a one-line message naming the file.
     """
     from processing.lighting.hdr_merge import merge_brackets
+    from processing.lighting.nmf_lee2001 import MAX_COMPONENTS
     from processing.lighting.probe_spectral import COMPONENTS, probe_environment, two_set_environment
     from processing.lighting.probe_unwrap import unwrap_probe
 
@@ -322,6 +323,9 @@ def build_probe(inputs: ProbeInputs, *, light: str = "D65", method: str | None =
                          "the default, twolight")
     if components is not None and not two:
         raise UsageError("--components sets the basis of a map from two bracket sets; give --filter-frames too")
+    if components is not None and (isinstance(components, bool) or not isinstance(components, int)
+                                   or not 1 <= components <= MAX_COMPONENTS):
+        raise UsageError(f"--components must be 1-{MAX_COMPONENTS} basis spectra, got {components!r}")
     t0 = time.perf_counter()
     fit, chart_light, chart_info = _chart_fit(inputs.chart, light=light, method=method, chart_type=chart_type,
                                               decode=decode, f_number=f_number, noise=noise,

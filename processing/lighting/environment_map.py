@@ -225,12 +225,18 @@ class EnvironmentMap:
         Turn about +z (counter-clockwise seen from above).
     intensity
         Scale (> 0).
+    white
+        ``(n,)`` on ``grid``: the spectrum that renders white when the map lights a scene alone (it
+        sets the white balance and the exposure: a white Lambertian surface lit by radiance ``white``
+        from the whole upper hemisphere renders with ``Y`` of ``white``), e.g. a probe's chart white;
+        None: the basis rows together (D65 of ``Y = 1`` for an sRGB map).
 
     Raises
     ------
     EnvironmentMapError
         A wrong shape or aspect ratio, NaN / infinite / negative values, a
-        basis that does not match, a non-positive intensity.
+        basis that does not match, a non-positive intensity, a white without
+        luminance.
     """
 
     coefficients: NDArray[np.float32]
@@ -239,6 +245,7 @@ class EnvironmentMap:
     source: str = "environment"
     rotation_deg: float = 0.0
     intensity: float = 1.0
+    white: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         c = np.asarray(self.coefficients, dtype=np.float32)
@@ -263,6 +270,14 @@ class EnvironmentMap:
                 raise EnvironmentMapError(f"{self.source}: {name} must be a finite number, got {v!r}")
         if float(self.intensity) <= 0.0:
             raise EnvironmentMapError(f"{self.source}: intensity must be > 0, got {self.intensity!r}")
+        if self.white is not None:
+            wh = np.asarray(self.white, dtype=np.float64)
+            if wh.shape != (self.grid.size,) or not np.isfinite(wh).all() or (wh < 0).any() \
+                    or not float(spectra_to_xyz(wh, self.grid)[1]) > 0:
+                raise EnvironmentMapError(f"{self.source}: the white must be {self.grid.size} finite values >= 0 "
+                                          f"with luminance, got shape {wh.shape}")
+            wh.setflags(write=False)
+            object.__setattr__(self, "white", wh)
         c.setflags(write=False)
         b.setflags(write=False)
         object.__setattr__(self, "coefficients", c)
@@ -293,6 +308,10 @@ class EnvironmentMap:
         """``(H, 1)`` solid angle of one pixel of each row in sr (they sum to 4 pi over the map)."""
         edges = np.pi * np.arange(self.height + 1) / self.height
         return ((np.cos(edges[:-1]) - np.cos(edges[1:])) * (2.0 * np.pi / self.width))[:, None]
+
+    def white_spectrum(self) -> NDArray[np.float64]:
+        """``(n,)``: :attr:`white`, or the basis rows together when the map gives none."""
+        return np.asarray(self.basis.sum(axis=0) if self.white is None else self.white, dtype=np.float64)
 
     def pixel_luminance(self) -> NDArray[np.float64]:
         """``(H, W)`` luminance Y of every pixel (intensity applied), e.g. for importance sampling."""
@@ -479,6 +498,7 @@ def read_environment(path: str | os.PathLike[str], grid: SpectralGrid = REFERENC
     else:
         raise EnvironmentMapError(f"{p}: environment maps are read from .exr or .hdr files, not {ext or 'no extension'}")
     basis = srgb_basis(grid)
+    white = None
     if meta is not None:
         try:
             wl = np.asarray(meta["wavelengths_nm"], dtype=np.float64)
@@ -488,10 +508,15 @@ def read_environment(path: str | os.PathLike[str], grid: SpectralGrid = REFERENC
             if not (np.isfinite(wl).all() and np.isfinite(rows).all()):
                 raise ValueError("NaN or infinite values")
             basis = resample(wl, rows, grid)
+            if meta.get("white") is not None:
+                white_rows = np.asarray(meta["white"], dtype=np.float64)
+                if white_rows.shape != (wl.size,) or not np.isfinite(white_rows).all():
+                    raise ValueError(f"white of shape {white_rows.shape} for {wl.size} wavelengths")
+                white = resample(wl, white_rows[None, :], grid)[0]
         except (KeyError, TypeError, ValueError) as exc:
             raise EnvironmentMapError(f"{p}: the spectral basis in header {HEADER_KEY} is malformed ({exc}); "
                                       "write the map again with kogei") from None
-    return EnvironmentMap(rgb, basis, grid, source=str(p))
+    return EnvironmentMap(rgb, basis, grid, source=str(p), white=white)
 
 
 def write_environment(path: str | os.PathLike[str], env: EnvironmentMap) -> Path:
@@ -542,6 +567,8 @@ def write_environment(path: str | os.PathLike[str], env: EnvironmentMap) -> Path
                  for i, n in enumerate(names)}
         meta = {"wavelengths_nm": env.grid.wavelengths.tolist(), "basis": env.basis.tolist(), "source": env.source,
                 "channels": "coefficient channels", "coefficient_channels": names}
+        if env.white is not None:
+            meta["white"] = env.white.tolist()
     else:
         if abs(np.linalg.det(m)) < 1e-12 * max(1.0, float(np.abs(m).max()) ** 3):
             raise EnvironmentMapError(f"{env.source}: its spectral basis has no invertible sRGB matrix; "
@@ -558,6 +585,8 @@ def write_environment(path: str | os.PathLike[str], env: EnvironmentMap) -> Path
             channels = "coefficients"
         meta = {"wavelengths_nm": env.grid.wavelengths.tolist(), "basis": basis_rgb.tolist(), "source": env.source,
                 "channels": channels}
+        if env.white is not None:
+            meta["white"] = env.white.tolist()
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, HEADER_KEY: json.dumps(meta)}
     with OpenEXR.File(header, {"RGB": np.ascontiguousarray(rgb), **extra}) as f:
         f.write(str(p))

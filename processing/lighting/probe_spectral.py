@@ -65,6 +65,12 @@ class ProbeSpectralError(InputError):
     """The probe cannot be made spectral; the one-line message says why and what to use."""
 
 
+def _chart_white(chart_light: NDArray[np.float64], grid) -> NDArray[np.float64]:
+    """The map's white: a white diffuser where the chart lay, ``E / pi`` scaled to luminance 1 (the map's unit)."""
+    white = np.asarray(chart_light, dtype=np.float64) / math.pi
+    return white / float(spectra_to_xyz(white, grid)[1])
+
+
 def radiance_basis(fit, chart_light: ArrayLike) -> NDArray[np.float64]:
     """Spectral radiance ``(3, L)`` of a unit camera R, G, B in units of the chart's white.
 
@@ -123,7 +129,8 @@ def probe_environment(rgb: ArrayLike, fit, chart_light: ArrayLike, *, source: st
     Returns
     -------
     EnvironmentMap
-        Coefficients: the camera RGB (clipped at 0); basis: :func:`radiance_basis`.
+        Coefficients: the camera RGB (clipped at 0); basis: :func:`radiance_basis`; white: the
+        chart's white (a white diffuser under ``chart_light``, luminance 1).
 
     Raises
     ------
@@ -132,7 +139,7 @@ def probe_environment(rgb: ArrayLike, fit, chart_light: ArrayLike, *, source: st
     """
     basis = radiance_basis(fit, chart_light)
     c = np.maximum(np.asarray(rgb, dtype=np.float32), 0.0)
-    return EnvironmentMap(c, basis, fit.grid, source=source)
+    return EnvironmentMap(c, basis, fit.grid, source=source, white=_chart_white(chart_light, fit.grid))
 
 
 def two_set_environment(rgb6: ArrayLike, fit, chart_light: ArrayLike, *, components: int = COMPONENTS,
@@ -199,5 +206,6 @@ def two_set_environment(rgb6: ArrayLike, fit, chart_light: ArrayLike, *, compone
     rel = np.abs(kept[lit] - radiance[lit]).sum(axis=1) / radiance[lit].sum(axis=1)
     figures = {"components": int(len(basis)), "projection_dxy_p99": float(np.quantile(dxy, 0.99)) if lit.any() else 0.0,
                "projection_spectral_median": float(np.median(rel)) if lit.any() else 0.0}
-    env = EnvironmentMap(coeff.reshape(h, w, len(basis)), basis, fit.grid, source=source)
+    env = EnvironmentMap(coeff.reshape(h, w, len(basis)), basis, fit.grid, source=source,
+                         white=_chart_white(e, fit.grid))
     return env, figures

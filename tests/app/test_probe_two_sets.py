@@ -76,7 +76,8 @@ def test_bad_second_set_inputs_are_named(station, tmp_path, capsys):
     fails_with_one_line(one + ["--components", "4"], capsys, tmp_path, "--components", "--filter-frames")
     fails_with_one_line(one + ["--method", "twolight"], capsys, tmp_path, "twolight", "--filter-frames")
     fails_with_one_line(_args(station, tmp_path / "p.exr", "--method", "wiener"), capsys, tmp_path, "wiener")
-    fails_with_one_line(_args(station, tmp_path / "p.exr", "--components", "9"), capsys, tmp_path, "1-6")
+    fails_with_one_line(_args(station, tmp_path / "p.exr", "--components", "9"), capsys, tmp_path, "--components",
+                        "1-6")
     fails_with_one_line(one + ["--filter-frames", str(tmp_path / "none"), "--filter", str(csv)], capsys, tmp_path,
                         "--filter-frames", "not a folder")
     fails_with_one_line(one + ["--filter-frames", str(frames[0].parent), "--filter", str(csv)], capsys, tmp_path,

@@ -289,3 +289,25 @@ def test_exr_header_naming_missing_coefficient_channels_is_refused(tmp_path):
     with pytest.raises(EnvironmentMapError, match=r"bad\.exr: the header names coefficient channels the file lacks "
                                                    r"\(kogei\.c1\)"):
         read_environment(tmp_path / "bad.exr")
+
+
+def test_exr_keeps_the_maps_white(tmp_path):
+    # a probe names its white (the chart's); the file keeps it, for three basis spectra and for six
+    from processing.spectral.spectra import light_spectrum
+
+    white = light_spectrum("A", REFERENCE_GRID)
+    for k in (3, 6):
+        rng = np.random.default_rng(k)
+        env = EnvironmentMap(rng.uniform(0, 1, (4, 8, k)).astype(np.float32), rng.uniform(0.1, 1, (k, REFERENCE_GRID.size)),
+                             REFERENCE_GRID, white=white)
+        back = read_environment(write_environment(tmp_path / f"w{k}.exr", env))
+        np.testing.assert_allclose(back.white, white, rtol=1e-9)
+        assert read_environment(write_environment(tmp_path / f"n{k}.exr", replace_white(env))).white is None
+    with pytest.raises(EnvironmentMapError, match="the white must be"):
+        EnvironmentMap(np.ones((4, 8, 3), np.float32), srgb_basis(), white=np.zeros(REFERENCE_GRID.size))
+
+
+def replace_white(env):
+    from dataclasses import replace
+
+    return replace(env, white=None)

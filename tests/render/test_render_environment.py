@@ -324,3 +324,34 @@ def test_float32_lookup_is_the_maps_bilinear_lookup() -> None:
     d[:, 0], d[:, 1] = (0, 0, 1), (0, 0, -1)
     expected = env.lookup(d.T.astype(np.float64)).T
     assert np.abs(plan.lookup(d) - expected).max() < 1e-5 * np.abs(expected).max()
+
+
+def test_a_maps_white_sets_the_display_whatever_its_basis() -> None:
+    """A grey map's light written on six basis spectra of luminance 1 each (D65 times six hat functions): the
+    same radiance everywhere, but the rows together are no longer the white.  Given its white (D65), the sRGB
+    image is the 3-basis map's to one level; without it the display takes the rows' sum (luminance 6) for
+    white and exposure and the image comes out darker, as under a probe's basis found from its spectra."""
+    from processing.spectral.display import spectra_to_xyz
+    from processing.spectral.spectra import REFERENCE_GRID, light_spectrum
+
+    g = REFERENCE_GRID
+    env3 = smooth_map()
+    d65 = light_spectrum("D65", g)
+    d65 = d65 / spectra_to_xyz(d65, g)[1]
+    nodes = np.linspace(g.start, g.stop, 6)
+    hats = np.clip(1 - np.abs(g.wavelengths[None] - nodes[:, None]) / (nodes[1] - nodes[0]), 0, None) * d65
+    y = spectra_to_xyz(hats, g)[:, 1]
+    grey = env3.coefficients.mean(axis=2, keepdims=True)
+    env3 = EnvironmentMap(np.repeat(grey, 3, axis=2), srgb_basis(), source="grey")
+    six = (grey * y[None, None, :]).astype(np.float32)
+    d = env3.directions().reshape(-1, 3)
+    images = {}
+    for name, env in (("three", env3), ("six", EnvironmentMap(six, hats / y[:, None], g, white=d65)),
+                      ("six, no white", EnvironmentMap(six, hats / y[:, None], g))):
+        if name != "three":
+            np.testing.assert_allclose(env.spectral_radiance(d), env3.spectral_radiance(d), rtol=1e-5, atol=1e-7)
+        result = render(Scene([SceneObject(SPHERE, [lambert(0.8)])], [], Sky("none"), environment=env), CAMERA,
+                        PRESETS["draft"])
+        images[name] = np.asarray(result.srgb8, dtype=np.float64)
+    assert np.abs(images["six"] - images["three"]).max() <= 1.0
+    assert images["six, no white"].mean() < 0.7 * images["three"].mean()
