@@ -72,6 +72,7 @@ def make_shots(folder: Path) -> dict:
         PROBE_FILTER,
         filter_transmission,
         write_filter_csv,
+        write_light_csv,
         write_probe_shots,
     )
     from processing.geometry.camera_calibration import CameraCalibration
@@ -83,10 +84,8 @@ def make_shots(folder: Path) -> dict:
     transmission = filter_transmission(*FILTERS[PROBE_FILTER], world.grid.wavelengths)
     write_probe_shots(small, folder / "filtered" / "chart", times_s=(), transmission=transmission, seed=1)
     write_filter_csv(folder / "filter.csv")
-    # the chart's light as a spectroradiometer on the table would measure it
+    write_light_csv(world, folder / "light.csv")      # the chart's light as a spectroradiometer there gives it
     light = world.light_spectrum()
-    (folder / "light.csv").write_text("wavelength_nm,value\n" + "".join(
-        f"{a:g},{b:.8g}\n" for a, b in zip(world.grid.wavelengths, light)), encoding="utf-8")
     sens = camera_sensitivities(world.grid)
     sensor = SensorModel()
     frames, render_s = [], 0.0

@@ -46,7 +46,7 @@ from processing.spectral.spectra import SpectralGrid, light_spectrum
 
 __all__ = ["ProbeWorld", "room_environment", "region_labels", "write_probe_shots", "BRACKET_TIMES_S",
            "CHART_TIME_S", "PROBE_F_NUMBER", "ROOM_REGIONS", "WALL_PATCHES", "FILTERS", "filter_transmission",
-           "write_filter_csv", "PROBE_FILTER"]
+           "write_filter_csv", "PROBE_FILTER", "write_filtered_shots", "write_light_csv"]
 
 #: Exposure times (s) of the probe's brackets: 2 EV apart, as gphoto2 shutter settings 1/4000 ... 1.
 BRACKET_TIMES_S = (1 / 4000, 1 / 1000, 1 / 250, 1 / 60, 1 / 15, 1 / 4, 1.0)
@@ -419,6 +419,28 @@ def write_filter_csv(path: str | os.PathLike[str], name: str = PROBE_FILTER, ste
     out.write_text("wavelength_nm,transmission\n" + "".join(f"{a:g},{b:.6f}\n" for a, b in zip(wl, t)),
                    encoding="utf-8")
     return out
+
+
+def write_light_csv(world: ProbeWorld, path: str | os.PathLike[str]) -> Path:
+    """The chart's light (:meth:`ProbeWorld.light_spectrum`) as ``wavelength_nm,value`` rows: what a
+    spectroradiometer on the table would give (``kogei probe --light CSV``)."""
+    out = Path(path)
+    out.write_text("wavelength_nm,value\n" + "".join(f"{a:g},{b:.9g}\n" for a, b in
+                                                     zip(world.grid.wavelengths, world.light_spectrum())),
+                   encoding="utf-8")
+    return out
+
+
+def write_filtered_shots(world: ProbeWorld, folder: str | os.PathLike[str], *, name: str = PROBE_FILTER,
+                         seed: int = 1, **kwargs: Any) -> tuple[Path | None, list[Path], Path]:
+    """The chart and the brackets through the filter ``name`` of :data:`FILTERS` (:func:`write_probe_shots`
+    with its transmission; ``kwargs`` as there), and the filter's data sheet ``filter.csv`` in ``folder``.
+
+    Returns the chart frame's path, the bracket paths and the data sheet's path.
+    """
+    t = filter_transmission(*FILTERS[name], world.grid.wavelengths)
+    chart, frames = write_probe_shots(world, folder, transmission=t, seed=seed, **kwargs)
+    return chart, frames, write_filter_csv(Path(folder) / "filter.csv", name)
 
 
 def write_probe_shots(world: ProbeWorld, folder: str | os.PathLike[str], *,

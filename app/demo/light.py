@@ -98,32 +98,21 @@ def simulated_probe(folder: Path, out_exr: Path) -> dict[str, Any]:
     walls :data:`WALL_BORDER_ROWS`.
     """
     from app.workflows.light_probe import ProbeInputs, build_probe, write_probe
-    from mocks.probe_world import (
-        FILTERS,
-        PROBE_FILTER,
-        ProbeWorld,
-        filter_transmission,
-        write_filter_csv,
-        write_probe_shots,
-    )
+    from mocks.probe_world import PROBE_FILTER, ProbeWorld, write_filtered_shots, write_light_csv, write_probe_shots
     from processing.geometry.camera_calibration import CameraCalibration
 
     t0 = time.perf_counter()
     w, h = PROBE_FRAME_SIZE
     world = ProbeWorld.probe(20.0, width=w, height=h)
     chart, frames = write_probe_shots(world, folder)
-    t = filter_transmission(*FILTERS[PROBE_FILTER], world.grid.wavelengths)
-    filter_chart, filter_frames = write_probe_shots(world, folder / "filtered", transmission=t, seed=1)
-    light_csv = folder / "measured-light.csv"
-    light_csv.write_text("wavelength_nm,value\n" + "".join(
-        f"{a:g},{b:.9g}\n" for a, b in zip(world.grid.wavelengths, world.light_spectrum())), encoding="utf-8")
+    filter_chart, filter_frames, filter_csv = write_filtered_shots(world, folder / "filtered")
+    light_csv = write_light_csv(world, folder / "measured-light.csv")
     t1 = time.perf_counter()
     cal = CameraCalibration((w, h), world.camera_intrinsics(), np.zeros(5), np.eye(4),
                             room_to_camera=world.room_to_camera())
     one = build_probe(ProbeInputs(frames, chart, cal, 20.0, str(folder)))
     result = build_probe(ProbeInputs(frames, chart, cal, 20.0, str(folder), filter_frames=filter_frames,
-                                     filter_chart=filter_chart,
-                                     filter_transmission=write_filter_csv(folder / "filter.csv")),
+                                     filter_chart=filter_chart, filter_transmission=filter_csv),
                          light=str(light_csv))
     write_probe(result, out_exr)
     t2 = time.perf_counter()

@@ -36,13 +36,9 @@ def test_plan_probe_actions_and_round_trip():
         CapturePlan("scan", brackets=("1/60",))
 
 
-@pytest.fixture(scope="module")
-def probe_session(tmp_path_factory):
-    base = tmp_path_factory.mktemp("probe-capture")
-    world = ProbeWorld.probe(20.0, width=SIZE[0], height=SIZE[1])
-    plan = CapturePlan("probe", sphere_radius_mm=20.0)
-    root = base / "probe"
-    with SimulatedStation(world, root=base / "station", seed=3) as st:
+def _capture(world: ProbeWorld, plan: CapturePlan, root, station_root, *, seed: int):
+    """Capture ``plan`` of ``world`` through the simulated station's fake gphoto2 into the session ``root``."""
+    with SimulatedStation(world, root=station_root, seed=seed) as st:
         config = {"turntable": {"port": str(st.turntable_path)},
                   "camera": {"kind": "gphoto2", "executable": str(st.gphoto2_path)}}
         s = Session.create(root, plan=plan.to_dict())
@@ -50,6 +46,14 @@ def probe_session(tmp_path_factory):
             run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
         finally:
             s.close()
+    return root
+
+
+@pytest.fixture(scope="module")
+def probe_session(tmp_path_factory):
+    base = tmp_path_factory.mktemp("probe-capture")
+    world = ProbeWorld.probe(20.0, width=SIZE[0], height=SIZE[1])
+    root = _capture(world, CapturePlan("probe", sphere_radius_mm=20.0), base / "probe", base / "station", seed=3)
     cal = CameraCalibration(SIZE, world.camera_intrinsics(), np.zeros(5), np.eye(4), room_to_camera=world.room_to_camera())
     with Session.open(root) as s:
         install_station_calibration(s, "camera_calibration", cal.to_dict())
@@ -112,16 +116,7 @@ def filtered_session(probe_session):
     base = root0.parent
     world = ProbeWorld.probe(20.0, width=SIZE[0], height=SIZE[1], lens_filter=PROBE_FILTER)
     plan = CapturePlan("probe", sphere_radius_mm=20.0, brackets=("1/4000", "1/250", "1/15", "1"))
-    root = base / "probe-filtered"
-    with SimulatedStation(world, root=base / "station-filtered", seed=4) as st:
-        config = {"turntable": {"port": str(st.turntable_path)},
-                  "camera": {"kind": "gphoto2", "executable": str(st.gphoto2_path)}}
-        s = Session.create(root, plan=plan.to_dict())
-        try:
-            run_capture(s, plan, build_devices(config, s.root), CaptureHooks(before_pass=lambda p, n: st.place(p)))
-        finally:
-            s.close()
-    return root
+    return _capture(world, plan, base / "probe-filtered", base / "station-filtered", seed=4)
 
 
 def test_two_probe_sessions_make_a_six_channel_probe_and_the_report_says_so(probe_session, filtered_session,

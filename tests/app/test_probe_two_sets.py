@@ -12,14 +12,7 @@ import json
 import pytest
 
 from app.cli import main
-from mocks.probe_world import (
-    FILTERS,
-    PROBE_FILTER,
-    ProbeWorld,
-    filter_transmission,
-    write_filter_csv,
-    write_probe_shots,
-)
+from mocks.probe_world import ProbeWorld, write_filtered_shots, write_probe_shots
 from processing.lighting.environment_map import read_environment
 from tests.app.cli_checks import fails_with_one_line
 from tests.app.test_probe_command import SIZE, _calibration
@@ -30,9 +23,8 @@ def station(tmp_path_factory):
     base = tmp_path_factory.mktemp("probe2")
     world = ProbeWorld.probe(20.0, width=SIZE[0], height=SIZE[1])
     chart, frames = write_probe_shots(world, base / "plain")
-    t = filter_transmission(*FILTERS[PROBE_FILTER], world.grid.wavelengths)
-    write_probe_shots(world, base / "filtered", transmission=t, seed=1)
-    return base, world, chart, frames, _calibration(world, base), write_filter_csv(base / "filter.csv")
+    *_, csv = write_filtered_shots(world, base / "filtered")
+    return base, world, chart, frames, _calibration(world, base), csv
 
 
 def _args(station, out, *extra):
@@ -101,8 +93,7 @@ def test_bad_second_set_inputs_are_named(station, tmp_path, capsys):
 def test_a_second_set_of_another_size_is_refused(station, tmp_path, capsys):
     base, world, *_ = station
     other = ProbeWorld.probe(20.0, width=SIZE[0] // 2, height=SIZE[1] // 2)
-    t = filter_transmission(*FILTERS[PROBE_FILTER], world.grid.wavelengths)
-    write_probe_shots(other, tmp_path / "small", transmission=t, seed=1)
+    write_filtered_shots(other, tmp_path / "small")
     args = _args(station, tmp_path / "p.exr")
     args[args.index("--filter-frames") + 1] = str(tmp_path / "small")
     fails_with_one_line(args, capsys, tmp_path, "--filter-frames", "one place")

@@ -19,13 +19,11 @@ from scipy.ndimage import binary_erosion
 
 from app.workflows.light_probe import ProbeInputs, build_probe
 from mocks.probe_world import (
-    FILTERS,
-    PROBE_FILTER,
     ROOM_REGIONS,
     ProbeWorld,
-    filter_transmission,
     region_labels,
-    write_filter_csv,
+    write_filtered_shots,
+    write_light_csv,
     write_probe_shots,
 )
 from processing.geometry.camera_calibration import CameraCalibration
@@ -103,9 +101,7 @@ def test_the_chart_light_stated_exactly_removes_the_white_point_error(shots):
     # the walls tint the chart's light 0.0033 in xy away from D65; given as a measured spectrum (CSV, as from a
     # spectrometer) the greys come within 0.003 (measured 0.0013-0.0023; 0.004 with D65 stated)
     world, inputs, folder = shots
-    csv = folder / "chart-light.csv"
-    csv.write_text("wavelength_nm,value\n" + "".join(f"{wl:g},{v:.9g}\n" for wl, v in
-                                                      zip(world.grid.wavelengths, world.light_spectrum())))
+    csv = write_light_csv(world, folder / "chart-light.csv")
     env, observed, rec, truth, labels = _compared(world, build_probe(inputs, light=str(csv)))
     for name in ("floor", "ceiling", "window"):
         m = _region(labels, observed, name)
@@ -116,14 +112,9 @@ def test_the_chart_light_stated_exactly_removes_the_white_point_error(shots):
 def two_sets(shots):
     """The same room through the magenta notch filter too: six channels; the chart's light given as measured."""
     world, inputs, folder = shots
-    t = filter_transmission(*FILTERS[PROBE_FILTER], world.grid.wavelengths)
-    filter_chart, filter_frames = write_probe_shots(world, folder / "filtered", transmission=t, seed=1)
-    csv = folder / "measured-light.csv"
-    csv.write_text("wavelength_nm,value\n" + "".join(f"{wl:g},{v:.9g}\n" for wl, v in
-                                                      zip(world.grid.wavelengths, world.light_spectrum())))
-    both = replace(inputs, filter_frames=filter_frames, filter_chart=filter_chart,
-                   filter_transmission=write_filter_csv(folder / "filter.csv"))
-    return _compared(world, build_probe(both, light=str(csv)))
+    filter_chart, filter_frames, filter_csv = write_filtered_shots(world, folder / "filtered")
+    both = replace(inputs, filter_frames=filter_frames, filter_chart=filter_chart, filter_transmission=filter_csv)
+    return _compared(world, build_probe(both, light=str(write_light_csv(world, folder / "measured-light.csv"))))
 
 
 @pytest.mark.parametrize("name", WALLS)
