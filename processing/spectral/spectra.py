@@ -563,6 +563,18 @@ def transmission_spectrum(path: str | os.PathLike[str], grid: SpectralGrid = REF
 
     Not normalised (a transmission is absolute).  The rows must cover the grid.
 
+    Parameters
+    ----------
+    path
+        The CSV file (an optional header line, then ``wavelength_nm, transmission`` rows).
+    grid
+        The wavelength grid to resample to.
+
+    Returns
+    -------
+    ndarray
+        ``(L,)`` transmission 0-1 on ``grid``.
+
     Raises
     ------
     InputError
