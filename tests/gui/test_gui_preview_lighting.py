@@ -84,3 +84,38 @@ def test_probe_and_sky_light_the_mesh_from_their_directions(qtbot, tmp_path):
     _render(qtbot, p)
     assert _right_over_left(p) > 1.5                     # the sky's own light fills the sun's shadow
     assert "under" in p.info.text()
+
+
+def test_a_probe_of_six_basis_spectra_lights_the_mesh_as_its_three_basis_twin(qtbot, tmp_path):
+    """A probe from two bracket sets is a map of six basis spectra naming its white: the half map written that
+    way (D65 times six hat functions, its white D65) gives the Preview the same picture as the 3-basis map."""
+    from processing.lighting.environment_map import EnvironmentMap, pixel_directions, write_environment
+    from processing.spectral.display import spectra_to_xyz
+    from processing.spectral.spectra import REFERENCE_GRID as g
+    from processing.spectral.spectra import light_spectrum
+
+    d65 = light_spectrum("D65", g)
+    d65 = d65 / spectra_to_xyz(d65, g)[1]
+    nodes = np.linspace(g.start, g.stop, 6)
+    hats = np.clip(1 - np.abs(g.wavelengths[None] - nodes[:, None]) / (nodes[1] - nodes[0]), 0, None) * d65
+    y = spectra_to_xyz(hats, g)[:, 1]
+    lit = (pixel_directions(32, 64)[..., 0] > 0)[..., None]
+    six = write_environment(tmp_path / "six.exr", EnvironmentMap((lit * y).astype(np.float32), hats / y[:, None], g,
+                                                                 source="six", white=d65))
+    w = make_window(qtbot, tmp_path)
+    p = w.preview
+    p.material.setCurrentText("urushi-red")
+    p.preset.setCurrentText("draft")
+    p.size.setCurrentText("160x120")
+    p.set_mesh(str(_sphere(tmp_path / "sphere.ply")))
+    qtbot.waitUntil(lambda: p.last_kind == "final" and not p._busy, timeout=120_000)
+    from app.gui.preview_panel import LIGHTINGS
+
+    p.lighting.setCurrentText(LIGHTINGS[2])
+    images = []
+    for probe in (_half_map(tmp_path / "half.exr"), six):
+        p.set_probe(str(probe))
+        _render(qtbot, p)
+        images.append(p.last["srgb8"].astype(float))
+    assert images[0].std() > 5
+    assert np.abs(images[1] - images[0]).max() <= 1.0
