@@ -54,9 +54,8 @@ def _render(qtbot, panel) -> None:
     qtbot.waitUntil(lambda: panel.last_kind == "final" and not panel._busy, timeout=120_000)
 
 
-def test_probe_and_sky_light_the_mesh_from_their_directions(qtbot, tmp_path):
-    from app.gui.preview_panel import LIGHTINGS
-
+def _preview_of_a_sphere(qtbot, tmp_path):
+    """The window's Preview tab showing a red-lacquer sphere, draft, 160 x 120, its first render done."""
     w = make_window(qtbot, tmp_path)
     p = w.preview
     p.material.setCurrentText("urushi-red")
@@ -64,6 +63,13 @@ def test_probe_and_sky_light_the_mesh_from_their_directions(qtbot, tmp_path):
     p.size.setCurrentText("160x120")
     p.set_mesh(str(_sphere(tmp_path / "sphere.ply")))
     qtbot.waitUntil(lambda: p.last_kind == "final" and not p._busy, timeout=120_000)
+    return p
+
+
+def test_probe_and_sky_light_the_mesh_from_their_directions(qtbot, tmp_path):
+    from app.gui.preview_panel import LIGHTINGS
+
+    p = _preview_of_a_sphere(qtbot, tmp_path)
     # no probe chosen yet: the panel says what to do instead of rendering something else
     p.lighting.setCurrentText(LIGHTINGS[2])
     p.request("final")
@@ -102,13 +108,7 @@ def test_a_probe_of_six_basis_spectra_lights_the_mesh_as_its_three_basis_twin(qt
     lit = (pixel_directions(32, 64)[..., 0] > 0)[..., None]
     six = write_environment(tmp_path / "six.exr", EnvironmentMap((lit * y).astype(np.float32), hats / y[:, None], g,
                                                                  source="six", white=d65))
-    w = make_window(qtbot, tmp_path)
-    p = w.preview
-    p.material.setCurrentText("urushi-red")
-    p.preset.setCurrentText("draft")
-    p.size.setCurrentText("160x120")
-    p.set_mesh(str(_sphere(tmp_path / "sphere.ply")))
-    qtbot.waitUntil(lambda: p.last_kind == "final" and not p._busy, timeout=120_000)
+    p = _preview_of_a_sphere(qtbot, tmp_path)
     from app.gui.preview_panel import LIGHTINGS
 
     p.lighting.setCurrentText(LIGHTINGS[2])
