@@ -68,7 +68,10 @@ class ProbeSpectralError(InputError):
 def _chart_white(chart_light: NDArray[np.float64], grid) -> NDArray[np.float64]:
     """The map's white: a white diffuser where the chart lay, ``E / pi`` scaled to luminance 1 (the map's unit)."""
     white = np.asarray(chart_light, dtype=np.float64) / math.pi
-    return white / float(spectra_to_xyz(white, grid)[1])
+    y = float(spectra_to_xyz(white, grid)[1])
+    if not y > 0:
+        raise ProbeSpectralError("the chart's light has no luminance; give its spectrum (e.g. D65, A or a CCT)")
+    return white / y
 
 
 def radiance_basis(fit, chart_light: ArrayLike) -> NDArray[np.float64]:
@@ -100,15 +103,12 @@ def radiance_basis(fit, chart_light: ArrayLike) -> NDArray[np.float64]:
     if e.shape != (fit.grid.size,) or not np.isfinite(e).all() or (e < 0).any():
         raise ProbeSpectralError(f"the chart's light must be {fit.grid.size} finite non-negative values on the "
                                  f"estimator's grid, got shape {e.shape}")
-    white = e / math.pi
-    y = float(spectra_to_xyz(white, fit.grid)[1])
-    if not y > 0:
-        raise ProbeSpectralError("the chart's light has no luminance; give its spectrum (e.g. D65, A or a CCT)")
+    white = _chart_white(e, fit.grid)
     m = np.asarray(fit.matrix, dtype=np.float64)
     if fit.transform is not None:
         m = np.asarray(fit.transform, dtype=np.float64) @ m
     reflectance = m @ np.asarray(fit.basis, dtype=np.float64).T          # (3, L) per unit camera value
-    return reflectance * (white / y)[None, :]
+    return reflectance * white[None, :]
 
 
 def probe_environment(rgb: ArrayLike, fit, chart_light: ArrayLike, *, source: str = "probe") -> EnvironmentMap:
@@ -139,7 +139,8 @@ def probe_environment(rgb: ArrayLike, fit, chart_light: ArrayLike, *, source: st
     """
     basis = radiance_basis(fit, chart_light)
     c = np.maximum(np.asarray(rgb, dtype=np.float32), 0.0)
-    return EnvironmentMap(c, basis, fit.grid, source=source, white=_chart_white(chart_light, fit.grid))
+    return EnvironmentMap(c, basis, fit.grid, source=source,
+                          white=_chart_white(np.asarray(chart_light, dtype=np.float64), fit.grid))
 
 
 def two_set_environment(rgb6: ArrayLike, fit, chart_light: ArrayLike, *, components: int = COMPONENTS,
@@ -181,15 +182,11 @@ def two_set_environment(rgb6: ArrayLike, fit, chart_light: ArrayLike, *, compone
     if x.ndim != 3 or x.shape[2] != 6 or fit.channels != 6:
         raise ProbeSpectralError(f"two bracket sets give six camera values per direction and a six-channel "
                                  f"estimator; got shape {x.shape} and {fit.channels} channels")
-    e = np.asarray(chart_light, dtype=np.float64)
-    white = e / math.pi
-    y = float(spectra_to_xyz(white, fit.grid)[1])
-    if not y > 0:
-        raise ProbeSpectralError("the chart's light has no luminance; give its spectrum (e.g. D65, A or a CCT)")
+    white = _chart_white(chart_light, fit.grid)
     h, w = x.shape[:2]
     flat = np.maximum(x.reshape(-1, 6), 0.0)
     radiance = np.maximum(fit.estimate_weights(flat).astype(np.float64) @ np.asarray(fit.basis, np.float64).T, 0.0)
-    radiance *= (white / y)[None, :]
+    radiance *= white[None, :]
     if weights is None:
         edges = np.pi * np.arange(h + 1) / h
         weights = np.broadcast_to((np.cos(edges[:-1]) - np.cos(edges[1:]))[:, None], (h, w))
@@ -207,5 +204,5 @@ def two_set_environment(rgb6: ArrayLike, fit, chart_light: ArrayLike, *, compone
     figures = {"components": int(len(basis)), "projection_dxy_p99": float(np.quantile(dxy, 0.99)) if lit.any() else 0.0,
                "projection_spectral_median": float(np.median(rel)) if lit.any() else 0.0}
     env = EnvironmentMap(coeff.reshape(h, w, len(basis)), basis, fit.grid, source=source,
-                         white=_chart_white(e, fit.grid))
+                         white=white)
     return env, figures
