@@ -30,12 +30,17 @@ import numpy as np
 from app.errors import UsageError
 from app.session_paths import UnsafeSessionPath, check_not_symlink, confined_file
 
-__all__ = ["process_session", "incomplete_warnings", "PRESETS", "MIN_PASS_POINTS", "MIN_STEPS_HINT"]
+__all__ = ["process_session", "incomplete_warnings", "PRESETS", "MIN_PASS_POINTS", "MIN_STEPS_HINT", "TURN_STEPS_HINT"]
 
 PRESETS = ("draft", "standard", "reference")
 #: Table steps per revolution below which a left-out pass is blamed on too sparse profiles (the simulated
 #: hawk's passes register from 60 steps, 6 deg apart; at 36 two of three were left out).
 MIN_STEPS_HINT = 60
+#: Steps per revolution suggested when a nearly symmetric pair's turn about its axis was too uncertain to
+#: verify: ``kogei capture``'s default.  The turn is held by the profiles that cross the distinguishing
+#: feature; on the simulated vase (a 1 mm boss) 11 of 21 pairs registered at 72 steps, 20 of 21 at 200
+#: (docs/processing.md, "Nearly symmetric shapes: the turn's uncertainty").
+TURN_STEPS_HINT = 200
 #: A pass with fewer usable points than this is skipped (it cannot be registered reliably).
 MIN_PASS_POINTS = 500
 REPORT = "products/process-report.json"
@@ -376,6 +381,10 @@ def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[st
         steps = plan.get("steps")
         denser = (f"capture again with at least {MIN_STEPS_HINT} steps per revolution (this session has {steps}); "
                   if isinstance(steps, int) and steps < MIN_STEPS_HINT else "")
+        if not denser and isinstance(steps, int) and steps < TURN_STEPS_HINT and _turn_uncertain(report):
+            denser = (f"capture again with at least {TURN_STEPS_HINT} steps per revolution (this session has "
+                      f"{steps}): a nearly symmetric object's turn about its axis is held by the profiles that cross "
+                      "its distinguishing feature; ")
         warnings.append(
             f"{len(left_out)} of {n} passes left out of the mesh ("
             + "; ".join(f"pass {p['pass']}: {str(p.get('skipped', 'not registered')).split(' (')[0]}"
@@ -388,6 +397,13 @@ def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[st
                         "capture more placements (--passes) that show the missing sides, or register the "
                         "left-out passes")
     return warnings
+
+
+def _turn_uncertain(report: dict[str, Any]) -> bool:
+    """Whether a pair of the report's registration was refused because its turn about a symmetry axis was uncertain."""
+    pairs = (report.get("registration") or {}).get("pairs") or []
+    return any("turn about the symmetry axis is uncertain" in str(p.get("reason", "")) for p in pairs
+               if isinstance(p, dict))
 
 
 def _report(root: Path, preset: str, manifest: dict[str, Any], passes: list[dict[str, Any]], reg: Any, surf: Any,

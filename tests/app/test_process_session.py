@@ -239,3 +239,33 @@ def test_batch_names_a_partial_mesh_in_its_summary(scans, tmp_path):
     # up to date on the next run, and still named
     again = process_one(str(session), ("geometry",), BatchOptions(preset="draft", calibration=str(scans.cal)))
     assert again.status == "skipped" and again.reason == result.reason
+
+
+def _turn_refused_report() -> dict:
+    """A report whose one pair registration refused because its colour-decided turn was uncertain."""
+    from processing.geometry.registration.pairwise import _turn_gate
+    from processing.geometry.registration.presets import PRESETS
+
+    verified, reason, bound = _turn_gate(None, None, None, None, 0.8, PRESETS["standard"], "colour", 1.0, (True, "ok"))
+    assert not verified and bound == pytest.approx(2.0)      # 2 sd of 1 deg > the 0.5 deg limit
+    return {"passes": [{"pass": 1, "registered": True}, {"pass": 2, "skipped": "not registered: " + reason}],
+            "mesh": {"watertight": True}, "registration": {"pairs": [{"reason": reason}]}}
+
+
+@pytest.mark.parametrize("steps, hint", [(72, True), (199, True), (200, False), (400, False)])
+def test_an_uncertain_turn_asks_for_the_default_profile_density(steps, hint):
+    from app.workflows.process_session import TURN_STEPS_HINT, incomplete_warnings
+
+    text = incomplete_warnings(_turn_refused_report(), {"steps": steps})[0]
+    assert ("capture again with at least 200 steps per revolution" in text) is hint, text
+    assert TURN_STEPS_HINT == CapturePlan("scan").steps        # kogei capture's default scan
+    if hint:
+        assert f"(this session has {steps})" in text and "distinguishing feature" in text
+
+
+def test_a_pair_refused_for_another_reason_gets_no_density_hint():
+    from app.workflows.process_session import incomplete_warnings
+
+    rep = _turn_refused_report()
+    rep["registration"]["pairs"] = [{"reason": "residual too large: 1.2 mm > 0.5 mm"}]
+    assert "200 steps" not in incomplete_warnings(rep, {"steps": 72})[0]

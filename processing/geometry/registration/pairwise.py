@@ -342,14 +342,15 @@ def _turn_gate(
     colour = decided_by == "colour"
     if not verdict[0] or not (colour or isinstance(sweep, tuple)):
         return verdict[0], verdict[1], math.nan
-    sd = colour_sd if colour or not isinstance(sweep, tuple) else _turn_spread(src, tgt, t, sweep[0], voxel, preset)[0]
+    sd = colour_sd if colour or not isinstance(sweep, tuple) else _turn_spread(src, tgt, t, sweep[0], voxel, preset, sweep[1])[0]
     bound = preset.turn_sigmas * sd
     if bound <= preset.max_turn_deg:
         return True, "ok", bound
     what = "the decoration's borders" if colour else "the distinguishing feature (a boss, a chip)"
     return False, (f"registered, but the turn about the symmetry axis is uncertain: +-{bound:.2f} deg "
                    f"({preset.turn_sigmas:g} sigma) > {preset.max_turn_deg:g} deg; not verified: scan more of "
-                   f"{what} in both passes, or pick points to register this pair"), bound
+                   f"{what} in both passes, with more profiles per revolution (the profiles that cross it hold the "
+                   f"turn), or pick points to register this pair"), bound
 
 
 #: Largest robust deviation (deg) of the normals from the meridian planes of a pair's axis for the

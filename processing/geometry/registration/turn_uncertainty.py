@@ -220,19 +220,26 @@ def _drop_near(points: NDArray[np.float64], normals: NDArray[np.float64], where:
 
 def _turn_spread(
     src: Any, tgt: Any, t: NDArray[np.float64], axis: NDArray[np.float64], voxel: float, preset: Any,
+    point: NDArray[np.float64] | None = None,
 ) -> tuple[float, float, tuple[float, ...]]:
     """The standard deviation (deg) of a refined pose's turn about ``axis``, the sandwich's part, the refits' turns.
 
-    Two parts, added in quadrature: the cluster-robust sandwich of the fit
+    Three parts, added in quadrature: the cluster-robust sandwich of the fit
     (:func:`rotation_covariance`, cells of three voxels), which covers the
-    range noise and residuals correlated within a cell; and the spread of
+    range noise and residuals correlated within a cell; the spread of
     the same fit made again from ``t`` in the other direction (target onto
     source), and in both directions on voxel grids offset by half a voxel
     (each cloud sampled at another phase, :func:`_shifted_level`), which covers what the sandwich cannot: the bias of a
-    feature sampled by few profiles and a turn left unconverged in a flat
-    basin.  The spread is the RMS of the refits' turns from ``t`` over
+    feature sampled by few profiles.  The spread is the RMS of the refits' turns from ``t`` over
     sqrt(2): a refit and ``t`` are two estimates of the turn, their
-    difference twice as variable as either.
+    difference twice as variable as either.  And the basin: the fit made
+    again from ``t`` turned by +- ``preset.max_turn_deg`` about the axis
+    (through ``point``, default the source's centre) on the offset grid;
+    where a feature holds the turn both refits return to ``t``, where none
+    does (a featureless or too shallow surface, whose voxel-sampled fit has
+    a local minimum wherever the grid puts one, and which the sandwich
+    credits with the normals' noise as information) they stay or wander,
+    and the larger of their distances from ``t`` is a turn the data allow.
     """
     from processing.geometry.registration.refinement import _icp
 
@@ -259,4 +266,21 @@ def _turn_spread(
     turns += [_about_axis_deg(fwd, t, axis), _about_axis_deg(bwd, t, axis)]
     # a refit and ``t`` are two estimates: their difference has twice the variance of either
     spread = math.sqrt(0.5 * float(np.mean(np.square(turns))))
-    return math.sqrt(sand * sand + spread * spread), sand, tuple(round(x, 4) for x in turns)
+    # the basin: refits from the tolerance's ends, on the offset grid, must come back to ``t``
+    centre = s_lvl.points.mean(axis=0) @ t[:3, :3].T + t[:3, 3] if point is None else np.asarray(point, np.float64)
+    ends = [_about_axis_deg(_icp(p, n, b, _turned_about(t, axis, centre, side * preset.max_turn_deg), dist,
+                                 kernel, min_cos, signed, iterations), t, axis) for side in (-1.0, 1.0)]
+    basin = max(abs(x) for x in ends)
+    sd = math.sqrt(sand * sand + spread * spread + basin * basin)
+    return sd, sand, tuple(round(x, 4) for x in turns + ends)
+
+
+def _turned_about(t: NDArray[np.float64], axis: NDArray[np.float64], point: NDArray[np.float64],
+                  angle_deg: float) -> NDArray[np.float64]:
+    """Pose ``t`` followed by a turn of ``angle_deg`` about ``axis`` through ``point`` (target frame)."""
+    from scipy.spatial.transform import Rotation
+
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec(math.radians(angle_deg) * np.asarray(axis, np.float64)).as_matrix()
+    turn[:3, 3] = point - turn[:3, :3] @ point
+    return turn @ t
