@@ -323,14 +323,16 @@ def colour_row(name: str, seed: int, offset_deg: float = 100.0, steps: int = STE
             "disagree_best": round(turn.disagree_best, 4), "disagree_second": round(turn.disagree_second, 4)}
 
 
-def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS) -> dict[str, Any]:
+def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
+                          frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """One placement pair of ``name`` registered automatically with the colours of its posed frames.
 
     Each pass is coloured from the station camera's frames every 30 deg as a session with a camera
     calibration colours it (:func:`mocks.pass_cloud.pass_posed_frames`, then
     :func:`processing.geometry.registration.photo_consistency.colour_points`: the pass's own points are
     the occluder), and :func:`processing.geometry.registration.register_pair` (``standard``) decides;
-    scored against the truth as :func:`pair_row`.
+    scored against the truth as :func:`pair_row`.  ``frame_size`` (width, height): the station camera
+    sampled finer than its 240 x 160 pixels.
     """
     from mocks.pass_cloud import pass_posed_frames, simulated_pass
     from mocks.world import World
@@ -339,8 +341,8 @@ def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS) -> dict[str,
 
     world = World.turned(name)
     a, b = simulated_pass(world, seed, 2, steps=steps), simulated_pass(world, seed, 3, steps=steps)
-    ca = colour_points(a.points, a.normals, *pass_posed_frames(world, a))
-    cb = colour_points(b.points, b.normals, *pass_posed_frames(world, b))
+    ca = colour_points(a.points, a.normals, *pass_posed_frames(world, a, frame_size=frame_size))
+    cb = colour_points(b.points, b.normals, *pass_posed_frames(world, b, frame_size=frame_size))
     res = register_pair(b.points, a.points, source_normals=b.normals, target_normals=a.normals, preset="standard",
                         seed=seed, source_colours=cb, target_colours=ca)
     truth = a.pose @ np.linalg.inv(b.pose)
@@ -353,28 +355,30 @@ def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS) -> dict[str,
             "rmse_mm": round(float(res.rmse_mm), 4), "seconds": round(res.seconds, 1), "reason": res.reason}
 
 
-def collect_seeds(seeds: list[int], objects: list[str], end_to_end: bool = False, steps: int = STEPS) -> dict[str, Any]:
+def collect_seeds(seeds: list[int], objects: list[str], end_to_end: bool = False, steps: int = STEPS,
+                  frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """:func:`pair_row` of each object at the given seeds (:func:`colour_end_to_end_row` of the plain bowl)."""
     rows = []
     for name in ["plain-bowl"] if end_to_end else objects:
         for seed in seeds:
             t0, c0 = time.perf_counter(), time.process_time()
-            r = colour_end_to_end_row(name, seed, steps) if end_to_end else pair_row(name, seed, steps=steps)
+            r = colour_end_to_end_row(name, seed, steps, frame_size) if end_to_end else pair_row(name, seed, steps=steps)
             r.update(wall_s=round(time.perf_counter() - t0, 1), cpu_s=round(time.process_time() - c0, 1),
                      load_1min=round(os.getloadavg()[0], 1))
             print(json.dumps(r), file=sys.stderr, flush=True)
             rows.append(r)
-    return {"machine": machine_description(), "steps": steps, "rows": rows}
+    return {"machine": machine_description(), "steps": steps, "frame_size": frame_size, "rows": rows}
 
 
-def collect_colour_end_to_end(pairs: int, steps: int = STEPS) -> dict[str, Any]:
+def collect_colour_end_to_end(pairs: int, steps: int = STEPS, frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """:func:`colour_end_to_end_row` for the plain bowl, seeds 0 .. pairs - 1."""
     rows = []
     for seed in range(pairs):
-        r = colour_end_to_end_row("plain-bowl", seed, steps)
+        r = colour_end_to_end_row("plain-bowl", seed, steps, frame_size)
         print(json.dumps(r), file=sys.stderr, flush=True)
         rows.append(r)
-    return {"machine": machine_description(), "pairs_per_object": pairs, "steps": steps, "rows": rows}
+    return {"machine": machine_description(), "pairs_per_object": pairs, "steps": steps, "frame_size": frame_size,
+            "rows": rows}
 
 
 def collect_colour(pairs: int, steps: int = STEPS) -> dict[str, Any]:
@@ -418,16 +422,20 @@ def main(argv: list[str] | None = None) -> None:
                     help="only the plain bowl registered automatically with colours from its posed frames")
     ap.add_argument("--steps", type=int, default=STEPS,
                     help=f"profiles per revolution of the simulated passes (default {STEPS}, kogei capture's default)")
+    ap.add_argument("--frame-size", type=lambda v: tuple(int(x) for x in v.lower().split("x")), default=None,
+                    metavar="WxH", help="with --colour-end-to-end: the station camera sampled at W x H pixels "
+                                        "(default its 240 x 160)")
     ap.add_argument("--seeds", type=lambda v: [int(x) for x in v.split(",")], default=None,
                     help="only these station seeds (comma-separated) of each --object, or of the plain bowl with "
                          "--colour-end-to-end; prints the rows")
     args = ap.parse_args(argv)
     n = 3 if args.quick else args.pairs
     if args.seeds is not None:
-        print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end, args.steps)))
+        print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end, args.steps,
+                                       args.frame_size)))
         return
     if args.colour_end_to_end:
-        print(json.dumps(collect_colour_end_to_end(n, args.steps)))
+        print(json.dumps(collect_colour_end_to_end(n, args.steps, args.frame_size)))
         return
     print(json.dumps(collect_colour(n, args.steps) if args.colour else collect(n, args.object, args.condition, args.steps)))
 

@@ -197,8 +197,8 @@ def pass_colour_views(world: Any, sim: SimulatedPass, table_angles_deg: Any = tu
     return colours, lamp, camera
 
 
-def pass_posed_frames(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30))
-                      ) -> tuple[list[Any], list[NDArray[np.float32]]]:
+def pass_posed_frames(world: Any, sim: SimulatedPass, table_angles_deg: Any = tuple(range(0, 360, 30)),
+                      frame_size: tuple[int, int] | None = None) -> tuple[list[Any], list[NDArray[np.float32]]]:
     """The station camera's frames of a pass, posed in the pass's frame, and their linear images.
 
     What a session with a camera and lamp calibration gives the registration
@@ -206,7 +206,9 @@ def pass_posed_frames(world: Any, sim: SimulatedPass, table_angles_deg: Any = tu
     :class:`processing.appearance.frame_poses.FramePose` (the camera's true
     intrinsics and pose, the lamp, the pass pose the identity) and the frame
     as ``(H, W, 3)`` band sums of its spectral radiance (600-700, 500-590,
-    400-490 nm), as :func:`pass_colour_views` reads them.  For
+    400-490 nm), as :func:`pass_colour_views` reads them (at the station's
+    240 x 160 pixels, or ``frame_size`` (width, height): the same camera
+    sampled finer).  For
     :func:`processing.geometry.registration.photo_consistency.colour_points`.
 
     Examples
@@ -223,7 +225,8 @@ def pass_posed_frames(world: Any, sim: SimulatedPass, table_angles_deg: Any = tu
     from mocks.world import station_world_settings
     from processing.appearance.frame_poses import FramePose
 
-    w = dataclasses.replace(world, pose=sim.pose, **station_world_settings())
+    size = {} if frame_size is None else {"width": int(frame_size[0]), "height": int(frame_size[1])}
+    w = dataclasses.replace(world, pose=sim.pose, **{**station_world_settings(), **size})
     wl = w.grid.wavelengths
     bands = [(wl >= lo) & (wl <= hi) for lo, hi in ((600, 700), (500, 590), (400, 490))]
     lamp = {"name": "lamp", **{k: v for k, v in w.lamp_truth().items() if k in ("position_mm", "direction")}}
