@@ -203,7 +203,8 @@ def section(r: dict[str, Any]) -> list[str]:
          for name in OBJECTS if any(x["object"] == name for x in r_rows)}
     cond = [x for x in r_rows if x["object"] == "vase" and x["feature_in_both"]]
     c_ok = sum(x["outcome"] == "registered" for x in cond)
-    c_other = {k: sum(x["outcome"] == k for x in cond) for k in ("verified-but-wrong", "ambiguous", "refused")}
+    c_other = {k: sum(x["outcome"] == k for x in cond) for k in ("verified-but-wrong", "turn uncertain", "ambiguous",
+                                                                 "refused")}
     c_ev = sorted(x["evidence_sigma"] for x in cond if x["evidence_sigma"] is not None)
     lines = [
         "## Nearly symmetric turned objects (registration by evidence)",
@@ -220,16 +221,17 @@ def section(r: dict[str, Any]) -> list[str]:
         "at least 5 sigma of evidence where the two poses differ "
         "([processing.md](processing.md#nearly-symmetric-shapes-evidence)).",
         "",
-        "| object | decided by | pairs | registered automatically | verified-but-wrong | ambiguous | refused otherwise "
-        "| best pose right (verified or not) | evidence (median, sigma) | s per pair (median) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| object | decided by | pairs | registered automatically | verified-but-wrong | turn uncertain | ambiguous "
+        "| refused otherwise | best pose right (verified or not) | evidence (median, sigma) | s per pair (median) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, what in OBJECTS.items():
         if name not in s:
             continue
         x = s[name]
         lines.append(f"| `{name}` | {what} | {x['pairs']} | {_pct(x['registered'], x['pairs'])} | "
-                     f"{x['verified-but-wrong']} | {_pct(x['ambiguous'], x['pairs'])} | {x['refused']} | "
+                     f"{x['verified-but-wrong']} | {x['turn uncertain']} | {_pct(x['ambiguous'], x['pairs'])} | "
+                     f"{x['refused']} | "
                      f"{x['best_pose_right']} | {x['evidence_sigma_median']} | {x['seconds_median']} |")
     v = s["vase"]
     wrong_all = sum(x["outcome"] == "verified-but-wrong" for x in r_rows)
@@ -249,7 +251,8 @@ def section(r: dict[str, Any]) -> list[str]:
         "",
         f"Targets: vase pairs meeting the condition >= 95 % registered automatically -- "
         f"**{'met' if cond and c_ok >= 0.95 * len(cond) else 'not met'}** ({_pct(c_ok, len(cond))}; "
-        f"{c_other['ambiguous']} ambiguous, {c_other['refused']} refused otherwise, "
+        f"{c_other['turn uncertain']} turn uncertain, {c_other['ambiguous']} ambiguous, "
+        f"{c_other['refused']} refused otherwise, "
         f"{c_other['verified-but-wrong']} verified-but-wrong; evidence "
         + (f"{c_ev[0]}-{c_ev[-1]} sigma, median {statistics.median(c_ev):.1f}" if c_ev else "-")
         + f"; of the first {v['pairs']} vase pairs {_pct(v['registered'], v['pairs'])}); "
@@ -257,7 +260,7 @@ def section(r: dict[str, Any]) -> list[str]:
         f"**{'met' if wrong_all == 0 else 'not met'}**"
         + (f"; plain bowl ambiguous in shape -- {_pct(plain['ambiguous'], plain['pairs'])}" if plain else "")
         + "; resolved by colour once posed frames exist (100 %) -- see "
-        "[end to end](#end-to-end-register_pair-with-the-colours-of-posed-frames) "
+        "[end to end](#end-to-end-registering-a-pair-with-the-colours-of-posed-frames) "
         "([processing.md](processing.md#colour-where-shape-is-silent)).",
         "",
         "Per vase pair meeting the condition (seed: outcome, evidence, feature's share of the overlap): "

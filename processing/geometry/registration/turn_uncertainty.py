@@ -230,16 +230,18 @@ def _turn_spread(
     the same fit made again from ``t`` in the other direction (target onto
     source), and in both directions on voxel grids offset by half a voxel
     (each cloud sampled at another phase, :func:`_shifted_level`), which covers what the sandwich cannot: the bias of a
-    feature sampled by few profiles.  The spread is the RMS of the refits' turns from ``t`` over
-    sqrt(2): a refit and ``t`` are two estimates of the turn, their
-    difference twice as variable as either.  And the basin: the fit made
+    feature sampled by few profiles.  And the basin: the fit made
     again from ``t`` turned by +- ``preset.max_turn_deg`` about the axis
     (through ``point``, default the source's centre) on the offset grid;
-    where a feature holds the turn both refits return to ``t``, where none
+    where a feature holds the turn both refits reach one minimum, where none
     does (a featureless or too shallow surface, whose voxel-sampled fit has
     a local minimum wherever the grid puts one, and which the sandwich
-    credits with the normals' noise as information) they stay or wander,
-    and the larger of their distances from ``t`` is a turn the data allow.
+    credits with the normals' noise as information) they stay or wander
+    apart, and half their distance is a turn the data allow.  The spread is
+    the RMS of all five refits' turns from ``t`` over sqrt(2): a refit and
+    ``t`` are two estimates of the turn, their difference twice as variable
+    as either (two refits from the ends that land together away from ``t``
+    count there).
     """
     from processing.geometry.registration.refinement import _icp
 
@@ -264,13 +266,13 @@ def _turn_spread(
     q, m = b.source_sample(preset.icp_points)
     bwd = np.linalg.inv(_icp(q, m, a, np.linalg.inv(t), dist, kernel, min_cos, signed, iterations))
     turns += [_about_axis_deg(fwd, t, axis), _about_axis_deg(bwd, t, axis)]
-    # a refit and ``t`` are two estimates: their difference has twice the variance of either
-    spread = math.sqrt(0.5 * float(np.mean(np.square(turns))))
-    # the basin: refits from the tolerance's ends, on the offset grid, must come back to ``t``
+    # the basin: refits from the tolerance's ends, on the offset grid, must reach one minimum
     centre = s_lvl.points.mean(axis=0) @ t[:3, :3].T + t[:3, 3] if point is None else np.asarray(point, np.float64)
     ends = [_about_axis_deg(_icp(p, n, b, _turned_about(t, axis, centre, side * preset.max_turn_deg), dist,
                                  kernel, min_cos, signed, iterations), t, axis) for side in (-1.0, 1.0)]
-    basin = max(abs(x) for x in ends)
+    basin = 0.5 * abs(ends[1] - ends[0])
+    # a refit and ``t`` are two estimates: their difference has twice the variance of either
+    spread = math.sqrt(0.5 * float(np.mean(np.square(turns + ends))))
     sd = math.sqrt(sand * sand + spread * spread + basin * basin)
     return sd, sand, tuple(round(x, 4) for x in turns + ends)
 
