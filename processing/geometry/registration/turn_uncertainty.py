@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.geometry.registration.cells import cell_labels
+from processing.geometry.registration.photo_consistency import _turned
 from processing.geometry.registration.pose_evidence import posed_nearest
 
 __all__ = ["position_cells", "rotation_covariance", "turn_sigma_deg"]
@@ -268,21 +269,12 @@ def _turn_spread(
     turns += [_about_axis_deg(fwd, t, axis), _about_axis_deg(bwd, t, axis)]
     # the basin: refits from the tolerance's ends, on the offset grid, must reach one minimum
     centre = s_lvl.points.mean(axis=0) @ t[:3, :3].T + t[:3, 3] if point is None else np.asarray(point, np.float64)
-    ends = [_about_axis_deg(_icp(p, n, b, _turned_about(t, axis, centre, side * preset.max_turn_deg), dist,
-                                 kernel, min_cos, signed, iterations), t, axis) for side in (-1.0, 1.0)]
+    starts = _turned(t, np.asarray(axis, np.float64), centre, np.radians([-preset.max_turn_deg, preset.max_turn_deg]))
+    ends = [_about_axis_deg(_icp(p, n, b, start, dist, kernel, min_cos, signed, iterations), t, axis)
+            for start in starts]
     basin = 0.5 * abs(ends[1] - ends[0])
     # a refit and ``t`` are two estimates: their difference has twice the variance of either
     spread = math.sqrt(0.5 * float(np.mean(np.square(turns + ends))))
     sd = math.sqrt(sand * sand + spread * spread + basin * basin)
     return sd, sand, tuple(round(x, 4) for x in turns + ends)
 
-
-def _turned_about(t: NDArray[np.float64], axis: NDArray[np.float64], point: NDArray[np.float64],
-                  angle_deg: float) -> NDArray[np.float64]:
-    """Pose ``t`` followed by a turn of ``angle_deg`` about ``axis`` through ``point`` (target frame)."""
-    from scipy.spatial.transform import Rotation
-
-    turn = np.eye(4)
-    turn[:3, :3] = Rotation.from_rotvec(math.radians(angle_deg) * np.asarray(axis, np.float64)).as_matrix()
-    turn[:3, 3] = point - turn[:3, :3] @ point
-    return turn @ t
