@@ -400,10 +400,13 @@ def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[st
 
 
 def _turn_uncertain(report: dict[str, Any]) -> bool:
-    """Whether a pair of the report's registration was refused because its turn about a symmetry axis was uncertain."""
+    """Whether a pair of the report's registration was refused because its turn about a symmetry axis was uncertain.
+
+    Such a pair alone is refused with a stated bound on its turn (``turn_uncertainty_deg``; None for the others).
+    """
     pairs = (report.get("registration") or {}).get("pairs") or []
-    return any("turn about the symmetry axis is uncertain" in str(p.get("reason", "")) for p in pairs
-               if isinstance(p, dict))
+    return any(isinstance(p, dict) and not p.get("verified") and isinstance(p.get("turn_uncertainty_deg"), (int, float))
+               for p in pairs)
 
 
 def _report(root: Path, preset: str, manifest: dict[str, Any], passes: list[dict[str, Any]], reg: Any, surf: Any,

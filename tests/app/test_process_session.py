@@ -249,7 +249,8 @@ def _turn_refused_report() -> dict:
     verified, reason, bound = _turn_gate(None, None, None, None, 0.8, PRESETS["standard"], "colour", 1.0, (True, "ok"))
     assert not verified and bound == pytest.approx(2.0)      # 2 sd of 1 deg > the 0.5 deg limit
     return {"passes": [{"pass": 1, "registered": True}, {"pass": 2, "skipped": "not registered: " + reason}],
-            "mesh": {"watertight": True}, "registration": {"pairs": [{"reason": reason}]}}
+            "mesh": {"watertight": True},
+            "registration": {"pairs": [{"verified": verified, "reason": reason, "turn_uncertainty_deg": bound}]}}
 
 
 @pytest.mark.parametrize("steps, hint", [(72, True), (199, True), (200, False), (400, False)])
@@ -267,5 +268,6 @@ def test_a_pair_refused_for_another_reason_gets_no_density_hint():
     from app.workflows.process_session import incomplete_warnings
 
     rep = _turn_refused_report()
-    rep["registration"]["pairs"] = [{"reason": "residual too large: 1.2 mm > 0.5 mm"}]
+    rep["registration"]["pairs"] = [{"verified": False, "reason": "residual too large: 1.2 mm > 0.5 mm",
+                                     "turn_uncertainty_deg": None}]
     assert "200 steps" not in incomplete_warnings(rep, {"steps": 72})[0]
