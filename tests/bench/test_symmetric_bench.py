@@ -1,0 +1,45 @@
+"""The symmetric-object benchmark's hidden-feature test, on synthetic passes of a known shape.
+
+A cylinder of the vase's belly radius (26 mm, the boss centred at azimuth 0 and 30 mm up, as
+:mod:`mocks.turned_objects` places it) is "scanned" as points at every azimuth, or with a band of
+azimuths missing; which turns can hide the boss follows from the band's geometry alone.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from bench.symmetric_bench import hidden_feature_turn
+
+
+def _cylinder(missing_deg: tuple[float, float] | None = None) -> SimpleNamespace:
+    az = np.radians(np.arange(0.0, 360.0, 0.25))
+    z = np.arange(10.0, 50.0, 0.5)
+    a, h = np.meshgrid(az, z)
+    pts = np.column_stack([26.0 * np.cos(a.ravel()), 26.0 * np.sin(a.ravel()), h.ravel()])
+    if missing_deg is not None:
+        deg = np.degrees(a.ravel())
+        pts = pts[(deg < missing_deg[0]) | (deg > missing_deg[1])]
+    return SimpleNamespace(points=pts, pose=np.eye(4))
+
+
+def test_a_fully_measured_belly_contradicts_every_turn():
+    assert hidden_feature_turn("vase", _cylinder(), _cylinder()) is None
+
+
+def test_a_turn_that_moves_both_bosses_into_unmeasured_bands_is_found():
+    # both passes miss azimuths 150-210 deg; the boss (about 9 deg of arc where it stands >= 0.5 mm)
+    # lands wholly inside the band for turns of about 160-200 deg in either direction
+    t = hidden_feature_turn("vase", _cylinder((150.0, 210.0)), _cylinder((150.0, 210.0)))
+    assert t is not None and 155.0 <= t <= 205.0
+
+
+def test_one_pass_measuring_the_landing_place_is_enough():
+    # the source misses the band, the target measured it: the source's boss, turned, lands on the target
+    assert hidden_feature_turn("vase", _cylinder(), _cylinder((150.0, 210.0))) is None
+
+
+def test_other_objects_have_no_boss():
+    assert hidden_feature_turn("plain-bowl", _cylinder(), _cylinder()) is None
