@@ -412,7 +412,8 @@ def symmetric_section() -> list[str]:
     """Nearly symmetric turned objects: automatic registration by evidence against the truth (bench/symmetric_bench.py)."""
     from bench.symmetric_bench import section
 
-    proc = subprocess.run([sys.executable, "-m", "bench.symmetric_bench", "--pairs", "5", "--condition", "20"],
+    proc = subprocess.run([sys.executable, "-m", "bench.symmetric_bench", "--pairs", "5", "--condition", "20",
+                           "--sessions"],
                           cwd=ROOT, capture_output=True, text=True, timeout=14400, check=True)
     return section(json.loads(proc.stdout.strip().splitlines()[-1]))
 

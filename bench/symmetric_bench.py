@@ -13,9 +13,11 @@ undetermined (a symmetric shape), *refused* for another reason.
 
 For the vase, further seeds are scanned until ``--condition`` pairs (default 20) meet the target's
 condition (:func:`feature_share`, from the truth, before registering), and only those further pairs are
-registered, so that the rate under the condition rests on enough pairs.
+registered, so that the rate under the condition rests on enough pairs.  With ``--sessions`` each of
+those seeds is also registered as a session of three placements, as ``kogei process`` registers a
+session (:func:`session_row`).
 
-Run ``python -m bench.symmetric_bench [--quick] [--pairs N] [--condition N]``; prints one JSON object (the
+Run ``python -m bench.symmetric_bench [--quick] [--pairs N] [--condition N] [--sessions]``; prints one JSON object (the
 last line).
 """
 
@@ -157,6 +159,47 @@ def pair_row(name: str, seed: int, scans: tuple[Any, Any] | None = None, steps: 
             "hidden_turn_deg": hidden_feature_turn(name, a, b) if feature else None}
 
 
+def session_row(name: str, seed: int, steps: int = STEPS, coloured: bool = False,
+                frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
+    """A session of three placements (1, 2, 3) of ``name`` at station seed ``seed``, registered as ``kogei process`` does.
+
+    Every pair is registered and the verified ones joined in a pose graph
+    (:func:`processing.geometry.registration.register_passes`, ``standard``); each pass's pose is scored
+    against the truth (right: within :data:`LIMIT_DEG` and :data:`LIMIT_MM` of ``pose_1 @ inv(pose_k)``).
+    Placement 1 is the object's base pose (upright), 2 and 3 the pair rows' placements.  With
+    ``coloured`` each pass is coloured from its posed frames as :func:`colour_end_to_end_row` colours
+    it (``frame_size``: the station camera sampled finer).
+    """
+    from mocks.pass_cloud import pass_posed_frames, simulated_pass
+    from mocks.world import World
+    from processing.geometry.registration import pose_difference, register_passes
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    world = World.turned(name)
+    c0 = time.process_time()
+    scans = [simulated_pass(world, seed, k, steps=steps) for k in (1, 2, 3)]
+    colours = ([colour_points(p.points, p.normals, *pass_posed_frames(world, p, frame_size=frame_size)) for p in scans]
+               if coloured else None)
+    res = register_passes([p.points for p in scans], [p.normals for p in scans], preset="standard", seed=seed,
+                          colours=colours)
+    passes_out = []
+    for k, pose in enumerate(res.poses):
+        if pose.transform is None:
+            passes_out.append({"placement": k + 1, "outcome": "not placed"})
+            continue
+        rot, disp = pose_difference(pose.transform, scans[0].pose @ np.linalg.inv(scans[k].pose), scans[k].points)
+        right = rot <= LIMIT_DEG and disp <= LIMIT_MM
+        passes_out.append({"placement": k + 1, "outcome": "right" if right else "wrong",
+                           "rotation_deg": round(float(rot), 3), "displacement_mm": round(float(disp), 3)})
+    pairs = [{"pair": f"{p.target + 1}-{p.source + 1}", "verified": bool(p.verified), "decided_by": p.decided_by,
+              "evidence_sigma": None if not np.isfinite(p.evidence_sigma) else round(float(p.evidence_sigma), 1)}
+             for p in res.pairs]
+    return {"object": name, "seed": seed, "coloured": coloured, "frame_size": frame_size, "passes": passes_out,
+            "pairs": pairs,
+            "all_right": all(x["outcome"] == "right" for x in passes_out),
+            "wrong": sum(x["outcome"] == "wrong" for x in passes_out), "cpu_s": round(time.process_time() - c0, 1)}
+
+
 def _outcome(res: Any, right: bool) -> str:
     """A pair's outcome against the truth (``right``: within the limits)."""
     if res.verified:
@@ -185,13 +228,15 @@ def _turn_figures(res: Any, a: Any, b: Any) -> dict[str, Any]:
 MAX_SEEDS = 400
 
 
-def collect(pairs: int, objects: list[str] | None = None, condition: int = 0, steps: int = STEPS) -> dict[str, Any]:
+def collect(pairs: int, objects: list[str] | None = None, condition: int = 0, steps: int = STEPS,
+            sessions: bool = False) -> dict[str, Any]:
     """Every object's ``pairs`` pairs (seeds 0 .. pairs - 1) and a summary per object.
 
     For the vase, further seeds are scanned until ``condition`` pairs in all meet the target's
     condition (:func:`feature_share`, from the truth, before registering); of those further seeds only
     the pairs that meet it are registered (``"extra": true``), the others are counted in
-    ``vase_seeds_scanned`` and ``vase_shares``.
+    ``vase_seeds_scanned`` and ``vase_shares``.  With ``sessions``, each vase seed whose pair meets the
+    condition is also registered as a session of three placements (:func:`session_row`, ``"sessions"``).
     """
     rows, summary = [], {}
     scanned, shares = 0, []
@@ -218,9 +263,15 @@ def collect(pairs: int, objects: list[str] | None = None, condition: int = 0, st
                     mine.append(r)
         rows += mine
         summary[name] = summarise(mine, name)
+    sess = []
+    for r in rows if sessions else []:
+        if r["object"] == "vase" and r["feature_in_both"]:
+            sess.append(session_row("vase", r["seed"], steps))
+            print(json.dumps(sess[-1]), file=sys.stderr, flush=True)
     return {"machine": machine_description(), "load_1min": round(os.getloadavg()[0], 1),
             "pairs_per_object": pairs, "condition_pairs": condition, "steps": steps,
-            "vase_seeds_scanned": scanned, "vase_shares": shares, "summary": summary, "rows": rows}
+            "vase_seeds_scanned": scanned, "vase_shares": shares, "summary": summary, "rows": rows,
+            **({"sessions": sess} if sessions else {})}
 
 
 def summarise(rows: list[dict[str, Any]], name: str) -> dict[str, Any]:
@@ -261,6 +312,33 @@ def _hidden_lines(cond: list[dict[str, Any]]) -> list[str]:
     ]
 
 
+def _session_lines(sessions: list[dict[str, Any]] | None, cond: list[dict[str, Any]]) -> list[str]:
+    """The paragraph on the condition seeds registered as sessions of three placements (none: no lines)."""
+    if not sessions:
+        return []
+    by_seed = {x["seed"]: x for x in cond}
+    ok = sum(x["all_right"] for x in sessions)
+    wrong = sum(x["wrong"] for x in sessions)
+    left = [x for x in sessions if by_seed.get(x["seed"], {}).get("outcome") != "registered"]
+    cpu = statistics.median(x["cpu_s"] for x in sessions)
+    rots = [p["rotation_deg"] for x in sessions for p in x["passes"] if "rotation_deg" in p]
+    return [
+        f"As sessions: each of the {len(sessions)} seeds whose pair meets the condition scanned in three placements "
+        "(1, the vase upright, and the pair's 2 and 3) and registered as `kogei process` does (every pair, the "
+        f"verified ones joined in a pose graph; `session_row`): all three passes right in {_pct(ok, len(sessions))} "
+        f"sessions, {wrong} pass(es) placed wrong"
+        + (f" (largest error {max(rots):.2f} deg)" if rots else "")
+        + ("; the seeds whose pair 2-3 was not registered above: "
+           + "; ".join(f"seed {x['seed']}: pairs "
+                       + ", ".join(f"{p['pair']} {'verified' if p['verified'] else 'not'} ({p['evidence_sigma']} sigma)"
+                                   for p in x["pairs"])
+                       + f", passes {'all right' if x['all_right'] else 'not all right'}"
+                       for x in left) if left else "")
+        + f".  {cpu:.0f} s of CPU per session (median).",
+        "",
+    ]
+
+
 def section(r: dict[str, Any]) -> list[str]:
     """The docs/BENCHMARKS.md section of a :func:`collect` result."""
     r_rows = r["rows"]
@@ -279,6 +357,7 @@ def section(r: dict[str, Any]) -> list[str]:
         f"`python -m bench.symmetric_bench --pairs {r['pairs_per_object']} --condition {r.get('condition_pairs', 0)}"
         + ("" if len(s) == len(OBJECTS) else "".join(f" --object {n}" for n in s))
         + ("" if r.get("steps", STEPS) == STEPS else f" --steps {r['steps']}")
+        + (" --sessions" if r.get("sessions") else "")
         + f"` ({r['machine']}).  Each object of "
         "`mocks/turned_objects.py` ([simulator.md](simulator.md#turned-objects)) in two random placements (2 and 3) "
         f"per station seed, scanned as the station does (`mocks/pass_cloud.py`: {r.get('steps', 72)} profiles per "
@@ -331,6 +410,7 @@ def section(r: dict[str, Any]) -> list[str]:
         "([processing.md](processing.md#colour-where-shape-is-silent)).",
         "",
         *_hidden_lines(cond),
+        *_session_lines(r.get("sessions"), cond),
         "Per vase pair meeting the condition (seed: outcome, evidence, feature's share of the overlap): "
         + "; ".join(f"{x['seed']}: {x['outcome']}, {x['evidence_sigma']} sigma, {100 * x['feature_share']:.2f} %"
                     + ("" if x["best_pose_right"] or x["outcome"] == "registered" else ", best pose wrong")
@@ -496,6 +576,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frame-size", type=lambda v: tuple(int(x) for x in v.lower().split("x")), default=None,
                     metavar="WxH", help="with --colour-end-to-end: the station camera sampled at W x H pixels "
                                         "(default its 240 x 160)")
+    ap.add_argument("--sessions", action="store_true",
+                    help="also register each vase seed meeting the condition as a session of three placements")
     ap.add_argument("--seeds", type=lambda v: [int(x) for x in v.split(",")], default=None,
                     help="only these station seeds (comma-separated) of each --object, or of the plain bowl with "
                          "--colour-end-to-end; prints the rows")
@@ -508,7 +590,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.colour_end_to_end:
         print(json.dumps(collect_colour_end_to_end(n, args.steps, args.frame_size)))
         return
-    print(json.dumps(collect_colour(n, args.steps) if args.colour else collect(n, args.object, args.condition, args.steps)))
+    print(json.dumps(collect_colour(n, args.steps) if args.colour else collect(n, args.object, args.condition, args.steps,
+                                                                                args.sessions)))
 
 
 if __name__ == "__main__":

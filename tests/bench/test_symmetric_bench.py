@@ -43,3 +43,30 @@ def test_one_pass_measuring_the_landing_place_is_enough():
 
 def test_other_objects_have_no_boss():
     assert hidden_feature_turn("plain-bowl", _cylinder(), _cylinder()) is None
+
+
+def _row(seed, outcome, hidden=None):
+    return {"object": "vase", "seed": seed, "outcome": outcome, "evidence_sigma": 1.0 if outcome != "registered" else 30.0,
+            "best_pose_right": True, "feature_share": 0.006, "feature_in_both": True, "seconds": 60.0,
+            "hidden_turn_deg": hidden}
+
+
+def test_the_section_states_hidden_turns_and_sessions_from_the_rows():
+    from bench.symmetric_bench import section
+
+    rows = [_row(0, "registered"), _row(1, "ambiguous", 170.0)]
+    sessions = [
+        {"seed": 0, "all_right": True, "wrong": 0, "cpu_s": 200.0, "passes": [],
+         "pairs": [{"pair": "1-2", "verified": True, "evidence_sigma": 20.0}]},
+        {"seed": 1, "all_right": False, "wrong": 1, "cpu_s": 220.0, "passes": [],
+         "pairs": [{"pair": "2-3", "verified": False, "evidence_sigma": 1.2}]},
+    ]
+    r = {"machine": "m", "pairs_per_object": 2, "condition_pairs": 2, "steps": 200, "rows": rows,
+         "sessions": sessions, "vase_seeds_scanned": 2}
+    text = "\n".join(section(r))
+    assert "in 1 of the 2 pairs meeting the condition" in text
+    assert "seed 1: 170 deg, ambiguous" in text
+    assert "Of the other 1 pairs 1/1 (100 %) were registered" in text
+    assert "all three passes right in 1/2 (50 %) sessions, 1 pass(es) placed wrong" in text
+    assert "seed 1: pairs 2-3 not (1.2 sigma), passes not all right" in text
+    assert "--sessions" in text
