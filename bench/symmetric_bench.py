@@ -507,13 +507,21 @@ def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
 
 
 def collect_seeds(seeds: list[int], objects: list[str], end_to_end: bool = False, steps: int = STEPS,
-                  frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
-    """:func:`pair_row` of each object at the given seeds (:func:`colour_end_to_end_row` of the plain bowl)."""
+                  frame_size: tuple[int, int] | None = None, sessions: bool = False) -> dict[str, Any]:
+    """:func:`pair_row` of each object at the given seeds (:func:`colour_end_to_end_row` of the plain bowl).
+
+    With ``sessions``: :func:`session_row` instead (coloured from posed frames with ``end_to_end``).
+    """
     rows = []
     for name in ["plain-bowl"] if end_to_end else objects:
         for seed in seeds:
             t0, c0 = time.perf_counter(), time.process_time()
-            r = colour_end_to_end_row(name, seed, steps, frame_size) if end_to_end else pair_row(name, seed, steps=steps)
+            if sessions:
+                r = session_row(name, seed, steps, coloured=end_to_end, frame_size=frame_size)
+            elif end_to_end:
+                r = colour_end_to_end_row(name, seed, steps, frame_size)
+            else:
+                r = pair_row(name, seed, steps=steps)
             r.update(wall_s=round(time.perf_counter() - t0, 1), cpu_s=round(time.process_time() - c0, 1),
                      load_1min=round(os.getloadavg()[0], 1))
             print(json.dumps(r), file=sys.stderr, flush=True)
@@ -577,7 +585,8 @@ def main(argv: list[str] | None = None) -> None:
                     metavar="WxH", help="with --colour-end-to-end: the station camera sampled at W x H pixels "
                                         "(default its 240 x 160)")
     ap.add_argument("--sessions", action="store_true",
-                    help="also register each vase seed meeting the condition as a session of three placements")
+                    help="also register each vase seed meeting the condition as a session of three placements "
+                         "(with --seeds: sessions of those seeds instead of pairs)")
     ap.add_argument("--seeds", type=lambda v: [int(x) for x in v.split(",")], default=None,
                     help="only these station seeds (comma-separated) of each --object, or of the plain bowl with "
                          "--colour-end-to-end; prints the rows")
@@ -585,7 +594,7 @@ def main(argv: list[str] | None = None) -> None:
     n = 3 if args.quick else args.pairs
     if args.seeds is not None:
         print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end, args.steps,
-                                       args.frame_size)))
+                                       args.frame_size, args.sessions)))
         return
     if args.colour_end_to_end:
         print(json.dumps(collect_colour_end_to_end(n, args.steps, args.frame_size)))
