@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import statistics
 import sys
@@ -107,6 +106,7 @@ def hidden_feature_turn(name: str, a: Any, b: Any, step_deg: float = 2.0, min_tu
         contradicted by some boss point); None for objects other than the vase.
     """
     from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
 
     from mocks.turned_objects import BOSS_HEIGHT_MM
 
@@ -120,8 +120,7 @@ def hidden_feature_turn(name: str, a: Any, b: Any, step_deg: float = 2.0, min_tu
     for t in turns:
         n = 0
         for obj, tree, (_, q, sign) in zip(objs, trees, moving):
-            c, s = math.cos(math.radians(sign * t)), math.sin(math.radians(sign * t))
-            turned = obj @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+            turned = obj @ Rotation.from_euler("z", sign * t, degrees=True).as_matrix().T
             d, _ = tree.query(turned @ q.pose[:3, :3].T + q.pose[:3, 3], distance_upper_bound=BOSS_HEIGHT_MM + 1.0)
             n += int(np.isfinite(d).sum())
         counts.append(n)
