@@ -79,12 +79,17 @@ def feature_share(name: str, a: Any, b: Any, partner_mm: float = 1.0) -> float:
     return min(shares)
 
 
+def _object_frame(p: Any) -> NDArray[np.float64]:
+    """A pass's points in the object's frame (from the truth)."""
+    return np.asarray((p.points - p.pose[:3, 3]) @ p.pose[:3, :3])
+
+
 def _on_boss(p: Any) -> NDArray[np.bool_]:
     """Which of a vase pass's points lie where the boss stands >= 10 x the range noise (from the truth)."""
     from mocks.turned_objects import BOSS_HEIGHT_MM, BOSS_SIGMA_MM
 
     radius = BOSS_SIGMA_MM * float(np.sqrt(2.0 * np.log(BOSS_HEIGHT_MM / (10.0 * NOISE_MM))))
-    obj = (p.points - p.pose[:3, 3]) @ p.pose[:3, :3]            # object frame
+    obj = _object_frame(p)
     arc = 26.0 * np.arctan2(obj[:, 1], obj[:, 0])
     return np.asarray(np.hypot(arc, obj[:, 2] - 30.0) < radius)
 
@@ -115,7 +120,7 @@ def hidden_feature_turn(name: str, a: Any, b: Any, step_deg: float = 2.0, min_tu
     counts = []
     turns = np.arange(min_turn_deg, 360.0 - min_turn_deg + 1e-9, step_deg)
     moving = [(b, a, 1.0), (a, b, -1.0)]
-    objs = [((p.points - p.pose[:3, 3]) @ p.pose[:3, :3])[_on_boss(p)] for p, _, _ in moving]
+    objs = [_object_frame(p)[_on_boss(p)] for p, _, _ in moving]
     trees = [cKDTree(q.points) for _, q, _ in moving]
     for t in turns:
         n = 0
@@ -158,6 +163,14 @@ def pair_row(name: str, seed: int, scans: tuple[Any, Any] | None = None, steps: 
             "hidden_turn_deg": hidden_feature_turn(name, a, b) if feature else None}
 
 
+def _posed_colours(world: Any, p: Any, frame_size: tuple[int, int] | None) -> Any:
+    """A pass's colours from its posed frames, as a session with a camera calibration colours it."""
+    from mocks.pass_cloud import pass_posed_frames
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    return colour_points(p.points, p.normals, *pass_posed_frames(world, p, frame_size=frame_size))
+
+
 def session_row(name: str, seed: int, steps: int = STEPS, coloured: bool = False,
                 frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """A session of three placements (1, 2, 3) of ``name`` at station seed ``seed``, registered as ``kogei process`` does.
@@ -169,16 +182,14 @@ def session_row(name: str, seed: int, steps: int = STEPS, coloured: bool = False
     ``coloured`` each pass is coloured from its posed frames as :func:`colour_end_to_end_row` colours
     it (``frame_size``: the station camera sampled finer).
     """
-    from mocks.pass_cloud import pass_posed_frames, simulated_pass
+    from mocks.pass_cloud import simulated_pass
     from mocks.world import World
     from processing.geometry.registration import pose_difference, register_passes
-    from processing.geometry.registration.photo_consistency import colour_points
 
     world = World.turned(name)
     c0 = time.process_time()
     scans = [simulated_pass(world, seed, k, steps=steps) for k in (1, 2, 3)]
-    colours = ([colour_points(p.points, p.normals, *pass_posed_frames(world, p, frame_size=frame_size)) for p in scans]
-               if coloured else None)
+    colours = [_posed_colours(world, p, frame_size) for p in scans] if coloured else None
     res = register_passes([p.points for p in scans], [p.normals for p in scans], preset="standard", seed=seed,
                           colours=colours)
     passes_out = []
@@ -484,15 +495,13 @@ def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
     scored against the truth as :func:`pair_row`.  ``frame_size`` (width, height): the station camera
     sampled finer than its 240 x 160 pixels.
     """
-    from mocks.pass_cloud import pass_posed_frames, simulated_pass
+    from mocks.pass_cloud import simulated_pass
     from mocks.world import World
     from processing.geometry.registration import pose_difference, register_pair
-    from processing.geometry.registration.photo_consistency import colour_points
 
     world = World.turned(name)
     a, b = simulated_pass(world, seed, 2, steps=steps), simulated_pass(world, seed, 3, steps=steps)
-    ca = colour_points(a.points, a.normals, *pass_posed_frames(world, a, frame_size=frame_size))
-    cb = colour_points(b.points, b.normals, *pass_posed_frames(world, b, frame_size=frame_size))
+    ca, cb = _posed_colours(world, a, frame_size), _posed_colours(world, b, frame_size)
     res = register_pair(b.points, a.points, source_normals=b.normals, target_normals=a.normals, preset="standard",
                         seed=seed, source_colours=cb, target_colours=ca)
     truth = a.pose @ np.linalg.inv(b.pose)
