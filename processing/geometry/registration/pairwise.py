@@ -18,6 +18,7 @@ from processing.geometry.registration.photo_consistency import (
     PointColours,
     colour_classes,
     revolution_axis,
+    sampling_turn_sd_deg,
     turn_by_colour,
 )
 from processing.geometry.registration.presets import RegistrationError, RegistrationPreset, registration_preset
@@ -347,10 +348,12 @@ def _turn_gate(
     if bound <= preset.max_turn_deg:
         return True, "ok", bound
     what = "the decoration's borders" if colour else "the distinguishing feature (a boss, a chip)"
+    finer = ("photograph the decoration with more pixels across it (the camera nearer or a longer lens: a "
+             "photo locates a border only to within its pixel), " if colour else "")
     return False, (f"registered, but the turn about the symmetry axis is uncertain: +-{bound:.2f} deg "
-                   f"({preset.turn_sigmas:g} sigma) > {preset.max_turn_deg:g} deg; not verified: scan more of "
-                   f"{what} in both passes, with more profiles per revolution (the profiles that cross it hold the "
-                   f"turn), or pick points to register this pair"), bound
+                   f"({preset.turn_sigmas:g} sigma) > {preset.max_turn_deg:g} deg; not verified: {finer}scan more "
+                   f"of {what} in both passes, with more profiles per revolution (the profiles that cross it hold "
+                   f"the turn), or pick points to register this pair"), bound
 
 
 #: Largest robust deviation (deg) of the normals from the meridian planes of a pair's axis for the
@@ -386,6 +389,9 @@ def _as_colours(c: PointColours | ArrayLike | None, n: int, name: str) -> PointC
         if v is not None and np.shape(v) != (n, 3):
             raise RegistrationError(f"{name}: {field} must be (N, 3) with one row per point ({n}), "
                                     f"got shape {np.shape(v)}")
+    if pc.pixel_mm is not None and np.shape(pc.pixel_mm) != (n,):
+        raise RegistrationError(f"{name}: pixel_mm must be (N,) with one value per point ({n}), "
+                                f"got shape {np.shape(pc.pixel_mm)}")
     return pc
 
 
@@ -416,7 +422,11 @@ def _turn_by_colour(
     if not turn.sigma >= preset.min_evidence:
         return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
                       f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
-    return (turn.transform, turn.second_deg, turn.sigma, turn.sigma_deg), ""
+    r, shift = turn.transform[:3, :3], turn.transform[:3, 3]
+    sampling = math.hypot(
+        sampling_turn_sd_deg(src.points, classes.source, cs, r.T @ axis[0], r.T @ (axis[1] - shift), reach),
+        sampling_turn_sd_deg(tgt.points, classes.target, ct, axis[0], axis[1], reach))
+    return (turn.transform, turn.second_deg, turn.sigma, math.hypot(turn.sigma_deg, sampling)), ""
 
 
 def _as_transform(t: ArrayLike, name: str) -> NDArray[np.float64]:
