@@ -335,7 +335,7 @@ def _turn_gate(
     Only a verified, nearly symmetric pair (colour decided its turn, or
     ``sweep`` is the weak axis it was swept about) is judged: the bound is
     ``turn_sigmas`` standard deviations of the turn about the axis, the
-    colour sweep's bootstrap ``colour_sd`` when colour decided it, else
+    colour turn's ``colour_sd`` (bootstrap and pixel sampling) when colour decided it, else
     :func:`~processing.geometry.registration.turn_uncertainty._turn_spread`
     about the sweep's axis at the finest level ``voxel``.  Other pairs keep
     their verdict, with a NaN bound.

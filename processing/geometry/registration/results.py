@@ -80,7 +80,8 @@ class PairResult:
         ``RegistrationPreset.turn_sigmas`` standard deviations (deg), from
         the fit's residuals and refits
         (:mod:`~processing.geometry.registration.turn_uncertainty`) or, when
-        colour decided the turn, from a bootstrap of its colour cells.  The
+        colour decided the turn, from a bootstrap of its colour cells and
+        the photos' pixel footprint at the colour borders.  The
         pair is verified only when it is at most ``max_turn_deg``.  NaN for
         other pairs.
     """
