@@ -385,6 +385,10 @@ def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[st
             denser = (f"capture again with at least {TURN_STEPS_HINT} steps per revolution (this session has "
                       f"{steps}): a nearly symmetric object's turn about its axis is held by the profiles that cross "
                       "its distinguishing feature; ")
+        if _turn_uncertain(report, by="colour"):
+            denser += ("photograph the object with more pixels across its decoration (the camera nearer or a longer "
+                       "lens): its colours decided a turn about the symmetry axis, and a photo places a colour border "
+                       "only to within its pixel; ")
         warnings.append(
             f"{len(left_out)} of {n} passes left out of the mesh ("
             + "; ".join(f"pass {p['pass']}: {str(p.get('skipped', 'not registered')).split(' (')[0]}"
@@ -399,14 +403,15 @@ def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[st
     return warnings
 
 
-def _turn_uncertain(report: dict[str, Any]) -> bool:
+def _turn_uncertain(report: dict[str, Any], by: str | None = None) -> bool:
     """Whether a pair of the report's registration was refused because its turn about a symmetry axis was uncertain.
 
     Such a pair alone is refused with a stated bound on its turn (``turn_uncertainty_deg``; None for the others).
+    With ``by`` ("shape" or "colour"), only a pair whose turn that evidence decided (``decided_by``) counts.
     """
     pairs = (report.get("registration") or {}).get("pairs") or []
     return any(isinstance(p, dict) and not p.get("verified") and isinstance(p.get("turn_uncertainty_deg"), (int, float))
-               for p in pairs)
+               and (by is None or p.get("decided_by") == by) for p in pairs)
 
 
 def _report(root: Path, preset: str, manifest: dict[str, Any], passes: list[dict[str, Any]], reg: Any, surf: Any,

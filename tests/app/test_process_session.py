@@ -250,7 +250,8 @@ def _turn_refused_report() -> dict:
     assert not verified and bound == pytest.approx(2.0)      # 2 sd of 1 deg > the 0.5 deg limit
     return {"passes": [{"pass": 1, "registered": True}, {"pass": 2, "skipped": "not registered: " + reason}],
             "mesh": {"watertight": True},
-            "registration": {"pairs": [{"verified": verified, "reason": reason, "turn_uncertainty_deg": bound}]}}
+            "registration": {"pairs": [{"verified": verified, "reason": reason, "turn_uncertainty_deg": bound,
+                                        "decided_by": "colour"}]}}
 
 
 @pytest.mark.parametrize("steps, hint", [(72, True), (199, True), (200, False), (400, False)])
@@ -262,6 +263,17 @@ def test_an_uncertain_turn_asks_for_the_default_profile_density(steps, hint):
     assert TURN_STEPS_HINT == CapturePlan("scan").steps        # kogei capture's default scan
     if hint:
         assert f"(this session has {steps})" in text and "distinguishing feature" in text
+
+
+def test_a_turn_colour_left_uncertain_asks_for_finer_photos():
+    # the photos' pixel limits a colour-decided turn (docs/processing.md); a shape-decided one is not helped by them
+    from app.workflows.process_session import incomplete_warnings
+
+    rep = _turn_refused_report()
+    text = incomplete_warnings(rep, {"steps": 200})[0]
+    assert "more pixels across its decoration" in text and "200 steps" not in text, text
+    rep["registration"]["pairs"][0]["decided_by"] = "shape"
+    assert "pixels" not in incomplete_warnings(rep, {"steps": 200})[0]
 
 
 def test_a_pair_refused_for_another_reason_gets_no_density_hint():
