@@ -17,8 +17,8 @@ from processing.geometry.registration.global_search import _global_search
 from processing.geometry.registration.photo_consistency import (
     PointColours,
     colour_classes,
+    colour_turn_sd_deg,
     revolution_axis,
-    sampling_turn_sd_deg,
     turn_by_colour,
 )
 from processing.geometry.registration.presets import RegistrationError, RegistrationPreset, registration_preset
@@ -422,11 +422,9 @@ def _turn_by_colour(
     if not turn.sigma >= preset.min_evidence:
         return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
                       f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
-    r, shift = turn.transform[:3, :3], turn.transform[:3, 3]
-    sampling = math.hypot(
-        sampling_turn_sd_deg(src.points, classes.source, cs, r.T @ axis[0], r.T @ (axis[1] - shift), reach),
-        sampling_turn_sd_deg(tgt.points, classes.target, ct, axis[0], axis[1], reach))
-    return (turn.transform, turn.second_deg, turn.sigma, math.hypot(turn.sigma_deg, sampling)), ""
+    sd = colour_turn_sd_deg(turn, src.points, classes.source, cs, tgt.points, classes.target, ct, axis[0], axis[1],
+                            reach)
+    return (turn.transform, turn.second_deg, turn.sigma, sd), ""
 
 
 def _as_transform(t: ArrayLike, name: str) -> NDArray[np.float64]:

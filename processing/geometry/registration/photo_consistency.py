@@ -26,7 +26,8 @@ from processing.geometry.registration.cells import cell_labels
 from processing.geometry.registration.clouds import SAME_FACE_DEG, query_workers
 from processing.geometry.registration.transforms import _rodrigues, transform_points
 
-__all__ = ["ColourClasses", "ColourTurn", "PointColours", "colour_classes", "colour_points", "label_evidence",
+__all__ = ["ColourClasses", "ColourTurn", "PointColours", "colour_classes", "colour_points", "colour_turn_sd_deg",
+           "label_evidence",
            "otsu_threshold", "revolution_axis", "sampling_turn_sd_deg", "turn_by_colour", "MIXED_SHARE"]
 
 #: Points whose chromaticity lies farther than this share of the way from both classes' means are left
@@ -680,6 +681,37 @@ def sampling_turn_sd_deg(points_mm: ArrayLike, labels: ArrayLike, colours: Point
     sin = np.sqrt(np.maximum(1.0 - np.einsum("ij,ij->i", tangent, view) ** 2, 0.0))
     footprint_deg = np.degrees(pixel[keep][border][ok] / np.maximum(sin, min_sin) / radius[ok])
     return float(np.median(footprint_deg)) / math.sqrt(12.0)
+
+
+def colour_turn_sd_deg(turn: ColourTurn, source_mm: ArrayLike, source_labels: ArrayLike, source: PointColours,
+                       target_mm: ArrayLike, target_labels: ArrayLike, target: PointColours, axis: ArrayLike,
+                       point_mm: ArrayLike, reach_mm: float) -> float:
+    """Standard deviation (deg) of a colour-decided turn: the borders' scatter and both clouds' photo sampling.
+
+    Parameters
+    ----------
+    turn
+        The turn (:func:`turn_by_colour`); its ``sigma_deg`` is the bootstrap's part.
+    source_mm, source_labels, source
+        The source cloud's points (mm, its own frame), colour classes and colours.
+    target_mm, target_labels, target
+        The same for the target.
+    axis, point_mm
+        The symmetry axis and a point on it, target frame (``turn.transform`` carries them to the source's).
+    reach_mm
+        The partner distance (:func:`sampling_turn_sd_deg`).
+
+    Returns
+    -------
+    float
+        ``hypot(turn.sigma_deg, source's sampling, target's sampling)`` (deg).
+    """
+    u = np.asarray(axis, dtype=np.float64)
+    c = np.asarray(point_mm, dtype=np.float64)
+    r, shift = turn.transform[:3, :3], turn.transform[:3, 3]
+    return math.hypot(turn.sigma_deg,
+                      sampling_turn_sd_deg(source_mm, source_labels, source, r.T @ u, r.T @ (c - shift), reach_mm),
+                      sampling_turn_sd_deg(target_mm, target_labels, target, u, c, reach_mm))
 
 
 def colour_points(
