@@ -379,21 +379,21 @@ def incomplete_warnings(report: dict[str, Any], plan: dict[str, Any]) -> list[st
     if left_out:
         n = len(report["passes"])
         steps = plan.get("steps")
-        denser = (f"capture again with at least {MIN_STEPS_HINT} steps per revolution (this session has {steps}); "
+        advice = (f"capture again with at least {MIN_STEPS_HINT} steps per revolution (this session has {steps}); "
                   if isinstance(steps, int) and steps < MIN_STEPS_HINT else "")
-        if not denser and isinstance(steps, int) and steps < TURN_STEPS_HINT and _turn_uncertain(report):
-            denser = (f"capture again with at least {TURN_STEPS_HINT} steps per revolution (this session has "
+        if not advice and isinstance(steps, int) and steps < TURN_STEPS_HINT and _turn_uncertain(report):
+            advice = (f"capture again with at least {TURN_STEPS_HINT} steps per revolution (this session has "
                       f"{steps}): a nearly symmetric object's turn about its axis is held by the profiles that cross "
                       "its distinguishing feature; ")
         if _turn_uncertain(report, by="colour"):
-            denser += ("photograph the object with more pixels across its decoration (the camera nearer or a longer "
+            advice += ("photograph the object with more pixels across its decoration (the camera nearer or a longer "
                        "lens): its colours decided a turn about the symmetry axis, and a photo places a colour border "
                        "only to within its pixel; ")
         warnings.append(
             f"{len(left_out)} of {n} passes left out of the mesh ("
             + "; ".join(f"pass {p['pass']}: {str(p.get('skipped', 'not registered')).split(' (')[0]}"
                         for p in left_out)
-            + f"); {denser}resume an incomplete pass with kogei capture --resume, re-place the object so each "
+            + f"); {advice}resume an incomplete pass with kogei capture --resume, re-place the object so each "
               "placement overlaps another by about a third, or register by hand (kogei gui, Processing tab, "
               "'Manual 3-point registration'; docs/processing.md)")
     if not report["mesh"]["watertight"]:

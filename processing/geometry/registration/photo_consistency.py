@@ -667,19 +667,19 @@ def sampling_turn_sd_deg(points_mm: ArrayLike, labels: ArrayLike, colours: Point
     pts, cls = p[keep], lab[keep]
     near = np.stack([np.isfinite(cKDTree(pts[cls == c]).query(pts, distance_upper_bound=2.0 * reach_mm)[0])
                      for c in (0, 1)], axis=1)
-    border = near[np.arange(len(cls)), 1 - cls]
+    at = np.flatnonzero(keep)[near[np.arange(len(cls)), 1 - cls]]       # the border points
     u = np.asarray(axis, dtype=np.float64)
     u = u / np.linalg.norm(u)
-    tangent = np.cross(u, pts[border] - np.asarray(point_mm, dtype=np.float64))
+    tangent = np.cross(u, p[at] - np.asarray(point_mm, dtype=np.float64))
     radius = np.linalg.norm(tangent, axis=1)
     ok = radius > 1e-9
     if not ok.any():
         return 0.0
-    tangent = tangent[ok] / radius[ok, None]
-    view = cam[keep][border][ok] - pts[border][ok]
+    at, tangent, radius = at[ok], tangent[ok] / radius[ok, None], radius[ok]
+    view = cam[at] - p[at]
     view /= np.maximum(np.linalg.norm(view, axis=1, keepdims=True), 1e-12)
     sin = np.sqrt(np.maximum(1.0 - np.einsum("ij,ij->i", tangent, view) ** 2, 0.0))
-    footprint_deg = np.degrees(pixel[keep][border][ok] / np.maximum(sin, min_sin) / radius[ok])
+    footprint_deg = np.degrees(pixel[at] / np.maximum(sin, min_sin) / radius)
     return float(np.median(footprint_deg)) / math.sqrt(12.0)
 
 
