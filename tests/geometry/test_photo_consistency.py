@@ -146,11 +146,15 @@ def test_colour_points_from_posed_frames_match_the_simulated_truth():
     # The simulation's own colouring (pass_colour_views) knows the mesh and casts rays against it;
     # colour_points sees only the pass's points.  Limits: a point the truth leaves uncoloured (hidden,
     # unlit, in a highlight or grazing in every frame) is coloured on at most 1 % of the points; at
-    # least 90 % of the points the truth colours are coloured; of those lit in both, the chromaticity
+    # least 85 % of the points the truth lights are coloured (measured 89 %: colour_points also leaves
+    # out what lies within the lens's spread of the outline, about 5 %, and, with a margin, what the
+    # cloud shades from the lamp, about 2 %; the truth colours both); of those lit in both, the chromaticity
     # r / (r + g + b) agrees within 0.05 (the motif's and the lacquer's differ by 0.3) on at least 98 %
-    # (bilinear against nearest-pixel sampling at the motif's borders; measured 99.4 %); black (in a
-    # cast shadow: the booth has no ambient light) in one and lit in the other on at most 4 % (a
-    # shadow's edge sampled by another frame or between pixels; measured 1.8 %).
+    # (bilinear against nearest-pixel sampling at the motif's borders; measured 99.4 %).  The truth
+    # takes each point from its most frontal frame even where the lamp's light is cast off (black: the
+    # booth has no ambient light); colour_points takes such a point from a frame that lights it, and is
+    # black itself (a shadow the cloud does not cast: its occluder was not scanned) on at most 2 % of
+    # its points (measured 1.2 %).
     from mocks.pass_cloud import pass_posed_frames
     from processing.geometry.registration.photo_consistency import colour_points
 
@@ -159,15 +163,15 @@ def test_colour_points_from_posed_frames_match_the_simulated_truth():
     pc = colour_points(a.points, a.normals, frames, images)
     mine, truth = np.isfinite(pc.colours).all(axis=1), np.isfinite(ca.colours).all(axis=1)
     assert np.mean(mine & ~truth) <= 0.01
-    assert np.sum(mine & truth) >= 0.9 * np.sum(truth)
+    lit_truth = truth & (np.nansum(ca.colours, axis=1) > 0)
+    assert np.sum(mine & lit_truth) >= 0.85 * np.sum(lit_truth)
     both = mine & truth
     s_mine, s_truth = pc.colours[both].sum(axis=1), ca.colours[both].sum(axis=1)
-    dark = (s_mine <= 0) & (s_truth <= 0)                     # in a cast shadow (the booth has no ambient light)
     lit = (s_mine > 0) & (s_truth > 0)
     r_mine = pc.colours[both, 0][lit] / s_mine[lit]
     r_truth = ca.colours[both, 0][lit] / s_truth[lit]
     assert np.mean(np.abs(r_mine - r_truth) <= 0.05) >= 0.98
-    assert np.sum(~dark & ~lit) <= 0.04 * np.sum(both)        # black in one, lit in the other: a shadow's edge
+    assert np.sum(np.nansum(pc.colours[mine], axis=1) <= 0) <= 0.02 * np.sum(mine)
     assert np.all(np.isfinite(pc.lamp_dirs[mine])) and np.all(np.isfinite(pc.camera_mm[mine]))
 
 
@@ -189,70 +193,71 @@ def test_colour_points_leave_a_hidden_surface_uncoloured():
     pc = colour_points(pts, nrm, [frame], [np.full((200, 200, 3), 0.5, np.float32)])
     seen = np.isfinite(pc.colours).all(axis=1)
     low = np.arange(len(pts)) >= len(upper)
-    assert seen[~low].all()
+    assert seen[~low & (np.abs(pts[:, 1]) < 8) & (pts[:, 0] > -8) & (pts[:, 0] < -1)].all()   # away from its outline
     assert not seen[low & (pts[:, 0] < -1.0)].any()          # under the upper sheet (a margin of 2 samples)
-    assert seen[low & (pts[:, 0] > 1.0)].all()
+    assert seen[low & (pts[:, 0] > 1.0) & (pts[:, 0] < 8.0) & (np.abs(pts[:, 1]) < 8)].all()
     # a pixel is depth / focal length on a surface facing the camera: 100 / 400 and 105 / 400 mm
-    assert np.allclose(pc.pixel_mm[~low], 0.25) and np.allclose(pc.pixel_mm[seen & low], 0.2625)
+    assert np.allclose(pc.pixel_mm[seen & ~low], 0.25) and np.allclose(pc.pixel_mm[seen & low], 0.2625)
     assert np.isnan(pc.pixel_mm[~seen]).all()
 
 
-def _painted_cylinder(view_from_deg: float, pixel_mm: float = 0.5):
-    # a 30 mm cylinder painted on one half, each point seen from 300 mm along a direction turned by
-    # view_from_deg from its outward normal toward the direction of the turn
-    from processing.geometry.registration.photo_consistency import PointColours as PC
-
-    phi = np.radians(np.arange(-180.0, 180.0, 0.5))
-    pp, zz = np.meshgrid(phi, np.arange(0.0, 10.0, 0.5))
-    pts = np.stack([30 * np.cos(pp.ravel()), 30 * np.sin(pp.ravel()), zz.ravel()], 1)
-    outward = pts * np.array([1.0, 1.0, 0.0]) / 30.0
-    tangent = np.cross([0.0, 0.0, 1.0], outward)
-    a = np.radians(view_from_deg)
-    view = np.cos(a) * outward + np.sin(a) * tangent
-    lab = (pp.ravel() > 0).astype(np.int8)
-    return pts, lab, PC(np.ones((len(pts), 3)), None, pts + 300.0 * view, np.full(len(pts), pixel_mm))
+def _striped_cylinder(n: int, shift_deg: float, seed: int):
+    # a 30 mm cylinder seen by four photos, one per quarter turn; each photo sees one painted stripe
+    # (half widths 10, 16, 22 and 6 deg, wavy along the axis); photo 0 places its stripe shift_deg off
+    rng = np.random.default_rng(seed)
+    phi, z = rng.uniform(-180.0, 180.0, n), rng.uniform(0.0, 20.0, n)
+    pts = np.stack([30 * np.cos(np.radians(phi)), 30 * np.sin(np.radians(phi)), z], 1)
+    photo = ((phi + 180.0) // 90.0).astype(np.int64)
+    centre = -135.0 + 90.0 * photo + np.where(photo == 0, shift_deg, 0.0)
+    half = np.array([10.0, 16.0, 22.0, 6.0])[photo] + 3.0 * np.sin(z / 3.0)
+    return pts, (np.abs(phi - centre) < half).astype(np.int8), photo
 
 
-def test_the_photos_sampling_of_a_border_is_a_pixel_over_sqrt_12():
-    # a pixel of 0.5 mm at 30 mm from the axis is 0.955 deg; uniform over it: sd 0.955 / sqrt(12) deg.
-    # Seen 60 deg off the normal toward the turn's direction a pixel covers twice the surface along it;
-    # the sd grows with the pixel and does not depend on where the border lies
-    from processing.geometry.registration.photo_consistency import PointColours as PC
-    from processing.geometry.registration.photo_consistency import sampling_turn_sd_deg
+def test_a_photo_that_shifts_its_borders_as_a_whole_is_seen_by_the_jackknife_over_photos():
+    # One of the source's four photos places its stripe 1 deg off: the turn moves by a fraction of that.
+    # Resampling cells cannot see it (all of that photo's cells move together: the bootstrap states
+    # a few hundredths of a degree, measured 0.04); leaving each photo out in turn can (measured 0.17
+    # deg, the error 0.23): the stated sd covers the error within 2 sd.  Without the shift the photos
+    # agree, and without photos there is no jackknife.
+    from processing.geometry.registration.photo_consistency import colour_turn_sd_deg
 
-    pixel_deg = np.degrees(0.5 / 30.0)
-    pts, lab, pc = _painted_cylinder(0.0)
-    assert sampling_turn_sd_deg(pts, lab, pc, [0, 0, 1], [0, 0, 0], 0.3) == pytest.approx(pixel_deg / 12 ** 0.5,
-                                                                                          rel=0.01)
-    pts, lab, pc = _painted_cylinder(60.0)
-    assert sampling_turn_sd_deg(pts, lab, pc, [0, 0, 1], [0, 0, 0], 0.3) == pytest.approx(2 * pixel_deg / 12 ** 0.5,
-                                                                                          rel=0.01)
-    pts, lab, pc = _painted_cylinder(0.0, pixel_mm=0.25)
-    assert sampling_turn_sd_deg(pts, lab, pc, [0, 0, 1], [0, 0, 0], 0.3) == pytest.approx(pixel_deg / 2 / 12 ** 0.5,
-                                                                                          rel=0.01)
-    # colours measured at the points themselves (no camera), one colour, or no labels: no sampling term
-    assert sampling_turn_sd_deg(pts, lab, PC(pc.colours), [0, 0, 1], [0, 0, 0], 0.3) == 0.0
-    assert sampling_turn_sd_deg(pts, np.zeros(len(pts), np.int8), pc, [0, 0, 1], [0, 0, 0], 0.3) == 0.0
-    assert sampling_turn_sd_deg(pts, np.full(len(pts), -1, np.int8), pc, [0, 0, 1], [0, 0, 0], 0.3) == 0.0
+    tp, tl, tg = _striped_cylinder(40000, 0.0, 1)
+    for shift, seed in ((0.0, 2), (1.0, 3)):
+        sp, sl, sg = _striped_cylinder(40000, shift, seed)
+        turn = turn_by_colour(sp, sl, tp, tl, np.eye(4), [0, 0, 1], [0, 0, 0], max_distance_mm=0.5, cell_mm=1.5,
+                              source_groups=sg, target_groups=tg)
+        assert turn.sigma >= MIN_SIGMA, turn
+        error = abs(turn.angle_deg)
+        if shift == 0.0:
+            assert error <= 0.05 and turn.group_sd_deg <= 0.05, turn
+        else:
+            assert 0.1 < error < shift and error > 3 * turn.sigma_deg, turn
+            assert error <= 2 * colour_turn_sd_deg(turn), (error, turn.sigma_deg, turn.group_sd_deg)
+    plain = turn_by_colour(sp, sl, tp, tl, np.eye(4), [0, 0, 1], [0, 0, 0], max_distance_mm=0.5, cell_mm=1.5)
+    assert np.isnan(plain.group_sd_deg) and colour_turn_sd_deg(plain) == plain.sigma_deg
 
 
 @pytest.mark.slow
-def test_the_turns_bound_covers_what_coarse_photos_leave_of_a_border():
-    # The station's 240 x 160 frames (a pixel about 0.5 mm on the table's axis).  Plain bowl seed 3,
-    # placements 1 (target) and 2: the colour turn is 0.35 deg off the truth (measured), while the
-    # bootstrap over cells alone states 0.11 deg (3.2 of its sd).  With each cloud's pixel footprint
-    # (colour_turn_sd_deg, as registration states it) the stated sd covers the error within 2 sd.
+def test_the_turns_bound_covers_an_error_the_cells_and_photos_alone_would_verify():
+    # Plain bowl seed 7, placements 2 (target) and 3, frames of 480 x 320: colour decides the turn at
+    # 5.1 sigma, 0.53 deg off the truth (measured; the benchmark's limit is 0.5 deg).  With the
+    # bootstrap over the evidence's 1 mm cells and the jackknife over the photos the stated sd was
+    # 0.21 deg, and the pair was verified 0.53 deg off.  The scan's profiles are about 1.4 mm apart
+    # and the points of two neighbouring profiles meet a border together: resampled in blocks of twice
+    # that gap the bootstrap states 0.27 deg and the sd 0.30 (colour_turn_sd_deg, as registration
+    # states it), so the error is within 2 sd and the pair is not verified (2 sd > 0.5 deg).
     from mocks.pass_cloud import pass_posed_frames
     from processing.geometry.registration.photo_consistency import (
         _median_spacing,
         colour_points,
         colour_turn_sd_deg,
+        photo_ids,
     )
 
     w = World.turned("plain-bowl")
-    a, b = simulated_pass(w, 3, 1, steps=200), simulated_pass(w, 3, 2, steps=200)
-    ca = colour_points(a.points, a.normals, *pass_posed_frames(w, a))
-    cb = colour_points(b.points, b.normals, *pass_posed_frames(w, b))
+    a, b = simulated_pass(w, 7, 2, steps=200), simulated_pass(w, 7, 3, steps=200)
+    ca = colour_points(a.points, a.normals, *pass_posed_frames(w, a, frame_size=(480, 320)))
+    cb = colour_points(b.points, b.normals, *pass_posed_frames(w, b, frame_size=(480, 320)))
     truth = a.pose @ np.linalg.inv(b.pose)
     axis, point = a.pose[:3, 2], a.pose[:3, 3]
     start = _turned(truth, axis, point, np.radians([100.0]))[0]
@@ -260,11 +265,125 @@ def test_the_turns_bound_covers_what_coarse_photos_leave_of_a_border():
     assert cl.usable, cl
     reach = max(_median_spacing(a.points), _median_spacing(b.points))     # as registration partners them
     turn = turn_by_colour(b.points, cl.source, a.points, cl.target, start, axis, point, max_distance_mm=reach,
-                          cell_mm=3 * reach, seed=3, source_normals=b.normals, target_normals=a.normals)
+                          cell_mm=3 * reach, seed=7, source_normals=b.normals, target_normals=a.normals,
+                          source_groups=photo_ids(cb), target_groups=photo_ids(ca))
     assert turn.sigma >= MIN_SIGMA, turn
     error_deg, _ = pose_difference(turn.transform, truth, b.points)
-    assert error_deg > 2 * turn.sigma_deg, (error_deg, turn.sigma_deg)     # the bootstrap alone does not cover it
-    sd = colour_turn_sd_deg(turn, b.points, cl.source, cb, a.points, cl.target, ca, axis, point, reach)
-    sampling = np.sqrt(sd ** 2 - turn.sigma_deg ** 2)
-    assert 0.2 < sampling < 0.5, sampling                    # about 0.8 deg of footprint per cloud, over sqrt(12)
-    assert error_deg <= 2 * sd, (error_deg, turn.sigma_deg, sd)
+    assert error_deg > 0.4, error_deg                        # the case: a turn far off for its evidence
+    sd = colour_turn_sd_deg(turn)
+    assert error_deg <= 2 * sd and 2 * sd > 0.5, (error_deg, turn.sigma_deg, turn.group_sd_deg)
+
+
+# ---------------------------------------------------------------------------
+# What a photo cannot say of a point: a cast shadow, the outline, a border blurred by the lens
+
+
+def _ground_and_wall():
+    # a 40 x 20 mm floor (x from -15 to 25 mm) and a 10 mm wall standing on it along x = 0, facing -x
+    xy = np.stack(np.meshgrid(np.arange(-15, 25.0, 0.5), np.arange(-10, 10.0, 0.5)), -1).reshape(-1, 2)
+    floor = np.column_stack([xy, np.zeros(len(xy))])
+    yz = np.stack(np.meshgrid(np.arange(-10, 10.0, 0.5), np.arange(0.5, 10.01, 0.5)), -1).reshape(-1, 2)
+    wall = np.column_stack([np.zeros(len(yz)), yz])
+    pts = np.concatenate([floor, wall])
+    nrm = np.concatenate([np.tile([0.0, 0.0, 1.0], (len(floor), 1)), np.tile([-1.0, 0.0, 0.0], (len(wall), 1))])
+    return pts, nrm, len(floor)
+
+
+def _above(name: str, lamp_to: list[float], size: int = 400):
+    # a camera 100 mm above (focal length 400 px: a pixel is 0.25 mm on the floor) and one distant lamp
+    from processing.appearance.frame_poses import FramePose, MeshLamp
+
+    cam = np.diag([1.0, -1.0, -1.0, 1.0])
+    cam[:3, 3] = [-5.0, 0.0, 100.0]
+    d = np.asarray(lamp_to, dtype=np.float64)
+    k = [[400.0, 0, size / 2], [0, 400.0, size / 2], [0, 0, 1]]
+    return FramePose(name, 1, 0.0, (size, size), k, np.zeros(5), cam, (MeshLamp("lamp", "distant", d / np.linalg.norm(d)),))
+
+
+def test_a_point_in_a_cast_shadow_takes_its_colour_from_a_frame_that_lights_it():
+    # Frame "low" is lit from -x at 45 deg: the wall's shadow covers the floor from x = 0 to 10 mm
+    # (geometry).  Frame "high" is lit from above.  Both photos see the floor equally frontally, so
+    # the first ("low", red) colours what it lights and the second ("high", green) only the shadow.
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    pts, nrm, n_floor = _ground_and_wall()
+    low, high = _above("low", [-1.0, 0.0, 1.0]), _above("high", [0.0, 1.0, 1.0])
+    red = np.full((400, 400, 3), [0.6, 0.1, 0.1], np.float32)
+    green = np.full((400, 400, 3), [0.1, 0.6, 0.1], np.float32)
+    pc = colour_points(pts, nrm, [low, high], [red, green])
+    floor = np.arange(len(pts)) < n_floor
+    inner = floor & (np.abs(pts[:, 1]) < 8.0)                        # away from the floor's long edges
+    # the shadow test bins the points in cells of two spacings and looks at 3 x 3 of them: within 1.5 mm
+    # of the wall's foot the wall stands between the floor and either lamp, and 1.5 mm past the shadow
+    shadow = inner & (pts[:, 0] > 2.0) & (pts[:, 0] < 9.0)
+    # lit by "low": beside the shadow, beyond the same margin (and beyond the floor the wall hides from the camera)
+    lit = inner & (((pts[:, 0] < -3.0) & (pts[:, 0] > -13.0)) | ((pts[:, 0] > 12.0) & (pts[:, 0] < 23.0)))
+    assert shadow.sum() > 400 and lit.sum() > 1000
+    assert np.all(pc.colours[shadow, 1] > 0.5), "a shadowed point was coloured by the frame whose lamp it cannot see"
+    assert np.all(pc.colours[lit, 0] > 0.5)
+    assert np.all(pc.lamp_dirs[shadow, 0] < 0.3) and np.all(pc.lamp_dirs[lit, 0] < -0.6)
+
+
+def test_the_outline_of_the_object_is_left_uncoloured():
+    # The lens spreads a pixel over its neighbours (blur_px, 3 px): within that reach of the floor's
+    # outline the photo mixes the floor with the background, 0.75 mm here.  Points within half of it
+    # are never coloured; points 10 pixels (2.5 mm) inside always are.
+    from processing.geometry.registration.photo_consistency import colour_points
+
+    pts, nrm, n_floor = _ground_and_wall()
+    pc = colour_points(pts[:n_floor], nrm[:n_floor], [_above("high", [0.0, 1.0, 1.0])],
+                       [np.full((400, 400, 3), 0.5, np.float32)])
+    x, y = pts[:n_floor, 0], pts[:n_floor, 1]
+    to_outline = np.minimum.reduce([x + 15.0, 24.5 - x, y + 10.0, 9.5 - y])
+    seen = np.isfinite(pc.colours).all(axis=1)
+    assert not seen[to_outline < 0.375].any()
+    assert seen[to_outline > 2.5].all()
+
+
+def test_a_border_blurred_by_the_lens_is_placed_where_the_pigments_meet():
+    # A red floor with a black band 4 mm wide, photographed with 0.5 mm pixels through a lens of
+    # 1 pixel (Gaussian sd), under a light that dims by 3 % per mm along x.  Each pixel integrates
+    # the albedo over its width; each point takes its colour by linear interpolation between pixels.
+    # A threshold on chromaticity puts the band's edges where the mixed colour's chromaticity is
+    # halfway, which lies well inside the black (black returns 30 x less light): the band shrinks.
+    # (measured: 0.85 mm inside at both edges).  Unmixing the two local colours places each edge within
+    # 0.15 mm (0.3 pixel; the points are 0.1 mm apart) of the truth (measured: 0.0 and 0.1 mm).
+    from scipy.ndimage import gaussian_filter1d
+
+    from processing.geometry.registration.photo_consistency import PointColours as PC
+
+    left, right, pixel = 0.3, 4.3, 0.5                        # the band's edges (mm) fall inside pixels
+    red, black = np.array([0.6, 0.1, 0.1]), np.array([0.02, 0.02, 0.02])
+    fine = np.arange(-10.0, 14.0, 0.005)                       # the albedo at 5 um, integrated per pixel
+    albedo = np.where(((fine >= left) & (fine < right))[:, None], black, red) * (1.0 - 0.03 * fine)[:, None]
+    per_px = albedo.reshape(-1, 100, 3).mean(axis=1)           # 100 samples of 5 um per 0.5 mm pixel
+    image = gaussian_filter1d(per_px, 1.0, axis=0, mode="nearest")
+    centres = -10.0 + pixel * (np.arange(len(image)) + 0.5)
+    xs = np.arange(-8.0, 12.0, 0.1)
+    rows = np.arange(0.0, 3.0, 0.5)
+    xx, yy = np.meshgrid(xs, rows)
+    pts = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
+    rgb = np.column_stack([np.interp(pts[:, 0], centres, image[:, c]) for c in range(3)])
+    rgb *= 1.0 + np.random.default_rng(0).normal(0.0, 0.002, rgb.shape)   # photon noise, 0.2 %
+    pc = PC(rgb, None, np.tile([0.0, 0.0, 100.0], (len(pts), 1)), np.full(len(pts), pixel))
+    cl = colour_classes(pts, pc, pts, pc)
+    assert cl.usable, cl.why
+    band = 1 if np.mean(cl.source[(pts[:, 0] > 1.5) & (pts[:, 0] < 3.0)]) > 0.5 else 0
+
+    def edges(inside, outside):
+        # per row: halfway between the last point outside the band and the first inside, at each edge
+        out = []
+        for y in rows:
+            row = pts[:, 1] == y
+            x_in, x_out = pts[row & inside, 0], pts[row & outside, 0]
+            first, last = x_in.min(), x_in.max()
+            out.append((0.5 * (x_out[x_out < first].max() + first), 0.5 * (last + x_out[x_out > last].min())))
+        return np.median(np.array(out), axis=0)
+
+    # the premise: chromaticity's halfway point lies more than 0.3 mm inside the band at both edges
+    chroma = rgb[:, 0] / rgb.sum(axis=1)
+    half = 0.5 * (red[0] / red.sum() + black[0] / black.sum())
+    by_chroma = edges(chroma < half, chroma >= half)
+    assert by_chroma[0] > left + 0.3 and by_chroma[1] < right - 0.3, by_chroma
+    by_unmixing = edges(cl.source == band, cl.source == 1 - band)
+    assert abs(by_unmixing[0] - left) <= 0.15 and abs(by_unmixing[1] - right) <= 0.15, by_unmixing

@@ -18,6 +18,7 @@ from processing.geometry.registration.photo_consistency import (
     PointColours,
     colour_classes,
     colour_turn_sd_deg,
+    photo_ids,
     revolution_axis,
     turn_by_colour,
 )
@@ -409,7 +410,8 @@ def _turn_by_colour(
     5.8 to 12.3 sigma of evidence; one spacing: within 0.42 deg).  Evidence
     cells are three times the partner distance.  Returns
     ``((pose, second_deg, sigma, turn_sd_deg), note)``, the last the
-    bootstrap standard deviation of the turn (``ColourTurn.sigma_deg``).
+    turn's standard deviation (:func:`colour_turn_sd_deg`: the cells'
+    bootstrap and the jackknife over the photos that coloured the points).
     """
     classes = colour_classes(src.points, cs, tgt.points, ct, source_normals=src.normals,
                              target_normals=tgt.normals)
@@ -418,12 +420,12 @@ def _turn_by_colour(
     reach = max(src.spacing, tgt.spacing)
     turn = turn_by_colour(src.points, classes.source, tgt.points, classes.target, t, axis[0], axis[1],
                           max_distance_mm=reach, cell_mm=3.0 * reach, distinct_deg=preset.distinct_deg, seed=seed,
-                          source_normals=src.normals, target_normals=tgt.normals)
+                          source_normals=src.normals, target_normals=tgt.normals,
+                          source_groups=photo_ids(cs), target_groups=photo_ids(ct))
     if not turn.sigma >= preset.min_evidence:
         return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
                       f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
-    sd = colour_turn_sd_deg(turn, src.points, classes.source, cs, tgt.points, classes.target, ct, axis[0], axis[1],
-                            reach)
+    sd = colour_turn_sd_deg(turn)
     return (turn.transform, turn.second_deg, turn.sigma, sd), ""
 
 

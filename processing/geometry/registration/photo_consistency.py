@@ -14,6 +14,7 @@ See docs/processing.md, section "Colour where shape is silent".
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -27,8 +28,8 @@ from processing.geometry.registration.clouds import SAME_FACE_DEG, query_workers
 from processing.geometry.registration.transforms import _rodrigues, transform_points
 
 __all__ = ["ColourClasses", "ColourTurn", "PointColours", "colour_classes", "colour_points", "colour_turn_sd_deg",
-           "label_evidence",
-           "otsu_threshold", "revolution_axis", "sampling_turn_sd_deg", "turn_by_colour", "MIXED_SHARE"]
+           "label_evidence", "photo_ids",
+           "otsu_threshold", "revolution_axis", "turn_by_colour", "MIXED_SHARE"]
 
 #: Points whose chromaticity lies farther than this share of the way from both classes' means are left
 #: unlabelled: the camera's lens mixes the two pigments along a motif's edge, and because chromaticity weighs
@@ -53,8 +54,8 @@ class PointColours:
     pixel_mm
         Optional ``(N,)`` the side of that photo's pixel on a surface facing
         the camera at the point (mm: its depth over the focal length in
-        pixels); with ``camera_mm`` it states how finely the photos locate a
-        border between colours (:func:`sampling_turn_sd_deg`).
+        pixels); it sets how far around a point the two colours of a border
+        are sought (:func:`colour_classes`).
     """
 
     colours: NDArray[np.float64]
@@ -118,7 +119,14 @@ class ColourTurn:
         Cells and points the evidence rests on.
     sigma_deg
         Standard deviation of the turn (deg): the spread of the fine sweep's
-        vertex over bootstrap resamples of its cells (:func:`_bootstrap_vertex`).
+        vertex over bootstrap resamples of blocks of points
+        (:func:`_bootstrap_vertex`), blocks of ``cell_mm`` or twice the
+        gap between a scan's profiles (:func:`_sampling_gap`), the wider.
+    group_sd_deg
+        The jackknife standard deviation of that vertex over the photos that
+        coloured the points (:func:`_jackknife_vertex`): one photo places a
+        whole stretch of border, so its errors move together, which the
+        cells' resampling cannot see.  NaN when the photos were not given.
     """
 
     transform: NDArray[np.float64]
@@ -130,6 +138,7 @@ class ColourTurn:
     cells: int
     points: int
     sigma_deg: float = math.nan
+    group_sd_deg: float = math.nan
 
 
 def otsu_threshold(values: ArrayLike, bins: int = 256) -> tuple[float, float]:
@@ -309,8 +318,80 @@ def colour_classes(
     if frac < min_minority:
         return none(f"the second colour covers {frac:.2%} of a cloud's coloured points (< {min_minority:.1%})",
                     thr, eta, gap, frac)
+    ls = _unmix_borders(sp, source, oks, ls, mixed_share, sn)
+    lt = _unmix_borders(tp, target, okt, lt, mixed_share, tn)
     return ColourClasses(ls, lt, thr, eta, gap, frac, True, "")
 
+
+def _unmix_borders(points: NDArray[np.float64], pc: PointColours, trusted: NDArray[np.bool_],
+                   label: NDArray[np.int8], mixed_share: float, normals: NDArray[np.float64] | None, *,
+                   radius_px: float = 6.0, min_each: int = 3, neighbours: int = 96) -> NDArray[np.int8]:
+    """``label`` with the points near a border between classes re-decided by their share of the two local colours.
+
+    A photo seen through a lens colours a point near a border with a mix of
+    the two pigments, ``s (a C1 + (1 - a) C0)``: ``a`` the share of the
+    light the pixel gathers from pigment 1, ``s`` the shading.  Its
+    chromaticity weighs the brighter pigment more, so a threshold on it
+    moves the border into the darker one; the linear colour does not.  Each
+    colour is divided by the cosine of its lamp (with normals and lamps:
+    neighbours coloured by photos taken at other table angles are then
+    comparable), and the point is projected on the segment between its two
+    *ends*: the median colours of the purer half of each class's points
+    within ``radius_px`` of its photo's pixels (at least two spacings to the
+    eighth neighbour, so that each class has points across the scan's
+    profiles); ``a`` is where the projection falls.  Points with ``a``
+    farther than ``mixed_share`` of the way from both ends are left
+    unlabelled (-1); points without ``min_each`` points of each class
+    around keep their label.
+    """
+    rgb = np.asarray(pc.colours, dtype=np.float64)
+    if normals is not None and pc.lamp_dirs is not None:
+        with np.errstate(invalid="ignore"):
+            rgb = rgb / np.maximum(np.einsum("ij,ij->i", normals, pc.lamp_dirs), 0.2)[:, None]
+    core = np.flatnonzero(trusted & (label >= 0))
+    if not (np.any(label[core] == 0) and np.any(label[core] == 1)):
+        return label
+    floor = 2.0 * _median_spacing(points[core], 8)
+    pixel = np.asarray(pc.pixel_mm, dtype=np.float64) if pc.pixel_mm is not None else np.full(len(points), np.nan)
+    radius = np.where(np.isfinite(pixel), np.maximum(radius_px * pixel, floor), floor)
+    # the points within reach of both classes
+    cand = np.flatnonzero(trusted)
+    reach = float(radius[cand].max())
+    close = np.ones(len(cand), dtype=bool)
+    for c in (0, 1):
+        d, _ = cKDTree(points[core[label[core] == c]]).query(points[cand], distance_upper_bound=reach,
+                                                              workers=query_workers(len(cand)))
+        close &= d <= radius[cand]
+    cand = cand[close]
+    if not len(cand):
+        return label
+    k = min(neighbours, len(core))
+    d, j = cKDTree(points[core]).query(points[cand], k=k, distance_upper_bound=reach,
+                                       workers=query_workers(len(cand)))
+    d, j = d.reshape(len(cand), k), j.reshape(len(cand), k)
+    nb = core[np.minimum(j, len(core) - 1)]                        # (C, k) indices into the cloud
+    masks = [(d <= radius[cand, None]) & (label[nb] == c) for c in (0, 1)]
+    enough = (masks[0].sum(axis=1) >= min_each) & (masks[1].sum(axis=1) >= min_each)
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)     # a point without neighbours of a class: NaN, dropped
+        ends = [np.nanmedian(np.where(m[..., None], rgb[nb], np.nan), axis=1) for m in masks]
+        # the lens mixes each class's points next to the border too: each end is the median of the purer
+        # half of its class's neighbours (those farther from the other end)
+        seg = ends[1] - ends[0]
+        nb_share = np.einsum("ckj,cj->ck", rgb[nb] - ends[0][:, None], seg) / np.einsum("ij,ij->i", seg, seg)[:, None]
+        for c, m in enumerate(masks):
+            mid = np.nanmedian(np.where(m, nb_share, np.nan), axis=1, keepdims=True)
+            purer = m & ((nb_share <= mid) if c == 0 else (nb_share >= mid))
+            ends[c] = np.nanmedian(np.where(purer[..., None], rgb[nb], np.nan), axis=1)
+        seg = ends[1] - ends[0]
+        a = np.einsum("ij,ij->i", rgb[cand] - ends[0], seg) / np.einsum("ij,ij->i", seg, seg)
+    a[~enough] = np.nan
+    fit = np.isfinite(a)
+    out = label.copy()
+    new = np.where(a > 0.5, 1, 0).astype(np.int8)
+    new[(a > mixed_share) & (a < 1.0 - mixed_share)] = -1
+    out[cand[fit]] = new[fit]
+    return out
 
 def label_evidence(disagree_a: ArrayLike, disagree_b: ArrayLike, positions_mm: ArrayLike,
                    cell_mm: float) -> tuple[float, int, int]:
@@ -443,6 +524,7 @@ def turn_by_colour(
     transform: ArrayLike, axis: ArrayLike, point_mm: ArrayLike, *, max_distance_mm: float, cell_mm: float,
     distinct_deg: float = 8.0, coarse_deg: float = 2.0, fine_deg: float = 0.1, max_points: int = 4000,
     seed: int = 0, source_normals: ArrayLike | None = None, target_normals: ArrayLike | None = None,
+    source_groups: ArrayLike | None = None, target_groups: ArrayLike | None = None,
 ) -> ColourTurn:
     """The turn of ``transform`` about a symmetry axis that makes the clouds' colour classes agree best.
 
@@ -477,6 +559,10 @@ def turn_by_colour(
         a nearest point whose normal is more than
         :data:`~processing.geometry.registration.clouds.SAME_FACE_DEG` from
         the other point's is then no partner (the other face of a thin wall).
+    source_groups, target_groups
+        Optional ``(N,)`` and ``(M,)`` integers: the photo that coloured
+        each point (:func:`photo_ids`); with both, the turn's spread over
+        leaving out one photo at a time (``ColourTurn.group_sd_deg``).
 
     Returns
     -------
@@ -541,8 +627,10 @@ def turn_by_colour(
     cost = costs(coarse)
     a0 = float(coarse[int(np.argmin(cost))])
     # fine: every labelled point of both clouds; the vertex of a V fitted to the cost, which grows with
-    # the points a border moves over, is steadier than the noisy minimum of a few border points
-    fine = a0 + np.arange(-coarse_deg, coarse_deg + 1e-9, fine_deg)
+    # the points a border moves over, is steadier than the noisy minimum of a few border points.  The V
+    # is fitted over +-coarse_deg about its own vertex (the window moved until it settles): a window
+    # off-centre weighs one side's slope more and pulls the vertex toward it.
+    fine = a0 + np.arange(-coarse_deg - 1.0, coarse_deg + 1.0 + 1e-9, fine_deg)
     fposes = _turned(t0, u, c, np.radians(fine))
     tk = lt_all >= 0
     back_tree = cKDTree(src_all)
@@ -550,9 +638,26 @@ def turn_by_colour(
     both = np.concatenate([_disagreement(src_all, ls_all, tree, lt_all, fposes, max_distance_mm, fwd),
                            _disagreement(tgt_all[tk], lt_all[tk], back_tree, ls_all, np.linalg.inv(fposes),
                                          max_distance_mm, bwd)], axis=1)
-    best = _v_vertex(fine, np.nansum(both, axis=1))
+    total = np.nansum(both, axis=1)
+    centre = a0
+    for _ in range(4):
+        win = np.abs(fine - centre) <= coarse_deg + 1e-9
+        best = _v_vertex(fine[win], total[win])
+        moved = float(np.clip(round((best - a0) / fine_deg) * fine_deg, -1.0, 1.0)) + a0
+        if abs(moved - centre) < 0.5 * fine_deg:
+            break
+        centre = moved
     at = np.concatenate([transform_points(_turned(t0, u, c, np.radians([a0]))[0], src_all), tgt_all[tk]])
-    sd = _bootstrap_vertex(fine, both, at, cell_mm, seed)
+    # blocks wider than the gap between a scan's profiles: the points of two neighbouring profiles meet a
+    # border at one phase of the profiles, so their errors go together
+    block = max(cell_mm, 2.0 * _sampling_gap(src_all), 2.0 * _sampling_gap(tgt_all))
+    sd = _bootstrap_vertex(fine[win], both[win], at, block, seed)
+    group_sd = math.nan
+    if source_groups is not None and target_groups is not None:
+        sg = np.asarray(source_groups, dtype=np.int64)
+        tg = np.asarray(target_groups, dtype=np.int64)[tk]
+        groups = np.concatenate([sg[keep], np.where(tg >= 0, tg + 1 + int(np.max(sg, initial=0)), -1)])
+        group_sd = _jackknife_vertex(fine[win], both[win], groups)
     away = np.abs((coarse - best + 180.0) % 360.0 - 180.0) >= distinct_deg
     second = float(coarse[away][int(np.argmin(cost[away]))]) if away.any() else best
     poses = _turned(t0, u, c, np.radians([best, second]))
@@ -566,7 +671,7 @@ def turn_by_colour(
     wrapped = (best + 180.0) % 360.0 - 180.0
     return ColourTurn(poses[0], wrapped, z, abs((second - best + 180.0) % 360.0 - 180.0),
                       float(np.nanmean(da)) if np.isfinite(da).any() else math.nan,
-                      float(np.nanmean(db)) if np.isfinite(db).any() else math.nan, cells, points, sd)
+                      float(np.nanmean(db)) if np.isfinite(db).any() else math.nan, cells, points, sd, group_sd)
 
 
 def _bootstrap_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.float64], positions_mm: NDArray[np.float64],
@@ -596,127 +701,91 @@ def _bootstrap_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.floa
     return float(np.std(best))
 
 
-def sampling_turn_sd_deg(points_mm: ArrayLike, labels: ArrayLike, colours: PointColours, axis: ArrayLike,
-                          point_mm: ArrayLike, reach_mm: float, *, min_sin: float = 0.2) -> float:
-    """Standard deviation (deg) of a turn about an axis that the photos' pixels leave in one cloud's colour borders.
-
-    A photo places a border between two colours only to within its pixel:
-    where inside the pixel the border falls does not show, and the same
-    frame colours every point of a stretch of border, so the cells'
-    bootstrap (:func:`_bootstrap_vertex`) cannot see the shift.  Taken as
-    uniform over the pixel's footprint along the turn's direction, it is
-    ``footprint / sqrt(12)``, here the median over the cloud's border
-    points of the footprint as an angle about the axis.
+def photo_ids(colours: PointColours) -> NDArray[np.int64]:
+    """``(N,)`` the index of the photo that coloured each point, told apart by the camera's centre; -1 for none.
 
     Parameters
     ----------
-    points_mm
-        ``(N, 3)`` the cloud's points (mm), in the frame of ``axis``.
-    labels
-        ``(N,)`` colour classes, -1 unknown (:func:`colour_classes`).
     colours
-        The cloud's :class:`PointColours`; without ``pixel_mm`` and
-        ``camera_mm`` the colours are taken as measured at the points
-        themselves and the answer is 0.
-    axis, point_mm
-        The symmetry axis (direction) and a point on it, the cloud's frame.
-    reach_mm
-        A border point has a point of the other class within twice this (mm).
-    min_sin
-        Smallest sine between the turn's direction and the view (a view
-        along the turn's direction stretches a pixel without bound; the
-        colours' own ``min_cos`` keeps it above 0.2).
+        A cloud's colours; without ``camera_mm`` the photos are unknown.
 
     Returns
     -------
-    float
-        The standard deviation (deg); 0 without pixel sizes or border points.
-
-    References
-    ----------
-    .. [1] Sheppard, W. F. (1897). On the calculation of the most probable
-       values of frequency-constants, for data arranged according to
-       equidistant divisions of a scale. Proceedings of the London
-       Mathematical Society 29, 353-380. doi:10.1112/plms/s1-29.1.353
+    numpy.ndarray
+        Integers from 0, -1 where a point has no colour or its photo is unknown.
 
     Examples
     --------
-    A cylinder of radius 30 mm painted on one half, each point seen face on
-    from 300 mm by a camera of focal length 600 px (a pixel is 0.5 mm on
-    the surface, 0.955 deg about the axis):
-
-    >>> phi = np.radians(np.arange(-180.0, 180.0, 0.5))
-    >>> z = np.arange(0.0, 10.0, 0.5)
-    >>> pp, zz = np.meshgrid(phi, z)
-    >>> pts = np.stack([30 * np.cos(pp.ravel()), 30 * np.sin(pp.ravel()), zz.ravel()], 1)
-    >>> lab = (pp.ravel() > 0).astype(np.int8)
-    >>> out = pts * np.array([1.0, 1.0, 0.0]) / 30.0
-    >>> pc = PointColours(np.ones((len(pts), 3)), None, pts + 300.0 * out, np.full(len(pts), 0.5))
-    >>> round(sampling_turn_sd_deg(pts, lab, pc, [0, 0, 1], [0, 0, 0], 0.3), 3)
-    0.276
+    >>> pc = PointColours(np.ones((4, 3)), None, np.array([[0, 0, 9.0], [1, 0, 9], [0, 0, 9], [np.nan] * 3]))
+    >>> photo_ids(pc).tolist()
+    [0, 1, 0, -1]
     """
-    if colours.pixel_mm is None or colours.camera_mm is None:
-        return 0.0
-    p = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
-    lab = np.asarray(labels).ravel()
-    pixel = np.asarray(colours.pixel_mm, dtype=np.float64).ravel()
+    rgb = np.asarray(colours.colours, dtype=np.float64).reshape(-1, 3)
+    seen = np.all(np.isfinite(rgb), axis=1)
+    out = np.full(len(rgb), -1, dtype=np.int64)
+    if colours.camera_mm is None:
+        return out
     cam = np.asarray(colours.camera_mm, dtype=np.float64).reshape(-1, 3)
-    keep = (lab >= 0) & np.isfinite(pixel) & np.all(np.isfinite(cam), axis=1)
-    if not (np.any(lab[keep] == 0) and np.any(lab[keep] == 1)):
-        return 0.0
-    pts, cls = p[keep], lab[keep]
-    near = np.stack([np.isfinite(cKDTree(pts[cls == c]).query(pts, distance_upper_bound=2.0 * reach_mm)[0])
-                     for c in (0, 1)], axis=1)
-    at = np.flatnonzero(keep)[near[np.arange(len(cls)), 1 - cls]]       # the border points
-    u = np.asarray(axis, dtype=np.float64)
-    u = u / np.linalg.norm(u)
-    tangent = np.cross(u, p[at] - np.asarray(point_mm, dtype=np.float64))
-    radius = np.linalg.norm(tangent, axis=1)
-    ok = radius > 1e-9
-    if not ok.any():
-        return 0.0
-    at, tangent, radius = at[ok], tangent[ok] / radius[ok, None], radius[ok]
-    view = cam[at] - p[at]
-    view /= np.maximum(np.linalg.norm(view, axis=1, keepdims=True), 1e-12)
-    sin = np.sqrt(np.maximum(1.0 - np.einsum("ij,ij->i", tangent, view) ** 2, 0.0))
-    footprint_deg = np.degrees(pixel[at] / np.maximum(sin, min_sin) / radius)
-    return float(np.median(footprint_deg)) / math.sqrt(12.0)
+    seen &= np.all(np.isfinite(cam), axis=1)
+    if seen.any():
+        _, inverse = np.unique(np.round(cam[seen], 6), axis=0, return_inverse=True)
+        out[seen] = inverse.ravel()
+    return out
 
 
-def colour_turn_sd_deg(turn: ColourTurn, source_mm: ArrayLike, source_labels: ArrayLike, source: PointColours,
-                       target_mm: ArrayLike, target_labels: ArrayLike, target: PointColours, axis: ArrayLike,
-                       point_mm: ArrayLike, reach_mm: float) -> float:
-    """Standard deviation (deg) of a colour-decided turn: the borders' scatter and both clouds' photo sampling.
+def _jackknife_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.float64], groups: NDArray[np.int64]) -> float:
+    """Jackknife standard deviation (deg) of :func:`_v_vertex` of the summed ``(K, N)`` disagreements over ``groups``.
+
+    Each group that holds a disagreement under some turn (a photo whose
+    points meet a border) is left out in turn; ``sqrt((g - 1) / g * sum
+    (v_i - mean v)^2)`` over the ``g`` vertices (Quenouille 1956,
+    doi:10.1093/biomet/43.3-4.353).  Points of group -1 (unknown) are
+    never left out.  0 with fewer than two such groups.
+    """
+    d = np.nan_to_num(disagree)
+    total = d.sum(axis=1)
+    ids, inverse = np.unique(groups, return_inverse=True)
+    per = np.zeros((len(ids), len(angles_deg)))
+    np.add.at(per, inverse.ravel(), d.T)
+    per = per[(ids >= 0) & (per.sum(axis=1) > 0)]
+    if len(per) < 2:
+        return 0.0
+    v = np.array([_v_vertex(angles_deg, total - row) for row in per])
+    return float(math.sqrt((len(v) - 1) / len(v) * np.sum((v - v.mean()) ** 2)))
+
+
+def colour_turn_sd_deg(turn: ColourTurn) -> float:
+    """Standard deviation (deg) of a colour-decided turn: the borders' scatter and the photos' shifts, in quadrature.
 
     Parameters
     ----------
     turn
-        The turn (:func:`turn_by_colour`); its ``sigma_deg`` is the bootstrap's part.
-    source_mm, source_labels, source
-        The source cloud's points (mm, its own frame), colour classes and colours.
-    target_mm, target_labels, target
-        The same for the target.
-    axis, point_mm
-        The symmetry axis and a point on it, target frame (``turn.transform`` carries them to the source's).
-    reach_mm
-        The partner distance (:func:`sampling_turn_sd_deg`).
+        The turn (:func:`turn_by_colour`): its ``sigma_deg``, the blocks'
+        bootstrap, sees errors that differ from one stretch of border to the
+        next; its ``group_sd_deg``, the jackknife over the photos that
+        coloured the points, sees errors that a photo shares over all the
+        border it coloured (its pixels' phase on the border, its blur, its
+        shading, its pose).
 
     Returns
     -------
     float
-        ``hypot(turn.sigma_deg, source's sampling, target's sampling)`` (deg).
+        ``hypot(sigma_deg, group_sd_deg)`` (deg); the bootstrap alone
+        without the photos (``group_sd_deg`` NaN).
+
+    Examples
+    --------
+    >>> t = ColourTurn(np.eye(4), 0.0, 9.0, 30.0, 0.01, 0.2, 50, 4000, 0.06, 0.08)
+    >>> round(colour_turn_sd_deg(t), 3)
+    0.1
     """
-    u = np.asarray(axis, dtype=np.float64)
-    c = np.asarray(point_mm, dtype=np.float64)
-    r, shift = turn.transform[:3, :3], turn.transform[:3, 3]
-    return math.hypot(turn.sigma_deg,
-                      sampling_turn_sd_deg(source_mm, source_labels, source, r.T @ u, r.T @ (c - shift), reach_mm),
-                      sampling_turn_sd_deg(target_mm, target_labels, target, u, c, reach_mm))
+    group = turn.group_sd_deg if math.isfinite(turn.group_sd_deg) else 0.0
+    return math.hypot(turn.sigma_deg, group)
 
 
 def colour_points(
     points_mm: ArrayLike, normals: ArrayLike, frames: Sequence[Any], images: Sequence[Any], *,
-    min_cos: float = 0.2, highlight_deg: float = 30.0, cell_px: float | None = None,
+    min_cos: float = 0.2, highlight_deg: float = 30.0, cell_px: float | None = None, blur_px: float = 3.0,
 ) -> PointColours:
     """Colours of a pass's points from its posed frames: each point from the frame that sees it most frontally.
 
@@ -733,7 +802,16 @@ def colour_points(
     cell's 3 x 3 neighbourhood is the surface's, and a point deeper than it
     by more than a sample spacing plus three spacings times the tangent of
     its view angle is hidden.  There is no mesh yet when passes are
-    registered; the cloud itself is the occluder.
+    registered; the cloud itself is the occluder, of the lamp too: seen from
+    the lamp the same way (a distant lamp along its direction, a point lamp
+    from its position; cells of two spacings), a point that a nearer point
+    shades is in a cast shadow, which shows the room's light and not the
+    lamp's, and that frame does not colour it.  Nor does a frame colour a
+    point within ``blur_px`` pixels of the cloud's outline in its image (the
+    lens mixes the colour with the background's): an empty cell in the
+    frame's image, cells no finer than the spacing to a point's eighth
+    neighbour (the gap between the scan's profiles), marks the outline.
+    Another frame that lights and sees such a point may colour it.
 
     Parameters
     ----------
@@ -745,7 +823,7 @@ def colour_points(
     images
         ``images[k]``: linear ``(H, W, 3)`` image of ``frames[k]`` (a lazy
         sequence is read one frame at a time).
-    min_cos, highlight_deg, cell_px
+    min_cos, highlight_deg, cell_px, blur_px
         See above.
 
     Returns
@@ -775,8 +853,12 @@ def colour_points(
     >>> f = FramePose("f", 1, 0.0, (100, 100), k, np.zeros(5), cam, (MeshLamp("lamp", "distant", [0.6, 0, 0.8]),))
     >>> img = np.full((100, 100, 3), 0.5, np.float32); img[:, :50] = [0.8, 0.1, 0.1]
     >>> pc = colour_points(pts, nrm, [f], [img])
-    >>> bool(np.all(pc.colours[pts[:, 0] < -1, 0] > 0.7)), bool(np.all(pc.colours[pts[:, 0] > 1, 1] > 0.45))
+    >>> seen = np.isfinite(pc.colours[:, 0])
+    >>> bool(np.all(pc.colours[seen & (pts[:, 0] < -1), 0] > 0.7)), bool(np.all(pc.colours[seen & (pts[:, 0] > 1), 1] > 0.45))
     (True, True)
+    >>> rim = (xy.min(axis=1) == -10) | (xy.max(axis=1) == 9)                # the plane's outline
+    >>> bool(seen[np.abs(xy).max(axis=1) < 6].all()), bool(seen[rim].any())
+    (True, False)
     """
     from processing.appearance.frame_poses import AppearanceError
     from processing.appearance.observations import bilinear
@@ -788,6 +870,7 @@ def colour_points(
         raise AppearanceError(f"colour_points: points {p.shape} and normals {n.shape} must both be (N, 3)")
     n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     spacing = _median_spacing(p)
+    gap = _sampling_gap(p)
     colours = np.full((len(p), 3), np.nan)
     lamp_dirs = np.full((len(p), 3), np.nan)
     camera = np.full((len(p), 3), np.nan)
@@ -810,6 +893,10 @@ def colour_points(
             cos_l = cos_l_all[np.arange(len(p)), which]
             mirror = 2.0 * cos_l[:, None] * n - lamp
             candidate &= (cos_l > min_cos) & (np.sum(mirror * view, axis=1) < glint_cos)
+            for j, each in enumerate(frame.lamps):          # a cast shadow shows the room's light, not the lamp's
+                mine = candidate & (which == j)
+                if mine.any():
+                    candidate[mine] &= ~_shadowed(p, each, cos_l, spacing)[mine]
         if not candidate.any():
             continue
         uv, depth = project_points(p, frame)
@@ -822,6 +909,11 @@ def colour_points(
         cell = cell_px or max(1.0, 2.0 * spacing * float(frame.K[0, 0]) / float(np.median(depth[inside])))
         tan_v = np.sqrt(np.maximum(1.0 - cos_v ** 2, 0.0)) / np.maximum(cos_v, min_cos)
         candidate &= depth <= _surface_depth(uv, depth, inside, cell) + spacing * (1.0 + 3.0 * tan_v)
+        # the lens spreads a pixel over its neighbours (blur_px): by the object's outline the colour mixes
+        # with the background.  The space between two of the scan's profiles is not background: the
+        # points' pixels are closed over the gap between profiles first.
+        gap_px = gap * float(frame.K[0, 0]) / float(np.median(depth[inside]))
+        candidate &= ~_near_background(uv, inside, (h, w), gap_px, blur_px)
         if not candidate.any():
             continue
         img = np.asarray(images[k], dtype=np.float32)
@@ -851,6 +943,69 @@ def _surface_depth(uv: NDArray[np.float64], depth: NDArray[np.float64], inside: 
     return out
 
 
+def _near_background(uv: NDArray[np.float64], inside: NDArray[np.bool_], size_hw: tuple[int, int], gap_px: float,
+                     blur_px: float) -> NDArray[np.bool_]:
+    """Whether a pixel no point covers lies within ``blur_px`` of each point's pixel (its colour mixes with it).
+
+    The pixels the points fall in are closed (dilated, then eroded) by a
+    square of side ``gap_px``, so that gaps between the scan's profiles are
+    covered; what stays uncovered is the background, or surface the pass
+    did not measure.  Points outside the image count as near it.
+    """
+    from scipy.ndimage import binary_closing, maximum_filter
+
+    r = max(1, math.ceil(0.5 * gap_px))
+    b = max(1, math.ceil(blur_px))
+    pad = r + b + 1
+    ij = np.floor(uv[inside]).astype(np.int64) + pad
+    covered = np.zeros((size_hw[0] + 2 * pad, size_hw[1] + 2 * pad), dtype=bool)
+    covered[ij[:, 1], ij[:, 0]] = True
+    covered = binary_closing(covered, structure=np.ones((2 * r + 1, 2 * r + 1), dtype=bool))
+    near = maximum_filter(~covered, size=2 * b + 1, mode="constant", cval=True)
+    out = np.ones(len(uv), dtype=bool)
+    out[inside] = near[ij[:, 1], ij[:, 0]]
+    return out
+
+
+def _shadowed(points: NDArray[np.float64], lamp: Any, cos_l: NDArray[np.float64], spacing: float) -> NDArray[np.bool_]:
+    """Whether a nearer point of the cloud stands between each point and ``lamp`` (a cast shadow).
+
+    The lamp is treated as a camera: a distant lamp projects the points
+    along its direction, a point lamp through its position (the angle from
+    the mean direction, scaled by the median distance); depths are binned
+    in cells of two sample spacings and a point deeper than the nearest
+    depth of its 3 x 3 cells by a spacing plus three spacings times the
+    tangent of its lamp angle is in shadow, as :func:`colour_points` tests
+    the camera's view.
+    """
+    v = np.asarray(lamp.vector, dtype=np.float64)
+    if lamp.kind == "distant":
+        axis = v / np.linalg.norm(v)
+        depth = -(points @ axis)
+        flat = points - np.outer(points @ axis, axis)
+        scale = 1.0
+    else:
+        ray = points - v
+        depth = np.linalg.norm(ray, axis=1)
+        ray /= np.maximum(depth[:, None], 1e-12)
+        axis = -ray.mean(axis=0)
+        axis /= max(float(np.linalg.norm(axis)), 1e-12)
+        along = -(ray @ axis)
+        flat = np.where(along[:, None] > 0.1, ray / np.maximum(along, 0.1)[:, None], np.nan)
+        scale = float(np.median(depth))
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    cell = 2.0 * spacing
+    uv = np.column_stack([flat @ e1, flat @ e2]) * scale
+    inside = np.all(np.isfinite(uv), axis=1)
+    if not inside.any():
+        return np.zeros(len(points), dtype=bool)
+    uv = uv - np.nanmin(uv[inside], axis=0)
+    tan_l = np.sqrt(np.maximum(1.0 - cos_l ** 2, 0.0)) / np.maximum(cos_l, 0.05)
+    return inside & (depth > _surface_depth(uv, depth, inside, cell) + spacing * (1.0 + 3.0 * tan_l))
+
+
 def _lamp_directions(frame: Any, points: NDArray[np.float64]) -> NDArray[np.float64]:
     """``(N, L, 3)`` unit directions from each point toward each of the frame's lamps."""
     out = np.empty((len(points), len(frame.lamps), 3))
@@ -861,11 +1016,35 @@ def _lamp_directions(frame: Any, points: NDArray[np.float64]) -> NDArray[np.floa
     return out
 
 
-def _median_spacing(points: NDArray[np.float64]) -> float:
-    """Median distance from a point to its nearest neighbour (mm), from at most 5000 points."""
+def _sampling_gap(points: NDArray[np.float64], k: int = 64) -> float:
+    """The widest spacing of a scan's sampling (mm), the gap between its profiles.
+
+    The 90th percentile, over at most 2000 points, of the distance to the
+    nearest of ``k`` neighbours more than 60 deg off the line of the point's
+    eight nearest.  A laser profiler samples densely along each profile and sparsely across
+    them; this is the spacing across, and the plain spacing where the
+    sampling is even.
+    """
+    every = max(1, len(points) // 2000)
+    at = points[::every]
+    k = min(k, len(points) - 1)
+    if k < 9:
+        return _median_spacing(points)
+    d, j = cKDTree(points).query(at, k=k + 1, workers=query_workers(len(at)))
+    off = points[j[:, 1:]] - at[:, None, :]                       # (S, k, 3)
+    near = off[:, :8] - off[:, :8].mean(axis=1, keepdims=True)
+    line = np.linalg.eigh(np.einsum("ski,skj->sij", near, near))[1][:, :, -1]      # the local line's direction
+    along = np.abs(np.einsum("ski,si->sk", off, line))
+    across = along < 0.5 * d[:, 1:]                               # more than 60 deg off the line
+    gap = np.where(across.any(axis=1), np.where(across, d[:, 1:], np.inf).min(axis=1), d[:, -1])
+    return float(np.percentile(gap, 90))
+
+
+def _median_spacing(points: NDArray[np.float64], k: int = 1) -> float:
+    """Median distance from a point to its ``k``-th nearest neighbour (mm), from at most 5000 points."""
     every = max(1, len(points) // 5000)
-    d, _ = cKDTree(points).query(points[::every], k=2, workers=query_workers(len(points) // every))
-    return float(np.median(d[:, 1]))
+    d, _ = cKDTree(points).query(points[::every], k=k + 1, workers=query_workers(len(points) // every))
+    return float(np.median(d[:, k]))
 
 
 def revolution_axis(
