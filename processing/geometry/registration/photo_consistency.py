@@ -599,17 +599,10 @@ def turn_by_colour(
     oriented = source_normals is not None and target_normals is not None
     ns_all = np.asarray(source_normals, dtype=np.float64)[keep] if oriented else None
     nt_all = np.asarray(target_normals, dtype=np.float64) if oriented else None
-    # the sweep: every point of the smaller class, an even subsample of the larger one, weighted back
-    minor = int(np.mean(ls_all) < 0.5)
-    few = np.flatnonzero(ls_all == minor)
-    many = np.flatnonzero(ls_all != minor)
-    room = max(max_points - len(few), 1)
-    pick = many if len(many) <= room else np.random.default_rng(seed).choice(many, room, replace=False)
-    sub = np.concatenate([few, pick])
+    sub, weight = _sweep_sample(ls_all, max_points, seed)
     src, ls = src_all[sub], ls_all[sub]
     fwd = (ns_all, nt_all) if ns_all is not None and nt_all is not None else None
     fwd_sub = (fwd[0][sub], fwd[1]) if fwd is not None else None
-    weight = np.concatenate([np.ones(len(few)), np.full(len(pick), len(many) / max(len(pick), 1))])
     tree = cKDTree(tgt_all)
     t0 = np.asarray(transform, dtype=np.float64)
     u = np.asarray(axis, dtype=np.float64)
@@ -638,15 +631,7 @@ def turn_by_colour(
     both = np.concatenate([_disagreement(src_all, ls_all, tree, lt_all, fposes, max_distance_mm, fwd),
                            _disagreement(tgt_all[tk], lt_all[tk], back_tree, ls_all, np.linalg.inv(fposes),
                                          max_distance_mm, bwd)], axis=1)
-    total = np.nansum(both, axis=1)
-    centre = a0
-    for _ in range(4):
-        win = np.abs(fine - centre) <= coarse_deg + 1e-9
-        best = _v_vertex(fine[win], total[win])
-        moved = float(np.clip(round((best - a0) / fine_deg) * fine_deg, -1.0, 1.0)) + a0
-        if abs(moved - centre) < 0.5 * fine_deg:
-            break
-        centre = moved
+    best, win = _settled_vertex(fine, np.nansum(both, axis=1), a0, coarse_deg, fine_deg)
     at = np.concatenate([transform_points(_turned(t0, u, c, np.radians([a0]))[0], src_all), tgt_all[tk]])
     # blocks wider than the gap between a scan's profiles: the points of two neighbouring profiles meet a
     # border at one phase of the profiles, so their errors go together
@@ -654,9 +639,8 @@ def turn_by_colour(
     sd = _bootstrap_vertex(fine[win], both[win], at, block, seed)
     group_sd = math.nan
     if source_groups is not None and target_groups is not None:
-        sg = np.asarray(source_groups, dtype=np.int64)
-        tg = np.asarray(target_groups, dtype=np.int64)[tk]
-        groups = np.concatenate([sg[keep], np.where(tg >= 0, tg + 1 + int(np.max(sg, initial=0)), -1)])
+        groups = _both_groups(np.asarray(source_groups, dtype=np.int64)[keep],
+                              np.asarray(target_groups, dtype=np.int64)[tk])
         group_sd = _jackknife_vertex(fine[win], both[win], groups)
     away = np.abs((coarse - best + 180.0) % 360.0 - 180.0) >= distinct_deg
     second = float(coarse[away][int(np.argmin(cost[away]))]) if away.any() else best
@@ -672,6 +656,41 @@ def turn_by_colour(
     return ColourTurn(poses[0], wrapped, z, abs((second - best + 180.0) % 360.0 - 180.0),
                       float(np.nanmean(da)) if np.isfinite(da).any() else math.nan,
                       float(np.nanmean(db)) if np.isfinite(db).any() else math.nan, cells, points, sd, group_sd)
+
+
+def _sweep_sample(labels: NDArray[np.int8], max_points: int, seed: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """Indices of the sweep's points and their weights: the smaller class whole, the larger one subsampled, weighted back."""
+    minor = int(np.mean(labels) < 0.5)
+    few = np.flatnonzero(labels == minor)
+    many = np.flatnonzero(labels != minor)
+    room = max(max_points - len(few), 1)
+    pick = many if len(many) <= room else np.random.default_rng(seed).choice(many, room, replace=False)
+    weight = np.concatenate([np.ones(len(few)), np.full(len(pick), len(many) / max(len(pick), 1))])
+    return np.concatenate([few, pick]), weight
+
+
+def _settled_vertex(fine_deg_grid: NDArray[np.float64], total: NDArray[np.float64], a0: float, half_deg: float,
+                    step_deg: float) -> tuple[float, NDArray[np.bool_]]:
+    """The vertex of a V fitted over +-``half_deg`` about the vertex itself, and that window of the grid.
+
+    The window starts at ``a0`` and moves to the vertex until it settles
+    (at most four moves, at most 1 deg from ``a0``): a window off-centre
+    weighs one side's slope more and pulls the vertex toward it.
+    """
+    centre = a0
+    for _ in range(4):
+        win = np.abs(fine_deg_grid - centre) <= half_deg + 1e-9
+        best = _v_vertex(fine_deg_grid[win], total[win])
+        moved = float(np.clip(round((best - a0) / step_deg) * step_deg, -1.0, 1.0)) + a0
+        if abs(moved - centre) < 0.5 * step_deg:
+            break
+        centre = moved
+    return best, win
+
+
+def _both_groups(source: NDArray[np.int64], target: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The photos of both clouds numbered apart (the target's after the source's); -1 stays -1."""
+    return np.concatenate([source, np.where(target >= 0, target + 1 + int(np.max(source, initial=0)), -1)])
 
 
 def _bootstrap_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.float64], positions_mm: NDArray[np.float64],
@@ -886,35 +905,12 @@ def colour_points(
         cos_v = np.sum(n * view, axis=1)
         candidate = cos_v > best
         if lit:
-            lamps = _lamp_directions(frame, p)
-            cos_l_all = np.einsum("nlc,nc->nl", lamps, n)
-            which = np.argmax(cos_l_all, axis=1)
-            lamp = lamps[np.arange(len(p)), which]
-            cos_l = cos_l_all[np.arange(len(p)), which]
-            mirror = 2.0 * cos_l[:, None] * n - lamp
-            candidate &= (cos_l > min_cos) & (np.sum(mirror * view, axis=1) < glint_cos)
-            for j, each in enumerate(frame.lamps):          # a cast shadow shows the room's light, not the lamp's
-                mine = candidate & (which == j)
-                if mine.any():
-                    candidate[mine] &= ~_shadowed(p, each, cos_l, spacing)[mine]
+            lamp = _lamp_lit(frame, p, n, view, candidate, min_cos, glint_cos, spacing)
         if not candidate.any():
             continue
         uv, depth = project_points(p, frame)
         w, h = frame.image_size
-        inside = np.all(np.isfinite(uv), axis=1) & (depth > 0)
-        inside &= (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
-        candidate &= inside
-        if not candidate.any():
-            continue
-        cell = cell_px or max(1.0, 2.0 * spacing * float(frame.K[0, 0]) / float(np.median(depth[inside])))
-        tan_v = np.sqrt(np.maximum(1.0 - cos_v ** 2, 0.0)) / np.maximum(cos_v, min_cos)
-        candidate &= depth <= _surface_depth(uv, depth, inside, cell) + spacing * (1.0 + 3.0 * tan_v)
-        # the lens spreads a pixel over its neighbours (blur_px): by the object's outline the colour mixes
-        # with the background.  The space between two of the scan's profiles is not background: the
-        # points' pixels are closed over the gap between profiles first.
-        gap_px = gap * float(frame.K[0, 0]) / float(np.median(depth[inside]))
-        candidate &= ~_near_background(uv, inside, (h, w), gap_px, blur_px)
-        if not candidate.any():
+        if not _seen_clearly(frame, uv, depth, cos_v, candidate, (spacing, gap), min_cos, cell_px, blur_px):
             continue
         img = np.asarray(images[k], dtype=np.float32)
         if img.ndim != 3 or img.shape[:2] != (h, w) or img.shape[2] < 3:
@@ -927,6 +923,54 @@ def colour_points(
         pixel[idx] = depth[idx] / float(frame.K[0, 0])
         best[idx] = cos_v[idx]
     return PointColours(colours, lamp_dirs if lit else None, camera, pixel)
+
+
+def _lamp_lit(frame: Any, p: NDArray[np.float64], n: NDArray[np.float64], view: NDArray[np.float64],
+              candidate: NDArray[np.bool_], min_cos: float, glint_cos: float, spacing: float) -> NDArray[np.float64]:
+    """Keep in ``candidate`` the points the frame's lamp lights directly, off its glint; each point's lamp direction.
+
+    A point in a lamp's cast shadow (:func:`_shadowed`) shows the room's
+    light, not the lamp's, and is dropped.
+    """
+    lamps = _lamp_directions(frame, p)
+    cos_l_all = np.einsum("nlc,nc->nl", lamps, n)
+    which = np.argmax(cos_l_all, axis=1)
+    lamp = lamps[np.arange(len(p)), which]
+    cos_l = cos_l_all[np.arange(len(p)), which]
+    mirror = 2.0 * cos_l[:, None] * n - lamp
+    candidate &= (cos_l > min_cos) & (np.sum(mirror * view, axis=1) < glint_cos)
+    for j, each in enumerate(frame.lamps):
+        mine = candidate & (which == j)
+        if mine.any():
+            candidate[mine] &= ~_shadowed(p, each, cos_l, spacing)[mine]
+    return lamp
+
+
+def _seen_clearly(frame: Any, uv: NDArray[np.float64], depth: NDArray[np.float64], cos_v: NDArray[np.float64],
+                  candidate: NDArray[np.bool_], spacing_gap_mm: tuple[float, float], min_cos: float,
+                  cell_px: float | None, blur_px: float) -> bool:
+    """Keep in ``candidate`` the points inside the frame, in front and away from the outline; whether any is left.
+
+    Hidden points lie behind the nearest depth of their pixel's neighbourhood
+    (:func:`_surface_depth`).  The lens spreads a pixel over its neighbours
+    (``blur_px``): by the object's outline the colour mixes with the
+    background.  The space between two of the scan's profiles is not
+    background: the points' pixels are closed over the gap between profiles
+    first (:func:`_near_background`).
+    """
+    spacing, gap = spacing_gap_mm
+    w, h = frame.image_size
+    inside = np.all(np.isfinite(uv), axis=1) & (depth > 0)
+    inside &= (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+    candidate &= inside
+    if not candidate.any():
+        return False
+    px_per_mm = float(frame.K[0, 0]) / float(np.median(depth[inside]))
+    cell = cell_px or max(1.0, 2.0 * spacing * px_per_mm)
+    tan_v = np.sqrt(np.maximum(1.0 - cos_v ** 2, 0.0)) / np.maximum(cos_v, min_cos)
+    candidate &= depth <= _surface_depth(uv, depth, inside, cell) + spacing * (1.0 + 3.0 * tan_v)
+    candidate &= ~_near_background(uv, inside, (h, w), gap * px_per_mm, blur_px)
+    return bool(candidate.any())
 
 
 def _surface_depth(uv: NDArray[np.float64], depth: NDArray[np.float64], inside: NDArray[np.bool_],
