@@ -311,10 +311,13 @@ def test_a_pass_is_coloured_from_its_own_posed_frames(sessions):
     # What `kogei process` gives the registration when the session has a camera calibration: the
     # pass's points (here the sphere's exact surface in pass 1's table frame, outward normals) coloured
     # from its frames posed with the pass pose the identity.  Against the simulation's camera: every
-    # point that some frame shows (inside the image by 2 px) facing its camera at more than cos 0.3 is
-    # coloured (the limit is 0.2; the margins keep the boundaries out), none that no frame shows (within
-    # 2 px of the image) facing it at more than cos 0.1, and each coloured point's camera is the true
-    # centre of one of the frames.
+    # point that some frame shows facing its camera at more than cos 0.3 and more than 5 px inside the
+    # sphere's true outline and the image's edge is coloured (the limits are cos 0.2 and 3 px, where the
+    # lens mixes the colour with the background's; the margins keep the boundaries out), none that no
+    # frame shows (within 2 px of the image) facing it at more than cos 0.1, and each coloured point's
+    # camera is the true centre of one of the frames.
+    from scipy.ndimage import distance_transform_edt
+
     from app.workflows.process_session import _pass_colours
     from processing.common.rotation import rotation_z_deg
 
@@ -341,7 +344,15 @@ def test_a_pass_is_coloured_from_its_own_posed_frames(sessions):
         uv = (x @ k_mat.T)[:, :2] / x[:, 2:]
         view = centres[-1] - pts
         cos = np.sum(view * nrm, axis=1) / np.linalg.norm(view, axis=1)
-        well_in = np.all((uv >= 2.0) & (uv <= [world.width - 3.0, world.height - 3.0]), axis=1)
+        rays = np.stack(np.meshgrid(np.arange(world.width) + 0.5, np.arange(world.height) + 0.5, [1.0]), -1)
+        rays = rays.reshape(world.height, world.width, 3) @ np.linalg.inv(k_mat).T @ to_cam[:3, :3]
+        rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+        off = np.array([OFFSET_MM, 0.0, RADIUS_MM]) - centres[-1]
+        on_sphere = np.linalg.norm(off - (rays @ off)[..., None] * rays, axis=2) < RADIUS_MM
+        clear_px = distance_transform_edt(np.pad(on_sphere, 1))[1:-1, 1:-1]   # to the outline or the edge
+        ij = np.clip(np.floor(uv).astype(int), 0, [world.width - 1, world.height - 1])
+        well_in = np.all((uv >= 0.0) & (uv <= [world.width - 1.0, world.height - 1.0]), axis=1)
+        well_in &= clear_px[ij[:, 1], ij[:, 0]] > 5.0
         near = np.all((uv >= -2.0) & (uv <= [world.width + 1.0, world.height + 1.0]), axis=1)
         shown.append((np.where(well_in, cos, -1.0), np.where(near, cos, -1.0)))
     best_in = np.max([a for a, _ in shown], axis=0)
