@@ -75,6 +75,26 @@ def test_bare_bowl_stays_ambiguous_in_colour():
     assert not cl.usable or turn.sigma < MIN_SIGMA, (cl.why, turn)
 
 
+def test_a_small_decoration_is_two_colours_however_small_its_share_but_a_few_specks_are_not():
+    # 20,000 red points on a sphere; a black patch of 30 points is 0.15 % of them and still a decoration
+    # (the evidence decides whether it holds a turn), 12 black points are specks and are refused by count
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(20000, 3))
+    pts = 30.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    order = np.argsort(np.linalg.norm(pts - pts[0], axis=1))              # the patch: a point's nearest
+
+    def classes(black: int):
+        rgb = np.tile([0.5, 0.08, 0.06], (len(pts), 1))
+        rgb[order[:black]] = [0.01, 0.01, 0.01]
+        return colour_classes(pts, PointColours(rgb), pts, PointColours(rgb))
+
+    patch = classes(30)
+    assert patch.usable and patch.minority == pytest.approx(0.0015, abs=1e-5), patch.why
+    assert min(np.sum(patch.source == 1), np.sum(patch.source == 0)) == 30
+    specks = classes(12)
+    assert not specks.usable and "covers 12 of a cloud's coloured points (< 20)" in specks.why
+
+
 def _painted_egg(seed: int, n: int = 3000):
     """Points on a surface of revolution about +z (an egg, wider below), red with a black patch; normals outward."""
     rng = np.random.default_rng(seed)

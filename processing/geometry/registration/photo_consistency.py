@@ -219,7 +219,7 @@ def colour_classes(
     source_mm: ArrayLike, source: PointColours, target_mm: ArrayLike, target: PointColours, *,
     source_normals: ArrayLike | None = None, target_normals: ArrayLike | None = None,
     highlight_deg: float = 30.0, min_cos: float = 0.2, min_eta: float = 0.8, min_gap: float = 0.05,
-    min_minority: float = 0.002, mixed_share: float = MIXED_SHARE,
+    min_minority_points: int = 20, mixed_share: float = MIXED_SHARE,
 ) -> ColourClasses:
     """Body and decoration of two clouds by their chromaticity, with Otsu's threshold on both together.
 
@@ -242,8 +242,12 @@ def colour_classes(
     min_gap
         Smallest distance between the classes' mean chromaticities (several
         times the spread an 8-bit colour or a shading error gives a mid-grey).
-    min_minority
-        Smallest fraction of the smaller class in each cloud.
+    min_minority_points
+        Fewest points of the smaller class in each cloud: a few specks are
+        not a decoration, and the evidence's null, estimated from the cells,
+        needs more than a handful.  Whether a small decoration holds the
+        turn is the evidence's to say (:func:`turn_by_colour`), not its
+        share of the cloud.
     mixed_share
         Points whose projected chromaticity lies more than this share of the way from both classes'
         means toward the other (0.35: the middle 30 % of the interval) are left unlabelled (-1): a
@@ -310,13 +314,14 @@ def colour_classes(
     lt[okt] = label[oks.sum():]
     minor = 1 if hi.mean() < 0.5 else 0
     frac = min(float(np.mean(ls[oks] == minor)), float(np.mean(lt[okt] == minor)))
+    count = min(int(np.sum(ls == minor)), int(np.sum(lt == minor)))
     if not (eta >= min_eta):
         return none(f"one colour: chromaticities are not two classes (Otsu separability {eta:.2f} < {min_eta:g})",
                     thr, eta, gap, frac)
     if gap < min_gap:
         return none(f"one colour: the two chromaticity classes are {gap:.3f} apart (< {min_gap:g})", thr, eta, gap, frac)
-    if frac < min_minority:
-        return none(f"the second colour covers {frac:.2%} of a cloud's coloured points (< {min_minority:.1%})",
+    if count < min_minority_points:
+        return none(f"the second colour covers {count} of a cloud's coloured points (< {min_minority_points})",
                     thr, eta, gap, frac)
     ls = _unmix_borders(sp, source, oks, ls, mixed_share, sn)
     lt = _unmix_borders(tp, target, okt, lt, mixed_share, tn)
