@@ -17,6 +17,9 @@ registered, so that the rate under the condition rests on enough pairs.  With ``
 those seeds is also registered as a session of three placements, as ``kogei process`` registers a
 session (:func:`session_row`).
 
+With ``--colour-bound`` only the plain bowl's colour step is measured, from the true shape fit, against
+the standard deviation it states (:func:`colour_bound_rows`, :func:`colour_bound_summary`).
+
 Run ``python -m bench.symmetric_bench [--quick] [--pairs N] [--condition N] [--sessions]``; prints one JSON object (the
 last line).
 """
@@ -36,8 +39,8 @@ from numpy.typing import NDArray
 
 from bench.common import machine_description
 
-__all__ = ["OBJECTS", "collect", "collect_colour", "collect_colour_end_to_end", "collect_seeds", "colour_section",
-           "section"]
+__all__ = ["OBJECTS", "collect", "collect_colour", "collect_colour_end_to_end", "collect_seeds", "colour_bound_rows",
+           "colour_bound_summary", "colour_section", "section"]
 
 #: The objects and what should decide their pairs.
 OBJECTS = {"vase": "shape (the boss)", "inlaid-bowl": "colour (the motif; 0.1 mm relief)",
@@ -484,6 +487,96 @@ def colour_row(name: str, seed: int, offset_deg: float = 100.0, steps: int = STE
             "disagree_best": round(turn.disagree_best, 4), "disagree_second": round(turn.disagree_second, 4)}
 
 
+def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int] | None = None,
+                      offset_deg: float = 100.0) -> list[dict[str, Any]]:
+    """The plain bowl's colour turn and its stated spread, pairs 1-2, 1-3 and 2-3 of a session at ``seed``.
+
+    As ``kogei process`` colours a session's passes (:func:`_posed_colours`, ``frame_size`` as
+    :func:`colour_end_to_end_row`) and decides a pair's turn
+    (:func:`processing.geometry.registration.photo_consistency.turn_by_colour` with the partner
+    distance, cells, photo groups and ``standard`` preset of :func:`processing.geometry.registration.register_pair`),
+    but from the true shape fit turned ``offset_deg`` about the bowl's axis, so that only the colour step
+    is measured.  Each row: the evidence (sigma), the true error of the turn about the axis (deg,
+    signed) and the two parts of its stated standard deviation, the blocks' bootstrap and the jackknife
+    over photos (:func:`colour_bound_summary` scores them).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from mocks.pass_cloud import simulated_pass
+    from mocks.world import World
+    from processing.geometry.registration import registration_preset
+    from processing.geometry.registration.clouds import _as_cloud
+    from processing.geometry.registration.photo_consistency import _turned, colour_classes, photo_ids, turn_by_colour
+
+    world = World.turned("plain-bowl")
+    distinct_deg = registration_preset("standard").distinct_deg
+    scans = [simulated_pass(world, seed, k, steps=steps) for k in (1, 2, 3)]
+    colours = [_posed_colours(world, p, frame_size) for p in scans]
+    clouds = [_as_cloud(p.points, p.normals, f"placement {k + 1}") for k, p in enumerate(scans)]
+    rows = []
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        truth = scans[i].pose @ np.linalg.inv(scans[j].pose)
+        axis, point = scans[i].pose[:3, 2], scans[i].pose[:3, 3]
+        start = _turned(truth, axis, point, np.radians([offset_deg]))[0]
+        src, tgt = clouds[j], clouds[i]
+        cl = colour_classes(src.points, colours[j], tgt.points, colours[i], source_normals=src.normals,
+                            target_normals=tgt.normals)
+        row: dict[str, Any] = {"seed": seed, "pair": f"{i + 1}-{j + 1}", "frame_size": frame_size,
+                               "usable": cl.usable, "why": cl.why}
+        if cl.usable:
+            reach = max(src.spacing, tgt.spacing)
+            turn = turn_by_colour(src.points, cl.source, tgt.points, cl.target, start, axis, point,
+                                  max_distance_mm=reach, cell_mm=3.0 * reach, distinct_deg=distinct_deg, seed=seed,
+                                  source_normals=src.normals, target_normals=tgt.normals,
+                                  source_groups=photo_ids(colours[j]), target_groups=photo_ids(colours[i]))
+            rv = Rotation.from_matrix((turn.transform @ np.linalg.inv(truth))[:3, :3]).as_rotvec()
+            row.update(sigma=round(float(turn.sigma), 2), error_deg=round(float(np.degrees(rv @ axis)), 4),
+                       bootstrap_sd_deg=round(float(turn.sigma_deg), 4), jackknife_sd_deg=round(float(turn.group_sd_deg), 4))
+        rows.append(row)
+    return rows
+
+
+def colour_bound_summary(rows: list[dict[str, Any]], min_sigma: float = 5.0, limit_deg: float = LIMIT_DEG) -> dict[str, Any]:
+    """How often the true colour turn lies within one and two stated standard deviations, per way of joining the parts.
+
+    Over the rows of :func:`colour_bound_rows` with at least ``min_sigma`` of evidence: for the
+    stated rule (bootstrap and jackknife in quadrature, :func:`~processing.geometry.registration.
+    photo_consistency.colour_turn_sd_deg`), the larger part, and each part alone, the share of true
+    errors within 1 and 2 sd (68 and 95 % expected of an honest sd), the RMS of error / sd (1 expected),
+    how many turns would be verified (2 sd <= ``limit_deg``) and how many of those lie further than
+    ``limit_deg`` from the truth.
+
+    Examples
+    --------
+    >>> rows = [{"usable": True, "sigma": 9.0, "error_deg": 0.09, "bootstrap_sd_deg": 0.06, "jackknife_sd_deg": 0.08},
+    ...         {"usable": True, "sigma": 9.0, "error_deg": -0.6, "bootstrap_sd_deg": 0.15, "jackknife_sd_deg": 0.2},
+    ...         {"usable": True, "sigma": 4.0, "error_deg": 3.0, "bootstrap_sd_deg": 0.1, "jackknife_sd_deg": 0.1}]
+    >>> s = colour_bound_summary(rows)
+    >>> s["pairs"], s["rules"]["quadrature"]["within_1sd"], s["rules"]["quadrature"]["within_2sd"]
+    (2, 0.5, 0.5)
+    >>> s["rules"]["quadrature"]["verified"], s["rules"]["quadrature"]["verified_wrong"]
+    (2, 1)
+    """
+    ok = [r for r in rows if r.get("usable") and r["sigma"] >= min_sigma]
+    err = np.abs([r["error_deg"] for r in ok])
+    boot = np.array([r["bootstrap_sd_deg"] for r in ok])
+    jack = np.nan_to_num(np.array([r["jackknife_sd_deg"] for r in ok], dtype=np.float64))
+    rules = {"quadrature": np.hypot(boot, jack), "larger part": np.maximum(boot, jack), "bootstrap": boot,
+             "jackknife": jack}
+    out: dict[str, Any] = {"pairs": len(ok), "of": len(rows),
+                           "rms_error_deg": round(float(np.sqrt(np.mean(err ** 2))), 3) if ok else None,
+                           "largest_error_deg": round(float(err.max()), 3) if ok else None, "rules": {}}
+    for name, sd in rules.items():
+        z = err / np.maximum(sd, 1e-12)
+        verified = 2.0 * sd <= limit_deg
+        out["rules"][name] = {"within_1sd": round(float(np.mean(z <= 1.0)), 2) if ok else None,
+                              "within_2sd": round(float(np.mean(z <= 2.0)), 2) if ok else None,
+                              "rms_z": round(float(np.sqrt(np.mean(z ** 2))), 2) if ok else None,
+                              "median_sd_deg": round(float(np.median(sd)), 3) if ok else None,
+                              "verified": int(verified.sum()), "verified_wrong": int(np.sum(verified & (err > limit_deg)))}
+    return out
+
+
 def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
                           frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
     """One placement pair of ``name`` registered automatically with the colours of its posed frames.
@@ -590,8 +683,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--steps", type=int, default=STEPS,
                     help=f"profiles per revolution of the simulated passes (default {STEPS}, kogei capture's default)")
     ap.add_argument("--frame-size", type=lambda v: tuple(int(x) for x in v.lower().split("x")), default=None,
-                    metavar="WxH", help="with --colour-end-to-end: the station camera sampled at W x H pixels "
+                    metavar="WxH", help="with --colour-end-to-end or --colour-bound: the station camera sampled at W x H pixels "
                                         "(default its 240 x 160)")
+    ap.add_argument("--colour-bound", action="store_true",
+                    help="only the plain bowl's colour turn from the true shape fit, pairs 1-2, 1-3 and 2-3 of the --seeds "
+                         "(default 0-23): its true error against its stated standard deviation (with --frame-size)")
     ap.add_argument("--sessions", action="store_true",
                     help="also register each vase seed meeting the condition as a session of three placements "
                          "(with --seeds: sessions of those seeds instead of pairs)")
@@ -600,6 +696,15 @@ def main(argv: list[str] | None = None) -> None:
                          "--colour-end-to-end; prints the rows")
     args = ap.parse_args(argv)
     n = 3 if args.quick else args.pairs
+    if args.colour_bound:
+        rows = []
+        for seed in args.seeds if args.seeds is not None else range(24):
+            for r in colour_bound_rows(seed, args.steps, args.frame_size):
+                print(json.dumps(r), file=sys.stderr, flush=True)
+                rows.append(r)
+        print(json.dumps({"machine": machine_description(), "steps": args.steps, "frame_size": args.frame_size,
+                          "summary": colour_bound_summary(rows), "rows": rows}))
+        return
     if args.seeds is not None:
         print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end, args.steps,
                                        args.frame_size, args.sessions)))
