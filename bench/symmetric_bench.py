@@ -492,10 +492,8 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
     """The plain bowl's colour turn and its stated spread, pairs 1-2, 1-3 and 2-3 of a session at ``seed``.
 
     As ``kogei process`` colours a session's passes (:func:`_posed_colours`, ``frame_size`` as
-    :func:`colour_end_to_end_row`) and decides a pair's turn
-    (:func:`processing.geometry.registration.photo_consistency.turn_by_colour` with the partner
-    distance, cells, photo groups and ``standard`` preset of :func:`processing.geometry.registration.register_pair`),
-    but from the true shape fit turned ``offset_deg`` about the bowl's axis, so that only the colour step
+    :func:`colour_end_to_end_row`) and as :func:`processing.geometry.registration.register_pair`
+    (``standard``) decides a pair's turn by colour (its private ``_colour_turn``), but from the true shape fit turned ``offset_deg`` about the bowl's axis, so that only the colour step
     is measured.  Each row: the evidence (sigma), the true error of the turn about the axis (deg,
     signed) and the two parts of its stated standard deviation, the blocks' bootstrap and the jackknife
     over photos (:func:`colour_bound_summary` scores them).
@@ -506,10 +504,11 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
     from mocks.world import World
     from processing.geometry.registration import registration_preset
     from processing.geometry.registration.clouds import _as_cloud
-    from processing.geometry.registration.photo_consistency import _turned, colour_classes, photo_ids, turn_by_colour
+    from processing.geometry.registration.pairwise import _colour_turn
+    from processing.geometry.registration.photo_consistency import _turned
 
     world = World.turned("plain-bowl")
-    distinct_deg = registration_preset("standard").distinct_deg
+    preset = registration_preset("standard")
     scans = [simulated_pass(world, seed, k, steps=steps) for k in (1, 2, 3)]
     colours = [_posed_colours(world, p, frame_size) for p in scans]
     clouds = [_as_cloud(p.points, p.normals, f"placement {k + 1}") for k, p in enumerate(scans)]
@@ -518,17 +517,10 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
         truth = scans[i].pose @ np.linalg.inv(scans[j].pose)
         axis, point = scans[i].pose[:3, 2], scans[i].pose[:3, 3]
         start = _turned(truth, axis, point, np.radians([offset_deg]))[0]
-        src, tgt = clouds[j], clouds[i]
-        cl = colour_classes(src.points, colours[j], tgt.points, colours[i], source_normals=src.normals,
-                            target_normals=tgt.normals)
+        turn, why = _colour_turn(clouds[j], clouds[i], colours[j], colours[i], start, (axis, point), preset, seed)
         row: dict[str, Any] = {"seed": seed, "pair": f"{i + 1}-{j + 1}", "frame_size": frame_size,
-                               "usable": cl.usable, "why": cl.why}
-        if cl.usable:
-            reach = max(src.spacing, tgt.spacing)
-            turn = turn_by_colour(src.points, cl.source, tgt.points, cl.target, start, axis, point,
-                                  max_distance_mm=reach, cell_mm=3.0 * reach, distinct_deg=distinct_deg, seed=seed,
-                                  source_normals=src.normals, target_normals=tgt.normals,
-                                  source_groups=photo_ids(colours[j]), target_groups=photo_ids(colours[i]))
+                               "usable": turn is not None, "why": why}
+        if turn is not None:
             rv = Rotation.from_matrix((turn.transform @ np.linalg.inv(truth))[:3, :3]).as_rotvec()
             row.update(sigma=round(float(turn.sigma), 2), error_deg=round(float(np.degrees(rv @ axis)), 4),
                        bootstrap_sd_deg=round(float(turn.sigma_deg), 4), jackknife_sd_deg=round(float(turn.group_sd_deg), 4))

@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from processing.geometry.registration.clouds import _as_cloud, _Cloud, _Level
 from processing.geometry.registration.global_search import _global_search
 from processing.geometry.registration.photo_consistency import (
+    ColourTurn,
     PointColours,
     colour_classes,
     colour_turn_sd_deg,
@@ -402,16 +403,35 @@ def _turn_by_colour(
 ) -> tuple[tuple[NDArray[np.float64], float, float, float] | None, str]:
     """The turn of ``t`` about a nearly free axis decided by the points' colour classes, or None and why not.
 
+    Returns ``((pose, second_deg, sigma, turn_sd_deg), note)``, the last the
+    turn's standard deviation (:func:`colour_turn_sd_deg`: the cells'
+    bootstrap and the jackknife over the photos that coloured the points),
+    when :func:`_colour_turn` finds one with at least the preset's evidence.
+    """
+    turn, why = _colour_turn(src, tgt, cs, ct, t, axis, preset, seed)
+    if turn is None:
+        return None, why
+    if not turn.sigma >= preset.min_evidence:
+        return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
+                      f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
+    return (turn.transform, turn.second_deg, turn.sigma, colour_turn_sd_deg(turn)), ""
+
+
+def _colour_turn(
+    src: _Cloud, tgt: _Cloud, cs: PointColours, ct: PointColours, t: NDArray[np.float64],
+    axis: tuple[NDArray[np.float64], NDArray[np.float64]], preset: RegistrationPreset, seed: int,
+) -> tuple[ColourTurn | None, str]:
+    """The best turn of ``t`` about ``axis`` (a direction and a point) by the colour classes, whatever its evidence.
+
     Partners are at most one sample spacing apart and, with normals, on the
     same face of a thin wall: the turn is located by the borders between
     classes, and a wider search does not only blur it but biases it (on the
     simulated plain bowl, given the right shape fit, partners three spacings
     apart turned the result by 0.5 to 1.8 deg on three of six pairs, with
     5.8 to 12.3 sigma of evidence; one spacing: within 0.42 deg).  Evidence
-    cells are three times the partner distance.  Returns
-    ``((pose, second_deg, sigma, turn_sd_deg), note)``, the last the
-    turn's standard deviation (:func:`colour_turn_sd_deg`: the cells'
-    bootstrap and the jackknife over the photos that coloured the points).
+    cells are three times the partner distance; the photos that coloured
+    the points are the jackknife's groups.  None and why when the colours
+    are not two classes.
     """
     classes = colour_classes(src.points, cs, tgt.points, ct, source_normals=src.normals,
                              target_normals=tgt.normals)
@@ -422,11 +442,7 @@ def _turn_by_colour(
                           max_distance_mm=reach, cell_mm=3.0 * reach, distinct_deg=preset.distinct_deg, seed=seed,
                           source_normals=src.normals, target_normals=tgt.normals,
                           source_groups=photo_ids(cs), target_groups=photo_ids(ct))
-    if not turn.sigma >= preset.min_evidence:
-        return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
-                      f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
-    sd = colour_turn_sd_deg(turn)
-    return (turn.transform, turn.second_deg, turn.sigma, sd), ""
+    return turn, ""
 
 
 def _as_transform(t: ArrayLike, name: str) -> NDArray[np.float64]:
