@@ -39,8 +39,8 @@ from numpy.typing import NDArray
 
 from bench.common import machine_description
 
-__all__ = ["OBJECTS", "collect", "collect_colour", "collect_colour_end_to_end", "collect_seeds", "colour_bound_rows",
-           "colour_bound_summary", "colour_section", "section"]
+__all__ = ["OBJECTS", "collect", "collect_colour", "collect_colour_bound", "collect_colour_end_to_end", "collect_seeds",
+           "colour_bound_rows", "colour_bound_summary", "colour_section", "section"]
 
 #: The objects and what should decide their pairs.
 OBJECTS = {"vase": "shape (the boss)", "inlaid-bowl": "colour (the motif; 0.1 mm relief)",
@@ -226,14 +226,18 @@ def _outcome(res: Any, right: bool) -> str:
     return "refused"
 
 
-def _turn_figures(res: Any, a: Any, b: Any) -> dict[str, Any]:
-    """The true error of the pair's turn about the object's axis (deg) and the stated bound on it (deg)."""
+def _turn_error_deg(transform: NDArray[np.float64], truth: NDArray[np.float64], axis: NDArray[np.float64]) -> float:
+    """The signed turn (deg) about the unit ``axis`` by which ``transform`` differs from ``truth``."""
     from scipy.spatial.transform import Rotation
 
-    truth = a.pose @ np.linalg.inv(b.pose)
-    rv = Rotation.from_matrix((res.transform @ np.linalg.inv(truth))[:3, :3]).as_rotvec()
+    rv = Rotation.from_matrix((transform @ np.linalg.inv(truth))[:3, :3]).as_rotvec()
+    return float(np.degrees(rv @ axis))
+
+
+def _turn_figures(res: Any, a: Any, b: Any) -> dict[str, Any]:
+    """The true error of the pair's turn about the object's axis (deg) and the stated bound on it (deg)."""
     bound = res.turn_uncertainty_deg
-    return {"turn_error_deg": round(float(np.degrees(rv @ a.pose[:3, 2])), 3),
+    return {"turn_error_deg": round(_turn_error_deg(res.transform, a.pose @ np.linalg.inv(b.pose), a.pose[:3, 2]), 3),
             "turn_bound_deg": None if not np.isfinite(bound) else round(float(bound), 3)}
 
 
@@ -493,13 +497,11 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
 
     As ``kogei process`` colours a session's passes (:func:`_posed_colours`, ``frame_size`` as
     :func:`colour_end_to_end_row`) and as :func:`processing.geometry.registration.register_pair`
-    (``standard``) decides a pair's turn by colour (its private ``_colour_turn``), but from the true shape fit turned ``offset_deg`` about the bowl's axis, so that only the colour step
-    is measured.  Each row: the evidence (sigma), the true error of the turn about the axis (deg,
+    (``standard``) decides a pair's turn by colour (its private ``_colour_turn``), but from the true
+    shape fit turned ``offset_deg`` about the bowl's axis, so that only the colour step is measured.  Each row: the evidence (sigma), the true error of the turn about the axis (deg,
     signed) and the two parts of its stated standard deviation, the blocks' bootstrap and the jackknife
     over photos (:func:`colour_bound_summary` scores them).
     """
-    from scipy.spatial.transform import Rotation
-
     from mocks.pass_cloud import simulated_pass
     from mocks.world import World
     from processing.geometry.registration import registration_preset
@@ -521,8 +523,7 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
         row: dict[str, Any] = {"seed": seed, "pair": f"{i + 1}-{j + 1}", "frame_size": frame_size,
                                "usable": turn is not None, "why": why}
         if turn is not None:
-            rv = Rotation.from_matrix((turn.transform @ np.linalg.inv(truth))[:3, :3]).as_rotvec()
-            row.update(sigma=round(float(turn.sigma), 2), error_deg=round(float(np.degrees(rv @ axis)), 4),
+            row.update(sigma=round(float(turn.sigma), 2), error_deg=round(_turn_error_deg(turn.transform, truth, axis), 4),
                        bootstrap_sd_deg=round(float(turn.sigma_deg), 4), jackknife_sd_deg=round(float(turn.group_sd_deg), 4))
         rows.append(row)
     return rows
@@ -633,6 +634,18 @@ def collect_colour_end_to_end(pairs: int, steps: int = STEPS, frame_size: tuple[
             "rows": rows}
 
 
+def collect_colour_bound(seeds: list[int], steps: int = STEPS,
+                         frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
+    """:func:`colour_bound_rows` of the given seeds and their :func:`colour_bound_summary`."""
+    rows = []
+    for seed in seeds:
+        for r in colour_bound_rows(seed, steps, frame_size):
+            print(json.dumps(r), file=sys.stderr, flush=True)
+            rows.append(r)
+    return {"machine": machine_description(), "steps": steps, "frame_size": frame_size,
+            "summary": colour_bound_summary(rows), "rows": rows}
+
+
 def collect_colour(pairs: int, steps: int = STEPS) -> dict[str, Any]:
     """:func:`colour_row` for the plain bowl and the bare bowl, seeds 0 .. pairs - 1."""
     rows = []
@@ -689,13 +702,8 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     n = 3 if args.quick else args.pairs
     if args.colour_bound:
-        rows = []
-        for seed in args.seeds if args.seeds is not None else range(24):
-            for r in colour_bound_rows(seed, args.steps, args.frame_size):
-                print(json.dumps(r), file=sys.stderr, flush=True)
-                rows.append(r)
-        print(json.dumps({"machine": machine_description(), "steps": args.steps, "frame_size": args.frame_size,
-                          "summary": colour_bound_summary(rows), "rows": rows}))
+        seeds = args.seeds if args.seeds is not None else list(range(24))
+        print(json.dumps(collect_colour_bound(seeds, args.steps, args.frame_size)))
         return
     if args.seeds is not None:
         print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end, args.steps,
