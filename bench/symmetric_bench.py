@@ -498,9 +498,10 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
     As ``kogei process`` colours a session's passes (:func:`_posed_colours`, ``frame_size`` as
     :func:`colour_end_to_end_row`) and as :func:`processing.geometry.registration.register_pair`
     (``standard``) decides a pair's turn by colour (its private ``_colour_turn``), but from the true
-    shape fit turned ``offset_deg`` about the bowl's axis, so that only the colour step is measured.  Each row: the evidence (sigma), the true error of the turn about the axis (deg,
-    signed) and the two parts of its stated standard deviation, the blocks' bootstrap and the jackknife
-    over photos (:func:`colour_bound_summary` scores them).
+    shape fit turned ``offset_deg`` about the bowl's axis, so that only the colour step is measured.
+    Each row: the evidence (sigma), the true error of the turn about the axis (deg, signed) and the two
+    parts of its stated standard deviation, the blocks' bootstrap and the jackknife over photos
+    (:func:`colour_bound_summary` scores them).
     """
     from mocks.pass_cloud import simulated_pass
     from mocks.world import World
