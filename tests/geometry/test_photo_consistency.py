@@ -257,6 +257,34 @@ def test_a_photo_that_shifts_its_borders_as_a_whole_is_seen_by_the_jackknife_ove
     assert np.isnan(plain.group_sd_deg) and colour_turn_sd_deg(plain) == plain.sigma_deg
 
 
+def test_a_turn_whose_borders_one_photo_holds_is_not_verified_and_says_what_to_shoot():
+    # The target's photos unknown, the source's all one photo: leaving a photo out cannot be done, and
+    # what that photo shares over its borders (its pose, its pixels' phase) moves the whole turn
+    # unmeasured, so the stated sd is infinite and the pair is refused with what to capture.
+    import math
+
+    from processing.geometry.registration import PRESETS
+    from processing.geometry.registration.pairwise import _turn_gate
+    from processing.geometry.registration.photo_consistency import colour_turn_sd_deg
+
+    tp, tl, _ = _striped_cylinder(40000, 0.0, 1)
+    sp, sl, _ = _striped_cylinder(40000, 0.0, 2)
+    one = turn_by_colour(sp, sl, tp, tl, np.eye(4), [0, 0, 1], [0, 0, 0], max_distance_mm=0.5, cell_mm=1.5,
+                         source_groups=np.zeros(len(sp), dtype=np.int64),
+                         target_groups=np.full(len(tp), -1, dtype=np.int64))
+    assert one.sigma >= MIN_SIGMA and abs(one.angle_deg) <= 0.05, one       # the turn itself is right
+    assert math.isinf(one.group_sd_deg) and math.isinf(colour_turn_sd_deg(one)), one
+    unknown = turn_by_colour(sp, sl, tp, tl, np.eye(4), [0, 0, 1], [0, 0, 0], max_distance_mm=0.5, cell_mm=1.5,
+                             source_groups=np.full(len(sp), -1, dtype=np.int64),
+                             target_groups=np.full(len(tp), -1, dtype=np.int64))
+    assert math.isnan(unknown.group_sd_deg) and colour_turn_sd_deg(unknown) == unknown.sigma_deg, unknown
+    ok, reason, bound = _turn_gate(None, None, np.eye(4), None, 0.5, PRESETS["standard"], "colour",
+                                   colour_turn_sd_deg(one), (True, "ok"))
+    assert not ok and math.isinf(bound), (ok, bound)
+    assert "one photo holds every border" in reason and "more table angles" in reason, reason
+    assert "\n" not in reason
+
+
 @pytest.mark.slow
 def test_the_turns_bound_covers_an_error_the_cells_and_photos_alone_would_verify():
     # Plain bowl seed 7, placements 2 (target) and 3, frames of 480 x 320: colour decides the turn at

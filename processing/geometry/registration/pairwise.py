@@ -349,6 +349,11 @@ def _turn_gate(
     bound = preset.turn_sigmas * sd
     if bound <= preset.max_turn_deg:
         return True, "ok", bound
+    if colour and math.isinf(sd):
+        return False, ("registered by colour, but one photo holds every border of the decoration, so an error it "
+                       "shares over all of them (its pose, its pixels) cannot be measured; not verified: photograph "
+                       "the decoration from more table angles in both passes, or pick points to register this "
+                       "pair"), bound
     what = "the decoration's borders" if colour else "the distinguishing feature (a boss, a chip)"
     finer = ("photograph the decoration with more pixels across it (the camera nearer or a longer lens: a "
              "photo locates a border only to within its pixel), " if colour else "")

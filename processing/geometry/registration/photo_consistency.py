@@ -126,7 +126,9 @@ class ColourTurn:
         The jackknife standard deviation of that vertex over the photos that
         coloured the points (:func:`_jackknife_vertex`): one photo places a
         whole stretch of border, so its errors move together, which the
-        cells' resampling cannot see.  NaN when the photos were not given.
+        cells' resampling cannot see.  NaN when the photos were not given
+        (or none of them holds a border), infinite when one photo holds
+        every border.
     """
 
     transform: NDArray[np.float64]
@@ -764,7 +766,10 @@ def _jackknife_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.floa
     points meet a border) is left out in turn; ``sqrt((g - 1) / g * sum
     (v_i - mean v)^2)`` over the ``g`` vertices (Quenouille 1956,
     doi:10.1093/biomet/43.3-4.353).  Points of group -1 (unknown) are
-    never left out.  0 with fewer than two such groups.
+    never left out.  NaN when no group holds one (the photos are unknown);
+    infinite when one photo holds them all: what that photo shares over
+    all of its points (its pose, its pixels' phase) moves the whole turn,
+    and nothing measures it.
     """
     d = np.nan_to_num(disagree)
     total = d.sum(axis=1)
@@ -773,7 +778,7 @@ def _jackknife_vertex(angles_deg: NDArray[np.float64], disagree: NDArray[np.floa
     np.add.at(per, inverse.ravel(), d.T)
     per = per[(ids >= 0) & (per.sum(axis=1) > 0)]
     if len(per) < 2:
-        return 0.0
+        return math.inf if len(per) else math.nan
     v = np.array([_v_vertex(angles_deg, total - row) for row in per])
     return float(math.sqrt((len(v) - 1) / len(v) * np.sum((v - v.mean()) ** 2)))
 
@@ -795,7 +800,8 @@ def colour_turn_sd_deg(turn: ColourTurn) -> float:
     -------
     float
         ``hypot(sigma_deg, group_sd_deg)`` (deg); the bootstrap alone
-        without the photos (``group_sd_deg`` NaN).
+        without the photos (``group_sd_deg`` NaN); infinite when one photo
+        holds every border.
 
     Examples
     --------
@@ -803,7 +809,7 @@ def colour_turn_sd_deg(turn: ColourTurn) -> float:
     >>> round(colour_turn_sd_deg(t), 3)
     0.1
     """
-    group = turn.group_sd_deg if math.isfinite(turn.group_sd_deg) else 0.0
+    group = 0.0 if math.isnan(turn.group_sd_deg) else turn.group_sd_deg
     return math.hypot(turn.sigma_deg, group)
 
 
