@@ -218,6 +218,7 @@ def session_case(work: Path, normals: str = "mesh", holdout_burst: int = 1, stat
                                                    "baseline_p95_de2000", "noise_floor_mean_de2000", "n_frames",
                                                    "pixels", "pooled", "frames_averaged")},
             "capture_stages_s": summary.get("stages_s"), "captures_taken": summary.get("captures_taken"),
+            "passes": summary.get("passes"),
             "normals": doc.get("normals"), "baseline": doc.get("baseline"), "frames": {k: len(v) for k, v in doc["frames"].items()},
             "not_measured_mm2": (doc.get("not_measured") or {}).get("area_mm2"),
             "peak_rss_mb": round(_peak_mb(), 1)}
@@ -419,12 +420,13 @@ def _every_second(data: dict[str, Any], held: np.ndarray) -> np.ndarray:
 
 def section(results: dict[str, Any]) -> list[str]:
     """The Markdown of docs/BENCHMARKS.md's "Materials on the mesh" section."""
+    from app.demo.capture import DEMO_PASSES
     from app.workflows.object_materials import answer_text
 
     s, lines = results["session"], ["## Materials on the mesh", ""]
     a, v, h = s["agreement"], s["validation"], s["agreement"]["head"]
     lines += [
-        "The demo's simulated hawk session (three placements x 12 table angles, one distant lamp, every",
+        f"The demo's simulated hawk session ({s.get('passes') or DEMO_PASSES} placements x 12 table angles, one distant lamp, every",
         "photo posed with the calibrated camera and lamp; `bench/object_bench.py`, case `session`): the",
         "materials on the mesh against the simulation's truth per face, the held-out photos (every 4th",
         "table angle, never fitted) against renders of the measured materials and of the paper's",

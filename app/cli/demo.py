@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from app.demo.capture import DEMO_PASSES
+
 __all__ = ["add_parser", "run"]
 
 
@@ -21,7 +23,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--capture-steps", type=int, default=120, metavar="N",
                    help="profiles per revolution of the simulated capture session (0: no capture) "
                         "(default %(default)s)")
-    p.add_argument("--capture-passes", type=int, default=3, metavar="P",
+    p.add_argument("--capture-passes", type=int, default=DEMO_PASSES, metavar="P",
                    help="placements of the simulated capture (default %(default)s)")
     p.add_argument("--capture-camera", default="gphoto2", choices=["gphoto2", "hotfolder", "none"],
                    help="camera of the simulated capture (default %(default)s)")
