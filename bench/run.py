@@ -567,24 +567,16 @@ def kept_blocks(rows: list[str]) -> list[list[str]]:
     ...                                                                       [KEPT_BEGIN, "d"]]
     True
     """
-    blocks: list[list[str]] = []
-    inside = False
-    for row in rows:
-        if row.strip() == KEPT_BEGIN:
-            blocks.append([])
-            inside = True
-        if inside:
-            blocks[-1].append(row)
-        if row.strip() == KEPT_END:
-            inside = False
-    return blocks
+    return [block for _, block in _blocks_by_subsection(rows)]
 
 
 def replace_section(text: str, heading: str, lines: list[str]) -> str:
     r"""``text`` with the ``## `` section whose heading starts with ``heading`` replaced by ``lines``.
 
     A section runs to the next ``## `` heading; one that is not there yet is appended.  The old
-    section's blocks measured by hand (:func:`kept_blocks`) follow the new lines, in their order.
+    section's blocks measured by hand (:func:`kept_blocks`) stay, in their order, under the ``### ``
+    sub-heading they were under: at the end of that sub-section of the new lines (a block before any
+    sub-heading ends the part before the first), or after the new lines when it has no such sub-heading.
 
     Examples
     --------
@@ -603,11 +595,43 @@ def replace_section(text: str, heading: str, lines: list[str]) -> str:
         return "\n".join(rows + lines).rstrip("\n") + "\n"
     end = next((i for i in range(start + 1, len(rows)) if rows[i].startswith("## ")), len(rows))
     new = list(lines)
-    for block in kept_blocks(rows[start:end]):
-        while new and not new[-1].strip():
-            new.pop()
-        new += ["", *block, ""]
+    for sub, block in _blocks_by_subsection(rows[start:end]):
+        at = _end_of_subsection(new, sub)
+        while at > 0 and not new[at - 1].strip():
+            at -= 1
+            del new[at]
+        new[at:at] = ["", *block, ""]
     return "\n".join(rows[:start] + new + rows[end:]).rstrip("\n") + "\n"
+
+
+def _blocks_by_subsection(rows: list[str]) -> list[tuple[str | None, list[str]]]:
+    """Each block of :func:`kept_blocks` with the ``### `` line it follows in ``rows`` (None: none)."""
+    out: list[tuple[str | None, list[str]]] = []
+    sub: str | None = None
+    inside = False
+    for row in rows:
+        if row.strip() == KEPT_BEGIN:
+            out.append((sub, []))
+            inside = True
+        if inside:
+            out[-1][1].append(row)
+        elif row.startswith("### "):
+            sub = row
+        if row.strip() == KEPT_END:
+            inside = False
+    return out
+
+
+def _end_of_subsection(lines: list[str], sub: str | None) -> int:
+    """Index in ``lines`` where the ``### `` sub-section ``sub`` ends (None: the part before the first one);
+    ``len(lines)`` when ``lines`` has no such sub-heading."""
+    heads = [i for i, r in enumerate(lines) if r.startswith("### ")]
+    if sub is None:
+        return heads[0] if heads else len(lines)
+    if sub not in lines:
+        return len(lines)
+    at = lines.index(sub)
+    return next((i for i in heads if i > at), len(lines))
 
 
 def with_machine(text: str, machine: str) -> str:

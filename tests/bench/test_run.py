@@ -85,6 +85,20 @@ def test_a_block_left_open_runs_to_the_end_of_its_section():
     assert text.endswith("## B\n\nb\n")
 
 
+def test_a_block_stays_under_the_sub_heading_it_was_written_under():
+    # Two notes measured by hand, one before the section's "### Sub" and one under it: regenerated, each
+    # ends its own part again (not both after the last sub-section); a sub-heading the new lines lack
+    # sends its note to the end.
+    doc = (f"## A\n\ngenerated\n\n{KEPT_BEGIN}\nnote one\n{KEPT_END}\n\n### Sub\n\ngenerated sub\n\n"
+           f"{KEPT_BEGIN}\nnote two\n{KEPT_END}\n\n### Gone\n\n{KEPT_BEGIN}\nnote three\n{KEPT_END}\n\n## B\n\nb\n")
+    text = run.replace_section(doc, "## A", ["## A", "", "new", "", "### Sub", "", "new sub", ""])
+    a = text.split("## B")[0]
+    assert a.index("new") < a.index("note one") < a.index("### Sub") < a.index("new sub") < a.index("note two")
+    assert a.index("note two") < a.index("note three") and "### Gone" not in a and "generated" not in a
+    assert f"new\n\n{KEPT_BEGIN}\nnote one\n{KEPT_END}\n\n### Sub\n" in a
+    assert text.endswith(f"{KEPT_END}\n\n## B\n\nb\n")
+
+
 def test_the_repositorys_notes_measured_by_hand_survive_a_regeneration(monkeypatch):
     """Every dated bold paragraph inside a generated section of docs/BENCHMARKS.md is in a kept block, so
     that ``make bench`` with every builder replaced by an empty section keeps it."""
