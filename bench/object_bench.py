@@ -362,17 +362,6 @@ def large_case(triangles: int = 1_000_000) -> dict[str, Any]:
             "fit_peak_rss_mb": round(peak_rss_mb(), 1), "peak_rss_mb": round(max(peak_all, peak_rss_mb()), 1)}
 
 
-def _in_a_fresh_process(case: str) -> dict[str, Any]:
-    """The JSON of ``--case case`` run in a process of its own: its peak memory is not the cases' before it."""
-    import subprocess
-
-    from bench.common import ROOT
-
-    proc = subprocess.run([sys.executable, "-m", "bench.object_bench", "--case", case], cwd=ROOT, capture_output=True,
-                          text=True, check=True)
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
 def reliability_case(out: Path | None = None) -> dict[str, Any]:
     """On-mesh and single-image confidence calibration; the on-mesh table for the session report."""
     from bench.reliability import highlight_reliability, single_image_reliability
@@ -431,13 +420,12 @@ def _every_second(data: dict[str, Any], held: np.ndarray) -> np.ndarray:
 
 def section(results: dict[str, Any]) -> list[str]:
     """The Markdown of docs/BENCHMARKS.md's "Materials on the mesh" section."""
-    from app.demo.capture import DEMO_PASSES
     from app.workflows.object_materials import answer_text
 
     s, lines = results["session"], ["## Materials on the mesh", ""]
     a, v, h = s["agreement"], s["validation"], s["agreement"]["head"]
     lines += [
-        f"The demo's simulated hawk session ({s.get('passes') or DEMO_PASSES} placements x 12 table angles, one distant lamp, every",
+        f"The demo's simulated hawk session ({s['passes']} placements x 12 table angles, one distant lamp, every",
         "photo posed with the calibrated camera and lamp; `bench/object_bench.py`, case `session`): the",
         "materials on the mesh against the simulation's truth per face, the held-out photos (every 4th",
         "table angle, never fitted) against renders of the measured materials and of the paper's",
@@ -692,14 +680,14 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     if args.case == "all":
-        from bench.common import ROOT
+        from bench.common import ROOT, run_case_subprocess
 
         demo = session_case(work)
         out = {"session": demo, "captures": captures_case(work, seeds, measured={1: demo}),
                "photometric": session_case(work, "photometric"),
                "normals": normals_case(work), "floor": floor_case(work), "heldout": heldout_case(work),
                "trade": trade_case(work),
-               "large": _in_a_fresh_process("large"),
+               "large": run_case_subprocess("bench.object_bench", "large"),   # its own peak memory, not the cases' before it
                "reliability": reliability_case(ROOT / "app" / "report" / "reliability.json")}
     elif args.case == "session":
         out = session_case(work, holdout_burst=args.holdout_burst)
