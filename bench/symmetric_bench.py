@@ -525,7 +525,8 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
                                "usable": turn is not None, "why": why}
         if turn is not None:
             row.update(sigma=round(float(turn.sigma), 2), error_deg=round(_turn_error_deg(turn.transform, truth, axis), 4),
-                       bootstrap_sd_deg=round(float(turn.sigma_deg), 4), jackknife_sd_deg=round(float(turn.group_sd_deg), 4))
+                       bootstrap_sd_deg=round(float(turn.sigma_deg), 4), jackknife_sd_deg=round(float(turn.group_sd_deg), 4),
+                       shared_points=int(turn.shared_points))
         rows.append(row)
     return rows
 
@@ -533,7 +534,9 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
 def colour_bound_summary(rows: list[dict[str, Any]], min_sigma: float = 5.0, limit_deg: float = LIMIT_DEG) -> dict[str, Any]:
     """How often the true colour turn lies within one and two stated standard deviations, per way of joining the parts.
 
-    Over the rows of :func:`colour_bound_rows` with at least ``min_sigma`` of evidence: for the
+    Over the rows of :func:`colour_bound_rows` that colour would decide (at least ``min_sigma`` of
+    evidence, and the decorations meeting at the turn in at least
+    :data:`~processing.geometry.registration.photo_consistency.MIN_SHARED_POINTS` points): for the
     stated rule (bootstrap and jackknife in quadrature, :func:`~processing.geometry.registration.
     photo_consistency.colour_turn_sd_deg`), the larger part, and each part alone, the share of true
     errors within 1 and 2 sd (68 and 95 % expected of an honest sd), the RMS of error / sd (1 expected),
@@ -551,7 +554,10 @@ def colour_bound_summary(rows: list[dict[str, Any]], min_sigma: float = 5.0, lim
     >>> s["rules"]["quadrature"]["verified"], s["rules"]["quadrature"]["verified_wrong"]
     (2, 1)
     """
-    ok = [r for r in rows if r.get("usable") and r["sigma"] >= min_sigma]
+    from processing.geometry.registration.photo_consistency import MIN_SHARED_POINTS
+
+    ok = [r for r in rows if r.get("usable") and r["sigma"] >= min_sigma
+          and r.get("shared_points", MIN_SHARED_POINTS) >= MIN_SHARED_POINTS]
     err = np.abs([r["error_deg"] for r in ok])
     boot = np.array([r["bootstrap_sd_deg"] for r in ok])
     jack = np.nan_to_num(np.array([r["jackknife_sd_deg"] for r in ok], dtype=np.float64))

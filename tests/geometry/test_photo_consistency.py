@@ -435,3 +435,41 @@ def test_a_border_blurred_by_the_lens_is_placed_where_the_pigments_meet():
     assert by_chroma[0] > left + 0.3 and by_chroma[1] < right - 0.3, by_chroma
     by_unmixing = edges(cl.source == band, cl.source == 1 - band)
     assert abs(by_unmixing[0] - left) <= 0.15 and abs(by_unmixing[1] - right) <= 0.15, by_unmixing
+
+
+def _crest_cylinder(n: int, seed: int, gap_deg: tuple[float, float] | None, half_deg: float):
+    # a 30 mm cylinder with one painted crest (phi 130 +- half_deg, z 2-18 mm); the cloud leaves out
+    # the angles in gap_deg (surface its scan did not see)
+    rng = np.random.default_rng(seed)
+    phi, z = rng.uniform(0.0, 360.0, n), rng.uniform(0.0, 20.0, n)
+    keep = np.ones(n, dtype=bool) if gap_deg is None else ~((phi > gap_deg[0]) & (phi < gap_deg[1]))
+    phi, z = phi[keep], z[keep]
+    pts = np.stack([30 * np.cos(np.radians(phi)), 30 * np.sin(np.radians(phi)), z], 1)
+    return pts, ((np.abs(phi - 130.0) < half_deg) & (z > 2.0) & (z < 18.0)).astype(np.int8)
+
+
+def test_a_turn_that_hides_each_decoration_from_the_other_pass_is_not_decided_by_colour():
+    # Both clouds see the crest at the true turn (0), the target's borders 1 deg wider (what photos do
+    # to a border), so the truth disagrees a little.  Each cloud also misses 22 deg of the cylinder, just
+    # where the other's crest lands when turned by 200 deg: there every compared point agrees, the
+    # crests compared nowhere, and a turn 8 deg further makes the crests stick out into seen surface.
+    # So the colours agree best at 200 deg with strong evidence over any distinct turn; but the two
+    # crests never meet there, and the object might as well bear two crests.  Colour must not decide.
+    from processing.geometry.registration import PRESETS
+    from processing.geometry.registration.pairwise import _colour_decision
+    from processing.geometry.registration.photo_consistency import MIN_SHARED_POINTS
+
+    sp, sl = _crest_cylinder(30000, 1, (278.0, 302.0), 10.0)
+    tp, tl = _crest_cylinder(30000, 2, (319.0, 341.0), 11.0)
+    hidden = turn_by_colour(sp, sl, tp, tl, np.eye(4), [0, 0, 1], [0, 0, 0], max_distance_mm=0.6, cell_mm=1.8)
+    assert abs(abs(hidden.angle_deg) - 160.0) < 3.0 and hidden.sigma >= MIN_SIGMA, hidden     # the trap
+    assert hidden.shared_points < MIN_SHARED_POINTS, hidden
+    decided, why = _colour_decision(hidden, PRESETS["standard"])
+    assert decided is None and "decorations do not meet" in why and "placement" in why and "\n" not in why, why
+    # the same crests with nothing missing: the truth, met by thousands of crest points, is decided
+    sp, sl = _crest_cylinder(30000, 1, None, 10.0)
+    tp, tl = _crest_cylinder(30000, 2, None, 11.0)
+    seen = turn_by_colour(sp, sl, tp, tl, np.eye(4), [0, 0, 1], [0, 0, 0], max_distance_mm=0.6, cell_mm=1.8)
+    assert abs(seen.angle_deg) < 0.3 and seen.shared_points > 1000, seen
+    decided, why = _colour_decision(seen, PRESETS["standard"])
+    assert decided is not None and why == "", why

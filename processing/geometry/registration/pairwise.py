@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from processing.geometry.registration.clouds import _as_cloud, _Cloud, _Level
 from processing.geometry.registration.global_search import _global_search
 from processing.geometry.registration.photo_consistency import (
+    MIN_SHARED_POINTS,
     ColourTurn,
     PointColours,
     colour_classes,
@@ -416,6 +417,29 @@ def _turn_by_colour(
     turn, why = _colour_turn(src, tgt, cs, ct, t, axis, preset, seed)
     if turn is None:
         return None, why
+    return _colour_decision(turn, preset)
+
+
+def _colour_decision(
+    turn: ColourTurn, preset: RegistrationPreset,
+) -> tuple[tuple[NDArray[np.float64], float, float, float] | None, str]:
+    """What :func:`_turn_by_colour` returns for a found ``turn``: decided, or None and why not.
+
+    Colour decides a turn only when the decoration of the two passes meets
+    under it (at least :data:`~processing.geometry.registration.
+    photo_consistency.MIN_SHARED_POINTS` of its points agree) and the turn
+    has the preset's evidence over the best distinct one.  A turn that puts
+    each pass's decoration where the other pass's photos did not see it
+    disagrees with nothing, so it can agree best of all, and on its narrow
+    basin with strong evidence; it is no evidence of the turn: the object
+    might bear two such decorations, one seen by each pass.
+    """
+    if turn.shared_points < MIN_SHARED_POINTS:
+        return None, (f"colour cannot decide: where the colours agree best the passes' decorations do not meet "
+                      f"({turn.shared_points} of their points agree, < {MIN_SHARED_POINTS}): each falls where the "
+                      "other pass's photos did not see it, as if the object bore two such decorations; photograph "
+                      "the decoration from more table angles, or add a placement whose photos see it, or pick "
+                      "points to register this pair")
     if not turn.sigma >= preset.min_evidence:
         return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
                       f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
