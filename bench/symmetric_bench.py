@@ -166,16 +166,18 @@ def pair_row(name: str, seed: int, scans: tuple[Any, Any] | None = None, steps: 
             "hidden_turn_deg": hidden_feature_turn(name, a, b) if feature else None}
 
 
-def _posed_colours(world: Any, p: Any, frame_size: tuple[int, int] | None) -> Any:
-    """A pass's colours from its posed frames, as a session with a camera calibration colours it."""
+def _posed_colours(world: Any, p: Any, frame_size: tuple[int, int] | None, frame_step_deg: float = 30.0) -> Any:
+    """A pass's colours from its posed frames (one every ``frame_step_deg`` of table angle, the station's 30 by
+    default: ``kogei capture --camera-angles``), as a session with a camera calibration colours it."""
     from mocks.pass_cloud import pass_posed_frames
     from processing.geometry.registration.photo_consistency import colour_points
 
-    return colour_points(p.points, p.normals, *pass_posed_frames(world, p, frame_size=frame_size))
+    angles = tuple(float(a) for a in np.arange(0.0, 360.0 - 1e-9, frame_step_deg))
+    return colour_points(p.points, p.normals, *pass_posed_frames(world, p, angles, frame_size=frame_size))
 
 
 def session_row(name: str, seed: int, steps: int = STEPS, coloured: bool = False,
-                frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
+                frame_size: tuple[int, int] | None = None, frame_step_deg: float = 30.0) -> dict[str, Any]:
     """A session of three placements (1, 2, 3) of ``name`` at station seed ``seed``, registered as ``kogei process`` does.
 
     Every pair is registered and the verified ones joined in a pose graph
@@ -192,7 +194,7 @@ def session_row(name: str, seed: int, steps: int = STEPS, coloured: bool = False
     world = World.turned(name)
     c0 = time.process_time()
     scans = [simulated_pass(world, seed, k, steps=steps) for k in (1, 2, 3)]
-    colours = [_posed_colours(world, p, frame_size) for p in scans] if coloured else None
+    colours = [_posed_colours(world, p, frame_size, frame_step_deg) for p in scans] if coloured else None
     res = register_passes([p.points for p in scans], [p.normals for p in scans], preset="standard", seed=seed,
                           colours=colours)
     passes_out = []
@@ -492,7 +494,7 @@ def colour_row(name: str, seed: int, offset_deg: float = 100.0, steps: int = STE
 
 
 def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int] | None = None,
-                      offset_deg: float = 100.0) -> list[dict[str, Any]]:
+                      offset_deg: float = 100.0, frame_step_deg: float = 30.0) -> list[dict[str, Any]]:
     """The plain bowl's colour turn and its stated spread, pairs 1-2, 1-3 and 2-3 of a session at ``seed``.
 
     As ``kogei process`` colours a session's passes (:func:`_posed_colours`, ``frame_size`` as
@@ -513,7 +515,7 @@ def colour_bound_rows(seed: int, steps: int = STEPS, frame_size: tuple[int, int]
     world = World.turned("plain-bowl")
     preset = registration_preset("standard")
     scans = [simulated_pass(world, seed, k, steps=steps) for k in (1, 2, 3)]
-    colours = [_posed_colours(world, p, frame_size) for p in scans]
+    colours = [_posed_colours(world, p, frame_size, frame_step_deg) for p in scans]
     clouds = [_as_cloud(p.points, p.normals, f"placement {k + 1}") for k, p in enumerate(scans)]
     rows = []
     for i, j in ((0, 1), (0, 2), (1, 2)):
@@ -578,7 +580,7 @@ def colour_bound_summary(rows: list[dict[str, Any]], min_sigma: float = 5.0, lim
 
 
 def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
-                          frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
+                          frame_size: tuple[int, int] | None = None, frame_step_deg: float = 30.0) -> dict[str, Any]:
     """One placement pair of ``name`` registered automatically with the colours of its posed frames.
 
     Each pass is coloured from the station camera's frames every 30 deg as a session with a camera
@@ -594,7 +596,7 @@ def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
 
     world = World.turned(name)
     a, b = simulated_pass(world, seed, 2, steps=steps), simulated_pass(world, seed, 3, steps=steps)
-    ca, cb = _posed_colours(world, a, frame_size), _posed_colours(world, b, frame_size)
+    ca, cb = _posed_colours(world, a, frame_size, frame_step_deg), _posed_colours(world, b, frame_size, frame_step_deg)
     res = register_pair(b.points, a.points, source_normals=b.normals, target_normals=a.normals, preset="standard",
                         seed=seed, source_colours=cb, target_colours=ca)
     truth = a.pose @ np.linalg.inv(b.pose)
@@ -608,7 +610,8 @@ def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
 
 
 def collect_seeds(seeds: list[int], objects: list[str], end_to_end: bool = False, steps: int = STEPS,
-                  frame_size: tuple[int, int] | None = None, sessions: bool = False) -> dict[str, Any]:
+                  frame_size: tuple[int, int] | None = None, sessions: bool = False,
+                  frame_step_deg: float = 30.0) -> dict[str, Any]:
     """:func:`pair_row` of each object at the given seeds (:func:`colour_end_to_end_row` of the plain bowl).
 
     With ``sessions``: :func:`session_row` instead (coloured from posed frames with ``end_to_end``).
@@ -618,16 +621,18 @@ def collect_seeds(seeds: list[int], objects: list[str], end_to_end: bool = False
         for seed in seeds:
             t0, c0 = time.perf_counter(), time.process_time()
             if sessions:
-                r = session_row(name, seed, steps, coloured=end_to_end, frame_size=frame_size)
+                r = session_row(name, seed, steps, coloured=end_to_end, frame_size=frame_size,
+                                frame_step_deg=frame_step_deg)
             elif end_to_end:
-                r = colour_end_to_end_row(name, seed, steps, frame_size)
+                r = colour_end_to_end_row(name, seed, steps, frame_size, frame_step_deg)
             else:
                 r = pair_row(name, seed, steps=steps)
             r.update(wall_s=round(time.perf_counter() - t0, 1), cpu_s=round(time.process_time() - c0, 1),
                      load_1min=round(os.getloadavg()[0], 1))
             print(json.dumps(r), file=sys.stderr, flush=True)
             rows.append(r)
-    return {"machine": machine_description(), "steps": steps, "frame_size": frame_size, "rows": rows}
+    return {"machine": machine_description(), "steps": steps, "frame_size": frame_size,
+            "frame_step_deg": frame_step_deg, "rows": rows}
 
 
 def collect_colour_end_to_end(pairs: int, steps: int = STEPS, frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
@@ -641,16 +646,16 @@ def collect_colour_end_to_end(pairs: int, steps: int = STEPS, frame_size: tuple[
             "rows": rows}
 
 
-def collect_colour_bound(seeds: list[int], steps: int = STEPS,
-                         frame_size: tuple[int, int] | None = None) -> dict[str, Any]:
+def collect_colour_bound(seeds: list[int], steps: int = STEPS, frame_size: tuple[int, int] | None = None,
+                         frame_step_deg: float = 30.0) -> dict[str, Any]:
     """:func:`colour_bound_rows` of the given seeds and their :func:`colour_bound_summary`."""
     rows = []
     for seed in seeds:
-        for r in colour_bound_rows(seed, steps, frame_size):
+        for r in colour_bound_rows(seed, steps, frame_size, frame_step_deg=frame_step_deg):
             print(json.dumps(r), file=sys.stderr, flush=True)
             rows.append(r)
     return {"machine": machine_description(), "steps": steps, "frame_size": frame_size,
-            "summary": colour_bound_summary(rows), "rows": rows}
+            "frame_step_deg": frame_step_deg, "summary": colour_bound_summary(rows), "rows": rows}
 
 
 def collect_colour(pairs: int, steps: int = STEPS) -> dict[str, Any]:
@@ -697,6 +702,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frame-size", type=lambda v: tuple(int(x) for x in v.lower().split("x")), default=None,
                     metavar="WxH", help="with --colour-end-to-end or --colour-bound: the station camera sampled at W x H pixels "
                                         "(default its 240 x 160)")
+    ap.add_argument("--frame-step", type=float, default=30.0, metavar="DEG",
+                    help="with --colour-bound or --seeds --colour-end-to-end: a frame every DEG of table angle "
+                         "(default 30, kogei capture's default --camera-angles)")
     ap.add_argument("--colour-bound", action="store_true",
                     help="only the plain bowl's colour turn from the true shape fit, pairs 1-2, 1-3 and 2-3 of the --seeds "
                          "(default 0-23): its true error against its stated standard deviation (with --frame-size)")
@@ -710,11 +718,11 @@ def main(argv: list[str] | None = None) -> None:
     n = 3 if args.quick else args.pairs
     if args.colour_bound:
         seeds = args.seeds if args.seeds is not None else list(range(24))
-        print(json.dumps(collect_colour_bound(seeds, args.steps, args.frame_size)))
+        print(json.dumps(collect_colour_bound(seeds, args.steps, args.frame_size, args.frame_step)))
         return
     if args.seeds is not None:
         print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end, args.steps,
-                                       args.frame_size, args.sessions)))
+                                       args.frame_size, args.sessions, args.frame_step)))
         return
     if args.colour_end_to_end:
         print(json.dumps(collect_colour_end_to_end(n, args.steps, args.frame_size)))

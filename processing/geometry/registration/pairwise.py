@@ -438,8 +438,7 @@ def _colour_decision(
         return None, (f"colour cannot decide: where the colours agree best the passes' decorations do not meet "
                       f"({turn.shared_points} of their points agree, < {MIN_SHARED_POINTS}): each falls where the "
                       "other pass's photos did not see it, as if the object bore two such decorations; photograph "
-                      "the decoration from more table angles, or add a placement whose photos see it, or pick "
-                      "points to register this pair")
+                      "the decoration from more table angles, or add a placement whose photos see it")
     if not turn.sigma >= preset.min_evidence:
         return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
                       f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")

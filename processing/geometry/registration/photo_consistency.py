@@ -39,8 +39,8 @@ MIXED_SHARE = 0.35
 #: Fewest points of the decoration (the smaller colour class, both clouds counted) that must meet the
 #: decoration of the other cloud under a turn for colour to decide it; the classes' own floor.  A turn
 #: that puts each pass's decoration where the other pass's photos did not see it meets none: the object
-#: might as well bear two such decorations, one seen by each pass.  On the simulated plain bowl the right
-#: turn meets 109-3,800 such points; those hidden turns, 0.
+#: might as well bear two such decorations, one seen by each pass.  On the simulated plain bowl the turns
+#: within 1.2 deg of the truth met 96-5,300 such points, the turns 8 deg or more off none.
 MIN_SHARED_POINTS = 20
 
 
