@@ -612,6 +612,11 @@ def turn_by_colour(
     ...                      max_distance_mm=1.5, cell_mm=3.0)
     >>> bool(abs(res.angle_deg - 70.0) < 0.5), bool(res.sigma > 5)
     (True, True)
+
+    Every painted point of both clouds meets paint there (1,258 a cloud):
+
+    >>> res.shared_points
+    2516
     """
     src_all = np.asarray(source_mm, dtype=np.float64)
     ls_all = np.asarray(source_labels, dtype=np.int8)
@@ -677,7 +682,7 @@ def turn_by_colour(
     z, cells, points = label_evidence(da, db, pos, cell_mm)
     wrapped = (best + 180.0) % 360.0 - 180.0
     labelled = np.concatenate([ls_all, lt_all[tk]])
-    minor = 1 if np.mean(labelled == 1) < 0.5 else 0
+    minor = 1 if labelled.size and np.mean(labelled == 1) < 0.5 else 0
     shared = int(np.sum((labelled == minor) & (da == 0.0)))
     return ColourTurn(poses[0], wrapped, z, abs((second - best + 180.0) % 360.0 - 180.0),
                       float(np.nanmean(da)) if np.isfinite(da).any() else math.nan,
