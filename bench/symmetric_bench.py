@@ -612,12 +612,12 @@ def colour_end_to_end_row(name: str, seed: int, steps: int = STEPS,
 def collect_seeds(seeds: list[int], objects: list[str], end_to_end: bool = False, steps: int = STEPS,
                   frame_size: tuple[int, int] | None = None, sessions: bool = False,
                   frame_step_deg: float = 30.0) -> dict[str, Any]:
-    """:func:`pair_row` of each object at the given seeds (:func:`colour_end_to_end_row` of the plain bowl).
+    """:func:`pair_row` of each object at the given seeds (:func:`colour_end_to_end_row` with ``end_to_end``).
 
     With ``sessions``: :func:`session_row` instead (coloured from posed frames with ``end_to_end``).
     """
     rows = []
-    for name in ["plain-bowl"] if end_to_end else objects:
+    for name in objects:
         for seed in seeds:
             t0, c0 = time.perf_counter(), time.process_time()
             if sessions:
@@ -694,7 +694,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--colour", action="store_true",
                     help="only the turn of the plain and bare bowls decided by colour (given the right shape fit)")
     ap.add_argument("--object", action="append", choices=sorted(OBJECTS), default=None,
-                    help="only this object (repeatable; default all; shape evidence only)")
+                    help="only this object (repeatable; default all; shape evidence only, but with --seeds "
+                         "--colour-end-to-end: coloured from posed frames, default the plain bowl)")
     ap.add_argument("--colour-end-to-end", action="store_true",
                     help="only the plain bowl registered automatically with colours from its posed frames")
     ap.add_argument("--steps", type=int, default=STEPS,
@@ -721,7 +722,8 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(collect_colour_bound(seeds, args.steps, args.frame_size, args.frame_step)))
         return
     if args.seeds is not None:
-        print(json.dumps(collect_seeds(args.seeds, args.object or list(OBJECTS), args.colour_end_to_end, args.steps,
+        objects = args.object or (["plain-bowl"] if args.colour_end_to_end else list(OBJECTS))
+        print(json.dumps(collect_seeds(args.seeds, objects, args.colour_end_to_end, args.steps,
                                        args.frame_size, args.sessions, args.frame_step)))
         return
     if args.colour_end_to_end:

@@ -473,3 +473,31 @@ def test_a_turn_that_hides_each_decoration_from_the_other_pass_is_not_decided_by
     assert abs(seen.angle_deg) < 0.3 and seen.shared_points > 1000, seen
     decided, why = _colour_decision(seen, PRESETS["standard"])
     assert decided is not None and why == "", why
+
+
+@pytest.mark.slow
+def test_colour_places_a_turn_the_shape_chose_but_could_not_place_and_refuses_one_it_contradicts():
+    # The shape's evidence chose the turn's basin but states +-1.2 deg (more than the 0.5 deg a verified
+    # pair may have): colour, deciding the turn on its own, places it within the registration limits
+    # when its turn lies within that bound of the shape's; a shape turn 30 deg off is contradicted by
+    # the colours, and nothing is placed.
+    from processing.geometry.registration import PRESETS
+    from processing.geometry.registration.clouds import _as_cloud
+    from processing.geometry.registration.pairwise import _colour_placed_turn
+    from processing.geometry.registration.refinement import _pair_scale, _pyramid
+
+    a, b, ca, cb = _pair("plain-bowl", 1)
+    truth = a.pose @ np.linalg.inv(b.pose)
+    axis, point = a.pose[:3, 2], a.pose[:3, 3]
+    src, tgt = _as_cloud(b.points, b.normals, "source"), _as_cloud(a.points, a.normals, "target")
+    preset = PRESETS["standard"]
+    decide = _pyramid(preset, _pair_scale(src, tgt), src, tgt)[-2]
+    rng = np.random.default_rng(0)
+    near = _turned(truth, axis, point, np.radians([0.8]))[0]
+    placed, why = _colour_placed_turn(src, tgt, cb, ca, near, 1.2, decide, preset, rng)
+    assert placed is not None and why == "", why
+    rot, disp = pose_difference(placed[0], truth, b.points)
+    assert rot < TOL_DEG and disp < TOL_MM and placed[2] >= MIN_SIGMA, (rot, disp, placed[1:])
+    far = _turned(truth, axis, point, np.radians([30.0]))[0]
+    placed, why = _colour_placed_turn(src, tgt, cb, ca, far, 1.2, decide, preset, rng)
+    assert placed is None and "shape and colour disagree" in why and "\n" not in why, why
