@@ -36,6 +36,7 @@ from processing.geometry.registration.refinement import (
     _score_scale,
     _scored,
     _settle,
+    _short_of,
     _verdict,
 )
 from processing.geometry.registration.results import PairResult
@@ -306,13 +307,17 @@ def _register(
     # a nearly symmetric pair: the turn about its axis rests on a small feature or on colour
     verdict = (ok, reason)
     ok, reason, turn_deg = _turn_gate(src, tgt, t, sweep, fine, preset, decided_by, colour_sd, verdict)
-    if (verdict[0] and not ok and decided_by == "shape" and math.isfinite(turn_deg)
+    if (verdict[0] and decided_by == "shape" and math.isfinite(turn_deg)
             and colours[0] is not None and colours[1] is not None):
-        # the shape chose the turn but cannot place it within the bound: colour may, if it agrees
+        # the shape chose the turn and bounds it: coloured passes check it, and place it when more precise
         placed, note = _colour_placed_turn(src, tgt, colours[0], colours[1], t, turn_deg, decide, preset, rng)
         if placed is None:
-            reason = f"{reason}; {note}"
-        else:
+            if note.startswith("shape and colour disagree"):
+                ok, reason = False, (f"registered, but {note}; not verified: pick points to register this pair"
+                                     if ok else f"{reason}; {note}")
+            elif not ok:
+                reason = f"{reason}; {note}"
+        elif preset.turn_sigmas * placed[3] < turn_deg:
             t_c, second_c, evidence_c, sd_c = placed
             sc_c = replace(_evaluate(src, tgt, t_c, fine, preset), score=sc_best.score)
             verdict_c = _verdict(sc_c, margin, second_deg, fine, preset, evidence, False)
@@ -320,10 +325,9 @@ def _register(
             if ok_c:
                 t, sc, second_deg, evidence, decided_by = t_c, sc_c, second_c, evidence_c, "colour"
                 ok, reason, turn_deg = ok_c, reason_c, turn_c
-            elif verdict_c[0]:
-                reason = f"{reason}; placed by colour the turn is uncertain too (+-{turn_c:.2f} deg)"
-            else:
-                reason = f"{reason}; placed by colour the fit fails: {verdict_c[1]}"
+            elif not ok:
+                reason = (f"{reason}; placed by colour the turn is uncertain too (+-{turn_c:.2f} deg)"
+                          if verdict_c[0] else f"{reason}; placed by colour the fit fails: {verdict_c[1]}")
     return replace(_pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence),
                    decided_by=decided_by, turn_uncertainty_deg=turn_deg)
 
@@ -332,15 +336,15 @@ def _colour_placed_turn(
     src: _Cloud, tgt: _Cloud, cs: PointColours, ct: PointColours, t: NDArray[np.float64],
     shape_bound_deg: float, decide: float, preset: RegistrationPreset, rng: np.random.Generator,
 ) -> tuple[tuple[NDArray[np.float64], float, float, float] | None, str]:
-    """The turn of a shape-decided pair placed by colour, when colour decides it and agrees with the shape.
+    """The turn of a shape-decided pair decided by colour, when colour decides it and agrees with the shape.
 
-    The shape's evidence chose the turn (its basin), but its bound
-    (``shape_bound_deg``, ``turn_sigmas`` standard deviations) is wider than
-    the preset allows.  Colour decides the turn on its own (a full sweep,
-    :func:`_turn_by_colour`); it agrees when its turn lies within the shape's
-    bound of the shape's, and then its turn and its own standard deviation
-    replace the shape's.  Returns what :func:`_turn_by_colour` returns, or
-    None and why not.
+    The shape's evidence chose the turn (its basin) and states its bound,
+    ``shape_bound_deg`` (``turn_sigmas`` standard deviations).  Colour
+    decides the turn on its own (a full sweep, :func:`_turn_by_colour`); it
+    agrees when the two turns lie within their joint bound (the two bounds
+    in quadrature).  Returns what :func:`_turn_by_colour` returns, or None
+    and why not ("shape and colour disagree: ..." when they contradict each
+    other).
     """
     axis, spread = _pair_axis(src.level(decide), tgt.level(decide), t)
     if spread > MAX_AXIS_SPREAD_DEG:
@@ -351,9 +355,10 @@ def _colour_placed_turn(
         return None, why.replace("colour cannot decide", "colour cannot place the turn", 1)
     r = placed[0][:3, :3] @ t[:3, :3].T
     apart = math.degrees(math.acos(min(1.0, max(-1.0, (float(np.trace(r)) - 1.0) / 2.0))))
-    if apart > shape_bound_deg:
+    joint = math.hypot(shape_bound_deg, preset.turn_sigmas * placed[3])
+    if apart > joint:
         return None, (f"shape and colour disagree: colour turns the pair {apart:.2f} deg from the shape's turn, "
-                      f"outside its bound (+-{shape_bound_deg:.2f} deg)")
+                      f"outside their joint bound (+-{joint:.2f} deg)")
     return placed, ""
 
 
@@ -489,7 +494,7 @@ def _colour_decision(
                       "the decoration from more table angles, or add a placement whose photos see it")
     if not turn.sigma >= preset.min_evidence:
         return None, (f"colour cannot decide: a turn {turn.second_deg:.1f} deg away agrees nearly as well "
-                      f"(evidence {turn.sigma:.1f} sigma < {preset.min_evidence:g})")
+                      f"(evidence {_short_of(turn.sigma)} sigma < {preset.min_evidence:g})")
     return (turn.transform, turn.second_deg, turn.sigma, colour_turn_sd_deg(turn)), ""
 
 

@@ -259,6 +259,17 @@ def _scored(fits: Sequence[_Score], tau_s: float) -> list[_Score]:
     return [f.at(tau_s) for f in fits]
 
 
+def _short_of(value: float) -> str:
+    """``value`` to one decimal, rounded down: a figure short of a threshold never prints as the threshold.
+
+    Examples
+    --------
+    >>> _short_of(4.96), _short_of(-0.04), _short_of(12.0)
+    ('4.9', '-0.1', '12.0')
+    """
+    return f"{math.floor(value * 10.0) / 10.0:.1f}"
+
+
 def _verdict(
     sc: _Score, margin: float, second_deg: float, voxel: float, preset: RegistrationPreset,
     evidence: float = math.nan, ambiguous: bool | None = None,
@@ -291,7 +302,7 @@ def _verdict(
     if ambiguous is None:
         ambiguous = math.isfinite(margin) and margin < preset.min_margin
     if ambiguous:
-        where = (f"; where the two differ the evidence is {evidence:.1f} sigma of the range noise "
+        where = (f"; where the two differ the evidence is {_short_of(evidence)} sigma of the range noise "
                  f"< {preset.min_evidence:g}" if math.isfinite(evidence) else "")
         reasons.append(
             f"ambiguous: a second pose {second_deg:.1f} deg away fits "

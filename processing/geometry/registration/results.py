@@ -74,9 +74,9 @@ class PairResult:
     decided_by
         ``"shape"``, or ``"colour"`` when the shape left the turn about a
         nearly free axis ambiguous and the points' colours decided it, or
-        when the shape chose the turn but could not place it within the
-        turn's bound and the colours, agreeing within that bound, placed it
-        (the evidence and competing turn are then the colours').
+        when the shape chose the turn and the colours, agreeing with it
+        within the two turns' joint bound, placed it more precisely (the
+        evidence and competing turn are then the colours').
     turn_uncertainty_deg
         For a nearly symmetric pair that passed every other check, the
         stated bound on its turn about the symmetry axis:
