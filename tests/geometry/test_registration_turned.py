@@ -7,6 +7,8 @@ points) of the truth, the limits of the scan-processing benchmark; a verified po
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,7 @@ from processing.geometry.registration import pose_difference, register_pair
 TOL_DEG, TOL_MM = 0.5, 0.5
 
 
+@functools.lru_cache(maxsize=2)
 def _pair(name: str, seed: int):
     w = World.turned(name)
     a, b = simulated_pass(w, seed, 2), simulated_pass(w, seed, 3)
@@ -87,3 +90,25 @@ def test_vase_pair_compared_at_settled_poses_registers():
     assert res.verified, res.reason
     assert rot < TOL_DEG and disp < TOL_MM
     assert res.evidence_sigma >= 5.0
+
+
+@pytest.mark.slow
+def test_colours_that_contradict_a_turn_the_shape_verified_refuse_the_pair():
+    # seed 0: the shape alone verifies the turn (the test above).  Paint a crest on each pass where the
+    # object's azimuth is 100 +- 15 deg, 20-40 mm up, but on the target 30 deg further round: the colours
+    # then decide a turn 30 deg from the shape's, far outside the two turns' joint bound.  Two
+    # measurements of one turn that contradict each other verify nothing.
+    a, b, truth = _pair("vase", 0)
+
+    def painted(p, centre_deg):
+        x = (p.points - p.pose[:3, 3]) @ p.pose[:3, :3]          # the object's frame (+z its axis)
+        az = np.degrees(np.arctan2(x[:, 1], x[:, 0]))
+        crest = (np.abs((az - centre_deg + 180.0) % 360.0 - 180.0) < 15.0) & (x[:, 2] > 20.0) & (x[:, 2] < 40.0)
+        return np.where(crest[:, None], [0.02, 0.02, 0.02], [0.6, 0.08, 0.05])
+
+    res = register_pair(b.points, a.points, source_normals=b.normals, target_normals=a.normals, preset="standard",
+                        seed=0, source_colours=painted(b, 100.0), target_colours=painted(a, 130.0))
+    rot, disp = pose_difference(res.transform, truth, b.points)
+    assert not res.verified and res.decided_by == "shape", res.reason
+    assert "shape and colour disagree: colour turns the pair 30." in res.reason and "\n" not in res.reason, res.reason
+    assert rot < TOL_DEG and disp < TOL_MM, (rot, disp)          # the shape's turn is kept, and was right
