@@ -309,7 +309,8 @@ def _register(
     ok, reason, turn_deg = _turn_gate(src, tgt, t, sweep, fine, preset, decided_by, colour_sd, verdict)
     if (verdict[0] and decided_by == "shape" and math.isfinite(turn_deg)
             and colours[0] is not None and colours[1] is not None):
-        # the shape chose the turn and bounds it: coloured passes check it, and place it when more precise
+        # the shape chose the turn and bounds it: coloured passes check it, and place it when their own bound
+        # verifies it or is the narrower (the colour bound is calibrated; a shallow relief's shape bound was not)
         placed, note = _colour_placed_turn(src, tgt, colours[0], colours[1], t, turn_deg, decide, preset, rng)
         if placed is None:
             if note.startswith("shape and colour disagree"):
@@ -317,7 +318,7 @@ def _register(
                                      if ok else f"{reason}; {note}")
             elif not ok:
                 reason = f"{reason}; {note}"
-        elif preset.turn_sigmas * placed[3] < turn_deg:
+        elif preset.turn_sigmas * placed[3] <= preset.max_turn_deg or preset.turn_sigmas * placed[3] < turn_deg:
             t_c, second_c, evidence_c, sd_c = placed
             sc_c = replace(_evaluate(src, tgt, t_c, fine, preset), score=sc_best.score)
             verdict_c = _verdict(sc_c, margin, second_deg, fine, preset, evidence, False)

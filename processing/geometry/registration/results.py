@@ -75,8 +75,9 @@ class PairResult:
         ``"shape"``, or ``"colour"`` when the shape left the turn about a
         nearly free axis ambiguous and the points' colours decided it, or
         when the shape chose the turn and the colours, agreeing with it
-        within the two turns' joint bound, placed it more precisely (the
-        evidence and competing turn are then the colours').
+        within the two turns' joint bound, placed it (their own bound
+        verifying it, or narrower than the shape's; the evidence and
+        competing turn are then the colours').
     turn_uncertainty_deg
         For a nearly symmetric pair that passed every other check, the
         stated bound on its turn about the symmetry axis:
