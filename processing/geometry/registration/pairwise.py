@@ -50,7 +50,12 @@ from processing.geometry.registration.symmetry import (
     _sweep_margin,
     _weak_axis,
 )
-from processing.geometry.registration.transforms import _rodrigues, rigid_from_picks, transform_points
+from processing.geometry.registration.transforms import (
+    _rodrigues,
+    _rotation_angle_deg,
+    rigid_from_picks,
+    transform_points,
+)
 from processing.geometry.registration.turn_uncertainty import _turn_spread
 
 __all__ = ["register_from_picks", "register_pair"]
@@ -318,7 +323,7 @@ def _register(
                                      if ok else f"{reason}; {note}")
             elif not ok:
                 reason = f"{reason}; {note}"
-        elif preset.turn_sigmas * placed[3] <= preset.max_turn_deg or preset.turn_sigmas * placed[3] < turn_deg:
+        elif preset.turn_sigmas * placed[3] <= max(preset.max_turn_deg, turn_deg):
             t_c, second_c, evidence_c, sd_c = placed
             sc_c = replace(_evaluate(src, tgt, t_c, fine, preset), score=sc_best.score)
             verdict_c = _verdict(sc_c, margin, second_deg, fine, preset, evidence, False)
@@ -354,8 +359,7 @@ def _colour_placed_turn(
     placed, why = _turn_by_colour(src, tgt, cs, ct, t, axis, preset, int(rng.integers(1 << 30)))
     if placed is None:
         return None, why.replace("colour cannot decide", "colour cannot place the turn", 1)
-    r = placed[0][:3, :3] @ t[:3, :3].T
-    apart = math.degrees(math.acos(min(1.0, max(-1.0, (float(np.trace(r)) - 1.0) / 2.0))))
+    apart = float(_rotation_angle_deg(t[:3, :3], placed[0][:3, :3]))
     joint = math.hypot(shape_bound_deg, preset.turn_sigmas * placed[3])
     if apart > joint:
         return None, (f"shape and colour disagree: colour turns the pair {apart:.2f} deg from the shape's turn, "
