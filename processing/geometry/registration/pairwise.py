@@ -310,32 +310,59 @@ def _register(
         reason = weak_reason if ok else f"{reason}; {weak_reason}"
         ok = False
     # a nearly symmetric pair: the turn about its axis rests on a small feature or on colour
-    verdict = (ok, reason)
-    ok, reason, turn_deg = _turn_gate(src, tgt, t, sweep, fine, preset, decided_by, colour_sd, verdict)
-    if (verdict[0] and decided_by == "shape" and math.isfinite(turn_deg)
-            and colours[0] is not None and colours[1] is not None):
-        # the shape chose the turn and bounds it: coloured passes check it, and place it when their own bound
-        # verifies it or is the narrower (the colour bound is calibrated; a shallow relief's shape bound was not)
-        placed, note = _colour_placed_turn(src, tgt, colours[0], colours[1], t, turn_deg, decide, preset, rng)
-        if placed is None:
-            if note.startswith("shape and colour disagree"):
-                ok, reason = False, (f"registered, but {note}; not verified: pick points to register this pair"
-                                     if ok else f"{reason}; {note}")
-            elif not ok:
-                reason = f"{reason}; {note}"
-        elif preset.turn_sigmas * placed[3] <= max(preset.max_turn_deg, turn_deg):
-            t_c, second_c, evidence_c, sd_c = placed
-            sc_c = replace(_evaluate(src, tgt, t_c, fine, preset), score=sc_best.score)
-            verdict_c = _verdict(sc_c, margin, second_deg, fine, preset, evidence, False)
-            ok_c, reason_c, turn_c = _turn_gate(src, tgt, t_c, sweep, fine, preset, "colour", sd_c, verdict_c)
-            if ok_c:
-                t, sc, second_deg, evidence, decided_by = t_c, sc_c, second_c, evidence_c, "colour"
-                ok, reason, turn_deg = ok_c, reason_c, turn_c
-            elif not ok:
-                reason = (f"{reason}; placed by colour the turn is uncertain too (+-{turn_c:.2f} deg)"
-                          if verdict_c[0] else f"{reason}; placed by colour the fit fails: {verdict_c[1]}")
+    gated = _turn_gate(src, tgt, t, sweep, fine, preset, decided_by, colour_sd, (ok, reason))
+    (t, sc, second_deg, evidence), (ok, reason, turn_deg), decided_by = _shape_turn_checked(
+        src, tgt, colours, (t, sc, second_deg, evidence), gated, (ok, decided_by),
+        (margin, sc_best, sweep, decide, fine, preset, rng))
     return replace(_pair_result(indices, t, sc, margin, second_deg, ok, reason, start, "global", evidence),
                    decided_by=decided_by, turn_uncertainty_deg=turn_deg)
+
+
+def _shape_turn_checked(
+    src: _Cloud, tgt: _Cloud, colours: tuple[PointColours | None, PointColours | None],
+    pose: tuple[NDArray[np.float64], _Score, float, float], gated: tuple[bool, str, float],
+    before: tuple[bool, str],
+    context: tuple[float, _Score, tuple[NDArray[np.float64], NDArray[np.float64]] | str | None, float, float,
+                   RegistrationPreset, np.random.Generator],
+) -> tuple[tuple[NDArray[np.float64], _Score, float, float], tuple[bool, str, float], str]:
+    """A pair after its passes' colours checked the turn its shape decided (:func:`_colour_placed_turn`).
+
+    ``pose`` is the pair's (transform, score, second_deg, evidence),
+    ``gated`` its (verified, reason, turn bound) after the turn's gate,
+    ``before`` (verified before the gate, ``decided_by``) and ``context``
+    (margin, best score, sweep, deciding and finest voxels, preset,
+    generator).  Only a nearly symmetric pair whose shape decided the turn,
+    which passed every other check and has colours, is checked.  Returns
+    the pose, the gated verdict and ``decided_by``: the shape's, refused
+    when the colours contradict it, or the colour turn's when its own bound
+    verifies it or is the narrower (the colour bound is calibrated; on a
+    shallow relief the shape's was not).
+    """
+    ok, reason, turn_deg = gated
+    margin, sc_best, sweep, decide, fine, preset, rng = context
+    cs, ct = colours
+    if not (before[0] and before[1] == "shape" and math.isfinite(turn_deg)) or cs is None or ct is None:
+        return pose, gated, before[1]
+    placed, note = _colour_placed_turn(src, tgt, cs, ct, pose[0], turn_deg, decide, preset, rng)
+    if placed is None:
+        if note.startswith("shape and colour disagree"):
+            ok, reason = False, (f"registered, but {note}; not verified: pick points to register this pair"
+                                 if ok else f"{reason}; {note}")
+        elif not ok:
+            reason = f"{reason}; {note}"
+        return pose, (ok, reason, turn_deg), "shape"
+    t_c, second_c, evidence_c, sd_c = placed
+    if preset.turn_sigmas * sd_c > max(preset.max_turn_deg, turn_deg):
+        return pose, (ok, reason, turn_deg), "shape"
+    sc_c = replace(_evaluate(src, tgt, t_c, fine, preset), score=sc_best.score)
+    verdict_c = _verdict(sc_c, margin, pose[2], fine, preset, pose[3], False)
+    ok_c, reason_c, turn_c = _turn_gate(src, tgt, t_c, sweep, fine, preset, "colour", sd_c, verdict_c)
+    if ok_c:
+        return (t_c, sc_c, second_c, evidence_c), (ok_c, reason_c, turn_c), "colour"
+    if not ok:
+        reason = (f"{reason}; placed by colour the turn is uncertain too (+-{turn_c:.2f} deg)"
+                  if verdict_c[0] else f"{reason}; placed by colour the fit fails: {verdict_c[1]}")
+    return pose, (ok, reason, turn_deg), "shape"
 
 
 def _colour_placed_turn(

@@ -681,13 +681,16 @@ def turn_by_colour(
     pos = np.concatenate([transform_points(poses[0], src_all), tgt_all[tk]])
     z, cells, points = label_evidence(da, db, pos, cell_mm)
     wrapped = (best + 180.0) % 360.0 - 180.0
-    labelled = np.concatenate([ls_all, lt_all[tk]])
-    minor = 1 if labelled.size and np.mean(labelled == 1) < 0.5 else 0
-    shared = int(np.sum((labelled == minor) & (da == 0.0)))
     return ColourTurn(poses[0], wrapped, z, abs((second - best + 180.0) % 360.0 - 180.0),
                       float(np.nanmean(da)) if np.isfinite(da).any() else math.nan,
                       float(np.nanmean(db)) if np.isfinite(db).any() else math.nan, cells, points, sd, group_sd,
-                      shared)
+                      _shared_minority(np.concatenate([ls_all, lt_all[tk]]), da))
+
+
+def _shared_minority(labels: NDArray[np.int8], disagree: NDArray[np.float64]) -> int:
+    """Points of the smaller class whose partner agrees (``disagree`` 0): :attr:`ColourTurn.shared_points`."""
+    minor = 1 if labels.size and np.mean(labels == 1) < 0.5 else 0
+    return int(np.sum((labels == minor) & (disagree == 0.0)))
 
 
 def _sweep_sample(labels: NDArray[np.int8], max_points: int, seed: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
