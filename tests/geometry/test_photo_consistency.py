@@ -479,7 +479,7 @@ def test_a_turn_that_hides_each_decoration_from_the_other_pass_is_not_decided_by
 def test_colour_places_a_turn_the_shape_chose_but_could_not_place_and_refuses_one_it_contradicts():
     # The shape's evidence chose the turn's basin but states +-1.2 deg (more than the 0.5 deg a verified
     # pair may have): colour, deciding the turn on its own, places it within the registration limits
-    # when its turn lies within that bound of the shape's; a shape turn 30 deg off is contradicted by
+    # when its turn lies within the two turns' joint bound; a shape turn 30 deg off is contradicted by
     # the colours, and nothing is placed.
     from processing.geometry.registration import PRESETS
     from processing.geometry.registration.clouds import _as_cloud

@@ -299,8 +299,7 @@ def _register(
                 t, decided_by, ambiguous = t_c[0], "colour", False
                 second_deg, evidence, colour_sd = t_c[1], t_c[2], t_c[3]
         else:
-            colour_note = (f"colour cannot decide: the pair is no surface of revolution (its normals leave the "
-                           f"meridian planes of the best axis by {spread:.1f} deg > {MAX_AXIS_SPREAD_DEG:g})")
+            colour_note = _no_revolution("colour cannot decide", spread)
     fine = levels[-1]
     sc = replace(_evaluate(src, tgt, t, fine, preset), score=sc_best.score)
     ok, reason = _verdict(sc, margin, second_deg, fine, preset, evidence, ambiguous)
@@ -381,8 +380,7 @@ def _colour_placed_turn(
     """
     axis, spread = _pair_axis(src.level(decide), tgt.level(decide), t)
     if spread > MAX_AXIS_SPREAD_DEG:
-        return None, (f"colour cannot place the turn: the pair is no surface of revolution (its normals leave the "
-                      f"meridian planes of the best axis by {spread:.1f} deg > {MAX_AXIS_SPREAD_DEG:g})")
+        return None, _no_revolution("colour cannot place the turn", spread)
     placed, why = _turn_by_colour(src, tgt, cs, ct, t, axis, preset, int(rng.integers(1 << 30)))
     if placed is None:
         return None, why.replace("colour cannot decide", "colour cannot place the turn", 1)
@@ -452,6 +450,12 @@ def _turn_gate(
 #: Largest robust deviation (deg) of the normals from the meridian planes of a pair's axis for the
 #: turn about it to be decided by colour (a turned object: 1-3 deg).
 MAX_AXIS_SPREAD_DEG = 10.0
+
+
+def _no_revolution(what: str, spread_deg: float) -> str:
+    """Why colour was not used: the pair's normals leave the meridian planes of its best axis by ``spread_deg``."""
+    return (f"{what}: the pair is no surface of revolution (its normals leave the meridian planes of the best "
+            f"axis by {spread_deg:.1f} deg > {MAX_AXIS_SPREAD_DEG:g})")
 
 
 def _pair_axis(
