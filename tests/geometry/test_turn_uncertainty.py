@@ -20,6 +20,7 @@ from processing.geometry.registration.refinement import _icp, _icp_pyramid, _pai
 from processing.geometry.registration.transforms import transform_points
 from processing.geometry.registration.turn_uncertainty import (
     _about_axis_deg,
+    _profiled,
     _turn_spread,
     rotation_covariance,
     turn_sigma_deg,
@@ -29,10 +30,10 @@ RADIUS_MM, BOSS_MM, BOSS_SIGMA_MM, NOISE_MM = 26.0, 1.0, 3.0, 0.05
 Z_AXIS = np.array([0.0, 0.0, 1.0])
 
 
-def _boss_cylinder(phi: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points and outward normals of a cylinder with a Gaussian boss at azimuth 0, 30 mm up."""
+def _boss_cylinder(phi: np.ndarray, z: np.ndarray, boss_mm: float = BOSS_MM) -> tuple[np.ndarray, np.ndarray]:
+    """Points and outward normals of a cylinder with a Gaussian boss (``boss_mm`` high) at azimuth 0, 30 mm up."""
     def at(ph: np.ndarray, zz: np.ndarray) -> np.ndarray:
-        r = RADIUS_MM + BOSS_MM * np.exp(-((RADIUS_MM * ph) ** 2 + (zz - 30.0) ** 2) / (2 * BOSS_SIGMA_MM ** 2))
+        r = RADIUS_MM + boss_mm * np.exp(-((RADIUS_MM * ph) ** 2 + (zz - 30.0) ** 2) / (2 * BOSS_SIGMA_MM ** 2))
         return np.stack([r * np.cos(ph), r * np.sin(ph), zz], 1)
 
     e = 1e-4
@@ -63,6 +64,37 @@ def test_sandwich_matches_the_scatter_of_the_fit_over_noise_draws():
     assert abs(math.log(ratio)) < math.log(1.5), (ratio, np.std(turns), np.mean(sigmas))
 
 
+def test_profile_matches_the_scatter_of_its_vertex_over_noise_draws():
+    # the boss cylinder, both clouds noisy (each point's partner is itself a noisy point), 12 independent
+    # draws: the cost profiled over turns about the axis at the truth.  The standard deviation of 12
+    # vertices is known to about 21 % (1 / sqrt(2 x 11)); the stated one must agree within a factor of 1.6,
+    # and every vertex lie within 3 of them
+    rng = np.random.default_rng(3)
+    vertices, sigmas = [], []
+    for _ in range(12):
+        clouds = []
+        for n_pts in (6000, 6000):
+            p, n = _boss_cylinder(rng.uniform(-0.7, 0.7, n_pts), rng.uniform(8.0, 52.0, n_pts))
+            clouds.append(_Level(p + rng.normal(0.0, NOISE_MM, (n_pts, 1)) * n, n))
+        v, sd = _profiled(clouds[0], clouds[1], np.eye(4), Z_AXIS, np.zeros(3), 0.5)
+        vertices.append(v)
+        sigmas.append(sd)
+    scatter, stated = float(np.std(vertices, ddof=1)), float(np.mean(sigmas))
+    assert abs(math.log(stated / scatter)) < math.log(1.6), (scatter, stated)
+    assert all(abs(v) <= 3.0 * s for v, s in zip(vertices, sigmas)), (vertices, sigmas)
+
+
+def test_profile_of_a_surface_of_revolution_holds_no_turn():
+    phi, z = np.meshgrid(np.linspace(-1.0, 1.0, 80), np.linspace(5.0, 55.0, 80))
+    p = np.stack([RADIUS_MM * np.cos(phi.ravel()), RADIUS_MM * np.sin(phi.ravel()), z.ravel()], 1)
+    n = p * [1.0, 1.0, 0.0] / RADIUS_MM
+    rng = np.random.default_rng(0)
+    noisy = _Level(p + rng.normal(0.0, NOISE_MM, (len(p), 1)) * n, n)
+    v, sd = _profiled(noisy, _Level(p, n), np.eye(4), Z_AXIS, np.zeros(3), 0.5)
+    # no curvature over the span: free, or so flat that the turn is known to no better than the span
+    assert math.isinf(sd) or sd > 3.0, (v, sd)
+
+
 def test_a_surface_of_revolution_leaves_the_turn_free():
     phi, z = np.meshgrid(np.linspace(-1.0, 1.0, 80), np.linspace(5.0, 55.0, 80))
     p = np.stack([RADIUS_MM * np.cos(phi.ravel()), RADIUS_MM * np.sin(phi.ravel()), z.ravel()], 1)
@@ -85,16 +117,17 @@ def _vase_fit(seed: int, name: str = "vase", steps: int = 72, turn_deg: float = 
     axis = a.pose[:3, 2]
     start = _turned(truth, axis, a.pose[:3, 3], np.radians([turn_deg]))[0]
     t = _icp_pyramid(src, tgt, p, start, levels[-2:], settled=True)
-    sd = _turn_spread(src, tgt, t, axis, levels[-1], p)[0]
+    sd = _turn_spread(src, tgt, t, axis, levels[-1], p, a.pose[:3, 3])[0]
     return p, p.turn_sigmas * sd, abs(_about_axis_deg(t, truth, axis))
 
 
-@pytest.mark.parametrize(("seed", "pinned"), [(0, True), (4, False)])
-def test_vase_turn_bound_covers_the_true_error_and_gates(seed, pinned):
-    # seed 0: the boss in both passes' overlap (0.67 % of it, from the truth): the stated bound (2 sigma)
-    # is within the 0.5 deg tolerance; seed 4: the boss in neither overlap, the turn rests on the
-    # vase's faint asymmetries only: the bound exceeds the tolerance.  In both the true error lies within it
-    preset, bound_deg, error_deg = _vase_fit(seed)
+@pytest.mark.parametrize(("seed", "pinned", "steps"), [(0, True, 200), (4, False, 72)])
+def test_vase_turn_bound_covers_the_true_error_and_gates(seed, pinned, steps):
+    # seed 0: the boss in both passes' overlap (0.56 % of it, from the truth), scanned as the station
+    # does (200 profiles): the stated bound (2 sigma) is within the 0.5 deg tolerance; seed 4: the boss in
+    # neither overlap, the turn rests on the vase's faint asymmetries only: the bound exceeds the
+    # tolerance even at 72 profiles.  In both the true error lies within it
+    preset, bound_deg, error_deg = _vase_fit(seed, steps=steps)
     assert error_deg <= bound_deg, (error_deg, bound_deg)
     assert (bound_deg <= preset.max_turn_deg) == pinned, bound_deg
 
@@ -106,6 +139,17 @@ def test_a_turn_no_feature_holds_is_not_pinned():
     # benchmark's registration did).  Refitted from the tolerance's ends on the offset grid, the fit does
     # not come back: the bound must cover the true error and exceed the tolerance
     preset, bound_deg, error_deg = _vase_fit(3, "inlaid-bowl", steps=200, turn_deg=-1.0)
+    assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
+    assert error_deg <= bound_deg and bound_deg > preset.max_turn_deg, (error_deg, bound_deg)
+
+
+def test_a_turn_held_by_a_relief_twice_the_noise_is_not_pinned():
+    # the inlaid bowl, station seed 15, 200 profiles: fitted from the truth, the fit settles 0.93 deg from
+    # it, and every refit lands within 0.41 deg of that pose, so the sandwich (0.05 deg), the refits and the
+    # basin stated a bound of 0.50 deg: the registration verified the turn 0.94 deg off.  The fit's cost
+    # profiled over +-3 deg does not credit the partners' jumps as information: the bound must cover the
+    # true error and exceed the tolerance
+    preset, bound_deg, error_deg = _vase_fit(15, "inlaid-bowl", steps=200, turn_deg=0.0)
     assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
     assert error_deg <= bound_deg and bound_deg > preset.max_turn_deg, (error_deg, bound_deg)
 
