@@ -82,14 +82,23 @@ def test_a_turned_pose_settles_where_one_level_of_icp_stops_short():
 
 
 @pytest.mark.slow
-def test_vase_pair_compared_at_settled_poses_registers():
+def test_vase_pair_compared_at_settled_poses_is_decided_with_a_bound_that_holds_its_turn():
     # seed 28: the boss in both passes (0.63 % of the overlap, from the truth).  Weighed before the poses
     # settled, the pose chosen was 3.2 deg from the truth and a rival 9.8 deg away stood at 3.0 sigma:
-    # ambiguous.  Compared at settled poses the evidence decides and the turn's bound allows it
+    # ambiguous.  Compared at settled poses the evidence decides.  At these 72 profiles per revolution the
+    # boss is crossed every 5 deg of table angle: the turn chosen is 0.37 deg off and the profile of the
+    # cost about the axis states +-0.56 deg (2 sigma), so the pair is reported turn uncertain, not verified
+    # (at 200 profiles the same seed is verified 0.06 deg off with +-0.15 deg; docs/BENCHMARKS.md)
+    from processing.geometry.registration.turn_uncertainty import _about_axis_deg
+
+    a, _, truth = _pair("vase", 28)
     res, rot, disp = _registered("vase", 28)
-    assert res.verified, res.reason
-    assert rot < TOL_DEG and disp < TOL_MM
-    assert res.evidence_sigma >= 5.0
+    assert res.evidence_sigma >= 5.0, res.reason
+    assert rot < TOL_DEG and disp < TOL_MM, (rot, disp)
+    assert abs(_about_axis_deg(res.transform, truth, a.pose[:3, 2])) <= res.turn_uncertainty_deg
+    assert res.verified == (res.turn_uncertainty_deg <= TOL_DEG), res.reason
+    if not res.verified:
+        assert "turn about the symmetry axis is uncertain" in res.reason, res.reason
 
 
 @pytest.mark.slow
