@@ -22,6 +22,7 @@ from processing.geometry.registration.turn_uncertainty import (
     _about_axis_deg,
     _profiled,
     _turn_spread,
+    profile_turn,
     rotation_covariance,
     turn_sigma_deg,
 )
@@ -82,6 +83,30 @@ def test_profile_matches_the_scatter_of_its_vertex_over_noise_draws():
     scatter, stated = float(np.std(vertices, ddof=1)), float(np.mean(sigmas))
     assert abs(math.log(stated / scatter)) < math.log(1.6), (scatter, stated)
     assert all(abs(v) <= 3.0 * s for v, s in zip(vertices, sigmas)), (vertices, sigmas)
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e-30, 1.0, 1e30, 1e200])
+def test_profile_states_one_turn_whatever_the_cost_s_scale(scale):
+    # 300 cells, parabolas whose minima scatter 1 deg about 0.2 deg: the vertex is their mean and its
+    # deviation their standard deviation over sqrt(300), from the draws themselves; multiplying every cost
+    # by a constant (a noise variance 1e200 too small or too large) changes neither, nor makes them NaN
+    rng = np.random.default_rng(7)
+    d = np.arange(-3.0, 3.0 + 1e-9, 0.2)
+    mu = rng.normal(0.2, 1.0, 300)
+    v, sd = profile_turn(d, scale * (d[:, None] - mu) ** 2, np.arange(300))
+    assert v == pytest.approx(mu.mean(), abs=1e-9)
+    assert sd == pytest.approx(mu.std() / math.sqrt(300), rel=1e-9)
+
+
+def test_profile_refuses_costs_it_cannot_fit():
+    d = np.array([-1.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="3 or more distinct turns"):
+        profile_turn([0.0, 0.0, 1.0], np.ones((3, 4)), np.arange(4))
+    with pytest.raises(ValueError, match="a cell per point"):
+        profile_turn(d, np.ones((3, 4)), np.arange(5))
+    # a profile curving down (a maximum, not a minimum) holds no turn
+    v, sd = profile_turn(d, -(d[:, None] ** 2) * np.ones((3, 4)), np.arange(4))
+    assert math.isnan(v) and math.isinf(sd)
 
 
 def test_profile_of_a_surface_of_revolution_holds_no_turn():

@@ -252,7 +252,8 @@ def profile_turn(turns_deg: ArrayLike, costs: ArrayLike, cells: ArrayLike) -> tu
     if not curvature > 0.0:
         return math.nan, math.inf
     vertex = -float(b.sum()) / curvature
-    return vertex, math.sqrt(float(np.sum((b + 2.0 * a * vertex) ** 2))) / curvature
+    # each cell's score over the curvature before squaring: costs near the float range do not overflow
+    return vertex, math.sqrt(float(np.sum(((b + 2.0 * a * vertex) / curvature) ** 2)))
 
 
 def _profiled(s_lvl: Any, t_lvl: Any, t: NDArray[np.float64], axis: NDArray[np.float64],
