@@ -86,7 +86,7 @@ def test_profile_matches_the_scatter_of_its_vertex_over_noise_draws():
 
 
 @pytest.mark.parametrize("scale", [1e-200, 1e-30, 1.0, 1e30, 1e200])
-def test_profile_states_one_turn_whatever_the_cost_s_scale(scale):
+def test_profile_states_one_turn_whatever_the_scale_of_its_cost(scale):
     # 300 cells, parabolas whose minima scatter 1 deg about 0.2 deg: the vertex is their mean and its
     # deviation their standard deviation over sqrt(300), from the draws themselves; multiplying every cost
     # by a constant (a noise variance 1e200 too small or too large) changes neither, nor makes them NaN

@@ -365,8 +365,9 @@ def _turn_spread(
                               cell_mm=3.0 * voxel, min_cos=min_cos)
     sand, _ = turn_sigma_deg(cov, axis)
     centre = np.asarray(point, dtype=np.float64)
-    _, profiled = _profiled(s_lvl, t_lvl, t, np.asarray(axis, np.float64), centre, voxel)
-    noise = max(sand, profiled)
+    if not math.isfinite(sand):
+        return math.inf, math.inf, ()
+    noise = max(sand, _profiled(s_lvl, t_lvl, t, np.asarray(axis, np.float64), centre, voxel)[1])
     if not math.isfinite(noise):
         return math.inf, math.inf, ()
     iterations = 2 * preset.icp_iterations
