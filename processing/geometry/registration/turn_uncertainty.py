@@ -199,7 +199,10 @@ def profile_turn(turns_deg: ArrayLike, costs: ArrayLike, cells: ArrayLike) -> tu
     out, and only what the whole span shows holds the turn.  The vertex is
     ``d* = -sum b_c / (2 sum a_c)``; as an M-estimate with the cells as
     clusters its variance is ``sum_c (b_c + 2 a_c d*)^2 / (2 sum a_c)^2``
-    (each cell's slope at the vertex is its score).
+    (each cell's slope at the vertex is its score).  It assumes the summed
+    cost is one parabola over the span: where its floor is flat over a
+    degree or more (a relief about twice the range noise) the vertex stays
+    near the span's centre and the deviation comes out too small.
 
     Parameters
     ----------
@@ -341,17 +344,18 @@ def _turn_spread(
     cost profiled over turns of +- :data:`PROFILE_SPAN_DEG` about the axis
     (:func:`profile_turn`), which does not credit as information what only
     the fit's current partners show (on a relief a few times the noise the
-    sandwich stated a tenth of the error).  The spread of the same fit made again from ``t`` in the other direction
-    (target onto source), and in both directions on voxel grids offset by
-    half a voxel (each cloud sampled at another phase,
-    :func:`_shifted_level`), which covers the bias of a feature sampled by
-    few profiles.  And the basin: the fit made again from ``t`` turned by
-    +- ``preset.max_turn_deg`` about the axis on the offset grid; where a feature holds the turn
-    both refits reach one minimum, where none does they stay or wander
-    apart, and half their distance is a turn the data allow.  The spread is
-    the RMS of all five refits' turns from ``t`` over sqrt(2): a refit and
-    ``t`` are two estimates of the turn, their difference twice as variable
-    as either (two refits from the ends that land together away from ``t``
+    sandwich stated a tenth of the error).  The spread: the same fit made
+    again from ``t`` in the other direction (target onto source), and in
+    both directions on voxel grids offset by half a voxel (each cloud
+    sampled at another phase, :func:`_shifted_level`), which covers the
+    bias of a feature sampled by few profiles.  And the basin: the fit made
+    again from ``t`` turned by +- ``preset.max_turn_deg`` about the axis on
+    the offset grid; where a feature holds the turn both refits reach one
+    minimum, where none does they stay or wander apart, and half their
+    distance is a turn the data allow.  The spread is the RMS of all five
+    refits' turns from ``t`` over sqrt(2): a refit and ``t`` are two
+    estimates of the turn, their difference twice as variable as either
+    (two refits from the ends that land together away from ``t``
     count there).
     """
     from processing.geometry.registration.refinement import _icp
