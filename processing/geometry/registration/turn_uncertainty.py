@@ -369,9 +369,9 @@ def _turn_spread(
                               cell_mm=3.0 * voxel, min_cos=min_cos)
     sand, _ = turn_sigma_deg(cov, axis)
     centre = np.asarray(point, dtype=np.float64)
-    if not math.isfinite(sand):
-        return math.inf, math.inf, ()
-    noise = max(sand, _profiled(s_lvl, t_lvl, t, np.asarray(axis, np.float64), centre, voxel)[1])
+    # the profile's evaluations are spared when the sandwich already leaves the turn unbounded
+    noise = max(sand, _profiled(s_lvl, t_lvl, t, np.asarray(axis, np.float64), centre, voxel)[1]) \
+        if math.isfinite(sand) else math.inf
     if not math.isfinite(noise):
         return math.inf, math.inf, ()
     iterations = 2 * preset.icp_iterations
