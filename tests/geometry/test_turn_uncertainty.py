@@ -161,7 +161,7 @@ def test_a_turn_no_feature_holds_is_not_pinned():
     # the inlaid bowl (a motif sunk 0.1 mm, twice the range noise), station seed 3, scanned at 200 profiles:
     # its fit settles 0.98 deg from the truth, and the sandwich (0.06 deg) and the refits from that pose
     # (within 0.16 deg of it) alone would state a bound of 0.17 deg, pinning a wrong turn (as the symmetric
-    # benchmark's registration did).  Refitted from the tolerance's ends on the offset grid, the fit does
+    # benchmark's registration did).  Refitted from the profile's ends on the offset grid, the fit does
     # not come back: the bound must cover the true error and exceed the tolerance
     preset, bound_deg, error_deg = _vase_fit(3, "inlaid-bowl", steps=200, turn_deg=-1.0)
     assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
@@ -175,6 +175,16 @@ def test_a_turn_held_by_a_relief_twice_the_noise_is_not_pinned():
     # profiled over +-3 deg does not credit the partners' jumps as information: the bound must cover the
     # true error and exceed the tolerance
     preset, bound_deg, error_deg = _vase_fit(15, "inlaid-bowl", steps=200, turn_deg=0.0)
+    assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
+    assert error_deg <= bound_deg and bound_deg > preset.max_turn_deg, (error_deg, bound_deg)
+
+
+def test_a_turn_among_shallow_minima_is_bounded_by_where_refits_stay():
+    # the inlaid bowl, station seed 13, 200 profiles: registered, the fit settled 1.45 deg from the truth, a
+    # shallow minimum among others about a degree apart; refits from +-0.5 deg fell back to it and the bound
+    # was 1.02 deg.  Fitted from the truth turned as far, the refits from the profile's ends (+-3 deg) stay
+    # out there: the bound must cover the true error and exceed the tolerance
+    preset, bound_deg, error_deg = _vase_fit(13, "inlaid-bowl", steps=200, turn_deg=-1.45)
     assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
     assert error_deg <= bound_deg and bound_deg > preset.max_turn_deg, (error_deg, bound_deg)
 

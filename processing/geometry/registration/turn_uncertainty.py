@@ -349,10 +349,15 @@ def _turn_spread(
     both directions on voxel grids offset by half a voxel (each cloud
     sampled at another phase, :func:`_shifted_level`), which covers the
     bias of a feature sampled by few profiles.  And the basin: the fit made
-    again from ``t`` turned by +- ``preset.max_turn_deg`` about the axis on
+    again from ``t`` turned by +- :data:`PROFILE_SPAN_DEG` about the axis on
     the offset grid; where a feature holds the turn both refits reach one
     minimum, where none does they stay or wander apart, and half their
-    distance is a turn the data allow.  The spread is the RMS of all five
+    distance is a turn the data allow.  Probed from the profile's span, not
+    from the tolerance's ends: on a relief twice the range noise the fit's
+    cost has shallow minima about a degree apart, so refits from +- 0.5 deg
+    fell back to the fit while the fit itself lay 0.9-1.5 deg from the
+    truth; from +- 3 deg they stay 1-5 deg out, where a boss brings them
+    back to one turn.  The spread is the RMS of all five
     refits' turns from ``t`` over sqrt(2): a refit and ``t`` are two
     estimates of the turn, their difference twice as variable as either
     (two refits from the ends that land together away from ``t``
@@ -385,8 +390,8 @@ def _turn_spread(
     q, m = b.source_sample(preset.icp_points)
     bwd = np.linalg.inv(_icp(q, m, a, np.linalg.inv(t), dist, kernel, min_cos, signed, iterations))
     turns += [_about_axis_deg(fwd, t, axis), _about_axis_deg(bwd, t, axis)]
-    # the basin: refits from the tolerance's ends, on the offset grid, must reach one minimum
-    starts = _turned(t, np.asarray(axis, np.float64), centre, np.radians([-preset.max_turn_deg, preset.max_turn_deg]))
+    # the basin: refits from the profile's ends, on the offset grid, must reach one minimum
+    starts = _turned(t, np.asarray(axis, np.float64), centre, np.radians([-PROFILE_SPAN_DEG, PROFILE_SPAN_DEG]))
     ends = [_about_axis_deg(_icp(p, n, b, start, dist, kernel, min_cos, signed, iterations), t, axis)
             for start in starts]
     basin = 0.5 * abs(ends[1] - ends[0])
