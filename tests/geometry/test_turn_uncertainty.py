@@ -157,34 +157,20 @@ def test_vase_turn_bound_covers_the_true_error_and_gates(seed, pinned, steps):
     assert (bound_deg <= preset.max_turn_deg) == pinned, bound_deg
 
 
-def test_a_turn_no_feature_holds_is_not_pinned():
-    # the inlaid bowl (a motif sunk 0.1 mm, twice the range noise), station seed 3, scanned at 200 profiles:
-    # its fit settles 0.98 deg from the truth, and the sandwich (0.06 deg) and the refits from that pose
-    # (within 0.16 deg of it) alone would state a bound of 0.17 deg, pinning a wrong turn (as the symmetric
-    # benchmark's registration did).  Refitted from the profile's ends on the offset grid, the fit does
-    # not come back: the bound must cover the true error and exceed the tolerance
-    preset, bound_deg, error_deg = _vase_fit(3, "inlaid-bowl", steps=200, turn_deg=-1.0)
-    assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
-    assert error_deg <= bound_deg and bound_deg > preset.max_turn_deg, (error_deg, bound_deg)
-
-
-def test_a_turn_held_by_a_relief_twice_the_noise_is_not_pinned():
-    # the inlaid bowl, station seed 15, 200 profiles: fitted from the truth, the fit settles 0.93 deg from
-    # it, and every refit lands within 0.41 deg of that pose, so the sandwich (0.05 deg), the refits and the
-    # basin stated a bound of 0.50 deg: the registration verified the turn 0.94 deg off.  The fit's cost
-    # profiled over +-3 deg does not credit the partners' jumps as information: the bound must cover the
-    # true error and exceed the tolerance
-    preset, bound_deg, error_deg = _vase_fit(15, "inlaid-bowl", steps=200, turn_deg=0.0)
-    assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
-    assert error_deg <= bound_deg and bound_deg > preset.max_turn_deg, (error_deg, bound_deg)
-
-
-def test_a_turn_among_shallow_minima_is_bounded_by_where_refits_stay():
-    # the inlaid bowl, station seed 13, 200 profiles: registered, the fit settled 1.45 deg from the truth, a
-    # shallow minimum among others about a degree apart; refits from +-0.5 deg fell back to it and the bound
-    # was 1.02 deg.  Fitted from the truth turned as far, the refits from the profile's ends (+-3 deg) stay
-    # out there: the bound must cover the true error and exceed the tolerance
-    preset, bound_deg, error_deg = _vase_fit(13, "inlaid-bowl", steps=200, turn_deg=-1.45)
+@pytest.mark.parametrize(("seed", "turn_deg"), [(3, -1.0), (15, 0.0), (13, -1.45)])
+def test_a_turn_a_shallow_relief_cannot_hold_is_not_pinned(seed, turn_deg):
+    # the inlaid bowl (a motif sunk 0.1 mm, twice the range noise), scanned at 200 profiles, fitted from the
+    # truth turned by ``turn_deg``; each case is one the registration once pinned or under-bounded:
+    # seed 3: the fit settles 0.98 deg from the truth, and the sandwich (0.06 deg) and the refits from that
+    #   pose (within 0.16 deg of it) alone would state a bound of 0.17 deg, pinning a wrong turn;
+    # seed 15: the fit settles 0.93 deg off and every refit lands within 0.41 deg of it, so the sandwich
+    #   (0.05 deg), the refits and the basin stated 0.50 deg: the registration verified the turn 0.94 deg
+    #   off; the cost profiled over +-3 deg does not credit the partners' jumps as information;
+    # seed 13: registered, the fit settled 1.45 deg off, a shallow minimum among others about a degree
+    #   apart; refits from +-0.5 deg fell back to it and the bound was 1.02 deg (1.16 from this start).
+    # Refitted from the profile's ends (+-3 deg) on the offset grid, the fit does not come back: the bound
+    # must cover the true error and exceed the tolerance
+    preset, bound_deg, error_deg = _vase_fit(seed, "inlaid-bowl", steps=200, turn_deg=turn_deg)
     assert error_deg > preset.max_turn_deg, error_deg                      # the case is the one above
     assert error_deg <= bound_deg and bound_deg > preset.max_turn_deg, (error_deg, bound_deg)
 

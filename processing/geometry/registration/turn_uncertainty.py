@@ -357,11 +357,10 @@ def _turn_spread(
     cost has shallow minima about a degree apart, so refits from +- 0.5 deg
     fell back to the fit while the fit itself lay 0.9-1.5 deg from the
     truth; from +- 3 deg they stay 1-5 deg out, where a boss brings them
-    back to one turn.  The spread is the RMS of all five
-    refits' turns from ``t`` over sqrt(2): a refit and ``t`` are two
-    estimates of the turn, their difference twice as variable as either
-    (two refits from the ends that land together away from ``t``
-    count there).
+    back to one turn.  The spread is the RMS of all five refits' turns from
+    ``t`` over sqrt(2): a refit and ``t`` are two estimates of the turn,
+    their difference twice as variable as either (two refits from the ends
+    that land together away from ``t`` count there).
     """
     from processing.geometry.registration.refinement import _icp
 
@@ -373,10 +372,9 @@ def _turn_spread(
     cov = rotation_covariance(pts, nrm, t_lvl.points, t_lvl.normals, t, reach_mm=dist, kernel_mm=kernel,
                               cell_mm=3.0 * voxel, min_cos=min_cos)
     sand, _ = turn_sigma_deg(cov, axis)
-    centre = np.asarray(point, dtype=np.float64)
+    axis, centre = np.asarray(axis, dtype=np.float64), np.asarray(point, dtype=np.float64)
     # the profile's evaluations are spared when the sandwich already leaves the turn unbounded
-    noise = max(sand, _profiled(s_lvl, t_lvl, t, np.asarray(axis, np.float64), centre, voxel)[1]) \
-        if math.isfinite(sand) else math.inf
+    noise = max(sand, _profiled(s_lvl, t_lvl, t, axis, centre, voxel)[1]) if math.isfinite(sand) else math.inf
     if not math.isfinite(noise):
         return math.inf, math.inf, ()
     iterations = 2 * preset.icp_iterations
@@ -391,7 +389,7 @@ def _turn_spread(
     bwd = np.linalg.inv(_icp(q, m, a, np.linalg.inv(t), dist, kernel, min_cos, signed, iterations))
     turns += [_about_axis_deg(fwd, t, axis), _about_axis_deg(bwd, t, axis)]
     # the basin: refits from the profile's ends, on the offset grid, must reach one minimum
-    starts = _turned(t, np.asarray(axis, np.float64), centre, np.radians([-PROFILE_SPAN_DEG, PROFILE_SPAN_DEG]))
+    starts = _turned(t, axis, centre, np.radians([-PROFILE_SPAN_DEG, PROFILE_SPAN_DEG]))
     ends = [_about_axis_deg(_icp(p, n, b, start, dist, kernel, min_cos, signed, iterations), t, axis)
             for start in starts]
     basin = 0.5 * abs(ends[1] - ends[0])
