@@ -173,6 +173,23 @@ FINDINGS = [
     "holding the lock -- it walks the 160,000 objects the imports left (73 ms for them alone).  Changed: the window collects once "
     "and freezes the start-up heap (`gc.freeze`, `app.gui.warm_up.freeze_heap`) before it is shown; later "
     "full collections walk only the session's own objects.",
+    '4. Not a stall but a wait (2026-11-29): every full-size preview render started a new worker process, '
+    "which imported Python, Qt's bindings, NumPy, Open3D and colour-science again -- seconds on this machine, "
+    "more than the render -- and lost the mesh's ray tracer kept between renders.  Changed: the preview keeps "
+    'one worker process for its full-size renders (`app.gui.workers.WorkerProcess`); a cancel stops it and the '
+    "next render starts another.  Measured with the GUI's preview tests, each run alongside the unchanged tree "
+    'on the shared machine (load average 5-10): five 160 x 120 renders and an "Adapt to display white" check, '
+    '69.5 s before, 18.1 s after; four renders with a light probe and the sky, 54.3 s before, 19.5 s after.',
+    "5. A disk's wait on the GUI thread (2026-12-03): Start created the session there, and creating it syncs "
+    'the session file and its folder (`fsync`); with another program writing to the same disk that sync waits '
+    'for the disk, and a thread waiting for the disk is neither running nor queued for a CPU, so the wait '
+    "counts as the window's own.  Found when the suite's two workers once held this test's own stall at 779 "
+    'ms; reproduced by running the test beside `dd` writing 400 MB with `fsync` in a loop: own stall max 122, '
+    '87, 227, 108, 131 ms (4 of 5 runs at 100 ms or more), and a stack snapshot of every thread when the timer '
+    "was 120 ms late had the GUI thread in `Session.create`'s atomic write.  Changed: Start checks the tabs' "
+    "choices at once and creates or opens the session on the instruments' lane "
+    "(`app.gui.capture_panel.open_capture_session`); Save metadata writes on the session's lane.  After, "
+    'beside the same writer: 30, 27, 49 ms (0 of 3).',
     "",
     "The simulated station's serving and firmware threads run in the window's process here (as in the tests); "
     "with a real station they are hardware.  `py-spy record --gil` over one session had them holding the lock "

@@ -6,7 +6,9 @@ capture`` runs), on the instruments' lane of :class:`app.gui.station_link.Statio
 
 * a new session is created with :meth:`app.session.Session.create` (plan,
   object metadata, device configuration), an interrupted one is resumed with
-  its own plan (ports may be changed, as ``kogei capture --resume``);
+  its own plan (ports may be changed, as ``kogei capture --resume``); Start
+  checks the tabs' choices at once, and the session is then created or
+  opened on the instruments' lane, since that writes and syncs files;
 * the engine's ``before_pass`` hook waits for the technician's *Continue* in
   the window (:class:`PromptGate`); with a simulated station the station is
   then told to re-place the object;
@@ -66,7 +68,7 @@ from app.gui.station_link import StationLink
 from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import Job, JobContext
 
-__all__ = ["CapturePanel", "PromptGate", "format_eta", "parse_angles", "describe_action", "completion_text",
+__all__ = ["CapturePanel", "CaptureNotStarted", "PromptGate", "open_capture_session", "format_eta", "parse_angles", "describe_action", "completion_text",
            "MIRROR_KINDS"]
 
 #: Plans of a mirror (chrome) sphere: their plan records the sphere's radius.
@@ -172,8 +174,9 @@ class CapturePanel(Panel):
     """
 
     capture_started = Signal()
-    capture_stopped = Signal(str)         # 'complete', 'interrupted', 'cancelled', 'error'
+    capture_stopped = Signal(str)         # 'complete', 'interrupted', 'cancelled', 'not started'
     note = Signal(str)
+    _opened = Signal(object)              # the capture's plan, once its session is open (from the lane)
 
     def __init__(self, link: StationLink, session_root: Callable[[], Path | None],
                  metadata: Callable[[], dict[str, str]], calibration: Callable[[], str | None],
@@ -187,6 +190,7 @@ class CapturePanel(Panel):
         self.calibration = calibration
         self.gate = PromptGate(self)
         self.gate.asked.connect(self._show_prompt)
+        self._opened.connect(self._on_opened)
         self.job: Job | None = None
         self.pause_event = threading.Event()
         self.last_progress: Any = None
@@ -426,10 +430,16 @@ class CapturePanel(Panel):
         if isinstance(radius, (int, float)) and not isinstance(radius, bool):
             self.mirror_radius.setValue(float(radius))
 
-    def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
-        from app.capture.runner import PROFILE_KINDS, open_for_resume
+    def _capture_request(self) -> dict[str, Any]:
+        """What Start asks for, checked on the GUI thread without touching the disk beyond a look.
+
+        A new session's plan and device configuration come from the tabs; an existing session is resumed
+        with its own plan, so only the Devices tab's choices are taken here.  The session itself is created or
+        opened on the instruments' lane (:func:`open_capture_session`): that writes and syncs files, which on a
+        busy disk takes longer than the window may wait.
+        """
+        from app.capture.runner import PROFILE_KINDS
         from app.errors import UsageError
-        from app.session import Session, SessionError
 
         root = self.session_root()
         if root is None:
@@ -437,18 +447,9 @@ class CapturePanel(Panel):
         if self.apply_devices is not None:
             self.apply_devices()            # the Devices tab's current choices
         if (root / "session.json").exists():
-            session, plan, settings, config = open_for_resume(root)
-            for name in ("turntable", "profiler"):
-                if self.link.ports.get(name) and name in config:
-                    config[name]["port"] = self.link.ports[name]
             chosen = self.link.camera.get("kind", "none") != "none"
-            if chosen:
-                config["camera"] = dict(self.link.camera)
-            _refuse_foreign_commands(session, root, settings, config, camera_chosen=chosen)
-            settings["device_config"] = config
-            session.update("settings", settings)
-            self.set_plan(plan.to_dict())
-            return session, plan, config
+            return {"root": root, "resume": True, "ports": {n: self.link.ports.get(n) for n in ("turntable", "profiler")},
+                    "camera": dict(self.link.camera) if chosen else None}
         try:
             plan = self.plan()
         except ValueError as exc:
@@ -463,12 +464,12 @@ class CapturePanel(Panel):
             raise UsageError(problem)
         if plan.kind not in PROFILE_KINDS and not plan.camera:
             raise UsageError(f"a {plan.kind} capture takes only RAW frames: choose a camera on the Devices tab")
-        try:
-            session = Session.create(root, plan=plan.to_dict(), object_info=self.metadata(),
-                                     settings={"unattended": False, "device_config": config, "station": "gui"},
-                                     devices={k: dict(v) for k, v in config.items()})
-        except SessionError as exc:
-            raise UsageError(str(exc)) from None
+        return {"root": root, "resume": False, "plan": plan, "config": config, "object": self.metadata()}
+
+    def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
+        """The session Start would capture into, opened or created here (on the calling thread)."""
+        session, plan, config = open_capture_session(self._capture_request())
+        self.set_plan(plan.to_dict())
         return session, plan, config
 
     # ------------------------------------------------------------ run
@@ -487,8 +488,8 @@ class CapturePanel(Panel):
             raise UsageError("a capture is already running")
         if self.link.lane.busy:
             self.link.lane.wait(5000)
-        session, plan, config = self._open_or_create()
-        self._root = session.root
+        request = self._capture_request()
+        self._root = request["root"]
         self._pass_profiles.clear()
         self._cloud_pass_no = None
         self._cloud_dirty = False
@@ -497,10 +498,17 @@ class CapturePanel(Panel):
         self._reconnect = self.link.release_for_capture()
         link, gate = self.link, self.gate
         simulated = link.placer is not None or bool(link.control_dir)
-        chart_prompt = plan.camera and plan.chart and not simulated
         pause = self.pause_event
+        opened = self._opened
 
         def work(ctx: JobContext) -> Any:
+            try:        # creating or opening the session writes and syncs files: here, not on the GUI thread
+                session, plan, config = open_capture_session(request)
+            except UsageError as exc:
+                raise CaptureNotStarted(str(exc)) from None
+            opened.emit(plan)
+            chart_prompt = plan.camera and plan.chart and not simulated
+
             def before_pass(p: int, n: int) -> None:
                 text = placement_prompt(plan.kind, p)
                 what = text[0].upper() + text[1:]
@@ -542,13 +550,20 @@ class CapturePanel(Panel):
         self.last_progress = None
         self.eta.setText("ETA –")                 # nothing of the previous capture's timing
         self.position.setText("table: driven by the capture")
-        self.action.setText(f"capturing into {session.root}")
-        self.progress.setRange(0, len(plan.actions()))
-        self.progress.setValue(0)
+        self.action.setText(f"opening the session {self._root}")
+        self.progress.setRange(0, 0)              # busy until the session's plan is known
         self._set_running(True)
         self._timer.start()
         self.capture_started.emit()
-        self.log.emit(f"capture started: {plan.kind}, {plan.steps} steps × {plan.passes} passes -> {session.root}")
+
+    def _on_opened(self, plan: Any) -> None:
+        """The session is open on the instruments' lane: show its plan (a resumed one has its own)."""
+        self.set_plan(plan.to_dict())
+        if self.last_progress is None:
+            self.progress.setRange(0, len(plan.actions()))
+            self.progress.setValue(0)
+        self.action.setText(f"capturing into {self._root}")
+        self.log.emit(f"capture started: {plan.kind}, {plan.steps} steps × {plan.passes} passes -> {self._root}")
 
     #: How long the engine waits for an unplugged instrument to come back (s).
     reconnect_timeout_s = 30.0
@@ -634,6 +649,13 @@ class CapturePanel(Panel):
 
     def _on_failed(self, text: str, exc: Any) -> None:
         reason = getattr(exc, "reason", "error")
+        if reason == "not started":         # the session could not be created or opened: nothing was captured
+            self.status_text = "not started"
+            self.progress.setRange(0, 1)        # no longer busy: nothing to count
+            self.progress.setValue(0)
+            self.action.setText(f"not started: {text.splitlines()[0]}")
+            self.error.emit(text)
+            return
         self.status_text = "cancelled" if reason == "cancelled" else "interrupted"
         # the window resumes with Start, not with the command line the engine's message names
         text = re.sub(r"fix the cause and run: kogei capture --resume \S+", "fix the cause and press Start to "
@@ -657,7 +679,8 @@ class CapturePanel(Panel):
         self.pause.setText("Pause  (F6)")
         self.position.setText("table: – (its position is confirmed at the next move)")
         self._set_running(False)
-        self.link.capture_finished(self._reconnect, interrupted=self.status_text != "complete")
+        # a capture that never started left the turntable where it was: it is simply reconnected
+        self.link.capture_finished(self._reconnect, interrupted=self.status_text not in ("complete", "not started"))
         self.capture_stopped.emit(self.status_text)
 
     # ------------------------------------------------------------ plots
@@ -723,6 +746,44 @@ class CapturePanel(Panel):
             cal = None
         self._cal_cache = (src, cal)
         return cal
+
+
+class CaptureNotStarted(RuntimeError):
+    """Start's session could not be created or opened (the message says what to change); nothing was captured."""
+
+    reason = "not started"
+
+
+def open_capture_session(request: dict[str, Any]) -> tuple[Any, Any, dict[str, Any]]:
+    """Create the session of a :meth:`CapturePanel._capture_request`, or open it to resume.
+
+    Returns the open session, its plan and the device configuration the capture runs with; a
+    :class:`app.errors.UsageError` names what to change.  Runs on any thread (it touches no widget).
+    """
+    from app.capture.runner import open_for_resume
+    from app.errors import UsageError
+    from app.session import Session, SessionError
+
+    root = request["root"]
+    if request["resume"]:
+        session, plan, settings, config = open_for_resume(root)
+        for name, port in request["ports"].items():
+            if port and name in config:
+                config[name]["port"] = port
+        if request["camera"] is not None:
+            config["camera"] = dict(request["camera"])
+        _refuse_foreign_commands(session, root, settings, config, camera_chosen=request["camera"] is not None)
+        settings["device_config"] = config
+        session.update("settings", settings)
+        return session, plan, config
+    plan, config = request["plan"], request["config"]
+    try:
+        session = Session.create(root, plan=plan.to_dict(), object_info=request["object"],
+                                 settings={"unattended": False, "device_config": config, "station": "gui"},
+                                 devices={k: dict(v) for k, v in config.items()})
+    except SessionError as exc:
+        raise UsageError(str(exc)) from None
+    return session, plan, config
 
 
 def _refuse_foreign_commands(session: Any, root: Path, settings: dict[str, Any], config: dict[str, Any], *,

@@ -296,12 +296,21 @@ class SessionPanel(Panel):
             raise UsageError("no session on disk yet: the metadata is stored when the capture starts")
         if self.capturing:
             raise UsageError("the capture is writing the session; save the metadata when it has stopped")
-        try:
-            with Session.open(self.root) as s:
-                s.update("object", {**s.manifest.get("object", {}), **self.metadata()})
-        except SessionError as exc:
-            raise UsageError(str(exc)) from None
-        self.refresh()
+        root, edits = self.root, self.metadata()
+
+        def work(ctx: JobContext) -> None:        # writes and syncs the session file: not on the GUI thread
+            try:
+                with Session.open(root) as s:
+                    s.update("object", {**s.manifest.get("object", {}), **edits})
+            except SessionError as exc:
+                raise UsageError(str(exc)) from None
+
+        def done(_: Any) -> None:
+            self.notice.emit(f"metadata saved in {root}")
+            self.refresh()
+
+        self.lane.run(work, "save metadata", succeeded=done,
+                      failed=lambda text, exc: self.error.emit(f"save metadata: {text}"))
 
     # ------------------------------------------------------------ list
     def refresh(self) -> None:

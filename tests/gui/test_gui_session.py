@@ -244,3 +244,37 @@ def test_report_folder_and_export_buttons(qtbot, tmp_path):
     qtbot.waitUntil(lambda: w.message_kind == "error", timeout=60_000)
     assert w.error_line.text().startswith("export:") and "Traceback" not in w.error_line.text()
     assert not (tmp_path / "object.glb").exists()
+
+
+def test_save_metadata_stores_the_edits_off_the_gui_thread(qtbot, tmp_path, monkeypatch):
+    """Save metadata merges the Session tab's fields into the session's object record (a sync of the session file,
+    so on the session lane, not the GUI thread); fields it does not show are kept."""
+    import threading
+
+    from PySide6.QtCore import Qt
+
+    from app.capture.runner import CapturePlan
+    from tests.gui.helpers import make_window
+
+    root = tmp_path / "s"
+    Session.create(root, plan=CapturePlan("scan", steps=4, passes=1, camera=False).to_dict(),
+                   object_info={"name": "tsuba", "collection_no": "M-1907-12"}).close()
+    threads: list[str] = []
+    update = Session.update
+
+    def recording_update(self, *args, **kwargs):
+        threads.append(threading.current_thread().name)
+        return update(self, *args, **kwargs)
+
+    monkeypatch.setattr(Session, "update", recording_update)
+    w = make_window(qtbot, tmp_path)
+    w.session.folder.setText(str(root))
+    qtbot.mouseClick(w.session.open_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: w.session.manifest is not None, timeout=10_000)
+    w.session.meta_edits["name"].setText("tsuba with plum blossoms")
+    w.session.meta_edits["operator"].setText("T. Tanaka")
+    qtbot.mouseClick(w.session.save_meta, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: w.message_kind == "info" and "metadata saved" in w.error_line.text(), timeout=10_000)
+    assert Session.read(root)["object"] == {"name": "tsuba with plum blossoms", "collection_no": "M-1907-12",
+                                            "operator": "T. Tanaka"}
+    assert threads and threading.main_thread().name not in threads, threads

@@ -150,3 +150,48 @@ def test_nothing_stale_across_an_aborted_and_resumed_capture_in_one_window(qtbot
                     timeout=10_000)
     assert w.capture.position.text().startswith("table: connected")
     assert sum(1 for r in Session.read(tmp_path / "s")["captures"].values() if r["kind"] == "profile") == 30
+
+
+def test_start_creates_the_session_off_the_gui_thread_and_says_when_it_cannot(qtbot, tmp_path, monkeypatch):
+    """Creating a session writes and syncs files, which a busy disk can hold for most of a second: Start checks the
+    tabs at once and creates the session on the instruments' lane.  A folder that cannot become a session stops the
+    capture before anything is taken, says so in the window, leaves the folder as it was and hands the
+    instruments back."""
+    import threading
+
+    w, st = _station_window(qtbot, tmp_path)
+    threads: list[str] = []
+    create = Session.create.__func__
+
+    def recording_create(cls, *args, **kwargs):
+        threads.append(threading.current_thread().name)
+        return create(cls, *args, **kwargs)
+
+    monkeypatch.setattr(Session, "create", classmethod(recording_create))
+    folder = tmp_path / "taken"
+    w.session.folder.setText(str(folder))
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    assert w.error_line.isHidden(), w.error_line.text()
+    folder.mkdir()                                         # another program writes there before Start is pressed
+    (folder / "notes.txt").write_text("someone else's")
+    w.capture.steps.setValue(6)
+    w.capture.passes.setValue(1)
+    qtbot.mouseClick(w.capture.start, LEFT)
+    wait_capture(qtbot, w, timeout_s=30)
+    assert threads and threading.main_thread().name not in threads, threads
+    assert w.capture.status_text == "not started"
+    assert "already exists and is not an empty folder" in w.error_line.text()
+    assert w.capture.action.text().startswith("not started: ")
+    assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]
+    assert (folder / "notes.txt").read_text() == "someone else's"
+    qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
+
+    # the same Start into a new folder: created on the lane too, and the capture runs to the end
+    w.session.folder.setText(str(tmp_path / "fresh"))
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    qtbot.mouseClick(w.capture.start, LEFT)
+    wait_capture(qtbot, w, timeout_s=60)
+    assert w.capture.status_text == "complete", w.error_line.text()
+    assert len(threads) == 2 and threading.main_thread().name not in threads, threads
+    assert w.capture.progress.maximum() == w.capture.progress.value() == 6
+    assert Session.read(tmp_path / "fresh")["status"] == "complete"
