@@ -128,7 +128,7 @@ class Job(QRunnable):
             _LOG.debug("%s given up: %s", self.name, exc)
             self.signals.failed.emit(describe_error(exc), exc)
         except BaseException as exc:  # noqa: BLE001 - every failure is reported in the window, never lost
-            _LOG.error("%s failed:\n%s", self.name, traceback.format_exc())
+            _LOG.error("%s failed: %s\n%s", self.name, describe_error(exc), traceback.format_exc())
             self.signals.failed.emit(describe_error(exc), exc)
         else:
             self.signals.succeeded.emit(result)
@@ -341,7 +341,7 @@ class ProcessJob(QObject):
             if kind == "succeeded":
                 self.succeeded.emit(item[1])
             else:
-                _LOG.error("process job failed:\n%s", item[2])
+                _LOG.error("process job failed: %s\n%s", item[1], item[2])
                 self.failed.emit(item[1], item[2])
             self.finished.emit()
             return

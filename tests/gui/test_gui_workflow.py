@@ -182,6 +182,7 @@ def test_start_creates_the_session_off_the_gui_thread_and_says_when_it_cannot(qt
     assert w.capture.status_text == "not started"
     assert "already exists and is not an empty folder" in w.error_line.text()
     assert w.capture.action.text().startswith("not started: ")
+    assert any("capture failed: " in line and "already exists" in line for line in w.log_view.toPlainText().splitlines())
     assert sorted(p.name for p in folder.iterdir()) == ["notes.txt"]
     assert (folder / "notes.txt").read_text() == "someone else's"
     qtbot.waitUntil(lambda: all(w.link.states[n] == "connected" for n in ("turntable", "profiler")), timeout=10_000)
