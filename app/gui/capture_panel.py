@@ -68,8 +68,8 @@ from app.gui.station_link import StationLink
 from app.gui.widgets import Panel, WrapLabel
 from app.gui.workers import Job, JobContext
 
-__all__ = ["CapturePanel", "CaptureNotStarted", "PromptGate", "open_capture_session", "format_eta", "parse_angles", "describe_action", "completion_text",
-           "MIRROR_KINDS"]
+__all__ = ["CapturePanel", "CaptureNotStarted", "PromptGate", "open_capture_session", "format_eta", "parse_angles",
+           "describe_action", "completion_text", "MIRROR_KINDS"]
 
 #: Plans of a mirror (chrome) sphere: their plan records the sphere's radius.
 MIRROR_KINDS = ("lamp-calibration", "probe")
@@ -465,12 +465,6 @@ class CapturePanel(Panel):
         if plan.kind not in PROFILE_KINDS and not plan.camera:
             raise UsageError(f"a {plan.kind} capture takes only RAW frames: choose a camera on the Devices tab")
         return {"root": root, "resume": False, "plan": plan, "config": config, "object": self.metadata()}
-
-    def _open_or_create(self) -> tuple[Any, Any, dict[str, Any]]:
-        """The session Start would capture into, opened or created here (on the calling thread)."""
-        session, plan, config = open_capture_session(self._capture_request())
-        self.set_plan(plan.to_dict())
-        return session, plan, config
 
     # ------------------------------------------------------------ run
     def start_capture(self) -> None:

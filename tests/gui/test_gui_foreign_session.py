@@ -9,6 +9,7 @@ pytest.importorskip("PySide6.QtWidgets", reason="the window needs PySide6 (pip i
 from app.capture.devices import creator_record  # noqa: E402
 from app.capture.runner import CapturePlan  # noqa: E402
 from app.errors import UsageError  # noqa: E402
+from app.gui.capture_panel import open_capture_session  # noqa: E402
 from app.session import Session  # noqa: E402
 from tests.gui.helpers import make_window  # noqa: E402
 
@@ -32,10 +33,10 @@ def test_a_foreign_sessions_stored_camera_program_is_refused(qtbot, tmp_path, fo
     w.session.root = root
     if foreign:
         with pytest.raises(UsageError, match="another user or machine.*not-a-camera.sh.*--trust-hooks"):
-            w.capture._open_or_create()
+            open_capture_session(w.capture._capture_request())
         with Session.open(root):          # the window let go of the session
             pass
     else:
-        session, plan, config = w.capture._open_or_create()
+        session, plan, config = open_capture_session(w.capture._capture_request())
         assert config["camera"]["executable"].endswith("not-a-camera.sh")
         session.close()
