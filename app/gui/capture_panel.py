@@ -392,6 +392,8 @@ class CapturePanel(Panel):
         self.link.jog(action, value, done=self._jogged)
 
     def _jogged(self, angle: float) -> None:
+        if self.job is not None and not self.job.done:
+            return                  # a jog that ended as Start was pressed: the capture drives the table now
         self.position.setText(f"table at {angle:.2f}° (confirmed by the firmware)")
 
     # ------------------------------------------------------------ plan and session
@@ -480,8 +482,7 @@ class CapturePanel(Panel):
 
         if self.job is not None and not self.job.done:
             raise UsageError("a capture is already running")
-        if self.link.lane.busy:
-            self.link.lane.wait(5000)
+        # a jog still under way finishes first: the instruments' lane runs one job at a time, in order
         request = self._capture_request()
         self._root = request["root"]
         self._pass_profiles.clear()

@@ -380,8 +380,10 @@ class MainWindow(QMainWindow):
 
     # ------------------------------------------------------------ simulated station
     def start_simulated_station(self, triangles: int = 4000, seed: int = 0, image_size: tuple[int, int] = (240, 160),
-                                root: str | Path | None = None, n_points: int = 320, world: Any = None) -> Any:
-        """Start :class:`mocks.station.SimulatedStation` in this process and point the Devices tab at it."""
+                                root: str | Path | None = None, n_points: int = 320, world: Any = None,
+                                time_scale: float = 0.0) -> Any:
+        """Start :class:`mocks.station.SimulatedStation` in this process and point the Devices tab at it
+        (``time_scale``: real seconds per simulated second of the table's motion; 0, instant)."""
         from mocks.station import SimulatedStation
         from mocks.world import World
 
@@ -391,7 +393,7 @@ class MainWindow(QMainWindow):
             from mocks.world import STATION_CHART_LAYOUT
 
             world = World.hawk(triangles, width=image_size[0], height=image_size[1], chart_layout=STATION_CHART_LAYOUT)
-        st = SimulatedStation(world, root=root, seed=seed, n_points=n_points)
+        st = SimulatedStation(world, root=root, seed=seed, n_points=n_points, time_scale=time_scale)
         st.start()
         return self._attach_station(st)
 

@@ -196,3 +196,35 @@ def test_start_creates_the_session_off_the_gui_thread_and_says_when_it_cannot(qt
     assert len(threads) == 2 and threading.main_thread().name not in threads, threads
     assert w.capture.progress.maximum() == w.capture.progress.value() == 6
     assert Session.read(tmp_path / "fresh")["status"] == "complete"
+
+
+def test_start_during_a_jog_queues_the_capture_behind_it_without_waiting(qtbot, tmp_path):
+    """Start pressed while the table is still turning for a jog returns at once (the window does not wait for the
+    table): the capture runs after the jog on the instruments' lane, and the jog's end does not overwrite the
+    capture's position line."""
+    from tests.gui.helpers import connect_instruments
+
+    w = make_window(qtbot, tmp_path)
+    st = w.start_simulated_station(world=World.hawk(2000, width=48, height=32), seed=6, n_points=96,
+                                   time_scale=1.0)                  # the table turns at its real speed
+    connect_instruments(qtbot, w)
+    w.session.folder.setText(str(tmp_path / "s"))
+    qtbot.mouseClick(w.session.new_button, LEFT)
+    w.capture.steps.setValue(6)
+    w.capture.passes.setValue(1)
+    w.capture.angle.setValue(180.0)
+    qtbot.mouseClick(w.capture.go, LEFT)                           # 180 deg at 100 deg/s: about 2.3 s
+    qtbot.waitUntil(lambda: w.link.lane.busy, timeout=5_000)
+    qtbot.mouseClick(w.capture.start, LEFT)
+    assert w.error_line.isHidden(), w.error_line.text()
+    assert st.table_angle_deg < 179.0, st.table_angle_deg          # Start returned with the table still turning
+    # the capture's first step comes after the jog (one lane, in order); the jog's end leaves its line alone
+    qtbot.waitUntil(lambda: not w.capture.prompt.isHidden(), timeout=20_000)
+    qtbot.wait(200)
+    assert w.capture.position.text() == "table: driven by the capture"
+    prompts = wait_capture(qtbot, w, timeout_s=60)
+    assert w.capture.status_text == "complete", w.error_line.text()
+    assert len(prompts) == 1
+    m = Session.read(tmp_path / "s")
+    assert sum(r["kind"] == "profile" for r in m["captures"].values()) == 6
+    assert "180.00" not in w.capture.position.text()
