@@ -212,12 +212,12 @@ def test_start_during_a_jog_queues_the_capture_behind_it_without_waiting(qtbot, 
     qtbot.mouseClick(w.session.new_button, LEFT)
     w.capture.steps.setValue(6)
     w.capture.passes.setValue(1)
-    w.capture.angle.setValue(180.0)
-    qtbot.mouseClick(w.capture.go, LEFT)                           # 180 deg at 100 deg/s: about 2.3 s
+    w.capture.angle.setValue(350.0)
+    qtbot.mouseClick(w.capture.go, LEFT)                           # 350 deg at 100 deg/s: about 4 s
     qtbot.waitUntil(lambda: w.link.lane.busy, timeout=5_000)
     qtbot.mouseClick(w.capture.start, LEFT)
     assert w.error_line.isHidden(), w.error_line.text()
-    assert st.table_angle_deg < 179.0, st.table_angle_deg          # Start returned with the table still turning
+    assert st.table_angle_deg < 349.0, st.table_angle_deg          # Start returned with the table still turning
     # the capture's first step comes after the jog (one lane, in order); the jog's end leaves its line alone
     qtbot.waitUntil(lambda: not w.capture.prompt.isHidden(), timeout=20_000)
     qtbot.wait(200)
@@ -227,4 +227,4 @@ def test_start_during_a_jog_queues_the_capture_behind_it_without_waiting(qtbot, 
     assert len(prompts) == 1
     m = Session.read(tmp_path / "s")
     assert sum(r["kind"] == "profile" for r in m["captures"].values()) == 6
-    assert "180.00" not in w.capture.position.text()
+    assert "350.00" not in w.capture.position.text()
