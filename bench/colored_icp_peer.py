@@ -98,15 +98,14 @@ def peer_rows(seed: int, frame_size: tuple[int, int] | None = None) -> list[dict
     rgb_a, rgb_b = _posed_colours(world, a, frame_size).colours, _posed_colours(world, b, frame_size).colours
     truth = a.pose @ np.linalg.inv(b.pose)
     axis, point = a.pose[:3, 2], a.pose[:3, 3]
+    starts = _turned(truth, axis, point, np.radians(DELTAS_DEG))
     rows = []
     for mode in ("rgb", "chromaticity"):
         source, target = _cloud(b, rgb_b, mode), _cloud(a, rgb_a, mode)
         for schedule in SCHEDULES:
             c0 = time.process_time()
-            errors = {f"{d:+g}": round(_turn_error_deg(_coloured_icp(source, target, _turned(truth, axis, point,
-                                                                                               np.radians([d]))[0],
-                                                                     schedule), truth, axis), 3)
-                      for d in DELTAS_DEG}
+            ends = [_coloured_icp(source, target, start, schedule) for start in starts]
+            errors = {f"{d:+g}": round(_turn_error_deg(end, truth, axis), 3) for d, end in zip(DELTAS_DEG, ends)}
             rows.append({"seed": seed, "colours": mode, "schedule": schedule, "turn_error_deg": errors,
                          "cpu_s_per_start": round((time.process_time() - c0) / len(DELTAS_DEG), 2)})
     return rows
