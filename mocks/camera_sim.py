@@ -237,6 +237,10 @@ def channel_signal(radiance: ArrayLike, grid: SpectralGrid, name: str = SENSITIV
     return rad.astype(np.float64, copy=False) @ (s * grid.step)
 
 
+#: The most channels OpenCV filters in one image (``CV_CN_MAX``); more go through SciPy.
+_CV_MAX_CHANNELS = 512
+
+
 def lens_blur(radiance: ArrayLike, sigma_px: float = LENS_SIGMA_PX) -> NDArray[np.float64]:
     """The lens and optical low-pass filter: a Gaussian of ``sigma_px`` photosites over the image plane.
 
@@ -261,6 +265,7 @@ def lens_blur(radiance: ArrayLike, sigma_px: float = LENS_SIGMA_PX) -> NDArray[n
     >>> round(float(out.sum()), 6), round(float(out[4, 4, 0]), 3)
     (1.0, 0.159)
     """
+    import cv2
     from scipy.ndimage import gaussian_filter
 
     img = np.asarray(radiance, dtype=np.float64)
@@ -268,9 +273,19 @@ def lens_blur(radiance: ArrayLike, sigma_px: float = LENS_SIGMA_PX) -> NDArray[n
         raise CameraSimError(f"lens sigma_px must be a finite number >= 0 photosites, got {sigma_px!r}")
     if img.ndim not in (2, 3):
         raise CameraSimError(f"lens_blur needs an (H, W) or (H, W, L) image, got shape {img.shape}")
-    if sigma_px == 0:
+    if sigma_px == 0 or img.size == 0:
         return img.copy()
-    return gaussian_filter(img, sigma=(sigma_px, sigma_px) + (0.0,) * (img.ndim - 2), mode="nearest")
+    channels = 1 if img.ndim == 2 else img.shape[2]
+    if channels > _CV_MAX_CHANNELS:
+        return gaussian_filter(img, sigma=(sigma_px, sigma_px) + (0.0,) * (img.ndim - 2), mode="nearest")
+    # SciPy's kernel (radius 4 sigma), applied by OpenCV's separable filter: the same sums over the image
+    # plane (to rounding), three times faster on a spectral frame, whose channels OpenCV filters together
+    radius = int(4.0 * sigma_px + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    kernel = np.exp(-0.5 * (x / sigma_px) ** 2)
+    kernel /= kernel.sum()
+    out = cv2.sepFilter2D(np.ascontiguousarray(img), cv2.CV_64F, kernel, kernel, borderType=cv2.BORDER_REPLICATE)
+    return out.reshape(img.shape)
 
 
 def mosaic(rgb: ArrayLike, pattern: str = "RGGB") -> NDArray[np.float64]:

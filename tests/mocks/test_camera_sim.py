@@ -178,3 +178,18 @@ def test_the_lens_lets_a_one_photosite_glint_reach_every_colour_of_its_cfa_cell(
     assert np.all(spread[cell] > 0.05 * spread[cell].max())
     assert lens_blur(glint, 1.0).sum() == pytest.approx(glint.sum(), rel=1e-9)
     assert np.array_equal(lens_blur(glint, 0.0), glint)          # 0: a pinhole
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (4, 4), (2, 2, 3), (3, 7, 1), (40, 30, 31), (5, 6, 600)])
+@pytest.mark.parametrize("sigma_px", [1e-9, 0.3, 1.0, 2.5])
+def test_the_lens_is_scipys_gaussian_over_the_image_plane(shape, sigma_px):
+    """The reference: SciPy's Gaussian filter with edges extended by their nearest pixel, along the two image
+    axes only, at any size (smaller than the kernel too) and any channel count (above OpenCV's 512 too)."""
+    from scipy.ndimage import gaussian_filter
+
+    img = np.random.default_rng(7).random(shape) * 1e3
+    ref = gaussian_filter(img, sigma=(sigma_px, sigma_px) + (0.0,) * (img.ndim - 2), mode="nearest")
+    out = lens_blur(img, sigma_px)
+    assert out.shape == img.shape and out.dtype == np.float64
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12 * 1e3)
+    assert lens_blur(np.zeros((0, 5, 3)), 1.0).shape == (0, 5, 3)
