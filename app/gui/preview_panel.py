@@ -687,12 +687,20 @@ class PreviewPanel(Panel):
         self.info.setText(title)
 
     def _save(self) -> None:
+        """Ask where, then write the shown image as PNG on the preview's lane (a disk's wait stays off the window)."""
         from app.errors import UsageError
-        from render.image_io import write_png
 
         if self.image is None:
             raise UsageError("render an image first")
         path, _ = QFileDialog.getSaveFileName(self, "Save image", "preview.png", "PNG (*.png)")
-        if path:
-            write_png(path, self.image)
-            self.log.emit(f"preview saved to {path}")
+        if not path:
+            return
+        image = self.image.copy()                        # the next render replaces the panel's image
+
+        def work(ctx: Any) -> str:
+            from render.image_io import write_png
+
+            return str(write_png(path, image))
+
+        self.lane.run(work, "save image", succeeded=lambda written: self.log.emit(f"preview saved to {written}"),
+                      failed=lambda text, exc: self.error.emit(f"preview: not saved to {path}: {text}"))

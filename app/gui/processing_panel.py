@@ -68,7 +68,7 @@ from app.gui.widgets import Panel, browse_row
 from app.gui.workers import JobContext, Lane, ProcessJob
 
 __all__ = ["ProcessingPanel", "pair_row", "run_processing", "run_materials", "materials_missing", "materials_summary",
-           "camera_summary", "render_mesh_view", "MESH_VIEW_SIZE"]
+           "camera_summary", "remove_unrecorded", "render_mesh_view", "MESH_VIEW_SIZE"]
 
 #: Size (pixels) of the mesh view's render.
 MESH_VIEW_SIZE = (360, 270)
@@ -164,6 +164,35 @@ def _stamp(path: Path) -> tuple[int, int] | None:
     except OSError:
         return None
     return (st.st_size, st.st_mtime_ns)
+
+
+def remove_unrecorded(root: Path | None, before: dict[str, Any]) -> int:
+    """Remove the object's files a stopped materials run wrote that the session does not record; how many.
+
+    ``before`` maps each of the run's products (relative to ``root``) to its :func:`_stamp` before the run (None:
+    it did not exist).  A result the session records, written by this run, stays: the run finished recording it
+    before the stop.  Runs on a worker thread (the window's lane).
+    """
+    import shutil
+
+    from app.session import Session
+    from app.workflows.object_materials import OBJECT_MATERIALS
+
+    if root is None:
+        return 0
+    recorded = ((Session.read(root).get("products") or {}).get("object_materials") or {}).get("file")
+    written = _stamp(root / OBJECT_MATERIALS)
+    if recorded == OBJECT_MATERIALS and written is not None and written != before.get(OBJECT_MATERIALS):
+        return 0                                  # the run finished recording before the stop: keep it
+    removed = 0
+    for rel, was in before.items():
+        if was is None and (root / rel).is_file():
+            (root / rel).unlink()
+            removed += 1
+        elif was is None and (root / rel).is_dir():       # the validation's images of a first run
+            removed += sum(1 for f in (root / rel).rglob("*") if f.is_file())
+            shutil.rmtree(root / rel)
+    return removed
 
 
 def camera_summary(ref: dict[str, Any]) -> str:
@@ -448,6 +477,7 @@ class ProcessingPanel(Panel):
         r.addWidget(self.materials_cancel_button)
         v.addWidget(self.materials_state)
         self.materials_job: ProcessJob | None = None
+        self._tidying = False                    # a cancelled run's files being removed on the lane
         self.materials_cancelled = False
         self.materials_doc: dict[str, Any] | None = None
         self.materials_verdict: Any = None
@@ -460,7 +490,7 @@ class ProcessingPanel(Panel):
     def show_materials_state(self, root: Path | None, manifest: dict[str, Any] | None) -> None:
         """Enable the measurement when the open session's photos are posed on its mesh; say what is missing if not."""
         missing = materials_missing(root, manifest)
-        running = self.materials_job is not None and not self.materials_job.done
+        running = self.measuring
         self.materials_button.setEnabled(missing is None and not running)
         self.materials_button.setToolTip(
             "segment the mesh into regions of one material and fit each region's material to the posed photos "
@@ -508,7 +538,7 @@ class ProcessingPanel(Panel):
         missing = materials_missing(root, manifest)
         if missing is not None:
             raise UsageError(missing)
-        if self.materials_job is not None and not self.materials_job.done:
+        if self.measuring:
             raise UsageError("the materials are already being measured")
         # what the object's files were: a cancelled run removes what it wrote and did not record
         self._materials_before = {rel: _stamp(root / rel) for rel in (OBJECT_MATERIALS, OBJECT_MESH, OBJECT_SCENE)}
@@ -537,8 +567,8 @@ class ProcessingPanel(Panel):
 
     @property
     def measuring(self) -> bool:
-        """True while the materials are being measured."""
-        return self.materials_job is not None and not self.materials_job.done
+        """True while the materials are being measured, or a cancelled run's files are being removed."""
+        return (self.materials_job is not None and not self.materials_job.done) or self._tidying
 
     def _materials_message(self, text: str) -> None:
         self.materials_state.setText(text)
@@ -552,43 +582,39 @@ class ProcessingPanel(Panel):
 
     def _materials_failed(self, text: str, detail: Any) -> None:
         line = text.splitlines()[0] if text else "failed"
-        if self.materials_cancelled:             # what the user asked for: information, not a fault
-            removed = self._remove_unrecorded()
-            self.materials_state.setText("cancelled: the session is as it was")
-            self.notice.emit(f"measuring the materials {line}"
-                             + (f" ({removed} unrecorded file{'s' if removed != 1 else ''} removed)" if removed else ""))
+        if not self.materials_cancelled:
+            self.materials_state.setText(f"stopped: {line}")
+            self.error.emit(line)
             return
-        self.materials_state.setText(f"stopped: {line}")
-        self.error.emit(line)
+        # what the user asked for: information, not a fault; the run's unrecorded files go on the lane (a disk's
+        # wait, a folder of validation images, stays off the window), and Measure waits for them
+        root, before = getattr(self, "_materials_root", None), dict(self._materials_before)
+        self._tidying = True
+        self.materials_state.setText("cancelled: removing what the run wrote…")
+        self.lane.run(lambda ctx: remove_unrecorded(root, before), "remove a cancelled run's files",
+                      succeeded=lambda removed: self._tidied(line, removed),
+                      failed=lambda why, exc: self._tidied(line, None, why), finished=self._tidy_finished)
 
-    def _remove_unrecorded(self) -> int:
-        """Remove the object's files this run wrote that the session does not record (a run stopped mid-way)."""
-        from app.session import Session
-        from app.workflows.object_materials import OBJECT_MATERIALS
+    def _tidied(self, line: str, removed: int | None, why: str = "") -> None:
+        if removed is None:
+            self.materials_state.setText("cancelled: some of what the run wrote is still there")
+            self.error.emit(f"measuring the materials {line}, but what it wrote could not be removed "
+                            f"({why.splitlines()[0]}): remove it by hand or measure again")
+            return
+        self.materials_state.setText("cancelled: the session is as it was")
+        self.notice.emit(f"measuring the materials {line}"
+                         + (f" ({removed} unrecorded file{'s' if removed != 1 else ''} removed)" if removed else ""))
 
-        root = getattr(self, "_materials_root", None)
-        if root is None:
-            return 0
-        recorded = ((Session.read(root).get("products") or {}).get("object_materials") or {}).get("file")
-        if recorded == OBJECT_MATERIALS and _stamp(root / OBJECT_MATERIALS) != self._materials_before.get(
-                OBJECT_MATERIALS) and _stamp(root / OBJECT_MATERIALS) is not None:
-            return 0                             # the run finished recording before the stop: keep it
-        import shutil
-
-        removed = 0
-        for rel, before in self._materials_before.items():
-            if before is None and (root / rel).is_file():
-                (root / rel).unlink()
-                removed += 1
-            elif before is None and (root / rel).is_dir():       # the validation's images of a first run
-                removed += sum(1 for f in (root / rel).rglob("*") if f.is_file())
-                shutil.rmtree(root / rel)
-        return removed
+    def _tidy_finished(self) -> None:
+        self._tidying = False
+        self._materials_finished()
 
     def _materials_finished(self) -> None:
+        self.materials_cancel_button.setEnabled(False)
+        if self._tidying:                        # a cancelled run's files are being removed: not done yet
+            return
         self.materials_busy.setRange(0, 1)
         self.materials_busy.setValue(1 if self.materials_doc is not None else 0)
-        self.materials_cancel_button.setEnabled(False)
         self.materials_button.setEnabled(True)
 
     def _station_box(self) -> QGroupBox:

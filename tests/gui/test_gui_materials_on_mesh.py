@@ -111,9 +111,22 @@ def test_cancel_measuring_leaves_no_partial_products(qtbot, tmp_path, posed):
     assert p.materials_button.isEnabled() and w.preview.object_mesh is None
 
 
-def test_cancel_during_validation_removes_what_the_run_wrote(qtbot, tmp_path, posed):
+def test_cancel_during_validation_removes_what_the_run_wrote(qtbot, tmp_path, posed, monkeypatch):
     """The library writes the object's mesh and scene before it renders the held-out photos; a stop then must not
-    leave them for the Preview to offer (it offers the measured material when object-mesh.ply exists)."""
+    leave them for the Preview to offer (it offers the measured material when object-mesh.ply exists).  The files
+    are removed off the window's thread, and Measure waits for them."""
+    import threading
+
+    import app.gui.processing_panel as panel
+
+    threads, real = [], panel.remove_unrecorded
+
+    def recording(*args):
+        threads.append(threading.current_thread())
+        assert p.measuring                    # Measure stays unavailable until the files are gone
+        return real(*args)
+
+    monkeypatch.setattr(panel, "remove_unrecorded", recording)
     root, _ = _copy(posed, tmp_path)
     w = make_window(qtbot, tmp_path)
     w.session.open_session(str(root))
@@ -125,6 +138,8 @@ def test_cancel_during_validation_removes_what_the_run_wrote(qtbot, tmp_path, po
     qtbot.mouseClick(p.materials_cancel_button, LEFT)
     qtbot.waitUntil(lambda: not p.measuring, timeout=10_000)
     assert w.message_kind == "info" and "removed" in w.error_line.text()
+    assert threads and threads[0] is not threading.main_thread()
+    assert p.materials_button.isEnabled() and p.materials_state.text() == "cancelled: the session is as it was"
     for rel in ("object-materials.json", "object-mesh.ply", "object-scene.toml", "validation"):
         assert not (root / "products" / rel).exists(), rel
     w.preview.mesh_changed()
@@ -157,3 +172,41 @@ def test_a_failure_is_one_line_in_the_window(qtbot, tmp_path, posed):
     assert w.message_kind == "error" and "\n" not in text and "Traceback" not in text
     assert str(root) in text and "kogei project" in text and p.materials_state.text().startswith("stopped:"), text
     assert not (root / "products/object-materials.json").exists()
+
+
+def test_removing_a_cancelled_runs_files_keeps_what_was_there_and_what_the_session_records(tmp_path):
+    """remove_unrecorded: files and folders that did not exist before the run go; those that did stay; a result the
+    session records, written by this run, stays whole (the run finished before the stop)."""
+    from app.gui.processing_panel import _stamp, remove_unrecorded
+    from app.session import Session
+
+    root = tmp_path / "s"
+    Session.create(root, plan={"kind": "scan", "steps": 4, "passes": 1}).close()
+    (root / "products/validation/run").mkdir(parents=True)
+    (root / "products/object-scene.toml").write_text("kept: it was there before the run\n")
+    before = {"products/object-materials.json": None, "products/object-mesh.ply": None,
+              "products/object-scene.toml": _stamp(root / "products/object-scene.toml"), "products/validation": None}
+    for rel in ("products/object-materials.json", "products/object-mesh.ply", "products/validation/run/a.png",
+                "products/validation/b.png"):
+        (root / rel).write_text("written by the run\n")
+    assert remove_unrecorded(root, before) == 4
+    assert sorted(p.relative_to(root).as_posix() for p in (root / "products").rglob("*")) == [
+        "products/object-scene.toml"]
+    # recorded by the session (the run got that far): nothing is removed
+    (root / "products/object-mesh.ply").write_text("written by the run\n")
+    s = Session.open(root)
+    info = s.write_file("products/object-materials.json", b"{}\n")
+    s.update("products", {"object_materials": {"file": "products/object-materials.json", "sha256": info.sha256,
+                                               "bytes": info.bytes}})
+    s.close()
+    assert remove_unrecorded(root, before) == 0 and (root / "products/object-mesh.ply").is_file()
+    assert remove_unrecorded(None, before) == 0
+
+
+def test_files_a_cancelled_run_could_not_remove_are_one_line_saying_what_to_do(qtbot, tmp_path):
+    w = make_window(qtbot, tmp_path)
+    w.processing._tidied("cancelled by the user", None, "[Errno 13] Permission denied: '/s/products/object-mesh.ply'")
+    line = w.error_line.text()
+    assert w.message_kind == "error" and "\n" not in line
+    assert "Permission denied: '/s/products/object-mesh.ply'" in line and "remove it by hand" in line
+    assert w.processing.materials_state.text().startswith("cancelled: some of what the run wrote is still there")
