@@ -189,7 +189,10 @@ FINDINGS = [
     "was 120 ms late had the GUI thread in `Session.create`'s atomic write.  Changed: Start checks the tabs' "
     "choices at once and creates or opens the session on the instruments' lane "
     "(`app.gui.capture_panel.open_capture_session`); Save metadata writes on the session's lane.  After, "
-    'beside the same writer: 30, 27, 49 ms (0 of 3).',
+    'beside the same writer: 30, 27, 49 ms (0 of 3).'
+    "  The last file work on a user's action moved the same way: Preview's *Save image* writes its PNG on "
+    "the preview's lane, and the files a cancelled materials run wrote are removed on the Processing tab's "
+    "lane (Measure waits for them).",
     "",
     "The simulated station's serving and firmware threads run in the window's process here (as in the tests); "
     "with a real station they are hardware.  `py-spy record --gil` over one session had them holding the lock "
