@@ -200,7 +200,9 @@ class SimulatedStation:
         self.hotfolder_faults = HotFolderFaults()
         self._camera_faults: dict[str, Any] = {}
         self._temporary = root is None
-        self._root = Path(tempfile.mkdtemp(prefix="kogei-station-")) if root is None else Path(root)
+        # absolute: the fake gphoto2 runs in the capture's folder, and finds the station's control folder
+        # (which renders its frames) only by an absolute path
+        self._root = Path(tempfile.mkdtemp(prefix="kogei-station-")) if root is None else Path(root).absolute()
         self._lock = threading.RLock()
         self._base_pose = np.array(self.world.pose, dtype=np.float64)
         self._turntable: Any = None

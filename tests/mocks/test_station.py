@@ -392,3 +392,27 @@ def test_gphoto2_frames_rendered_by_the_station_equal_those_it_renders_itself(tm
             digests[mode] = hashlib.sha1((tmp_path / f"{mode}.dng").read_bytes()).hexdigest()
         assert "renderer" not in read_config(st.config_path)
     assert digests["station"] == digests["program"]
+
+
+def test_a_station_on_a_relative_folder_renders_the_programs_frames(tmp_path, monkeypatch):
+    """``kogei mock --root station`` and the demo's ``out/demo`` name the station's folder relative to where they
+    run, and the camera driver runs gphoto2 in the capture's folder: the program must still find the station
+    (else every frame costs a fresh program's imports and world, seconds each)."""
+    import subprocess
+
+    import mocks.fake_gphoto2 as fake
+
+    rendered, real = [], fake.render_frame
+
+    def recording(*args, **kwargs):
+        rendered.append(args[2])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(fake, "render_frame", recording)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "capture").mkdir()
+    with SimulatedStation(box_world(), root="station", seed=7) as st:
+        subprocess.run([str(st.gphoto2_path), "--capture-image-and-download", "--filename", "frame.%C"],
+                       cwd=tmp_path / "capture", check=True, capture_output=True)
+    assert (tmp_path / "capture" / "frame.dng").stat().st_size > 1000
+    assert rendered == [str(tmp_path / "capture" / "frame.dng")]        # by the station, in this process
