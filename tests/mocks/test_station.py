@@ -395,9 +395,9 @@ def test_gphoto2_frames_rendered_by_the_station_equal_those_it_renders_itself(tm
 
 
 def test_a_station_on_a_relative_folder_renders_the_programs_frames(tmp_path, monkeypatch):
-    """``kogei mock --root station`` and the demo's ``out/demo`` name the station's folder relative to where they
-    run, and the camera driver runs gphoto2 in the capture's folder: the program must still find the station
-    (else every frame costs a fresh program's imports and world, seconds each)."""
+    """The demo (``make demo`` writes into ``out/demo``) names its stations' folders relative to where it runs, and
+    the camera driver runs gphoto2 in the capture's folder: the program must still find the station (else every
+    frame costs a fresh program's imports and world, seconds each)."""
     import subprocess
 
     import mocks.fake_gphoto2 as fake
