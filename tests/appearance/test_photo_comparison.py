@@ -105,7 +105,8 @@ def test_camera_matrix_maps_the_chart_to_its_xyz():
     shape = colour.SpectralShape(400, 700, 10)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
     ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
-    xyz = np.stack([colour.sd_to_XYZ(sd.copy().align(shape), cmfs, ill) for sd in sds.values()]) / 100.0
+    xyz = np.stack([colour.sd_to_XYZ(sd.copy().align(shape), cmfs, ill, method="Integration")
+                    for sd in sds.values()]) / 100.0
     refl = np.stack([sd.copy().align(shape).values for sd in sds.values()])
     rgb = (refl * e) @ s / (e @ s)
     lab_true = colour.XYZ_to_Lab(xyz, colour.XYZ_to_xy(m @ np.ones(3)))

@@ -139,7 +139,8 @@ def test_dye_from_srgb_reproduces_the_colour_under_d65():
         dye = Dye.from_srgb(hexa)
         refl = kubelka_munk_reflectance(dye.absorbance)
         sd = colour.SpectralDistribution(dict(zip(dye.wavelengths, refl)))
-        xyz = colour.sd_to_XYZ(sd, illuminant=colour.SDS_ILLUMINANTS["D65"]) / 100.0
+        cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(sd.shape)
+        xyz = colour.sd_to_XYZ(sd, cmfs, colour.SDS_ILLUMINANTS["D65"].copy().align(sd.shape), method="Integration") / 100.0
         lab = colour.XYZ_to_Lab(xyz)
         target = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(np.array([int(hexa[i:i + 2], 16) for i in (1, 3, 5)]) / 255))
         assert float(colour.delta_E(lab, target, method="CIE 2000")) < 1.0
