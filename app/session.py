@@ -68,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from processing.common.files import atomic_path, atomic_write_bytes, fsync_dir, sha256_file
+from processing.common.files import JSONFileError, atomic_path, atomic_write_bytes, fsync_dir, parse_json, sha256_file
 from processing.errors import InputError
 
 __all__ = [
@@ -786,9 +786,9 @@ def _load_manifest(path: Path) -> dict[str, Any]:
                            "'kogei capture --out' created")
     data = _read_plain(file, f"session {path}", MAX_MANIFEST_BYTES)
     try:
-        manifest = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SessionError(f"{file} is unreadable ({exc}); restore it from a backup") from None
+        manifest = parse_json(data, file, f"restore {MANIFEST} from a backup")
+    except JSONFileError as exc:
+        raise SessionError(f"{file} is unreadable ({exc.reason}); restore it from a backup") from None
     if not isinstance(manifest, dict) or manifest.get("schema") != SCHEMA:
         raise SessionError(f"{file} is not a kogei session manifest (schema {manifest.get('schema')!r})"
                            if isinstance(manifest, dict) else f"{file} is not a kogei session manifest")
@@ -836,11 +836,11 @@ def _replay(manifest: dict[str, Any], journal: Path, *, strict: bool) -> list[st
         if not line.strip():
             continue
         try:
-            op = json.loads(line)
-        except (json.JSONDecodeError, UnicodeDecodeError):
+            op = parse_json(line, f"{journal} line {i + 1}", "move the journal aside")
+        except JSONFileError as exc:
             if all(not rest.strip() for rest in lines[i + 1:]):
                 break  # torn final line: the process died while appending it
-            why = "not JSON, and not a torn last line"
+            why = f"not JSON ({exc.reason}), and not a torn last line"
         else:
             try:
                 _check_op(op)
@@ -913,6 +913,25 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def _check_pass(field: str, rec: Any) -> None:
+    """A pass record (or a journal operation's fields for one): the numbers capture and processing compute with.
+
+    ``table_frame`` counts the pass's table frames, ``valid_share`` is the share of its profiles that saw
+    the object, and ``angle_uncertain_deg`` (older sessions) how far its profiles may be turned.
+    """
+    _need(isinstance(rec, dict), field, "an object", rec)
+    if "table_frame" in rec:
+        _need(_is_int(rec["table_frame"], 0, 1 << 20), f"{field}.table_frame", "a table frame number",
+              rec["table_frame"])
+    if rec.get("valid_share") is not None:
+        share = rec["valid_share"]
+        _need(_is_number(share) and 0 <= share <= 1, f"{field}.valid_share", "a share between 0 and 1", share)
+    if rec.get("angle_uncertain_deg") is not None:
+        angle = rec["angle_uncertain_deg"]
+        _need(_is_number(angle) and 0 <= angle <= 360, f"{field}.angle_uncertain_deg",
+              "an angle in degrees between 0 and 360, or null", angle)
+
+
 def _check_calibration_ref(key: str, ref: Any) -> None:
     """A calibration's record in the manifest: an object or null, and the fields the window and report show."""
     _need(ref is None or isinstance(ref, dict), key, "an object or null", ref)
@@ -977,10 +996,7 @@ def _check_field(key: str, value: Any) -> None:
         _need(isinstance(value, dict) and len(value) <= MAX_PASSES, key,
               f"an object of at most {MAX_PASSES} pass records", value)
         for number, rec in value.items():
-            _need(isinstance(rec, dict), f"passes.{number}", "an object", rec)
-            if "table_frame" in rec:
-                _need(_is_int(rec["table_frame"], 0, 1 << 20), f"passes.{number}.table_frame",
-                      "a table frame number", rec["table_frame"])
+            _check_pass(f"passes.{number}", rec)
     elif key == "captures":
         _need(isinstance(value, dict) and len(value) <= MAX_CAPTURES, key,
               f"an object of at most {MAX_CAPTURES} capture records", value)
@@ -1014,6 +1030,7 @@ def _check_op(op: Any) -> None:
     elif kind == "pass":
         _need(_is_int(op.get("pass"), 1, MAX_PASSES), "pass", f"an integer in 1..{MAX_PASSES}", op.get("pass"))
         _need(isinstance(op.get("fields"), dict), "pass fields", "an object", op.get("fields"))
+        _check_pass(f"passes.{op['pass']}", op["fields"])
     elif kind == "state":
         _need(isinstance(op.get("fields"), dict), "state fields", "an object", op.get("fields"))
     elif kind == "event":

@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 
 from app.errors import UsageError
 from app.session_paths import MAX_JSON_BYTES, check_not_symlink, confined_file, read_confined_bytes
+from processing.common.files import parse_json
 from processing.common.png import png_bytes
 from processing.errors import InputError
 from processing.materials.identification import DEFAULT_MODEL_ERROR
@@ -143,7 +144,8 @@ def _chart_record(root: Path, tag: str, files: dict[str, Any]) -> dict[str, Any]
     if blob is None or hashlib.sha256(blob).hexdigest() != rec.get("sha256"):
         raise UsageError(f"session {root}: {rec.get('file', tag)} is missing or changed since the colour step "
                          f"wrote it; run 'kogei batch {root} --steps colour' again")
-    return json.loads(blob.decode("utf-8"))
+    return parse_json(blob, f"session {root}: {rec.get('file', tag)}", f"run 'kogei batch {root} --steps colour' "
+                                                                       "again")
 
 
 def _pooled(results: list[Any]) -> Any:

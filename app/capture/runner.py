@@ -97,6 +97,7 @@ __all__ = [
     "CaptureInterrupted",
     "run_capture",
     "load_pass_profiles",
+    "ProfilesFileError",
     "parse_camera_angles",
     "placement_prompt",
     "open_for_resume",
@@ -159,6 +160,10 @@ class CaptureInterrupted(RuntimeError):
         super().__init__(message)
         self.session = session
         self.reason = reason
+
+
+class ProfilesFileError(SessionError):
+    """A pass's ``profiles.npz`` that passes its checksum but is not profiles; the message names it and says what to do."""
 
 
 # ---------------------------------------------------------------------------- plan
@@ -1066,9 +1071,7 @@ class _Runner:
         for a in self.plan.pass_actions(p):
             if a.kind != "profile":
                 continue
-            rec = s.capture(a.id)
-            with np.load(s.path(rec["file"])) as z:
-                rows.append((float(z["angle_deg"]), z["x_mm"], z["z_mm"]))
+            rows.append(_read_profile(s.path(s.capture(a.id)["file"]), s.root))
         width = max(r[1].size for r in rows)
         x = np.full((len(rows), width), np.nan, np.float32)
         zz = np.full((len(rows), width), np.nan, np.float32)
@@ -1093,6 +1096,20 @@ class _Runner:
         self._tell("warning", text)
         if self.hooks.low_return is not None:
             self.hooks.low_return(p, share, text)
+
+
+def _read_profile(path: Path, root: Path) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(angle_deg, x_mm, z_mm)`` of one profile's ``.npz`` (untrusted on resume: checked before it is read)."""
+    from processing.common.npz import read_npz
+
+    remedy = f"delete it and resume the capture ('kogei capture --resume {root}') to take the profile again"
+    z = read_npz(path, ("angle_deg", "x_mm", "z_mm"), what="a laser profile", remedy=remedy, error=SessionError)
+    x, zz, angle = z["x_mm"], z["z_mm"], z["angle_deg"]
+    if (angle.shape != () or angle.dtype.kind not in "fiu" or x.ndim != 1 or zz.shape != x.shape
+            or x.dtype.kind != "f" or zz.dtype.kind != "f"):
+        raise SessionError(f"{path}: not a laser profile (angle_deg {angle.dtype} {angle.shape}, x_mm {x.dtype} "
+                           f"{x.shape}, z_mm {zz.dtype} {zz.shape}); {remedy}")
+    return float(angle), x, zz
 
 
 def check_not_linked(root: Path, *names: str) -> None:
@@ -1209,10 +1226,14 @@ def parse_camera_angles(text: str, what: str = "camera angles") -> tuple[float, 
 def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.ndarray]:
     """The gathered profiles of a pass: ``angles_deg (S,)``, ``x_mm (S, P)``, ``z_mm (S, P)`` (NaN invalid).
 
+    The file is untrusted (a sender can rewrite it and its checksum): see :func:`_read_profiles`.
+
     Raises
     ------
     SessionError
         The pass is not complete or its file fails its checksum.
+    ProfilesFileError
+        The file is not the pass's profiles (one line naming it and what to do).
     """
     manifest = Session.read(session_root)
     captures = manifest.get("captures")
@@ -1228,5 +1249,58 @@ def load_pass_profiles(session_root: str | Path, pass_no: int) -> dict[str, np.n
                               f"captures.{key}.file")
     if sha256_file(path) != rec["sha256"]:
         raise SessionError(f"session {session_root}: {rec['file']} is missing or fails its checksum")
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in ("angles_deg", "x_mm", "z_mm")}
+    return _read_profiles(path, session_root, int(pass_no))
+
+
+#: The arrays of a pass's ``profiles.npz``.
+_PROFILE_ARRAYS = ("angles_deg", "x_mm", "z_mm")
+
+
+def _profiles_remedy(session_root: str | Path, pass_no: int) -> str:
+    """What to do about a pass's unreadable ``profiles.npz``."""
+    return (f"restore the file from a copy of the session, or delete it and resume the capture ('kogei capture "
+            f"--resume {session_root}') to gather pass {pass_no}'s profiles again (or capture the pass again)")
+
+
+def _read_profiles(path: Path, session_root: str | Path, pass_no: int) -> dict[str, np.ndarray]:
+    """``angles_deg (S,)``, ``x_mm (S, P)``, ``z_mm (S, P)`` of a pass's untrusted ``profiles.npz``.
+
+    Parameters
+    ----------
+    path
+        The pass's ``profiles.npz``.
+    session_root
+        The session (for the remedy).
+    pass_no
+        The pass (for the messages).
+
+    Returns
+    -------
+    dict
+        The three arrays, checked.
+
+    Raises
+    ------
+    ProfilesFileError
+        One line naming the file and what to do: not a zip, a missing array, pickled objects, a header
+        claiming more than the file holds, a wrong dtype or shapes that do not match.
+    """
+    from processing.common.npz import read_npz
+    from render.renderer import available_memory_bytes
+
+    remedy = _profiles_remedy(session_root, pass_no)
+    data = read_npz(path, _PROFILE_ARRAYS, what=f"the profiles of pass {pass_no}", remedy=remedy,
+                    error=ProfilesFileError, available_bytes=available_memory_bytes())
+    a, x, z = (data[k] for k in _PROFILE_ARRAYS)
+    for key, arr, ndim in (("angles_deg", a, 1), ("x_mm", x, 2), ("z_mm", z, 2)):
+        if arr.dtype.kind not in ("fiu" if key == "angles_deg" else "f") or arr.ndim != ndim:
+            raise ProfilesFileError(f"{path}: array {key!r} of pass {pass_no} must be {ndim}-D "
+                                    f"{'numeric' if key == 'angles_deg' else 'floating-point'}, got {arr.dtype} "
+                                    f"of shape {arr.shape}; {remedy}")
+    if z.shape != x.shape or a.shape != (x.shape[0],):
+        raise ProfilesFileError(f"{path}: the arrays of pass {pass_no} do not match (angles_deg {a.shape}, "
+                                f"x_mm {x.shape}, z_mm {z.shape}; expected (S,), (S, P), (S, P)); {remedy}")
+    if not np.all(np.isfinite(a)) or np.isinf(x).any() or np.isinf(z).any():
+        raise ProfilesFileError(f"{path}: pass {pass_no} has infinite values in x_mm or z_mm or a non-finite "
+                                f"angle; {remedy}")
+    return {"angles_deg": a, "x_mm": x, "z_mm": z}

@@ -121,16 +121,16 @@ def _camera_angles(text: str | None) -> tuple[float, ...] | None:
 
 def _board_file(path: str) -> dict[str, Any]:
     """The ChArUco board definition in a small JSON file."""
-    import json
+    from processing.common.files import JSONFileError, parse_json
 
     try:
         with open(path, "rb") as f:
             blob = f.read(65536)
-        data = json.loads(blob.decode("utf-8"))
+        data = parse_json(blob, f"--board {path}", "give the board's JSON file")
     except OSError as exc:
         raise UsageError(f"--board {path}: unreadable ({exc.strerror or exc}); give the board's JSON file") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"--board {path}: not JSON ({exc}); give the board's JSON file") from None
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
     if not isinstance(data, dict):
         raise UsageError(f"--board {path}: must hold an object with dictionary, squares_x, squares_y, square_mm, "
                          "marker_mm")

@@ -22,7 +22,6 @@ from __future__ import annotations
 import collections
 import datetime as _dt
 import html
-import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,6 +50,7 @@ from app.session_paths import (
     read_confined_bytes,
 )
 from app.workflows._materials_document import materials_document_problem
+from processing.common.files import JSONFileError, parse_json
 from processing.common.png import png_bytes
 
 __all__ = ["Section", "build_report", "write_report", "report_sections", "REPORT_FILE"]
@@ -211,11 +211,23 @@ class _Context:
             self.problems.append(f"{exc}; it is not shown")
             return None
 
-    def process_report(self) -> dict[str, Any] | None:
-        blob = self.product_bytes(self.products.get("process_report"), "products.process_report", MAX_JSON_BYTES)
-        if blob is None:
+    def product_doc(self, rec: dict[str, Any] | None, what: str) -> Any:
+        """The JSON in a product file (see :meth:`product_bytes`), or None with the problem noted.
+
+        A file that is not JSON -- not UTF-8, malformed, nested too deeply -- is one problem line naming it.
+        """
+        blob = self.product_bytes(rec, what, MAX_JSON_BYTES)
+        if blob is None or not isinstance(rec, dict):
             return None
-        doc = json.loads(blob)
+        try:
+            return parse_json(blob, _shown(str(rec["file"])), "it is not shown; write it again with the step that "
+                                                              "made it")
+        except JSONFileError as exc:
+            self.problems.append(str(exc))
+            return None
+
+    def process_report(self) -> dict[str, Any] | None:
+        doc = self.product_doc(self.products.get("process_report"), "products.process_report")
         return doc if isinstance(doc, dict) else None
 
     def calibration(self, key: str = "calibration") -> dict[str, Any] | None:
@@ -226,20 +238,14 @@ class _Context:
         if not isinstance(ref, dict) or not isinstance(ref.get("path"), str):
             self.problems.append(f"session.json: {key} is not a record with a 'path'; it is not shown")
             return None
-        blob = self.product_bytes({"file": ref["path"], "sha256": ref.get("sha256")}, key, MAX_JSON_BYTES)
-        doc = None if blob is None else json.loads(blob)
+        doc = self.product_doc({"file": ref["path"], "sha256": ref.get("sha256")}, key)
         return doc if isinstance(doc, dict) else None
 
     def product_json(self, key: str) -> dict[str, Any] | None:
         """A JSON product (``products.<key>``), checked, or None."""
         rec = self.products.get(key)
-        blob = self.product_bytes(rec, f"products.{key}", MAX_JSON_BYTES)
-        if blob is None:
-            return None
-        try:
-            doc = json.loads(blob)
-        except (UnicodeDecodeError, json.JSONDecodeError):
-            self.problems.append(f"{rec['file']} is not JSON; it is not shown")
+        doc = self.product_doc(rec, f"products.{key}")
+        if doc is None:
             return None
         if not isinstance(doc, dict):
             self.problems.append(f"{rec['file']} is not a JSON object; it is not shown")
@@ -638,11 +644,10 @@ def _chart(ctx: _Context) -> Section:
     body = ""
     shown = False
     for tag, files in sorted((colour.get("passes") or {}).items()):
-        blob = ctx.product_bytes(files.get("chart"), f"products.colour.passes.{tag}.chart", MAX_JSON_BYTES)
+        chart = ctx.product_doc(files.get("chart"), f"products.colour.passes.{tag}.chart")
         pre = ctx.product_bytes(files.get("preview"), f"products.colour.passes.{tag}.preview")
-        if blob is None or pre is None:
+        if chart is None or pre is None:
             continue
-        chart = json.loads(blob)
         import io
 
         from PIL import Image
@@ -676,9 +681,7 @@ def _chart(ctx: _Context) -> Section:
 
 
 def _materials_doc(ctx: _Context) -> dict[str, Any] | None:
-    blob = ctx.product_bytes((ctx.products.get("materials") or {}).get("report"), "products.materials.report",
-                             MAX_JSON_BYTES)
-    return None if blob is None else json.loads(blob)
+    return ctx.product_doc((ctx.products.get("materials") or {}).get("report"), "products.materials.report")
 
 
 def _no_materials(ctx: _Context, what: str) -> str:
@@ -1009,11 +1012,7 @@ def _sections_and_summary(root: Path) -> tuple[list[Section], str]:
     from app.report.summary import glance
 
     ctx = _Context(root)
-    try:
-        rep = ctx.process_report()
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        ctx.problems.append("products/process-report.json is not JSON")
-        rep = None
+    rep = ctx.process_report()
     builders: list[tuple[str, str, Callable[[], Section]]] = [
         ("object", "Object and plan", lambda: _object(ctx)),
         ("capture", "Capture log", lambda: _capture_log(ctx)),

@@ -11,7 +11,6 @@ measured materials or a one-material stand-in.
 from __future__ import annotations
 
 import html
-import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -64,11 +63,7 @@ def _group(r: dict[str, Any]) -> list[str]:
 
 
 def _materials_doc(ctx: Any) -> dict[str, Any] | None:
-    from app.session_paths import MAX_JSON_BYTES
-
-    rec = (ctx.products.get("materials") or {}).get("report")
-    blob = ctx.product_bytes(rec, "products.materials.report", MAX_JSON_BYTES)
-    doc = None if blob is None else json.loads(blob)
+    doc = ctx.product_doc((ctx.products.get("materials") or {}).get("report"), "products.materials.report")
     return doc if isinstance(doc, dict) else None
 
 
@@ -165,17 +160,15 @@ def _shape(ctx: Any, rep: dict[str, Any] | None, g: Glance) -> None:
 
 
 def _colour(ctx: Any, g: Glance) -> None:
-    from app.session_paths import MAX_JSON_BYTES
-
     colour = ctx.products.get("colour")
     if not colour:
         g.rows.append(("Colour calibration", "not done (no colour-chart step)", "none"))
         return
     means = []
     for tag, files in sorted((colour.get("passes") or {}).items()):
-        blob = ctx.product_bytes(files.get("chart"), f"products.colour.passes.{tag}.chart", MAX_JSON_BYTES)
-        if blob is not None:
-            mean = _num((json.loads(blob).get("patch_errors") or {}).get("mean"))
+        chart = ctx.product_doc(files.get("chart"), f"products.colour.passes.{tag}.chart")
+        if isinstance(chart, dict):
+            mean = _num((chart.get("patch_errors") or {}).get("mean"))
             if mean is not None:
                 means.append(mean)
     if not means:

@@ -21,6 +21,7 @@ from typing import Any
 
 from app.errors import UsageError
 from app.session_paths import MAX_JSON_BYTES, UnsafeSessionPath, read_confined_bytes
+from processing.common.files import JSONFileError, parse_json
 
 __all__ = ["calibrate_session", "install_calibration", "session_calibration", "load_calibration_source",
            "calibration_source_bytes", "CALIBRATION_FILE"]
@@ -107,7 +108,12 @@ def session_calibration(session_dir: str | Path, manifest: dict[str, Any]) -> An
         raise UsageError(f"session {session_dir}: {ref['path']} does not match the checksum in the manifest "
                          "(edited by hand?); install the calibration again with --calibration")
     try:
-        return ScannerCalibration.from_dict(json.loads(blob))
+        data = parse_json(blob, f"session {session_dir}: {ref['path']}", "install the calibration again with "
+                                                                         "--calibration")
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
+    try:
+        return ScannerCalibration.from_dict(data)
     except (CalibrationError, ValueError, KeyError) as exc:
         raise UsageError(f"session {session_dir}: {ref['path']}: {exc}") from None
 
@@ -146,12 +152,10 @@ def load_calibration_source(source: str | Path) -> dict[str, Any]:
 
     file, blob = calibration_source_bytes(source)
     try:
-        data = json.loads(blob.decode("utf-8"))
-    except FileNotFoundError:
-        raise UsageError(f"--calibration {source}: {file} not found; give a session calibrated with "
-                         "'kogei calibrate' or its calibration.json") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"--calibration {source}: {file} is unreadable ({exc})") from None
+        data = parse_json(blob, f"--calibration {source}: {file}", "give a session calibrated with 'kogei calibrate' "
+                                                                   "or its calibration.json")
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
     try:
         ScannerCalibration.from_dict(data)
     except (CalibrationError, ValueError, KeyError) as exc:

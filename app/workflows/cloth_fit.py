@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
+from processing.common.files import JSONFileError, parse_json
 
 __all__ = ["GEOMETRY_FILE", "SwatchData", "capture_swatch_session", "load_swatch_session", "fit_figure",
            "fit_report"]
@@ -176,11 +177,15 @@ def _swatch_geometry(gpath: Path) -> Any:
     from processing.cloth.swatch_geometry import SwatchGeometry, SwatchGeometryError
 
     try:
-        return SwatchGeometry.from_dict(json.loads(gpath.read_text()))
+        data = parse_json(gpath.read_bytes(), gpath, "give --geometry FILE.json (camera pose, light direction, "
+                                                     "swatch size)")
+        return SwatchGeometry.from_dict(data)
     except FileNotFoundError:
         raise UsageError(f"{gpath}: swatch geometry not found; give --geometry FILE.json (camera pose, light "
                          "direction, swatch size)") from None
-    except (json.JSONDecodeError, SwatchGeometryError, TypeError, AttributeError) as exc:
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
+    except (SwatchGeometryError, TypeError, AttributeError) as exc:
         raise UsageError(f"{gpath}: {exc}") from None
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
-from processing.common.files import atomic_path
+from processing.common.files import JSONFileError, atomic_path, parse_json
 
 __all__ = ["BYTES_PER_POINT", "MAX_PICKS_BYTES", "POSES_FORMAT", "READABLE", "UNITS_MM", "WRITABLE", "read_cloud", "read_picks", "poses_document", "write_poses",
            "write_merged_cloud"]
@@ -116,6 +116,8 @@ def _check_cloud_size(path: Path) -> None:
 
 #: Largest picks file read: a few dozen picked points are a few kB.
 MAX_PICKS_BYTES = 1 << 20
+#: What to do about a picks file that cannot be read.
+_PICKS_REMEDY = 'give a JSON list of {"pair": [i, j], "points": [A, B]} entries'
 
 
 def read_picks(path: Path, n_inputs: int) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
@@ -127,9 +129,11 @@ def read_picks(path: Path, n_inputs: int) -> dict[tuple[int, int], tuple[np.ndar
         raise UsageError(f"--picks: {path}: {path.stat().st_size} bytes is too large for a picks file "
                          f"(at most {MAX_PICKS_BYTES} bytes)")
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"--picks: {path}: not valid JSON ({exc})") from None
+        data = parse_json(path.read_bytes(), f"--picks: {path}", _PICKS_REMEDY)
+    except OSError as exc:
+        raise UsageError(f"--picks: {path}: unreadable ({exc.strerror or exc})") from None
+    except JSONFileError as exc:
+        raise UsageError(f"--picks: {path}: not valid JSON ({exc.reason}); {_PICKS_REMEDY}") from None
     if not isinstance(data, list):
         raise UsageError(f'--picks: {path}: expected a list of {{"pair": [i, j], "points": [A, B]}} entries')
     out: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}

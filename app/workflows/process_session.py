@@ -81,7 +81,7 @@ def _pass_count(root: Path, plan: dict[str, Any]) -> int:
 
 
 def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[[str], None]) -> list[dict[str, Any]]:
-    from app.capture.runner import load_pass_profiles
+    from app.capture.runner import ProfilesFileError, load_pass_profiles
     from app.session import SessionError
     from processing.geometry.scan_points import profiles_to_points
 
@@ -104,7 +104,9 @@ def _pass_clouds(root: Path, manifest: dict[str, Any], cal: Any, note: Callable[
         except UnsafeSessionPath:
             raise
         except (SessionError, OSError) as exc:
-            entry["skipped"] = f"{exc}; resume the capture to gather the pass's profiles again"
+            # a damaged file's message says what to do; a missing or altered one is gathered again on resume
+            entry["skipped"] = str(exc) if isinstance(exc, ProfilesFileError) else \
+                f"{exc}; resume the capture to gather the pass's profiles again"
             note(f"pass {p}: {entry['skipped']}")
             out.append(entry)
             continue

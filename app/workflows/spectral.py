@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 
 from app.errors import UsageError
 from app.workflows.chart import ChartMeasurement, measure_chart
-from processing.common.files import atomic_path
+from processing.common.files import JSONFileError, atomic_path, parse_json
 
 __all__ = [
     "RESULT_KEYS",
@@ -431,9 +431,6 @@ def save_result(result: SpectralResult, path: Path) -> Path:
     return path
 
 
-#: First bytes of a zip archive (an ``.npz`` is one: local file header, or the end record of an empty one).
-_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
-
 #: What to do about a file that is not a usable result.
 _REMEDY = "write it with 'kogei spectral estimate'"
 
@@ -450,87 +447,20 @@ def load_result(path: Path) -> SpectralResult:
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"{path}: no such file; give the RESULT.npz written by 'kogei spectral estimate'")
-    _check_magic(path)
     data = _read_arrays(path)
     _check_arrays(path, data)
     return SpectralResult(data["weights"], data["basis"], data["wavelengths"], data["mask"], data["camera"],
                           data["sensitivities"], data["lights"], str(data["method"]), _metadata(path, data))
 
 
-def _check_magic(path: Path) -> None:
-    """Refuse a file that is not a zip archive, saying what it looks like instead."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(512)
-    except OSError as exc:
-        raise UsageError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if head.startswith(_ZIP_MAGIC):
-        return
-    if not head:
-        what = "an empty file"
-    elif head.startswith(b"\x93NUMPY"):
-        what = "a single NumPy array (.npy)"
-    elif all(32 <= b < 127 or b in b"\t\r\n" for b in head):
-        what = "a text file"
-    else:
-        what = "not a zip archive"
-    raise UsageError(f"{path}: not a kogei spectral result file ({what}, not an .npz archive); {_REMEDY}")
-
-
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     """The arrays of :data:`RESULT_KEYS`, each checked against its member's size before it is read."""
-    import zipfile
-    import zlib
-
-    try:
-        with zipfile.ZipFile(path) as zf:
-            members = {info.filename: info for info in zf.infolist()}
-            missing = [k for k in RESULT_KEYS if f"{k}.npy" not in members]
-            if missing and not any(name.endswith(".npy") for name in members):
-                raise UsageError(f"{path}: a zip archive of no NumPy arrays, not a kogei spectral result; {_REMEDY}")
-            if missing:
-                raise UsageError(f"{path}: not a spectral result, missing {', '.join(missing)}; {_REMEDY}")
-            _check_total_size(path, [members[f"{k}.npy"].file_size for k in RESULT_KEYS])
-            return {k: _read_member(path, zf, members[f"{k}.npy"], k) for k in RESULT_KEYS}
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, NotImplementedError, RuntimeError) as exc:
-        raise UsageError(f"{path}: a damaged .npz archive ({exc}); {_REMEDY}") from None
-
-
-def _check_total_size(path: Path, sizes: list[int]) -> None:
-    """Refuse arrays that would not fit in the available memory (a zip can expand a thousandfold)."""
+    from processing.common.npz import read_npz
     from render.renderer import available_memory_bytes
 
-    need, available = sum(sizes), available_memory_bytes()
-    if available is not None and need > available:
-        raise UsageError(f"{path}: its arrays need {need / 1e9:.1f} GB of memory but {available / 1e9:.1f} GB "
-                         "is available; free memory or estimate a smaller image")
-
-
-def _read_member(path: Path, zf: Any, info: Any, key: str) -> np.ndarray:
-    """One ``.npy`` member: its header checked (no objects, size matching the member) before the data is read."""
-    fmt = np.lib.format
-    where = f"{path}: array {key!r}"
-    try:
-        with zf.open(info) as fh:
-            version = fmt.read_magic(fh)
-            if version not in ((1, 0), (2, 0)):
-                raise UsageError(f"{where}: .npy format version {version} is not one kogei writes; {_REMEDY}")
-            reader = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
-            shape, _, dtype = reader(fh)
-            header = fh.tell()
-        if dtype.hasobject:
-            raise UsageError(f"{where} holds Python objects (pickled data), which kogei never writes; "
-                             "refusing to load it")
-        expected = header + math.prod(shape) * dtype.itemsize
-        if expected != info.file_size:
-            raise UsageError(f"{where}: its header declares shape {shape} of {dtype} ({expected} bytes) "
-                             f"but the member holds {info.file_size} bytes; {_REMEDY}")
-        with zf.open(info) as fh:
-            return fmt.read_array(fh, allow_pickle=False)
-    except ValueError as exc:
-        if isinstance(exc, UsageError):
-            raise
-        raise UsageError(f"{where}: not a valid .npy array ({exc}); {_REMEDY}") from None
+    return read_npz(path, RESULT_KEYS, what="a kogei spectral result file", remedy=_REMEDY, error=UsageError,
+                    available_bytes=available_memory_bytes(),
+                    memory_remedy="free memory or estimate a smaller image")
 
 
 #: Array -> (dtype kinds allowed, number of dimensions) of a RESULT file.
@@ -564,9 +494,9 @@ def _check_arrays(path: Path, data: dict[str, np.ndarray]) -> None:
 def _metadata(path: Path, data: dict[str, np.ndarray]) -> dict[str, Any]:
     """The metadata JSON object (its ``chart_rmse``, when given, a finite number)."""
     try:
-        meta = json.loads(str(data["metadata"]))
-    except json.JSONDecodeError:
-        raise UsageError(f"{path}: its metadata is not JSON; write it again with 'kogei spectral estimate'") from None
+        meta = parse_json(str(data["metadata"]), f"{path}: its metadata", _REMEDY)
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
     if not isinstance(meta, dict):
         raise UsageError(f"{path}: its metadata must be a JSON object, got {type(meta).__name__}; {_REMEDY}")
     rmse = meta.get("chart_rmse", 0.0)

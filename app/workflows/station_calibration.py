@@ -37,6 +37,7 @@ from typing import Any
 
 from app.errors import UsageError
 from app.session_paths import MAX_JSON_BYTES, confined_file, read_confined_bytes
+from processing.common.files import JSONFileError, parse_json
 
 __all__ = [
     "CAMERA_FILE",
@@ -499,9 +500,9 @@ def load_station_source(source: str | Path, key: str) -> dict[str, Any]:
     except OSError as exc:
         raise UsageError(f"{flag} {source}: unreadable ({exc.strerror or exc})") from None
     try:
-        data = json.loads(blob.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"{flag} {source}: not JSON ({exc})") from None
+        data = parse_json(blob, f"{flag} {source}", f"give a {name} or a calibrated session folder")
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
     if not isinstance(data, dict):
         raise UsageError(f"{flag} {source}: not a {name}")
     return data
@@ -545,9 +546,9 @@ def _session_file(root: Path, manifest: dict[str, Any], key: str) -> dict[str, A
         raise UsageError(f"session {root}: {ref['path']} does not match the checksum in the manifest (edited by "
                          f"hand?); install it again with {_FLAGS[key]}")
     try:
-        return json.loads(blob)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"session {root}: {ref['path']}: not JSON ({exc})") from None
+        return parse_json(blob, f"session {root}: {ref['path']}", f"install it again with {_FLAGS[key]}")
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def parse_station_calibration(key: str, data: dict[str, Any], where: str) -> Any:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import functools
 import os
-import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any
@@ -35,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from processing.appearance.frame_poses import AppearanceError, FramePose
 from processing.appearance.projection import mesh_arrays, project_points, raycasting_scene
 from processing.appearance.visibility import visible_vertices
+from processing.common.npz import read_npz
 
 __all__ = ["Observations", "observe", "per_vertex_counts", "select_frames", "bilinear", "write_observations", "read_observations",
            "OBSERVATIONS_SCHEMA", "OBSERVATIONS_VERSION"]
@@ -347,16 +347,9 @@ _SPEC: dict[str, tuple[type, tuple[Any, ...]]] = {
 
 
 def _load(path: str | os.PathLike[str]) -> dict[str, NDArray[Any]]:
-    where = os.fspath(path)
-    try:
-        with np.load(where, allow_pickle=False) as z:
-            return {name: z[name] for name in z.files}
-    except ValueError as exc:
-        msg = "holds a pickled object array" if "pickle" in str(exc) else f"is not a valid npz ({exc})"
-        raise AppearanceError(f"{where}: {msg}; write it with write_observations") from None
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-        raise AppearanceError(f"{where}: not a readable npz ({type(exc).__name__}); write it with "
-                              "write_observations") from None
+    """Every array of an untrusted observations ``.npz``, each checked against its member before it is allocated."""
+    return read_npz(path, what="an observations file", error=AppearanceError,
+                    remedy="write it with write_observations")
 
 
 def _scalar(data: dict[str, NDArray[Any]], key: str, where: str) -> Any:

@@ -4,7 +4,9 @@ Modules
 -------
 :mod:`processing.common.files`
     Atomic writes (temporary file, ``fsync``, rename, ``fsync`` of the folder),
-    JSON and checksums.
+    JSON written and read safely, and checksums.
+:mod:`processing.common.npz`
+    Reading an untrusted ``.npz`` (every member's header checked before anything is allocated).
 :mod:`processing.common.png`
     PNG encoding of 8-bit images.
 :mod:`processing.common.rotation`
@@ -22,6 +24,8 @@ from typing import Any
 _HOMES = {
     "atomic_path": "files", "atomic_write_bytes": "files", "atomic_write_json": "files",
     "atomic_write_text": "files", "fsync_dir": "files", "sha256_file": "files",
+    "JSONFileError": "files", "parse_json": "files",
+    "read_npz": "npz",
     "png_bytes": "png",
     "rotation_about": "rotation", "rotation_xyz_deg": "rotation", "rotation_z": "rotation",
     "rotation_z_deg": "rotation",
@@ -34,6 +38,9 @@ __all__ = [
     "atomic_write_text",
     "fsync_dir",
     "sha256_file",
+    "JSONFileError",
+    "parse_json",
+    "read_npz",
     "png_bytes",
     "rotation_about",
     "rotation_xyz_deg",

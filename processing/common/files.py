@@ -1,4 +1,4 @@
-r"""Atomic file writes: a reader (or a crash) sees the old file or the new one, never a part.
+r"""Atomic file writes: a reader (or a crash) sees the old file or the new one, never a part; JSON read safely.
 
 The data go to a temporary file in the target's folder, are flushed and
 (``durable=True``) ``fsync``-ed, and the temporary file is renamed over the
@@ -13,6 +13,12 @@ kernel applies the umask (and a folder's default ACL), so the umask is never
 read or changed (``os.umask`` would change it for every thread).
 ``tempfile.mkstemp`` would leave ``0o600``, unreadable for the lab's other
 users and its web server.
+
+A JSON file kogei reads (a session's manifest, journal and products, a
+calibration, a user's file) is untrusted: :func:`parse_json` reads it and
+turns every way it can fail -- not UTF-8, not JSON, arrays or objects nested
+so deeply that the parser runs out of stack (``RecursionError``) -- into one
+:class:`JSONFileError` whose one-line message names the file and the remedy.
 
 Examples
 --------
@@ -33,7 +39,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["fsync_dir", "atomic_path", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "sha256_file"]
+from processing.errors import InputError
+
+__all__ = ["fsync_dir", "atomic_path", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "sha256_file",
+           "JSONFileError", "parse_json"]
 
 
 def fsync_dir(folder: str | os.PathLike[str]) -> None:
@@ -235,3 +244,73 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+class JSONFileError(InputError):
+    """A file that should hold JSON and does not (not UTF-8, not JSON, nested too deeply); one line naming it.
+
+    Parameters
+    ----------
+    message
+        The whole one-line message: the file, what is wrong, what to do.
+    reason
+        What the parser found wrong, alone (``"Expecting value: line 1 column 1 (char 0)"``), for a
+        caller that words its own message.
+    """
+
+    def __init__(self, message: str, reason: str = "") -> None:
+        super().__init__(message)
+        self.reason = reason or message
+
+    def __reduce__(self) -> tuple[type[JSONFileError], tuple[str, str]]:
+        return type(self), (str(self), self.reason)     # survives pickling (a worker process's error)
+
+
+def _json_fault(exc: Exception) -> str:
+    """What is wrong with a text that did not parse as JSON, in a few words."""
+    if isinstance(exc, UnicodeDecodeError):
+        return f"not UTF-8 text: {exc.reason} at byte {exc.start}"
+    if isinstance(exc, json.JSONDecodeError):
+        return str(exc)
+    return "arrays or objects nested too deeply to read"
+
+
+def parse_json(data: bytes | str, what: str | os.PathLike[str], remedy: str) -> Any:
+    """The JSON value in ``data`` (a file's bytes, UTF-8, or its text), or a one-line error naming the file.
+
+    Every JSON read from a file goes through here: :func:`json.loads` alone lets a
+    document nested 100 000 deep escape as a ``RecursionError`` traceback.
+
+    Parameters
+    ----------
+    data
+        The file's bytes (decoded as UTF-8) or text.
+    what
+        The file as the message names it (its path, or ``"--board FILE"``).
+    remedy
+        What the user should do, e.g. ``"restore it from a backup"``.
+
+    Returns
+    -------
+    Any
+        The parsed value (an object, list, text, number, bool or None).
+
+    Raises
+    ------
+    JSONFileError
+        ``"{what} is not JSON kogei can read ({reason}); {remedy}"``, with ``reason`` also as its attribute.
+
+    Examples
+    --------
+    >>> parse_json(b'{"a": [1, 2]}', "a.json", "write it again")
+    {'a': [1, 2]}
+    >>> parse_json("[" * 100000 + "]" * 100000, "deep.json", "write it again")
+    Traceback (most recent call last):
+    ...
+    processing.common.files.JSONFileError: deep.json is not JSON kogei can read (arrays or objects nested too deeply to read); write it again
+    """
+    try:
+        return json.loads(data.decode("utf-8") if isinstance(data, (bytes, bytearray)) else data)
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        reason = _json_fault(exc)
+    raise JSONFileError(f"{os.fspath(what)} is not JSON kogei can read ({reason}); {remedy}", reason)

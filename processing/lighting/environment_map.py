@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from processing.common.files import JSONFileError, parse_json
 from processing.errors import InputError
 from processing.spectral.display import spectra_to_xyz
 from processing.spectral.spectra import REFERENCE_GRID, SpectralGrid, light_spectrum, resample
@@ -399,8 +400,9 @@ def uniform_environment(radiance_y: float, height: int = 16, spectrum: str = "D6
 def _coefficient_channels(raw: Any) -> list[str] | None:
     """The coefficient channels a kogei header names (``coefficient_channels``), or None."""
     try:
-        meta = json.loads(raw if isinstance(raw, str) else raw.decode()) if raw is not None else None
-    except (ValueError, UnicodeDecodeError, AttributeError):
+        meta = None if raw is None else parse_json(raw if isinstance(raw, str) else raw.decode(), HEADER_KEY,
+                                                   "write the map again with kogei")
+    except (ValueError, UnicodeDecodeError, AttributeError):          # JSONFileError is a ValueError
         return None                                                   # reported by the caller
     names = meta.get("coefficient_channels") if isinstance(meta, dict) else None
     if names is None:
@@ -446,11 +448,13 @@ def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
     meta = None
     if raw is not None:
         try:
-            meta = json.loads(raw if isinstance(raw, str) else raw.decode())
+            meta = parse_json(raw if isinstance(raw, str) else raw.decode(), HEADER_KEY,
+                              "write the map again with kogei")
             if not isinstance(meta, dict):
                 raise ValueError("not an object")
         except (ValueError, UnicodeDecodeError) as exc:
-            raise EnvironmentMapError(f"{path}: header attribute {HEADER_KEY} is not valid JSON ({exc}); "
+            why = exc.reason if isinstance(exc, JSONFileError) else exc
+            raise EnvironmentMapError(f"{path}: header attribute {HEADER_KEY} is not valid JSON ({why}); "
                                       "write the map again with kogei") from None
     return rgb, meta
 

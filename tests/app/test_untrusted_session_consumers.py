@@ -451,6 +451,8 @@ def _cli(args: list[str], capsys) -> tuple[int, str]:
     ({"captures": {"p01/profile/000": 7}}, "captures.p01/profile/000 must be an object"),
     ({"captures": {"p01/profiles": {"kind": "profiles", "pass": 1, "file": "../outside/secret.png", "sha256": "0"}}},
      "captures.p01/profiles.file"),
+    ({"passes": {"1": {"angle_uncertain_deg": "a lot"}}},
+     "session.json: passes.1.angle_uncertain_deg must be an angle in degrees between 0 and 360, or null"),
 ])
 def test_process_of_a_hostile_session_is_one_line(tmp_path, sentinel, capsys, fields, text):
     root = _calibrated(tmp_path / "s", **fields)
@@ -498,3 +500,39 @@ def test_batch_refuses_a_symlinked_batch_lock(tmp_path, sentinel):
     r = _one(root, ("report",))
     assert r.status == "failed" and "batch.lock is a symlink" in r.reason, r
     assert sentinel.unchanged() and not (root / "batch.log").exists()
+
+
+# ---------------------------------------------------------------------------- JSON nested too deeply
+#: A JSON document whose arrays nest 100 000 deep: it exhausts the parser's stack (``RecursionError``).
+DEEP = b'{"zzz": ' + b"[" * 100_000 + b"]" * 100_000 + b', "schema": "kogei.object_materials", "version": 1}'
+
+
+def _deep_json_session(root: Path, key: str, rel: str) -> Path:
+    """A session whose ``key`` (a product, or the calibration) is :data:`DEEP`, its checksum made to match."""
+    sha = hashlib.sha256(DEEP).hexdigest()
+    fields = {"calibration": {"path": rel, "sha256": sha}} if key == "calibration" else \
+        {"products": {key: {"file": rel, "sha256": sha, "bytes": len(DEEP)}}}
+    _session(root, **fields)
+    (root / rel).parent.mkdir(parents=True, exist_ok=True)
+    (root / rel).write_bytes(DEEP)
+    return root
+
+
+def test_export_of_object_materials_nested_100000_deep_is_one_line(tmp_path, capsys):
+    root = _deep_json_session(tmp_path / "s", "object_materials", "products/object-materials.json")
+    code, err = _cli(["export", str(root), "--gltf", str(tmp_path / "o.glb")], capsys)
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+    assert (f"{root / 'products' / 'object-materials.json'} is not JSON kogei can read (arrays or objects nested too "
+            f"deeply to read); run kogei fit-materials {root} again") in err
+    assert not (tmp_path / "o.glb").exists()
+
+
+@pytest.mark.parametrize("key, rel", [("object_materials", "products/object-materials.json"),
+                                      ("process_report", "products/process-report.json"),
+                                      ("calibration", "calibration.json")])
+def test_report_lists_a_json_file_nested_100000_deep(tmp_path, capsys, key, rel):
+    root = _deep_json_session(tmp_path / "s", key, rel)
+    code, html, err = _report(root, tmp_path / "r.html", capsys)
+    assert code == 0 and "Traceback" not in err, err
+    assert (f"{rel} is not JSON kogei can read (arrays or objects nested too deeply to read); it is not shown; "
+            "write it again with the step that made it") in _problems(html)

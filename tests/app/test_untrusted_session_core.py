@@ -241,6 +241,14 @@ def _with_manifest(tmp_path: Path, **fields) -> Path:
     ("camera_calibration", {"source": {"frames_rejected": 3}}, "camera_calibration.source.frames_rejected"),
     ("camera_calibration", {"image_size": "x"}, r"camera_calibration.image_size must be \[width, height\]"),
     ("lamp_calibration", {"rms_mm": "x"}, "lamp_calibration.rms_mm must be a finite number"),
+    # per-pass numbers that processing formats or compares (an older session's angle uncertainty, the share of
+    # profiles that saw the object)
+    ("passes", {"1": {"angle_uncertain_deg": "a lot"}},
+     r"passes.1.angle_uncertain_deg must be an angle in degrees between 0 and 360, or null, got 'a lot'"),
+    ("passes", {"1": {"angle_uncertain_deg": -3}}, "passes.1.angle_uncertain_deg must be an angle in degrees"),
+    ("passes", {"1": {"angle_uncertain_deg": True}}, "passes.1.angle_uncertain_deg must be an angle in degrees"),
+    ("passes", {"1": {"valid_share": "most"}}, "passes.1.valid_share must be a share between 0 and 1"),
+    ("passes", {"1": {"valid_share": 1.5}}, "passes.1.valid_share must be a share between 0 and 1"),
 ])
 @pytest.mark.parametrize("how", ["read", "open"])
 def test_wrong_types_and_bounds_in_the_manifest_are_named(tmp_path, field, value, match, how):
@@ -248,6 +256,20 @@ def test_wrong_types_and_bounds_in_the_manifest_are_named(tmp_path, field, value
     with pytest.raises(SessionError, match=match) as err:
         Session.read(root) if how == "read" else Session.open(root)
     assert MANIFEST in _one_line(err.value)
+
+
+def test_pass_numbers_are_checked_and_an_older_session_still_loads(tmp_path):
+    (tmp_path / "old").mkdir()
+    (tmp_path / "bad").mkdir()
+    old = _with_manifest(tmp_path / "old", passes={"1": {"angle_uncertain_deg": 2.5, "valid_share": 0.0},
+                                                   "2": {"angle_uncertain_deg": None, "valid_share": 1}})
+    assert Session.read(old)["passes"]["1"]["angle_uncertain_deg"] == 2.5
+    bad = _with_manifest(tmp_path / "bad", passes={"1": {"angle_uncertain_deg": 2.5},
+                                                   "2": {"angle_uncertain_deg": "2"}})
+    with pytest.raises(SessionError) as err:
+        Session.read(bad)
+    assert f"{MANIFEST}: passes.2.angle_uncertain_deg must be an angle in degrees" in _one_line(err.value)
+    assert f"fix that field or restore {MANIFEST} from a backup" in str(err.value)
 
 
 def test_kogei_report_on_a_wrong_typed_manifest_exits_2_with_one_line(tmp_path, capsys):
@@ -275,6 +297,8 @@ GOOD_OP = json.dumps({"op": "state", "fields": {"x": 1}}).encode()
     (b'{"op": "set", "key": "captures", "value": {}}', "set key must be"),
     (b'{"op": "set", "key": "plan", "value": {"passes": 1000000000}}', "plan.passes"),
     (b'{"op": "status", "status": 3}', "status must be one of"),
+    (b'{"op": "pass", "pass": 1, "fields": {"angle_uncertain_deg": "a lot"}}',
+     "passes.1.angle_uncertain_deg must be an angle in degrees"),
 ])
 def test_a_bad_journal_op_is_a_named_error_on_open_and_a_problem_on_read(tmp_path, line, match):
     root = _new(tmp_path)
@@ -304,6 +328,43 @@ def test_corrupt_middle_lines_are_listed_torn_last_line_is_not(tmp_path):
     problems = Session.problems(root)
     assert [p.split(" is corrupt")[0] for p in problems] == ["session.journal line 1", "session.journal line 3"]
     assert Session.problems(_new(tmp_path, "clean")) == []
+
+
+#: An array nested 100 000 deep: valid JSON that exhausts the parser's stack (``RecursionError``).
+DEEP = b"[" * 100_000 + b"]" * 100_000
+
+
+def test_a_manifest_nested_100000_deep_is_one_line_naming_it(tmp_path, capsys):
+    root = _new(tmp_path)
+    text = (root / MANIFEST).read_bytes()
+    (root / MANIFEST).write_bytes(text.replace(b"{", b'{"zzz": ' + DEEP + b", ", 1))
+    for load in (Session.read, Session.open):
+        with pytest.raises(SessionError) as err:
+            load(root)
+        assert (f"{MANIFEST} is unreadable (arrays or objects nested too deeply to read); restore it from a backup"
+                in _one_line(err.value))
+    assert main(["report", str(root)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"{root / MANIFEST} is unreadable (arrays or objects nested too deeply" in err
+    assert "restore it from a backup" in err
+
+
+def test_a_journal_line_nested_100000_deep_is_one_line_naming_it(tmp_path, capsys):
+    root = _new(tmp_path)
+    _append_journal(root, GOOD_OP, b'{"zzz": ' + DEEP + b', "op": "state", "fields": {}}', GOOD_OP)
+    with pytest.raises(SessionError) as err:
+        Session.open(root)
+    msg = _one_line(err.value)
+    assert f"{JOURNAL}: line 2 is corrupt (not JSON (arrays or objects nested too deeply to read)" in msg
+    assert "move the journal aside and resume" in msg
+    manifest, problems = Session.read_checked(root)             # a viewer skips the line and says so
+    assert manifest["state"]["x"] == 1 and len(problems) == 1
+    assert problems[0].startswith(f"{JOURNAL} line 2 is corrupt (not JSON (arrays or objects nested too deeply")
+    assert main(["process", str(root), "--no-project", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert f"{root / JOURNAL}: line 2 is corrupt" in err and "move the journal aside and resume" in err
 
 
 def test_update_refuses_a_wrong_typed_value_before_journaling_it(tmp_path):

@@ -199,6 +199,27 @@ def test_damaged_files_are_refused_with_one_line(setup, tmp_path, damage):
     assert str(bad) in str(err.value) and "\n" not in str(err.value)
 
 
+def test_a_header_claiming_hundreds_of_gigabytes_is_refused_before_allocating(setup, tmp_path):
+    """vertex.npy rewritten to claim (100000000000,) int32 (373 GiB) in a member of 192 bytes."""
+    import io
+
+    good, bad = tmp_path / "good.npz", tmp_path / "bad.npz"
+    write_observations(good, setup[3])
+    with zipfile.ZipFile(good) as zf:
+        members = {n: zf.read(n) for n in zf.namelist()}
+    head = io.BytesIO()
+    np.lib.format.write_array_header_1_0(head, {"descr": "<i4", "fortran_order": False, "shape": (100_000_000_000,)})
+    members["vertex.npy"] = head.getvalue() + bytes(64)
+    with zipfile.ZipFile(bad, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    with pytest.raises(AppearanceError) as err:
+        read_observations(bad)
+    msg = str(err.value)
+    assert str(bad) in msg and "'vertex'" in msg and "(100000000000,)" in msg and "member holds" in msg, msg
+    assert msg.endswith("write it with write_observations") and "\n" not in msg
+
+
 def test_bad_inputs_to_observe(setup):
     sphere, frames, images, _ = setup
     with pytest.raises(AppearanceError, match="one image per frame"):
