@@ -40,11 +40,12 @@ from __future__ import annotations
 import errno
 import os
 import stat
+from collections.abc import Sequence
 from pathlib import Path, PurePosixPath
 
 from processing.errors import InputError
 
-__all__ = ["UnsafeSessionPath", "confined", "confined_file", "read_confined_bytes", "check_not_symlink",
+__all__ = ["UnsafeSessionPath", "confined", "confined_file", "read_confined_bytes", "check_not_symlink", "check_destinations",
            "open_log_append", "MAX_PRODUCT_BYTES", "MAX_JSON_BYTES"]
 
 #: Largest product file (an image, a mesh, a report) a consumer reads into memory.
@@ -185,6 +186,16 @@ def check_not_symlink(root: str | os.PathLike[str], rel: str, what: str) -> Path
     if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
         raise UnsafeSessionPath(f"{what}: {_shown(path)} is not a regular file or folder; remove it")
     return path
+
+
+def check_destinations(root: str | os.PathLike[str], rels: Sequence[str]) -> None:
+    """Refuse, before a job writes anything, any of its destinations that :func:`check_not_symlink` would refuse.
+
+    A job that writes several products checks them all first, so that a refused destination does not leave
+    some products of the new run beside others of the old one.
+    """
+    for rel in rels:
+        check_not_symlink(root, rel, rel)
 
 
 def open_log_append(root: str | os.PathLike[str], rel: str, what: str):

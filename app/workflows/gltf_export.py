@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
-from app.workflows.object_materials import OBJECT_MATERIALS, OBJECT_MESH
+from app.workflows.object_materials import OBJECT_MATERIALS
 
 __all__ = ["export_gltf", "pbr_factors", "NEUTRAL_GREY",
            "read_object_model"]
@@ -116,8 +116,7 @@ def read_object_model(session_dir: str | os.PathLike[str]) -> tuple[dict[str, An
     measured (``run kogei fit-materials SESSION``) or its files are
     damaged or disagree (region counts).
     """
-    from app.session_paths import MAX_PRODUCT_BYTES, confined_file
-    from app.workflows.object_materials import read_object_materials
+    from app.workflows.object_materials import object_mesh_file, read_object_materials
     from render.errors import MeshError
     from render.material_mesh import read_material_mesh
 
@@ -126,11 +125,7 @@ def read_object_model(session_dir: str | os.PathLike[str]) -> tuple[dict[str, An
         raise UsageError(f"{root}: no such session folder")
     doc = read_object_materials(root)
     where = str(root / OBJECT_MATERIALS)
-    rel = doc.get("mesh", OBJECT_MESH)
-    try:
-        mesh_path = confined_file(root, rel, "materials file mesh", MAX_PRODUCT_BYTES)
-    except FileNotFoundError:
-        raise UsageError(f"{where}: its mesh {rel!r} is missing; run kogei fit-materials {root} again") from None
+    mesh_path = object_mesh_file(root, doc)
     try:
         mesh = read_material_mesh(mesh_path)
     except MeshError as exc:

@@ -37,7 +37,7 @@ import numpy as np
 from app.errors import UsageError
 
 __all__ = ["measure_object", "burst_records", "answer_text", "area_text", "unmeasured_share_text", "read_object_materials", "region_observations", "face_region_at", "object_scene_toml", "OBJECT_MATERIALS",
-           "OBJECT_MESH", "OBJECT_SCENE", "VALIDATION_DIR", "HOLDOUT_EVERY", "FIT_MODEL_ERROR"]
+           "OBJECT_MESH", "OBJECT_SCENE", "object_mesh_file", "VALIDATION_DIR", "HOLDOUT_EVERY", "FIT_MODEL_ERROR"]
 
 OBJECT_MATERIALS = "products/object-materials.json"
 OBJECT_MESH = "products/object-mesh.ply"
@@ -82,8 +82,7 @@ def _held_out(names: tuple[str, ...], records: list[dict[str, Any]], every: int)
 
 def _load_inputs(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
     """Observations, frame poses (in the observations' frame order), their records, the mesh and the lamp."""
-    from app.session_paths import confined_file
-    from app.workflows.posed_frames import read_frame_poses, session_mesh
+    from app.workflows.posed_frames import checked_product, read_frame_poses, session_mesh
     from app.workflows.station_calibration import session_lamp_calibration
     from processing.appearance.frame_poses import AppearanceError
     from processing.appearance.observations import read_observations
@@ -93,9 +92,10 @@ def _load_inputs(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
         raise UsageError(f"session {root} has no photos posed on its mesh (products/observations.npz); calibrate "
                          "the camera and the lamp (kogei calibrate --camera ... / --lamp ...), then run "
                          f"'kogei process {root} --camera-calibration BOARD --lamp-calibration LAMP'")
+    path = checked_product(root, products["observations"], "products.observations", f"kogei project {root} again")
     try:
-        obs = read_observations(confined_file(root, products["observations"].get("file"), "products.observations"))
-    except (FileNotFoundError, AppearanceError) as exc:
+        obs = read_observations(path)
+    except AppearanceError as exc:
         raise UsageError(f"session {root}: {exc}; run kogei project {root} again") from None
     if not obs.lamp_names:
         raise UsageError(f"session {root}: its observations carry no lamp (no lamp calibration when it was "
@@ -110,6 +110,10 @@ def _load_inputs(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
     lamps = session_lamp_calibration(root, manifest)
     spectrum = next((lp.spectrum for lp in lamps.lamps if lp.spectrum is not None), None) if lamps else None
     mesh = session_mesh(root, manifest)
+    if obs.n_vertices != len(mesh[0]):
+        raise UsageError(f"session {root}: its observations are of a mesh of {obs.n_vertices} vertices but its mesh "
+                         f"has {len(mesh[0])} (the mesh was replaced after the photos were projected); run kogei "
+                         f"project {root} again")
     return {"obs": obs, "frames": [poses[n] for n in obs.frame_names], "mesh": mesh,
             "records": [captures.get(n) or {} for n in obs.frame_names], "spectrum": spectrum,
             "cell_mm": _reconstruction_cell_mm(root, manifest)}
@@ -118,11 +122,13 @@ def _load_inputs(root: Path, manifest: dict[str, Any]) -> dict[str, Any]:
 def _reconstruction_cell_mm(root: Path, manifest: dict[str, Any]) -> float | None:
     """The octree cell (mm) ``kogei process`` reconstructed the mesh at (its report); None for another mesh."""
     from app.session_paths import MAX_JSON_BYTES, read_confined_bytes
+    from processing.common.files import parse_json
 
     ref = (manifest.get("products") or {}).get("process_report")
-    try:
-        report = json.loads(read_confined_bytes(root, ref.get("file"), "products.process_report.file",
-                                                MAX_JSON_BYTES)) if isinstance(ref, dict) else {}
+    try:        # a damaged report (a JSONFileError is a ValueError) costs only the cell size
+        blob = read_confined_bytes(root, ref.get("file"), "products.process_report.file", MAX_JSON_BYTES) \
+            if isinstance(ref, dict) else b"{}"
+        report = parse_json(blob, "products.process_report", f"run kogei process {root} again")
         cell = float(report["surface"]["mesh"]["cell_mm"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
@@ -187,6 +193,7 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
     from threadpoolctl import threadpool_limits
 
     from app.session import Session, SessionError
+    from app.session_paths import check_destinations
 
     note = message or (lambda text: None)
     stop = cancel or (lambda: False)
@@ -202,6 +209,8 @@ def measure_object(session_dir: str | Path, *, holdout_every: int = HOLDOUT_EVER
     except SessionError as exc:
         raise UsageError(str(exc)) from None
     with session:
+        check_destinations(root, (".incoming/object-mesh.ply", OBJECT_MESH, OBJECT_SCENE, OBJECT_MATERIALS,
+                                   VALIDATION_DIR))
         data = _load_inputs(root, session.manifest)
         if isinstance(holdout_every, bool) or not isinstance(holdout_every, int) or holdout_every in (1,) \
                 or holdout_every < 0:
@@ -1077,6 +1086,7 @@ def read_object_materials(session_dir: str | Path) -> dict[str, Any]:
     from app.session import Session
     from app.session_paths import MAX_JSON_BYTES, read_confined_bytes
     from app.workflows._materials_document import materials_document_problem
+    from processing.common.files import JSONFileError, parse_json
 
     root = Path(session_dir)
     ref = (Session.read(root).get("products") or {}).get("object_materials")
@@ -1088,9 +1098,9 @@ def read_object_materials(session_dir: str | Path) -> dict[str, Any]:
                          f"{root} again")
     where = str(root / str(ref.get("file")))
     try:
-        doc = json.loads(blob.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UsageError(f"{where}: not valid JSON ({exc}); run kogei fit-materials {root} again") from None
+        doc = parse_json(blob, where, f"run kogei fit-materials {root} again")
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
     if not isinstance(doc, dict) or doc.get("schema") != "kogei.object_materials" or doc.get("version") != 1:
         raise UsageError(f"{where}: not a kogei.object_materials version 1 document; rerun kogei fit-materials")
     problem = materials_document_problem(doc)       # the regions' list and indices, then every field by kind
@@ -1098,6 +1108,29 @@ def read_object_materials(session_dir: str | Path) -> dict[str, Any]:
         raise UsageError(f"{where}: {problem}; the file is damaged or was not written by kogei: run kogei "
                          f"fit-materials {root} again")
     return doc
+
+
+def object_mesh_file(root: Path, doc: dict[str, Any]) -> Path:
+    """The materials document's mesh (``products/object-mesh.ply``), confined to the session and of the same run.
+
+    The document records the SHA-256 of the mesh written with it (``mesh_sha256``); a mesh of another run (one
+    interrupted or refused after writing it) does not match, and its regions would be mixed with the document's.
+    Raises :class:`UsageError` naming the file and what to run.
+    """
+    from app.session_paths import MAX_PRODUCT_BYTES, confined_file
+    from processing.common.files import sha256_file
+
+    where = root / OBJECT_MATERIALS
+    rel = doc.get("mesh", OBJECT_MESH)
+    try:
+        path = confined_file(root, rel, "materials file mesh", MAX_PRODUCT_BYTES)
+    except FileNotFoundError:
+        raise UsageError(f"{where}: its mesh {rel!r} is missing; run kogei fit-materials {root} again") from None
+    digest = doc.get("mesh_sha256")
+    if isinstance(digest, str) and sha256_file(path) != digest:
+        raise UsageError(f"{where}: its mesh {rel!r} is not the one written with it (another run's, or edited); run "
+                         f"kogei fit-materials {root} again")
+    return path
 
 
 def _vertex_regions(triangles: np.ndarray, face_region: np.ndarray, n_vertices: int) -> np.ndarray:
@@ -1120,8 +1153,7 @@ def face_region_at(session_dir: str | Path, origin_mm: Any, direction: Any) -> i
     from render.material_mesh import read_material_mesh
 
     root = Path(session_dir)
-    read_object_materials(root)
-    mesh = read_material_mesh(root / OBJECT_MESH)
+    mesh = read_material_mesh(object_mesh_file(root, read_object_materials(root)))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
                         o3d.core.Tensor(mesh.triangles.astype(np.uint32)))
@@ -1163,7 +1195,7 @@ def region_observations(session_dir: str | Path, region: int, *, max_points: int
     from app.session import Session
 
     data = _load_inputs(root, Session.read(root))
-    mesh = read_material_mesh(root / OBJECT_MESH)
+    mesh = read_material_mesh(object_mesh_file(root, doc))
     fit = set((doc.get("frames") or {}).get("fit") or [])
     obs = select_frames(data["obs"], np.array([n in fit for n in data["obs"].frame_names]))
     ids = np.flatnonzero(_vertex_regions(mesh.triangles, mesh.face_material, len(mesh.vertices)) == region)

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import UsageError
-from app.session_paths import check_not_symlink
+from app.session_paths import check_destinations, check_not_symlink
 from app.workflows.station_calibration import (
     CLIP_LEVEL,
     decode_frame,
@@ -44,8 +44,9 @@ from app.workflows.station_calibration import (
     session_camera_calibration,
     session_lamp_calibration,
 )
+from processing.common.files import JSONFileError, parse_json
 
-__all__ = ["project_session", "frame_outline", "posed_frame_names", "calibrated_images", "noise_model", "session_mesh", "read_frame_poses", "FRAME_POSES", "OBSERVATIONS", "PROJECTION_REPORT", "OVERLAYS", "MIN_IOU"]
+__all__ = ["project_session", "frame_outline", "posed_frame_names", "calibrated_images", "noise_model", "session_mesh", "checked_product", "read_frame_poses", "FRAME_POSES", "OBSERVATIONS", "PROJECTION_REPORT", "OVERLAYS", "MIN_IOU", "MAX_MESH_COORD_MM"]
 
 FRAME_POSES = "products/frame-poses.json"
 OBSERVATIONS = "products/observations.npz"
@@ -63,9 +64,9 @@ def _pass_poses(root: Path, manifest: dict[str, Any]) -> dict[int, np.ndarray]:
     if not isinstance(ref, dict):
         raise UsageError(f"session {root} is not processed yet (no products.process_report); run "
                          f"'kogei process {root}' first")
-    try:
-        report = json.loads(read_confined_bytes(root, ref.get("file"), "products.process_report.file",
-                                                MAX_JSON_BYTES))
+    try:       # a JSONFileError is a ValueError
+        report = parse_json(read_confined_bytes(root, ref.get("file"), "products.process_report.file",
+                                                MAX_JSON_BYTES), "products.process_report", "run kogei process again")
     except (OSError, ValueError) as exc:
         raise UsageError(f"session {root}: its process report is unreadable ({exc}); run kogei process again") \
             from None
@@ -236,6 +237,7 @@ def project_session(session_dir: str | Path, *, decode: str = "demosaic", max_vi
     except SessionError as exc:
         raise UsageError(str(exc)) from None
     with session:
+        check_destinations(root, (".incoming/observations.npz", FRAME_POSES, OBSERVATIONS, PROJECTION_REPORT, OVERLAYS))
         manifest = session.manifest
         calib = session_camera_calibration(root, manifest)
         if calib is None or calib.room_to_camera is None:
@@ -300,25 +302,78 @@ def _project(session: Any, root: Path, manifest: dict[str, Any], frames: list[tu
     }
 
 
-def _mesh(root: Path, manifest: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(vertices, triangles, vertex_normals)`` of ``products/mesh.ply``, vertex order kept."""
-    import open3d as o3d
+#: Largest coordinate (mm) of a session's mesh: an object on a turntable is well inside a metre.  A
+#: coordinate beyond it (a damaged or foreign file, a mesh in other units) overflows the areas and
+#: distances the materials are fitted with instead of failing.
+MAX_MESH_COORD_MM = 1.0e6
 
+
+def checked_product(root: Path, ref: Any, field: str, rerun: str) -> Path:
+    """The session file a ``products`` record names, confined to the session and matching its size and SHA-256.
+
+    Parameters
+    ----------
+    root
+        The session folder.
+    ref
+        The manifest's record of the product (``file``, and optionally ``bytes`` and ``sha256``).
+    field
+        The record's place in the manifest, for messages (``products.mesh``).
+    rerun
+        The command that writes the product again, for messages.
+
+    Returns
+    -------
+    Path
+        The file's path.
+
+    Raises
+    ------
+    UsageError
+        The file is missing, or its size or checksum differs from the manifest's (truncated, edited,
+        or replaced after it was written).
+    """
     from app.session_paths import confined_file
+    from processing.common.files import sha256_file
 
-    mesh_ref = (manifest.get("products") or {}).get("mesh") or {}
+    rel = ref.get("file") if isinstance(ref, dict) else None
     try:
-        path = confined_file(root, mesh_ref.get("file"), "products.mesh.file")
+        path = confined_file(root, rel, f"{field}.file")
     except FileNotFoundError:
-        raise UsageError(f"session {root}: its mesh {mesh_ref.get('file')} is missing; run kogei process {root} "
-                         "again") from None
-    mesh = o3d.io.read_triangle_mesh(str(path))
-    if len(mesh.triangles) == 0:
-        raise UsageError(f"session {root}: {mesh_ref.get('file')} holds no triangles; run kogei process again")
-    if not mesh.has_vertex_normals():
-        mesh.compute_vertex_normals()
-    return (np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64),
-            np.asarray(mesh.vertex_normals, dtype=np.float64))
+        raise UsageError(f"session {root}: {rel} is missing; run {rerun}") from None
+    size = path.stat().st_size
+    if isinstance(ref.get("bytes"), int) and size != ref["bytes"]:
+        raise UsageError(f"session {root}: {rel} has {size} bytes, the manifest says {ref['bytes']} (truncated or "
+                         f"replaced); run {rerun}")
+    if isinstance(ref.get("sha256"), str) and sha256_file(path) != ref["sha256"]:
+        raise UsageError(f"session {root}: {rel} does not match its checksum (edited or replaced); run {rerun}")
+    return path
+
+
+def _mesh(root: Path, manifest: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(vertices, triangles, vertex_normals)`` of ``products/mesh.ply``, vertex order kept.
+
+    The file must match the manifest's checksum and pass the renderer's mesh checks (declared counts,
+    finite vertices, faces in range, some area); zero-area triangles are left out.
+    """
+    import warnings
+
+    from render.errors import MeshError, MeshWarning
+    from render.meshio import load_mesh
+
+    rerun = f"kogei process {root} again"
+    path = checked_product(root, (manifest.get("products") or {}).get("mesh") or {}, "products.mesh", rerun)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MeshWarning)     # zero-area triangles left out, normals recomputed
+            mesh = load_mesh(path)
+    except MeshError as exc:
+        raise UsageError(f"session {root}: {exc}; run {rerun}") from None
+    reach = float(np.abs(mesh.vertices).max())
+    if reach > MAX_MESH_COORD_MM:
+        raise UsageError(f"session {root}: {path.name} has a vertex {reach:.3g} mm from the origin (more than "
+                         f"{MAX_MESH_COORD_MM:.0e} mm: not a mesh of an object on the turntable); run {rerun}")
+    return mesh.vertices, mesh.triangles, mesh.vertex_normals
 
 
 def _mean(values: list[Any]) -> float | None:
@@ -425,7 +480,10 @@ def _frame_poses_doc(root: Path, manifest: dict[str, Any]) -> dict[str, Any] | N
     blob = read_confined_bytes(root, ref.get("file"), "products.frame_poses.file", MAX_JSON_BYTES)
     if isinstance(ref.get("sha256"), str) and hashlib.sha256(blob).hexdigest() != ref["sha256"]:
         raise UsageError(f"session {root}: {ref.get('file')} does not match its checksum; run kogei project again")
-    doc = json.loads(blob)
+    try:
+        doc = parse_json(blob, root / str(ref.get("file")), f"run kogei project {root} again")
+    except JSONFileError as exc:
+        raise UsageError(str(exc)) from None
     return doc if isinstance(doc, dict) else None
 
 
@@ -481,8 +539,13 @@ def frame_outline(session_dir: str | Path, frame: str) -> dict[str, Any]:
     if isinstance(rep, dict):
         from app.session_paths import MAX_JSON_BYTES, read_confined_bytes
 
-        doc_rep = json.loads(read_confined_bytes(root, rep.get("file"), "products.projection_report.file",
-                                                 MAX_JSON_BYTES))
-        check = next((f for f in doc_rep.get("frames") or [] if f.get("frame") == cid), {})
+        try:
+            doc_rep = parse_json(read_confined_bytes(root, rep.get("file"), "products.projection_report.file",
+                                                     MAX_JSON_BYTES), root / str(rep.get("file")),
+                                 f"run kogei project {root} again")
+        except JSONFileError as exc:
+            raise UsageError(str(exc)) from None
+        frames = doc_rep.get("frames") if isinstance(doc_rep, dict) else None
+        check = next((f for f in frames or [] if isinstance(f, dict) and f.get("frame") == cid), {})
     return {"frame": cid, "outlines": outline_px(hit), "image_size": pose.image_size,
             "iou": check.get("iou"), "offset_px": check.get("offset_px")}

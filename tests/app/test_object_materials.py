@@ -451,3 +451,130 @@ def test_every_field_of_the_wrong_kind_is_refused_or_harmless(measured):
                 materials_summary(damaged)
                 summary_lines(damaged)
     assert tried > 300 and 0 < refused < tried
+
+
+def _copy(root, tmp_path):
+    import shutil
+
+    dst = tmp_path / "elsewhere"
+    shutil.copytree(root, dst, ignore=shutil.ignore_patterns("session.lock"))
+    return dst
+
+
+def _resummed(dst, rel, field):
+    """Record ``rel``'s present size and checksum under ``products.<field>``, as a session from elsewhere could."""
+    import hashlib
+
+    from app.session import Session
+
+    blob = (dst / rel).read_bytes()
+    manifest = Session.read(dst)
+    manifest["products"][field].update(sha256=hashlib.sha256(blob).hexdigest(), bytes=len(blob))
+    (dst / "session.json").write_text(json.dumps(manifest))
+
+
+def _ascii_ply(path, v, t):
+    head = ["ply", "format ascii 1.0", f"element vertex {len(v)}", "property float x", "property float y",
+            "property float z", f"element face {len(t)}", "property list uchar int vertex_indices", "end_header"]
+    rows = [" ".join(f"{x:.9g}" for x in p) for p in v] + [f"3 {a} {b} {c}" for a, b, c in t]
+    path.write_text("\n".join(head + rows) + "\n")
+
+
+_PRODUCTS = ("products/object-materials.json", "products/object-mesh.ply", "products/object-scene.toml")
+
+
+def test_a_truncated_session_mesh_is_refused_and_the_products_are_kept(measured, tmp_path, capsys):
+    """The posed frames' mesh (products/mesh.ply) cut in half is refused by its checksum before anything is
+    written; before, fit-materials fitted the half Open3D could read (2 regions instead of 5) and replaced the
+    good products with exit 0."""
+    root, _, _, _ = measured
+    dst = _copy(root, tmp_path)
+    mesh = dst / "products/mesh.ply"
+    mesh.write_bytes(mesh.read_bytes()[: mesh.stat().st_size // 2])
+    before = {rel: (dst / rel).read_bytes() for rel in _PRODUCTS}
+    assert main(["fit-materials", str(dst), "--no-validate"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "products/mesh.ply" in lines[0] and "checksum" in lines[0] \
+        and "kogei process" in lines[0], lines
+    assert {rel: (dst / rel).read_bytes() for rel in _PRODUCTS} == before
+
+
+@pytest.mark.parametrize("damage, named", [
+    ("header", "declares"),                 # a header of 2e9 vertices: bad_alloc before
+    ("far", "from the origin"),             # finite vertices at 3e6 mm (3e38 gave absurd areas before)
+    ("flat", "zero area"),                  # every face (0, 0, 0): NaN in the shading normals before
+    ("faces", "outside"),                   # a face beyond the vertex list
+])
+def test_a_hostile_session_mesh_matching_its_checksum_is_one_line(measured, tmp_path, damage, named):
+    """A session mesh rewritten by its sender, the manifest's checksum made to match, is refused by name."""
+    from app.session import Session
+    from app.workflows.posed_frames import session_mesh
+
+    root, _, _, _ = measured
+    dst = _copy(root, tmp_path)
+    path = dst / "products/mesh.ply"
+    v = np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10]])
+    t = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
+    if damage == "header":
+        path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\n"
+                         b"property float y\nproperty float z\nelement face 1\nproperty list uchar int "
+                         b"vertex_indices\nend_header\n" + bytes(64))
+    else:
+        _ascii_ply(path, v * 3e5 if damage == "far" else v, np.zeros_like(t) if damage == "flat"
+                   else (t + 2 if damage == "faces" else t))
+    _resummed(dst, "products/mesh.ply", "mesh")
+    with pytest.raises(UsageError, match=named) as err:
+        session_mesh(dst, Session.read(dst))
+    assert "\n" not in str(err.value) and "mesh.ply" in str(err.value) and "kogei process" in str(err.value)
+
+
+def test_observations_of_another_mesh_are_refused(measured, tmp_path, capsys):
+    """A valid mesh of fewer vertices than the observations were projected on (its checksum made to match): one
+    line saying to project again; before, an IndexError in the fit."""
+    root, _, _, _ = measured
+    dst = _copy(root, tmp_path)
+    _ascii_ply(dst / "products/mesh.ply", np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10]]),
+               np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    _resummed(dst, "products/mesh.ply", "mesh")
+    assert main(["fit-materials", str(dst), "--no-validate"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "its mesh has 4" in lines[0] and "kogei project" in lines[0], lines
+
+
+def test_a_refused_destination_is_refused_before_any_product_is_replaced(measured, tmp_path, capsys):
+    """products/validation a symlink out of the session: refused before the object's mesh and scene are
+    rewritten (before, they were replaced by the new run's and the old materials document kept, which the export
+    then mixed with them)."""
+    root, _, _, _ = measured
+    dst = _copy(root, tmp_path)
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    import shutil
+
+    shutil.rmtree(dst / "products/validation")
+    (dst / "products/validation").symlink_to(outside)
+    before = {rel: (dst / rel).read_bytes() for rel in _PRODUCTS}
+    assert main(["fit-materials", str(dst), "--model-error", "0.05"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "products/validation" in lines[0] and "symlink" in lines[0], lines
+    assert {rel: (dst / rel).read_bytes() for rel in _PRODUCTS} == before and not any(outside.iterdir())
+
+
+def test_an_object_mesh_of_another_run_is_not_exported_with_the_document(measured, tmp_path, capsys):
+    """The materials document records the SHA-256 of the mesh written with it: an object mesh of another run
+    (here one vertex moved) is refused by the export, the window's click and the region plot."""
+    from app.workflows.object_materials import face_region_at
+
+    root, _, _, _ = measured
+    dst = _copy(root, tmp_path)
+    path = dst / "products/object-mesh.ply"
+    blob = bytearray(path.read_bytes())
+    body = blob.index(b"end_header\n") + len(b"end_header\n")
+    blob[body:body + 4] = np.float32(123.25).tobytes()       # the first vertex's x, if binary
+    path.write_bytes(bytes(blob))
+    assert main(["export", str(dst), "--gltf", str(tmp_path / "o.glb")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "object-mesh.ply" in lines[0] and "kogei fit-materials" in lines[0], lines
+    assert not (tmp_path / "o.glb").exists()
+    with pytest.raises(UsageError, match="not the one written with it"):
+        face_region_at(dst, [0.0, 0.0, 500.0], [0.0, 0.0, -1.0])
