@@ -172,12 +172,18 @@ class _Level:
         with sample spacing ``spacing`` (noise, relief between samples,
         normals).  The distance floor keeps a
         profile's own next point (much closer than the profiles are apart in
-        scan data) from making the estimate too small.
+        scan data) from making the estimate too small.  A level of a single
+        point has no neighbour to measure against: its roughness is 0.
         """
         key = round(float(spacing), 9)
         if key not in self._roughness:
-            k = min(9, len(self.points))
-            dist, idx = self.tree.query(self.points, k=k, workers=query_workers(len(self.points)))
+            n = len(self.points)
+            k = min(9, n)
+            if k < 2:
+                self._roughness[key] = 0.0
+                return 0.0
+            dist, idx = self.tree.query(self.points, k=k, workers=query_workers(n))
+            dist, idx = dist.reshape(n, k), idx.reshape(n, k)   # k = 1 would give 1-D arrays
             far = dist[:, 1:] >= 0.5 * spacing
             first = np.where(far.any(axis=1), np.argmax(far, axis=1), k - 2) + 1
             j = idx[np.arange(len(idx)), first]
@@ -217,7 +223,7 @@ class _Cloud:
             every = max(1, len(self.points) // 2000)
             k = min(9, len(self.points))
             d, _ = cKDTree(self.points).query(self.points[::every], k=k, workers=query_workers(len(self.points) // every))
-            self._spacing = float(np.median(d[:, -1]) * math.sqrt(math.pi / max(k - 1, 1)))
+            self._spacing = float(np.median(d.reshape(len(d), k)[:, -1]) * math.sqrt(math.pi / max(k - 1, 1)))
         return self._spacing
 
     def level(self, voxel: float, fallback: bool = True) -> _Level:
@@ -306,6 +312,22 @@ def _downsample(
     flip = np.sum(n * guide, axis=1) < 0
     n[flip] *= -1.0
     return p, n
+
+
+def _check_search_level(cloud: _Cloud, voxel: float, scale: float) -> None:
+    """Refuse a cloud of which the pair's coarsest (search) level keeps fewer than :data:`MIN_POINTS` points.
+
+    A cloud far smaller than its partner (a few mm against a whole object)
+    collapses to a point or two on the ``voxel`` grid (mm) the pair is
+    searched on; no pose can be found or checked from so few.
+    """
+    n = len(cloud.level(voxel).points)
+    if n < MIN_POINTS:
+        raise RegistrationError(
+            f"{cloud.name}: only {n} point(s) remain on the {voxel:.3g} mm grid the pair is searched on "
+            f"(registration needs at least {MIN_POINTS}): it spans {cloud.diagonal:.3g} mm of the clouds' "
+            f"{scale:.3g} mm; register clouds of similar extent, or crop the larger one to the overlap"
+        )
 
 
 def _as_cloud(points: ArrayLike, normals: ArrayLike | None, name: str) -> _Cloud:

@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from processing.geometry.registration.clouds import _as_cloud, _Cloud, _Level
+from processing.geometry.registration.clouds import _as_cloud, _check_search_level, _Cloud, _Level
 from processing.geometry.registration.global_search import _global_search
 from processing.geometry.registration.photo_consistency import (
     MIN_SHARED_POINTS,
@@ -152,6 +152,8 @@ def register_pair(
     colours = _as_colours(source_colours, len(src.points), "source_colours"), \
         _as_colours(target_colours, len(tgt.points), "target_colours")
     if initial is None:
+        for cloud in (src, tgt):
+            _check_search_level(cloud, p.search_voxel * scale, scale)
         return _register(src, tgt, scale, p, rng, (0, 1), colours)
     t0 = _as_transform(initial, "initial")
     return _refine_and_check(src, tgt, scale, p, t0, (0, 1), time.perf_counter(), "initial", None)

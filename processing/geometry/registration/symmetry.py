@@ -298,6 +298,7 @@ def _smooth(level: _Level, k: int = 12, factor: float = 4.0) -> NDArray[np.bool_
         return cached
     k = min(k, len(level.points))
     _, idx = level.tree.query(level.points, k=k, workers=query_workers(len(level.points)))
+    idx = idx.reshape(len(level.points), k)   # k = 1 would give a 1-D array
     nb = level.points[idx]
     d = nb - nb.mean(axis=1, keepdims=True)
     evals = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", d, d))
