@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from render.errors import RenderInputError
+from render.limits import MAX_COORDINATE_MM, MIN_FOV_DEG
 
 __all__ = ["Camera", "DEFAULT_VIEW_DIRECTION"]
 
@@ -53,6 +54,9 @@ def _vec3(value: ArrayLike, name: str) -> NDArray[np.float64]:
         raise RenderInputError(f"camera {name} must be three numbers (x, y, z), got {value!r}")
     if not np.all(np.isfinite(arr)):
         raise RenderInputError(f"camera {name} must be finite, got {arr.tolist()}")
+    if name != "up" and float(np.abs(arr).max()) > MAX_COORDINATE_MM:
+        raise RenderInputError(f"camera {name} {arr.tolist()} lies beyond +-{MAX_COORDINATE_MM:g} mm, the range "
+                               "float32 ray casting resolves: bring it nearer the scene")
     return arr
 
 
@@ -63,12 +67,14 @@ class Camera:
     Parameters
     ----------
     eye, target
-        Camera position and the point it looks at (scene units).
+        Camera position and the point it looks at (scene units, mm), each
+        coordinate within ``render.limits.MAX_COORDINATE_MM``.
     up
         Approximate up direction of the image; must not be parallel to the
         viewing direction.
     fov_deg
-        Vertical field of view in degrees, in (0, 180).
+        Vertical field of view in degrees, from ``render.limits.MIN_FOV_DEG``
+        (0.1, the narrowest float32 ray directions resolve) up to 180, 180 excluded.
     width, height
         Image size in pixels (positive integers).
 
@@ -98,9 +104,10 @@ class Camera:
                     f"camera {name} must be a positive whole number of pixels, got {value!r}"
                 )
         fov = float(self.fov_deg)
-        if not (math.isfinite(fov) and 0.0 < fov < 180.0):
+        if not (math.isfinite(fov) and MIN_FOV_DEG <= fov < 180.0):
             raise RenderInputError(
-                f"camera fov_deg (vertical field of view) must be in (0, 180) degrees, got {self.fov_deg!r}"
+                f"camera fov_deg (vertical field of view) must be from {MIN_FOV_DEG:g} (the narrowest float32 ray "
+                f"casting resolves) to 180 degrees, 180 excluded, got {self.fov_deg!r}"
             )
         view = target - eye
         dist = float(np.linalg.norm(view))

@@ -61,11 +61,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from processing.lighting.environment_map import EnvironmentMap
+from processing.lighting.environment_map import EnvironmentMap, EnvironmentMapError
 from processing.spectral.display import spectra_to_xyz
 from processing.spectral.spectra import SpectralGrid, resample
 
-__all__ = ["EnvironmentPlan", "IRRADIANCE_HEIGHT", "IRRADIANCE_SOURCE_HEIGHT"]
+__all__ = ["EnvironmentPlan", "IRRADIANCE_HEIGHT", "IRRADIANCE_SOURCE_HEIGHT", "check_environment_light"]
 
 _F32 = np.float32
 
@@ -101,6 +101,52 @@ def _area_average(coefficients: NDArray[np.float32], height: int) -> NDArray[np.
         out[:, c] = np.bincount(target, weights=coefficients[..., c].ravel() * wgt, minlength=height * width)
     out /= total[:, None]
     return out.reshape(height, width, k)
+
+
+def check_environment_light(env: EnvironmentMap) -> None:
+    """Refuse a map that gives no light, negative light or light float32 shading cannot hold.
+
+    The luminance of the map's brightest pixel, intensity applied (render
+    units: 1 is display white), must lie in
+    ``render.limits.ENVIRONMENT_LUMINANCE_RANGE``; the luminance of every
+    pixel, the map's mean radiance spectrum and its white must not be
+    negative (a negative spectral basis in a kogei header).
+
+    Parameters
+    ----------
+    env
+        The map, its intensity included.
+
+    Raises
+    ------
+    EnvironmentMapError
+        One line naming ``env.source``, the value and the remedy.
+    """
+    from render.limits import ENVIRONMENT_LUMINANCE_RANGE
+
+    low, high = ENVIRONMENT_LUMINANCE_RANGE
+    y_of_basis = spectra_to_xyz(env.basis, env.grid)[:, 1]
+    unit = float(np.abs(y_of_basis).max()) or 1.0                     # keeps the float32 product finite
+    c = env.coefficients.reshape(-1, env.coefficients.shape[2])
+    with np.errstate(over="ignore", invalid="ignore"):
+        y = c @ (y_of_basis / unit).astype(_F32)
+        peak = float(np.max(y)) * unit * env.intensity
+        lowest = float(np.min(y)) * unit * env.intensity
+        spectra = np.stack([env.mean_radiance_spectrum(), env.white_spectrum()])
+    scale = max(abs(peak), abs(lowest))
+    negative = lowest < -1e-6 * scale or float(spectra.min()) < -1e-6 * float(np.abs(spectra).max())
+    if negative or peak < 0:
+        raise EnvironmentMapError(f"{env.source}: the map's radiance is negative (lowest pixel luminance "
+                                  f"{lowest:.3g}; its spectral basis is negative): radiance cannot be negative, "
+                                  "write the map again with kogei")
+    if not peak >= low:
+        raise EnvironmentMapError(f"{env.source}: the map gives no light (brightest pixel luminance {peak:.3g} with "
+                                  f"intensity {env.intensity:g}; at least {low:g} is needed, 1 = display white): "
+                                  "give a map that records light or raise its intensity")
+    if not (math.isfinite(peak) and peak <= high):
+        raise EnvironmentMapError(f"{env.source}: the brightest pixel has luminance {peak:.3g} with intensity "
+                                  f"{env.intensity:g}, above {high:g} (1 = display white; float32 shading "
+                                  "overflows): lower its intensity or export the map in a smaller unit")
 
 
 #: Plans already built, per map and (grid, k): a re-render of the same scene (the window's preview)

@@ -52,6 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.common.files import atomic_write_bytes
 from render.errors import MeshError
+from render.meshio import check_ply_header
 
 __all__ = [
     "MaterialMesh",
@@ -202,6 +203,7 @@ def _ply_header(head: bytes, name: str) -> tuple[list[str], int]:
     if not head.startswith(b"ply") or end < 0:
         raise MeshError(f"'{name}' is not a PLY file (no 'ply' magic or no end_header in its first "
                         f"{_HEADER_BYTES} bytes)")
+    check_ply_header(head, name)
     body = head.find(b"\n", end)
     if body < 0:
         raise MeshError(f"'{name}': the PLY header ends without a line break; the file is truncated")

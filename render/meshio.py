@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from render.errors import MeshError, MeshWarning
+from render.limits import MAX_COORDINATE_MM, MAX_MESH_OFFSET_EXTENTS, MIN_MESH_EXTENT_MM
 
 __all__ = [
     "Mesh",
@@ -49,6 +50,9 @@ __all__ = [
     "smooth_vertex_normals",
     "face_normals",
     "check_declared_counts",
+    "check_ply_header",
+    "PLY_MAX_LINE_BYTES",
+    "PLY_MAX_WORD_BYTES",
 ]
 
 #: File name suffixes :func:`load_mesh` accepts.
@@ -296,6 +300,7 @@ def _checked_arrays(vertices: ArrayLike, triangles: ArrayLike,
             f"{source}: {bad.size} vertices have NaN or infinite coordinates (first: vertex {bad[0]} = "
             f"{v[bad[0]].tolist()}); remove or repair them before rendering"
         )
+    _check_extent(v, source)
     lo, hi = int(t.min()), int(t.max())
     if lo < 0 or hi >= v.shape[0]:
         bad_tri = int(np.flatnonzero(np.any((t < 0) | (t >= v.shape[0]), axis=1))[0])
@@ -304,6 +309,45 @@ def _checked_arrays(vertices: ArrayLike, triangles: ArrayLike,
             "(the file's face list does not match its vertex list)"
         )
     return v, t
+
+
+def _check_extent(v: NDArray[np.float64], source: str) -> None:
+    """Refuse coordinates beyond ``render.limits.MAX_COORDINATE_MM`` (float32 ray casting; squares overflow)."""
+    reach = float(np.abs(v).max())
+    if reach > MAX_COORDINATE_MM:
+        raise MeshError(f"{source}: coordinates reach {reach:.3g} mm; the renderer takes coordinates within "
+                        f"+-{MAX_COORDINATE_MM:g} mm (float32 ray casting): scale or move the mesh into that range")
+
+
+def check_mesh_extent(lo: NDArray[np.float64], hi: NDArray[np.float64], name: str) -> None:
+    """Refuse a mesh float32 ray casting cannot resolve, given its bounds (limits in :mod:`render.limits`).
+
+    An extent (largest side of the bounding box) below ``MIN_MESH_EXTENT_MM``
+    (geometric optics does not hold below a micrometre, and float32 normals
+    underflow) and a mesh more than ``MAX_MESH_OFFSET_EXTENTS`` extents from
+    the origin are refused.
+
+    Parameters
+    ----------
+    lo, hi
+        ``(3,)`` lowest and highest coordinates, mm.
+    name
+        The mesh (its file) in messages.
+
+    Raises
+    ------
+    MeshError
+        One line naming ``name``, its extent and its offset.
+    """
+    extent = float(np.max(np.asarray(hi) - np.asarray(lo)))
+    if extent < MIN_MESH_EXTENT_MM:
+        raise MeshError(f"{name}: the mesh spans only {extent:.3g} mm; the renderer takes meshes of at least "
+                        f"{MIN_MESH_EXTENT_MM:g} mm (coordinates are millimetres): scale it up")
+    centre = float(np.abs(0.5 * (np.asarray(lo) + np.asarray(hi))).max())
+    if centre > MAX_MESH_OFFSET_EXTENTS * extent:
+        raise MeshError(f"{name}: the mesh spans {extent:.3g} mm but lies {centre:.3g} mm from the origin; float32 "
+                        f"ray casting resolves a mesh at most {MAX_MESH_OFFSET_EXTENTS:g} times its extent from the "
+                        "origin: translate it toward the origin")
 
 
 def _checked_material_index(material_index: ArrayLike | None, material_index_on: str | None, n_vertices: int,
@@ -497,6 +541,67 @@ _HEADER_BYTES = 1 << 16
 _LZF_MAX_RATIO = 88
 
 
+#: Longest PLY header line (bytes, without its line break) Open3D's reader takes: RPly's ``LINESIZE`` (1024) less
+#: its terminating NUL.  A longer line makes RPly abort the process (buffer overflow), not fail.
+PLY_MAX_LINE_BYTES = 1023
+
+#: Longest word of a PLY header (an element / property name, a type; bytes): RPly's ``WORDSIZE`` (256) less the NUL.
+PLY_MAX_WORD_BYTES = 255
+
+
+def check_ply_header(head: bytes, name: str) -> None:
+    r"""Refuse a PLY header that Open3D's PLY reader (RPly) cannot take, before it is handed to it.
+
+    RPly keeps a header line in a 1024-byte buffer and a word in a 256-byte
+    one; a longer ``comment`` line aborts the whole process and a longer name
+    fails with lines of C-library noise.  Every header line up to
+    ``end_header`` is checked: at most :data:`PLY_MAX_LINE_BYTES` bytes, and
+    outside ``comment`` / ``obj_info`` lines words of at most
+    :data:`PLY_MAX_WORD_BYTES` bytes.  Anything not starting with the ``ply``
+    magic is left to the reader.
+
+    Parameters
+    ----------
+    head
+        The file's first bytes (at least its header, when it has one).
+    name
+        The file, for the message.
+
+    Raises
+    ------
+    MeshError
+        One line naming the file, the header line and the limit.
+
+    Examples
+    --------
+    >>> check_ply_header(b"ply\nformat ascii 1.0\ncomment ok\nend_header\n", "a.ply")
+    >>> check_ply_header(b"ply\ncomment " + b"x" * 1100 + b"\nend_header\n", "a.ply")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    render.errors.MeshError: 'a.ply': PLY header line 2 is 1108 bytes long; ...at most 1023 bytes a line...
+    """
+    if not head.startswith(b"ply"):
+        return
+    for number, line in enumerate(head.split(b"\n"), start=1):
+        if len(line) > PLY_MAX_LINE_BYTES:
+            raise MeshError(
+                f"'{name}': PLY header line {number} is {len(line)} bytes long; Open3D's PLY reader takes at most "
+                f"{PLY_MAX_LINE_BYTES} bytes a line: shorten or remove that line (e.g. a long comment)"
+            )
+        words = line.split()
+        if words[:1] == [b"end_header"]:
+            return
+        if words[:1] in ([b"comment"], [b"obj_info"]):
+            continue
+        word = next((w for w in words if len(w) > PLY_MAX_WORD_BYTES), None)
+        if word is not None:
+            raise MeshError(
+                f"'{name}': PLY header line {number} has a {len(word)}-byte word "
+                f"{word[:20].decode('ascii', 'replace')!r}...; Open3D's PLY reader takes names of at most "
+                f"{PLY_MAX_WORD_BYTES} bytes: rename that element or property"
+            )
+
+
 def check_declared_counts(path: str | os.PathLike[str]) -> int | None:
     r"""Check the element counts a file's header declares against the file's size, before a reader allocates.
 
@@ -546,6 +651,8 @@ def check_declared_counts(path: str | os.PathLike[str]) -> int | None:
             head = fh.read(_HEADER_BYTES)
     except OSError as exc:
         raise MeshError(f"'{p}' could not be read: {exc.strerror or exc}") from None
+    if suffix == ".ply":
+        check_ply_header(head, str(p))
     try:
         found = reader(head, size)
     except MeshError as exc:

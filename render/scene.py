@@ -54,7 +54,8 @@ from processing.lighting.environment_map import EnvironmentMap
 from processing.materials.lobes import Material
 from processing.spectral.spectra import REFERENCE_GRID, SpectralGrid, light_spectrum, resample
 from render.errors import RenderInputError
-from render.meshio import Mesh
+from render.limits import LIGHT_INTENSITY_RANGE, MAX_COORDINATE_MM, MAX_SKY_RADIANCE
+from render.meshio import Mesh, check_mesh_extent
 
 __all__ = [
     "SceneObject",
@@ -204,6 +205,8 @@ class SceneObject:
     RenderInputError
         No materials, an index of the wrong length or out of range, several
         materials without an index, tangents of the wrong shape.
+    MeshError
+        A mesh float32 ray casting cannot resolve (:func:`render.meshio.check_mesh_extent`).
     """
 
     mesh: Mesh
@@ -222,6 +225,7 @@ class SceneObject:
             )
         name = self.name or os.path.basename(self.mesh.source)
         object.__setattr__(self, "name", name)
+        check_mesh_extent(*self.mesh.bounds(), name)
         mats = _resolve_materials(self.materials, name)
         object.__setattr__(self, "materials", mats)
         if self.tangents is not None:
@@ -313,7 +317,9 @@ class Light:
     ------
     RenderInputError
         An unknown kind, a vector that is not three finite numbers (or
-        zero for a directional light), a negative or non-finite intensity.
+        zero for a directional light, or a point light beyond
+        ``render.limits.MAX_COORDINATE_MM``), a negative or non-finite
+        intensity or one above ``render.limits.LIGHT_INTENSITY_RANGE``.
 
     Examples
     --------
@@ -337,13 +343,17 @@ class Light:
                     "directional light vector is zero; give the direction from the surface toward the light"
                 )
             vec = vec / norm
+        elif float(np.abs(vec).max()) > MAX_COORDINATE_MM:
+            raise RenderInputError(f"point light position {vec.tolist()} lies beyond +-{MAX_COORDINATE_MM:g} mm, "
+                                   "the range float32 ray casting resolves: bring it nearer the scene")
         object.__setattr__(self, "vector", tuple(vec.tolist()))
         try:
             intensity = float(self.intensity)
         except (TypeError, ValueError):
             raise RenderInputError(f"light intensity must be a number, got {self.intensity!r}") from None
-        if not (math.isfinite(intensity) and intensity >= 0.0):
-            raise RenderInputError(f"light intensity must be finite and >= 0, got {self.intensity!r}")
+        if not (math.isfinite(intensity) and 0.0 <= intensity <= LIGHT_INTENSITY_RANGE[1]):
+            raise RenderInputError(f"light intensity must be finite and >= 0 (at most {LIGHT_INTENSITY_RANGE[1]:g}), "
+                                   f"got {self.intensity!r}")
         object.__setattr__(self, "intensity", intensity)
 
 
@@ -415,8 +425,9 @@ class Sky:
                 value = float(value)
             except (TypeError, ValueError):
                 raise RenderInputError(f"sky {name} must be a number, got {value!r}") from None
-            if not (math.isfinite(value) and value >= 0.0):
-                raise RenderInputError(f"sky {name} radiance scale must be finite and >= 0, got {value!r}")
+            if not (math.isfinite(value) and 0.0 <= value <= MAX_SKY_RADIANCE):
+                raise RenderInputError(f"sky {name} radiance scale must be finite, >= 0 and at most "
+                                       f"{MAX_SKY_RADIANCE:g}, got {value!r}")
             object.__setattr__(self, name, value)
         up = _vector(self.up, "sky up")
         norm = float(np.linalg.norm(up))
@@ -528,6 +539,10 @@ class Scene:
         if self.environment is not None and not isinstance(self.environment, EnvironmentMap):
             raise RenderInputError(f"scene environment must be a processing.lighting.environment_map.EnvironmentMap "
                                    f"(read_environment, daylight_sky), got {type(self.environment).__name__}")
+        if self.environment is not None:
+            from render.environment import check_environment_light
+
+            check_environment_light(self.environment)
         if not lights and self.environment is None:
             raise RenderInputError(
                 "the scene has no lights; add at least one (the first light sets the exposure: a white "

@@ -22,7 +22,7 @@ import argparse
 import json
 from pathlib import Path
 
-from app.errors import UsageError
+from app.cli.outputs import check_output_file, writing
 from app.workflows.chart import chart_report
 from processing.common.files import atomic_path
 
@@ -60,13 +60,11 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run ``kogei chart``; returns the exit status."""
     raw_path = Path(args.raw)
+    out = check_output_file(args.json, "--json") if args.json else None     # before the work
     report = chart_report(raw_path, chart=args.chart, corners=args.chart_corners, mode=args.mode,
                           inset=args.inset, trim=args.trim)
-    if args.json:
-        out = Path(args.json)
-        if not out.parent.is_dir():
-            raise UsageError(f"--json {out}: the folder {out.parent} does not exist")
-        with atomic_path(out, durable=False, make_parents=False) as tmp:
+    if out is not None:
+        with writing(out, "--json"), atomic_path(out, durable=False, make_parents=False) as tmp:
             tmp.write_text(json.dumps(report, indent=1), encoding="utf-8")
     if not args.quiet:
         usable = sum(p["usable"] for p in report["patches"])

@@ -17,6 +17,7 @@ import os
 import sys
 from pathlib import Path
 
+from app.cli.outputs import check_output_folder, writing
 from app.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -92,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{session}: session folder not found")
     if args.pixels < 8:
         raise UsageError(f"--pixels must be at least 8, got {args.pixels}")
+    out = check_output_folder(args.out or session / "cloth-fit", "--out")     # before the fit
     data = load_swatch_session(session, args.geometry, max_pixels=args.pixels)
     costs = None
     try:
@@ -101,13 +103,13 @@ def run(args: argparse.Namespace) -> int:
             fit = fit_swatch(data.measurement, data.geometry, yarn=args.yarn, layers=layers)
     except ClothFitError as exc:
         raise UsageError(f"{session}: {exc}") from None
-    out = Path(args.out) if args.out else session / "cloth-fit"
-    out.mkdir(parents=True, exist_ok=True)
     report = fit_report(data, fit)
     if costs is not None:
         report["layer_costs"] = {str(k): v for k, v in costs.items()}
-    (out / "cloth-fit.json").write_text(json.dumps(report, indent=2) + "\n")
-    figure = fit_figure(data, fit, out / "cloth-fit.png")
+    with writing(out, "--out"):
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "cloth-fit.json").write_text(json.dumps(report, indent=2) + "\n")
+        figure = fit_figure(data, fit, out / "cloth-fit.png")
     if not args.quiet:
         print(f"{data.measurement.angles_deg.size} angles x {data.measurement.pixels.shape[0]} pixels")
         for name, value in fit.parameters.items():

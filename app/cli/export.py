@@ -36,8 +36,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export; print one line per region (or the JSON summary)."""
+    from app.cli.outputs import check_output_file
     from app.workflows.gltf_export import export_gltf
 
+    check_output_file(args.gltf, "--gltf")      # its folder exists and takes a file, before the work
     summary = export_gltf(args.session, args.gltf, force=args.force)
     if args.json:
         print(json.dumps(summary, indent=1))

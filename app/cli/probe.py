@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 
+from app.cli.outputs import check_output_file, writing
 from app.workflows.light_probe import build_probe, probe_inputs, record_probe, write_probe
 
 __all__ = ["add_parser", "run"]
@@ -46,9 +47,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="the camera calibration (a calibrated board session or its camera_calibration.json); "
                         "default: the session's")
     p.add_argument("--sphere-radius", type=float, default=None, metavar="MM",
-                   help="the mirror sphere's radius in mm (default: the session plan's)")
+                   help="the mirror sphere's radius in mm, 1 to 500 (half its diameter) (default: the session plan's)")
     p.add_argument("--sphere-reflectance", type=float, default=0.6, metavar="R",
-                   help="the sphere's mirror reflectance, the fraction of light it reflects, 0-1 (default %(default)s)")
+                   help="the sphere's mirror reflectance, the fraction of light it reflects, 0.02-1 (chrome about 0.6; "
+                        "under 0.02 it is not a mirror) (default %(default)s)")
     p.add_argument("--light", default="D65", metavar="NAME_OR_CCT",
                    help="the light's spectrum where the chart lies: a name such as D65 or A, a CCT in K, or a CSV "
                         "file of a measured spectrum (wavelength_nm, value) (default %(default)s)")
@@ -81,6 +83,8 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``kogei probe``; returns the exit status."""
+    out = check_output_file(args.out, "--out", suffixes=(".exr",))      # the map and its report, before the work
+    check_output_file(out.with_suffix(".json"), "--out (its report)")
     inputs = probe_inputs(args.sources, chart=args.chart, camera_calibration=args.camera_calibration,
                           sphere_radius_mm=args.sphere_radius, filter_frames=args.filter_frames,
                           filter_chart=args.filter_chart, filter_transmission=args.filter)
@@ -89,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
                          decode=args.decode, reflectance=args.sphere_reflectance, height=args.height,
                          f_number=args.f_number, camera_mask_deg=args.camera_mask, back_mask_deg=args.back_mask,
                          components=args.components, message=say)
-    exr, report = write_probe(result, args.out)
+    with writing(out, "--out"):
+        exr, report = write_probe(result, out)
     kept = record_probe(inputs.session, result) if inputs.session is not None else None
     if not args.quiet:
         r = result.report

@@ -34,6 +34,7 @@ import math
 import sys
 from pathlib import Path
 
+from app.cli.outputs import check_output_file, writing
 from app.errors import UsageError
 from app.workflows.cloud_registration import (
     UNITS_MM,
@@ -79,14 +80,13 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _check_output(path: str | None, flag: str, suffixes: tuple[str, ...]) -> Path | None:
+    """The output ``path`` of ``flag`` (or None), its ending and its folder checked before the registration."""
     if path is None:
         return None
     out = Path(path)
     if out.suffix.lower() not in suffixes:
         raise UsageError(f"{flag}: {out} must end in one of {', '.join(suffixes)}")
-    if out.exists() and out.is_dir():
-        raise UsageError(f"{flag}: {out} is a directory")
-    return out
+    return check_output_file(out, flag, make_parents=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -136,9 +136,11 @@ def _register(args: argparse.Namespace) -> int:
         say(f"pose graph: edges agree within {c.max_rotation_deg:.3g} deg and {c.max_displacement_mm:.3g} mm")
 
     if poses_path is not None:
-        write_poses(poses_path, poses_document(files, [len(c) for c in clouds], result, units=args.units))
+        with writing(poses_path, "--poses"):
+            write_poses(poses_path, poses_document(files, [len(c) for c in clouds], result, units=args.units))
     if out is not None:
-        write_merged_cloud(out, clouds, result, normals, units=args.units)
+        with writing(out, "--out"):
+            write_merged_cloud(out, clouds, result, normals, units=args.units)
     written = ", ".join(str(p) for p in (out, poses_path) if p is not None)
     n_ok = sum(p.registered for p in result.poses)
     say(f"wrote {written} ({n_ok} of {len(files)} inputs registered, {result.seconds:.1f} s)")

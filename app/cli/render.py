@@ -3,22 +3,24 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
 
+from app.cli.outputs import check_output_file, writing
 from app.errors import UsageError
 from app.workflows.scene_spec import (
     CameraSpec,
     ObjectSpec,
     SceneSpec,
     check_path_text,
+    check_range,
     load_scene_file,
     parse_environment,
+    parse_fov,
     parse_light,
+    parse_position,
     parse_size,
-    parse_vector,
 )
 
 __all__ = ["add_parser", "run", "spec_from_args"]
@@ -38,8 +40,9 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
             raise UsageError(f"{src}: mesh file not found")
         spec = SceneSpec(objects=[ObjectSpec(mesh=src, material=args.material or "gold")])
     if args.weave_angle is not None:
-        if not math.isfinite(args.weave_angle):
-            raise UsageError(f"--weave-angle: expected a finite angle in degrees, got {args.weave_angle}")
+        from render.limits import MAX_ANGLE_DEG
+
+        check_range(args.weave_angle, "--weave-angle", -MAX_ANGLE_DEG, MAX_ANGLE_DEG, "an angle in degrees")
         for obj in spec.objects:
             obj.weave_angle_deg = args.weave_angle
     if args.light:
@@ -62,13 +65,11 @@ def spec_from_args(args: argparse.Namespace) -> SceneSpec:
         spec.preset = args.preset
     cam = spec.camera
     spec.camera = CameraSpec(
-        eye=parse_vector(args.eye, "--eye") if args.eye else cam.eye,
-        target=parse_vector(args.target, "--target") if args.target else cam.target,
-        up=parse_vector(args.up, "--up") if args.up else cam.up,
-        fov_deg=args.fov if args.fov is not None else cam.fov_deg,
+        eye=parse_position(args.eye, "--eye") if args.eye else cam.eye,
+        target=parse_position(args.target, "--target") if args.target else cam.target,
+        up=parse_position(args.up, "--up") if args.up else cam.up,
+        fov_deg=parse_fov(args.fov, "--fov") if args.fov is not None else cam.fov_deg,
     )
-    if not (0.0 < spec.camera.fov_deg < 180.0):
-        raise UsageError(f"--fov: the field of view must be between 0 and 180 degrees, got {spec.camera.fov_deg}")
     return spec
 
 
@@ -86,8 +87,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(see 'kogei materials'); default gold")
     p.add_argument("--light", action="append", default=[], metavar="SPEC",
                    help="directional:DX,DY,DZ (a direction toward the light, any length) or point:X,Y,Z (a "
-                        "position in mm); optional @SPECTRUM (as --illuminant) and *INTENSITY (relative; 1 = the "
-                        "default key light); repeatable (default: one directional light from above left front)")
+                        "position in mm, each within +-1e7); optional @SPECTRUM (as --illuminant) and *INTENSITY "
+                        "(relative, 1e-9 to 1e12; 1 = the default key light); repeatable (default: one directional light from above left front)")
     p.add_argument("--illuminant", default=None, metavar="NAME|CCT|CSV",
                    help="spectrum of the lights and the sky: a CIE name (D65, A, D50, F2, ...), a correlated colour "
                         "temperature in kelvin such as 3200K, or a CSV of (wavelength nm, relative power) "
@@ -96,28 +97,31 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="environment seen in mirror reflections (default gradient)")
     p.add_argument("--environment", default=None, metavar="MAP",
                    help="light the scene with an environment map: FILE.exr or FILE.hdr (equirectangular, 2:1, z up) "
-                        "with optional :rotate=DEG,intensity=X, or the analytic daylight sky "
+                        "with optional :rotate=DEG (within +-360),intensity=X (1e-6 to 1e6), or the analytic daylight sky "
                         "sky:cct=K,sun_elevation=DEG,sun_azimuth=DEG,type=clear|intermediate|overcast|1-15,sun=X,"
-                        "sun_cct=K,luminance=Y,ground=R,height=ROWS (and rotate, intensity); it replaces the default "
+                        "sun_cct=K,luminance=Y (1e-6 to 1e6),ground=R,height=ROWS (and rotate, intensity); it replaces the default "
                         "light and sky unless --light or --sky are given (docs/lighting.md)")
     p.add_argument("--environment-samples", type=int, default=None, metavar="N",
                    help="directions per surface sample with which the environment lights non-mirror lobes (half "
                         "from the map, half from the material; 0: the prefiltered map, no occlusion); more is less "
                         "noise and more time (default: the preset's, draft 0, standard 8, reference 16)")
     p.add_argument("--eye", default=None, metavar="X,Y,Z",
-                   help="camera position in the mesh's coordinates, mm (default: framed to show the whole scene)")
+                   help="camera position in the mesh's coordinates, mm, each within +-1e7 (default: framed to show "
+                        "the whole scene)")
     p.add_argument("--target", default=None, metavar="X,Y,Z",
-                   help="point the camera looks at, mm (default: the centre of the scene's bounding box)")
+                   help="point the camera looks at, mm, each within +-1e7 (default: the centre of the scene's "
+                        "bounding box)")
     p.add_argument("--up", default=None, metavar="X,Y,Z",
                    help="direction that is up in the image, unitless (default 0,0,1: +z)")
     p.add_argument("--fov", type=float, default=None, metavar="DEG",
-                   help="vertical field of view in degrees, between 0 and 180 (default 35)")
+                   help="vertical field of view in degrees, from 0.1 (the narrowest float32 ray casting resolves) "
+                        "to 180, 180 excluded (default 35)")
     p.add_argument("--size", default=None, metavar="WxH", help="image size in pixels (default 800x600)")
     p.add_argument("--preset", default=None, choices=["draft", "standard", "reference"],
                    help="speed against accuracy: draft (a quick look), standard, reference (slowest, the noise "
                         "floor); docs/rendering.md measures each (default standard, or the scene file's)")
     p.add_argument("--weave-angle", type=float, default=None, metavar="DEG",
-                   help="turn the yarn directions of cloth materials about the normal, degrees (default 0, or the scene file's)")
+                   help="turn the yarn directions of cloth materials about the normal, degrees, within +-360 (default 0, or the scene file's)")
     p.add_argument("--out", required=True, metavar="IMG.png", help="the sRGB PNG to write (required)")
     p.add_argument("--xyz", default=None, metavar="IMG.tiff", help="also write float32 CIE XYZ")
     p.add_argument("--quiet", action="store_true", help="do not print the size and time of the render")
@@ -138,18 +142,21 @@ def _render(args: argparse.Namespace) -> int:
     from render.image_io import write_png, write_xyz_tiff
     from render.renderer import render
 
-    out = Path(args.out)
-    if out.suffix.lower() != ".png":
-        raise UsageError(f"--out: {out} must end in .png (the sRGB image); use --xyz for float XYZ")
+    if Path(args.out).suffix.lower() != ".png":
+        raise UsageError(f"--out: {args.out} must end in .png (the sRGB image); use --xyz for float XYZ")
+    out = check_output_file(args.out, "--out", make_parents=True)     # both outputs before the work
+    xyz = check_output_file(args.xyz, "--xyz") if args.xyz else None
     spec = spec_from_args(args)
     job = build_job(spec)
     t0 = time.perf_counter()
     result = render(job.scene, job.camera, job.settings)
     elapsed = time.perf_counter() - t0
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_png(out, result.srgb8)
-    if args.xyz:
-        write_xyz_tiff(Path(args.xyz), result.xyz)
+    with writing(out, "--out"):
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_png(out, result.srgb8)
+    if xyz is not None:
+        with writing(xyz, "--xyz"):
+            write_xyz_tiff(xyz, result.xyz)
     if not args.quiet:
         w, h = spec.size
         print(f"wrote {out} ({w}x{h}, preset {job.settings.name}, {elapsed:.2f} s)", file=sys.stderr)

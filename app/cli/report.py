@@ -19,8 +19,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.cli.outputs import check_output_file
     from app.report.html import write_report
 
+    if args.out is not None:
+        check_output_file(args.out, "--out", make_parents=True)     # before the report is built
     path = write_report(args.session, args.out)
     shown = os.fsdecode(path).encode("utf-8", "backslashreplace").decode("utf-8")
     print(f"report: {shown}", file=sys.stderr)

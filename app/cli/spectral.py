@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.cli.outputs import check_output_file, writing
 from app.errors import UsageError
 from app.workflows.identification import MIN_LEVEL, pixel_level
 from app.workflows.spectral import METHODS, estimate_spectral, load_result, save_result
@@ -83,13 +84,24 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
+def _refuse_non_finite(result, out: str) -> None:
+    """Refuse (nothing written) an estimate with NaN or infinite weights, camera values or chart RMSE."""
+    bad = [name for name, values in (("basis weights", result.weights), ("camera values", result.camera))
+           if not np.all(np.isfinite(values))]
+    if not np.isfinite(float(result.metadata.get("chart_rmse", np.nan))):
+        bad.append("chart RMSE")
+    if bad:
+        raise UsageError(f"--out {out}: not written: the estimate's {' and '.join(bad)} are NaN or infinite; "
+                         "check that --camera, --database and --chart-reflectances hold physical values "
+                         "(sensitivities and reflectances of ordinary size)")
+
+
 def _run_estimate(args: argparse.Namespace) -> int:
     for flag, value in (("IMAGE", args.image), ("--chart", args.chart), ("--second", args.second),
                         ("--second-chart", args.second_chart)):
         if value is not None and not Path(value).exists():
             raise UsageError(f"{flag} {value}: no such file")
-    if not Path(args.out).parent.is_dir():       # before the work, not after it
-        raise UsageError(f"--out {args.out}: the folder {Path(args.out).parent} does not exist")
+    out = check_output_file(args.out, "--out")      # before the work, not after it
     result = estimate_spectral(
         Path(args.image), Path(args.chart), method=args.method,
         second=None if args.second is None else Path(args.second),
@@ -98,7 +110,9 @@ def _run_estimate(args: argparse.Namespace) -> int:
         second_chart_corners=args.second_chart_corners, patches=args.patches, mode=args.mode, light=args.light,
         second_light=args.second_light, camera=args.camera, database=args.database, noise=args.noise,
     )
-    save_result(result, Path(args.out))
+    _refuse_non_finite(result, args.out)
+    with writing(out, "--out"):
+        save_result(result, out)
     if not args.quiet:
         h, w, p = result.weights.shape
         md = result.metadata

@@ -37,12 +37,14 @@ import numpy as np
 from app.errors import UsageError
 
 __all__ = ["ProbeResult", "ProbeInputs", "probe_inputs", "build_probe", "write_probe", "RAW_SUFFIXES",
-           "MAX_OUTLINE_RMS_PX", "FIND_WIDTH_PX", "record_probe", "PROBE_FILE", "PROBE_REPORT_FILE"]
+           "MAX_OUTLINE_RMS_PX", "FIND_WIDTH_PX", "SPHERE_RADIUS_MM", "record_probe", "PROBE_FILE", "PROBE_REPORT_FILE"]
 
 #: File name endings taken as RAW frames in a folder.
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2")
 #: A sphere outline fitting worse than this (px RMS) is not the probe sphere of the given radius.
 MAX_OUTLINE_RMS_PX = 1.0
+#: The mirror sphere's radius a probe accepts (mm), inclusive: a 2 mm ball bearing to a 1 m garden globe.
+SPHERE_RADIUS_MM = (1.0, 500.0)
 #: The sphere is found on the HDR image binned to at most this width (px).
 FIND_WIDTH_PX = 2000
 #: Where a probe session keeps its map and the map's report (``products.probe``, ``products.probe_report``).
@@ -139,8 +141,10 @@ def probe_inputs(sources: Sequence[str | os.PathLike[str]], *, chart: str | None
         raise UsageError(f"{inputs.source}: give the mirror sphere's radius with --sphere-radius MM")
     _filter_inputs(inputs, filter_frames, filter_chart, filter_transmission)
     r = inputs.sphere_radius_mm
-    if isinstance(r, bool) or not isinstance(r, (int, float)) or not (math.isfinite(r) and r > 0):
-        raise UsageError(f"--sphere-radius must be the mirror sphere's radius in mm (> 0), got {r!r}")
+    lo, hi = SPHERE_RADIUS_MM
+    if isinstance(r, bool) or not isinstance(r, (int, float)) or not (math.isfinite(r) and lo <= r <= hi):
+        raise UsageError(f"--sphere-radius must be the mirror sphere's radius in mm, {lo:g} to {hi:g} (half its "
+                         f"diameter), got {r!r}")
     return inputs
 
 
@@ -221,7 +225,12 @@ def _find_sphere(hdr, calib, radius_mm: float, name: str) -> tuple[np.ndarray, f
     """
     import cv2
 
-    from processing.geometry.sphere_image import SphereImageError, fit_sphere_centre, sphere_silhouette
+    from processing.geometry.sphere_image import (
+        SphereImageError,
+        fit_sphere_centre,
+        sphere_radius_px,
+        sphere_silhouette,
+    )
 
     h, w = hdr.shape
     b = next(f for f in range(1, w + 1) if w % f == 0 and h % f == 0 and (w // f <= FIND_WIDTH_PX or f == w))
@@ -233,6 +242,7 @@ def _find_sphere(hdr, calib, radius_mm: float, name: str) -> tuple[np.ndarray, f
     try:
         edge = sphere_silhouette(img, name=name)
         centre, _, rms = fit_sphere_centre(edge, k, dist, radius_mm)
+        sphere_radius_px(centre, radius_mm, k, (w // b, h // b), name)
     except SphereImageError as exc:
         msg = str(exc)
         raise UsageError(msg if name in msg else f"{name}: {msg}") from None
@@ -311,8 +321,12 @@ def build_probe(inputs: ProbeInputs, *, light: str = "D65", method: str | None =
     from processing.lighting.hdr_merge import merge_brackets
     from processing.lighting.nmf_lee2001 import MAX_COMPONENTS
     from processing.lighting.probe_spectral import COMPONENTS, probe_environment, two_set_environment
-    from processing.lighting.probe_unwrap import unwrap_probe
+    from processing.lighting.probe_unwrap import MIN_REFLECTANCE, unwrap_probe
 
+    if isinstance(reflectance, bool) or not isinstance(reflectance, (int, float)) or not (
+            math.isfinite(reflectance) and MIN_REFLECTANCE <= reflectance <= 1.0):
+        raise UsageError(f"--sphere-reflectance must be the mirror's reflectance, {MIN_REFLECTANCE:g} to 1 (chrome is "
+                         f"about 0.6; under {MIN_REFLECTANCE:g} it is not a mirror), got {reflectance!r}")
     note = message or (lambda text: None)
     two = bool(inputs.filter_frames)
     if method is None:

@@ -23,6 +23,10 @@ __all__ = [
     "CameraSpec",
     "SceneSpec",
     "parse_vector",
+    "parse_fov",
+    "parse_position",
+    "parse_angles",
+    "check_range",
     "parse_size",
     "parse_light",
     "parse_environment",
@@ -124,13 +128,34 @@ class SceneSpec:
     sky_given: bool = False                # a sky was asked for (else an environment replaces the default one)
 
 
-def parse_vector(text: str | list | tuple, name: str) -> tuple[float, float, float]:
+def parse_vector(text: str | list | tuple, name: str, limit: float | None = None,
+                 unit: str = "") -> tuple[float, float, float]:
     """Parse ``"X,Y,Z"`` (or a 3-list from TOML) into three finite floats.
+
+    Parameters
+    ----------
+    text
+        ``"X,Y,Z"`` or a sequence of three numbers.
+    name
+        The flag or key, for messages.
+    limit
+        Largest magnitude of each number (None: no bound but finiteness).
+    unit
+        Unit of ``limit`` in messages (``" mm"``, ``" degrees"``).
+
+    Returns
+    -------
+    tuple of float
+        The three numbers.
 
     Examples
     --------
     >>> parse_vector("1, 2,3", "--eye")
     (1.0, 2.0, 3.0)
+    >>> parse_vector("0,0,1e9", "--eye", 1e7, " mm")
+    Traceback (most recent call last):
+    ...
+    app.errors.UsageError: --eye: expected three numbers X,Y,Z of magnitude at most 1e+07 mm, got '0,0,1e9'
     """
     try:
         parts = text.split(",") if isinstance(text, str) else list(text)
@@ -139,7 +164,70 @@ def parse_vector(text: str | list | tuple, name: str) -> tuple[float, float, flo
         raise UsageError(f"{name}: expected three numbers X,Y,Z, got {text!r}") from None
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise UsageError(f"{name}: expected three finite numbers X,Y,Z, got {text!r}")
+    if limit is not None and max(abs(v) for v in values) > limit:
+        raise UsageError(f"{name}: expected three numbers X,Y,Z of magnitude at most {limit:g}{unit}, got {text!r}")
     return values  # type: ignore[return-value]
+
+
+def parse_position(text: str | list | tuple, name: str) -> tuple[float, float, float]:
+    """:func:`parse_vector` of a position or direction, each coordinate within ``render.limits.MAX_COORDINATE_MM``."""
+    from render.limits import MAX_COORDINATE_MM
+
+    return parse_vector(text, name, MAX_COORDINATE_MM, " mm")
+
+
+def parse_angles(text: str | list | tuple, name: str) -> tuple[float, float, float]:
+    """:func:`parse_vector` of three rotation angles, each within ``render.limits.MAX_ANGLE_DEG`` degrees."""
+    from render.limits import MAX_ANGLE_DEG
+
+    return parse_vector(text, name, MAX_ANGLE_DEG, " degrees")
+
+
+def parse_fov(value: Any, name: str) -> float:
+    """A vertical field of view in degrees, from ``render.limits.MIN_FOV_DEG`` up to (not including) 180.
+
+    Parameters
+    ----------
+    value
+        The number given.
+    name
+        The flag or key, for messages.
+
+    Returns
+    -------
+    float
+        The field of view, degrees.
+
+    Examples
+    --------
+    >>> parse_fov(35, "--fov")
+    35.0
+    >>> parse_fov(1e-6, "--fov")
+    Traceback (most recent call last):
+    ...
+    app.errors.UsageError: --fov: expected a vertical field of view from 0.1 to 180 degrees (180 excluded; \
+float32 ray casting resolves no narrower view), got 1e-06
+    """
+    from render.limits import MIN_FOV_DEG
+
+    fov = float(value)
+    if not (math.isfinite(fov) and MIN_FOV_DEG <= fov < 180.0):
+        raise UsageError(f"{name}: expected a vertical field of view from {MIN_FOV_DEG:g} to 180 degrees (180 "
+                         f"excluded; float32 ray casting resolves no narrower view), got {value!r}")
+    return fov
+
+
+def check_range(value: float, name: str, low: float, high: float, what: str) -> float:
+    """``value`` if it is finite and within ``[low, high]``, else a :class:`UsageError` stating the range.
+
+    Examples
+    --------
+    >>> check_range(2.0, "--light", 1e-9, 1e12, "intensity")
+    2.0
+    """
+    if not (math.isfinite(value) and low <= value <= high):
+        raise UsageError(f"{name}: expected {what} from {low:g} to {high:g}, got {value!r}")
+    return value
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -184,10 +272,13 @@ def parse_light(text: str) -> LightSpec:
             raise UsageError(f"--light: intensity after '*' must be a number, got {inten!r}") from None
         if not (math.isfinite(intensity) and intensity > 0):
             raise UsageError(f"--light: intensity must be positive, got {inten!r}")
+        from render.limits import LIGHT_INTENSITY_RANGE
+
+        check_range(intensity, "--light", *LIGHT_INTENSITY_RANGE, "an intensity after '*'")
     spectrum = None
     if "@" in rest:
         rest, _, spectrum = rest.partition("@")
-    vec = parse_vector(rest, "--light")
+    vec = parse_position(rest, "--light")
     if kind == "directional" and not any(vec):
         raise UsageError("--light: a directional light needs a non-zero direction")
     return LightSpec(kind=kind, vector=vec, spectrum=spectrum or None, intensity=intensity)
@@ -217,11 +308,24 @@ def _environment_value(key: str, value: Any, where: str) -> Any:
     value = float(value)
     if key == "intensity" and not value > 0:
         raise UsageError(f"{where} intensity: expected a number > 0, got {value:g}")
+    _environment_range(key, value, where)
     if key in ("type", "height"):
         if not value.is_integer():
             raise UsageError(f"{where} {key}: expected a whole number, got {value:g}")
         return int(value)
     return value
+
+
+def _environment_range(key: str, value: float, where: str) -> None:
+    """Refuse an environment ``intensity`` or sky ``luminance`` outside ``render.limits.ENVIRONMENT_INTENSITY_RANGE``
+    and a ``rotate`` beyond ``render.limits.MAX_ANGLE_DEG``."""
+    from render.limits import ENVIRONMENT_INTENSITY_RANGE, MAX_ANGLE_DEG
+
+    if key in ("intensity", "luminance"):
+        low, high = ENVIRONMENT_INTENSITY_RANGE
+        check_range(value, f"{where} {key}", low, high, "a number")
+    elif key == "rotate":
+        check_range(value, f"{where} rotate", -MAX_ANGLE_DEG, MAX_ANGLE_DEG, "an angle in degrees")
 
 
 def _environment_options(items: dict[str, Any], is_file: bool, where: str) -> tuple[dict[str, Any], float, float]:
@@ -350,8 +454,12 @@ def _whole(table: dict, key: str, where: str, low: int, high: int) -> int | None
     return int(value)
 
 
-def _vector(table: dict, key: str, where: str, default: Any) -> tuple[float, float, float] | None:
-    """``table[key]`` as three finite numbers (an array ``[x, y, z]``); ``default`` when absent."""
+def _vector(table: dict, key: str, where: str, default: Any,
+            parse: Any = None) -> tuple[float, float, float] | None:
+    """``table[key]`` as three finite numbers (an array ``[x, y, z]``); ``default`` when absent.
+
+    ``parse`` checks the numbers' range (default :func:`parse_position`; :func:`parse_angles` for rotations).
+    """
     if key not in table:
         return default
     value = table[key]
@@ -359,7 +467,7 @@ def _vector(table: dict, key: str, where: str, default: Any) -> tuple[float, flo
             or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
         raise UsageError(f"{where} {key}: expected an array of three numbers [x, y, z], "
                          f"got {value!r} ({_kind(value)})")
-    return parse_vector(value, f"{where} {key}")
+    return (parse or parse_position)(value, f"{where} {key}")
 
 
 def check_procedural_args(kind: str, args: dict[str, Any], where: str) -> dict[str, Any]:
@@ -490,6 +598,9 @@ def _read_toml(path: Path) -> dict[str, Any]:
             raise UsageError(f"{path}: {path.stat().st_size} bytes is too large for a scene file "
                              f"(at most {MAX_SCENE_BYTES} bytes)")
         return tomllib.loads(path.read_text(encoding="utf-8"))
+    except RecursionError:
+        raise UsageError(f"{path}: arrays or tables nested too deeply to read; a scene file needs at most "
+                         "a few levels of nesting (docs/scene-file.md)") from None
     except FileNotFoundError:
         raise UsageError(f"{path}: scene file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -524,7 +635,7 @@ def _read_camera(cam: dict[str, Any], path: Path) -> CameraSpec:
         eye=_vector(cam, "eye", where, None),
         target=_vector(cam, "target", where, None),
         up=_vector(cam, "up", where, (0.0, 0.0, 1.0)),
-        fov_deg=_number(cam, "fov", where, 35.0, low=0.0, high=180.0, strict=True),
+        fov_deg=parse_fov(_number(cam, "fov", where, 35.0), f"{where} fov"),
     )
 
 
@@ -534,10 +645,16 @@ def _read_sky(sky: dict[str, Any], path: Path) -> SkySpec:
     _check_keys(sky, {"kind", "zenith", "horizon", "spectrum"}, where)
     return SkySpec(
         kind=_string(sky, "kind", where, "gradient", SKY_KINDS),
-        zenith=_number(sky, "zenith", where, 0.25, low=0.0),
-        horizon=_number(sky, "horizon", where, 0.6, low=0.0),
+        zenith=_number(sky, "zenith", where, 0.25, low=0.0, high=_max_sky_radiance()),
+        horizon=_number(sky, "horizon", where, 0.6, low=0.0, high=_max_sky_radiance()),
         spectrum=_string(sky, "spectrum", where),
     )
+
+
+def _max_sky_radiance() -> float:
+    from render.limits import MAX_SKY_RADIANCE
+
+    return MAX_SKY_RADIANCE
 
 
 def _read_environment(env: dict[str, Any], path: Path) -> EnvironmentSpec:
@@ -574,8 +691,11 @@ def _read_lights(lights: list[dict[str, Any]], path: Path) -> list[LightSpec]:
         vector = _vector(light, key, where, None)
         if kind == "directional" and not any(vector):
             raise UsageError(f"{where} direction: expected a non-zero direction, got {light[key]!r}")
+        from render.limits import LIGHT_INTENSITY_RANGE
+
+        low, high = LIGHT_INTENSITY_RANGE
         out.append(LightSpec(kind=kind, vector=vector, spectrum=_string(light, "spectrum", where),
-                             intensity=_number(light, "intensity", where, 1.0, low=0.0, strict=True)))
+                             intensity=_number(light, "intensity", where, 1.0, low=low, high=high)))
     return out
 
 
@@ -606,7 +726,9 @@ def _read_object(obj: dict[str, Any], where: str, path: Path) -> ObjectSpec:
     if not isinstance(regions, dict) or not all(isinstance(v, str) for v in regions.values()):
         raise UsageError(f"{where} materials: expected a table of region = \"material\" strings, "
                          f"got {regions!r} ({_kind(regions)})")
-    weave = _number(obj, "weave_angle", where, None)
+    from render.limits import MAX_ANGLE_DEG, SCALE_RANGE
+
+    weave = _number(obj, "weave_angle", where, None, low=-MAX_ANGLE_DEG, high=MAX_ANGLE_DEG)
     return ObjectSpec(
         mesh=(path.parent / mesh) if mesh is not None else None,
         procedural=procedural,
@@ -614,7 +736,7 @@ def _read_object(obj: dict[str, Any], where: str, path: Path) -> ObjectSpec:
         material=_string(obj, "material", where, "gold"),
         region_materials={str(k): v for k, v in regions.items()},
         translate=_vector(obj, "translate", where, (0.0, 0.0, 0.0)),
-        rotate_deg=_vector(obj, "rotate", where, (0.0, 0.0, 0.0)),
-        scale=_number(obj, "scale", where, 1.0, low=0.0, strict=True),
+        rotate_deg=_vector(obj, "rotate", where, (0.0, 0.0, 0.0), parse_angles),
+        scale=_number(obj, "scale", where, 1.0, low=SCALE_RANGE[0], high=SCALE_RANGE[1]),
         weave_angle_deg=weave,
     )

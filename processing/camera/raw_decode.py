@@ -24,6 +24,11 @@ from __future__ import annotations
 
 import functools
 import os
+import sys
+import tempfile
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,6 +56,9 @@ DECODE_MODES = ("bin2x2", "demosaic")
 _DEAD_BLACK_MIN = 16
 
 _RAW_HINT = "give the camera's DNG/CR2/NEF/ARW"
+
+#: Held while file descriptor 2 is redirected: one decode at a time swaps it (the GUI decodes in worker threads).
+_STDERR_LOCK = threading.Lock()
 
 
 class RawDecodeError(InputError):
@@ -214,6 +222,54 @@ def sniff_format(head: bytes) -> str:
     return "unknown"
 
 
+@contextmanager
+def _c_stderr_caught() -> Iterator[list[str]]:
+    """File descriptor 2 sent to a temporary file while the block runs; the list gets what was written there.
+
+    LibRaw reports a truncated file by printing ``"FILE: Unexpected end of file"`` from C to fd 2 before
+    it raises, a line that would precede kogei's own one-line error.  Redirecting ``sys.stderr`` cannot
+    catch C output, so the descriptor itself is swapped (under a lock) and restored when the block ends.
+    If fd 2 cannot be duplicated (it is closed), nothing is redirected.
+    """
+    caught: list[str] = []
+    with _STDERR_LOCK, tempfile.TemporaryFile() as sink:
+        try:
+            sys.stderr.flush()
+            saved = os.dup(2)
+        except (OSError, ValueError, AttributeError):
+            yield caught
+            return
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield caught
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            caught.append(sink.read().decode("utf-8", "replace"))
+
+
+def _libraw_said(caught: list[str], path: Path) -> str:
+    """What LibRaw printed, on one line without the file name it starts with (``""`` if nothing)."""
+    text = " ".join(line.strip() for line in "".join(caught).splitlines() if line.strip())
+    return text.replace(f"{os.fspath(path)}: ", "")
+
+
+def _read_libraw(rawpy, path: Path):
+    """``rawpy.imread`` and the unpack with LibRaw's C messages held back: the file or the error, and the messages."""
+    with _c_stderr_caught() as caught:
+        try:
+            raw = rawpy.imread(os.fspath(path))
+            _ = raw.raw_image_visible  # forces the unpack, where truncated data shows
+            error = None
+        except rawpy.LibRawError as exc:
+            raw, error = None, exc
+    said = _libraw_said(caught, path)
+    if error is None and said:
+        print("".join(caught), end="", file=sys.stderr)     # a valid file's messages, as before
+    return raw, error, said
+
+
 def _open(path: Path):
     """The file opened and unpacked by LibRaw, or a :class:`RawDecodeError` that says what the file is."""
     import rawpy
@@ -232,18 +288,19 @@ def _open(path: Path):
     kind = sniff_format(head)
     if kind not in ("TIFF", "ISOBMFF", "unknown"):
         raise RawDecodeError(f"{path}: this is a {kind}, not a RAW file; {_RAW_HINT}")
+    raw, error, said = _read_libraw(rawpy, path)
     try:
-        raw = rawpy.imread(os.fspath(path))
-        _ = raw.raw_image_visible  # forces the unpack, where truncated data shows
+        if error is not None:
+            raise error
     except rawpy.LibRawFileUnsupportedError:
         if kind == "TIFF":
             raise RawDecodeError(f"{path}: this is a TIFF image, not a RAW file; {_RAW_HINT}") from None
         raise RawDecodeError(f"{path}: not a RAW format LibRaw knows (corrupt or not a RAW file); {_RAW_HINT}") \
             from None
     except (rawpy.LibRawIOError, rawpy.LibRawDataError, rawpy.LibRawTooBigError) as exc:
+        detail = f"{type(exc).__name__}: {said}" if said else type(exc).__name__
         raise RawDecodeError(
-            f"{path}: the RAW data is corrupt or truncated ({type(exc).__name__}); copy the file from the "
-            "camera again"
+            f"{path}: the RAW data is corrupt or truncated ({detail}); copy the file from the camera again"
         ) from None
     except rawpy.LibRawError as exc:
         raise RawDecodeError(f"{path}: LibRaw cannot decode it ({type(exc).__name__}: {exc}); {_RAW_HINT}") \

@@ -34,7 +34,11 @@ from scipy.optimize import least_squares
 
 from processing.errors import InputError
 
-__all__ = ["SphereImageError", "sphere_silhouette", "fit_sphere_centre", "pixel_rays"]
+__all__ = ["SphereImageError", "sphere_silhouette", "fit_sphere_centre", "pixel_rays", "sphere_radius_px",
+           "MIN_RADIUS_PX"]
+
+#: A sphere whose image is smaller than this in radius (px) is too small to find or unwrap.
+MIN_RADIUS_PX = 4.0
 
 _BORDER_PX = 4          # width of the frame border that samples the backdrop
 _MIN_AREA_PX = 200      # a smaller blob is not a sphere
@@ -239,10 +243,11 @@ def fit_sphere_centre(edge_px: ArrayLike, K: ArrayLike, dist: ArrayLike, radius_
     Raises
     ------
     SphereImageError
-        Fewer than 5 points or a non-positive radius.
+        Fewer than 5 points, a non-positive radius, or no sphere of that radius fits the outline (the
+        radius is wrong by orders of magnitude).
     """
     pts = np.asarray(edge_px, dtype=np.float64).reshape(-1, 2)
-    if len(pts) < 5 or not radius_mm > 0:
+    if len(pts) < 5 or not (np.isfinite(radius_mm) and radius_mm > 0):
         raise SphereImageError(f"sphere fit: needs >= 5 outline points and a positive radius, got {len(pts)} "
                                f"points and {radius_mm!r} mm")
     k = np.asarray(K, dtype=np.float64)
@@ -252,8 +257,70 @@ def fit_sphere_centre(edge_px: ArrayLike, K: ArrayLike, dist: ArrayLike, radius_
     axis /= np.linalg.norm(axis)
     half = float(np.mean(np.arccos(np.clip(rays @ axis, -1, 1))))
     x0 = axis * radius_mm / np.sin(max(half, 1e-6))
-    res = least_squares(_cone_residual, x0, args=(rays, float(radius_mm), f_px), method="lm", x_scale="jac")
+    with np.errstate(all="ignore"):     # a radius wrong by orders of magnitude: non-finite, refused below
+        try:
+            res = least_squares(_cone_residual, x0, args=(rays, float(radius_mm), f_px), method="lm", x_scale="jac")
+        except ValueError:
+            res = None
+    if res is None or not (np.isfinite(res.x).all() and np.isfinite(res.fun).all()):
+        raise SphereImageError(f"sphere fit: no sphere of radius {radius_mm:g} mm fits the outline; check the "
+                               "sphere's radius (mm)")
     r = res.fun
     dof = max(len(r) - 3, 1)
     cov = np.linalg.pinv(res.jac.T @ res.jac) * float(r @ r) / dof
     return res.x, cov, float(np.sqrt(np.mean(r ** 2)))
+
+
+def sphere_radius_px(centre_mm: ArrayLike, radius_mm: float, K: ArrayLike, image_size: tuple[int, int],
+                     name: str = "image") -> float:
+    """The radius in px of a fitted sphere's image, checked to lie whole in the frame and to be a few px at least.
+
+    A sphere radius wrong by orders of magnitude still gives a centre (far away or nearly at the camera);
+    this refuses it instead of unwrapping garbage.
+
+    Parameters
+    ----------
+    centre_mm
+        (3,) the sphere's centre in the camera frame, mm (:func:`fit_sphere_centre`).
+    radius_mm
+        The sphere's radius, mm.
+    K
+        (3, 3) intrinsic matrix of the image, px.
+    image_size
+        ``(width, height)`` of the image, px.
+    name
+        The image as the message names it.
+
+    Returns
+    -------
+    float
+        ``f * tan(asin(R / |c|))``: the radius of the sphere's image near the optical axis, px.
+
+    Raises
+    ------
+    SphereImageError
+        The sphere is behind the camera, under :data:`MIN_RADIUS_PX` in radius, or not inside the frame.
+
+    Examples
+    --------
+    >>> K = np.array([[1000.0, 0, 320], [0, 1000.0, 240], [0, 0, 1]])
+    >>> round(sphere_radius_px([0.0, 0.0, 500.0], 20.0, K, (640, 480)), 1)
+    40.0
+    """
+    c = np.asarray(centre_mm, dtype=np.float64).reshape(3)
+    k = np.asarray(K, dtype=np.float64)
+    dist = float(np.linalg.norm(c))
+    if not (np.isfinite(dist) and c[2] > radius_mm > 0 and dist > radius_mm):
+        raise SphereImageError(f"{name}: a sphere of radius {radius_mm:g} mm does not fit the outline in front of the "
+                               "camera; check the sphere's radius (mm)")
+    r_px = 0.5 * (k[0, 0] + k[1, 1]) * float(np.tan(np.arcsin(radius_mm / dist)))
+    if not r_px >= MIN_RADIUS_PX:
+        raise SphereImageError(f"{name}: the sphere is {r_px:.2g} px in radius, under {MIN_RADIUS_PX:g} px; check the "
+                               "sphere's radius (mm), or bring the camera closer")
+    u, v = k[0, 0] * c[0] / c[2] + k[0, 2], k[1, 1] * c[1] / c[2] + k[1, 2]
+    w, h = image_size
+    if min(u - r_px, v - r_px) < -1.0 or u + r_px > w + 1.0 or v + r_px > h + 1.0:
+        raise SphereImageError(f"{name}: a sphere of radius {radius_mm:g} mm fitted to the outline would be "
+                               f"{r_px:.0f} px in radius at ({u:.0f}, {v:.0f}), not inside the {w} x {h} frame; "
+                               "check the sphere's radius (mm)")
+    return r_px

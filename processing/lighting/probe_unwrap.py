@@ -52,7 +52,12 @@ from numpy.typing import ArrayLike, NDArray
 from processing.errors import InputError
 from processing.lighting.environment_map import pixel_directions
 
-__all__ = ["ProbeUnwrapError", "ProbeUnwrap", "mirror_points", "project", "unwrap_probe", "default_map_height"]
+__all__ = ["ProbeUnwrapError", "ProbeUnwrap", "mirror_points", "project", "unwrap_probe", "default_map_height",
+           "MIN_REFLECTANCE"]
+
+#: The lowest mirror reflectance accepted: black glass reflects about 0.04; below this it is not a mirror,
+#: and dividing by it would amplify the noise more than 50 times.
+MIN_REFLECTANCE = 0.02
 
 _ITERATIONS = 6
 _SUPERSAMPLE = 3
@@ -207,6 +212,8 @@ def _checked(hdr_rgb: ArrayLike, room_to_camera: ArrayLike, radius_mm: float, re
     t = np.asarray(room_to_camera, dtype=np.float64)
     if t.shape != (4, 4) or not np.isfinite(t).all():
         raise ProbeUnwrapError("room_to_camera must be a finite 4 x 4 transform (the camera calibration's)")
+    if not (isinstance(reflectance, (int, float)) and MIN_REFLECTANCE <= reflectance <= 1.0):
+        raise ProbeUnwrapError(f"reflectance must be in [{MIN_REFLECTANCE:g}, 1] (a mirror), got {reflectance!r}")
     checks = (("radius_mm", radius_mm, 0.0, math.inf), ("reflectance", reflectance, 0.0, 1.0),
               ("camera_mask_deg", camera_mask_deg, 0.0, 90.0), ("back_mask_deg", back_mask_deg, 0.0, 90.0))
     for name, v, lo, hi in checks:
@@ -237,7 +244,7 @@ def unwrap_probe(hdr_rgb: ArrayLike, sphere_centre_camera_mm: ArrayLike, radius_
     height
         Rows of the map (None: :func:`default_map_height` of the sphere's size in the photo).
     reflectance
-        The sphere's (grey) mirror reflectance.
+        The sphere's (grey) mirror reflectance, :data:`MIN_REFLECTANCE` to 1.
     camera_mask_deg, back_mask_deg
         Half-angles of the unobserved caps toward and away from the camera (degrees).
 

@@ -99,3 +99,19 @@ def test_missing_chart_and_calibration_are_named(station, tmp_path, capsys):
     fails_with_one_line(_args(chart, cal, tmp_path / "p.png", *frames), capsys, tmp_path, ".exr")
     fails_with_one_line(_args(chart, cal, tmp_path / "p.exr", tmp_path / "nothing.dng"), capsys, tmp_path,
                         "nothing.dng")
+
+
+@pytest.mark.parametrize(("option", "value", "needle"), [
+    ("--sphere-radius", "1e-300", "--sphere-radius must be the mirror sphere's radius in mm, 1 to 500"),
+    ("--sphere-radius", "1e300", "--sphere-radius must be the mirror sphere's radius in mm, 1 to 500"),
+    ("--sphere-radius", "nan", "--sphere-radius must be the mirror sphere's radius in mm, 1 to 500"),
+    ("--sphere-reflectance", "1e-300", "--sphere-reflectance must be the mirror's reflectance, 0.02 to 1"),
+    ("--sphere-reflectance", "0.01", "under 0.02 it is not a mirror"),
+    ("--sphere-reflectance", "1.5", "--sphere-reflectance must be the mirror's reflectance, 0.02 to 1"),
+])
+def test_absurd_sphere_parameters_are_refused_before_the_work(station, tmp_path, capsys, option, value, needle):
+    """1e-300 mm was a scipy traceback, 1e300 mm a garbage map reported as success, reflectance 1e-300 a warning."""
+    base, world, chart, frames, cal = station
+    argv = (_args(chart, cal, tmp_path / "p.exr", *frames, radius=value) if option == "--sphere-radius"
+            else [*_args(chart, cal, tmp_path / "p.exr", *frames), option, value])
+    fails_with_one_line(argv, capsys, tmp_path, needle)

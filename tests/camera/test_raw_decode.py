@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -265,3 +266,43 @@ def test_other_cfa_patterns_put_each_colour_in_its_channel(tmp_path, pattern):
         img = decode_raw(p, mode=mode)
         assert img.cfa_pattern == pattern
         np.testing.assert_allclose(img.rgb[3, 3], [(dn[c] - 600) / 15783 for c in "RGB"], rtol=1e-6)
+
+
+def test_truncated_raw_prints_nothing_of_libraw_on_stderr(tmp_path, shot, capfd):
+    """LibRaw prints "FILE: Unexpected end of file" from C on fd 2; kogei's one-line error carries it instead."""
+    data = shot.path.read_bytes()
+    (tmp_path / "cut.dng").write_bytes(data[: len(data) // 2])
+    with pytest.raises(RawDecodeError) as info:
+        decode_raw(tmp_path / "cut.dng")
+    assert capfd.readouterr().err == ""
+    assert "corrupt or truncated (LibRawIOError: Unexpected end of file); copy the file from the camera again" \
+        in str(info.value)
+    assert str(tmp_path / "cut.dng") not in str(info.value).split(": ", 1)[1]    # LibRaw's own prefix dropped
+    img = decode_raw(shot.path)                                                  # a valid file: as before, and fd 2 back
+    assert img.rgb.shape == (80, 120, 3)
+    os.write(2, b"fd 2 restored\n")
+    assert capfd.readouterr().err == "fd 2 restored\n"
+
+
+def test_libraw_stderr_is_held_back_per_decode_across_threads(tmp_path, shot, capfd):
+    """Decodes in worker threads (the window's) each keep their own message; fd 2 ends where it began."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    data = shot.path.read_bytes()
+    paths = []
+    for i in range(4):
+        paths.append(tmp_path / f"cut{i}.dng")
+        paths[-1].write_bytes(data[: len(data) // 2])
+        paths.append(shot.path)
+
+    def one(p):
+        try:
+            return decode_raw(p).rgb.shape
+        except RawDecodeError as exc:
+            return str(exc)
+
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(one, paths))
+    assert capfd.readouterr().err == ""
+    for p, r in zip(paths, results):
+        assert r == (80, 120, 3) if p == shot.path else (r.startswith(f"{p}: ") and "Unexpected end of file" in r)

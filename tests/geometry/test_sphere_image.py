@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from processing.geometry.sphere_image import SphereImageError, fit_sphere_centre, sphere_silhouette
+from processing.geometry.sphere_image import SphereImageError, fit_sphere_centre, sphere_radius_px, sphere_silhouette
 from tests.geometry.sphere_scene import CX, CY, DIST, FX, FY, K, Scene
 
 
@@ -82,3 +82,24 @@ def test_fit_removes_lens_distortion():
     assert np.linalg.norm(centre - truth) < 1e-4 and rms < 1e-4
     wrong, _, rms_wrong = fit_sphere_centre(px.reshape(-1, 2), K, DIST, 20.0)   # ignoring the distortion
     assert np.linalg.norm(wrong - truth) > 0.5 and rms_wrong > 0.1
+
+
+def test_a_radius_wrong_by_orders_of_magnitude_is_one_error_not_a_traceback():
+    """1e-300 mm made the cone fit's first residuals non-finite (scipy's ValueError and divide warnings)."""
+    scene = Scene()
+    edge = sphere_silhouette(scene.render(scene.sphere_centre_room(0.0), seed=1), name="f")
+    for radius in (1e-300, float("nan"), float("inf")):
+        with pytest.raises(SphereImageError, match=r"(no sphere of radius .* fits the outline|positive radius)"):
+            fit_sphere_centre(edge, K, DIST, radius)
+
+
+def test_a_fitted_sphere_must_lie_in_the_frame_and_span_a_few_pixels():
+    k = np.array([[1000.0, 0, 320], [0, 1000.0, 240], [0, 0, 1]])
+    assert sphere_radius_px([0.0, 0.0, 500.0], 20.0, k, (640, 480)) == pytest.approx(40.0, abs=0.1)
+    with pytest.raises(SphereImageError, match=r"^f: the sphere is 0.02 px in radius, under 4 px; check the sphere's "
+                                               r"radius \(mm\)"):
+        sphere_radius_px([0.0, 0.0, 1e6], 20.0, k, (640, 480), "f")
+    with pytest.raises(SphereImageError, match="not inside the 640 x 480 frame; check the sphere's radius"):
+        sphere_radius_px([0.0, 0.0, 500.0], 200.0, k, (640, 480), "f")
+    with pytest.raises(SphereImageError, match="does not fit the outline in front of the camera"):
+        sphere_radius_px([0.0, 0.0, 10.0], 20.0, k, (640, 480), "f")

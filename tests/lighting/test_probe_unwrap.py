@@ -43,5 +43,8 @@ def test_bad_arguments_are_refused():
         unwrap_probe(img, [0, 0, -100.0], 20.0, k, np.zeros(5), np.eye(4))
     with pytest.raises(ProbeUnwrapError, match="reflectance"):
         unwrap_probe(img, [0, 0, 300.0], 20.0, k, np.zeros(5), np.eye(4), reflectance=0.0)
+    for tiny in (1e-300, 0.019):       # not a mirror: 1e-300 divided the map to infinity
+        with pytest.raises(ProbeUnwrapError, match=r"reflectance must be in \[0.02, 1\] \(a mirror\)"):
+            unwrap_probe(img, [0, 0, 300.0], 20.0, k, np.zeros(5), np.eye(4), reflectance=tiny)
     with pytest.raises(ProbeUnwrapError, match="finite"):
         unwrap_probe(np.full((64, 96, 3), np.nan, np.float32), [0, 0, 300.0], 20.0, k, np.zeros(5), np.eye(4))
