@@ -41,6 +41,25 @@ _LIST = (lambda x: isinstance(x, list), "a list")
 _NAMES = (lambda x: isinstance(x, list) and all(isinstance(s, str) for s in x), "a list of strings")
 _VALUES = (lambda x: isinstance(x, dict) and all(v is None or _number(v) for v in x.values()),
            "a table of finite numbers")
+
+
+def _material_spec(x: Any) -> bool:
+    """True for None or a spec :func:`processing.materials.presets.check_material_spec` accepts."""
+    if x is None:
+        return True
+    if not isinstance(x, str):
+        return False
+    from processing.materials.presets import MaterialError, check_material_spec
+
+    try:
+        check_material_spec(x)
+    except MaterialError:
+        return False
+    return True
+
+
+_SPEC = (_material_spec, "a material spec kogei accepts (a preset with parameters in range, "
+         "e.g. 'gold:roughness=0.2') or null")
 _VECTOR = (_optional(lambda x: isinstance(x, list) and len(x) == 3 and all(map(_number, x))),
            "three finite numbers or null")
 
@@ -48,7 +67,7 @@ _VECTOR = (_optional(lambda x: isinstance(x, list) and len(x) == 3 and all(map(_
 _BY_NAME: dict[str, tuple[Callable[[Any], bool], str]] = {
     "confidence": _FRACTION, "share": _FRACTION, "chi2_per_dof": _NUMBER, "coherence": _NUMBER,
     "colour_scatter": _NUMBER, "model_error": _NUMBER, "group": _NAMES, "parameters": _VALUES,
-    "uncertainties": _VALUES, "facing": _VECTOR, "material": _TEXT, "spec": _TEXT, "advice": _TEXT,
+    "uncertainties": _VALUES, "facing": _VECTOR, "material": _TEXT, "spec": _SPEC, "advice": _TEXT,
     "note": _TEXT, "reason": _TEXT, "light_spectrum": _TEXT, "frame": _TEXT, "faces": _COUNT,
     "vertices": _COUNT, "n_observations": _COUNT, "n_lit": _COUNT, "pixels": _COUNT, "n_frames": _COUNT,
     "block_px": _COUNT, "pieces_tested": _COUNT, "pieces_disagreeing": _COUNT, "timings_s": _VALUES,

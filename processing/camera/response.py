@@ -63,13 +63,29 @@ def camera_names() -> list[str]:
     return sorted(colour.MSDS_CAMERA_SENSITIVITIES.keys())
 
 
+#: Largest sensitivity a CSV may give (relative units).  Sensitivities are products of squares and sums
+#: over the grid in the estimators, so values near the float limit (1e300) overflow to inf and NaN; a peak
+#: of 1 (as colour-science's), a percentage or 16-bit counts all lie far below.
+MAX_SENSITIVITY = 1e6
+
+
+def _sensitivity_problem(col: int, v: float) -> str | None:
+    """Why a CSV sensitivity ``v`` is refused, or None."""
+    if v < 0:
+        return f"a sensitivity must be >= 0, got {v:g}"
+    if v > MAX_SENSITIVITY:
+        return (f"a sensitivity must be at most {MAX_SENSITIVITY:g} (relative units), got {v:g}; "
+                "scale the sensitivities, e.g. to a peak of 1")
+    return None
+
+
 def _read_sensitivity_csv(path: Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Wavelengths (nm) and ``(N, 3)`` sensitivities of a CSV file ``wavelength_nm, r, g, b``."""
+    """Wavelengths (nm) and ``(N, 3)`` sensitivities in [0, MAX_SENSITIVITY] of a CSV file ``wavelength_nm, r, g, b``."""
     from processing.spectral.tables import read_wavelength_table
 
     table = read_wavelength_table(
         path, what="camera sensitivity", error=CameraResponseError, columns=4, layout="'wavelength_nm, r, g, b'",
-        check=lambda col, v: None if v >= 0 else f"a sensitivity must be >= 0, got {v:g}")
+        check=_sensitivity_problem)
     return table.wavelengths, table.values
 
 
@@ -114,7 +130,8 @@ def camera_sensitivities(grid: SpectralGrid, camera: str | os.PathLike[str] = DE
         Wavelength grid; must lie inside the range the sensitivities cover.
     camera
         A name of :func:`camera_names`, or a CSV file path (``.csv``) of rows
-        ``wavelength_nm, r, g, b`` (one header line allowed, '#' comments).
+        ``wavelength_nm, r, g, b`` (one header line allowed, '#' comments), each
+        sensitivity in [0, 1e6] (:data:`MAX_SENSITIVITY`, relative units).
 
     Returns
     -------
@@ -125,7 +142,7 @@ def camera_sensitivities(grid: SpectralGrid, camera: str | os.PathLike[str] = DE
     ------
     CameraResponseError
         Not a SpectralGrid, an unknown camera name, a bad CSV file (the
-        message names the line and column), a grid outside the range of the
+        message names the line and column; a sensitivity < 0 or > 1e6), a grid outside the range of the
         sensitivities, or a channel that is zero over the grid.
 
     Examples

@@ -29,6 +29,41 @@ class SwatchGeometryError(InputError):
     """A value of the swatch set-up is missing or not valid; the message names it."""
 
 
+#: Field -> (lowest, highest, lowest excluded, what the range means): the physically sensible set-ups of a
+#: swatch on a turntable (a camera 1 cm to 10 m away, a lens of 0.5 deg to 170 deg, a swatch of 1 mm to 1 m).
+_RANGES: dict[str, tuple[float, float, bool, str]] = {
+    "camera_distance_mm": (10.0, 10_000.0, False, "mm, 1 cm to 10 m from the table centre"),
+    "camera_elevation_deg": (0.0, 89.0, True, "degrees above the table plane"),
+    "fov_deg": (0.5, 170.0, False, "degrees, the lens's horizontal field of view"),
+    "swatch_mm": (1.0, 1000.0, False, "mm, the side of the swatch, up to a metre"),
+}
+
+#: Fields that are names (strings).
+_NAMES = ("light", "camera", "chart")
+
+
+def _number_problem(name: str, v: Any) -> str | None:
+    """Why ``v`` is not a valid value of the numeric field ``name`` (:data:`_RANGES`), or None."""
+    lo, hi, open_low, what = _RANGES[name]
+    number = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    if number and math.isfinite(v) and (lo < v if open_low else lo <= v) and v <= hi:
+        return None
+    return f"{name} must be a number in {'(' if open_low else '['}{lo:g}, {hi:g}] ({what}), got {v!r}"
+
+
+def _direction(v: Any) -> NDArray[np.float64] | None:
+    """``v`` as three finite numbers with z > 0, or None."""
+    if isinstance(v, (str, bytes)):
+        return None
+    try:
+        d = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or d[2] <= 0:
+        return None
+    return d
+
+
 @dataclass(frozen=True)
 class SwatchGeometry:
     """The fixed set-up of a swatch measurement (lengths in mm, angles in degrees).
@@ -38,17 +73,17 @@ class SwatchGeometry:
     width, height
         Photosites of the camera (even numbers).
     camera_distance_mm
-        Distance of the camera from the table centre.
+        Distance of the camera from the table centre, in [10, 10000] (1 cm to 10 m).
     camera_elevation_deg
         Elevation of the camera above the table plane, in (0, 89].
     fov_deg
-        Horizontal field of view.
+        Horizontal field of view, in [0.5, 170].
     light_direction
         Unit vector toward the distant light of pass 1, in the room (z up).
     light
         Illuminant of the light (a spec of :func:`processing.spectral.spectra.light_spectrum`).
     swatch_mm
-        Side of the square swatch.
+        Side of the square swatch, in [1, 1000] (up to a metre).
     warp_angle_deg
         Angle of the warp from the table's x axis at table angle 0.
     camera
@@ -88,15 +123,18 @@ class SwatchGeometry:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 2 or v % 2:
                 raise SwatchGeometryError(f"{name} must be an even number of photosites >= 2, got {v!r}")
-        for name, lo, hi in (("camera_distance_mm", 0.0, math.inf), ("camera_elevation_deg", 0.0, 89.0),
-                             ("fov_deg", 0.0, 180.0), ("swatch_mm", 0.0, math.inf)):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and lo < v <= hi and v < math.inf):
-                raise SwatchGeometryError(f"{name} must be a number in ({lo:g}, {hi:g}], got {v!r}")
-        if not math.isfinite(self.warp_angle_deg):
-            raise SwatchGeometryError(f"warp_angle_deg must be finite, got {self.warp_angle_deg!r}")
-        d = np.asarray(self.light_direction, dtype=np.float64)
-        if d.shape != (3,) or not np.all(np.isfinite(d)) or d[2] <= 0:
+        for name in _RANGES:
+            problem = _number_problem(name, getattr(self, name))
+            if problem:
+                raise SwatchGeometryError(problem)
+        w = self.warp_angle_deg
+        if isinstance(w, bool) or not isinstance(w, (int, float, np.integer, np.floating)) or not math.isfinite(w):
+            raise SwatchGeometryError(f"warp_angle_deg must be a finite number of degrees, got {w!r}")
+        for name in _NAMES:
+            if not isinstance(getattr(self, name), str):
+                raise SwatchGeometryError(f"{name} must be a name (a string), got {getattr(self, name)!r}")
+        d = _direction(self.light_direction)
+        if d is None:
             raise SwatchGeometryError(
                 f"light_direction must be three numbers toward the light with z > 0 (above the table), "
                 f"got {self.light_direction!r}"
@@ -104,11 +142,8 @@ class SwatchGeometry:
         object.__setattr__(self, "light_direction", tuple(float(v) for v in d / np.linalg.norm(d)))
         lights = []
         for k, item in enumerate(self.pass_light_directions, start=2):
-            try:
-                d = np.asarray(item, dtype=np.float64)
-            except (TypeError, ValueError):
-                d = np.zeros(0)
-            if d.shape != (3,) or not np.all(np.isfinite(d)) or d[2] <= 0:
+            d = _direction(item)
+            if d is None:
                 raise SwatchGeometryError(
                     f"pass_light_directions: the light of pass {k} must be three numbers toward the light with "
                     f"z > 0 (above the table), got {item!r}"
@@ -177,16 +212,22 @@ class SwatchGeometry:
         Raises
         ------
         SwatchGeometryError
-            Unknown keys (named), or a value that is not valid.
+            Not a table, unknown keys (named), or a value of the wrong type or outside its
+            range (the message names the field and the range).
         """
+        if not isinstance(data, dict):
+            raise SwatchGeometryError(
+                f"swatch geometry must be a JSON table of field: value (camera_distance_mm, fov_deg, "
+                f"light_direction, swatch_mm, ...), got a {type(data).__name__}"
+            )
         known = {f.name for f in fields(cls)}
-        unknown = set(data) - known
+        unknown = {str(k) for k in data} - known
         if unknown:
             raise SwatchGeometryError(
                 f"unknown swatch geometry key(s) {', '.join(sorted(unknown))}; valid keys: {', '.join(sorted(known))}"
             )
         kw = dict(data)
-        if "light_direction" in kw:
+        if isinstance(kw.get("light_direction"), list):
             kw["light_direction"] = tuple(kw["light_direction"])
         if "pass_light_directions" in kw:
             lights = kw["pass_light_directions"]

@@ -110,6 +110,7 @@ from processing.materials.lobes import (
     Material,
     SpectralFactor,
     checked_parameter,
+    checked_roughness,
     lobe_geometry,
     material_brdf,
 )
@@ -121,8 +122,10 @@ from processing.materials.metal_model import (
     normalise_composition,
 )
 from processing.materials.microfacet import (
+    MIN_ROUGHNESS,
     SmithLobe,
     beckmann_d,
+    check_roughness,
     microfacet_lobe,
     smith_g,
     smith_g1_beckmann,
@@ -149,6 +152,7 @@ from processing.materials.photometric_normals import (
 from processing.materials.presets import (
     MaterialError,
     ParameterInfo,
+    check_material_spec,
     get_material,
     list_materials,
     material_parameters,
@@ -184,10 +188,11 @@ from processing.materials.vertex_relabelling import (
 __all__ = [
     # lobes
     "SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter",
+    "checked_roughness",
     # fresnel
     "fresnel_conductor", "fresnel_dielectric",
     # microfacet
-    "beckmann_d", "smith_g1_beckmann", "smith_g", "torrance_sparrow_g", "microfacet_lobe", "SmithLobe",
+    "MIN_ROUGHNESS", "check_roughness", "beckmann_d", "smith_g1_beckmann", "smith_g", "torrance_sparrow_g", "microfacet_lobe", "SmithLobe",
     # optical_constants
     "METALS", "complex_index", "metal_source", "metal_wavelength_range", "canonical_metal", "DrudeFit",
     "tin_drude_fit", "drude_index",
@@ -201,7 +206,7 @@ __all__ = [
     # albedo
     "directional_albedo", "lobe_albedo",
     # presets
-    "MaterialError", "ParameterInfo", "list_materials", "material_parameters", "get_material",
+    "MaterialError", "ParameterInfo", "check_material_spec", "list_materials", "material_parameters", "get_material",
     "parse_material_spec", "preset_source",
     # confidence
     "Decision", "decide", "NO_FIT", "NOT_MEASURED", "MAX_MISFIT", "AMBIGUOUS_LR", "is_right", "reliability_table",

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.errors import InputError
 from processing.materials.fresnel import fresnel_dielectric
-from processing.materials.lobes import Lobe, Material, checked_parameter
+from processing.materials.lobes import Lobe, Material, checked_parameter, checked_roughness
 from processing.materials.metal_model import check_shadowing
 from processing.spectral.spectra import resample
 
@@ -346,7 +346,7 @@ def dielectric_material(
         ``diffuse + gloss + mirror <= 1`` (energy: every lobe's albedo is at
         most its weight).
     roughness, mirror_roughness
-        Beckmann RMS slopes sigma0 and sigma1 in (0, 1].
+        Beckmann RMS slopes sigma0 and sigma1 in [1e-5, 1] (MIN_ROUGHNESS to 1).
     shadowing
         ``"smith"`` or ``"torrance-sparrow"``.
     description
@@ -391,8 +391,8 @@ def dielectric_material(
     diffuse = checked_parameter("diffuse", diffuse)
     gloss = checked_parameter("gloss", gloss)
     mirror = checked_parameter("mirror", mirror)
-    roughness = checked_parameter("roughness", roughness, open_zero=True)
-    mirror_roughness = checked_parameter("mirror_roughness", mirror_roughness, open_zero=True)
+    roughness = checked_roughness("roughness", roughness)
+    mirror_roughness = checked_roughness("mirror_roughness", mirror_roughness)
     check_shadowing(shadowing)
     total = diffuse + gloss + mirror
     if total > 1.0 + 1e-12:

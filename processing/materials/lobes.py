@@ -27,13 +27,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from processing.errors import InputError
-from processing.materials.microfacet import microfacet_lobe
+from processing.materials.microfacet import check_roughness, microfacet_lobe
 
 # processing.cloth.anisotropic_microfacet is imported where it is used: its package's
 # front door imports cloth modules that need this module, so a module-level import
 # here would make ``import processing.materials`` circular.
 
-__all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter"]
+__all__ = ["SpectralFactor", "Lobe", "Material", "lobe_geometry", "material_brdf", "checked_parameter",
+           "checked_roughness"]
 
 LobeKind = Literal["lambert", "microfacet", "anisotropic"]
 
@@ -210,6 +211,43 @@ def checked_parameter(name: str, value: float, *, open_zero: bool = False, upper
     if not ok:
         rng = f"(0, {upper:g}]" if open_zero else f"[0, {upper:g}]"
         raise InputError(f"{name} must be in {rng}, got {value!r}")
+    return v
+
+
+def checked_roughness(name: str, value: float) -> float:
+    """``value`` as a Beckmann RMS slope in [MIN_ROUGHNESS, 1] (1e-5 to 1).
+
+    The one check of a lobe's roughness for the material builders and the spec parser: below
+    :data:`processing.materials.microfacet.MIN_ROUGHNESS` the microfacet lobe is not evaluated.
+
+    Parameters
+    ----------
+    name
+        Parameter name, for the message (``"roughness"`` or ``"mirror_roughness"``).
+    value
+        The value (a number or a numeric string).
+
+    Returns
+    -------
+    float
+        The value.
+
+    Raises
+    ------
+    InputError
+        Not a number, not finite, below 1e-5 or above 1 (the message names the parameter and the range).
+
+    Examples
+    --------
+    >>> checked_roughness("roughness", "0.2")
+    0.2
+    >>> checked_roughness("roughness", 2)
+    Traceback (most recent call last):
+    ...
+    processing.errors.InputError: roughness must be in (0, 1], got 2
+    """
+    v = checked_parameter(name, value, open_zero=True)
+    check_roughness(name, v)
     return v
 
 

@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from processing.errors import InputError
 from processing.materials.fresnel import fresnel_conductor
-from processing.materials.lobes import Lobe, Material, checked_parameter
+from processing.materials.lobes import Lobe, Material, checked_parameter, checked_roughness
 from processing.materials.optical_constants import canonical_metal, complex_index
 
 __all__ = [
@@ -65,7 +65,8 @@ def normalise_composition(metals: Mapping[str, float]) -> dict[str, float]:
     Returns
     -------
     dict
-        Symbol -> weight, summing to 1; zero weights are dropped.
+        Symbol -> weight, each in (0, 1], summing to 1; zero weights are dropped.  Weights whose
+        sum overflows (1e308 each) are divided by the largest first, so they keep their shares.
 
     Raises
     ------
@@ -93,6 +94,10 @@ def normalise_composition(metals: Mapping[str, float]) -> dict[str, float]:
             raise InputError(f"metal {sym} is given twice in the composition")
         out[sym] = w
     total = sum(out.values())
+    if not math.isfinite(total):        # weights near the float limit: share by the largest first
+        top = max(out.values())
+        out = {sym: w / top for sym, w in out.items()}
+        total = sum(out.values())
     if total <= 0:
         raise InputError("the metal weights sum to 0; give at least one positive weight")
     return {sym: w / total for sym, w in out.items() if w > 0}
@@ -259,9 +264,9 @@ def metal_material(
         (with F <= 1 and an energy-conserving G this keeps the directional
         albedo <= 1).
     roughness
-        sigma0, Beckmann RMS slope of the gloss lobe, in (0, 1].
+        sigma0, Beckmann RMS slope of the gloss lobe, in [1e-5, 1] (MIN_ROUGHNESS to 1).
     mirror_roughness
-        sigma1, RMS slope of the mirror lobe, in (0, 1] (-> 0: perfect mirror).
+        sigma1, RMS slope of the mirror lobe, in [1e-5, 1] (-> 1e-5: perfect mirror).
     shadowing
         ``"smith"`` (Walter et al. 2007) or ``"torrance-sparrow"`` (V-cavity).
     description
@@ -293,8 +298,8 @@ def metal_material(
     """
     gloss = checked_parameter("gloss", gloss)
     mirror = checked_parameter("mirror", mirror)
-    roughness = checked_parameter("roughness", roughness, open_zero=True)
-    mirror_roughness = checked_parameter("mirror_roughness", mirror_roughness, open_zero=True)
+    roughness = checked_roughness("roughness", roughness)
+    mirror_roughness = checked_roughness("mirror_roughness", mirror_roughness)
     check_shadowing(shadowing)
     if gloss + mirror > 1.0 + 1e-12:
         raise InputError(

@@ -42,12 +42,14 @@ from processing.materials.dielectric_model import (
     urushi_red_reflectance,
 )
 from processing.materials.lobes import Material
-from processing.materials.metal_model import SHADOWING_MODELS, metal_material
+from processing.materials.metal_model import SHADOWING_MODELS, metal_material, normalise_composition
+from processing.materials.microfacet import MIN_ROUGHNESS, check_roughness
 from processing.materials.optical_constants import METALS, metal_source
 
 __all__ = [
     "MaterialError",
     "ParameterInfo",
+    "check_material_spec",
     "list_materials",
     "material_parameters",
     "get_material",
@@ -165,9 +167,9 @@ _COMMON_INFO: dict[str, tuple[str, str, str]] = {
     "gloss": ("1", "weight of the gloss lobe (alpha in Matsuda eq. 2, beta in eq. 5)", "[0, 1]"),
     "mirror": ("1", "weight of the mirror lobe, which also reflects the environment "
                "(beta in eq. 2, gamma in eq. 5)", "[0, 1]"),
-    "roughness": ("RMS slope", "Beckmann RMS slope sigma0 of the gloss lobe", "(0, 1]"),
+    "roughness": ("RMS slope", "Beckmann RMS slope sigma0 of the gloss lobe", f"[{MIN_ROUGHNESS:g}, 1]"),
     "mirror_roughness": ("RMS slope", "Beckmann RMS slope sigma1 of the mirror lobe "
-                         "(-> 0: perfect mirror)", "(0, 1]"),
+                         "(-> 1e-05: perfect mirror)", f"[{MIN_ROUGHNESS:g}, 1]"),
     "shadowing": ("", "shadowing-masking term G", " | ".join(SHADOWING_MODELS)),
     "n": ("1", "real refractive index of the binder (Fresnel term of eq. 5)", "[1, 3]"),
     "diffuse": ("1", "weight of the Lambert lobe with the pigment reflectance S "
@@ -178,7 +180,7 @@ _RANGES: dict[str, tuple[float, float, bool]] = {
     # name: (low, high, low_is_open)
     "gloss": (0.0, 1.0, False),
     "mirror": (0.0, 1.0, False),
-    "roughness": (0.0, 1.0, True),
+    "roughness": (0.0, 1.0, True),          # and >= MIN_ROUGHNESS (1e-5): _parameter_value
     "mirror_roughness": (0.0, 1.0, True),
     "n": (1.0, 3.0, False),
     "diffuse": (0.0, 1.0, False),
@@ -334,6 +336,11 @@ def _parameter_value(name: str, preset: _Preset, canon: str, text: str) -> Any:
     if not ok:
         rng = f"({lo:g}, {hi:g}]" if open_low else f"[{lo:g}, {hi:g}]"
         raise MaterialError(f"{name}: {canon}={text} is out of range; valid range is {rng}")
+    if canon in ("roughness", "mirror_roughness") and preset.family != "cloth":
+        try:
+            check_roughness(canon, value)       # the floor below which the microfacet lobe is not evaluated
+        except InputError as exc:
+            raise MaterialError(f"{name}: {exc}") from None
     return value
 
 
@@ -348,6 +355,18 @@ def _check_energy(name: str, preset: _Preset, params: dict[str, Any]) -> None:
             f"{name}: {terms} = {total:g} exceeds 1 (energy conservation); valid range of the sum "
             f"is [0, 1], e.g. lower {energy_keys[-1]}"
         )
+
+
+def _check_composition(name: str, composition: dict[str, float]) -> None:
+    """Refuse a composition whose shares cannot be normalised to sum 1 (all zero)."""
+    if not any(w > 0 for w in composition.values()):
+        raise MaterialError(f"{name}: the metal fractions sum to 0; give at least one positive fraction")
+    try:
+        shares = normalise_composition(composition)
+    except ValueError as exc:
+        raise MaterialError(f"{name}: {exc}") from None
+    if not all(0.0 < w <= 1.0 for w in shares.values()):      # cannot happen with finite weights >= 0
+        raise MaterialError(f"{name}: the metal fractions {composition} do not normalise to shares in [0, 1]")
 
 
 def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] | None]:
@@ -369,10 +388,42 @@ def _resolve(spec: str) -> tuple[str, _Preset, dict[str, Any], dict[str, float] 
             composition[canon] = _metal_fraction(name, canon, text)
             continue
         params[canon] = _parameter_value(name, preset, canon, text)
-    if composition is not None and sum(composition.values()) <= 0:
-        raise MaterialError(f"{name}: the metal fractions sum to 0; give at least one positive fraction")
+    if composition is not None:
+        _check_composition(name, composition)
     _check_energy(name, preset, params)
     return name, preset, params, composition
+
+
+def check_material_spec(spec: str) -> str:
+    """Check ``spec`` as :func:`get_material` does, without building the material.
+
+    The one check of a spec for every reader of one (``kogei materials``, ``render --material``, the
+    object-materials document): a known preset, known parameters, values in range (roughness in
+    [1e-5, 1], see :data:`processing.materials.microfacet.MIN_ROUGHNESS`), metal fractions finite, >= 0
+    and with a positive sum (normalised to shares in [0, 1] without overflow), lobe weights summing to at
+    most 1.
+
+    Parameters
+    ----------
+    spec
+        ``"name"`` or ``"name:key=value,key=value"``.
+
+    Returns
+    -------
+    str
+        The canonical preset name.
+
+    Raises
+    ------
+    MaterialError
+        As :func:`get_material`.
+
+    Examples
+    --------
+    >>> check_material_spec("Nami shibuichi:Ag=1e308,Cu=1e308")
+    'nami-shibuichi'
+    """
+    return _resolve(spec)[0]
 
 
 def get_material(spec: str) -> Material:

@@ -192,7 +192,7 @@ def read_reflectance_csv(path: str | os.PathLike[str], grid: SpectralGrid = REFE
     ReflectanceDatabaseError
         Unreadable file, a bad field, a reflectance outside [0, 1.5] (percent
         given for a fraction), wavelengths that do not increase or do not
-        cover the grid.
+        cover the grid, or every reflectance 0 on the grid.
 
     Examples
     --------
@@ -219,6 +219,11 @@ def read_reflectance_csv(path: str | os.PathLike[str], grid: SpectralGrid = REFE
     n = arr.shape[1] - 1
     names = tuple(header[:n]) if header is not None and len(header) >= n else tuple(f"{path.stem}{i + 1}" for i in range(n))
     spectra = resample(arr[:, 0], arr[:, 1:].T, grid)
+    if not np.any(spectra > 0):
+        raise ReflectanceDatabaseError(
+            f"{path}: every reflectance is 0 over {grid.start:g}-{grid.stop:g} nm; give the measured "
+            "reflectances (fractions 0-1), not an empty or all-black set"
+        )
     return ReflectanceSet(spectra, names, grid, str(path))
 
 

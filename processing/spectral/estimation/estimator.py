@@ -118,7 +118,7 @@ def fit_estimator(
         Unknown method; lights of the wrong shape for the method; ``p`` with
         'wiener'; only one of ``chart_rgb`` and ``chart_reflectance``; chart
         values that do not match the reflectances; the method's own input
-        errors.
+        errors; a singular system (degenerate training reflectances).
     ChartConditionError
         The chart patches do not fix the transform (a
         :class:`SpectralEstimationError`).
@@ -143,14 +143,22 @@ def fit_estimator(
     if method not in METHODS:
         raise SpectralEstimationError(f"unknown spectral estimation method {method!r}; choose one of {', '.join(METHODS)}")
     e = _checked_lights(method, lights)
-    fit = METHODS[method](database, sensitivities, e, grid, **_options(method, noise, p))
-    if chart_rgb is None:
-        if chart_reflectance is not None:
-            raise SpectralEstimationError("chart_reflectance was given without chart_rgb")
-        return fit
-    if chart_reflectance is None:
+    if chart_rgb is None and chart_reflectance is not None:
+        raise SpectralEstimationError("chart_reflectance was given without chart_rgb")
+    if chart_rgb is not None and chart_reflectance is None:
         raise SpectralEstimationError("chart_rgb needs chart_reflectance: the patches' reflectances on the grid")
-    return _calibrated(fit, e, sensitivities, grid, chart_rgb, chart_reflectance, max_condition)
+    try:
+        fit = METHODS[method](database, sensitivities, e, grid, **_options(method, noise, p))
+        if chart_rgb is None:
+            return fit
+        return _calibrated(fit, e, sensitivities, grid, chart_rgb, chart_reflectance, max_condition)
+    except np.linalg.LinAlgError:
+        n = np.shape(database)[0] if np.ndim(database) == 2 else "the"
+        raise SpectralEstimationError(
+            f"the {method} estimator's system is singular: the {n} training reflectances as the camera sees them "
+            "under the light are degenerate (all zero, all alike or too few); use a training set of distinct, "
+            "non-zero reflectances (--database training)"
+        ) from None
 
 
 def _checked_lights(method: str, lights: ArrayLike) -> NDArray[np.float64]:
