@@ -5,9 +5,10 @@ Every command option that names a file to write (``--out``, ``--json``, ``--xyz`
 that cannot be written ends at once with a one-line :class:`OutputPathError`, not after a long
 registration or render, and never after another of the command's outputs has been written.  The
 check: the path is not an existing folder; its folder exists (or, for a command that creates it,
-the nearest existing ancestor is a folder); and a file can be created in that folder (tried for
-real, since ``os.access`` says yes to root on ``/proc`` or a read-only mount).  An option naming
-an output *folder* goes through :func:`check_output_folder`.
+the nearest existing ancestor is a writable folder); and a file can be created in the folder
+itself when it exists (tried for real, since ``os.access`` says yes to root on ``/proc`` or a
+read-only mount; an ancestor is only asked, so that nothing is written outside the folder named).
+An option naming an output *folder* goes through :func:`check_output_folder`.
 
 What the check cannot foresee (the disk fills up, the folder is removed meanwhile) is caught by
 :func:`writing` around the write: an :class:`OSError` there becomes one line naming the option,
@@ -72,7 +73,11 @@ def _check_folder(folder: Path, flag: str, path: Path, make_parents: bool) -> No
         raise OutputPathError(f"{flag} {path}: {existing} is a file, not a folder; give a path in a folder")
     if existing != folder and not make_parents:
         raise OutputPathError(f"{flag} {path}: the folder {folder} does not exist; create it first")
-    _try_create(existing, flag, path)
+    if existing == folder:
+        _try_create(folder, flag, path)
+    elif not os.access(existing, os.W_OK | os.X_OK):        # nothing is written outside the folder named
+        raise OutputPathError(f"{flag} {path}: cannot create the folder {folder} in {existing} (not writable); "
+                              "give a path in a writable folder")
 
 
 def check_output_file(path: str | os.PathLike[str], flag: str, *, suffixes: tuple[str, ...] = (),
