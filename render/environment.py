@@ -65,7 +65,7 @@ from processing.lighting.environment_map import EnvironmentMap, EnvironmentMapEr
 from processing.spectral.display import spectra_to_xyz
 from processing.spectral.spectra import SpectralGrid, resample
 
-__all__ = ["EnvironmentPlan", "IRRADIANCE_HEIGHT", "IRRADIANCE_SOURCE_HEIGHT", "check_environment_light"]
+__all__ = ["EnvironmentPlan", "IRRADIANCE_HEIGHT", "IRRADIANCE_SOURCE_HEIGHT", "NEGATIVE_SHARE", "check_environment_light"]
 
 _F32 = np.float32
 
@@ -103,6 +103,12 @@ def _area_average(coefficients: NDArray[np.float32], height: int) -> NDArray[np.
     return out.reshape(height, width, k)
 
 
+#: Most negative pixel luminance (and mean or white spectrum value) :func:`check_environment_light` lets
+#: pass, as a share of the brightest: a map measured from photos dips below zero in its dark pixels by
+#: their noise, far less than this; a map with a negative spectral basis goes as far below as above.
+NEGATIVE_SHARE = 1e-2
+
+
 def check_environment_light(env: EnvironmentMap) -> None:
     """Refuse a map that gives no light, negative light or light float32 shading cannot hold.
 
@@ -110,7 +116,8 @@ def check_environment_light(env: EnvironmentMap) -> None:
     units: 1 is display white), must lie in
     ``render.limits.ENVIRONMENT_LUMINANCE_RANGE``; the luminance of every
     pixel, the map's mean radiance spectrum and its white must not be
-    negative (a negative spectral basis in a kogei header).
+    negative (a negative spectral basis in a kogei header) beyond
+    :data:`NEGATIVE_SHARE` of the brightest (a measured map's noise).
 
     Parameters
     ----------
@@ -134,7 +141,8 @@ def check_environment_light(env: EnvironmentMap) -> None:
         lowest = float(np.min(y)) * unit * env.intensity
         spectra = np.stack([env.mean_radiance_spectrum(), env.white_spectrum()])
     scale = max(abs(peak), abs(lowest))
-    negative = lowest < -1e-6 * scale or float(spectra.min()) < -1e-6 * float(np.abs(spectra).max())
+    # a measured map's dark pixels may dip below zero by their noise; a negative basis shows far beyond it
+    negative = lowest < -NEGATIVE_SHARE * scale or float(spectra.min()) < -NEGATIVE_SHARE * float(np.abs(spectra).max())
     if negative or peak < 0:
         raise EnvironmentMapError(f"{env.source}: the map's radiance is negative (lowest pixel luminance "
                                   f"{lowest:.3g}; its spectral basis is negative): radiance cannot be negative, "

@@ -73,3 +73,12 @@ def test_environment_light_is_checked_when_the_scene_is_built(env, fragment):
 
 def test_ordinary_environment_passes():
     check_environment_light(_map(np.full((8, 16, 3), 0.6), srgb_basis()))
+
+
+def test_a_measured_maps_noise_below_zero_passes():
+    """A map measured from photos dips below zero in its dark pixels by their noise (here -0.1 % of the
+    brightest): that is not negative light, and the map is kept."""
+    c = np.full((8, 16, 3), 0.01)
+    c[0, 0] = 10.0                          # the lamp
+    c[5, 3] = -0.01                         # a dark pixel's noise
+    check_environment_light(_map(c, srgb_basis()))
