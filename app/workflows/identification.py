@@ -81,7 +81,11 @@ def read_labels(path: Path, shape: tuple[int, int], *, mode: str | None = None,
 
     if not path.is_file():
         raise UsageError(f"--regions {path}: no such file")
-    lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error:       # a header declaring more pixels than OpenCV's limit (an image bomb), or damaged data
+        raise UsageError(f"--regions {path}: OpenCV refuses to read it (a header declaring more pixels than it "
+                         "reads, or damaged data); give a single-channel PNG of region labels") from None
     if lab is None:
         raise UsageError(f"--regions {path}: not a readable image; give a single-channel PNG of region labels")
     if lab.ndim != 2 or lab.dtype.kind not in "iu":

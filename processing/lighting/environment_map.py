@@ -462,7 +462,11 @@ def _read_exr(path: Path) -> tuple[NDArray[np.float32], dict | None]:
 def _read_hdr(path: Path) -> NDArray[np.float32]:
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error:       # a header declaring more pixels than OpenCV's limit (an image bomb), or damaged data
+        raise EnvironmentMapError(f"{path}: OpenCV refuses to read it (a header declaring more pixels than it "
+                                  "reads, or damaged data); export the map again as .hdr or .exr") from None
     if img is None or img.ndim != 3 or img.shape[2] < 3:
         raise EnvironmentMapError(f"{path}: not a readable Radiance HDR image; export the map again as .hdr or .exr")
     return np.ascontiguousarray(img[..., 2::-1], dtype=np.float32)

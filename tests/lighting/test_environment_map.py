@@ -311,3 +311,15 @@ def replace_white(env):
     from dataclasses import replace
 
     return replace(env, white=None)
+
+
+def test_a_radiance_header_declaring_an_image_bomb_is_one_line(tmp_path):
+    """A 119-byte .hdr whose header declares 200000 x 100000 pixels: OpenCV refuses it with cv2.error, which
+    escaped as a traceback; now one line naming the file."""
+    from processing.lighting.environment_map import EnvironmentMapError, read_environment
+
+    path = tmp_path / "bomb.hdr"
+    path.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 100000 +X 200000\n" + bytes(64))
+    with pytest.raises(EnvironmentMapError, match="bomb.hdr: OpenCV refuses to read it") as err:
+        read_environment(path)
+    assert "\n" not in str(err.value)
