@@ -7,7 +7,19 @@ from pathlib import Path
 from app.cli import main
 from app.session import MANIFEST
 
-__all__ = ["files_under", "fails_with_one_line"]
+__all__ = ["files_under", "fails_with_one_line", "png_header"]
+
+
+def png_header(width: int, height: int) -> bytes:
+    """A PNG that declares ``width`` x ``height`` pixels and holds none (a decompression bomb's header)."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
 
 
 def files_under(base: Path) -> dict[str, int]:

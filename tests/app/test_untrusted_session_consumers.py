@@ -37,6 +37,7 @@ from app.session_paths import (
     read_confined_bytes,
 )
 from processing.common.png import png_bytes
+from tests.app.cli_checks import png_header
 
 LIMIT_S = 20
 
@@ -469,25 +470,13 @@ def test_calibrate_refuses_profiles_outside_the_session(tmp_path, sentinel, caps
     assert sentinel.unchanged()
 
 
-def _png_header(width: int, height: int) -> bytes:
-    """A PNG that declares ``width`` x ``height`` pixels and holds none (a decompression bomb's header)."""
-    import struct
-    import zlib
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
-
-
 def test_report_of_a_decompression_bomb_costs_only_its_section(tmp_path, capsys):
     root = _session(tmp_path / "s", products={"materials": {
         "report": {"file": "products/materials.json"},
         "maps": {"p01/frame/00": {"file": "products/materials/map.png"}}}})
     (root / "products" / "materials").mkdir(parents=True)
     (root / "products" / "materials.json").write_text(json.dumps({"regions": [], "largest": None}))
-    (root / "products" / "materials" / "map.png").write_bytes(_png_header(40_000, 40_000))
+    (root / "products" / "materials" / "map.png").write_bytes(png_header(40_000, 40_000))
     code, html, err = _report(root, tmp_path / "r.html", capsys)
     assert code == 0, err
     assert "Material map and confidences: the session" in _problems(html)
